@@ -1,0 +1,317 @@
+"""Struct-of-arrays bundle-adjustment problems and the feature states of each parameterization.
+
+Notation (pmba.md §1.1):
+
+==========  ============  ========  =============================================
+paper       code          shape     meaning
+==========  ============  ========  =============================================
+R_i         R_wc[i]       (M,3,3)   camera -> world rotation of pose i
+P_i         centers_w[i]  (M,3)     camera centre in the world frame
+v_ji        bearings_c    (K,3)     measured unit bearing, camera frame
+theta_j     theta         (N,)      parallax angle at the feature (PMBA)
+n_j         n             (N,3)     unit ray in the main anchor's frame (PMBA)
+m_j, a_j    main_idx,     (N,)      main and associate anchor poses (PMBA)
+            assoc_idx
+==========  ============  ========  =============================================
+
+A :class:`BAProblem` is immutable: arrays are read-only, and solvers return new arrays.
+:func:`make_problem` is the validating constructor: it rejects structural errors (unknown
+indices, shapes) with :class:`~pmba_ros.errors.ProblemError` and drops unusable observations
+(non-finite values, features seen fewer than twice) with a logged count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from enum import Enum
+import logging
+
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core.camera import Intrinsics, pixels_to_bearings
+from pmba_ros.errors import ProblemError
+
+logger = logging.getLogger(__name__)
+
+
+class Parameterization(str, Enum):
+    """Feature parameterizations the engine solves (the paper's Table 4 columns)."""
+
+    PMBA = 'pmba'
+    XYZ = 'xyz'
+    IDP = 'idp'
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    arr = np.ascontiguousarray(arr)
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """Observations in struct-of-arrays form; K = number of observations.
+
+    Attributes:
+        cam_idx: Observing pose index, shape (K,).
+        feat_idx: Feature index, shape (K,).
+        bearings_c: Measured unit bearings in the camera frame, shape (K, 3).
+        pixels: Measured pixels (distorted, as recorded), shape (K, 2).
+    """
+
+    cam_idx: IntArray
+    feat_idx: IntArray
+    bearings_c: FloatArray
+    pixels: FloatArray
+
+    def __len__(self) -> int:
+        """Return the number of observations."""
+        return int(self.cam_idx.shape[0])
+
+    def take(self, index: np.ndarray) -> Observations:
+        """Return the subset of observations selected by ``index``."""
+        return Observations(self.cam_idx[index], self.feat_idx[index],
+                            self.bearings_c[index], self.pixels[index])
+
+
+@dataclass(frozen=True, eq=False)
+class BAProblem:
+    """A bundle-adjustment problem: poses, intrinsics, observations and optional points.
+
+    Attributes:
+        R_wc: Camera -> world rotations, shape (M, 3, 3).
+        centers_w: Camera centres in the world frame, shape (M, 3).
+        intrinsics: Per-camera intrinsics (M cameras).
+        obs: Observations, sorted by feature then camera.
+        n_feats: Number of features N (every feature has >= 2 observations).
+        points_w: Initial 3-D points (N, 3) or None (e.g. before global initialization).
+        fixed: Poses held constant, shape (M,) bool.
+        feature_ids: Caller's id of each feature, shape (N,).
+        dropped: Counts of inputs dropped while building the problem, by reason.
+    """
+
+    R_wc: FloatArray
+    centers_w: FloatArray
+    intrinsics: Intrinsics
+    obs: Observations
+    n_feats: int
+    points_w: FloatArray | None
+    fixed: BoolArray
+    feature_ids: IntArray
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def n_cams(self) -> int:
+        """Return the number of poses M."""
+        return int(self.R_wc.shape[0])
+
+    @property
+    def n_obs(self) -> int:
+        """Return the number of observations K."""
+        return len(self.obs)
+
+    def with_poses(self, R_wc: FloatArray, centers_w: FloatArray) -> BAProblem:
+        """Return a copy with other poses (validated shapes, read-only)."""
+        if R_wc.shape != self.R_wc.shape or centers_w.shape != self.centers_w.shape:
+            msg = 'with_poses: pose arrays must keep their shapes'
+            raise ProblemError(msg)
+        return replace(self, R_wc=_readonly(np.array(R_wc, dtype=float)),
+                       centers_w=_readonly(np.array(centers_w, dtype=float)))
+
+    def with_points(self, points_w: FloatArray | None) -> BAProblem:
+        """Return a copy with other initial points (or none)."""
+        if points_w is not None and points_w.shape != (self.n_feats, 3):
+            msg = f'with_points: expected shape ({self.n_feats}, 3), got {points_w.shape}'
+            raise ProblemError(msg)
+        pts = None if points_w is None else _readonly(np.array(points_w, dtype=float))
+        return replace(self, points_w=pts)
+
+    def with_fixed(self, fixed: BoolArray) -> BAProblem:
+        """Return a copy with other fixed-pose flags."""
+        fixed = np.asarray(fixed, dtype=bool)
+        if fixed.shape != (self.n_cams,):
+            msg = f'with_fixed: expected shape ({self.n_cams},), got {fixed.shape}'
+            raise ProblemError(msg)
+        return replace(self, fixed=_readonly(fixed.copy()))
+
+    def feature_offsets(self) -> IntArray:
+        """Return CSR offsets (N+1,) of each feature's observations (obs are sorted by feature)."""
+        counts = np.bincount(self.obs.feat_idx, minlength=self.n_feats)
+        return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics,
+                 cam_idx: np.ndarray, feat_idx: np.ndarray, pixels: FloatArray, *,
+                 bearings_c: FloatArray | None = None, points_w: FloatArray | None = None,
+                 fixed: np.ndarray | None = None, n_feats: int | None = None,
+                 feature_ids: np.ndarray | None = None) -> BAProblem:
+    """Validate inputs and build a :class:`BAProblem`.
+
+    Args:
+        R_wc: Camera -> world rotations, shape (M, 3, 3).
+        centers_w: Camera centres, shape (M, 3).
+        intrinsics: Intrinsics of the M cameras.
+        cam_idx: Observing camera of each observation, shape (K,), values in [0, M).
+        feat_idx: Observed feature of each observation, shape (K,), values in [0, N).
+        pixels: Measured pixels, shape (K, 2).
+        bearings_c: Unit bearings (K, 3); computed from pixels and intrinsics if None.
+        points_w: Optional initial 3-D points, shape (N, 3).
+        fixed: Optional fixed-pose flags, shape (M,).
+        n_feats: Number of features N (default: max(feat_idx) + 1).
+        feature_ids: Caller's ids of the N features (default: 0..N-1).
+
+    Returns:
+        The problem; observations with non-finite values, duplicate (camera, feature) pairs and
+        features with fewer than two observing cameras are dropped and counted in ``dropped``.
+
+    Raises:
+        ProblemError: On wrong shapes, non-finite poses or unknown camera / feature indices.
+    """
+    R_wc = np.asarray(R_wc, dtype=float)
+    centers_w = np.asarray(centers_w, dtype=float)
+    M = R_wc.shape[0] if R_wc.ndim == 3 else -1
+    if R_wc.shape != (M, 3, 3) or centers_w.shape != (M, 3) or M < 1:
+        msg = f'poses: expected R_wc (M,3,3) and centers_w (M,3), got {R_wc.shape}, {centers_w.shape}'
+        raise ProblemError(msg)
+    if not (np.all(np.isfinite(R_wc)) and np.all(np.isfinite(centers_w))):
+        bad = np.flatnonzero(~(np.isfinite(R_wc).all(axis=(1, 2)) & np.isfinite(centers_w).all(axis=1)))
+        msg = f'poses: non-finite values in pose(s) {bad[:10].tolist()}'
+        raise ProblemError(msg)
+    if len(intrinsics) != M:
+        msg = f'intrinsics: {len(intrinsics)} cameras for {M} poses'
+        raise ProblemError(msg)
+    cam_idx = np.asarray(cam_idx)
+    feat_idx = np.asarray(feat_idx)
+    pixels = np.asarray(pixels, dtype=float)
+    K = cam_idx.shape[0]
+    if cam_idx.shape != (K,) or feat_idx.shape != (K,) or pixels.shape != (K, 2):
+        msg = (f'observations: expected cam_idx (K,), feat_idx (K,), pixels (K,2); got '
+               f'{cam_idx.shape}, {feat_idx.shape}, {pixels.shape}')
+        raise ProblemError(msg)
+    if K and not (np.issubdtype(cam_idx.dtype, np.integer) and np.issubdtype(feat_idx.dtype, np.integer)):
+        msg = 'observations: cam_idx and feat_idx must be integer arrays'
+        raise ProblemError(msg)
+    cam_idx = cam_idx.astype(np.int64)
+    feat_idx = feat_idx.astype(np.int64)
+    N = int(feat_idx.max()) + 1 if n_feats is None and K else int(n_feats or 0)
+    bad_cam = (cam_idx < 0) | (cam_idx >= M)
+    if np.any(bad_cam):
+        k = int(np.flatnonzero(bad_cam)[0])
+        msg = f'observation {k}: unknown camera index {int(cam_idx[k])} (problem has {M} cameras)'
+        raise ProblemError(msg)
+    bad_feat = (feat_idx < 0) | (feat_idx >= N)
+    if np.any(bad_feat):
+        k = int(np.flatnonzero(bad_feat)[0])
+        msg = f'observation {k}: unknown feature index {int(feat_idx[k])} (problem has {N} features)'
+        raise ProblemError(msg)
+    if points_w is not None:
+        points_w = np.asarray(points_w, dtype=float)
+        if points_w.shape != (N, 3):
+            msg = f'points_w: expected shape ({N}, 3), got {points_w.shape}'
+            raise ProblemError(msg)
+    if bearings_c is None:
+        finite_px = np.all(np.isfinite(pixels), axis=1)
+        safe_px = np.where(finite_px[:, None], pixels, 0.0)
+        bearings_c = pixels_to_bearings(safe_px, intrinsics, cam_idx)
+        bearings_c[~finite_px] = np.nan
+    else:
+        bearings_c = np.asarray(bearings_c, dtype=float)
+        if bearings_c.shape != (K, 3):
+            msg = f'bearings_c: expected shape ({K}, 3), got {bearings_c.shape}'
+            raise ProblemError(msg)
+        norms = np.linalg.norm(bearings_c, axis=1, keepdims=True)
+        bearings_c = bearings_c / np.where(norms > 0, norms, np.nan)
+
+    dropped: dict[str, int] = {}
+    keep = np.all(np.isfinite(bearings_c), axis=1)
+    _count(dropped, 'non_finite_observations', int(np.sum(~keep)))
+
+    # Duplicate (camera, feature) observations are inconsistent tracks: keep the first.
+    order = np.lexsort((np.arange(K), cam_idx, feat_idx))
+    order = order[keep[order]]
+    f_sorted, c_sorted = feat_idx[order], cam_idx[order]
+    dup = np.zeros(order.shape[0], dtype=bool)
+    dup[1:] = (f_sorted[1:] == f_sorted[:-1]) & (c_sorted[1:] == c_sorted[:-1])
+    _count(dropped, 'duplicate_observations', int(np.sum(dup)))
+    order = order[~dup]
+
+    # Features need two observing cameras (an associate anchor), pmba.md §3.3.
+    counts = np.bincount(feat_idx[order], minlength=N)
+    feat_ok = counts >= 2
+    _count(dropped, 'single_observation_features', int(np.sum((counts == 1))))
+    _count(dropped, 'unobserved_features', int(np.sum(counts == 0)))
+    if points_w is not None:
+        finite_pt = np.all(np.isfinite(points_w), axis=1)
+        _count(dropped, 'non_finite_points', int(np.sum(feat_ok & ~finite_pt)))
+        feat_ok &= finite_pt
+    n_before = order.shape[0]
+    order = order[feat_ok[feat_idx[order]]]
+    _count(dropped, 'observations_of_dropped_features', n_before - order.shape[0])
+    new_index = np.cumsum(feat_ok) - 1
+    ids = np.arange(N) if feature_ids is None else np.asarray(feature_ids)
+    if ids.shape != (N,):
+        msg = f'feature_ids: expected shape ({N},), got {ids.shape}'
+        raise ProblemError(msg)
+    for reason, count in dropped.items():
+        logger.info('make_problem: dropped %d (%s)', count, reason)
+    if fixed is None:
+        fixed_arr = np.zeros(M, dtype=bool)
+    else:
+        fixed_arr = np.asarray(fixed, dtype=bool)
+        if fixed_arr.shape != (M,):
+            msg = f'fixed: expected shape ({M},), got {fixed_arr.shape}'
+            raise ProblemError(msg)
+    obs = Observations(_readonly(cam_idx[order]), _readonly(new_index[feat_idx[order]]),
+                       _readonly(bearings_c[order]), _readonly(pixels[order]))
+    pts = None if points_w is None else _readonly(points_w[feat_ok])
+    return BAProblem(_readonly(R_wc.copy()), _readonly(centers_w.copy()), intrinsics, obs,
+                     int(np.sum(feat_ok)), pts, _readonly(fixed_arr.copy()),
+                     _readonly(ids[feat_ok].astype(np.int64)), {k: v for k, v in dropped.items() if v})
+
+
+def _count(dropped: dict[str, int], reason: str, count: int) -> None:
+    if count:
+        dropped[reason] = dropped.get(reason, 0) + count
+
+
+@dataclass(frozen=True, eq=False)
+class ParallaxFeatures:
+    """PMBA features F_j = (theta_j, n_j) with their anchors (pmba.md §1.1).
+
+    Attributes:
+        theta: Parallax angle at the feature, radians, shape (N,).
+        n: Unit ray from the main anchor to the feature, in its camera frame, shape (N, 3).
+        main_idx: Main anchor pose m_j, shape (N,).
+        assoc_idx: Associate anchor pose a_j, shape (N,).
+    """
+
+    theta: FloatArray
+    n: FloatArray
+    main_idx: IntArray
+    assoc_idx: IntArray
+
+
+@dataclass(frozen=True, eq=False)
+class XyzFeatures:
+    """Euclidean points in the world frame, shape (N, 3)."""
+
+    points_w: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class IdpFeatures:
+    """Inverse-depth points X = P_h + R_h [a, b, 1]^T / rho anchored at pose h.
+
+    Attributes:
+        anchor_idx: Anchor pose h (the first observing camera), shape (N,).
+        ab: Normalized image coordinates of the ray in the anchor frame, shape (N, 2).
+        rho: Inverse depth along [a, b, 1], shape (N,) (0 is a point at infinity).
+    """
+
+    anchor_idx: IntArray
+    ab: FloatArray
+    rho: FloatArray
+
+
+Features = ParallaxFeatures | XyzFeatures | IdpFeatures

@@ -1,0 +1,145 @@
+"""Batched SO(3) geometry: hat, vee, exp, log, projection onto SO(3), quaternions.
+
+Every function takes arrays with arbitrary leading (batch) axes: rotation vectors are
+``(..., 3)`` and rotation matrices ``(..., 3, 3)``. Small angles use Taylor branches, and the
+unused branch of every ``np.where`` is fed a safe value so that it never produces NaN.
+
+References:
+    Sola, Deray, Atchuthan, "A micro Lie theory for state estimation in robotics", 2018.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+
+_EPS_SQ = 1e-10
+
+
+def hat(omega: FloatArray) -> FloatArray:
+    """Return the skew-symmetric matrix [omega]x, shape (..., 3, 3)."""
+    omega = np.asarray(omega, dtype=float)
+    out = np.zeros(omega.shape[:-1] + (3, 3))
+    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
+    out[..., 0, 1] = -z
+    out[..., 0, 2] = y
+    out[..., 1, 0] = z
+    out[..., 1, 2] = -x
+    out[..., 2, 0] = -y
+    out[..., 2, 1] = x
+    return out
+
+
+def vee(matrix: FloatArray) -> FloatArray:
+    """Return the vector of a skew-symmetric matrix (inverse of :func:`hat`), shape (..., 3)."""
+    matrix = np.asarray(matrix, dtype=float)
+    return np.stack(
+        [matrix[..., 2, 1] - matrix[..., 1, 2],
+         matrix[..., 0, 2] - matrix[..., 2, 0],
+         matrix[..., 1, 0] - matrix[..., 0, 1]], axis=-1) * 0.5
+
+
+def exp(omega: FloatArray) -> FloatArray:
+    """Exponential map (Rodrigues): rotation vector (..., 3) to rotation matrix (..., 3, 3)."""
+    omega = np.asarray(omega, dtype=float)
+    theta_sq = np.sum(omega * omega, axis=-1)
+    small = theta_sq < _EPS_SQ
+    theta = np.sqrt(np.where(small, 1.0, theta_sq))
+    a = np.where(small, 1.0 - theta_sq / 6.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta_sq / 24.0, (1.0 - np.cos(theta)) / (theta * theta))
+    K = hat(omega)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def log(rotation: FloatArray) -> FloatArray:
+    """Logarithm map: rotation matrix (..., 3, 3) to rotation vector (..., 3), angle in [0, pi]."""
+    rotation = np.asarray(rotation, dtype=float)
+    trace = rotation[..., 0, 0] + rotation[..., 1, 1] + rotation[..., 2, 2]
+    cos_t = np.clip((trace - 1.0) * 0.5, -1.0, 1.0)
+    theta = np.arccos(cos_t)
+    w = vee(rotation) * 2.0  # = 2 sin(theta) * axis
+    sin_t = np.sin(theta)
+    small = theta < 1e-5
+    near_pi = theta > np.pi - 1e-3
+    scale = np.where(small, 0.5 + theta * theta / 12.0,
+                     theta / (2.0 * np.where(small | near_pi, 1.0, sin_t)))
+    out = w * scale[..., None]
+    if np.any(near_pi):
+        out = np.where(near_pi[..., None], _log_near_pi(rotation, theta), out)
+    return out
+
+
+def _log_near_pi(rotation: FloatArray, theta: FloatArray) -> FloatArray:
+    """Log for angles near pi, from the symmetric part R + R^T = 2 cos(t) I + 2 (1-cos t) a a^T."""
+    sym = 0.5 * (rotation + np.swapaxes(rotation, -1, -2))
+    cos_t = np.cos(theta)[..., None, None]
+    outer = (sym - cos_t * np.eye(3)) / np.maximum(1.0 - cos_t, 1e-12)
+    diag = np.clip(np.diagonal(outer, axis1=-2, axis2=-1), 0.0, None)
+    k = np.argmax(diag, axis=-1)
+    col = np.take_along_axis(outer, k[..., None, None].repeat(3, axis=-1), axis=-2)[..., 0, :]
+    axis = col / np.sqrt(np.maximum(np.take_along_axis(diag, k[..., None], axis=-1), 1e-300))
+    # The sign of the axis is fixed by the antisymmetric part (sin(theta) a).
+    sign = np.sign(np.sum(axis * vee(rotation), axis=-1))
+    sign = np.where(sign == 0, 1.0, sign)
+    return axis * (sign * theta)[..., None]
+
+
+def project(matrix: FloatArray) -> FloatArray:
+    """Project a 3x3 matrix (..., 3, 3) onto the nearest rotation (Frobenius norm), via SVD."""
+    U, _, Vt = np.linalg.svd(np.asarray(matrix, dtype=float))
+    det = np.linalg.det(U @ Vt)
+    D = np.zeros(U.shape)
+    D[..., 0, 0] = 1.0
+    D[..., 1, 1] = 1.0
+    D[..., 2, 2] = det
+    return U @ D @ Vt
+
+
+def angle(rotation_a: FloatArray, rotation_b: FloatArray) -> FloatArray:
+    """Geodesic angle in radians between rotations, shape (...)."""
+    rel = np.swapaxes(rotation_a, -1, -2) @ rotation_b
+    trace = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
+    return np.arccos(np.clip((trace - 1.0) * 0.5, -1.0, 1.0))
+
+
+def from_quat_xyzw(quat_xyzw: FloatArray) -> FloatArray:
+    """Rotation matrices (..., 3, 3) from unit quaternions in (x, y, z, w) order (normalized)."""
+    q = np.asarray(quat_xyzw, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
+    """Unit quaternions (..., 4) in (x, y, z, w) order with w >= 0, from rotation matrices."""
+    R = np.asarray(rotation, dtype=float)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    # Shepperd's method: pick the largest of 4 candidate denominators for stability.
+    cands = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22,
+                      1 - m00 + m11 - m22, 1 - m00 - m11 + m22], axis=-1)
+    k = np.argmax(cands, axis=-1)
+    s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cands, k[..., None], -1)[..., 0], 1e-300))
+    w_branch = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
+                         (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], -1)
+    x_branch = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s,
+                         (R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 2, 1] - R[..., 1, 2]) / s], -1)
+    y_branch = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s,
+                         (R[..., 1, 2] + R[..., 2, 1]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s], -1)
+    z_branch = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s,
+                         0.25 * s, (R[..., 1, 0] - R[..., 0, 1]) / s], -1)
+    branches = np.stack([w_branch, x_branch, y_branch, z_branch], axis=-2)
+    q = np.take_along_axis(branches, k[..., None, None].repeat(4, -1), -2)[..., 0, :]
+    q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)

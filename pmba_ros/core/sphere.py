@@ -1,0 +1,51 @@
+"""The unit sphere S^2 as the manifold of a feature's ray n (PMBA eqs. 3-4).
+
+A feature's direction n is updated as ``n <- Exp(A_n dn) n``, where ``A_n = [a1 a2]`` is a
+3x2 basis of the tangent plane at n with ``[a1 a2 n]`` in SO(3) (so a1 x a2 = n).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+
+
+def normalize(x: FloatArray) -> FloatArray:
+    """Return xi(x) = x / |x| along the last axis (zero vectors stay zero)."""
+    x = np.asarray(x, dtype=float)
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    return x / np.where(norm > 0.0, norm, 1.0)
+
+
+def tangent_basis(n: FloatArray) -> FloatArray:
+    """Tangent basis A_n = [a1 a2] of unit vectors n (..., 3); shape (..., 3, 2).
+
+    a1 = xi(e x n) with e the coordinate axis least aligned with n, a2 = n x a1, so that
+    [a1 a2 n] is a rotation (PMBA eq. 3).
+    """
+    n = np.asarray(n, dtype=float)
+    k = np.argmin(np.abs(n), axis=-1)
+    e = np.zeros(n.shape)
+    np.put_along_axis(e, k[..., None], 1.0, axis=-1)
+    a1 = normalize(np.cross(e, n))
+    a2 = np.cross(n, a1)
+    return np.stack([a1, a2], axis=-1)
+
+
+def retract(n: FloatArray, delta: FloatArray, basis: FloatArray | None = None) -> FloatArray:
+    """Retraction n' = Exp(A_n delta) n for n (..., 3), delta (..., 2) (PMBA eq. 4).
+
+    Closed form: with phi = |delta|, n' = cos(phi) n + sin(phi)/phi * A_n [delta_2, -delta_1]^T.
+    """
+    n = np.asarray(n, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    A = tangent_basis(n) if basis is None else basis
+    phi_sq = np.sum(delta * delta, axis=-1)
+    small = phi_sq < 1e-12
+    phi = np.sqrt(np.where(small, 1.0, phi_sq))
+    sinc = np.where(small, 1.0 - phi_sq / 6.0, np.sin(phi) / phi)
+    rotated = np.stack([delta[..., 1], -delta[..., 0]], axis=-1)
+    tangent = np.einsum('...ij,...j->...i', A, rotated)
+    out = np.cos(np.sqrt(phi_sq))[..., None] * n + sinc[..., None] * tangent
+    return normalize(out)

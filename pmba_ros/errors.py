@@ -1,0 +1,39 @@
+"""Exception types of pmba_ros; every error the package raises derives from PmbaError."""
+
+from __future__ import annotations
+
+
+class PmbaError(Exception):
+    """Root of all pmba_ros errors."""
+
+
+class ProblemError(PmbaError, ValueError):
+    """A bundle-adjustment problem or its input data is malformed."""
+
+
+class FormatError(PmbaError, ValueError):
+    """A data file does not follow its format (names file, line and problem)."""
+
+
+class DegenerateGeometryError(PmbaError):
+    """The geometry cannot be parameterized (zero baseline, pure rotation, ...)."""
+
+
+class SolverError(PmbaError):
+    """The solver cannot proceed (no free parameters, non-finite start, ...)."""
+
+
+class InitError(PmbaError):
+    """Global initialization cannot produce a problem from the given tracks."""
+
+
+class MessageError(PmbaError, ValueError):
+    """A ROS message does not fit the layout it was declared to have."""
+
+
+class BagError(PmbaError):
+    """A recording cannot be read or written."""
+
+
+class EvaluationError(PmbaError, ValueError):
+    """Trajectories cannot be compared (no overlap, too few poses, bad format)."""

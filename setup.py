@@ -1,0 +1,48 @@
+"""Install pmba_ros as an ament_python package (colcon) or a plain pip package."""
+
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'pmba_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'benchmarks']),
+    package_data={package_name: ['py.typed']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+    ],
+    python_requires='>=3.10',
+    install_requires=[
+        'setuptools',
+        'numpy>=1.24',
+        'scipy>=1.10',
+        'opencv-python-headless>=4.5',
+        'rosbags>=0.11',
+        'mcap>=1.1',
+        'mcap-ros2-support>=0.5',
+        'PyYAML',
+    ],
+    extras_require={
+        'test': ['pytest', 'evo', 'ruff', 'mypy', 'ament-lint-flake8', 'ament-lint-pep257'],
+        'plot': ['matplotlib'],
+    },
+    zip_safe=False,
+    maintainer='pmba_ros maintainers',
+    maintainer_email='pmba-maintainers@example.com',
+    description='Parallax Bundle Adjustment on Manifold back-end for ROS 2',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'pmba = pmba_ros.cli.main:main',
+            'pmba_node = pmba_ros.node:main',
+            'pmba_bag_replay = pmba_ros.cli.main:replay_main',
+        ],
+    },
+)
