@@ -1,0 +1,402 @@
+"""Timestamped trajectories and their text formats: TUM, EuRoC CSV and KITTI.
+
+Formats (``/work/shared/data/SOURCES.md`` §4):
+
+==========  ==================================================  ============================
+format      one line per pose                                   quaternion order
+==========  ==================================================  ============================
+TUM         ``t tx ty tz qx qy qz qw`` (space separated, s)     x, y, z, w
+EuRoC CSV   ``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (>= 8)  **w first**
+KITTI       ``r11 r12 r13 tx r21 r22 r23 ty r31 r32 r33 tz``    (rotation matrix, no stamps)
+==========  ==================================================  ============================
+
+Lines that are empty or start with ``#`` are skipped in every format. Every reader raises
+:class:`~pmba_ros.errors.FormatError` naming the file, the line and the problem; a file that
+cannot be opened is reported the same way. Parsing checks the column count per line, then
+converts all values in one vectorized call; the slow per-line scan only runs to locate an
+error.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+from pmba_ros.core import so3
+from pmba_ros.errors import EvaluationError, FormatError
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Sequence
+
+logger = logging.getLogger(__name__)
+
+FORMATS = ('auto', 'tum', 'euroc', 'kitti')
+"""Values accepted by the ``fmt`` argument of :func:`read_trajectory`."""
+
+_ROTATION_TOL = 1e-3
+"""Largest accepted ``|R^T R - I|`` entry of a KITTI rotation before projection onto SO(3)."""
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    """Return a C-contiguous float64 copy of ``arr`` that cannot be written to."""
+    out = np.array(arr, dtype=np.float64, order='C', copy=True)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """A sequence of timestamped poses (body or camera -> world); N = number of poses.
+
+    The arrays are copied on construction and made read-only, so a trajectory can be shared
+    freely: every operation returns a new object.
+
+    Attributes:
+        stamps_s: Timestamps in seconds, shape (N,).
+        positions_xyz: Positions of the body in the world frame, shape (N, 3).
+        R_wc: Body -> world rotations, shape (N, 3, 3).
+    """
+
+    stamps_s: FloatArray
+    positions_xyz: FloatArray
+    R_wc: FloatArray
+
+    def __post_init__(self) -> None:
+        """Validate shapes and finiteness and freeze copies of the arrays.
+
+        Raises:
+            EvaluationError: If the shapes disagree or a value is not finite.
+        """
+        stamps = np.asarray(self.stamps_s, dtype=np.float64)
+        positions = np.asarray(self.positions_xyz, dtype=np.float64)
+        rotations = np.asarray(self.R_wc, dtype=np.float64)
+        n = stamps.shape[0] if stamps.ndim == 1 else -1
+        if (stamps.ndim != 1 or positions.shape != (n, 3) or rotations.shape != (n, 3, 3)):
+            msg = (f'Trajectory needs stamps_s (N,), positions_xyz (N, 3) and R_wc (N, 3, 3); '
+                   f'got {stamps.shape}, {positions.shape} and {rotations.shape}')
+            raise EvaluationError(msg)
+        for name, arr in (('stamps_s', stamps), ('positions_xyz', positions),
+                          ('R_wc', rotations)):
+            if not np.all(np.isfinite(arr)):
+                msg = f'Trajectory {name} contains non-finite values'
+                raise EvaluationError(msg)
+        object.__setattr__(self, 'stamps_s', _readonly(stamps))
+        object.__setattr__(self, 'positions_xyz', _readonly(positions))
+        object.__setattr__(self, 'R_wc', _readonly(rotations))
+
+    def __len__(self) -> int:
+        """Return the number of poses."""
+        return int(self.stamps_s.shape[0])
+
+    @property
+    def quat_xyzw(self) -> FloatArray:
+        """Unit quaternions of :attr:`R_wc` in (x, y, z, w) order with w >= 0, shape (N, 4)."""
+        return so3.to_quat_xyzw(self.R_wc)
+
+    def take(self, index: np.ndarray | Sequence[int]) -> Trajectory:
+        """Return the poses selected by an integer or boolean index, as a new trajectory."""
+        idx = np.asarray(index)
+        return Trajectory(self.stamps_s[idx], self.positions_xyz[idx], self.R_wc[idx])
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing helpers
+# --------------------------------------------------------------------------------------------
+
+def _read_text(path: str | os.PathLike[str]) -> str:
+    """Return the text of ``path`` (a leading UTF-8 BOM is dropped).
+
+    Raises:
+        FormatError: If the file cannot be opened or decoded.
+    """
+    try:
+        return Path(path).read_text(encoding='utf-8-sig')
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f'{path}: cannot read trajectory file: {err}'
+        raise FormatError(msg) from err
+
+
+def _data_lines(text: str) -> list[tuple[int, str]]:
+    """Return ``(line number, stripped line)`` of every non-empty, non-comment line."""
+    return [(lineno, stripped) for lineno, line in enumerate(text.splitlines(), start=1)
+            if (stripped := line.strip()) and not stripped.startswith('#')]
+
+
+def _parse_matrix(path: str | os.PathLike[str], text: str, *, delimiter: str | None,
+                  n_cols: int, exact: bool, what: str) -> tuple[FloatArray, list[int]]:
+    """Parse the data lines of ``text`` into a float matrix with ``n_cols`` columns.
+
+    Args:
+        path: File name used in error messages.
+        text: File contents.
+        delimiter: Column separator; None splits on any whitespace.
+        n_cols: Number of columns kept (and required, at least).
+        exact: Require exactly ``n_cols`` columns instead of at least ``n_cols``.
+        what: Format name used in error messages, e.g. ``'TUM'``.
+
+    Returns:
+        The matrix, shape (N, n_cols), and the file line number of each row.
+
+    Raises:
+        FormatError: If there is no data line, a line has the wrong number of columns, or a
+            value is not a finite number.
+    """
+    lines = _data_lines(text)
+    if not lines:
+        msg = f'{path}: no {what} poses found (the file is empty or only has comments)'
+        raise FormatError(msg)
+    rows = [[tok.strip() for tok in line.split(delimiter)] if delimiter else line.split()
+            for _, line in lines]
+    counts = np.fromiter((len(row) for row in rows), dtype=np.int64, count=len(rows))
+    bad = np.flatnonzero(counts != n_cols if exact else counts < n_cols)
+    if bad.size:
+        k = int(bad[0])
+        need = f'{n_cols}' if exact else f'at least {n_cols}'
+        sep = f'{delimiter!r}' if delimiter else 'whitespace'
+        msg = (f'{path}:{lines[k][0]}: {what} lines need {need} values '
+               f'separated by {sep}, got {counts[k]}')
+        raise FormatError(msg)
+    flat = [tok for row in rows for tok in row[:n_cols]]
+    try:
+        mat = np.array(flat, dtype=np.float64).reshape(len(rows), n_cols)
+    except ValueError:
+        _raise_bad_value(path, lines, rows, n_cols, what)
+    if not np.all(np.isfinite(mat)):
+        _raise_bad_value(path, lines, rows, n_cols, what)
+    return mat, [lineno for lineno, _ in lines]
+
+
+def _raise_bad_value(path: str | os.PathLike[str], lines: list[tuple[int, str]],
+                     rows: list[list[str]], n_cols: int, what: str) -> NoReturn:
+    """Find the first value that is not a finite number and raise a FormatError naming it."""
+    for (lineno, _), row in zip(lines, rows):
+        for col, tok in enumerate(row[:n_cols], start=1):
+            try:
+                value = float(tok)
+            except ValueError:
+                value = None
+            if value is None or not np.isfinite(value):
+                msg = f'{path}:{lineno}: {what} column {col} is not a finite number: {tok!r}'
+                raise FormatError(msg)
+    msg = f'{path}: {what} values are not finite numbers'  # pragma: no cover
+    raise FormatError(msg)  # pragma: no cover
+
+
+def _rotations_from_quat(path: str | os.PathLike[str], quat_xyzw: FloatArray,
+                         linenos: list[int], what: str) -> FloatArray:
+    """Return rotation matrices of (not necessarily unit) quaternions, rejecting zero ones.
+
+    Raises:
+        FormatError: If a quaternion has (near) zero norm.
+    """
+    norms = np.linalg.norm(quat_xyzw, axis=1)
+    bad = np.flatnonzero(norms < 1e-6)
+    if bad.size:
+        msg = f'{path}:{linenos[int(bad[0])]}: {what} quaternion has zero norm'
+        raise FormatError(msg)
+    return so3.from_quat_xyzw(quat_xyzw)
+
+
+# --------------------------------------------------------------------------------------------
+# Readers and writers
+# --------------------------------------------------------------------------------------------
+
+def _tum_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
+    """Parse TUM text (see :func:`read_tum`)."""
+    mat, linenos = _parse_matrix(path, text, delimiter=None, n_cols=8, exact=True, what='TUM')
+    rotations = _rotations_from_quat(path, mat[:, 4:8], linenos, 'TUM')
+    logger.debug('Read %d TUM poses from %s', mat.shape[0], path)
+    return Trajectory(mat[:, 0], mat[:, 1:4], rotations)
+
+
+def _euroc_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
+    """Parse EuRoC CSV text (see :func:`read_euroc_csv`)."""
+    mat, linenos = _parse_matrix(path, text, delimiter=',', n_cols=8, exact=False,
+                                 what='EuRoC CSV')
+    quat_xyzw = mat[:, [5, 6, 7, 4]]  # file order is w, x, y, z
+    rotations = _rotations_from_quat(path, quat_xyzw, linenos, 'EuRoC CSV')
+    logger.debug('Read %d EuRoC poses from %s', mat.shape[0], path)
+    # Same conversion as evo's read_euroc_csv_trajectory: float(t_ns) / 1e9.
+    return Trajectory(mat[:, 0] / 1e9, mat[:, 1:4], rotations)
+
+
+def _kitti_from_text(path: str | os.PathLike[str], text: str,
+                     stamps: FloatArray | Sequence[float] | None) -> Trajectory:
+    """Parse KITTI text (see :func:`read_kitti`)."""
+    mat, linenos = _parse_matrix(path, text, delimiter=None, n_cols=12, exact=True,
+                                 what='KITTI')
+    pose = mat.reshape(-1, 3, 4)
+    rotations = pose[:, :, :3]
+    ortho_err = np.abs(np.einsum('nji,njk->nik', rotations, rotations) - np.eye(3))
+    bad = np.flatnonzero(ortho_err.reshape(-1, 9).max(axis=1) > _ROTATION_TOL)
+    if bad.size:
+        msg = (f'{path}:{linenos[int(bad[0])]}: KITTI rotation block is not a rotation '
+               f'matrix (|R^T R - I| > {_ROTATION_TOL:g})')
+        raise FormatError(msg)
+    n = pose.shape[0]
+    if stamps is None:
+        stamps_s = np.arange(n, dtype=np.float64)
+    else:
+        stamps_s = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        if stamps_s.shape[0] != n:
+            msg = f'{path}: {n} KITTI poses but {stamps_s.shape[0]} stamps were given'
+            raise FormatError(msg)
+    logger.debug('Read %d KITTI poses from %s', n, path)
+    return Trajectory(stamps_s, pose[:, :, 3], so3.project(rotations))
+
+
+def read_tum(path: str | os.PathLike[str]) -> Trajectory:
+    """Read a TUM trajectory file (``t tx ty tz qx qy qz qw`` per line).
+
+    Args:
+        path: File to read.
+
+    Returns:
+        The trajectory; quaternions are normalized.
+
+    Raises:
+        FormatError: If the file cannot be read, a line does not have exactly 8 numbers, or a
+            quaternion is zero.
+    """
+    return _tum_from_text(path, _read_text(path))
+
+
+def read_euroc_csv(path: str | os.PathLike[str]) -> Trajectory:
+    """Read a EuRoC ground-truth CSV (``t_ns, p_xyz, q_wxyz, ...``, at least 8 columns).
+
+    Columns after the eighth (velocity, biases) are ignored. Stamps are converted from
+    nanoseconds to seconds as evo does, ``float(t_ns) / 1e9``.
+
+    Args:
+        path: File to read.
+
+    Returns:
+        The trajectory of the body (IMU) frame.
+
+    Raises:
+        FormatError: If the file cannot be read, a line has fewer than 8 numbers, or a
+            quaternion is zero.
+    """
+    return _euroc_from_text(path, _read_text(path))
+
+
+def read_kitti(path: str | os.PathLike[str],
+               stamps: FloatArray | Sequence[float] | None = None) -> Trajectory:
+    """Read a KITTI pose file (a row-major 3x4 ``[R|t]`` of cam0 -> world per line).
+
+    The rotation blocks (printed with few digits) are projected onto SO(3).
+
+    Args:
+        path: File to read.
+        stamps: Timestamps in seconds, shape (N,); None uses the pose index 0, 1, 2, ...
+
+    Returns:
+        The trajectory.
+
+    Raises:
+        FormatError: If the file cannot be read, a line does not have exactly 12 numbers, a
+            rotation block is far from orthonormal, or ``stamps`` has the wrong length.
+    """
+    return _kitti_from_text(path, _read_text(path), stamps)
+
+
+def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
+    """Guess the format of a trajectory file: ``'tum'``, ``'euroc'`` or ``'kitti'``.
+
+    A ``.csv`` suffix or a comma in the first data line means EuRoC CSV; otherwise 8 values
+    mean TUM and 12 mean KITTI.
+
+    Args:
+        path: File name (read only if ``text`` is None).
+        text: File contents, if already read.
+
+    Returns:
+        The format name.
+
+    Raises:
+        FormatError: If the file cannot be read or its first data line fits no format.
+    """
+    if text is None:
+        text = _read_text(path)
+    lines = _data_lines(text)
+    if not lines:
+        msg = f'{path}: cannot detect the trajectory format: no data lines'
+        raise FormatError(msg)
+    lineno, first = lines[0]
+    if Path(path).suffix.lower() == '.csv' or ',' in first:
+        return 'euroc'
+    n_values = len(first.split())
+    if n_values == 8:
+        return 'tum'
+    if n_values == 12:
+        return 'kitti'
+    msg = (f'{path}:{lineno}: cannot detect the trajectory format: {n_values} values '
+           f'(TUM has 8, KITTI 12, EuRoC CSV is comma separated)')
+    raise FormatError(msg)
+
+
+def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto') -> Trajectory:
+    """Read a trajectory in any supported format.
+
+    Args:
+        path: File to read.
+        fmt: One of :data:`FORMATS`; ``'auto'`` uses :func:`detect_format`. KITTI files get
+            index stamps.
+
+    Returns:
+        The trajectory.
+
+    Raises:
+        FormatError: If ``fmt`` is unknown, the format cannot be detected, or the file is
+            malformed.
+    """
+    if fmt not in FORMATS:
+        msg = f'unknown trajectory format {fmt!r}; expected one of {", ".join(FORMATS)}'
+        raise FormatError(msg)
+    text = _read_text(path)
+    if fmt == 'auto':
+        fmt = detect_format(path, text)
+    if fmt == 'tum':
+        return _tum_from_text(path, text)
+    if fmt == 'euroc':
+        return _euroc_from_text(path, text)
+    return _kitti_from_text(path, text, None)
+
+
+def write_tum(path: str | os.PathLike[str], traj: Trajectory) -> None:
+    """Write a trajectory as TUM text, byte-identical for identical input.
+
+    Stamps are printed with ``%.9f`` (nanosecond digits), positions and quaternions with
+    ``%.9g``; quaternions have w >= 0.
+
+    Args:
+        path: File to write (overwritten).
+        traj: Trajectory to write.
+
+    Raises:
+        FormatError: If the file cannot be written.
+    """
+    mat = np.column_stack([traj.stamps_s, traj.positions_xyz, traj.quat_xyzw])
+    lines = ['# timestamp tx ty tz qx qy qz qw\n']
+    lines.extend(_format_rows(mat, ['%.9f'] + ['%.9g'] * 7))
+    try:
+        with Path(path).open('w', encoding='utf-8', newline='\n') as stream:
+            stream.writelines(lines)
+    except OSError as err:
+        msg = f'{path}: cannot write trajectory file: {err}'
+        raise FormatError(msg) from err
+    logger.debug('Wrote %d TUM poses to %s', len(traj), path)
+
+
+def _format_rows(mat: FloatArray, formats: list[str]) -> list[str]:
+    """Format each row of ``mat`` with one printf format per column, space separated."""
+    row_fmt = ' '.join(formats) + '\n'
+    # Negative zero would print as "-0"; normalize it so the output does not depend on it.
+    clean = mat + 0.0
+    return [row_fmt % tuple(row) for row in clean.tolist()]
