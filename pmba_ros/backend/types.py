@@ -1,0 +1,389 @@
+"""Plain containers for what the back end consumes from ROS messages (no ROS imports).
+
+:class:`TrackFrame` holds one frame of feature observations, :class:`KeyframePose` one
+front-end keyframe pose and :class:`CameraModel` the intrinsics of one camera, read from a
+``sensor_msgs/CameraInfo``. The containers copy their arrays and make them read-only, so a
+parser or the solver cannot alias a caller's buffer.
+
+Camera conventions follow ROS ``CameraInfo`` and OpenCV: normalized undistorted coordinates
+``(x, y) = (X/Z, Y/Z)`` in the optical frame (x right, y down, z forward), pixels
+``u = fx * x_d + cx``, ``v = fy * y_d + cy`` of the distorted ``(x_d, y_d)``.
+
+Notation:
+    ========  =========  ======  ================================================
+    symbol    code       shape   meaning
+    ========  =========  ======  ================================================
+    (x, y)    ``xy``     (K, 2)  normalized undistorted coordinates
+    (x_d,y_d) ``xy_d``   (K, 2)  normalized distorted coordinates
+    r         ``r``      (K,)    ``|(x, y)|``
+    theta     ``theta``  (K,)    ``atan(r)``, angle of the ray to the optical axis
+    ========  =========  ======  ================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.errors import MessageError
+
+DISTORTION_MODELS = ('none', 'plumb_bob', 'equidistant')
+"""Distortion models :class:`CameraModel` implements (ROS ``CameraInfo`` names)."""
+
+_NEWTON_ITERATIONS = 30
+_NEWTON_TOL = 1e-14
+
+
+def _frozen_array(value: Any, dtype: type, shape_tail: tuple[int, ...], what: str,
+                  ) -> np.ndarray:
+    """Return a read-only copy of ``value`` with trailing shape ``shape_tail``."""
+    arr = np.array(value, dtype=dtype, copy=True)
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        want = '(K' + ''.join(f', {n}' for n in shape_tail) + ')'
+        msg = f'{what}: expected shape {want}, got {arr.shape}'
+        raise MessageError(msg)
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class TrackFrame:
+    """Feature observations of one front-end frame.
+
+    Attributes:
+        stamp_ns: Header stamp of the source message, ns.
+        frame_id: Header frame id of the source message.
+        feature_ids: Front-end feature ids, shape (K,), int64.
+        camera_ids: Camera index of each observation, shape (K,), int64.
+        pixels: Raw (distorted) pixels, shape (K, 2), px; None if the message had none.
+        normalized: Normalized undistorted coordinates ``(x/z, y/z)``, shape (K, 2);
+            None if the message had none (OpenVINS ``loop_feats``): then normalize
+            ``pixels`` with :meth:`CameraModel.normalize`.
+        dropped: Observations the parser discarded (non-finite values, duplicates).
+    """
+
+    stamp_ns: int
+    frame_id: str
+    feature_ids: IntArray
+    camera_ids: IntArray
+    pixels: FloatArray | None
+    normalized: FloatArray | None
+    dropped: int = 0
+
+    def __post_init__(self) -> None:
+        """Copy, freeze and validate the arrays.
+
+        Raises:
+            MessageError: If the shapes disagree or neither coordinate kind is given.
+        """
+        ids = _frozen_array(self.feature_ids, np.int64, (), 'feature_ids')
+        cams = _frozen_array(self.camera_ids, np.int64, (), 'camera_ids')
+        if cams.shape != ids.shape:
+            msg = f'camera_ids has {cams.shape[0]} entries, feature_ids {ids.shape[0]}'
+            raise MessageError(msg)
+        object.__setattr__(self, 'feature_ids', ids)
+        object.__setattr__(self, 'camera_ids', cams)
+        for name in ('pixels', 'normalized'):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = _frozen_array(value, np.float64, (2,), name)
+            if arr.shape[0] != ids.shape[0]:
+                msg = f'{name} has {arr.shape[0]} rows, feature_ids {ids.shape[0]}'
+                raise MessageError(msg)
+            object.__setattr__(self, name, arr)
+        if self.pixels is None and self.normalized is None and ids.shape[0] > 0:
+            msg = 'track frame needs pixels or normalized coordinates'
+            raise MessageError(msg)
+        object.__setattr__(self, 'stamp_ns', int(self.stamp_ns))
+        object.__setattr__(self, 'dropped', int(self.dropped))
+
+    def __len__(self) -> int:
+        """Return the number of observations K."""
+        return int(self.feature_ids.shape[0])
+
+    @classmethod
+    def empty(cls, stamp_ns: int, frame_id: str, dropped: int = 0) -> TrackFrame:
+        """Return a frame without observations.
+
+        Args:
+            stamp_ns: Header stamp, ns.
+            frame_id: Header frame id.
+            dropped: Observations discarded while parsing.
+
+        Returns:
+            A TrackFrame with K = 0 and (0, 2) pixel and normalized arrays.
+        """
+        zeros_i = np.zeros(0, dtype=np.int64)
+        zeros_f = np.zeros((0, 2))
+        return cls(stamp_ns, frame_id, zeros_i, zeros_i, zeros_f, zeros_f, dropped)
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframePose:
+    """One front-end keyframe pose (body or camera in ``frame_id``).
+
+    Attributes:
+        stamp_ns: Header stamp, ns.
+        frame_id: Parent frame of the pose (front-end world/odom frame).
+        child_frame_id: Frame the pose describes ('' for PoseStamped input).
+        position: Translation, shape (3,), m.
+        quat_xyzw: Unit rotation quaternion, shape (4,), order x, y, z, w.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    child_frame_id: str
+    position: FloatArray
+    quat_xyzw: FloatArray
+
+    def __post_init__(self) -> None:
+        """Copy, freeze and validate the arrays.
+
+        Raises:
+            MessageError: On wrong shapes, non-finite values or a zero-norm quaternion.
+        """
+        pos = np.array(self.position, dtype=np.float64, copy=True)
+        quat = np.array(self.quat_xyzw, dtype=np.float64, copy=True)
+        if pos.shape != (3,) or quat.shape != (4,):
+            msg = f'keyframe pose: position {pos.shape} / quat_xyzw {quat.shape}, want (3,)/(4,)'
+            raise MessageError(msg)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+            msg = f'keyframe pose at {self.stamp_ns} ns has non-finite values'
+            raise MessageError(msg)
+        norm = float(np.linalg.norm(quat))
+        if norm < 1e-9:
+            msg = f'keyframe pose at {self.stamp_ns} ns has a zero-norm quaternion'
+            raise MessageError(msg)
+        quat /= norm
+        pos.flags.writeable = False
+        quat.flags.writeable = False
+        object.__setattr__(self, 'position', pos)
+        object.__setattr__(self, 'quat_xyzw', quat)
+        object.__setattr__(self, 'stamp_ns', int(self.stamp_ns))
+
+
+@dataclass(frozen=True, eq=False)
+class CameraModel:
+    """Pinhole intrinsics with ROS ``CameraInfo`` distortion.
+
+    Supported ``distortion_model`` values: ``'none'``; ``'plumb_bob'`` (OpenCV
+    k1, k2, p1, p2[, k3]; 4 or 5 coefficients, stored as 5) and ``'equidistant'``
+    (OpenCV fisheye k1..k4). Skew (``CameraInfo.k[1]``) is ignored.
+
+    Attributes:
+        fx: Focal length x, px.
+        fy: Focal length y, px.
+        cx: Principal point x, px.
+        cy: Principal point y, px.
+        distortion_model: One of :data:`DISTORTION_MODELS`.
+        d: Distortion coefficients, shape (n,): 0 ('none'), 5 ('plumb_bob'), 4 ('equidistant').
+        width: Image width, px (0 if unknown).
+        height: Image height, px (0 if unknown).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion_model: str = 'none'
+    d: FloatArray = field(default_factory=lambda: np.zeros(0))
+    width: int = 0
+    height: int = 0
+
+    def __post_init__(self) -> None:
+        """Validate and canonicalize the model.
+
+        Raises:
+            MessageError: On non-positive or non-finite intrinsics, an unknown model or a
+                wrong number of coefficients.
+        """
+        vals = np.array([self.fx, self.fy, self.cx, self.cy], dtype=np.float64)
+        if not np.all(np.isfinite(vals)) or vals[0] <= 0 or vals[1] <= 0:
+            msg = f'camera: need finite intrinsics and fx, fy > 0, got {vals.tolist()}'
+            raise MessageError(msg)
+        d = np.array(self.d, dtype=np.float64, copy=True).reshape(-1)
+        model = self.distortion_model
+        if not np.all(np.isfinite(d)):
+            msg = f'camera: non-finite distortion coefficients {d.tolist()}'
+            raise MessageError(msg)
+        if model == 'plumb_bob' and d.size == 4:
+            d = np.append(d, 0.0)
+        want = {'none': 0, 'plumb_bob': 5, 'equidistant': 4}
+        if model not in want:
+            msg = (f'camera: distortion model {model!r} not supported '
+                   f'(supported: {", ".join(DISTORTION_MODELS)})')
+            raise MessageError(msg)
+        if d.size != want[model]:
+            msg = f'camera: {model!r} needs {want[model]} coefficients, got {d.size}'
+            raise MessageError(msg)
+        d.flags.writeable = False
+        for name, value in zip(('fx', 'fy', 'cx', 'cy'), vals):
+            object.__setattr__(self, name, float(value))
+        object.__setattr__(self, 'd', d)
+        object.__setattr__(self, 'width', int(self.width))
+        object.__setattr__(self, 'height', int(self.height))
+
+    @property
+    def k(self) -> FloatArray:
+        """Return the 3x3 calibration matrix K (row-major, no skew)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def from_camera_info(cls, msg: Any) -> CameraModel:
+        """Build a camera model from a ``sensor_msgs/msg/CameraInfo`` (any backend).
+
+        An empty ``distortion_model`` with all-zero ``d`` means 'none', as does
+        'plumb_bob' with all-zero coefficients (kept as 'plumb_bob'). A
+        'rational_polynomial' model whose k4..k6 are zero is read as 'plumb_bob'.
+
+        Args:
+            msg: CameraInfo from rclpy, rosbags or mcap_ros2 (fields ``k``, ``d``,
+                ``distortion_model``, ``width``, ``height``).
+
+        Returns:
+            The camera model.
+
+        Raises:
+            MessageError: If ``k`` does not have 9 values, or the model is unsupported.
+        """
+        try:
+            k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
+            d = np.asarray(msg.d, dtype=np.float64).reshape(-1)
+            model = str(msg.distortion_model)
+            width, height = int(msg.width), int(msg.height)
+        except (AttributeError, TypeError, ValueError) as err:
+            msg_ = f'expected sensor_msgs/msg/CameraInfo, got {type(msg).__name__}: {err}'
+            raise MessageError(msg_) from err
+        if k.size != 9:
+            msg_ = f'CameraInfo.k must have 9 values, got {k.size}'
+            raise MessageError(msg_)
+        if model in ('', 'none') and not np.any(d):
+            model, d = 'none', np.zeros(0)
+        elif model == 'rational_polynomial' and d.size == 8 and not np.any(d[5:]):
+            model, d = 'plumb_bob', d[:5]
+        return cls(fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion_model=model, d=d,
+                   width=width, height=height)
+
+    def normalize(self, pixels: FloatArray) -> FloatArray:
+        """Undistort raw pixels to normalized coordinates ``(x/z, y/z)``.
+
+        Distortion is inverted with a vectorized Newton iteration (more accurate than
+        ``cv2.undistortPoints``' fixed-point default). Rows whose inversion does not converge,
+        and equidistant rays at or beyond 90 degrees from the optical axis, are NaN.
+
+        Args:
+            pixels: Raw pixels, shape (K, 2), px.
+
+        Returns:
+            Normalized undistorted coordinates, shape (K, 2).
+
+        Raises:
+            MessageError: If ``pixels`` is not (K, 2).
+        """
+        px = np.asarray(pixels, dtype=np.float64)
+        if px.ndim != 2 or px.shape[1] != 2:
+            msg = f'normalize: pixels must have shape (K, 2), got {px.shape}'
+            raise MessageError(msg)
+        xy_d = np.stack([(px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy], 1)
+        if self.distortion_model == 'plumb_bob' and np.any(self.d):
+            return _undistort_plumb_bob(xy_d, self.d)
+        if self.distortion_model == 'equidistant':
+            return _undistort_equidistant(xy_d, self.d)
+        return xy_d
+
+    def denormalize(self, normalized: FloatArray) -> FloatArray:
+        """Distort normalized coordinates and return raw pixels (inverse of :meth:`normalize`).
+
+        Args:
+            normalized: Normalized undistorted coordinates, shape (K, 2).
+
+        Returns:
+            Raw pixels, shape (K, 2), px (same as ``cv2.projectPoints`` /
+            ``cv2.fisheye.projectPoints`` of the rays ``(x, y, 1)``).
+
+        Raises:
+            MessageError: If ``normalized`` is not (K, 2).
+        """
+        xy = np.asarray(normalized, dtype=np.float64)
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            msg = f'denormalize: normalized must have shape (K, 2), got {xy.shape}'
+            raise MessageError(msg)
+        if self.distortion_model == 'plumb_bob':
+            xy_d = _distort_plumb_bob(xy, self.d)
+        elif self.distortion_model == 'equidistant':
+            xy_d = _distort_equidistant(xy, self.d)
+        else:
+            xy_d = xy
+        return np.stack([self.fx * xy_d[:, 0] + self.cx, self.fy * xy_d[:, 1] + self.cy], 1)
+
+
+def _distort_plumb_bob(xy: FloatArray, d: FloatArray) -> FloatArray:
+    """Apply OpenCV's radial-tangential model (k1, k2, p1, p2, k3) to (K, 2) points."""
+    k1, k2, p1, p2, k3 = d
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    x_d = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    y_d = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([x_d, y_d], axis=1)
+
+
+def _undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
+    """Invert :func:`_distort_plumb_bob` with Newton's method on all points at once."""
+    k1, k2, p1, p2, k3 = d
+    xy = xy_d.copy()
+    for _ in range(_NEWTON_ITERATIONS):
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d(radial)/dx = g * x
+        f = _distort_plumb_bob(xy, d) - xy_d
+        j00 = radial + g * x * x + 2.0 * p1 * y + 6.0 * p2 * x
+        j01 = g * x * y + 2.0 * p1 * x + 2.0 * p2 * y
+        j11 = radial + g * y * y + 6.0 * p1 * y + 2.0 * p2 * x
+        det = j00 * j11 - j01 * j01
+        det = np.where(np.abs(det) < 1e-12, np.nan, det)
+        step = np.stack([j11 * f[:, 0] - j01 * f[:, 1], j00 * f[:, 1] - j01 * f[:, 0]], 1)
+        xy = xy - step / det[:, None]
+        if np.all(~np.isfinite(step) | (np.abs(step) <= _NEWTON_TOL * np.abs(det)[:, None])):
+            break
+    resid = np.abs(_distort_plumb_bob(xy, d) - xy_d).max(axis=1)
+    xy[~(resid < 1e-9)] = np.nan
+    return xy
+
+
+def _theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
+    """Return the equidistant distorted angle theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
+    t2 = theta * theta
+    return theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+
+
+def _distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
+    """Apply OpenCV's fisheye (equidistant) model to (K, 2) normalized points."""
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta = np.arctan(r)
+    scale = np.where(r > 1e-12, _theta_d(theta, d) / np.where(r > 1e-12, r, 1.0), 1.0)
+    return xy * scale[:, None]
+
+
+def _undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
+    """Invert :func:`_distort_equidistant`: Newton on theta, then r = tan(theta)."""
+    theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
+    theta = theta_d.copy()
+    for _ in range(_NEWTON_ITERATIONS):
+        t2 = theta * theta
+        df = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+        step = (_theta_d(theta, d) - theta_d) / np.where(np.abs(df) < 1e-12, np.nan, df)
+        theta = theta - step
+        if np.all(~np.isfinite(step) | (np.abs(step) <= _NEWTON_TOL)):
+            break
+    ok = (np.abs(_theta_d(theta, d) - theta_d) < 1e-9) & (theta >= 0) & (theta < np.pi / 2)
+    scale = np.where(theta_d > 1e-12, np.tan(theta) / np.where(theta_d > 1e-12, theta_d, 1.0),
+                     1.0)
+    xy = xy_d * scale[:, None]
+    xy[~ok] = np.nan
+    return xy
