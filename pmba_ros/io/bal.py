@@ -1,0 +1,276 @@
+"""Read and write "Bundle Adjustment in the Large" (BAL) problem files.
+
+File layout (SOURCES.md §1): a header ``nc np no``; ``no`` observation lines ``cam pt x y``;
+then ``9 nc`` camera values ``rx ry rz tx ty tz f k1 k2`` and ``3 np`` point values, whitespace
+separated (one value per line in the published files). Blank lines are ignored.
+
+BAL model: ``P = R_bal X + t``, ``p = -P / P_z``, ``p' = f (1 + k1 |p|^2 + k2 |p|^4) p``. The
+camera looks down -z, pixels are centred with +y up. Conversion to this package's convention
+(camera x right, y down, z forward; see :mod:`pmba_ros.core.camera`):
+
+=============  ======================================  ==================================
+BAL            pmba_ros                                note
+=============  ======================================  ==================================
+R_bal (rx..)   R_wc = (diag(1,-1,-1) R_bal)^T          Rodrigues vector, world -> camera
+t_bal          centers_w = -R_bal^T t_bal              camera centre
+(x, y)         pixels = (x, -y)                        origin stays at the image centre
+f, k1, k2      fx = fy = f, cx = cy = 0, k1, k2        held fixed by the solvers
+=============  ======================================  ==================================
+
+The radial model is symmetric, so ``project(R_wc^T (X - C))`` in this convention reproduces the
+BAL projection exactly (including points behind the camera, which BAL projects too).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pmba_ros.core import so3
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import make_problem
+from pmba_ros.errors import FormatError, ProblemError
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from pmba_ros._typing import FloatArray
+    from pmba_ros.core.problem import BAProblem
+
+logger = logging.getLogger(__name__)
+
+__all__ = ['read_bal', 'write_bal']
+
+_FLIP = np.diag([1.0, -1.0, -1.0])
+"""BAL camera frame (x right, y up, z backward) -> ours (x right, y down, z forward)."""
+
+
+def read_bal(path: str | PathLike[str]) -> BAProblem:
+    """Read a BAL problem file and convert it to this package's conventions.
+
+    Args:
+        path: The BAL text file (``problem-*.txt``).
+
+    Returns:
+        The problem with the file's poses, intrinsics (fixed by convention), observations and
+        points. Unobserved points and points seen only once are dropped by
+        :func:`~pmba_ros.core.problem.make_problem`; ``feature_ids`` holds the BAL point index.
+
+    Raises:
+        FormatError: If the file is not a well-formed BAL file (the message names file, line
+            and problem): bad header, truncated file, wrong value counts, non-numeric tokens,
+            out-of-range or non-integer indices, non-finite values, non-positive focal length.
+        OSError: If the file cannot be read.
+    """
+    path = Path(path)
+    lines, line_no = _nonblank_lines(path)
+    if not lines:
+        msg = f'{path}: empty file, expected a BAL header "n_cams n_points n_obs"'
+        raise FormatError(msg)
+    n_cams, n_points, n_obs = _parse_header(path, lines[0], line_no[0])
+    if len(lines) - 1 < n_obs:
+        last = line_no[-1]
+        msg = (f'{path}:{last}: truncated file: header announces {n_obs} observation lines, '
+               f'found {len(lines) - 1}')
+        raise FormatError(msg)
+    obs = _parse_observations(path, lines[1:1 + n_obs], line_no[1:1 + n_obs])
+    obs_lines = line_no[1:1 + n_obs]
+    cam_idx = _parse_index(path, obs[:, 0], n_cams, 'camera', obs_lines)
+    pt_idx = _parse_index(path, obs[:, 1], n_points, 'point', obs_lines)
+    if not np.all(np.isfinite(obs[:, 2:])):
+        k = int(np.flatnonzero(~np.all(np.isfinite(obs[:, 2:]), axis=1))[0])
+        msg = f'{path}:{obs_lines[k]}: non-finite pixel coordinate'
+        raise FormatError(msg)
+
+    n_params = 9 * n_cams + 3 * n_points
+    params = _parse_parameters(path, lines[1 + n_obs:], line_no[1 + n_obs:], n_params,
+                               last_line=line_no[-1])
+    cams = params[:9 * n_cams].reshape(n_cams, 9)
+    points = params[9 * n_cams:].reshape(n_points, 3)
+    param_lines = _value_lines(lines[1 + n_obs:], line_no[1 + n_obs:]) if (
+        not np.all(np.isfinite(params)) or np.any(cams[:, 6] <= 0)) else None
+    if param_lines is not None:
+        bad = np.flatnonzero(~np.isfinite(params))
+        if bad.size:
+            msg = f'{path}:{param_lines[bad[0]]}: non-finite parameter value'
+            raise FormatError(msg)
+        i = int(np.flatnonzero(cams[:, 6] <= 0)[0])
+        msg = (f'{path}:{param_lines[9 * i + 6]}: camera {i} has non-positive focal length '
+               f'{cams[i, 6]:g}')
+        raise FormatError(msg)
+
+    R_bal = so3.exp(cams[:, 0:3])
+    t_bal = cams[:, 3:6]
+    R_wc = np.swapaxes(_FLIP @ R_bal, 1, 2)
+    centers_w = -np.einsum('mji,mj->mi', R_bal, t_bal)
+    f = cams[:, 6]
+    intrinsics = Intrinsics(f.copy(), f.copy(), np.zeros(n_cams), np.zeros(n_cams),
+                            cams[:, 7].copy(), cams[:, 8].copy())
+    pixels = np.stack([obs[:, 2], -obs[:, 3]], axis=1)
+    try:
+        problem = make_problem(R_wc, centers_w, intrinsics, cam_idx, pt_idx, pixels,
+                               points_w=points, n_feats=n_points,
+                               feature_ids=np.arange(n_points, dtype=np.int64))
+    except ProblemError as err:
+        msg = f'{path}: {err}'
+        raise FormatError(msg) from err
+    logger.info('read_bal %s: %d cameras, %d points, %d observations', path, problem.n_cams,
+                problem.n_feats, problem.n_obs)
+    return problem
+
+
+def write_bal(path: str | PathLike[str], problem: BAProblem, R_wc: FloatArray | None = None,
+              centers_w: FloatArray | None = None, points_w: FloatArray | None = None) -> None:
+    """Write a problem (optionally with other poses / points) as a BAL file.
+
+    Pixels are written relative to the principal point with +y up; when ``fy != fx`` the
+    y coordinate is scaled by ``fx / fy`` so that the single BAL focal length ``f = fx`` stays
+    exact (the radial model acts on normalized coordinates, so this holds with distortion too).
+    Features are written in the problem's order (BAL point j is feature j).
+
+    Args:
+        path: Output file.
+        problem: Supplies observations and intrinsics (and default poses / points).
+        R_wc: Camera -> world rotations, shape (M, 3, 3); default ``problem.R_wc``.
+        centers_w: Camera centres in the world frame, shape (M, 3); default
+            ``problem.centers_w``.
+        points_w: World points, shape (N, 3); default ``problem.points_w``.
+
+    Raises:
+        ProblemError: If the arrays have wrong shapes, or there are no points to write.
+        OSError: If the file cannot be written.
+    """
+    R_wc = np.asarray(problem.R_wc if R_wc is None else R_wc, dtype=float)
+    centers_w = np.asarray(problem.centers_w if centers_w is None else centers_w, dtype=float)
+    if points_w is None:
+        points_w = problem.points_w
+    if points_w is None:
+        msg = 'write_bal: the problem has no points; pass points_w (e.g. triangulated points)'
+        raise ProblemError(msg)
+    points_w = np.asarray(points_w, dtype=float)
+    M, N = problem.n_cams, problem.n_feats
+    if R_wc.shape != (M, 3, 3) or centers_w.shape != (M, 3) or points_w.shape != (N, 3):
+        msg = (f'write_bal: expected R_wc ({M},3,3), centers_w ({M},3), points_w ({N},3); got '
+               f'{R_wc.shape}, {centers_w.shape}, {points_w.shape}')
+        raise ProblemError(msg)
+    intr = problem.intrinsics
+    R_bal = _FLIP @ np.swapaxes(R_wc, 1, 2)
+    t_bal = -np.einsum('mij,mj->mi', R_bal, centers_w)
+    cams = np.column_stack([so3.log(R_bal), t_bal, intr.fx, intr.k1, intr.k2])
+    obs = problem.obs
+    c = obs.cam_idx
+    x_bal = obs.pixels[:, 0] - intr.cx[c]
+    y_bal = -(obs.pixels[:, 1] - intr.cy[c]) * (intr.fx[c] / intr.fy[c])
+    path = Path(path)
+    with path.open('w', encoding='ascii') as fh:
+        fh.write(f'{M} {N} {len(obs)}\n')
+        table = np.empty(len(obs), dtype=[('c', np.int64), ('p', np.int64),
+                                          ('x', float), ('y', float)])
+        table['c'], table['p'], table['x'], table['y'] = c, obs.feat_idx, x_bal, y_bal
+        np.savetxt(fh, table, fmt='%d %d %.17g %.17g')
+        np.savetxt(fh, np.concatenate([cams.ravel(), points_w.ravel()]), fmt='%.17g')
+    logger.info('write_bal %s: %d cameras, %d points, %d observations', path, M, N, len(obs))
+
+
+def _nonblank_lines(path: Path) -> tuple[list[str], list[int]]:
+    """Return the non-blank lines of ``path`` and their 1-based line numbers."""
+    try:
+        text = path.read_text(encoding='utf-8')
+    except UnicodeDecodeError as err:
+        msg = f'{path}: not a text file ({err})'
+        raise FormatError(msg) from err
+    lines = text.splitlines()
+    numbers = [i for i, s in enumerate(lines, start=1) if s.strip()]
+    return [lines[i - 1] for i in numbers], numbers
+
+
+def _parse_header(path: Path, line: str, line_no: int) -> tuple[int, int, int]:
+    """Parse ``n_cams n_points n_obs``."""
+    tokens = line.split()
+    try:
+        counts = [int(t) for t in tokens]
+    except ValueError:
+        counts = []
+    if len(tokens) != 3 or len(counts) != 3 or min(counts) < 0 or counts[0] == 0:
+        msg = (f'{path}:{line_no}: bad header {line.strip()!r}, expected three non-negative '
+               f'integers "n_cams n_points n_obs" with n_cams > 0')
+        raise FormatError(msg)
+    return counts[0], counts[1], counts[2]
+
+
+def _parse_observations(path: Path, lines: list[str], line_no: list[int]) -> FloatArray:
+    """Parse observation lines ``cam pt x y`` into an (n_obs, 4) array."""
+    if not lines:
+        return np.zeros((0, 4))
+    try:
+        obs = np.loadtxt(lines, dtype=float, ndmin=2, comments=None)
+    except ValueError:
+        obs = None
+    if obs is None or obs.shape != (len(lines), 4):
+        for s, n in zip(lines, line_no, strict=True):
+            tokens = s.split()
+            _check_numeric(path, tokens, n)
+            if len(tokens) != 4:
+                msg = (f'{path}:{n}: observation line has {len(tokens)} values, '
+                       f'expected 4 (cam pt x y)')
+                raise FormatError(msg)
+        msg = f'{path}: cannot parse the observation lines'  # pragma: no cover
+        raise FormatError(msg)  # pragma: no cover
+    return obs
+
+
+def _parse_index(path: Path, values: FloatArray, n: int, what: str,
+                 line_no: list[int]) -> np.ndarray:
+    """Check that ``values`` are integers in [0, n) and return them as int64."""
+    finite = np.isfinite(values)
+    idx = np.clip(np.where(finite, values, -1.0), -1.0, float(n)).astype(np.int64)
+    bad = ~finite | (idx != values) | (idx < 0) | (idx >= n)
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        msg = (f'{path}:{line_no[k]}: {what} index {values[k]:g} is not an integer in '
+               f'[0, {n})')
+        raise FormatError(msg)
+    return idx
+
+
+def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params: int,
+                      last_line: int) -> FloatArray:
+    """Parse the camera and point values that follow the observations (exactly n_params)."""
+    tokens = ' '.join(lines).split()
+    try:
+        values = np.array(tokens, dtype=float)
+    except ValueError:
+        for s, n in zip(lines, line_no, strict=True):
+            _check_numeric(path, s.split(), n)
+        raise  # pragma: no cover
+    if values.size < n_params:
+        msg = (f'{path}:{last_line}: truncated file: expected {n_params} camera and point '
+               f'values after the observations, found {values.size}')
+        raise FormatError(msg)
+    if values.size > n_params:
+        where = _value_lines(lines, line_no)[n_params]
+        msg = (f'{path}:{where}: unexpected extra values: expected {n_params} camera and point '
+               f'values after the observations, found {values.size}')
+        raise FormatError(msg)
+    return values
+
+
+def _value_lines(lines: list[str], line_no: list[int]) -> list[int]:
+    """Return the line number of every whitespace-separated value in ``lines``."""
+    out: list[int] = []
+    for s, n in zip(lines, line_no, strict=True):
+        out.extend([n] * len(s.split()))
+    return out
+
+
+def _check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
+    """Raise FormatError naming the first token that is not a number."""
+    for tok in tokens:
+        try:
+            float(tok)
+        except ValueError:
+            msg = f'{path}:{line_no}: non-numeric token {tok!r}'
+            raise FormatError(msg) from None
