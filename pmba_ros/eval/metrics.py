@@ -1,0 +1,387 @@
+"""Trajectory error metrics: timestamp association, ATE and RPE (translation part).
+
+The numbers match evo (``evo_ape`` / ``evo_rpe`` with the default ``translation_part``
+pose relation); the test suite checks this on real trajectory pairs.
+
+Notation (Sturm et al., "A Benchmark for the Evaluation of RGB-D SLAM Systems", IROS 2012;
+evo's ``metrics.py`` follows the same paper):
+
+=========  ===============  ========  ==============================================
+paper      code             shape     meaning
+=========  ===============  ========  ==============================================
+Q_i        ref (R_wc, pos)  (N, ...)  reference poses, after association
+P_i        est (R_wc, pos)  (N, ...)  estimated poses, after association and alignment
+S          alignment        --        Umeyama transform applied to P (identity if none)
+F_i        --               --        ATE error pose Q_i^-1 S P_i, eq. (3)
+E_i        --               --        RPE error (Q_i^-1 Q_{i+d})^-1 (P_i^-1 P_{i+d}), eq. (1)
+e_i        errors           (K,)      norm of the translation part of F_i or E_i
+=========  ===============  ========  ==============================================
+
+The translation part of F_i is ``R_q,i^T (p_i - q_i)``, whose norm is ``|p_i - q_i|``; the
+translation part of E_i is ``R_rel^T (t_P - t_Q)`` with ``t_P = R_p,i^T (p_{i+d} - p_i)``,
+whose norm is ``|t_P - t_Q|``. Both are evaluated for all poses at once.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.errors import DegenerateGeometryError, EvaluationError
+from pmba_ros.eval.align import UmeyamaResult, align_se3, align_sim3
+from pmba_ros.eval.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+logger = logging.getLogger(__name__)
+
+AlignMode = Literal['se3', 'sim3', 'none']
+ALIGN_MODES: tuple[str, ...] = ('se3', 'sim3', 'none')
+"""Accepted ``align`` values: rigid, similarity (with scale) or no alignment."""
+
+MIN_MATCHES = 3
+"""Fewest associated poses an evaluation accepts (Umeyama needs 3 non-collinear points)."""
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    """Return a float64 copy of ``arr`` that cannot be written to."""
+    out = np.array(arr, dtype=np.float64, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class EvalResult:
+    """Statistics of one error metric, with the alignment that was applied.
+
+    Attributes:
+        metric: ``'ate'`` or ``'rpe'``.
+        align: Alignment mode, one of :data:`ALIGN_MODES`.
+        rmse: Root mean square error (m, in the reference frame and scale).
+        mean: Mean error (m).
+        median: Median error (m).
+        std: Population standard deviation of the errors (m).
+        min: Smallest error (m).
+        max: Largest error (m).
+        sse: Sum of squared errors (m^2).
+        n_pairs: Number of errors: associated poses (ATE) or pose pairs (RPE).
+        n_matched: Number of associated poses.
+        rotation: Alignment rotation, shape (3, 3).
+        translation: Alignment translation (m), shape (3,).
+        scale: Alignment scale (1.0 unless ``align == 'sim3'``).
+        errors: Per-pose (ATE) or per-pair (RPE) errors (m), shape (n_pairs,).
+        delta_frames: RPE pose distance in frames; None for ATE.
+    """
+
+    metric: str
+    align: str
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+    n_pairs: int
+    n_matched: int
+    rotation: FloatArray
+    translation: FloatArray
+    scale: float
+    errors: FloatArray
+    delta_frames: int | None = None
+
+    def __post_init__(self) -> None:
+        """Freeze copies of the array fields."""
+        for name in ('rotation', 'translation', 'errors'):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+    def to_dict(self, include_errors: bool = False) -> dict[str, object]:
+        """Return a JSON-serializable dictionary of the result.
+
+        Args:
+            include_errors: Also include the per-pose ``errors`` list.
+
+        Returns:
+            Plain Python scalars and nested lists, keyed by field name.
+        """
+        out: dict[str, object] = {
+            'metric': self.metric, 'align': self.align,
+            'rmse': self.rmse, 'mean': self.mean, 'median': self.median, 'std': self.std,
+            'min': self.min, 'max': self.max, 'sse': self.sse,
+            'n_pairs': self.n_pairs, 'n_matched': self.n_matched,
+            'alignment': {'rotation': self.rotation.tolist(),
+                          'translation': self.translation.tolist(),
+                          'scale': self.scale},
+        }
+        if self.delta_frames is not None:
+            out['delta_frames'] = self.delta_frames
+        if include_errors:
+            out['errors'] = self.errors.tolist()
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Association
+# --------------------------------------------------------------------------------------------
+
+def match_stamps(stamps_short: FloatArray, stamps_long: FloatArray, max_diff_s: float = 0.01,
+                 offset_long_s: float = 0.0) -> tuple[IntArray, IntArray]:
+    """Match each stamp of one sequence with the nearest stamp of another, within a tolerance.
+
+    This is evo's ``sync.matching_time_indices``, vectorized: for every ``stamps_short[i]``
+    the nearest ``stamps_long[j] + offset_long_s`` is taken if it lies within ``max_diff_s``;
+    on a tie the earlier stamp wins. Each short index appears at most once.
+
+    Args:
+        stamps_short: Stamps to match (s), shape (A,).
+        stamps_long: Stamps to search (s), shape (B,); sorted or not.
+        max_diff_s: Largest accepted absolute difference (s).
+        offset_long_s: Offset added to ``stamps_long`` before matching (s).
+
+    Returns:
+        Matched indices into ``stamps_short`` (increasing) and into ``stamps_long``, each of
+        shape (K,).
+    """
+    short = np.asarray(stamps_short, dtype=np.float64)
+    long_ = np.asarray(stamps_long, dtype=np.float64) + offset_long_s
+    empty = np.zeros(0, dtype=np.int64)
+    if short.size == 0 or long_.size == 0:
+        return empty, empty.copy()
+    order = None
+    if np.any(np.diff(long_) < 0):
+        order = np.argsort(long_, kind='stable')
+        long_ = long_[order]
+    in_range = (short >= long_[0] - max_diff_s) & (short <= long_[-1] + max_diff_s)
+    upper = np.minimum(np.searchsorted(long_, short, side='right'), long_.size - 1)
+    diff_ub = long_[upper] - short
+    diff_lb = np.where(upper > 0, short - long_[np.maximum(upper - 1, 0)], np.inf)
+    take_ub = (diff_ub <= max_diff_s) & (diff_ub < diff_lb)
+    take_lb = ~take_ub & (diff_lb <= max_diff_s) & (diff_lb <= diff_ub)
+    ok = in_range & (take_ub | take_lb)
+    idx_short = np.flatnonzero(ok).astype(np.int64)
+    idx_long = np.where(take_ub, upper, upper - 1)[ok].astype(np.int64)
+    if order is not None:
+        idx_long = order[idx_long].astype(np.int64)
+    return idx_short, idx_long
+
+
+def associate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01,
+              offset_s: float = 0.0) -> tuple[Trajectory, Trajectory]:
+    """Pair the poses of two trajectories by nearest timestamp.
+
+    Same semantics as evo's ``sync.associate_trajectories(ref, est, max_diff=...,
+    offset_2=...)``: every pose of the trajectory with fewer poses (the estimate on a tie) is
+    matched with the nearest pose of the other one, if their stamps differ by at most
+    ``max_diff_s``. Each pose of the shorter trajectory is used at most once; a pose of the
+    longer one can only be used twice when the longer trajectory is locally sparser than the
+    shorter one by more than ``2 * max_diff_s``.
+
+    Args:
+        est: Estimated trajectory.
+        ref: Reference trajectory.
+        max_diff_s: Largest accepted stamp difference (s).
+        offset_s: Offset added to the estimate's stamps for matching (s); the returned
+            trajectories keep their own stamps.
+
+    Returns:
+        The matched poses of ``est`` and of ``ref``, in the same order and of equal length.
+
+    Raises:
+        EvaluationError: If ``max_diff_s`` is negative or no stamps match.
+    """
+    if not max_diff_s >= 0.0:
+        msg = f'max_diff_s must be >= 0, got {max_diff_s}'
+        raise EvaluationError(msg)
+    if len(est) > len(ref):
+        idx_ref, idx_est = match_stamps(ref.stamps_s, est.stamps_s, max_diff_s, offset_s)
+    else:
+        idx_est, idx_ref = match_stamps(est.stamps_s, ref.stamps_s, max_diff_s, -offset_s)
+    if idx_est.size == 0:
+        msg = (f'no matching timestamps between the estimate ({len(est)} poses, '
+               f'{_span(est)}) and the reference ({len(ref)} poses, {_span(ref)}) with '
+               f'max. difference {max_diff_s} s and offset {offset_s} s')
+        raise EvaluationError(msg)
+    logger.debug('Associated %d of max. %d poses (max_diff %g s, offset %g s)',
+                 idx_est.size, min(len(est), len(ref)), max_diff_s, offset_s)
+    return est.take(idx_est), ref.take(idx_ref)
+
+
+def _span(traj: Trajectory) -> str:
+    """Describe the stamp range of a trajectory for error messages."""
+    if len(traj) == 0:
+        return 'no stamps'
+    return f'stamps {traj.stamps_s.min():.6f}..{traj.stamps_s.max():.6f} s'
+
+
+# --------------------------------------------------------------------------------------------
+# Metrics
+# --------------------------------------------------------------------------------------------
+
+def _check_align(align: str) -> None:
+    """Raise EvaluationError if ``align`` is not one of :data:`ALIGN_MODES`."""
+    if align not in ALIGN_MODES:
+        msg = f'unknown alignment {align!r}; expected one of {", ".join(ALIGN_MODES)}'
+        raise EvaluationError(msg)
+
+
+def _align_pairs(est: Trajectory, ref: Trajectory,
+                 align: str) -> tuple[Trajectory, UmeyamaResult]:
+    """Align associated ``est`` onto ``ref`` with the given mode (no-op for ``'none'``)."""
+    if len(est) < MIN_MATCHES:
+        msg = (f'only {len(est)} associated poses; at least {MIN_MATCHES} are needed '
+               f'(check the stamps, --max-diff and the time offset)')
+        raise EvaluationError(msg)
+    if align == 'none':
+        return est, UmeyamaResult(np.eye(3), np.zeros(3), 1.0)
+    try:
+        return (align_sim3 if align == 'sim3' else align_se3)(est, ref)
+    except DegenerateGeometryError as err:
+        msg = f'cannot align the estimate to the reference ({align}): {err}'
+        raise EvaluationError(msg) from err
+
+
+def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
+            alignment: UmeyamaResult, delta_frames: int | None = None) -> EvalResult:
+    """Build an EvalResult with evo's statistics of ``errors``."""
+    squared = errors * errors
+    return EvalResult(
+        metric=metric, align=align,
+        rmse=float(np.sqrt(np.mean(squared))), mean=float(np.mean(errors)),
+        median=float(np.median(errors)), std=float(np.std(errors)),
+        min=float(np.min(errors)), max=float(np.max(errors)), sse=float(np.sum(squared)),
+        n_pairs=int(errors.size), n_matched=n_matched,
+        rotation=alignment.rotation, translation=alignment.translation,
+        scale=float(alignment.scale), errors=errors, delta_frames=delta_frames)
+
+
+def _ate_associated(est: Trajectory, ref: Trajectory, align: str) -> EvalResult:
+    """ATE of already associated trajectories."""
+    aligned, alignment = _align_pairs(est, ref, align)
+    # |trans(Q_i^-1 S P_i)| = |R_q,i^T (p_i - q_i)| = |p_i - q_i|, eq. (3)
+    errors = np.linalg.norm(aligned.positions_xyz - ref.positions_xyz, axis=1)
+    return _result('ate', align, errors, len(est), alignment)
+
+
+def _pair_indices(n: int, delta: int, all_pairs: bool) -> tuple[IntArray, IntArray]:
+    """Index pairs (i, i + delta): every i, or only i = 0, delta, 2 delta, ... (evo's rule)."""
+    if all_pairs:
+        first = np.arange(max(n - delta, 0), dtype=np.int64)
+        return first, first + delta
+    ids = np.arange(0, n, delta, dtype=np.int64)
+    return ids[:-1], ids[1:]
+
+
+def _rpe_associated(est: Trajectory, ref: Trajectory, align: str, delta: int,
+                    all_pairs: bool) -> EvalResult:
+    """RPE (translation part) of already associated trajectories."""
+    aligned, alignment = _align_pairs(est, ref, align)
+    i, j = _pair_indices(len(est), delta, all_pairs)
+    if i.size == 0:
+        msg = f'no pose pairs {delta} frames apart among {len(est)} associated poses'
+        raise EvaluationError(msg)
+    # t_Q = trans(Q_i^-1 Q_j), t_P = trans(P_i^-1 P_j)
+    t_q = np.einsum('nji,nj->ni', ref.R_wc[i], ref.positions_xyz[j] - ref.positions_xyz[i])
+    t_p = np.einsum('nji,nj->ni', aligned.R_wc[i],
+                    aligned.positions_xyz[j] - aligned.positions_xyz[i])
+    # |trans(E_i)| = |R_rel^T (t_P - t_Q)| = |t_P - t_Q|, eq. (1)
+    errors = np.linalg.norm(t_p - t_q, axis=1)
+    return _result('rpe', align, errors, len(est), alignment, delta_frames=delta)
+
+
+def _check_delta(delta: int, delta_unit: str) -> int:
+    """Validate the RPE distance and return it as an int."""
+    if delta_unit != 'frames':
+        msg = f"unsupported RPE delta unit {delta_unit!r}; only 'frames' is implemented"
+        raise EvaluationError(msg)
+    if isinstance(delta, bool) or int(delta) != delta or delta < 1:
+        msg = f'RPE delta must be a positive whole number of frames, got {delta!r}'
+        raise EvaluationError(msg)
+    return int(delta)
+
+
+def ate(est: Trajectory, ref: Trajectory, align: AlignMode | str = 'se3',
+        max_diff_s: float = 0.01, offset_s: float = 0.0) -> EvalResult:
+    """Absolute trajectory error of the positions (``evo_ape tum REF EST [-a [-s]]``).
+
+    Args:
+        est: Estimated trajectory.
+        ref: Reference (ground-truth) trajectory.
+        align: ``'se3'`` (rigid, ``-a``), ``'sim3'`` (with scale, ``-as``) or ``'none'``.
+        max_diff_s: Largest stamp difference for association (s).
+        offset_s: Offset added to the estimate's stamps for association (s).
+
+    Returns:
+        Statistics of ``|p_i - q_i|`` over the associated poses after alignment.
+
+    Raises:
+        EvaluationError: If ``align`` is unknown, fewer than 3 poses associate, or the
+            associated positions cannot be aligned (collinear, coincident).
+    """
+    _check_align(align)
+    est_a, ref_a = associate(est, ref, max_diff_s, offset_s)
+    return _ate_associated(est_a, ref_a, align)
+
+
+def rpe(est: Trajectory, ref: Trajectory, delta: int = 1, delta_unit: str = 'frames',
+        align: AlignMode | str = 'se3', max_diff_s: float = 0.01, offset_s: float = 0.0,
+        all_pairs: bool = True) -> EvalResult:
+    """Relative pose error, translation part (``evo_rpe tum REF EST -d D -u f [-a [-s]]``).
+
+    A rigid alignment does not change the RPE; a Sim(3) alignment rescales the estimate.
+
+    Args:
+        est: Estimated trajectory.
+        ref: Reference (ground-truth) trajectory.
+        delta: Distance between the poses of a pair, in frames of the associated sequence.
+        delta_unit: Unit of ``delta``; only ``'frames'`` is supported.
+        align: ``'se3'``, ``'sim3'`` or ``'none'``, applied before the relative errors.
+        max_diff_s: Largest stamp difference for association (s).
+        offset_s: Offset added to the estimate's stamps for association (s).
+        all_pairs: Use every pair (i, i + delta) (``--all_pairs``); otherwise only
+            i = 0, delta, 2 delta, ... (evo's default; identical when ``delta == 1``).
+
+    Returns:
+        Statistics of ``|trans(E_i)|`` over the pose pairs.
+
+    Raises:
+        EvaluationError: If an option is invalid, fewer than 3 poses associate, no pair is
+            ``delta`` frames apart, or alignment fails.
+    """
+    _check_align(align)
+    delta = _check_delta(delta, delta_unit)
+    est_a, ref_a = associate(est, ref, max_diff_s, offset_s)
+    return _rpe_associated(est_a, ref_a, align, delta, all_pairs)
+
+
+def evaluate(est: Trajectory, gt: Trajectory, align: AlignMode | str = 'sim3',
+             max_diff_s: float = 0.01, delta: int = 1,
+             offset_s: float = 0.0) -> Mapping[str, EvalResult]:
+    """Compute ATE and RPE (translation part) of an estimate against ground truth.
+
+    The trajectories are associated once and both metrics use the same alignment mode.
+
+    Args:
+        est: Estimated trajectory.
+        gt: Ground-truth trajectory.
+        align: ``'se3'``, ``'sim3'`` or ``'none'``.
+        max_diff_s: Largest stamp difference for association (s).
+        delta: RPE pose distance in frames (all pairs).
+        offset_s: Offset added to the estimate's stamps for association (s).
+
+    Returns:
+        ``{'ate': EvalResult, 'rpe': EvalResult}``.
+
+    Raises:
+        EvaluationError: If the trajectories cannot be associated or aligned, or an option
+            is invalid.
+    """
+    _check_align(align)
+    delta = _check_delta(delta, 'frames')
+    est_a, gt_a = associate(est, gt, max_diff_s, offset_s)
+    return {'ate': _ate_associated(est_a, gt_a, align),
+            'rpe': _rpe_associated(est_a, gt_a, align, delta, all_pairs=True)}
