@@ -1,0 +1,271 @@
+"""Tests of pmba_ros.eval.trajectory: the Trajectory record and the TUM/EuRoC/KITTI formats."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.errors import EvaluationError, FormatError
+from pmba_ros.eval.trajectory import (
+    Trajectory,
+    detect_format,
+    read_euroc_csv,
+    read_kitti,
+    read_trajectory,
+    read_tum,
+    write_tum,
+)
+
+DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+EVO_DIR = DATA / 'trajectories' / 'evo'
+needs_data = pytest.mark.skipif(not EVO_DIR.is_dir(), reason=f'{EVO_DIR} is not available')
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """Seeded random generator."""
+    return np.random.default_rng(20240611)
+
+
+def random_trajectory(rng: np.random.Generator, n: int) -> Trajectory:
+    """Return a trajectory with increasing stamps and random poses."""
+    stamps = 1.3e9 + np.cumsum(rng.uniform(0.01, 0.1, n))
+    return Trajectory(stamps, rng.normal(scale=5.0, size=(n, 3)),
+                      so3.exp(rng.normal(size=(n, 3))))
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` and return the path."""
+    path.write_text(text, encoding='utf-8')
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# Trajectory
+# --------------------------------------------------------------------------------------------
+
+def test_trajectory_arrays_are_read_only_copies(rng: np.random.Generator) -> None:
+    """The record copies its inputs and cannot be modified through its arrays."""
+    positions = rng.normal(size=(4, 3))
+    traj = Trajectory(np.arange(4.0), positions, np.broadcast_to(np.eye(3), (4, 3, 3)))
+    positions[0, 0] = 1e6
+    assert traj.positions_xyz[0, 0] != 1e6
+    for arr in (traj.stamps_s, traj.positions_xyz, traj.R_wc):
+        assert not arr.flags.writeable
+        with pytest.raises(ValueError, match='read-only'):
+            arr[0] = 0.0
+    assert len(traj) == 4
+
+
+def test_trajectory_take_returns_new_subset(rng: np.random.Generator) -> None:
+    """take() selects poses by index without touching the original."""
+    traj = random_trajectory(rng, 6)
+    sub = traj.take([4, 1])
+    np.testing.assert_array_equal(sub.stamps_s, traj.stamps_s[[4, 1]])
+    np.testing.assert_array_equal(sub.R_wc, traj.R_wc[[4, 1]])
+    assert len(traj) == 6
+
+
+@pytest.mark.parametrize(('stamps', 'positions', 'rotations'), [
+    (np.zeros(3), np.zeros((2, 3)), np.zeros((3, 3, 3))),
+    (np.zeros(2), np.zeros((2, 3)), np.zeros((2, 3))),
+    (np.zeros((2, 1)), np.zeros((2, 3)), np.zeros((2, 3, 3))),
+])
+def test_trajectory_raises_on_inconsistent_shapes(stamps: np.ndarray, positions: np.ndarray,
+                                                  rotations: np.ndarray) -> None:
+    """Shapes must be (N,), (N, 3) and (N, 3, 3)."""
+    with pytest.raises(EvaluationError, match='Trajectory needs stamps_s'):
+        Trajectory(stamps, positions, rotations)
+
+
+def test_trajectory_raises_on_non_finite_values() -> None:
+    """NaN positions are rejected."""
+    with pytest.raises(EvaluationError, match='positions_xyz contains non-finite'):
+        Trajectory(np.zeros(1), np.full((1, 3), np.nan), np.eye(3)[None])
+
+
+# --------------------------------------------------------------------------------------------
+# Round trips and determinism
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('n', [1, 2, 57])
+def test_tum_round_trip(tmp_path: Path, rng: np.random.Generator, n: int) -> None:
+    """write_tum -> read_tum returns the stamps exactly and the poses to 9 digits."""
+    traj = random_trajectory(rng, n)
+    path = tmp_path / 'traj.txt'
+    write_tum(path, traj)
+    back = read_tum(path)
+    np.testing.assert_array_equal(back.stamps_s, traj.stamps_s)
+    np.testing.assert_allclose(back.positions_xyz, traj.positions_xyz, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(back.R_wc, traj.R_wc, atol=1e-8)
+    assert detect_format(path) == 'tum'
+
+
+def test_write_tum_is_byte_identical_run_to_run(tmp_path: Path,
+                                                rng: np.random.Generator) -> None:
+    """Writing the same trajectory twice gives the same bytes, and re-writing is stable."""
+    traj = random_trajectory(rng, 20)
+    first, second, third = tmp_path / 'a.txt', tmp_path / 'b.txt', tmp_path / 'c.txt'
+    write_tum(first, traj)
+    write_tum(second, traj)
+    assert first.read_bytes() == second.read_bytes()
+    write_tum(third, read_tum(first))
+    lines_1 = first.read_text().splitlines()
+    lines_3 = third.read_text().splitlines()
+    # stamps and positions survive a second round trip unchanged
+    assert [ln.split()[:4] for ln in lines_1] == [ln.split()[:4] for ln in lines_3]
+
+
+def test_write_tum_quaternion_has_non_negative_w(tmp_path: Path,
+                                                 rng: np.random.Generator) -> None:
+    """The quaternion sign is canonical (w >= 0), so q and -q write the same line."""
+    traj = random_trajectory(rng, 30)
+    write_tum(tmp_path / 't.txt', traj)
+    mat = np.loadtxt(tmp_path / 't.txt')
+    assert np.all(mat[:, 7] >= 0.0)
+
+
+def test_write_tum_raises_format_error_on_unwritable_path(tmp_path: Path,
+                                                          rng: np.random.Generator) -> None:
+    """A missing directory is reported as a FormatError naming the path."""
+    with pytest.raises(FormatError, match='cannot write trajectory file'):
+        write_tum(tmp_path / 'missing' / 't.txt', random_trajectory(rng, 2))
+
+
+# --------------------------------------------------------------------------------------------
+# Readers
+# --------------------------------------------------------------------------------------------
+
+def test_read_tum_skips_comments_and_blank_lines(tmp_path: Path) -> None:
+    """Comment and empty lines are ignored; quaternions are x, y, z, w and normalized."""
+    path = write_text(tmp_path / 't.txt',
+                      '# header\n\n1.5 1 2 3 0 0 0 2\n  \n2.5 4 5 6 0 0 1 1\n# tail\n')
+    traj = read_tum(path)
+    np.testing.assert_array_equal(traj.stamps_s, [1.5, 2.5])
+    np.testing.assert_array_equal(traj.positions_xyz, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_allclose(traj.R_wc[0], np.eye(3), atol=1e-15)
+    np.testing.assert_allclose(traj.R_wc[1], so3.exp(np.array([0.0, 0.0, np.pi / 2])),
+                               atol=1e-15)
+
+
+def test_read_euroc_csv_reads_wxyz_and_nanoseconds(tmp_path: Path) -> None:
+    """EuRoC rows are t_ns, p, q_wxyz, then ignored columns; 8 columns suffice."""
+    rows = ('#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z\n'
+            '1403715524907143168,1,2,3,0.7071067811865476,0,0,0.7071067811865476,9,9\n'
+            '1403715524912143104, 4, 5, 6, 1, 0, 0, 0\n')
+    traj = read_euroc_csv(write_text(tmp_path / 'gt.csv', rows))
+    np.testing.assert_array_equal(traj.stamps_s,
+                                  np.array([1403715524907143168, 1403715524912143104.0]) / 1e9)
+    np.testing.assert_allclose(traj.R_wc[0], so3.exp(np.array([0.0, 0.0, np.pi / 2])),
+                               atol=1e-15)
+    np.testing.assert_array_equal(traj.positions_xyz[1], [4, 5, 6])
+    assert detect_format(tmp_path / 'gt.csv') == 'euroc'
+
+
+def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
+                                               rng: np.random.Generator) -> None:
+    """KITTI poses get index stamps unless stamps are given; rotations are projected."""
+    rotations = so3.exp(rng.normal(size=(3, 3)))
+    positions = rng.normal(size=(3, 3))
+    mat = np.concatenate([rotations, positions[:, :, None]], axis=2).reshape(3, 12)
+    path = tmp_path / 'poses.txt'
+    np.savetxt(path, mat, fmt='%.6e')
+    traj = read_kitti(path)
+    np.testing.assert_array_equal(traj.stamps_s, [0.0, 1.0, 2.0])
+    np.testing.assert_allclose(traj.positions_xyz, positions, rtol=1e-6)
+    np.testing.assert_allclose(traj.R_wc, rotations, atol=1e-6)
+    gram = np.einsum('nji,njk->nik', traj.R_wc, traj.R_wc)
+    np.testing.assert_allclose(gram, np.broadcast_to(np.eye(3), gram.shape), atol=1e-14)
+    np.testing.assert_array_equal(read_kitti(path, stamps=[0.5, 0.6, 0.7]).stamps_s,
+                                  [0.5, 0.6, 0.7])
+    assert detect_format(path) == 'kitti'
+    assert len(read_trajectory(path)) == 3
+
+
+@pytest.mark.parametrize(('text', 'reader', 'match'), [
+    ('1 2 3 4 5 6 7 8\n1 2 3\n', read_tum, r'bad\.txt:2: TUM lines need 8 values'),
+    ('# c\n1 2 3 4 5 6 7 8 9\n', read_tum, r'bad\.txt:2: TUM lines need 8 values.*got 9'),
+    ('1 2 3 4 abc 6 7 8\n', read_tum, r"bad\.txt:1: TUM column 5 is not a finite number: 'abc'"),
+    ('1 2 3 nan 0 0 0 1\n', read_tum, r"bad\.txt:1: TUM column 4 is not a finite number"),
+    ('1 2 3 4 0 0 0 0\n', read_tum, r'bad\.txt:1: TUM quaternion has zero norm'),
+    ('# only a comment\n', read_tum, r'bad\.txt: no TUM poses found'),
+    ('1,2,3,4,5,6,7\n', read_euroc_csv, r'bad\.txt:1: EuRoC CSV lines need at least 8'),
+    ('1 0 0 0 0 1 0 0 0 0 1\n', read_kitti, r'bad\.txt:1: KITTI lines need 12 values'),
+    ('2 0 0 0 0 1 0 0 0 0 1 0\n', read_kitti, r'bad\.txt:1: KITTI rotation block is not'),
+])
+def test_readers_raise_format_error_naming_file_and_line(tmp_path: Path, text: str,
+                                                         reader: object, match: str) -> None:
+    """Malformed files raise FormatError with file, line and problem."""
+    path = write_text(tmp_path / 'bad.txt', text)
+    with pytest.raises(FormatError, match=match):
+        reader(path)  # type: ignore[operator]
+
+
+def test_read_kitti_raises_on_stamp_count_mismatch(tmp_path: Path) -> None:
+    """Given stamps must have one entry per pose."""
+    path = write_text(tmp_path / 'k.txt', '1 0 0 0 0 1 0 0 0 0 1 0\n')
+    with pytest.raises(FormatError, match='1 KITTI poses but 2 stamps'):
+        read_kitti(path, stamps=[0.0, 1.0])
+
+
+def test_read_trajectory_raises_on_missing_file(tmp_path: Path) -> None:
+    """A missing file is a FormatError (a PmbaError), not a bare OSError."""
+    with pytest.raises(FormatError, match=r'nope\.txt: cannot read trajectory file'):
+        read_trajectory(tmp_path / 'nope.txt')
+
+
+def test_read_trajectory_raises_on_unknown_format(tmp_path: Path) -> None:
+    """Unknown format names and undetectable files are rejected."""
+    path = write_text(tmp_path / 'x.txt', '1 2 3\n')
+    with pytest.raises(FormatError, match="unknown trajectory format 'g2o'"):
+        read_trajectory(path, 'g2o')
+    with pytest.raises(FormatError, match=r'x\.txt:1: cannot detect the trajectory format: 3'):
+        read_trajectory(path)
+
+
+@pytest.mark.parametrize(('fmt', 'reader'), [('tum', read_tum), ('kitti', read_kitti)])
+def test_read_trajectory_explicit_format_matches_reader(tmp_path: Path, fmt: str,
+                                                        reader: object) -> None:
+    """read_trajectory(path, fmt) equals the format's own reader."""
+    text = {'tum': '1 1 2 3 0 0 0 1\n2 1 2 4 0 0 0 1\n',
+            'kitti': '1 0 0 1 0 1 0 2 0 0 1 3\n1 0 0 1 0 1 0 2 0 0 1 4\n'}[fmt]
+    path = write_text(tmp_path / 't.txt', text)
+    ours = read_trajectory(path, fmt)
+    theirs = reader(path)  # type: ignore[operator]
+    np.testing.assert_array_equal(ours.positions_xyz, theirs.positions_xyz)
+    np.testing.assert_array_equal(ours.stamps_s, theirs.stamps_s)
+
+
+# --------------------------------------------------------------------------------------------
+# Real files, evo's readers as the oracle
+# --------------------------------------------------------------------------------------------
+
+@needs_data
+@pytest.mark.parametrize(('name', 'fmt'), [
+    ('freiburg1_xyz-rgbdslam.txt', 'tum'),
+    ('fr2_desk_ORB.txt', 'tum'),
+    ('V102.txt', 'tum'),
+    ('V102_groundtruth.csv', 'euroc'),
+    ('KITTI_00_gt.txt', 'kitti'),
+])
+def test_readers_match_evo_file_interface(name: str, fmt: str) -> None:
+    """Stamps, positions and rotations equal evo's readers on the shared data."""
+    file_interface = pytest.importorskip('evo.tools.file_interface')
+    path = EVO_DIR / name
+    ours = read_trajectory(path)
+    assert detect_format(path) == fmt
+    if fmt == 'kitti':
+        theirs = file_interface.read_kitti_poses_file(str(path))
+        rot_tol = 1e-6  # KITTI prints 7 digits; ours are projected onto SO(3)
+    else:
+        reader = (file_interface.read_euroc_csv_trajectory if fmt == 'euroc'
+                  else file_interface.read_tum_trajectory_file)
+        theirs = reader(str(path))
+        np.testing.assert_array_equal(ours.stamps_s, theirs.timestamps)
+        rot_tol = 1e-12
+    np.testing.assert_array_equal(ours.positions_xyz, theirs.positions_xyz)
+    rotations = np.array([pose[:3, :3] for pose in theirs.poses_se3])
+    np.testing.assert_allclose(ours.R_wc, rotations, atol=rot_tol)
