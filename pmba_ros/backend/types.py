@@ -221,7 +221,7 @@ class CameraModel:
             msg = f'camera: {model!r} needs {want[model]} coefficients, got {d.size}'
             raise MessageError(msg)
         d.flags.writeable = False
-        for name, value in zip(('fx', 'fy', 'cx', 'cy'), vals):
+        for name, value in zip(('fx', 'fy', 'cx', 'cy'), vals, strict=True):
             object.__setattr__(self, name, float(value))
         object.__setattr__(self, 'd', d)
         object.__setattr__(self, 'width', int(self.width))
@@ -236,9 +236,9 @@ class CameraModel:
     def from_camera_info(cls, msg: Any) -> CameraModel:
         """Build a camera model from a ``sensor_msgs/msg/CameraInfo`` (any backend).
 
-        An empty ``distortion_model`` with all-zero ``d`` means 'none', as does
-        'plumb_bob' with all-zero coefficients (kept as 'plumb_bob'). A
-        'rational_polynomial' model whose k4..k6 are zero is read as 'plumb_bob'.
+        All-zero (or no) coefficients with model '', 'none', 'plumb_bob' or
+        'rational_polynomial' give 'none' (a rectified camera). A 'rational_polynomial'
+        model whose k4..k6 are zero is read as 'plumb_bob'.
 
         Args:
             msg: CameraInfo from rclpy, rosbags or mcap_ros2 (fields ``k``, ``d``,
@@ -261,7 +261,7 @@ class CameraModel:
         if k.size != 9:
             msg_ = f'CameraInfo.k must have 9 values, got {k.size}'
             raise MessageError(msg_)
-        if model in ('', 'none') and not np.any(d):
+        if model in ('', 'none', 'plumb_bob', 'rational_polynomial') and not np.any(d):
             model, d = 'none', np.zeros(0)
         elif model == 'rational_polynomial' and d.size == 8 and not np.any(d[5:]):
             model, d = 'plumb_bob', d[:5]

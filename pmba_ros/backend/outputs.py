@@ -1,0 +1,750 @@
+"""Numpy to ROS messages through a :class:`MsgBackend` (no ROS import at module level).
+
+Message construction differs between rclpy and rosbags (``ros2_notes.md`` §3.2): rosbags
+classes need every field and numpy arrays for primitive sequences, rclpy classes want
+``array.array`` for unbounded sequences, Python ``float``/``int`` scalars and ``bytes``
+byte constants. The builders below always pass every field as a keyword, convert scalars
+with ``float``/``int``, and route sequences through the backend, so the same builder makes
+publishable rclpy messages and Jazzy-CDR-serializable rosbags messages.
+
+Besides the back end's outputs (Path, PoseArray, xyz PointCloud2, Odometry, TF,
+diagnostics), :func:`make_tracks` and :func:`make_camera_info` write front-end-like inputs:
+they are the inverses of :func:`pmba_ros.backend.tracks.parse_tracks` and
+:meth:`~pmba_ros.backend.types.CameraModel.from_camera_info`.
+"""
+
+from __future__ import annotations
+
+import array
+import importlib
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping, Sequence
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from pmba_ros._typing import FloatArray
+from pmba_ros.backend.tracks import LAYOUTS, POINTFIELD_DTYPES
+from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.errors import MessageError
+
+DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
+"""Levels accepted by :func:`make_diagnostics`."""
+
+_NUMPY_TO_POINTFIELD = {np.dtype(code): dt for dt, code in POINTFIELD_DTYPES.items()}
+_F32_EXACT_INT = 2**24
+
+
+class MsgBackend(ABC):
+    """Creates message objects and the container types their sequence fields need."""
+
+    @abstractmethod
+    def msg_class(self, type_name: str) -> Any:
+        """Return the message class of ``type_name`` ('pkg/msg/Name').
+
+        Raises:
+            MessageError: If the type is unknown.
+        """
+
+    def new(self, type_name: str, **fields: Any) -> Any:
+        """Return a new ``type_name`` message built from keyword fields.
+
+        Args:
+            type_name: Message type, e.g. 'nav_msgs/msg/Path'.
+            **fields: Every field of the message.
+
+        Returns:
+            The message.
+
+        Raises:
+            MessageError: If the type is unknown.
+        """
+        return self.msg_class(type_name)(**fields)
+
+    def constant(self, type_name: str, name: str) -> Any:
+        """Return the class constant ``name`` of ``type_name`` (byte constants differ).
+
+        Raises:
+            MessageError: If the type or constant is unknown.
+        """
+        try:
+            return getattr(self.msg_class(type_name), name)
+        except AttributeError as err:
+            msg = f'{type_name} has no constant {name!r}'
+            raise MessageError(msg) from err
+
+    @staticmethod
+    def fixed_f64(values: ArrayLike) -> FloatArray:
+        """Return a fixed-size ``float64[N]`` field value (numpy in both backends)."""
+        return np.array(values, dtype=np.float64).reshape(-1)
+
+    @abstractmethod
+    def seq_f32(self, values: ArrayLike) -> Any:
+        """Return an unbounded ``float32[]`` field value."""
+
+    @abstractmethod
+    def seq_f64(self, values: ArrayLike) -> Any:
+        """Return an unbounded ``float64[]`` field value."""
+
+    @abstractmethod
+    def seq_u8(self, data: bytes | np.ndarray) -> Any:
+        """Return an unbounded ``uint8[]`` field value from raw bytes."""
+
+
+class RosbagsBackend(MsgBackend):
+    """Messages as rosbags typestore dataclasses (default: the pinned ROS 2 Jazzy store).
+
+    Args:
+        typestore: A rosbags ``Typestore``; ``None`` loads
+            ``get_typestore(Stores.ROS2_JAZZY)`` (rosbags is imported only then).
+    """
+
+    def __init__(self, typestore: Any = None) -> None:
+        """Store the typestore, loading the Jazzy one if none is given."""
+        if typestore is None:
+            from rosbags.typesys import Stores, get_typestore
+            typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.typestore = typestore
+
+    def msg_class(self, type_name: str) -> Any:
+        """Return the typestore class of ``type_name``.
+
+        Raises:
+            MessageError: If the typestore does not know the type.
+        """
+        try:
+            return self.typestore.types[type_name]
+        except KeyError as err:
+            msg = f'type {type_name!r} is not in the rosbags typestore'
+            raise MessageError(msg) from err
+
+    def seq_f32(self, values: ArrayLike) -> np.ndarray:
+        """Return a float32 numpy array (``serialize_cdr`` rejects lists)."""
+        return np.array(values, dtype=np.float32).reshape(-1)
+
+    def seq_f64(self, values: ArrayLike) -> np.ndarray:
+        """Return a float64 numpy array."""
+        return np.array(values, dtype=np.float64).reshape(-1)
+
+    def seq_u8(self, data: bytes | np.ndarray) -> np.ndarray:
+        """Return a uint8 numpy array (a copy)."""
+        return np.frombuffer(data, dtype=np.uint8).copy()
+
+    def serialize(self, msg: Any) -> bytes:
+        """Serialize a message of this typestore to CDR.
+
+        Raises:
+            MessageError: If the message does not serialize.
+        """
+        try:
+            return bytes(self.typestore.serialize_cdr(msg, msg.__msgtype__))
+        except Exception as err:
+            msg_ = f'cannot serialize {getattr(msg, "__msgtype__", type(msg).__name__)}: {err}'
+            raise MessageError(msg_) from err
+
+
+class RclpyBackend(MsgBackend):
+    """Messages as rclpy (rosidl-generated) classes, imported lazily by type name.
+
+    It never imports rclpy, only message modules such as ``nav_msgs.msg``. Unbounded
+    sequences are ``array.array`` (rosidl setters take the fast path for them; ``bytes``
+    for ``uint8[]`` is also accepted, but then checked element by element under
+    ``__debug__``).
+
+    Args:
+        module_loader: Imports a module by dotted name (default
+            :func:`importlib.import_module`); tests may inject fake message modules.
+    """
+
+    def __init__(self, module_loader: Callable[[str], ModuleType] | None = None) -> None:
+        """Store the loader and an empty class cache."""
+        self._loader = module_loader or importlib.import_module
+        self._cache: dict[str, Any] = {}
+
+    def msg_class(self, type_name: str) -> Any:
+        """Return the class of 'pkg/msg/Name' (or 'pkg/Name') from module ``pkg.msg``.
+
+        Raises:
+            MessageError: If the module or class cannot be loaded.
+        """
+        cls = self._cache.get(type_name)
+        if cls is None:
+            parts = type_name.split('/')
+            if len(parts) == 2:
+                parts.insert(1, 'msg')
+            if len(parts) != 3 or not all(parts):
+                msg = f'bad message type name {type_name!r} (want pkg/msg/Name)'
+                raise MessageError(msg)
+            try:
+                cls = getattr(self._loader(f'{parts[0]}.{parts[1]}'), parts[2])
+            except (ImportError, AttributeError) as err:
+                msg = f'cannot load message type {type_name!r}: {err}'
+                raise MessageError(msg) from err
+            self._cache[type_name] = cls
+        return cls
+
+    def seq_f32(self, values: ArrayLike) -> array.array[float]:
+        """Return ``array.array('f')`` (rclpy rejects numpy arrays for float32[])."""
+        out = array.array('f')
+        out.frombytes(np.asarray(values, dtype=np.float32).reshape(-1).tobytes())
+        return out
+
+    def seq_f64(self, values: ArrayLike) -> array.array[float]:
+        """Return ``array.array('d')``."""
+        out = array.array('d')
+        out.frombytes(np.asarray(values, dtype=np.float64).reshape(-1).tobytes())
+        return out
+
+    def seq_u8(self, data: bytes | np.ndarray) -> array.array[int]:
+        """Return ``array.array('B')`` holding ``data``."""
+        out = array.array('B')
+        out.frombytes(np.frombuffer(data, dtype=np.uint8).tobytes())
+        return out
+
+
+# --- small pieces -------------------------------------------------------------------------
+
+
+def _vec(value: ArrayLike, n: int, what: str) -> FloatArray:
+    """Return ``value`` as a finite float64 vector of length ``n``."""
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        msg = f'{what}: expected {n} finite values, got {arr.tolist()}'
+        raise MessageError(msg)
+    return arr
+
+
+def _rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
+    """Return ``value`` as a finite (N, n_cols) float64 array."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != n_cols:
+        msg = f'{what}: expected shape (N, {n_cols}), got {arr.shape}'
+        raise MessageError(msg)
+    if not np.all(np.isfinite(arr)):
+        msg = f'{what}: non-finite values'
+        raise MessageError(msg)
+    return arr
+
+
+def _unit_quats(quats_xyzw: ArrayLike, what: str = 'quats_xyzw') -> FloatArray:
+    """Return (N, 4) quaternions normalized to unit length."""
+    q = _rows(quats_xyzw, 4, what)
+    norm = np.linalg.norm(q, axis=1)
+    if np.any(norm < 1e-9):
+        msg = f'{what}: zero-norm quaternion'
+        raise MessageError(msg)
+    return q / norm[:, None]
+
+
+def time_msg(stamp_ns: int, backend: MsgBackend) -> Any:
+    """Return a ``builtin_interfaces/msg/Time`` for integer nanoseconds.
+
+    Args:
+        stamp_ns: Time, ns (floor division keeps ``nanosec`` in [0, 1e9) for negatives).
+        backend: Message backend.
+
+    Returns:
+        The Time message.
+
+    Raises:
+        MessageError: If the backend lacks the type.
+    """
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return backend.new('builtin_interfaces/msg/Time', sec=sec, nanosec=nanosec)
+
+
+def header_msg(stamp_ns: int, frame_id: str, backend: MsgBackend) -> Any:
+    """Return a ``std_msgs/msg/Header``.
+
+    Args:
+        stamp_ns: Stamp, ns.
+        frame_id: Frame id.
+        backend: Message backend.
+
+    Returns:
+        The Header message.
+
+    Raises:
+        MessageError: If the backend lacks the type.
+    """
+    return backend.new('std_msgs/msg/Header', stamp=time_msg(stamp_ns, backend),
+                       frame_id=str(frame_id))
+
+
+def _point(backend: MsgBackend, xyz: ArrayLike, type_name: str = 'geometry_msgs/msg/Point',
+           ) -> Any:
+    """Return a Point/Point32/Vector3 message from three numbers."""
+    x, y, z = (float(v) for v in np.asarray(xyz, dtype=np.float64).reshape(3))
+    return backend.new(type_name, x=x, y=y, z=z)
+
+
+def _quat(backend: MsgBackend, quat_xyzw: ArrayLike) -> Any:
+    """Return a ``geometry_msgs/msg/Quaternion`` from (x, y, z, w)."""
+    x, y, z, w = (float(v) for v in np.asarray(quat_xyzw, dtype=np.float64).reshape(4))
+    return backend.new('geometry_msgs/msg/Quaternion', x=x, y=y, z=z, w=w)
+
+
+def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> Any:
+    """Return a ``geometry_msgs/msg/Pose``.
+
+    Args:
+        position: Translation, shape (3,), m.
+        quat_xyzw: Rotation quaternion (x, y, z, w), shape (4,); normalized here.
+        backend: Message backend.
+
+    Returns:
+        The Pose message.
+
+    Raises:
+        MessageError: On wrong shapes, non-finite values or a zero quaternion.
+    """
+    pos = _vec(position, 3, 'position')
+    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])[0]
+    return backend.new('geometry_msgs/msg/Pose', position=_point(backend, pos),
+                       orientation=_quat(backend, quat))
+
+
+# --- back-end outputs ---------------------------------------------------------------------
+
+
+def make_pose_stamped(stamp_ns: int, frame_id: str, position: ArrayLike, quat_xyzw: ArrayLike,
+                      backend: MsgBackend) -> Any:
+    """Return a ``geometry_msgs/msg/PoseStamped``.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame.
+        position: Translation, shape (3,), m.
+        quat_xyzw: Rotation quaternion (x, y, z, w), shape (4,).
+        backend: Message backend.
+
+    Returns:
+        The PoseStamped message.
+
+    Raises:
+        MessageError: On wrong shapes, non-finite values or a zero quaternion.
+    """
+    return backend.new('geometry_msgs/msg/PoseStamped',
+                       header=header_msg(stamp_ns, frame_id, backend),
+                       pose=pose_msg(position, quat_xyzw, backend))
+
+
+def make_path(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: ArrayLike,
+              stamps_ns: ArrayLike, backend: MsgBackend) -> Any:
+    """Return a ``nav_msgs/msg/Path`` of N poses, each stamped with its keyframe time.
+
+    Args:
+        stamp_ns: Path header stamp, ns.
+        frame_id: Frame of the path and of every pose (e.g. 'map').
+        positions: Translations, shape (N, 3), m.
+        quats_xyzw: Rotation quaternions (x, y, z, w), shape (N, 4); normalized here.
+        stamps_ns: Pose stamps, shape (N,), ns.
+        backend: Message backend.
+
+    Returns:
+        The Path message.
+
+    Raises:
+        MessageError: On shape mismatches, non-finite values or zero quaternions.
+    """
+    pos = _rows(positions, 3, 'positions')
+    quats = _unit_quats(quats_xyzw)
+    stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    if not pos.shape[0] == quats.shape[0] == stamps.shape[0]:
+        msg = (f'make_path: {pos.shape[0]} positions, {quats.shape[0]} quaternions, '
+               f'{stamps.shape[0]} stamps')
+        raise MessageError(msg)
+    poses = [make_pose_stamped(int(t), frame_id, p, q, backend)
+             for t, p, q in zip(stamps, pos, quats, strict=True)]
+    return backend.new('nav_msgs/msg/Path', header=header_msg(stamp_ns, frame_id, backend),
+                       poses=poses)
+
+
+def make_pose_array(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: ArrayLike,
+                    backend: MsgBackend) -> Any:
+    """Return a ``geometry_msgs/msg/PoseArray``.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame.
+        positions: Translations, shape (N, 3), m.
+        quats_xyzw: Rotation quaternions (x, y, z, w), shape (N, 4); normalized here.
+        backend: Message backend.
+
+    Returns:
+        The PoseArray message.
+
+    Raises:
+        MessageError: On shape mismatches, non-finite values or zero quaternions.
+    """
+    pos = _rows(positions, 3, 'positions')
+    quats = _unit_quats(quats_xyzw)
+    if pos.shape[0] != quats.shape[0]:
+        msg = f'make_pose_array: {pos.shape[0]} positions, {quats.shape[0]} quaternions'
+        raise MessageError(msg)
+    poses = [pose_msg(p, q, backend) for p, q in zip(pos, quats, strict=True)]
+    return backend.new('geometry_msgs/msg/PoseArray',
+                       header=header_msg(stamp_ns, frame_id, backend), poses=poses)
+
+
+def make_odometry(stamp_ns: int, frame_id: str, child_frame_id: str, position: ArrayLike,
+                  quat_xyzw: ArrayLike, covariance: ArrayLike, backend: MsgBackend) -> Any:
+    """Return a ``nav_msgs/msg/Odometry`` with a pose covariance and zero twist.
+
+    An all-zero covariance breaks EKF consumers (robot_localization), so it is rejected.
+    The twist and its covariance are zero: the back end does not estimate velocity.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame (pose parent, e.g. 'map').
+        child_frame_id: Frame the pose describes.
+        position: Translation, shape (3,), m.
+        quat_xyzw: Rotation quaternion (x, y, z, w), shape (4,).
+        covariance: Pose covariance over (x, y, z, rot_x, rot_y, rot_z), shape (6, 6).
+        backend: Message backend.
+
+    Returns:
+        The Odometry message.
+
+    Raises:
+        MessageError: On bad pose values, or a covariance that is not a finite,
+            symmetric, non-zero (6, 6) matrix with a non-negative diagonal.
+    """
+    cov = np.asarray(covariance, dtype=np.float64)
+    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+        msg = f'make_odometry: covariance must be a finite (6, 6) matrix, got {cov.shape}'
+        raise MessageError(msg)
+    if not np.any(cov) or np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T):
+        msg = 'make_odometry: covariance must be symmetric, non-zero, with diagonal >= 0'
+        raise MessageError(msg)
+    pose = backend.new('geometry_msgs/msg/PoseWithCovariance',
+                       pose=pose_msg(position, quat_xyzw, backend),
+                       covariance=backend.fixed_f64(cov))
+    zero = np.zeros(3)
+    twist = backend.new(
+        'geometry_msgs/msg/TwistWithCovariance',
+        twist=backend.new('geometry_msgs/msg/Twist',
+                          linear=_point(backend, zero, 'geometry_msgs/msg/Vector3'),
+                          angular=_point(backend, zero, 'geometry_msgs/msg/Vector3')),
+        covariance=backend.fixed_f64(np.zeros(36)))
+    return backend.new('nav_msgs/msg/Odometry', header=header_msg(stamp_ns, frame_id, backend),
+                       child_frame_id=str(child_frame_id), pose=pose, twist=twist)
+
+
+def make_tf(stamp_ns: int, parent: str, child: str, translation: ArrayLike,
+            quat_xyzw: ArrayLike, backend: MsgBackend) -> Any:
+    """Return a ``tf2_msgs/msg/TFMessage`` holding one transform parent -> child.
+
+    Args:
+        stamp_ns: Transform stamp, ns (future-date it by the TF tolerance if needed).
+        parent: Parent frame (header.frame_id, e.g. 'map').
+        child: Child frame (e.g. 'odom').
+        translation: Child origin in the parent frame, shape (3,), m.
+        quat_xyzw: Rotation parent <- child (x, y, z, w), shape (4,).
+        backend: Message backend.
+
+    Returns:
+        The TFMessage.
+
+    Raises:
+        MessageError: On wrong shapes, non-finite values or a zero quaternion.
+    """
+    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])[0]
+    transform = backend.new(
+        'geometry_msgs/msg/Transform',
+        translation=_point(backend, _vec(translation, 3, 'translation'),
+                           'geometry_msgs/msg/Vector3'),
+        rotation=_quat(backend, quat))
+    stamped = backend.new('geometry_msgs/msg/TransformStamped',
+                          header=header_msg(stamp_ns, parent, backend),
+                          child_frame_id=str(child), transform=transform)
+    return backend.new('tf2_msgs/msg/TFMessage', transforms=[stamped])
+
+
+def _diag_value(value: str | float) -> str:
+    """Format one diagnostics value (floats in shortest round-trip form)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return 'true' if value else 'false'
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return repr(float(value))
+
+
+def make_diagnostics(stamp_ns: int, name: str, level: str, message: str,
+                     values: Mapping[str, str | float], backend: MsgBackend, *,
+                     hardware_id: str = '') -> Any:
+    """Return a ``diagnostic_msgs/msg/DiagnosticArray`` with one status.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        name: Status name (e.g. 'pmba_ros: solver').
+        level: One of :data:`DIAGNOSTIC_LEVELS`.
+        message: Human-readable summary.
+        values: Key/value pairs; numbers are formatted with ``repr`` (floats) or ``str``.
+        backend: Message backend.
+        hardware_id: DiagnosticStatus.hardware_id.
+
+    Returns:
+        The DiagnosticArray.
+
+    Raises:
+        MessageError: If ``level`` is unknown.
+    """
+    if level not in DIAGNOSTIC_LEVELS:
+        msg = f'unknown diagnostic level {level!r} (expected {", ".join(DIAGNOSTIC_LEVELS)})'
+        raise MessageError(msg)
+    status_type = 'diagnostic_msgs/msg/DiagnosticStatus'
+    key_values = [backend.new('diagnostic_msgs/msg/KeyValue', key=str(k), value=_diag_value(v))
+                  for k, v in values.items()]
+    status = backend.new(status_type, level=backend.constant(status_type, level.upper()),
+                         name=str(name), message=str(message), hardware_id=str(hardware_id),
+                         values=key_values)
+    return backend.new('diagnostic_msgs/msg/DiagnosticArray',
+                       header=header_msg(stamp_ns, '', backend), status=[status])
+
+
+# --- point clouds -------------------------------------------------------------------------
+
+
+def make_point_cloud(stamp_ns: int, frame_id: str, points: ArrayLike,
+                     channels: Sequence[tuple[str, ArrayLike]], backend: MsgBackend) -> Any:
+    """Return a ``sensor_msgs/msg/PointCloud`` with arbitrary channels.
+
+    Channel lengths are not checked against the point count, so per-point layouts can be
+    written too.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame.
+        points: Point coordinates, shape (N, 3) (stored as float32 Point32).
+        channels: ``(name, values)`` pairs; values are stored as float32.
+        backend: Message backend.
+
+    Returns:
+        The PointCloud message.
+
+    Raises:
+        MessageError: If ``points`` is not (N, 3).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        msg = f'make_point_cloud: points must have shape (N, 3), got {pts.shape}'
+        raise MessageError(msg)
+    point_type = backend.msg_class('geometry_msgs/msg/Point32')
+    point_msgs = [point_type(x=x, y=y, z=z) for x, y, z in pts.tolist()]
+    channel_msgs = [backend.new('sensor_msgs/msg/ChannelFloat32', name=str(name),
+                                values=backend.seq_f32(values))
+                    for name, values in channels]
+    return backend.new('sensor_msgs/msg/PointCloud',
+                       header=header_msg(stamp_ns, frame_id, backend),
+                       points=point_msgs, channels=channel_msgs)
+
+
+def make_point_cloud2_named(stamp_ns: int, frame_id: str, columns: Mapping[str, ArrayLike],
+                            backend: MsgBackend, *, big_endian: bool = False) -> Any:
+    """Return an unorganized (height 1) ``sensor_msgs/msg/PointCloud2`` from named columns.
+
+    Each column's numpy dtype picks its PointField datatype (int8..uint32, float32,
+    float64; pass e.g. ``np.asarray(ids, np.uint32)``). Fields are packed in the given
+    order without padding.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame.
+        columns: Field name -> values, shape (N,) each.
+        backend: Message backend.
+        big_endian: Write big-endian data (sets ``is_bigendian``).
+
+    Returns:
+        The PointCloud2 message; ``is_dense`` is True if all values are finite.
+
+    Raises:
+        MessageError: On unequal column lengths or dtypes PointField cannot express.
+    """
+    cols = {str(k): np.asarray(v).reshape(-1) for k, v in columns.items()}
+    sizes = {k: v.shape[0] for k, v in cols.items()}
+    if len(set(sizes.values())) > 1:
+        msg = f'make_point_cloud2_named: columns of different lengths {sizes}'
+        raise MessageError(msg)
+    n_pts = next(iter(sizes.values()), 0)
+    order = '>' if big_endian else '<'
+    field_type = backend.msg_class('sensor_msgs/msg/PointField')
+    fields, formats, offset = [], [], 0
+    for name, col in cols.items():
+        datatype = _NUMPY_TO_POINTFIELD.get(col.dtype.newbyteorder('='))
+        if datatype is None:
+            msg = f'make_point_cloud2_named: column {name!r} has unsupported dtype {col.dtype}'
+            raise MessageError(msg)
+        fields.append(field_type(name=name, offset=offset, datatype=datatype, count=1))
+        formats.append((name, order + POINTFIELD_DTYPES[datatype]))
+        offset += col.dtype.itemsize
+    rec = np.empty(n_pts, dtype=np.dtype(formats))
+    for name, col in cols.items():
+        rec[name] = col
+    is_dense = all(np.all(np.isfinite(c)) for c in cols.values() if c.dtype.kind == 'f')
+    return backend.new('sensor_msgs/msg/PointCloud2',
+                       header=header_msg(stamp_ns, frame_id, backend), height=1,
+                       width=int(n_pts), fields=fields, is_bigendian=bool(big_endian),
+                       point_step=int(offset), row_step=int(offset * n_pts),
+                       data=backend.seq_u8(rec.tobytes()), is_dense=bool(is_dense))
+
+
+def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
+                          backend: MsgBackend) -> Any:
+    """Return a ``sensor_msgs/msg/PointCloud2`` with float32 fields x, y, z (landmarks).
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Header frame (e.g. 'map').
+        points: Points, shape (N, 3), m.
+        backend: Message backend.
+
+    Returns:
+        The PointCloud2 message (little-endian, point_step 12).
+
+    Raises:
+        MessageError: If ``points`` is not (N, 3).
+    """
+    pts = np.asarray(points, dtype=np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        msg = f'make_point_cloud2_xyz: points must have shape (N, 3), got {pts.shape}'
+        raise MessageError(msg)
+    return make_point_cloud2_named(stamp_ns, frame_id,
+                                   {'x': pts[:, 0], 'y': pts[:, 1], 'z': pts[:, 2]}, backend)
+
+
+# --- front-end inputs (inverses of the parsers) -------------------------------------------
+
+
+def make_tracks(frame: TrackFrame, layout: str, backend: MsgBackend, num_cams: int = 1, *,
+                landmarks_xyz: ArrayLike | None = None) -> Any:
+    """Write a :class:`TrackFrame` in a front-end layout (inverse of ``parse_tracks``).
+
+    Velocity channels are written as zeros. Coordinates and ids travel as float32.
+
+    Args:
+        frame: Observations to write.
+        layout: One of :data:`~pmba_ros.backend.tracks.LAYOUTS`.
+        backend: Message backend.
+        num_cams: Front-end camera count (vins_mono id encoding, ``id*num_cams+cam``).
+        landmarks_xyz: World points, shape (K, 3), for ``per_point`` ``points`` and for
+            ``named`` fields x, y, z; default zeros (per_point) or omitted (named).
+
+    Returns:
+        A PointCloud (vins_mono, vins_fusion, per_point) or PointCloud2 (named).
+
+    Raises:
+        MessageError: If the layout is unknown or cannot carry the frame (vins layouts
+            need pixels and normalized coordinates, per_point needs pixels and camera 0,
+            ids must be exact in float32, i.e. < 2^24).
+    """
+    if layout not in LAYOUTS:
+        msg = f'unknown feature layout {layout!r} (expected one of {", ".join(LAYOUTS)})'
+        raise MessageError(msg)
+    n_obs = len(frame)
+    ids, cams = frame.feature_ids, frame.camera_ids
+    landmarks = None if landmarks_xyz is None else _rows(landmarks_xyz, 3, 'landmarks_xyz')
+    if landmarks is not None and landmarks.shape[0] != n_obs:
+        msg = f'make_tracks: {landmarks.shape[0]} landmarks for {n_obs} observations'
+        raise MessageError(msg)
+    if layout == 'named':
+        columns: dict[str, ArrayLike] = {'id': ids.astype(np.uint32),
+                                         'cam': cams.astype(np.uint8)}
+        if frame.pixels is not None:
+            columns |= {'u': frame.pixels[:, 0].astype(np.float32),
+                        'v': frame.pixels[:, 1].astype(np.float32)}
+        if frame.normalized is not None:
+            columns |= {'x_n': frame.normalized[:, 0].astype(np.float32),
+                        'y_n': frame.normalized[:, 1].astype(np.float32)}
+        if landmarks is not None:
+            columns |= {k: landmarks[:, i].astype(np.float32) for i, k in enumerate('xyz')}
+        if np.any(ids < 0) or np.any(ids >= 2**32) or np.any(cams < 0) or np.any(cams > 255):
+            msg = 'make_tracks: named layout stores id as uint32 and cam as uint8'
+            raise MessageError(msg)
+        return make_point_cloud2_named(frame.stamp_ns, frame.frame_id, columns, backend)
+    if frame.pixels is None and n_obs:
+        msg = f'make_tracks: layout {layout!r} needs pixels'
+        raise MessageError(msg)
+    pixels = frame.pixels if frame.pixels is not None else np.zeros((0, 2))
+    zeros = np.zeros(n_obs)
+    if layout == 'per_point':
+        if np.any(cams != 0):
+            msg = "make_tracks: layout 'per_point' has no camera id; all cameras must be 0"
+            raise MessageError(msg)
+        _check_f32_ids(ids)
+        norm = frame.normalized if frame.normalized is not None else np.zeros((n_obs, 2))
+        table = np.column_stack([norm, pixels, ids.astype(np.float64)])
+        points = landmarks if landmarks is not None else np.zeros((n_obs, 3))
+        return make_point_cloud(frame.stamp_ns, frame.frame_id, points,
+                                [('', row) for row in table], backend)
+    if frame.normalized is None and n_obs:
+        msg = f'make_tracks: layout {layout!r} needs normalized coordinates'
+        raise MessageError(msg)
+    norm = frame.normalized if frame.normalized is not None else np.zeros((0, 2))
+    points = np.column_stack([norm, np.ones(n_obs)])
+    if layout == 'vins_mono':
+        if np.any(cams >= num_cams):
+            msg = f'make_tracks: camera id >= num_cams {num_cams}'
+            raise MessageError(msg)
+        code = ids * int(num_cams) + cams
+        _check_f32_ids(code)
+        values = [code, pixels[:, 0], pixels[:, 1], zeros, zeros]
+    else:
+        _check_f32_ids(ids)
+        values = [ids, cams, pixels[:, 0], pixels[:, 1], zeros, zeros]
+    return make_point_cloud(frame.stamp_ns, frame.frame_id, points,
+                            [('', v) for v in values], backend)
+
+
+def _check_f32_ids(ids: np.ndarray) -> None:
+    """Raise if ids cannot travel exactly as float32 (VINS channels)."""
+    if np.any(ids < 0) or np.any(ids >= _F32_EXACT_INT):
+        msg = 'make_tracks: ids must be in [0, 2^24) to be exact in float32 channels'
+        raise MessageError(msg)
+
+
+def make_camera_info(stamp_ns: int, frame_id: str, camera: CameraModel,
+                     backend: MsgBackend) -> Any:
+    """Return a ``sensor_msgs/msg/CameraInfo`` for a camera model (monocular, no binning).
+
+    Model 'none' is written as 'plumb_bob' with five zero coefficients (the ROS convention
+    for a rectified camera), which :meth:`CameraModel.from_camera_info` reads back as 'none'.
+
+    Args:
+        stamp_ns: Header stamp, ns.
+        frame_id: Camera optical frame.
+        camera: The camera model.
+        backend: Message backend.
+
+    Returns:
+        The CameraInfo message (r = identity, p = [K | 0]).
+
+    Raises:
+        MessageError: If the backend lacks the types.
+    """
+    if camera.distortion_model == 'none':
+        model, d = 'plumb_bob', np.zeros(5)
+    else:
+        model, d = camera.distortion_model, camera.d
+    k = camera.k
+    p = np.column_stack([k, np.zeros(3)])
+    roi = backend.new('sensor_msgs/msg/RegionOfInterest', x_offset=0, y_offset=0, height=0,
+                      width=0, do_rectify=False)
+    return backend.new('sensor_msgs/msg/CameraInfo',
+                       header=header_msg(stamp_ns, frame_id, backend),
+                       height=int(camera.height), width=int(camera.width),
+                       distortion_model=model, d=backend.seq_f64(d),
+                       k=backend.fixed_f64(k), r=backend.fixed_f64(np.eye(3)),
+                       p=backend.fixed_f64(p), binning_x=0, binning_y=0, roi=roi)
+
+
+__all__ = [
+    'DIAGNOSTIC_LEVELS', 'MsgBackend', 'RclpyBackend', 'RosbagsBackend', 'header_msg',
+    'make_camera_info', 'make_diagnostics', 'make_odometry', 'make_path', 'make_point_cloud',
+    'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array', 'make_pose_stamped',
+    'make_tf', 'make_tracks', 'pose_msg', 'time_msg',
+]

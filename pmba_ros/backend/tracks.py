@@ -1,0 +1,343 @@
+"""Front-end messages to numpy: feature tracks, keyframe poses and camera info.
+
+The parsers are duck-typed: they read attributes only and convert every array field with
+``np.asarray``/``np.frombuffer``, so they accept rclpy messages (``array.array`` sequences),
+rosbags typestore messages (numpy arrays) and mcap_ros2 decoded objects (lists, ``bytes``)
+alike. Nothing here imports ROS.
+
+Feature layouts (``ros2_notes.md`` §3.1):
+
+``vins_mono``
+    ``sensor_msgs/PointCloud``; ``points[i]`` = normalized ``(x, y, 1)``; exactly five
+    channels ``[0]=feature_id*num_cams+camera_id, [1]=u, [2]=v, [3]=vx, [4]=vy``.
+``vins_fusion``
+    ``sensor_msgs/PointCloud``; ``points[i]`` = normalized ``(x, y, 1)``; at least six
+    channels ``[0]=feature_id, [1]=camera_id, [2]=u, [3]=v, [4]=vx, [5]=vy, ...``.
+``per_point``
+    ``sensor_msgs/PointCloud`` (VINS ``keyframe_point``, OpenVINS ``loop_feats``);
+    ``points[i]`` = world landmark (ignored); channel ``i`` = ``[x_n, y_n, u, v, feature_id,
+    ...]``; camera id 0. If every ``(x_n, y_n)`` is ``(0, 0)`` (OpenVINS) the frame has no
+    normalized coordinates and the caller normalizes ``pixels`` with a camera model.
+``named``
+    ``sensor_msgs/PointCloud2`` with fields ``id``, optional ``cam`` (default 0), ``u, v``
+    and/or ``x_n, y_n``; any PointField datatype, either byte order, padded rows.
+
+Ids travel as float32 in PointCloud channels and are rounded with ``floor(v + 0.5)`` (exact
+up to 2^24). Observations with non-finite ids or coordinates are dropped, and so are
+repeated ``(feature_id, camera_id)`` pairs after the first; :attr:`TrackFrame.dropped`
+counts both. A message that does not fit the layout raises :class:`MessageError`.
+"""
+
+from __future__ import annotations
+
+import logging
+from operator import attrgetter
+from typing import Any
+
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray
+from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
+from pmba_ros.errors import MessageError
+
+logger = logging.getLogger(__name__)
+
+LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
+"""Feature-track layouts :func:`parse_tracks` understands."""
+
+KEYFRAME_KINDS = ('odometry', 'pose_stamped')
+"""Keyframe message kinds :func:`parse_keyframe` understands."""
+
+POINTFIELD_DTYPES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
+"""``sensor_msgs/PointField`` datatype constant -> numpy type code (without byte order)."""
+
+_ID_TOL = 1e-3
+_Z_TOL = 1e-3
+_XYZ = attrgetter('x', 'y', 'z')
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Return a ``builtin_interfaces/Time`` as integer nanoseconds.
+
+    Args:
+        stamp: Object with ``sec`` and ``nanosec``.
+
+    Returns:
+        ``sec * 10**9 + nanosec``.
+
+    Raises:
+        MessageError: If ``stamp`` lacks ``sec``/``nanosec``.
+    """
+    try:
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    except (AttributeError, TypeError, ValueError) as err:
+        msg = f'expected a builtin_interfaces/msg/Time stamp, got {type(stamp).__name__}'
+        raise MessageError(msg) from err
+
+
+def _type_name(msg: Any) -> str:
+    """Return a readable type name of a message from any backend."""
+    return str(getattr(msg, '__msgtype__', type(msg).__name__))
+
+
+def _header(msg: Any) -> tuple[int, str]:
+    """Return ``(stamp_ns, frame_id)`` of a message with a std_msgs/Header."""
+    try:
+        header = msg.header
+        return stamp_to_ns(header.stamp), str(header.frame_id)
+    except AttributeError as err:
+        msg_ = f'expected a message with a std_msgs/Header, got {_type_name(msg)}'
+        raise MessageError(msg_) from err
+
+
+def parse_tracks(msg: Any, layout: str, num_cams: int = 1) -> TrackFrame:
+    """Parse a front-end feature message into a :class:`TrackFrame`.
+
+    Args:
+        msg: ``sensor_msgs/PointCloud`` (layouts vins_mono, vins_fusion, per_point) or
+            ``sensor_msgs/PointCloud2`` (layout named), from any backend.
+        layout: One of :data:`LAYOUTS`.
+        num_cams: Number of cameras of the front-end (VINS ``NUM_OF_CAM``); vins_mono
+            decodes ids with it, every layout rejects camera ids outside ``[0, num_cams)``.
+
+    Returns:
+        The observations, in message order, without non-finite rows and duplicates.
+        An empty cloud gives an empty frame.
+
+    Raises:
+        MessageError: If the layout is unknown, ``num_cams < 1``, or the message does not
+            fit the layout (wrong type, channel count or length, missing fields,
+            non-integral or negative ids, camera ids out of range).
+    """
+    if layout not in LAYOUTS:
+        msg_ = f'unknown feature layout {layout!r} (expected one of {", ".join(LAYOUTS)})'
+        raise MessageError(msg_)
+    if int(num_cams) < 1:
+        msg_ = f'num_cams must be >= 1, got {num_cams}'
+        raise MessageError(msg_)
+    stamp_ns, frame_id = _header(msg)
+    if layout == 'named':
+        cols = _read_named(msg)
+    else:
+        cols = _read_point_cloud(msg, layout, int(num_cams))
+    if cols is None:
+        return TrackFrame.empty(stamp_ns, frame_id)
+    ids, cams, pixels, normalized = cols
+    return _finish(stamp_ns, frame_id, layout, int(num_cams), ids, cams, pixels, normalized)
+
+
+_Columns = tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]
+
+
+def _read_point_cloud(msg: Any, layout: str, num_cams: int) -> _Columns | None:
+    """Read ids, camera ids, pixels and normalized coordinates from a PointCloud."""
+    try:
+        points_raw = msg.points
+        channels = msg.channels
+    except AttributeError as err:
+        msg_ = (f'layout {layout!r} expects sensor_msgs/msg/PointCloud (points, channels), '
+                f'got {_type_name(msg)}; wrong layout?')
+        raise MessageError(msg_) from err
+    n_pts = len(points_raw)
+    rows = [np.asarray(ch.values, dtype=np.float64).reshape(-1) for ch in channels]
+    lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+    if n_pts == 0 and not np.any(lengths):
+        return None
+    if layout == 'per_point':
+        return _per_point_columns(rows, lengths, n_pts)
+    if np.any(lengths != n_pts):
+        bad = np.flatnonzero(lengths != n_pts)
+        msg_ = (f'layout {layout!r} expects one value per point in every channel; '
+                f'{n_pts} points but channel(s) {bad[:5].tolist()} hold '
+                f'{lengths[bad[:5]].tolist()} values; wrong layout? '
+                '(per_point data has one channel per point)')
+        raise MessageError(msg_)
+    want_ok = len(rows) == 5 if layout == 'vins_mono' else len(rows) >= 6
+    if not want_ok:
+        want = 'exactly 5' if layout == 'vins_mono' else 'at least 6'
+        msg_ = (f'layout {layout!r} expects {want} channels, found {len(rows)}; '
+                'wrong layout? (vins_mono has 5, vins_fusion 6 or more)')
+        raise MessageError(msg_)
+    ch = np.stack(rows)
+    xyz = np.array(list(map(_XYZ, points_raw)), dtype=np.float64).reshape(-1, 3)
+    z = xyz[:, 2]
+    bad_z = np.isfinite(z) & (np.abs(z - 1.0) > _Z_TOL)
+    if np.any(bad_z):
+        msg_ = (f'layout {layout!r} expects normalized points (x, y, 1); {int(bad_z.sum())} '
+                f'of {n_pts} points have z != 1 (e.g. {z[bad_z][0]:g}); wrong layout?')
+        raise MessageError(msg_)
+    normalized = xyz[:, :2]
+    if layout == 'vins_mono':
+        code = np.floor(ch[0] + 0.5)
+        _check_ids(code, ch[0], layout, 'channel 0 (id*num_cams+cam)')
+        return np.floor_divide(code, num_cams), np.mod(code, num_cams), ch[1:3].T, normalized
+    return ch[0], ch[1], ch[2:4].T, normalized
+
+
+def _per_point_columns(rows: list[FloatArray], lengths: np.ndarray, n_pts: int) -> _Columns:
+    """Read the per_point layout: channel i = [x_n, y_n, u, v, feature_id, ...] of point i."""
+    if len(rows) != n_pts or np.any(lengths < 5):
+        short = np.flatnonzero(lengths < 5)
+        msg_ = ("layout 'per_point' expects one channel per point with >= 5 values "
+                f'[x_n, y_n, u, v, id]; found {n_pts} points, {len(rows)} channels'
+                + (f', channel(s) {short[:5].tolist()} with {lengths[short[:5]].tolist()} '
+                   'values' if short.size else '')
+                + '; wrong layout?')
+        raise MessageError(msg_)
+    if np.all(lengths == lengths[0]):
+        mat = np.stack(rows)[:, :5]
+    else:
+        mat = np.stack([row[:5] for row in rows])
+    normalized: FloatArray | None = mat[:, 0:2]
+    finite = np.isfinite(mat).all(axis=1)
+    if not np.any(mat[finite, 0:2]):
+        normalized = None  # OpenVINS leaves x_n = y_n = 0: normalize from pixels
+    return mat[:, 4], np.zeros(n_pts), mat[:, 2:4], normalized
+
+
+def _read_named(msg: Any) -> _Columns | None:
+    """Read the named layout from a PointCloud2 through one structured dtype."""
+    try:
+        fields = {str(f.name): f for f in msg.fields}
+        height, width = int(msg.height), int(msg.width)
+        point_step, row_step = int(msg.point_step), int(msg.row_step)
+        order = '>' if bool(msg.is_bigendian) else '<'
+        data = msg.data
+    except AttributeError as err:
+        msg_ = ("layout 'named' expects sensor_msgs/msg/PointCloud2 (fields, data), "
+                f'got {_type_name(msg)}; wrong layout?')
+        raise MessageError(msg_) from err
+    if height * width == 0:
+        return None
+    has_uv = 'u' in fields and 'v' in fields
+    has_xy = 'x_n' in fields and 'y_n' in fields
+    if 'id' not in fields or not (has_uv or has_xy):
+        msg_ = ("layout 'named' needs PointCloud2 fields id, u, v (and optional cam, x_n, "
+                f'y_n); found {sorted(fields)}')
+        raise MessageError(msg_)
+    names = ['id', *(['cam'] if 'cam' in fields else []), *(['u', 'v'] if has_uv else []),
+             *(['x_n', 'y_n'] if has_xy else [])]
+    formats, offsets = [], []
+    for name in names:
+        field = fields[name]
+        code = POINTFIELD_DTYPES.get(int(field.datatype))
+        size = np.dtype(code).itemsize if code else 0
+        if code is None or int(field.offset) < 0 or int(field.offset) + size > point_step:
+            msg_ = (f"PointCloud2 field {name!r}: datatype {int(field.datatype)} at offset "
+                    f'{int(field.offset)} does not fit point_step {point_step}')
+            raise MessageError(msg_)
+        formats.append(order + code)
+        offsets.append(int(field.offset))
+    n_pts = height * width
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                      'itemsize': point_step})
+    buf = np.frombuffer(data, dtype=np.uint8)
+    need = (height - 1) * row_step + width * point_step
+    if row_step < width * point_step or buf.size < need:
+        msg_ = (f'PointCloud2 data holds {buf.size} bytes, {height}x{width} points with '
+                f'point_step {point_step} and row_step {row_step} need {need}')
+        raise MessageError(msg_)
+    rec = np.ndarray((height, width), dtype=dtype, buffer=buf, strides=(row_step, point_step))
+    rec = rec.reshape(-1)
+
+    def col(name: str) -> FloatArray:
+        return rec[name].astype(np.float64)
+
+    cams = col('cam') if 'cam' in fields else np.zeros(n_pts)
+    pixels = np.stack([col('u'), col('v')], axis=1) if has_uv else None
+    normalized = np.stack([col('x_n'), col('y_n')], axis=1) if has_xy else None
+    return col('id'), cams, pixels, normalized
+
+
+def _check_ids(rounded: FloatArray, raw: FloatArray, layout: str, what: str) -> None:
+    """Raise if finite ids are negative or not integral (a symptom of a wrong layout)."""
+    finite = np.isfinite(raw)
+    bad = finite & ((np.abs(raw - rounded) > _ID_TOL) | (rounded < 0))
+    if np.any(bad):
+        msg_ = (f'layout {layout!r}: {what} must hold non-negative integers, found '
+                f'{raw[bad][:3].tolist()}; wrong layout?')
+        raise MessageError(msg_)
+
+
+def _finish(stamp_ns: int, frame_id: str, layout: str, num_cams: int, ids_raw: FloatArray,
+            cams_raw: FloatArray, pixels: FloatArray | None, normalized: FloatArray | None,
+            ) -> TrackFrame:
+    """Validate ids, drop non-finite rows and duplicates, and build the frame."""
+    finite: BoolArray = np.isfinite(ids_raw) & np.isfinite(cams_raw)
+    for coords in (pixels, normalized):
+        if coords is not None:
+            finite &= np.isfinite(coords).all(axis=1)
+    ids = np.floor(ids_raw + 0.5)
+    cams = np.floor(cams_raw + 0.5)
+    _check_ids(ids[finite], ids_raw[finite], layout, 'feature ids')
+    _check_ids(cams[finite], cams_raw[finite], layout, 'camera ids')
+    out_of_range = finite & (cams >= num_cams)
+    if np.any(out_of_range):
+        msg_ = (f'layout {layout!r}: camera id {int(cams[out_of_range][0])} >= num_cams '
+                f'{num_cams}; set num_cams or check the layout')
+        raise MessageError(msg_)
+    keep = np.flatnonzero(finite)
+    ids_i = ids[keep].astype(np.int64)
+    cams_i = cams[keep].astype(np.int64)
+    _, first = np.unique(ids_i * num_cams + cams_i, return_index=True)
+    keep = keep[np.sort(first)]
+    dropped = int(ids_raw.shape[0] - keep.shape[0])
+    if dropped:
+        logger.debug('tracks at %d ns: dropped %d of %d observations (non-finite/duplicate)',
+                     stamp_ns, dropped, ids_raw.shape[0])
+    return TrackFrame(
+        stamp_ns=stamp_ns, frame_id=frame_id,
+        feature_ids=ids[keep].astype(np.int64), camera_ids=cams[keep].astype(np.int64),
+        pixels=None if pixels is None else pixels[keep],
+        normalized=None if normalized is None else normalized[keep],
+        dropped=dropped)
+
+
+def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
+    """Parse a keyframe pose message.
+
+    Args:
+        msg: ``nav_msgs/Odometry`` (kind 'odometry') or ``geometry_msgs/PoseStamped``
+            (kind 'pose_stamped') from any backend.
+        kind: One of :data:`KEYFRAME_KINDS`.
+
+    Returns:
+        The pose with a unit quaternion; ``child_frame_id`` is '' for PoseStamped.
+
+    Raises:
+        MessageError: If the kind is unknown, the message is of another type, or the pose
+            has non-finite values or a zero-norm quaternion.
+    """
+    if kind not in KEYFRAME_KINDS:
+        msg_ = f'unknown keyframe kind {kind!r} (expected one of {", ".join(KEYFRAME_KINDS)})'
+        raise MessageError(msg_)
+    stamp_ns, frame_id = _header(msg)
+    try:
+        if kind == 'odometry':
+            pose, child = msg.pose.pose, str(msg.child_frame_id)
+        else:
+            pose, child = msg.pose, ''
+        position = _XYZ(pose.position)
+        quat_xyzw = (*_XYZ(pose.orientation), pose.orientation.w)
+    except AttributeError as err:
+        want = 'nav_msgs/msg/Odometry' if kind == 'odometry' else 'geometry_msgs/msg/PoseStamped'
+        msg_ = f'keyframe kind {kind!r} expects {want}, got {_type_name(msg)}'
+        raise MessageError(msg_) from err
+    return KeyframePose(stamp_ns=stamp_ns, frame_id=frame_id, child_frame_id=child,
+                        position=np.array(position, dtype=np.float64),
+                        quat_xyzw=np.array(quat_xyzw, dtype=np.float64))
+
+
+def parse_camera_info(msg: Any) -> CameraModel:
+    """Parse a ``sensor_msgs/CameraInfo`` (any backend); see :meth:`CameraModel.from_camera_info`.
+
+    Args:
+        msg: The CameraInfo message.
+
+    Returns:
+        The camera model.
+
+    Raises:
+        MessageError: If the message is not a usable CameraInfo.
+    """
+    return CameraModel.from_camera_info(msg)
