@@ -315,3 +315,54 @@ class IdpFeatures:
 
 
 Features = ParallaxFeatures | XyzFeatures | IdpFeatures
+
+
+def subset_features(problem: BAProblem, keep: BoolArray, reason: str) -> BAProblem:
+    """Return the problem without the features where ``keep`` is False (counted under reason).
+
+    Args:
+        problem: The problem.
+        keep: Features to keep, shape (N,).
+        reason: Key under which the dropped features are counted in ``dropped``.
+
+    Returns:
+        A new problem with features re-indexed densely (``feature_ids`` keeps the caller's ids).
+    """
+    keep = np.asarray(keep, dtype=bool)
+    if keep.shape != (problem.n_feats,):
+        msg = f'subset_features: expected mask of shape ({problem.n_feats},), got {keep.shape}'
+        raise ProblemError(msg)
+    if np.all(keep):
+        return problem
+    new_index = np.cumsum(keep) - 1
+    obs_keep = keep[problem.obs.feat_idx]
+    obs = problem.obs.take(obs_keep)
+    obs = Observations(_readonly(obs.cam_idx), _readonly(new_index[obs.feat_idx]),
+                       _readonly(obs.bearings_c), _readonly(obs.pixels))
+    dropped = dict(problem.dropped)
+    _count(dropped, reason, int(np.sum(~keep)))
+    logger.info('dropped %d features (%s)', int(np.sum(~keep)), reason)
+    pts = None if problem.points_w is None else _readonly(problem.points_w[keep])
+    return replace(problem, obs=obs, n_feats=int(np.sum(keep)), points_w=pts,
+                   feature_ids=_readonly(problem.feature_ids[keep]), dropped=dropped)
+
+
+def observation_pairs(feat_idx: IntArray, n_feats: int) -> tuple[IntArray, IntArray]:
+    """Return all pairs (k1 < k2) of observations of the same feature (obs sorted by feature).
+
+    Args:
+        feat_idx: Feature of each observation, sorted ascending, shape (K,).
+        n_feats: Number of features N.
+
+    Returns:
+        Observation indices k1, k2 of every within-feature pair, each of shape (P,).
+    """
+    K = feat_idx.shape[0]
+    counts = np.bincount(feat_idx, minlength=n_feats)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    local = np.arange(K) - offsets[feat_idx]
+    later = counts[feat_idx] - 1 - local
+    k1 = np.repeat(np.arange(K), later)
+    start = np.cumsum(later) - later
+    k2 = k1 + 1 + (np.arange(k1.shape[0]) - np.repeat(start, later))
+    return k1.astype(np.int64), k2.astype(np.int64)

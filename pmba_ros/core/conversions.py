@@ -1,0 +1,211 @@
+"""Anchor selection and conversions between feature parameterizations (pmba.md §1.2, §3).
+
+Notation as in :mod:`pmba_ros.core.problem`. World rays of observations are
+``r_k = R_i v_k`` (rotations only); the parallax of a pair of observations is the angle
+between their world rays.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import sphere
+from pmba_ros.core.problem import (BAProblem, IdpFeatures, ParallaxFeatures, XyzFeatures,
+                                   observation_pairs)
+from pmba_ros.errors import ProblemError
+
+logger = logging.getLogger(__name__)
+
+#: ParallaxBA swaps main and associate anchors when the point is this much farther from the
+#: main anchor than from the associate (pmba.md §3.1).
+_SWAP_DEPTH_RATIO = 30.0
+
+
+def world_rays(problem: BAProblem, R_wc: FloatArray) -> FloatArray:
+    """Return the world-frame rays r_k = R_i v_k of all observations, shape (K, 3)."""
+    return np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], problem.obs.bearings_c)
+
+
+def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
+                   allowed_pairs: BoolArray | None = None,
+                   centers_w: FloatArray | None = None,
+                   points_w: FloatArray | None = None,
+                   ) -> tuple[IntArray, IntArray, BoolArray]:
+    """Pick main and associate anchors of every feature: its maximum-parallax observer pair.
+
+    ParallaxBA's rule (pmba.md §3.1) approximates the pair of observations with the largest
+    angle between their world rays; this takes that pair exactly, with the later camera as
+    main anchor. With known positions, pairs without baseline are excluded; with known points,
+    the anchors are swapped when the point is over 30 times farther from the main anchor.
+
+    Args:
+        problem: The problem (observations sorted by feature).
+        R_wc: Camera -> world rotations, shape (M, 3, 3).
+        allowed_pairs: Optional (M, M) symmetric mask of camera pairs that may anchor a
+            feature (PMBA: epipolar-geometry pairs only).
+        centers_w: Optional camera centres (M, 3): pairs closer than 1e-9 of the scene size
+            are not anchors (zero baseline, pmba.md §3.3).
+        points_w: Optional points (N, 3) for the depth-ratio swap.
+
+    Returns:
+        main_idx (N,), assoc_idx (N,) and ok (N,): False where no admissible pair exists.
+    """
+    obs = problem.obs
+    rays = world_rays(problem, R_wc)
+    k1, k2 = observation_pairs(obs.feat_idx, problem.n_feats)
+    c1, c2 = obs.cam_idx[k1], obs.cam_idx[k2]
+    admissible = np.ones(k1.shape[0], dtype=bool)
+    if allowed_pairs is not None:
+        admissible &= allowed_pairs[c1, c2]
+    if centers_w is not None:
+        scale = float(np.ptp(centers_w, axis=0).max()) if centers_w.shape[0] > 1 else 0.0
+        baseline = np.linalg.norm(centers_w[c1] - centers_w[c2], axis=1)
+        admissible &= baseline > max(scale, 1.0) * 1e-9
+    cos_par = np.clip(np.sum(rays[k1] * rays[k2], axis=1), -1.0, 1.0)
+    score = np.where(admissible, np.arccos(cos_par), -1.0)
+    pair_feat = obs.feat_idx[k1]
+    order = np.lexsort((score, pair_feat))
+    last = np.ones(order.shape[0], dtype=bool)
+    last[:-1] = pair_feat[order][1:] != pair_feat[order][:-1]
+    best = order[last]
+    N = problem.n_feats
+    main_idx = np.zeros(N, dtype=np.int64)
+    assoc_idx = np.zeros(N, dtype=np.int64)
+    ok = np.zeros(N, dtype=bool)
+    f_best = pair_feat[best]
+    main_idx[f_best] = c2[best]
+    assoc_idx[f_best] = c1[best]
+    ok[f_best] = score[best] >= 0.0
+    if points_w is not None and centers_w is not None:
+        d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
+        d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)
+        swap = d_main > _SWAP_DEPTH_RATIO * d_assoc
+        main_idx, assoc_idx = np.where(swap, assoc_idx, main_idx), np.where(swap, main_idx, assoc_idx)
+    return main_idx, assoc_idx, ok
+
+
+def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
+    """Return the index of the observation of feature j by camera cams[j], shape (N,).
+
+    Raises:
+        ProblemError: If some feature is not observed by its given camera.
+    """
+    M = problem.n_cams
+    keys = problem.obs.feat_idx * M + problem.obs.cam_idx  # sorted: obs are by feature, camera
+    want = np.arange(problem.n_feats) * M + cams
+    k = np.searchsorted(keys, want)
+    k = np.minimum(k, keys.shape[0] - 1)
+    if keys.shape[0] == 0 or np.any(keys[k] != want):
+        msg = 'anchor_observations: an anchor camera does not observe its feature'
+        raise ProblemError(msg)
+    return k.astype(np.int64)
+
+
+def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,
+                            assoc_idx: IntArray) -> ParallaxFeatures:
+    """Initial PMBA features from rotations only, no triangulation (PMBA Remark 5).
+
+    theta = arccos((R_m v_m) . (R_a v_a)) and n = v_m, so every main-anchor residual starts
+    at zero (pmba.md §3.2).
+    """
+    km = anchor_observations(problem, main_idx)
+    ka = anchor_observations(problem, assoc_idx)
+    rays = world_rays(problem, R_wc)
+    theta = np.arccos(np.clip(np.sum(rays[km] * rays[ka], axis=1), -1.0, 1.0))
+    return ParallaxFeatures(theta, problem.obs.bearings_c[km].copy(), main_idx.copy(),
+                            assoc_idx.copy())
+
+
+def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+                    points_w: FloatArray, *, allowed_pairs: BoolArray | None = None,
+                    ) -> tuple[ParallaxFeatures, BoolArray]:
+    """Convert Euclidean points to PMBA features with anchors chosen by :func:`select_anchors`.
+
+    n = xi(R_m^T (F - P_m)) and theta = angle(F - P_m, F - P_a). Points that are not finite or
+    lie behind the main anchor fall back to :func:`features_from_rotations` values.
+
+    Returns:
+        The features and ok (N,): False for features without an admissible anchor pair.
+    """
+    main_idx, assoc_idx, ok = select_anchors(problem, R_wc, allowed_pairs=allowed_pairs,
+                                             centers_w=centers_w, points_w=points_w)
+    from_rot = features_from_rotations(problem, R_wc, main_idx, assoc_idx)
+    d_m = points_w - centers_w[main_idx]
+    d_a = points_w - centers_w[assoc_idx]
+    n = sphere.normalize(np.einsum('nji,nj->ni', R_wc[main_idx], d_m))
+    cos_t = np.sum(sphere.normalize(d_m) * sphere.normalize(d_a), axis=1)
+    theta = np.arccos(np.clip(cos_t, -1.0, 1.0))
+    # A point is usable if it is in front of the main anchor and on its measured side.
+    valid = (np.all(np.isfinite(points_w), axis=1) & (n[:, 2] > 0)
+             & (np.sum(n * from_rot.n, axis=1) > 0))
+    n = np.where(valid[:, None], n, from_rot.n)
+    theta = np.where(valid, theta, from_rot.theta)
+    if np.any(~valid & ok):
+        logger.info('xyz_to_parallax: %d points re-initialized from rotations',
+                    int(np.sum(~valid & ok)))
+    return ParallaxFeatures(theta, n, main_idx, assoc_idx), ok
+
+
+def parallax_homogeneous(R_wc: FloatArray, centers_w: FloatArray,
+                         feats: ParallaxFeatures) -> tuple[FloatArray, FloatArray]:
+    """Homogeneous points (X~, w) with N_i = X~ - w P_i, arccos-free (pmba.md §1.3).
+
+    Returns:
+        X~ = g u + sin(theta) P_m, shape (N, 3), and w = sin(theta), shape (N,).
+    """
+    u = np.einsum('nij,nj->ni', R_wc[feats.main_idx], feats.n)
+    P_m = centers_w[feats.main_idx]
+    t = P_m - centers_w[feats.assoc_idx]
+    s = np.linalg.norm(np.cross(t, u), axis=1)
+    c = np.sum(t * u, axis=1)
+    sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
+    g = s * cos_t - c * sin_t
+    return g[:, None] * u + sin_t[:, None] * P_m, sin_t
+
+
+def parallax_to_xyz(R_wc: FloatArray, centers_w: FloatArray,
+                    feats: ParallaxFeatures) -> FloatArray:
+    """Euclidean points F = P_m + D sin(alpha - theta)/sin(theta) R_m n (PMBA eq. 2).
+
+    Points at infinity (theta ~ 0) come out as inf in their direction's coordinates.
+    """
+    X, w = parallax_homogeneous(R_wc, centers_w, feats)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return X / w[:, None]  # eq. (2)
+
+
+def xyz_to_idp(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+               points_w: FloatArray) -> IdpFeatures:
+    """Inverse-depth features anchored at each feature's first observing camera."""
+    offsets = problem.feature_offsets()
+    k0 = offsets[:-1]
+    h = problem.obs.cam_idx[k0]
+    p_c = np.einsum('nji,nj->ni', R_wc[h], points_w - centers_w[h])
+    bearing = problem.obs.bearings_c[k0]
+    valid = np.all(np.isfinite(points_w), axis=1) & (p_c[:, 2] > 1e-12)
+    # Points behind the anchor start at infinity along the measured bearing.
+    ray = np.where(valid[:, None], p_c, bearing)
+    ab = ray[:, :2] / ray[:, 2:3]
+    rho = np.where(valid, 1.0 / np.where(valid, p_c[:, 2], 1.0), 0.0)
+    return IdpFeatures(h.astype(np.int64), ab, rho)
+
+
+def idp_to_xyz(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures) -> FloatArray:
+    """Euclidean points X = P_h + R_h [a, b, 1]^T / rho."""
+    m = np.concatenate([feats.ab, np.ones((feats.ab.shape[0], 1))], axis=1)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return centers_w[feats.anchor_idx] + np.einsum(
+            'nij,nj->ni', R_wc[feats.anchor_idx], m) / feats.rho[:, None]
+
+
+def to_xyz(R_wc: FloatArray, centers_w: FloatArray,
+           feats: ParallaxFeatures | XyzFeatures | IdpFeatures) -> FloatArray:
+    """Euclidean points (N, 3) of any feature parameterization."""
+    if isinstance(feats, ParallaxFeatures):
+        return parallax_to_xyz(R_wc, centers_w, feats)
+    if isinstance(feats, IdpFeatures):
+        return idp_to_xyz(R_wc, centers_w, feats)
+    return np.array(feats.points_w, dtype=float)

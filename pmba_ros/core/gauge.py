@@ -1,0 +1,82 @@
+"""Gauge fixing of the 7-DoF similarity freedom of monocular BA (pmba.md §2).
+
+ParallaxBA's rule: hold the root pose (6 columns) and the coordinate of one more camera's
+centre with the largest |P_k - P_root| component (1 column, the scale). Poses the caller
+fixes count: one fixed pose replaces the root, two or more fix the gauge on their own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+
+
+@dataclass(frozen=True, eq=False)
+class Gauge:
+    """Which pose columns are solved for.
+
+    Attributes:
+        fixed_poses: Poses held entirely, shape (M,).
+        scale_pose: Pose whose centre coordinate ``scale_axis`` is held, or -1.
+        scale_axis: Held coordinate (0, 1, 2) of that centre, or -1.
+    """
+
+    fixed_poses: BoolArray
+    scale_pose: int
+    scale_axis: int
+
+    def free_block(self) -> IntArray:
+        """Return the block index of each pose in the solved vector, -1 for held poses (M,)."""
+        free = ~self.fixed_poses
+        out = np.full(free.shape[0], -1, dtype=np.int64)
+        out[free] = np.arange(int(free.sum()))
+        return out
+
+    def column_mask(self) -> BoolArray:
+        """Return the solved pose columns, shape (n_blocks, 6)."""
+        mask = np.ones((int((~self.fixed_poses).sum()), 6), dtype=bool)
+        if self.scale_pose >= 0:
+            mask[self.free_block()[self.scale_pose], 3 + self.scale_axis] = False
+        return mask
+
+
+def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,
+                 feat_idx: IntArray, n_feats: int) -> Gauge:
+    """Choose the gauge: root pose plus one centre coordinate of its strongest partner.
+
+    Args:
+        centers_w: Camera centres, shape (M, 3).
+        fixed: Poses the caller holds, shape (M,).
+        cam_idx: Observing camera per observation, shape (K,).
+        feat_idx: Feature per observation, shape (K,).
+        n_feats: Number of features.
+
+    Returns:
+        The gauge. Poses without observations are held too (they carry no information).
+    """
+    M = centers_w.shape[0]
+    fixed = np.array(fixed, dtype=bool)
+    fixed |= np.bincount(cam_idx, minlength=M) == 0
+    n_fixed = int(fixed.sum())
+    if n_fixed >= 2 or n_fixed == M:
+        return Gauge(fixed, -1, -1)
+    root = int(np.flatnonzero(fixed)[0]) if n_fixed == 1 else int(
+        np.argmax(np.bincount(cam_idx, minlength=M)))
+    fixed[root] = True
+    # Strongest partner: the camera sharing most features with the root.
+    seen_by_root = np.zeros(n_feats, dtype=bool)
+    seen_by_root[feat_idx[cam_idx == root]] = True
+    shared = np.bincount(cam_idx[seen_by_root[feat_idx]], minlength=M).astype(float)
+    shared[fixed] = -1.0
+    baseline = np.abs(centers_w - centers_w[root])
+    shared[baseline.max(axis=1) <= 0.0] = -1.0
+    partner = int(np.argmax(shared))
+    if shared[partner] < 0:
+        partner = int(np.flatnonzero(~fixed)[0]) if np.any(~fixed) else -1
+    if partner < 0:
+        return Gauge(fixed, -1, -1)
+    axis = int(np.argmax(baseline[partner]))
+    return Gauge(fixed, partner, axis)

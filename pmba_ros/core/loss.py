@@ -1,0 +1,52 @@
+"""Robust losses rho(z) of squared residual norms z = |e|^2 (scipy's and Ceres' contract).
+
+The cost of an observation is ``1/2 a^2 rho(z / a^2)`` for a scale a (in residual units). Both
+losses here have rho'' <= 0 wherever they down-weight, where Ceres' ``Corrector`` reduces to
+scaling residual and Jacobian by sqrt(rho'), the form used by :func:`robust_weights`.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+
+
+class Loss(str, Enum):
+    """Available robust losses."""
+
+    NONE = 'none'
+    HUBER = 'huber'
+    CAUCHY = 'cauchy'
+
+
+def rho(sq_norm: FloatArray, loss: Loss, scale: float) -> tuple[FloatArray, FloatArray]:
+    """Return rho(z) (in residual units squared) and rho'(z) for z = sq_norm.
+
+    Args:
+        sq_norm: Squared residual norms, shape (K,).
+        loss: The loss.
+        scale: Scale a > 0 beyond which residuals are down-weighted (residual units).
+    """
+    if loss is Loss.NONE:
+        return sq_norm, np.ones_like(sq_norm)
+    a2 = scale * scale
+    z = sq_norm / a2
+    if loss is Loss.HUBER:
+        root = np.sqrt(np.maximum(z, 1.0))
+        return np.where(z <= 1.0, z, 2.0 * root - 1.0) * a2, np.where(z <= 1.0, 1.0, 1.0 / root)
+    return np.log1p(z) * a2, 1.0 / (1.0 + z)
+
+
+def robust_cost(residuals: FloatArray, loss: Loss, scale: float) -> float:
+    """Return the cost 1/2 sum rho(|e_k|^2) of residuals (K, d)."""
+    value, _ = rho(np.sum(residuals * residuals, axis=1), loss, scale)
+    return 0.5 * float(np.sum(value))
+
+
+def robust_weights(residuals: FloatArray, loss: Loss, scale: float) -> FloatArray:
+    """Return sqrt(rho'(|e_k|^2)), shape (K,), to scale residuals and Jacobian rows by."""
+    _, d_rho = rho(np.sum(residuals * residuals, axis=1), loss, scale)
+    return np.sqrt(d_rho)

@@ -1,0 +1,181 @@
+"""The three parameterizations behind one interface, so one solver runs them all."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Generic, TypeVar
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.core import baselines, residuals
+from pmba_ros.core.camera import project
+from pmba_ros.core.problem import (BAProblem, IdpFeatures, Parameterization, ParallaxFeatures,
+                                   XyzFeatures)
+
+F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
+
+
+class Model(ABC, Generic[F]):
+    """Residuals, Jacobians and feature retraction of one parameterization.
+
+    Attributes:
+        residual_dim: Size d of one observation's residual (3 rays, 2 pixels).
+        pixel_residuals: True if residuals are pixels (False: unit-ray chordal errors).
+    """
+
+    residual_dim: int
+    pixel_residuals: bool
+
+    def __init__(self, problem: BAProblem) -> None:
+        """Bind the model to a problem's observations and intrinsics."""
+        self.problem = problem
+        self.obs = problem.obs
+
+    @abstractmethod
+    def slots(self, feats: F) -> IntArray:
+        """Return the pose of each observation's Jacobian slots, shape (K, S), -1 unused."""
+
+    @abstractmethod
+    def residuals(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:
+        """Return residuals, shape (K, d)."""
+
+    @abstractmethod
+    def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: F,
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return residuals (K, d), J_pose (K, S, d, 6) and J_feat (K, d, 3)."""
+
+    @abstractmethod
+    def retract(self, feats: F, delta: FloatArray) -> F:
+        """Return features moved by delta (N, 3)."""
+
+    @abstractmethod
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:
+        """Return each observation's predicted direction in its camera frame, shape (K, 3)."""
+
+    @abstractmethod
+    def parameter_norm_sq(self, feats: F) -> float:
+        """Return the squared norm of the feature parameters (for the parameter tolerance)."""
+
+    def reprojection_errors_px(self, R_wc: FloatArray, centers_w: FloatArray,
+                               feats: F) -> FloatArray:
+        """Return the pixel reprojection error norm of every observation, shape (K,)."""
+        h = self.camera_rays(R_wc, centers_w, feats)
+        pix = project(h, self.problem.intrinsics, self.obs.cam_idx)
+        return np.linalg.norm(pix - self.obs.pixels, axis=1)
+
+
+class ParallaxModel(Model[ParallaxFeatures]):
+    """PMBA: ray-direction errors of parallax-angle features (eqs. 6-8)."""
+
+    residual_dim = 3
+    pixel_residuals = False
+
+    def slots(self, feats: ParallaxFeatures) -> IntArray:
+        """Return slots (i, m, a)."""
+        return residuals.pose_slots(feats, self.obs)
+
+    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
+                  feats: ParallaxFeatures) -> FloatArray:
+        """Return ray errors (K, 3)."""
+        return residuals.ray_residuals(R_wc, centers_w, feats, self.obs)
+
+    def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return ray errors and their analytic Jacobians."""
+        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs)
+
+    def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
+        """Return theta + d theta, Exp(A_n dn) n."""
+        return residuals.retract_features(feats, delta)
+
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
+                    feats: ParallaxFeatures) -> FloatArray:
+        """Return R_i^T N_ji."""
+        return residuals.camera_rays(R_wc, centers_w, feats, self.obs)
+
+    def parameter_norm_sq(self, feats: ParallaxFeatures) -> float:
+        """Return |theta|^2 + |n|^2."""
+        return float(np.sum(feats.theta ** 2) + feats.n.shape[0])
+
+
+class XyzModel(Model[XyzFeatures]):
+    """XYZ-BA: Euclidean points, pixel errors."""
+
+    residual_dim = 2
+    pixel_residuals = True
+
+    def slots(self, feats: XyzFeatures) -> IntArray:
+        """Return slot (i)."""
+        return baselines.xyz_slots(self.obs)
+
+    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
+                  feats: XyzFeatures) -> FloatArray:
+        """Return pixel errors (K, 2)."""
+        return baselines.xyz_residuals(R_wc, centers_w, feats, self.obs,
+                                       self.problem.intrinsics)
+
+    def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return pixel errors and Jacobians."""
+        return baselines.xyz_jacobians(R_wc, centers_w, feats, self.obs,
+                                       self.problem.intrinsics)
+
+    def retract(self, feats: XyzFeatures, delta: FloatArray) -> XyzFeatures:
+        """Return X + dX."""
+        return XyzFeatures(feats.points_w + delta)
+
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
+                    feats: XyzFeatures) -> FloatArray:
+        """Return R_i^T (X - P_i)."""
+        return baselines.xyz_camera_rays(R_wc, centers_w, feats, self.obs)
+
+    def parameter_norm_sq(self, feats: XyzFeatures) -> float:
+        """Return |X|^2."""
+        return float(np.sum(feats.points_w ** 2))
+
+
+class IdpModel(Model[IdpFeatures]):
+    """IDP-BA: inverse depth from the first observing camera, pixel errors."""
+
+    residual_dim = 2
+    pixel_residuals = True
+
+    def slots(self, feats: IdpFeatures) -> IntArray:
+        """Return slots (i, h)."""
+        return baselines.idp_slots(feats, self.obs)
+
+    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
+                  feats: IdpFeatures) -> FloatArray:
+        """Return pixel errors (K, 2)."""
+        return baselines.idp_residuals(R_wc, centers_w, feats, self.obs,
+                                       self.problem.intrinsics)
+
+    def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return pixel errors and Jacobians."""
+        return baselines.idp_jacobians(R_wc, centers_w, feats, self.obs,
+                                       self.problem.intrinsics)
+
+    def retract(self, feats: IdpFeatures, delta: FloatArray) -> IdpFeatures:
+        """Return (a, b, rho) + delta."""
+        return IdpFeatures(feats.anchor_idx, feats.ab + delta[:, :2], feats.rho + delta[:, 2])
+
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
+                    feats: IdpFeatures) -> FloatArray:
+        """Return R_i^T (R_h m + rho (P_h - P_i))."""
+        return baselines.idp_camera_rays(R_wc, centers_w, feats, self.obs)
+
+    def parameter_norm_sq(self, feats: IdpFeatures) -> float:
+        """Return |(a, b, rho)|^2."""
+        return float(np.sum(feats.ab ** 2) + np.sum(feats.rho ** 2))
+
+
+def make_model(param: Parameterization, problem: BAProblem,
+               ) -> ParallaxModel | XyzModel | IdpModel:
+    """Return the model of a parameterization bound to a problem."""
+    if param is Parameterization.PMBA:
+        return ParallaxModel(problem)
+    if param is Parameterization.XYZ:
+        return XyzModel(problem)
+    return IdpModel(problem)

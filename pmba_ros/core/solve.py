@@ -1,0 +1,502 @@
+"""One entry point, :func:`solve`, for PMBA, XYZ-BA and IDP-BA with Dogleg, LM or Gauss-Newton.
+
+The loop follows Ceres' TrustRegionMinimizer (pmba.md §5.2): Jacobi scaling of the columns,
+an ellipsoidal trust region in the scaled space, Schur-complement linear solves, and for
+Dogleg, cheap retries that reuse the Gauss-Newton and Cauchy points after a rejected step.
+The cost is Ceres' ``1/2 sum rho(|e|^2)``; ``rms_px`` is the pixel reprojection RMS of the
+current estimate (sqrt of the mean squared 2-D error), the common metric of all
+parameterizations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from enum import Enum
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+from pmba_ros.core import conversions, dogleg, normal_equations as ne, so3
+from pmba_ros.core.gauge import choose_gauge
+from pmba_ros.core.loss import Loss, robust_cost, robust_weights
+from pmba_ros.core.models import Model, make_model
+from pmba_ros.core.problem import (BAProblem, Features, IdpFeatures, Parameterization,
+                                   ParallaxFeatures, XyzFeatures, subset_features)
+from pmba_ros.errors import ProblemError, SolverError
+
+logger = logging.getLogger(__name__)
+
+
+class SolverKind(str, Enum):
+    """Trust-region strategies."""
+
+    DOGLEG = 'dogleg'
+    LM = 'lm'
+    GN = 'gn'
+
+
+class TerminationReason(str, Enum):
+    """Why the solver stopped."""
+
+    FUNCTION_TOLERANCE = 'function_tolerance'
+    GRADIENT_TOLERANCE = 'gradient_tolerance'
+    PARAMETER_TOLERANCE = 'parameter_tolerance'
+    MIN_TRUST_REGION = 'min_trust_region_radius'
+    MAX_ITERATIONS = 'max_iterations'
+    MAX_TIME = 'max_time'
+    INVALID_STEPS = 'too_many_invalid_steps'
+    NO_PROGRESS = 'no_progress'
+
+
+_CONVERGED = {TerminationReason.FUNCTION_TOLERANCE, TerminationReason.GRADIENT_TOLERANCE,
+              TerminationReason.PARAMETER_TOLERANCE, TerminationReason.MIN_TRUST_REGION}
+
+
+@dataclass(frozen=True, slots=True)
+class SolveOptions:
+    """Options of :func:`solve`; defaults are Ceres' (include/ceres/solver.h).
+
+    Attributes:
+        param: Feature parameterization.
+        solver: Trust-region strategy.
+        loss: Robust loss.
+        loss_scale_px: Loss scale in pixels (ray errors use loss_scale_px / median focal).
+        max_iterations: Iteration budget (accepted and rejected steps).
+        max_time_s: Wall-time budget in seconds.
+        function_tolerance: Stop when an accepted step changes the cost by less than this,
+            relative.
+        gradient_tolerance: Stop when max |J^T r| falls below this.
+        parameter_tolerance: Stop when |step| <= tol (|x| + tol).
+        initial_trust_region_radius: Initial Delta (scaled space).
+        jacobi_scaling: Scale Jacobian columns by 1 / (1 + |J_k|).
+    """
+
+    param: Parameterization = Parameterization.PMBA
+    solver: SolverKind = SolverKind.DOGLEG
+    loss: Loss = Loss.NONE
+    loss_scale_px: float = 2.0
+    max_iterations: int = 100
+    max_time_s: float = math.inf
+    function_tolerance: float = 1e-6
+    gradient_tolerance: float = 1e-10
+    parameter_tolerance: float = 1e-8
+    initial_trust_region_radius: float = 1e4
+    jacobi_scaling: bool = True
+
+    def __post_init__(self) -> None:
+        """Coerce enum strings and validate ranges."""
+        try:
+            object.__setattr__(self, 'param', Parameterization(self.param))
+            object.__setattr__(self, 'solver', SolverKind(self.solver))
+            object.__setattr__(self, 'loss', Loss(self.loss))
+        except ValueError as err:
+            msg = f'SolveOptions: {err}'
+            raise ValueError(msg) from err
+        if self.max_iterations < 0:
+            msg = '`max_iterations` must be >= 0'
+            raise ValueError(msg)
+        if self.loss_scale_px <= 0 or self.initial_trust_region_radius <= 0:
+            msg = '`loss_scale_px` and `initial_trust_region_radius` must be positive'
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True, slots=True)
+class IterationRecord:
+    """One solver iteration.
+
+    Attributes:
+        iteration: Index (0 = the initial state).
+        cost: Cost after the iteration.
+        rms_px: Pixel reprojection RMS after the iteration.
+        accepted: Whether the step was accepted.
+        trust_radius: Trust-region radius after the update.
+        step_norm: Norm of the step (scaled space).
+        rho: Step quality.
+        linear_solves: Cumulative number of linear solves.
+        time_s: Elapsed time since the start.
+    """
+
+    iteration: int
+    cost: float
+    rms_px: float
+    accepted: bool
+    trust_radius: float
+    step_norm: float
+    rho: float
+    linear_solves: int
+    time_s: float
+
+
+@dataclass(frozen=True, eq=False)
+class SolveResult:
+    """The result of :func:`solve` (never aliases the input problem's arrays).
+
+    Attributes:
+        R_wc: Optimized camera -> world rotations (M, 3, 3).
+        centers_w: Optimized camera centres (M, 3).
+        features: Optimized features of the chosen parameterization.
+        points_w: Euclidean points (N, 3) (inf for points at infinity).
+        problem: The problem that was solved (after dropping unusable features).
+        options: The options used.
+        converged: True if a convergence criterion stopped the solver.
+        termination: Why the solver stopped.
+        iterations: Number of iterations (accepted and rejected).
+        accepted_steps: Number of accepted steps.
+        linear_solves: Number of factorizations of the reduced system.
+        initial_cost, final_cost: Cost 1/2 sum rho(|e|^2) before and after.
+        initial_rms_px, final_rms_px: Pixel reprojection RMS before and after.
+        time_s: Wall time in seconds.
+        history: Per-iteration records, starting with the initial state.
+    """
+
+    R_wc: FloatArray
+    centers_w: FloatArray
+    features: Features
+    points_w: FloatArray
+    problem: BAProblem
+    options: SolveOptions
+    converged: bool
+    termination: TerminationReason
+    iterations: int
+    accepted_steps: int
+    linear_solves: int
+    initial_cost: float
+    final_cost: float
+    initial_rms_px: float
+    final_rms_px: float
+    time_s: float
+    history: list[IterationRecord] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
+        p = self.problem
+        return '\n'.join([
+            f'{self.options.param.value.upper()} / {self.options.solver.value}'
+            f' (loss {self.options.loss.value}): {p.n_cams} poses, {p.n_feats} features,'
+            f' {p.n_obs} observations',
+            f'  cost     {self.initial_cost:.6e} -> {self.final_cost:.6e}',
+            f'  rms_px   {self.initial_rms_px:.4f} -> {self.final_rms_px:.4f}',
+            f'  iterations {self.iterations} (accepted {self.accepted_steps}),'
+            f' linear solves {self.linear_solves}, {self.time_s:.3f} s',
+            f'  termination: {self.termination.value}'
+            f' ({"converged" if self.converged else "not converged"})'])
+
+    def to_report(self) -> dict[str, Any]:
+        """Return the JSON-able report of the ``solve`` CLI."""
+        return {
+            'param': self.options.param.value, 'solver': self.options.solver.value,
+            'loss': self.options.loss.value, 'converged': self.converged,
+            'termination': self.termination.value, 'iterations': self.iterations,
+            'accepted_steps': self.accepted_steps, 'linear_solves': self.linear_solves,
+            'initial_cost': self.initial_cost, 'final_cost': self.final_cost,
+            'initial_rms_px': self.initial_rms_px, 'final_rms_px': self.final_rms_px,
+            'time_s': self.time_s, 'n_cams': self.problem.n_cams,
+            'n_feats': self.problem.n_feats, 'n_obs': self.problem.n_obs,
+            'dropped': dict(self.problem.dropped),
+            'history': [{'cost': h.cost, 'rms_px': h.rms_px, 'accepted': h.accepted,
+                         'trust_radius': h.trust_radius, 'time_s': h.time_s}
+                        for h in self.history]}
+
+
+def initial_features(problem: BAProblem, param: Parameterization,
+                     ) -> tuple[BAProblem, Features]:
+    """Return features of a parameterization from the problem's points (dropping unusable ones).
+
+    Raises:
+        ProblemError: If the problem has no initial points.
+    """
+    if problem.points_w is None:
+        msg = 'problem has no initial points: pass features, or run the global initialization'
+        raise ProblemError(msg)
+    if param is Parameterization.XYZ:
+        return problem, XyzFeatures(np.array(problem.points_w))
+    if param is Parameterization.IDP:
+        return problem, conversions.xyz_to_idp(problem, problem.R_wc, problem.centers_w,
+                                               problem.points_w)
+    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                            problem.points_w)
+    if not np.all(ok):
+        problem = subset_features(problem, ok, 'features_without_anchor_baseline')
+        feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                               np.asarray(problem.points_w))
+    return problem, feats
+
+
+@dataclass
+class _State:
+    R_wc: FloatArray
+    centers_w: FloatArray
+    feats: Any
+    cost: float
+
+
+class _Linearized:
+    """Scaled normal equations at one state, and what dogleg retries reuse."""
+
+    def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
+                 loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
+        r, J_pose, J_feat = model.linearize(state.R_wc, state.centers_w, state.feats)
+        w = robust_weights(r, loss, loss_scale)
+        self.r = r * w[:, None]
+        self.J_pose = J_pose * w[:, None, None, None]
+        self.J_feat = J_feat * w[:, None, None]
+        eqs = ne.assemble(structure, self.r, self.J_pose, self.J_feat)
+        d_pose, d_feat = ne.diagonal(structure, eqs)
+        if jacobi:
+            self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
+            self.c_feat = 1.0 / (1.0 + np.sqrt(d_feat))
+        else:
+            self.c_pose = np.ones_like(d_pose)
+            self.c_feat = np.ones_like(d_feat)
+        self.eqs = ne.scale(structure, eqs, self.c_pose, self.c_feat)
+        self.D_pose = np.sqrt(np.clip(d_pose * self.c_pose ** 2, 1e-6, 1e32))
+        self.D_feat = np.sqrt(np.clip(d_feat * self.c_feat ** 2, 1e-6, 1e32))
+        self.col_mask = col_mask
+        g_pose = np.where(col_mask, self.eqs.g_pose, 0.0)
+        self.g_pose = g_pose / self.D_pose
+        self.g_feat = self.eqs.g_feat / self.D_feat
+        self.gradient_max = float(max(
+            np.max(np.abs(np.where(col_mask, eqs.g_pose, 0.0)), initial=0.0),
+            np.max(np.abs(eqs.g_feat), initial=0.0)))
+        self.structure = structure
+        self.gn: tuple[np.ndarray, np.ndarray] | None = None
+
+    def to_delta(self, z_pose: FloatArray, z_feat: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Map a scaled-space step z to parameter increments delta = c * z / D."""
+        return (np.where(self.col_mask, z_pose / self.D_pose * self.c_pose, 0.0),
+                z_feat / self.D_feat * self.c_feat)
+
+    def J_times(self, d_pose: FloatArray, d_feat: FloatArray) -> FloatArray:
+        """Return J delta per observation."""
+        return ne.jacobian_product(self.structure, self.J_pose, self.J_feat, d_pose, d_feat)
+
+    def model_change(self, d_pose: FloatArray, d_feat: FloatArray) -> float:
+        """Return the predicted cost decrease -(J d)^T (r + J d / 2)."""
+        Jd = self.J_times(d_pose, d_feat)
+        return -float(np.sum(Jd * (self.r + 0.5 * Jd)))
+
+    def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
+        """Solve (J~^T J~ + mu D^2) y = -J~^T r and return the scaled step b = D y."""
+        y_pose, y_feat = ne.solve_schur(self.structure, self.eqs, mu * self.D_pose ** 2,
+                                        mu * self.D_feat ** 2, self.col_mask)
+        return y_pose * self.D_pose, y_feat * self.D_feat
+
+
+def _retract(model: Model[Any], state: _State, free_block: np.ndarray, d_pose: FloatArray,
+             d_feat: FloatArray) -> tuple[FloatArray, FloatArray, Any]:
+    R = state.R_wc.copy()
+    P = state.centers_w.copy()
+    free = free_block >= 0
+    blocks = free_block[free]
+    R[free] = R[free] @ so3.exp(d_pose[blocks, :3])
+    P[free] = P[free] + d_pose[blocks, 3:]
+    return R, P, model.retract(state.feats, d_feat)
+
+
+def solve(problem: BAProblem, options: SolveOptions | None = None,
+          features: Features | None = None, *,
+          callback: Callable[[IterationRecord], None] | None = None) -> SolveResult:
+    """Solve a bundle-adjustment problem.
+
+    Args:
+        problem: The problem; its poses are the start, and its points unless ``features``.
+        options: Solver options (defaults: PMBA, Dogleg, no loss).
+        features: Initial features of ``options.param`` (default: from ``problem.points_w``).
+        callback: Called with each :class:`IterationRecord` (progress, plots).
+
+    Returns:
+        The result; ``result.problem`` is the problem actually solved (unusable features
+        dropped and counted in its ``dropped``).
+
+    Raises:
+        ProblemError: If there are no initial features or they do not fit the problem.
+        SolverError: If the start is not finite or nothing is free to optimize.
+    """
+    options = options or SolveOptions()
+    t0 = time.perf_counter()
+    if features is None:
+        problem, features = initial_features(problem, options.param)
+    _check_features(problem, features, options.param)
+    model = make_model(options.param, problem)
+    gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
+                         problem.obs.feat_idx, problem.n_feats)
+    free_block = gauge.free_block()
+    structure = ne.SchurStructure.build(model.slots(features), problem.obs.feat_idx,
+                                        problem.n_feats, free_block)
+    col_mask = gauge.column_mask()
+    focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
+    loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
+
+    def cost_of(R: FloatArray, P: FloatArray, feats: Any) -> float:
+        r = model.residuals(R, P, feats)
+        if not np.all(np.isfinite(r)):
+            return math.inf
+        return robust_cost(r, options.loss, loss_scale)
+
+    def rms_of(state: _State) -> float:
+        err = model.reprojection_errors_px(state.R_wc, state.centers_w, state.feats)
+        return float(np.sqrt(np.mean(err * err))) if err.size else 0.0
+
+    state = _State(np.array(problem.R_wc), np.array(problem.centers_w), features,
+                   cost_of(problem.R_wc, problem.centers_w, features))
+    if not math.isfinite(state.cost):
+        msg = 'residuals are not finite at the initial point'
+        raise SolverError(msg)
+    x_norm = math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
+                       + model.parameter_norm_sq(state.feats))
+    initial_cost, initial_rms = state.cost, rms_of(state)
+    history = [IterationRecord(0, initial_cost, initial_rms, True,
+                               options.initial_trust_region_radius, 0.0, math.nan, 0, 0.0)]
+    if callback:
+        callback(history[0])
+    radius = options.initial_trust_region_radius
+    decrease_factor = 2.0
+    mu = dogleg.MIN_MU
+    linear_solves = 0
+    accepted_steps = 0
+    invalid = 0
+    termination = TerminationReason.MAX_ITERATIONS
+    lin: _Linearized | None = None
+    rms = initial_rms
+    it = 0
+    while True:
+        if lin is None:
+            lin = _Linearized(model, structure, state, options.loss, loss_scale,
+                              options.jacobi_scaling, col_mask)
+            if lin.gradient_max <= options.gradient_tolerance:
+                termination = TerminationReason.GRADIENT_TOLERANCE
+                break
+        if it >= options.max_iterations:
+            termination = TerminationReason.MAX_ITERATIONS
+            break
+        if time.perf_counter() - t0 > options.max_time_s:
+            termination = TerminationReason.MAX_TIME
+            break
+        it += 1
+        try:
+            z_pose, z_feat, lin_solved = _propose(lin, options.solver, radius, mu)
+        except ne.ReducedSystemError:
+            linear_solves += 1
+            invalid += 1
+            mu = min(mu * dogleg.MU_INCREASE_FACTOR, dogleg.MAX_MU)
+            radius *= 0.5
+            if invalid > 5:
+                termination = TerminationReason.INVALID_STEPS
+                break
+            continue
+        linear_solves += lin_solved
+        step_norm = float(math.sqrt(z_pose.ravel() @ z_pose.ravel() + z_feat.ravel() @ z_feat.ravel()))
+        d_pose, d_feat = lin.to_delta(z_pose, z_feat)
+        delta_norm = float(math.sqrt(np.sum(d_pose ** 2) + np.sum(d_feat ** 2)))
+        if delta_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
+            termination = TerminationReason.PARAMETER_TOLERANCE
+            break
+        model_change = lin.model_change(d_pose, d_feat)
+        if not (model_change > 0.0) or not math.isfinite(model_change):
+            invalid += 1
+            lin.gn = None
+            mu = min(mu * dogleg.MU_INCREASE_FACTOR, dogleg.MAX_MU)
+            if invalid > 5:
+                termination = TerminationReason.INVALID_STEPS
+                break
+            continue
+        invalid = 0
+        R_new, P_new, f_new = _retract(model, state, free_block, d_pose, d_feat)
+        new_cost = cost_of(R_new, P_new, f_new)
+        rho = dogleg.step_quality(state.cost, new_cost, model_change)
+        if options.solver is SolverKind.GN:
+            accepted = new_cost < state.cost
+        else:
+            accepted = rho > dogleg.MIN_RELATIVE_DECREASE
+        if options.solver is SolverKind.LM:
+            radius, decrease_factor = dogleg.lm_radius(radius, decrease_factor, rho, accepted)
+        elif options.solver is SolverKind.DOGLEG:
+            radius = dogleg.dogleg_radius(radius, rho, step_norm, accepted)
+        radius = min(radius, 1e16)
+        cost_change = state.cost - new_cost
+        old_cost = state.cost
+        if accepted:
+            accepted_steps += 1
+            state = _State(R_new, P_new, f_new, new_cost)
+            rms = rms_of(state)
+            x_norm = math.sqrt(problem.n_cams + float(np.sum(P_new ** 2))
+                               + model.parameter_norm_sq(f_new))
+            mu = max(dogleg.MIN_MU, mu / 5.0)
+            lin = None
+        record = IterationRecord(it, state.cost, rms, accepted, radius, step_norm, rho,
+                                 linear_solves, time.perf_counter() - t0)
+        history.append(record)
+        if callback:
+            callback(record)
+        if accepted and abs(cost_change) <= options.function_tolerance * old_cost:
+            termination = TerminationReason.FUNCTION_TOLERANCE
+            break
+        if options.solver is SolverKind.GN and not accepted:
+            termination = TerminationReason.NO_PROGRESS
+            break
+        if radius < 1e-32:
+            termination = TerminationReason.MIN_TRUST_REGION
+            break
+
+    points = conversions.to_xyz(state.R_wc, state.centers_w, state.feats)
+    return SolveResult(state.R_wc, state.centers_w, state.feats, points, problem, options,
+                       termination in _CONVERGED, termination, it, accepted_steps,
+                       linear_solves, initial_cost, state.cost, initial_rms, rms,
+                       time.perf_counter() - t0, history)
+
+
+def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
+             ) -> tuple[FloatArray, FloatArray, int]:
+    """Return a scaled step (pose, feature) and how many linear solves it took."""
+    if solver is SolverKind.DOGLEG:
+        solves = 0
+        if lin.gn is None:
+            lin.gn = lin.solve(mu)
+            solves = 1
+        b = np.concatenate([lin.gn[0].ravel(), lin.gn[1].ravel()])
+        g = np.concatenate([lin.g_pose.ravel(), lin.g_feat.ravel()])
+        Jg = lin.J_times(*lin.to_delta(lin.g_pose, lin.g_feat))
+        alpha = dogleg.cauchy_alpha(g, float(np.sum(Jg * Jg)))
+        step, _ = dogleg.dogleg_step(g, alpha, b, radius)
+        n_pose = lin.g_pose.size
+        return step[:n_pose].reshape(lin.g_pose.shape), step[n_pose:].reshape(lin.g_feat.shape), solves
+    if solver is SolverKind.LM:
+        z_pose, z_feat = lin.solve(1.0 / radius)
+        return z_pose, z_feat, 1
+    z_pose, z_feat = lin.solve(1e-12)
+    return z_pose, z_feat, 1
+
+
+def _check_features(problem: BAProblem, feats: Features, param: Parameterization) -> None:
+    """Raise ProblemError if features do not match the parameterization or problem size."""
+    expected = {Parameterization.PMBA: ParallaxFeatures, Parameterization.XYZ: XyzFeatures,
+                Parameterization.IDP: IdpFeatures}[param]
+    if not isinstance(feats, expected):
+        msg = f'features of type {type(feats).__name__} do not fit param {param.value!r}'
+        raise ProblemError(msg)
+    arrays = {f.name: np.asarray(getattr(feats, f.name)) for f in fields(feats)}
+    for name, arr in arrays.items():
+        if arr.shape[0] != problem.n_feats:
+            msg = f'features.{name}: {arr.shape[0]} rows for {problem.n_feats} features'
+            raise ProblemError(msg)
+        if not np.all(np.isfinite(arr)):
+            msg = f'features.{name}: non-finite values'
+            raise ProblemError(msg)
+    if isinstance(feats, ParallaxFeatures):
+        M = problem.n_cams
+        for name in ('main_idx', 'assoc_idx'):
+            idx = arrays[name]
+            if np.any((idx < 0) | (idx >= M)):
+                msg = f'features.{name}: unknown camera index'
+                raise ProblemError(msg)
+        same = feats.main_idx == feats.assoc_idx
+        if np.any(same):
+            msg = f'features: {int(same.sum())} features have main anchor == associate anchor'
+            raise ProblemError(msg)
+        conversions.anchor_observations(problem, feats.main_idx)
+        conversions.anchor_observations(problem, feats.assoc_idx)
