@@ -1,0 +1,170 @@
+"""Nonlinear position-only refinement with rotations and features frozen (PMBA eq. 13).
+
+Minimises sum_k rho(||xi(N-bar_k(P)) - r_k||^2) over the camera centres P, with the linearised
+rays N-bar_k of eq. (12) (see :mod:`pmba_ros.init.cls`) and a Cauchy loss
+rho(s) = f^2 log(1 + s / f^2). The solver is a vectorised Levenberg-Marquardt with iteratively
+reweighted normal equations: the normal matrix is dense (3M x 3M), assembled block by block.
+
+Gauge: the cost is invariant to translation and scale of P (N-bar is linear and homogeneous),
+so P_root is held fixed and so is the largest coordinate of P_k - P_root of one camera k
+(ParallaxBA's rule, pmba.md §2).
+
+==========  ============  ==========  ===================================================
+paper       code          shape       meaning
+==========  ============  ==========  ===================================================
+N-bar_k     N             (K,3)       linearised ray, eq. (12)
+e_k         e             (K,3)       xi(N-bar_k) - r_k, eq. (13)
+J_N         J_N           (K,3,3)     (I - N^ N^T) / |N|
+f           f_scale       scalar      Cauchy scale (ray units, ~ px / focal)
+==========  ============  ==========  ===================================================
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from pmba_ros._typing import BoolArray, FloatArray
+from pmba_ros.init.cls import LinearRays, accumulate_gradient, accumulate_normal_matrix
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class NlsResult:
+    """Result of the position-only NLS (eq. 13).
+
+    Attributes:
+        centers_w: Camera centres, shape (M, 3).
+        initial_cost: Robust cost 1/2 sum rho(|e|^2) at the start.
+        final_cost: Robust cost at the end.
+        residual: RMS of |e_k| (unweighted) at the end (ray units).
+        iterations: LM iterations.
+        converged: True if a tolerance was met before the iteration limit.
+    """
+
+    centers_w: FloatArray
+    initial_cost: float
+    final_cost: float
+    residual: float
+    iterations: int
+    converged: bool
+
+
+def _cauchy(sq: FloatArray, f_scale: float) -> tuple[FloatArray, FloatArray]:
+    """Return rho(s) and rho'(s) of the Cauchy loss for squared norms s."""
+    f2 = f_scale * f_scale
+    z = sq / f2
+    return f2 * np.log1p(z), 1.0 / (1.0 + z)
+
+
+def _errors(lin: LinearRays, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return N-bar (K, 3) and e = xi(N-bar) - r (K, 3), eq. (13)."""
+    N = lin.evaluate(P)
+    norm = np.linalg.norm(N, axis=1, keepdims=True)
+    return N, N / np.maximum(norm, 1e-300) - lin.rays  # eq. (13)
+
+
+def robust_cost(lin: LinearRays, P: FloatArray, f_scale: float,
+                weights: FloatArray | None = None) -> float:
+    """Return 1/2 sum_k w_k rho(||xi(N-bar_k(P)) - r_k||^2) (eq. 13 with a Cauchy loss)."""
+    _, e = _errors(lin, P)
+    rho, _ = _cauchy(np.sum(e * e, axis=1), f_scale)
+    w = 1.0 if weights is None else weights
+    return 0.5 * float(np.sum(w * rho))
+
+
+def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tuple[int, int]:
+    """Return (camera, axis) of the coordinate fixed for the scale: the largest |P_k - P_root|."""
+    d = np.abs(centers_w - centers_w[root])
+    d[~cameras] = -1.0
+    d[root] = -1.0
+    k, axis = np.unravel_index(int(np.argmax(d)), d.shape)
+    return int(k), int(axis)
+
+
+def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: float,
+              weights: FloatArray | None = None, cameras: BoolArray | None = None,
+              max_iterations: int = 50, function_tolerance: float = 1e-9,
+              step_tolerance: float = 1e-10) -> NlsResult:
+    """Refine camera centres by eq. (13) with a Cauchy loss (LM, dense normal equations).
+
+    Args:
+        lin: Linearised rays (eq. 12) of all observations.
+        centers_w: Starting centres (M, 3), e.g. from the CLS (eq. 14).
+        root: Reference camera (held fixed).
+        f_scale: Cauchy scale in ray units (about 3 px / focal length).
+        weights: Optional observation weights (K,).
+        cameras: Optional mask (M,) of cameras to solve for (others are held fixed).
+        max_iterations: LM iteration limit.
+        function_tolerance: Stop when the relative cost decrease is below this.
+        step_tolerance: Stop when the relative step norm is below this.
+
+    Returns:
+        The refined centres and diagnostics.
+
+    References:
+        PMBA eq. (13). DEVIATION(eq. 13): a Cauchy loss instead of plain L2, because frozen
+        noisy theta-bar of low-parallax features act as outliers (pmba.md §4.7, §8 item 5).
+    """
+    M = centers_w.shape[0]
+    K = lin.slots.shape[0]
+    w = np.ones(K) if weights is None else np.asarray(weights, dtype=float)
+    cams = np.ones(M, dtype=bool) if cameras is None else np.asarray(cameras, dtype=bool)
+    P = np.array(centers_w, dtype=float)
+    free = np.repeat(cams, 3)
+    free[3 * root:3 * root + 3] = False
+    k_fix, axis_fix = gauge_coordinate(P, root, cams)
+    free[3 * k_fix + axis_fix] = False
+    fidx = np.flatnonzero(free)
+    cost = robust_cost(lin, P, f_scale, w)
+    initial_cost = cost
+    lam = 1e-4
+    converged = False
+    it = 0
+    eye3 = np.eye(3)[None]
+    for it in range(1, max_iterations + 1):
+        N, e = _errors(lin, P)
+        norm = np.maximum(np.linalg.norm(N, axis=1), 1e-300)
+        Nh = N / norm[:, None]
+        J_N = (eye3 - Nh[:, :, None] * Nh[:, None, :]) / norm[:, None, None]
+        G = np.einsum('kab,ksbj->ksaj', J_N, lin.coeff)  # de/dP_slot
+        _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
+        wk = w * drho  # IRLS weights (first-order robust scaling)
+        H = accumulate_normal_matrix(G, lin.slots, M, wk)[np.ix_(fidx, fidx)]
+        g = accumulate_gradient(G, lin.slots, M, e, wk)[fidx]
+        diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
+        accepted = False
+        while lam < 1e12:
+            try:
+                c_f = scipy.linalg.cho_factor(H + lam * np.diag(diag))
+                step = -scipy.linalg.cho_solve(c_f, g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            P_new = P.copy()
+            P_new.reshape(-1)[fidx] += step
+            new_cost = robust_cost(lin, P_new, f_scale, w)
+            if new_cost < cost:
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted:
+            converged = True
+            break
+        rel_dec = (cost - new_cost) / max(cost, 1e-300)
+        rel_step = float(np.linalg.norm(step)) / max(float(np.linalg.norm(P[cams])), 1e-300)
+        P, cost = P_new, new_cost
+        lam = max(lam / 10.0, 1e-12)
+        if rel_dec < function_tolerance or rel_step < step_tolerance:
+            converged = True
+            break
+    _, e = _errors(lin, P)
+    used = w > 0
+    residual = float(np.sqrt(np.mean(np.sum(e[used] ** 2, axis=1)))) if used.any() else 0.0
+    logger.info('NLS: cost %.4e -> %.4e in %d iterations (rms %.3e)', initial_cost, cost,
+                it, residual)
+    return NlsResult(P, initial_cost, cost, residual, it, converged)

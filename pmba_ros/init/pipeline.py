@@ -1,0 +1,465 @@
+"""Global initialization: from feature tracks alone to a converged PMBA, in one BA.
+
+The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
+
+1. ``pairs``: epipolar-geometry pairs, 5-point RANSAC + cheirality (OpenCV).
+2. ``view_graph``: largest connected component, maximum spanning tree, tree-inconsistent
+   pairs rejected.
+3. ``rotations``: chordal rotation averaging, pruning of disagreeing pairs, re-averaging,
+   translation directions re-estimated with the rotations known.
+4. ``features``: anchors restricted to EG pairs, theta-bar and n-bar from rotations only
+   (Remark 5), alpha-bar and Q_j from the EG directions (eq. 11).
+5. ``cls``: positions from the convex problem (eq. 14) with cheirality and a scale constraint.
+6. ``nls``: positions from the nonlinear problem (eq. 13) with a Cauchy loss.
+7. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`), the only BA invocation.
+
+Only the input problem's observations and intrinsics are used; its poses and points are
+ignored. The result's problem holds only the cameras of the largest component of the view
+graph and the features anchored on EG pairs (``camera_index``/``feature_index`` map back to
+the input), because cameras without an EG pair have no rotation to start from.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import conversions
+from pmba_ros.core.problem import BAProblem, ParallaxFeatures, make_problem
+from pmba_ros.core.solve import SolveOptions, SolveResult, solve
+from pmba_ros.errors import InitError
+from pmba_ros.init import anchors, cls, nls, rotation_averaging, two_view, view_graph
+
+logger = logging.getLogger(__name__)
+
+ProgressCallback = Callable[[str, Mapping[str, Any]], None]
+"""Called after every stage with the stage name and its report entries."""
+
+_RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
+                   'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT}
+
+STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'ba')
+
+
+def _default_solve_options() -> SolveOptions:
+    return SolveOptions(param='pmba', solver='dogleg', loss='none', max_iterations=200,
+                        function_tolerance=1e-10)
+
+
+@dataclass(frozen=True, slots=True)
+class InitOptions:
+    """Options of :func:`global_init`.
+
+    Attributes:
+        min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
+        min_pair_inliers: Minimum cheirality inliers of an EG pair.
+        ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
+        ransac_confidence: RANSAC confidence.
+        ransac_method: 'usac_accurate' (default; local optimization refines the essential
+            matrix on its inliers), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's
+            classic RANSAC, whose minimal-sample model is several times less accurate).
+        min_pair_parallax_px: Minimum median rotation-compensated parallax of a pair's inliers
+            (px); pairs below it have no usable baseline (pure rotation).
+        max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
+            chained along the maximum spanning tree by more than this.
+        max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
+            averaged rotations by more than this, then average again.
+        cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
+        nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
+        nls_max_iterations: LM iteration limit of the NLS.
+        solve_options: Options of the final (and only) BA; PMBA with Dogleg.
+    """
+
+    min_pair_matches: int = 30
+    min_pair_inliers: int = 20
+    ransac_threshold_px: float = 1.0
+    ransac_confidence: float = 0.999
+    ransac_method: str = 'usac_accurate'
+    min_pair_parallax_px: float = 1.0
+    max_tree_disagreement_deg: float = 5.0
+    max_pair_disagreement_deg: float = 2.0
+    cls_max_penalty_iterations: int = 10
+    nls_cauchy_px: float = 3.0
+    nls_max_iterations: int = 50
+    solve_options: SolveOptions = field(default_factory=_default_solve_options)
+
+    def __post_init__(self) -> None:
+        """Validate ranges."""
+        if self.min_pair_matches < 5 or self.min_pair_inliers < 5:
+            msg = '`min_pair_matches` and `min_pair_inliers` must be >= 5 (5-point solver)'
+            raise ValueError(msg)
+        if self.ransac_method not in _RANSAC_METHODS:
+            msg = f'`ransac_method` must be one of {sorted(_RANSAC_METHODS)}'
+            raise ValueError(msg)
+        if not 0.0 < self.ransac_confidence < 1.0:
+            msg = '`ransac_confidence` must be in (0, 1)'
+            raise ValueError(msg)
+        for name in ('ransac_threshold_px', 'max_tree_disagreement_deg',
+                     'max_pair_disagreement_deg', 'nls_cauchy_px'):
+            if not getattr(self, name) > 0.0:
+                msg = f'`{name}` must be positive'
+                raise ValueError(msg)
+        if self.min_pair_parallax_px < 0.0:
+            msg = '`min_pair_parallax_px` must be >= 0'
+            raise ValueError(msg)
+        if self.solve_options.param.value != 'pmba':
+            msg = '`solve_options.param` must be pmba (the features are parallax features)'
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True, eq=False)
+class InitResult:
+    """Result of :func:`global_init`.
+
+    Attributes:
+        problem: The problem handed to the final BA: cameras of the largest component of the
+            view graph (renumbered), features anchored on EG pairs, poses from the NLS.
+        features: Initial PMBA features of ``problem`` (rotations only, Remark 5).
+        solve: The final PMBA result (its R_wc, centers_w, features and points are the output).
+        camera_index: Input camera index of each camera of ``problem``, shape (M',).
+        feature_index: Input feature index of each feature of ``problem``, shape (N',).
+        cameras_used: Mask (M,) of input cameras that are in ``problem``.
+        report: Per-stage report (see :meth:`to_report`).
+        ba_invocations: Number of BA solves (always 1).
+    """
+
+    problem: BAProblem
+    features: ParallaxFeatures
+    solve: SolveResult
+    camera_index: IntArray
+    feature_index: IntArray
+    cameras_used: BoolArray
+    report: dict[str, Any]
+    ba_invocations: int = 1
+
+    @property
+    def R_wc(self) -> FloatArray:
+        """Final camera -> world rotations of ``problem``'s cameras, shape (M', 3, 3)."""
+        return self.solve.R_wc
+
+    @property
+    def centers_w(self) -> FloatArray:
+        """Final camera centres of ``problem``'s cameras, shape (M', 3)."""
+        return self.solve.centers_w
+
+    def to_report(self) -> dict[str, Any]:
+        """Return the JSON-able report: one entry per stage and ``time_s`` per stage."""
+        return _jsonable(self.report)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating | float):
+        return float(value)
+    return value
+
+
+def _angle_stats(angles_deg: FloatArray) -> dict[str, float]:
+    if angles_deg.size == 0:
+        return {'mean': 0.0, 'median': 0.0, 'max': 0.0}
+    return {'mean': float(np.mean(angles_deg)), 'median': float(np.median(angles_deg)),
+            'max': float(np.max(angles_deg))}
+
+
+class _Stages:
+    """Stage timer and report builder (wall time per stage, progress callback)."""
+
+    def __init__(self, progress: ProgressCallback | None) -> None:
+        self.report: dict[str, Any] = {'time_s': {}}
+        self.progress = progress
+        self.t_start = time.perf_counter()
+        self.t_last = self.t_start
+
+    def done(self, stage: str, entries: Mapping[str, Any]) -> None:
+        now = time.perf_counter()
+        self.report['time_s'][stage] = now - self.t_last
+        self.t_last = now
+        self.report[stage] = dict(entries)
+        logger.info('global_init: %s done in %.3f s: %s', stage,
+                    self.report['time_s'][stage], dict(entries))
+        if self.progress is not None:
+            self.progress(stage, self.report[stage])
+
+    def finish(self) -> None:
+        self.report['time_s']['total'] = time.perf_counter() - self.t_start
+
+
+def _check_input(problem: BAProblem) -> dict[str, Any]:
+    info = {'n_cams': problem.n_cams, 'n_feats': problem.n_feats, 'n_obs': problem.n_obs,
+            'dropped': dict(problem.dropped)}
+    if problem.n_cams < 3:
+        msg = (f'global init needs at least 3 cameras, got {problem.n_cams} (the 7-DoF gauge '
+               'leaves nothing to initialize; use the two-view geometry directly)')
+        raise InitError(msg)
+    if problem.n_feats == 0:
+        single = problem.dropped.get('single_observation_features', 0)
+        msg = ('global init: no feature is observed by two cameras'
+               + (f' ({single} tracks of length 1 were dropped)' if single else ''))
+        raise InitError(msg)
+    return info
+
+
+def _estimate_pairs(problem: BAProblem, options: InitOptions) -> tuple[two_view.EGPairs,
+                                                                        dict[str, Any]]:
+    obs = problem.obs
+    corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
+                                         options.min_pair_matches)
+    if corr.n_pairs == 0:
+        msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
+               'tracks (min_pair_matches)')
+        raise InitError(msg)
+    focal = np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
+    pairs, rejected = two_view.estimate_eg_pairs(
+        obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
+        min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
+        prob=options.ransac_confidence, method=_RANSAC_METHODS[options.ransac_method])
+    entries = {'pairs_candidate': corr.n_pairs, 'pairs_found': pairs.n_pairs,
+               'pairs_rejected': rejected,
+               'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs
+                           else 0.0}}
+    if pairs.n_pairs == 0:
+        if rejected['low_parallax'] > 0 and rejected['low_parallax'] >= corr.n_pairs // 2:
+            msg = (f'global init: no EG pair has a baseline: {rejected["low_parallax"]} of '
+                   f'{corr.n_pairs} pairs have median parallax below '
+                   f'{options.min_pair_parallax_px} px after removing the rotation (pure '
+                   'rotation? PMBA needs anchors with a baseline, pmba.md §3.3)')
+        else:
+            msg = f'global init: no EG pair could be estimated (rejected: {rejected})'
+        raise InitError(msg)
+    return pairs, entries
+
+
+def _compact(mask: BoolArray) -> IntArray:
+    """Return the new index of every True entry (-1 elsewhere)."""
+    new = np.full(mask.shape[0], -1, dtype=np.int64)
+    new[mask] = np.arange(int(mask.sum()))
+    return new
+
+
+def _component_pairs(n_cams: int, pairs: two_view.EGPairs,
+                     ) -> tuple[two_view.EGPairs, BoolArray]:
+    comp = view_graph.largest_component(n_cams, pairs.cam_a, pairs.cam_b)
+    return pairs.subset(comp[pairs.cam_a] & comp[pairs.cam_b]), comp
+
+
+def _view_graph(n_cams: int, pairs: two_view.EGPairs, options: InitOptions,
+                ) -> tuple[two_view.EGPairs, BoolArray, dict[str, Any]]:
+    pairs_comp, comp = _component_pairs(n_cams, pairs)
+    n_comp = int(comp.sum())
+    if n_comp < 3:
+        msg = (f'global init: the largest connected component of the view graph has '
+               f'{n_comp} cameras (need 3); {pairs.n_pairs} EG pairs for {n_cams} cameras')
+        raise InitError(msg)
+    w = pairs_comp.n_inliers.astype(float)
+    tree = view_graph.maximum_spanning_tree(n_cams, pairs_comp.cam_a, pairs_comp.cam_b, w)
+    root = view_graph.choose_root(n_cams, pairs_comp.cam_a, pairs_comp.cam_b, w, comp)
+    R_tree, _ = view_graph.chain_tree_rotations(n_cams, root, pairs_comp.cam_a[tree],
+                                                pairs_comp.cam_b[tree], pairs_comp.R_rel[tree])
+    dis = view_graph.pair_rotation_disagreement_deg(R_tree, pairs_comp.cam_a,
+                                                    pairs_comp.cam_b, pairs_comp.R_rel)
+    keep = tree | (dis <= options.max_tree_disagreement_deg)
+    entries = {'cameras_in_component': n_comp,
+               'cameras_left_out': np.flatnonzero(~comp).tolist(),
+               'pairs_outside_component': pairs.n_pairs - pairs_comp.n_pairs,
+               'tree_edges': int(tree.sum()),
+               'pairs_tree_inconsistent': int(np.sum(~keep)), 'root': root,
+               'tree_disagreement_deg': _angle_stats(dis[~tree])}
+    return pairs_comp.subset(keep), comp, entries
+
+
+def _average(n_cams: int, pairs: two_view.EGPairs, cameras: BoolArray) -> tuple[FloatArray, int]:
+    """Chordal averaging on the cameras of ``cameras`` (renumbered); identity elsewhere."""
+    new = _compact(cameras)
+    w = pairs.n_inliers.astype(float)
+    root = view_graph.choose_root(n_cams, pairs.cam_a, pairs.cam_b, w, cameras)
+    R_sub = rotation_averaging.chordal_rotation_averaging(
+        int(cameras.sum()), int(new[root]), new[pairs.cam_a], new[pairs.cam_b], pairs.R_rel, w)
+    R = np.broadcast_to(np.eye(3), (n_cams, 3, 3)).copy()
+    R[cameras] = R_sub
+    return R, root
+
+
+def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
+               options: InitOptions,
+               ) -> tuple[FloatArray, two_view.EGPairs, FloatArray, BoolArray, int,
+                          dict[str, Any]]:
+    M = problem.n_cams
+    R, _ = _average(M, pairs, comp)
+    dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b, pairs.R_rel)
+    first = _angle_stats(dis)
+    prune = dis > options.max_pair_disagreement_deg
+    n_pruned = int(prune.sum())
+    comp_before = comp
+    if n_pruned:
+        pairs, comp = _component_pairs(M, pairs.subset(~prune))
+        if int(comp.sum()) < 3:
+            msg = ('global init: pruning pairs that disagree with the averaged rotations '
+                   f'leaves {int(comp.sum())} connected cameras')
+            raise InitError(msg)
+        R, _ = _average(M, pairs, comp)
+        dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b,
+                                                        pairs.R_rel)
+    pairs, d_ab = two_view.refine_translations(pairs, problem.obs.bearings_c, R)
+    root = view_graph.choose_root(M, pairs.cam_a, pairs.cam_b, pairs.n_inliers.astype(float),
+                                  comp)
+    entries = {'rotation_residual_deg': _angle_stats(dis),
+               'rotation_residual_before_pruning_deg': first,
+               'pairs_pruned': n_pruned, 'pairs_kept': pairs.n_pairs,
+               'cameras_dropped_by_pruning': np.flatnonzero(comp_before & ~comp).tolist()}
+    return R, pairs, d_ab, comp, root, entries
+
+
+def _subproblem(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
+                feature_keep: BoolArray | None = None) -> tuple[BAProblem, IntArray]:
+    """Return the problem restricted to ``cameras`` (and features), and the camera index."""
+    cam_index = np.flatnonzero(cameras)
+    new_cam = _compact(cameras)
+    obs = problem.obs
+    keep = cameras[obs.cam_idx]
+    if feature_keep is not None:
+        keep &= feature_keep[obs.feat_idx]
+    Mc = cam_index.shape[0]
+    sub = make_problem(R_wc[cam_index], np.zeros((Mc, 3)), problem.intrinsics.take(cam_index),
+                       new_cam[obs.cam_idx[keep]], obs.feat_idx[keep], obs.pixels[keep],
+                       bearings_c=obs.bearings_c[keep], n_feats=problem.n_feats,
+                       feature_ids=np.arange(problem.n_feats))
+    return sub, cam_index
+
+
+def _features(problem: BAProblem, R_wc: FloatArray, pairs: two_view.EGPairs, d_ab: FloatArray,
+              comp: BoolArray,
+              ) -> tuple[BAProblem, IntArray, ParallaxFeatures, anchors.LinearizationFrames,
+                         dict[str, Any]]:
+    cameras = comp.copy()
+    sub, cam_index = _subproblem(problem, cameras, R_wc)
+    new = _compact(cameras)
+    allowed = anchors.allowed_pair_mask(sub.n_cams, new[pairs.cam_a], new[pairs.cam_b])
+    main_idx, assoc_idx, ok = conversions.select_anchors(sub, sub.R_wc, allowed_pairs=allowed)
+    n_no_anchor = int(np.sum(~ok))
+    n_single = sub.dropped.get('single_observation_features', 0)
+    feat_keep = np.zeros(problem.n_feats, dtype=bool)
+    feat_keep[sub.feature_ids[ok]] = True
+    sub, cam_index = _subproblem(problem, cameras, R_wc, feat_keep)
+    seen = np.bincount(sub.obs.cam_idx, minlength=sub.n_cams) > 0
+    if not np.all(seen):  # cameras whose every track lost its anchor pair
+        cameras[cam_index[~seen]] = False
+        sub, cam_index = _subproblem(problem, cameras, R_wc, feat_keep)
+        new = _compact(cameras)
+    if sub.n_feats == 0:
+        msg = 'global init: no feature is observed by an EG pair of the component'
+        raise InitError(msg)
+    pair_in = cameras[pairs.cam_a] & cameras[pairs.cam_b]
+    pa, pb, dd = new[pairs.cam_a[pair_in]], new[pairs.cam_b[pair_in]], d_ab[pair_in]
+    allowed = anchors.allowed_pair_mask(sub.n_cams, pa, pb)
+    main_idx, assoc_idx, ok = conversions.select_anchors(sub, sub.R_wc, allowed_pairs=allowed)
+    if not np.all(ok):  # cannot happen: the features were filtered on the same pairs
+        msg = 'global init: anchor selection lost features between two identical calls'
+        raise InitError(msg)
+    feats = conversions.features_from_rotations(sub, sub.R_wc, main_idx, assoc_idx)
+    d_ma = anchors.anchor_directions(sub.n_cams, pa, pb, dd, main_idx, assoc_idx)
+    frames = anchors.linearization_frames(sub.R_wc, feats, d_ma)
+    entries = {'features_used': sub.n_feats, 'observations_used': sub.n_obs,
+               'features_without_eg_anchor_pair': n_no_anchor,
+               'features_single_observation_in_component': int(n_single),
+               'features_inconsistent_triangle': int(np.sum(~frames.consistent)),
+               'cameras_without_features': np.flatnonzero(comp & ~cameras).tolist(),
+               'theta_deg': _angle_stats(np.rad2deg(feats.theta))}
+    return sub, cam_index, feats, frames, entries
+
+
+def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
+                progress: ProgressCallback | None = None) -> InitResult:
+    """Initialize and solve a PMBA problem from its feature tracks alone, with one BA.
+
+    Args:
+        problem: Observations (tracks) and intrinsics; its poses and points are ignored.
+        options: Stage options.
+        progress: Optional callback ``progress(stage, entries)`` after every stage.
+
+    Returns:
+        The solved sub-problem of the largest view-graph component, with the per-stage report.
+
+    Raises:
+        InitError: On degenerate input with the reason: fewer than 3 cameras, no track of
+            length >= 2, no image pair with enough common tracks, no EG pair with a baseline
+            (pure rotation), a largest component of fewer than 3 cameras. Cameras outside
+            the largest component are reported (``cameras_left_out``), not an error.
+
+    References:
+        PMBA Sec. 3, Fig. 5; eqs. (11)-(14); pmba.md §4.
+    """
+    st = _Stages(progress)
+    st.report['input'] = _check_input(problem)
+    M = problem.n_cams
+
+    pairs, entries = _estimate_pairs(problem, options)
+    st.done('pairs', entries)
+
+    pairs, comp, entries = _view_graph(M, pairs, options)
+    st.done('view_graph', entries)
+
+    R_wc, pairs, d_ab, comp, _, entries = _rotations(problem, pairs, comp, options)
+    st.done('rotations', entries)
+
+    sub, cam_index, feats, frames, entries = _features(problem, R_wc, pairs, d_ab, comp)
+    st.done('features', entries)
+    cameras_used = np.zeros(M, dtype=bool)
+    cameras_used[cam_index] = True
+    new = _compact(cameras_used)
+    pair_in = cameras_used[pairs.cam_a] & cameras_used[pairs.cam_b]
+    root = view_graph.choose_root(sub.n_cams, new[pairs.cam_a[pair_in]],
+                                  new[pairs.cam_b[pair_in]],
+                                  pairs.n_inliers[pair_in].astype(float),
+                                  np.ones(sub.n_cams, dtype=bool))
+
+    lin = cls.linear_rays(sub.R_wc, feats, frames, sub.obs.cam_idx, sub.obs.feat_idx,
+                          sub.obs.bearings_c)
+    weights = frames.consistent[sub.obs.feat_idx].astype(float)
+    res_cls = cls.solve_cls(lin, sub.n_cams, root, weights=weights,
+                            max_penalty_iterations=options.cls_max_penalty_iterations)
+    st.done('cls', {'cls_residual': res_cls.residual,
+                    'cheirality_violations': res_cls.cheirality_violations,
+                    'penalty_iterations': res_cls.penalty_iterations})
+
+    focal = float(np.median(np.sqrt(sub.intrinsics.fx * sub.intrinsics.fy)))
+    res_nls = nls.solve_nls(lin, res_cls.centers_w, root,
+                            f_scale=options.nls_cauchy_px / focal, weights=weights,
+                            max_iterations=options.nls_max_iterations)
+    st.done('nls', {'nls_residual': res_nls.residual,
+                    'nls_residual_px': res_nls.residual * focal,
+                    'initial_cost': res_nls.initial_cost, 'final_cost': res_nls.final_cost,
+                    'iterations': res_nls.iterations, 'converged': res_nls.converged})
+
+    init_problem = sub.with_poses(sub.R_wc, res_nls.centers_w)
+    result = solve(init_problem, options.solve_options, feats)
+    st.done('ba', {'initial_cost': result.initial_cost, 'final_cost': result.final_cost,
+                   'initial_rms_px': result.initial_rms_px,
+                   'final_rms_px': result.final_rms_px, 'iterations': result.iterations,
+                   'linear_solves': result.linear_solves, 'converged': result.converged,
+                   'termination': result.termination.value})
+    st.finish()
+    report = st.report
+    report['summary'] = {
+        'pairs_found': report['pairs']['pairs_found'],
+        'pairs_kept': report['rotations']['pairs_kept'],
+        'cameras_in_component': int(cameras_used.sum()),
+        'cameras_left_out': np.flatnonzero(~cameras_used).tolist(),
+        'rotation_residual_deg': report['rotations']['rotation_residual_deg']['mean'],
+        'cls_residual': res_cls.residual, 'nls_residual': res_nls.residual,
+        'final_rms_px': result.final_rms_px, 'ba_invocations': 1}
+    return InitResult(init_problem, feats, result, cam_index,
+                      np.asarray(sub.feature_ids, dtype=np.int64), cameras_used, report, 1)

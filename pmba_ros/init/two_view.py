@@ -1,0 +1,352 @@
+"""Epipolar-geometry (EG) pairs: co-visible image pairs and their 5-point relative poses.
+
+Notation (pmba.md §4, OpenCV's convention for a pair (1, 2) = (cam_a, cam_b), cam_a < cam_b):
+
+==========  ============  ========  ===================================================
+paper       code          shape     meaning
+==========  ============  ========  ===================================================
+R_cv        R_rel[p]      (P,3,3)   X_2 = R_cv X_1 + t_cv; with camera->world R_k,
+                                    R_cv = R_2^T R_1 (so R_1 = R_2 R_cv)
+t_cv        t_rel[p]      (P,3)     unit translation, t_cv ~ R_2^T (P_1 - P_2)
+b1, b2      bearings      (C,3)     unit bearings of a correspondence in cams 1 and 2
+==========  ============  ========  ===================================================
+
+Correspondences are built for all pairs at once with vectorized joins on the feature index
+(observations sorted by feature then camera); only the OpenCV calls loop over pairs.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class PairCorrespondences:
+    """Co-visible camera pairs and their common observations (CSR layout).
+
+    Attributes:
+        cam_a: First camera of each pair, shape (P,); cam_a < cam_b.
+        cam_b: Second camera of each pair, shape (P,).
+        offsets: CSR offsets (P+1,) into ``obs_a``/``obs_b``.
+        obs_a: Observation index (into the problem's observations) in cam_a, shape (C,).
+        obs_b: Observation index of the same feature in cam_b, shape (C,).
+    """
+
+    cam_a: IntArray
+    cam_b: IntArray
+    offsets: IntArray
+    obs_a: IntArray
+    obs_b: IntArray
+
+    @property
+    def n_pairs(self) -> int:
+        """Return the number of pairs P."""
+        return int(self.cam_a.shape[0])
+
+    def counts(self) -> IntArray:
+        """Return the number of common observations of each pair, shape (P,)."""
+        return np.diff(self.offsets)
+
+
+@dataclass(frozen=True, eq=False)
+class EGPairs:
+    """Estimated epipolar-geometry pairs (only the successful ones).
+
+    Attributes:
+        cam_a: First camera, shape (P,).
+        cam_b: Second camera, shape (P,).
+        R_rel: Relative rotations R_cv = R_b^T R_a, shape (P, 3, 3).
+        t_rel: Unit relative translations t_cv ~ R_b^T (P_a - P_b), shape (P, 3).
+        n_inliers: Cheirality inliers, shape (P,) (the edge weight).
+        offsets: CSR offsets (P+1,) into ``obs_a``/``obs_b`` (inlier correspondences only).
+        obs_a: Inlier observation indices in cam_a, shape (C,).
+        obs_b: Inlier observation indices in cam_b, shape (C,).
+        parallax_px: Median rotation-compensated parallax of the inliers (px), shape (P,).
+    """
+
+    cam_a: IntArray
+    cam_b: IntArray
+    R_rel: FloatArray
+    t_rel: FloatArray
+    n_inliers: IntArray
+    offsets: IntArray
+    obs_a: IntArray
+    obs_b: IntArray
+    parallax_px: FloatArray
+
+    @property
+    def n_pairs(self) -> int:
+        """Return the number of pairs P."""
+        return int(self.cam_a.shape[0])
+
+    def pair_index(self) -> IntArray:
+        """Return the pair of every correspondence, shape (C,)."""
+        return np.repeat(np.arange(self.n_pairs), np.diff(self.offsets))
+
+    def subset(self, keep: BoolArray) -> EGPairs:
+        """Return the pairs selected by the mask ``keep`` (P,), with their correspondences."""
+        keep = np.asarray(keep, dtype=bool)
+        counts = np.diff(self.offsets)
+        corr_keep = np.repeat(keep, counts)
+        return EGPairs(self.cam_a[keep], self.cam_b[keep], self.R_rel[keep], self.t_rel[keep],
+                       self.n_inliers[keep],
+                       np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
+                       self.obs_a[corr_keep], self.obs_b[corr_keep], self.parallax_px[keep])
+
+
+def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, IntArray]:
+    """Return observation order sorted by (feature, camera) and the max track length."""
+    order = np.lexsort((cam_idx, feat_idx)).astype(np.int64)
+    max_len = int(np.bincount(feat_idx).max()) if feat_idx.size else 0
+    return order, np.int64(max_len)
+
+
+def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> IntArray:
+    """Return the number of features seen by both cameras, as a dense (M, M) upper triangle.
+
+    Args:
+        cam_idx: Camera of each observation, shape (K,).
+        feat_idx: Feature of each observation, shape (K,).
+        n_cams: Number of cameras M.
+
+    Returns:
+        counts[a, b] for a < b (zero elsewhere), shape (M, M).
+    """
+    order, max_len = _track_layout(cam_idx, feat_idx)
+    f, c = feat_idx[order], cam_idx[order]
+    counts = np.zeros(n_cams * n_cams, dtype=np.int64)
+    for d in range(1, int(max_len)):  # loop over the offset inside a track, not observations
+        same = f[d:] == f[:-d]
+        key = c[:-d][same] * n_cams + c[d:][same]
+        counts += np.bincount(key, minlength=n_cams * n_cams)
+    return counts.reshape(n_cams, n_cams)
+
+
+def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
+                         min_matches: int) -> PairCorrespondences:
+    """Return all camera pairs with at least ``min_matches`` common features and their matches.
+
+    Args:
+        cam_idx: Camera of each observation, shape (K,).
+        feat_idx: Feature of each observation, shape (K,); one observation per (camera, feature).
+        n_cams: Number of cameras M.
+        min_matches: Minimum number of common features of a pair.
+
+    Returns:
+        The pairs (sorted by (cam_a, cam_b)) and their correspondences.
+    """
+    counts = covisibility_counts(cam_idx, feat_idx, n_cams)
+    selected = counts.ravel() >= max(int(min_matches), 1)
+    order, max_len = _track_layout(cam_idx, feat_idx)
+    f, c = feat_idx[order], cam_idx[order]
+    keys: list[IntArray] = []
+    first: list[IntArray] = []
+    second: list[IntArray] = []
+    for d in range(1, int(max_len)):
+        same = np.flatnonzero(f[d:] == f[:-d])
+        key = c[same] * n_cams + c[same + d]
+        sel = selected[key]
+        keys.append(key[sel])
+        first.append(order[same[sel]])
+        second.append(order[same[sel] + d])
+    key_all = np.concatenate(keys) if keys else np.zeros(0, dtype=np.int64)
+    obs_a = np.concatenate(first) if first else np.zeros(0, dtype=np.int64)
+    obs_b = np.concatenate(second) if second else np.zeros(0, dtype=np.int64)
+    srt = np.argsort(key_all, kind='stable')
+    key_all, obs_a, obs_b = key_all[srt], obs_a[srt], obs_b[srt]
+    pair_keys, starts = np.unique(key_all, return_index=True)
+    offsets = np.concatenate([starts, [key_all.shape[0]]]).astype(np.int64)
+    return PairCorrespondences(pair_keys // n_cams, pair_keys % n_cams, offsets,
+                               obs_a.astype(np.int64), obs_b.astype(np.int64))
+
+
+def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: FloatArray,
+                      ) -> tuple[FloatArray, FloatArray]:
+    """Return the depths (lambda1, lambda2) with lambda1 R b1 + t = lambda2 b2 (midpoint-free).
+
+    Args:
+        R_rel: Relative rotation of each correspondence, shape (C, 3, 3) or (3, 3).
+        t_rel: Relative translation, shape (C, 3) or (3,).
+        b1: Unit bearings in camera 1, shape (C, 3).
+        b2: Unit bearings in camera 2, shape (C, 3).
+
+    Returns:
+        Depth along b1 and along b2, shapes (C,); both positive for a point in front of both
+        cameras. They are computed from cross products (no division by zero: 0 when the rays are
+        parallel).
+
+    References:
+        pmba.md §4.3 (sign of the translation by the cheirality majority).
+    """
+    Rb1 = np.einsum('...ij,...j->...i', R_rel, b1)
+    t = np.broadcast_to(t_rel, Rb1.shape)
+    m = np.cross(Rb1, b2)  # Rb1 x b2
+    mm = np.maximum(np.sum(m * m, axis=1), 1e-300)
+    lam1 = -np.sum(np.cross(t, b2) * m, axis=1) / mm
+    lam2 = -np.sum(np.cross(t, Rb1) * m, axis=1) / mm
+    return lam1, lam2
+
+
+def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
+                      prob: float = 0.999, method: int = cv2.RANSAC,
+                      ) -> tuple[FloatArray, FloatArray, BoolArray] | None:
+    """Estimate one pair's relative pose with OpenCV's 5-point RANSAC and the cheirality check.
+
+    Args:
+        b1: Unit bearings in camera 1 (z > 0), shape (C, 3).
+        b2: Unit bearings of the same features in camera 2, shape (C, 3).
+        threshold: RANSAC threshold on normalized image coordinates (about px / f).
+        prob: RANSAC confidence.
+        method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
+
+    Returns:
+        (R_cv (3, 3), t_cv (3,), inlier mask (C,)) or None if OpenCV finds no model.
+
+    References:
+        PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
+    """
+    x1 = np.ascontiguousarray(b1[:, :2] / b1[:, 2:3])
+    x2 = np.ascontiguousarray(b2[:, :2] / b2[:, 2:3])
+    eye = np.eye(3)
+    try:
+        E, mask = cv2.findEssentialMat(x1, x2, eye, method=method, prob=prob,
+                                       threshold=threshold)
+    except cv2.error as err:
+        logger.debug('findEssentialMat failed: %s', err)
+        return None
+    if E is None or mask is None or E.shape[0] < 3:
+        return None
+    E = E[:3]
+    _, R, t, mask2 = cv2.recoverPose(E, x1, x2, eye, mask=mask.copy())
+    inl = mask2.ravel() > 0
+    return R.astype(float), t.ravel().astype(float), inl
+
+
+def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
+                      corr: PairCorrespondences, *, threshold_px: float = 1.0,
+                      min_inliers: int = 20, min_parallax_px: float = 1.0,
+                      prob: float = 0.999, method: int = cv2.RANSAC,
+                      ) -> tuple[EGPairs, dict[str, int]]:
+    """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
+
+    A pair is kept if OpenCV returns a model with at least ``min_inliers`` cheirality inliers and
+    the median rotation-compensated parallax of the inliers is at least ``min_parallax_px``
+    (otherwise its translation direction is undetermined, e.g. pure rotation).
+
+    Args:
+        bearings_c: Unit bearings of all observations (camera frame), shape (K, 3).
+        focal_px: Focal length of the observing camera of every observation, shape (K,) (px).
+        corr: Candidate pairs and correspondences.
+        threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
+        min_inliers: Minimum number of cheirality inliers.
+        min_parallax_px: Minimum median parallax (px) after removing the rotation.
+        prob: RANSAC confidence.
+        method: OpenCV robust method.
+
+    Returns:
+        The kept pairs, and counts of rejected pairs by reason.
+
+    References:
+        PMBA Sec. 3, Fig. 5 (EG pairs); pmba.md §4.1.
+    """
+    rejected = {'ransac_failed': 0, 'too_few_inliers': 0, 'low_parallax': 0}
+    keep_idx: list[int] = []
+    Rs: list[FloatArray] = []
+    ts: list[FloatArray] = []
+    inlier_masks: list[BoolArray] = []
+    parallax: list[float] = []
+    for p in range(corr.n_pairs):  # per-pair loop: one OpenCV call each
+        sl = slice(int(corr.offsets[p]), int(corr.offsets[p + 1]))
+        ia, ib = corr.obs_a[sl], corr.obs_b[sl]
+        b1, b2 = bearings_c[ia], bearings_c[ib]
+        front = (b1[:, 2] > 1e-3) & (b2[:, 2] > 1e-3)
+        if int(front.sum()) < max(min_inliers, 5):
+            rejected['too_few_inliers'] += 1
+            continue
+        f = float(np.sqrt(np.median(focal_px[ia]) * np.median(focal_px[ib])))
+        out = relative_pose_5pt(b1[front], b2[front], threshold_px / f, prob=prob,
+                                method=method)
+        if out is None:
+            rejected['ransac_failed'] += 1
+            continue
+        R, t, inl_front = out
+        inl = np.zeros(front.shape[0], dtype=bool)
+        inl[np.flatnonzero(front)[inl_front]] = True
+        if int(inl.sum()) < min_inliers:
+            rejected['too_few_inliers'] += 1
+            continue
+        cosang = np.clip(np.sum((b1[inl] @ R.T) * b2[inl], axis=1), -1.0, 1.0)
+        par_px = float(np.median(np.arccos(cosang))) * f
+        if par_px < min_parallax_px:
+            rejected['low_parallax'] += 1
+            continue
+        keep_idx.append(p)
+        Rs.append(R)
+        ts.append(t / np.linalg.norm(t))
+        inlier_masks.append(inl)
+        parallax.append(par_px)
+    keep = np.asarray(keep_idx, dtype=np.int64)
+    if keep.size:
+        counts = np.asarray([int(m.sum()) for m in inlier_masks], dtype=np.int64)
+        sel = np.concatenate(inlier_masks)
+        rows = np.concatenate([np.arange(corr.offsets[p], corr.offsets[p + 1]) for p in keep])
+        obs_a, obs_b = corr.obs_a[rows][sel], corr.obs_b[rows][sel]
+        R_rel, t_rel = np.stack(Rs), np.stack(ts)
+    else:
+        counts = np.zeros(0, dtype=np.int64)
+        obs_a = obs_b = np.zeros(0, dtype=np.int64)
+        R_rel, t_rel = np.zeros((0, 3, 3)), np.zeros((0, 3))
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R_rel, t_rel, counts, offsets,
+                    obs_a, obs_b, np.asarray(parallax, dtype=float))
+    return pairs, rejected
+
+
+def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray,
+                        ) -> tuple[EGPairs, FloatArray]:
+    """Re-estimate every pair's translation direction with the rotations known.
+
+    With R = R_b^T R_a fixed, b2^T [t]x R b1 = t . (R b1 x b2), so t is the eigenvector of the
+    smallest eigenvalue of sum_k m_k m_k^T, m_k = (R b1_k) x b2_k; its sign is the one that puts
+    the majority of the correspondences in front of both cameras.
+
+    Args:
+        pairs: EG pairs with their inlier correspondences.
+        bearings_c: Unit bearings of all observations, shape (K, 3).
+        R_wc: Averaged camera -> world rotations, shape (M, 3, 3).
+
+    Returns:
+        The pairs with R_rel = R_b^T R_a and the new t_rel, and the world-frame unit direction
+        d_ab = xi(P_a - P_b) = R_b t_cv of each pair, shape (P, 3).
+
+    References:
+        pmba.md §4.3 ("relative translation fine-tuning with rotation known").
+    """
+    R_rel = np.swapaxes(R_wc[pairs.cam_b], 1, 2) @ R_wc[pairs.cam_a]
+    pidx = pairs.pair_index()
+    b1, b2 = bearings_c[pairs.obs_a], bearings_c[pairs.obs_b]
+    Rb1 = np.einsum('kij,kj->ki', R_rel[pidx], b1)
+    m = np.cross(Rb1, b2)
+    outer = m[:, :, None] * m[:, None, :]
+    starts = pairs.offsets[:-1]
+    nonempty = np.diff(pairs.offsets) > 0
+    S = np.zeros((pairs.n_pairs, 3, 3))
+    if pidx.size:
+        S[nonempty] = np.add.reduceat(outer, starts[nonempty], axis=0)
+    _, vecs = np.linalg.eigh(S)
+    t = vecs[:, :, 0]  # smallest eigenvalue
+    lam1, lam2 = cheirality_depths(R_rel[pidx], t[pidx], b1, b2)
+    votes = np.bincount(pidx, weights=np.sign(lam1) + np.sign(lam2), minlength=pairs.n_pairs)
+    t = t * np.where(votes < 0, -1.0, 1.0)[:, None]
+    d_world = np.einsum('pij,pj->pi', R_wc[pairs.cam_b], t)
+    new = EGPairs(pairs.cam_a, pairs.cam_b, R_rel, t, pairs.n_inliers, pairs.offsets,
+                  pairs.obs_a, pairs.obs_b, pairs.parallax_px)
+    return new, d_world
