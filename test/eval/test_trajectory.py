@@ -167,7 +167,7 @@ def test_read_euroc_csv_reads_wxyz_and_nanoseconds(tmp_path: Path) -> None:
 
 def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
                                                rng: np.random.Generator) -> None:
-    """KITTI poses get index stamps unless stamps are given; rotations are projected."""
+    """KITTI poses get index stamps unless stamps are given; rotations project on request."""
     rotations = so3.exp(rng.normal(size=(3, 3)))
     positions = rng.normal(size=(3, 3))
     mat = np.concatenate([rotations, positions[:, :, None]], axis=2).reshape(3, 12)
@@ -177,7 +177,9 @@ def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
     np.testing.assert_array_equal(traj.stamps_s, [0.0, 1.0, 2.0])
     np.testing.assert_allclose(traj.positions_xyz, positions, rtol=1e-6)
     np.testing.assert_allclose(traj.R_wc, rotations, atol=1e-6)
-    gram = np.einsum('nji,njk->nik', traj.R_wc, traj.R_wc)
+    projected = read_kitti(path, project_to_so3=True)
+    np.testing.assert_allclose(projected.R_wc, rotations, atol=1e-6)
+    gram = np.einsum('nji,njk->nik', projected.R_wc, projected.R_wc)
     np.testing.assert_allclose(gram, np.broadcast_to(np.eye(3), gram.shape), atol=1e-14)
     np.testing.assert_array_equal(read_kitti(path, stamps=[0.5, 0.6, 0.7]).stamps_s,
                                   [0.5, 0.6, 0.7])
@@ -259,13 +261,11 @@ def test_readers_match_evo_file_interface(name: str, fmt: str) -> None:
     assert detect_format(path) == fmt
     if fmt == 'kitti':
         theirs = file_interface.read_kitti_poses_file(str(path))
-        rot_tol = 1e-6  # KITTI prints 7 digits; ours are projected onto SO(3)
     else:
         reader = (file_interface.read_euroc_csv_trajectory if fmt == 'euroc'
                   else file_interface.read_tum_trajectory_file)
         theirs = reader(str(path))
         np.testing.assert_array_equal(ours.stamps_s, theirs.timestamps)
-        rot_tol = 1e-12
     np.testing.assert_array_equal(ours.positions_xyz, theirs.positions_xyz)
     rotations = np.array([pose[:3, :3] for pose in theirs.poses_se3])
-    np.testing.assert_allclose(ours.R_wc, rotations, atol=rot_tol)
+    np.testing.assert_allclose(ours.R_wc, rotations, atol=1e-12)
