@@ -1,0 +1,139 @@
+"""Tests of the ``evaluate`` CLI verb (pmba_ros.cli.evaluate), run in-process."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.cli import evaluate as cli
+from pmba_ros.core import so3
+from pmba_ros.errors import EvaluationError, FormatError, PmbaError
+from pmba_ros.eval.metrics import ALIGN_MODES, evaluate
+from pmba_ros.eval.trajectory import FORMATS, Trajectory, read_trajectory, write_tum
+
+DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+EVO_DIR = DATA / 'trajectories' / 'evo'
+needs_data = pytest.mark.skipif(not EVO_DIR.is_dir(), reason=f'{EVO_DIR} is not available')
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    """Parse ``argv`` with the verb's arguments, as the dispatcher does."""
+    parser = argparse.ArgumentParser(prog='pmba evaluate')
+    cli.add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+@pytest.fixture
+def tum_pair(tmp_path: Path) -> tuple[Path, Path]:
+    """Write a ground truth and a noisy, scaled estimate as TUM files."""
+    rng = np.random.default_rng(7)
+    n = 60
+    stamps = 10.0 + 0.05 * np.arange(n)
+    positions = np.cumsum(rng.normal(scale=0.1, size=(n, 3)), axis=0)
+    rotations = so3.exp(np.cumsum(rng.normal(scale=0.05, size=(n, 3)), axis=0))
+    gt = Trajectory(stamps, positions, rotations)
+    est = Trajectory(stamps + 0.002,
+                     0.5 * positions + rng.normal(scale=0.005, size=(n, 3)), rotations)
+    write_tum(tmp_path / 'gt.txt', gt)
+    write_tum(tmp_path / 'est.txt', est)
+    return tmp_path / 'est.txt', tmp_path / 'gt.txt'
+
+
+def test_defaults_are_auto_format_and_sim3() -> None:
+    """Defaults: auto formats, Sim(3) alignment, 10 ms tolerance, delta 1, no report."""
+    args = parse(['e.txt', 'g.txt'])
+    assert (args.est_format, args.gt_format, args.align) == ('auto', 'auto', 'sim3')
+    assert (args.max_diff, args.t_offset, args.delta, args.report) == (0.01, 0.0, 1, None)
+
+
+def test_choices_match_the_library() -> None:
+    """The parser's choices are the library's formats and alignment modes."""
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    choices = {a.dest: tuple(a.choices) for a in parser._actions if a.choices}
+    assert choices['est_format'] == choices['gt_format'] == FORMATS
+    assert choices['align'] == ALIGN_MODES
+
+
+def test_run_prints_table_and_returns_zero(tum_pair: tuple[Path, Path],
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """run() prints ATE and RPE rows with the same numbers as the library."""
+    est, gt = tum_pair
+    assert cli.run(parse([str(est), str(gt)])) == 0
+    out = capsys.readouterr().out
+    expected = evaluate(read_trajectory(est), read_trajectory(gt), align='sim3')
+    assert 'matched 60 of 60 estimated / 60 ground-truth poses; alignment sim3' in out
+    assert f'{expected["ate"].rmse:.6f}' in out
+    assert f'{expected["rpe"].rmse:.6f}' in out
+    assert 'ATE (m)' in out
+    assert 'RPE d=1 (m)' in out
+
+
+def test_report_json_holds_both_metrics(tum_pair: tuple[Path, Path], tmp_path: Path) -> None:
+    """--report writes the options and both results as JSON."""
+    est, gt = tum_pair
+    report = tmp_path / 'out.json'
+    assert cli.run(parse([str(est), str(gt), '--align', 'se3', '--delta', '3',
+                          '--report', str(report)])) == 0
+    data = json.loads(report.read_text())
+    expected = evaluate(read_trajectory(est), read_trajectory(gt), align='se3', delta=3)
+    assert data['align'] == 'se3'
+    assert data['delta_frames'] == 3
+    assert data['ate']['rmse'] == pytest.approx(expected['ate'].rmse, rel=1e-12)
+    assert data['rpe']['rmse'] == pytest.approx(expected['rpe'].rmse, rel=1e-12)
+    assert data['ate']['alignment']['scale'] == 1.0
+
+
+def test_report_is_byte_identical_run_to_run(tum_pair: tuple[Path, Path],
+                                             tmp_path: Path) -> None:
+    """Two runs write the same report bytes."""
+    est, gt = tum_pair
+    first, second = tmp_path / 'a.json', tmp_path / 'b.json'
+    cli.run(parse([str(est), str(gt), '--report', str(first)]))
+    cli.run(parse([str(est), str(gt), '--report', str(second)]))
+    assert first.read_bytes() == second.read_bytes()
+
+
+def test_missing_file_raises_format_error(tmp_path: Path) -> None:
+    """Library errors propagate as PmbaError subclasses for the dispatcher."""
+    with pytest.raises(FormatError, match='cannot read trajectory file'):
+        cli.run(parse([str(tmp_path / 'no.txt'), str(tmp_path / 'no.txt')]))
+
+
+def test_disjoint_stamps_raise_evaluation_error(tum_pair: tuple[Path, Path]) -> None:
+    """A wrong time offset leaves nothing to associate."""
+    est, gt = tum_pair
+    with pytest.raises(EvaluationError, match='no matching timestamps'):
+        cli.run(parse([str(est), str(gt), '--t-offset', '100']))
+
+
+def test_unwritable_report_raises_pmba_error(tum_pair: tuple[Path, Path],
+                                             tmp_path: Path) -> None:
+    """A report in a missing directory is a PmbaError, not a traceback."""
+    est, gt = tum_pair
+    with pytest.raises(PmbaError, match='cannot write report'):
+        cli.run(parse([str(est), str(gt), '--report', str(tmp_path / 'no' / 'r.json')]))
+
+
+@needs_data
+def test_run_on_kitti_pair_with_explicit_formats(capsys: pytest.CaptureFixture[str]) -> None:
+    """KITTI files (index stamps) evaluate pose i against pose i."""
+    argv = [str(EVO_DIR / 'KITTI_00_ORB.txt'), str(EVO_DIR / 'KITTI_00_gt.txt'),
+            '--format', 'kitti', '--gt-format', 'kitti', '--align', 'se3']
+    assert cli.run(parse(argv)) == 0
+    out = capsys.readouterr().out
+    assert 'matched 4541 of 4541' in out
+    assert '1.303450' in out  # evo_ape kitti ... -a: RMSE 1.303450 m
+
+
+@needs_data
+def test_run_on_tum_vs_euroc_pair(capsys: pytest.CaptureFixture[str]) -> None:
+    """A TUM estimate against EuRoC CSV ground truth, detected automatically."""
+    argv = [str(EVO_DIR / 'V102.txt'), str(EVO_DIR / 'V102_groundtruth.csv')]
+    assert cli.run(parse(argv)) == 0
+    out = capsys.readouterr().out
+    assert 'matched 798 of 807 estimated / 16702 ground-truth poses' in out
