@@ -235,7 +235,8 @@ def _unit_quats(quats_xyzw: ArrayLike, what: str = 'quats_xyzw') -> FloatArray:
     if np.any(norm < 1e-9):
         msg = f'{what}: zero-norm quaternion'
         raise MessageError(msg)
-    return q / norm[:, None]
+    unit: FloatArray = q / norm[:, None]
+    return unit
 
 
 def time_msg(stamp_ns: int, backend: MsgBackend) -> Any:

@@ -40,7 +40,7 @@ _NEWTON_TOL = 1e-14
 def _frozen_array(value: Any, dtype: type, shape_tail: tuple[int, ...], what: str,
                   ) -> np.ndarray:
     """Return a read-only copy of ``value`` with trailing shape ``shape_tail``."""
-    arr = np.array(value, dtype=dtype, copy=True)
+    arr: np.ndarray = np.array(value, dtype=dtype, copy=True)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         want = '(K' + ''.join(f', {n}' for n in shape_tail) + ')'
         msg = f'{what}: expected shape {want}, got {arr.shape}'
@@ -359,7 +359,8 @@ def _undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
 def _theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
     """Return the equidistant distorted angle theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
     t2 = theta * theta
-    return theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+    out: FloatArray = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+    return out
 
 
 def _distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
