@@ -74,6 +74,9 @@ class SolveOptions:
         parameter_tolerance: Stop when |step| <= tol (|x| + tol).
         initial_trust_region_radius: Initial Delta (scaled space).
         jacobi_scaling: Scale Jacobian columns by 1 / (1 + |J_k|).
+        pixel_weighted: PMBA only: map ray errors to pixels by the projection Jacobian at the
+            measured bearing (see :class:`~pmba_ros.core.models.ParallaxModel`); False is
+            the paper's isotropic chordal error.
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -87,6 +90,7 @@ class SolveOptions:
     parameter_tolerance: float = 1e-8
     initial_trust_region_radius: float = 1e4
     jacobi_scaling: bool = True
+    pixel_weighted: bool = True
 
     def __post_init__(self) -> None:
         """Coerce enum strings and validate ranges."""
@@ -322,7 +326,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     if features is None:
         problem, features = initial_features(problem, options.param)
     _check_features(problem, features, options.param)
-    model = make_model(options.param, problem)
+    model = make_model(options.param, problem, pixel_weighted=options.pixel_weighted)
     gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                          problem.obs.feat_idx, problem.n_feats)
     free_block = gauge.free_block()
