@@ -17,11 +17,12 @@ E_i        --               --        RPE error (Q_i^-1 Q_{i+d})^-1 (P_i^-1 P_{i
 e_i        errors           (K,)      norm of the translation part of F_i or E_i
 =========  ===============  ========  ==============================================
 
-The translation part of F_i is ``R_q,i^T (p_i - q_i)`` (norm ``|p_i - q_i|`` for exact
-rotations); the translation part of E_i is ``R_rel^T (t_P - t_Q)`` with
-``t_P = R_p,i^T (p_{i+d} - p_i)`` and ``R_rel = R_q,i^T R_q,{i+d}``. Both are evaluated for all
-poses at once, keeping the rotations as evo does (see :func:`~pmba_ros.eval.trajectory.read_kitti`
-for rotations that are orthonormal only to the printed digits).
+The translation part of F_i is ``R_q,i^T (p_i - q_i)``, whose norm is ``|p_i - q_i|``. The
+translation part of E_i is ``R_rel^T (t_P - t_Q)`` with ``t_P = R_p,i^T (p_{i+d} - p_i)`` and
+``R_rel = R_q,i^T R_q,{i+d}``; it is evaluated literally, as evo does, so that rotations that
+are orthonormal only to the printed digits (KITTI, see
+:func:`~pmba_ros.eval.trajectory.read_kitti`) give evo's numbers. Both metrics are computed
+for all poses at once.
 """
 
 from __future__ import annotations
@@ -264,11 +265,9 @@ def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
 def _ate_associated(est: Trajectory, ref: Trajectory, align: str) -> EvalResult:
     """ATE of already associated trajectories."""
     aligned, alignment = _align_pairs(est, ref, align)
-    # trans(Q_i^-1 S P_i) = R_q,i^T (p_i - q_i), eq. (3); the rotation is kept (rather than
-    # using |p_i - q_i|) so that KITTI rotations, orthonormal only to the printed digits,
-    # give evo's numbers exactly.
-    errors = np.linalg.norm(
-        np.einsum('nji,nj->ni', ref.R_wc, aligned.positions_xyz - ref.positions_xyz), axis=1)
+    # |trans(Q_i^-1 S P_i)| = |R_q,i^T (p_i - q_i)| = |p_i - q_i|, eq. (3); evo's APE also
+    # uses the position difference directly.
+    errors = np.linalg.norm(aligned.positions_xyz - ref.positions_xyz, axis=1)
     return _result('ate', align, errors, len(est), alignment)
 
 
