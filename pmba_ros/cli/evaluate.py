@@ -37,17 +37,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('est', metavar='EST', help='estimated trajectory file')
     parser.add_argument('gt', metavar='GT', help='ground-truth trajectory file')
     parser.add_argument('--format', dest='est_format', choices=_FORMATS, default='auto',
-                        help='format of EST (default: auto; KITTI files get index stamps)')
+                        help='format of EST (KITTI files get index stamps)')
     parser.add_argument('--gt-format', choices=_FORMATS, default='auto',
-                        help='format of GT (default: auto)')
+                        help='format of GT')
     parser.add_argument('--align', choices=_ALIGN_MODES, default='sim3',
-                        help='alignment of EST onto GT before the errors (default: sim3)')
+                        help='alignment of EST onto GT before the errors')
     parser.add_argument('--max-diff', type=float, default=0.01, metavar='S',
-                        help='largest timestamp difference for association, s (default: 0.01)')
+                        help='largest timestamp difference for association, s')
     parser.add_argument('--t-offset', type=float, default=0.0, metavar='S',
-                        help='offset added to the EST stamps for association, s (default: 0)')
+                        help='offset added to the EST stamps for association, s')
     parser.add_argument('--delta', type=int, default=1, metavar='N',
-                        help='RPE pose distance in frames, all pairs (default: 1)')
+                        help='RPE pose distance in frames, all pairs')
     parser.add_argument('--report', type=Path, default=None, metavar='FILE.json',
                         help='also write the results as JSON')
 
