@@ -32,9 +32,25 @@ DENSE_LIMIT = 6000
 
 
 def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
-    """0/1 matrix A with A[index[e], e] = 1: A @ values sums values into rows (scatter-add)."""
+    """0/1 matrix A with A[index[e], e] = 1: A @ values sums values into rows (scatter-add).
+
+    Entries with index -1 are left out.
+    """
     n = index.shape[0]
-    return scipy.sparse.csr_matrix((np.ones(n), (index, np.arange(n))), shape=(n_rows, n))
+    keep = index >= 0
+    return scipy.sparse.csr_matrix((np.ones(int(keep.sum())), (index[keep], np.flatnonzero(keep))),
+                                   shape=(n_rows, n))
+
+
+@dataclass(frozen=True, eq=False)
+class _ObsChunk:
+    """Aggregators of one chunk of observations [lo, hi) (entries are (k, s) or (k, s, t))."""
+
+    lo: int
+    hi: int
+    u_agg: scipy.sparse.csr_matrix  # (n_pairs, n * S * S): U blocks per slot pair
+    w_agg: scipy.sparse.csr_matrix  # (nW, n * S): W blocks per slot
+    g_agg: scipy.sparse.csr_matrix  # (n_blocks, n * S): pose gradient per slot
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,11 +74,7 @@ class SchurStructure:
     pair_cols: IntArray
     w_block: IntArray
     w_feat: IntArray
-    _u_chunks: list[tuple[slice, IntArray, IntArray, IntArray, scipy.sparse.csr_matrix]]
-    _w_agg: scipy.sparse.csr_matrix
-    _w_entries: IntArray
-    _v_agg: scipy.sparse.csr_matrix
-    _g_agg: scipy.sparse.csr_matrix
+    _obs_chunks: list[_ObsChunk]
     _s_chunks: list[tuple[IntArray, IntArray, scipy.sparse.csr_matrix]]
     _diag_pairs: IntArray
 
@@ -76,21 +88,20 @@ class SchurStructure:
             msg = 'no free pose: every pose is fixed'
             raise SolverError(msg)
         slot_block = np.where(slot_pose >= 0, free_block[np.maximum(slot_pose, 0)], -1)
+        valid = (slot_block >= 0).reshape(-1)               # per entry e = k * S + s
+        entry_block = slot_block.reshape(-1)
+        entry_feat = np.repeat(feat_idx, S)
 
-        # W blocks: one per distinct (block, feature) among the observation slots.
-        valid = slot_block >= 0
-        kk, ss = np.nonzero(valid)
-        keys = slot_block[kk, ss] * n_feats + feat_idx[kk]
-        uniq, inv = np.unique(keys, return_inverse=True)
-        w_block = uniq // n_feats
-        w_feat = uniq % n_feats
+        # W blocks: one per distinct (block, feature), sorted by feature.
+        keys = entry_block * n_feats + entry_feat
+        uniq, inv = np.unique(keys[valid], return_inverse=True)
+        w_block, w_feat = uniq // n_feats, uniq % n_feats
         order = np.argsort(w_feat, kind='stable')
         rank = np.empty_like(order)
         rank[order] = np.arange(order.shape[0])
         w_block, w_feat = w_block[order], w_feat[order]
-        w_entry_of = rank[inv]
-        w_agg = _aggregator(w_entry_of, w_block.shape[0])
-        w_entries = kk * S + ss
+        entry_w = np.full(K * S, -1)
+        entry_w[valid] = rank[inv]
 
         # Schur pairs: every ordered pair of W blocks of one feature.
         counts = np.bincount(w_feat, minlength=n_feats)
@@ -101,43 +112,35 @@ class SchurStructure:
         offs = np.cumsum(per_entry) - per_entry
         q2 = first + (np.arange(q1.shape[0]) - np.repeat(offs, per_entry))
 
-        # U pairs: every ordered pair of valid slots of one observation.
-        u_k, u_s, u_t = [], [], []
-        for s in range(S):
-            for t in range(S):
-                k = np.flatnonzero(valid[:, s] & valid[:, t])
-                u_k.append(k)
-                u_s.append(np.full(k.shape[0], s))
-                u_t.append(np.full(k.shape[0], t))
-        uk, us, ut = np.concatenate(u_k), np.concatenate(u_s), np.concatenate(u_t)
-        o = np.argsort(uk, kind='stable')
-        uk, us, ut = uk[o], us[o], ut[o]
+        # U entries (k, s, t): both slots valid.
+        vs = valid.reshape(K, S)
+        u_valid = (vs[:, :, None] & vs[:, None, :]).reshape(-1)
+        u_keys = (slot_block[:, :, None] * n_blocks + slot_block[:, None, :]).reshape(-1)
 
-        pair_keys = np.concatenate([
-            slot_block[uk, us] * n_blocks + slot_block[uk, ut],
-            w_block[q1] * n_blocks + w_block[q2],
-            np.arange(n_blocks) * (n_blocks + 1)])
+        pair_keys = np.concatenate([u_keys[u_valid], w_block[q1] * n_blocks + w_block[q2],
+                                    np.arange(n_blocks) * (n_blocks + 1)])
         pair_uniq, pair_inv = np.unique(pair_keys, return_inverse=True)
-        n_u = uk.shape[0]
-        n_s = q1.shape[0]
-        u_pair = pair_inv[:n_u]
-        s_pair = pair_inv[n_u:n_u + n_s]
         n_pairs = pair_uniq.shape[0]
-        u_chunks = []
-        for lo in range(0, n_u, _CHUNK):
-            sl = slice(lo, min(lo + _CHUNK, n_u))
-            u_chunks.append((sl, uk[sl], us[sl], ut[sl], _aggregator(u_pair[sl], n_pairs)))
+        u_pair = np.full(u_keys.shape[0], -1)
+        u_pair[u_valid] = pair_inv[:int(u_valid.sum())]
+        s_pair = pair_inv[int(u_valid.sum()):int(u_valid.sum()) + q1.shape[0]]
+
+        step = max(1, _CHUNK // (S * S))
+        obs_chunks = []
+        for lo in range(0, K, step):
+            hi = min(lo + step, K)
+            obs_chunks.append(_ObsChunk(
+                lo, hi, _aggregator(u_pair[lo * S * S:hi * S * S], n_pairs),
+                _aggregator(entry_w[lo * S:hi * S], w_block.shape[0]),
+                _aggregator(entry_block[lo * S:hi * S], n_blocks)))
         s_chunks = []
-        for lo in range(0, n_s, _CHUNK):
-            sl = slice(lo, min(lo + _CHUNK, n_s))
+        for lo in range(0, q1.shape[0], _CHUNK):
+            sl = slice(lo, min(lo + _CHUNK, q1.shape[0]))
             s_chunks.append((q1[sl], q2[sl], _aggregator(s_pair[sl], n_pairs)))
         pair_rows = pair_uniq // n_blocks
         pair_cols = pair_uniq % n_blocks
-        diag_pairs = np.flatnonzero(pair_rows == pair_cols)
-        g_index = slot_block[kk, ss]
         return cls(n_blocks, n_feats, slot_block, feat_idx, pair_rows, pair_cols, w_block,
-                   w_feat, u_chunks, w_agg, w_entries, _aggregator(feat_idx, n_feats),
-                   _aggregator(g_index, n_blocks), s_chunks, diag_pairs)
+                   w_feat, obs_chunks, s_chunks, np.flatnonzero(pair_rows == pair_cols))
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,22 +172,34 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
         J_pose: Pose Jacobian blocks per slot, shape (K, S, d, 6).
         J_feat: Feature Jacobian blocks, shape (K, d, 3).
     """
-    K, S = structure.slot_block.shape
+    K, S, d, _ = J_pose.shape
     n_pairs = structure.pair_rows.shape[0]
     U = np.zeros((n_pairs, 36))
-    for sl, uk, us, ut, agg in structure._u_chunks:
-        del sl
-        blocks = np.swapaxes(J_pose[uk, us], 1, 2) @ J_pose[uk, ut]
-        U += agg @ blocks.reshape(-1, 36)
-    Jp_flat = J_pose.reshape(K * S, J_pose.shape[2], 6)[structure._w_entries]
-    Jf_of = J_feat[structure._w_entries // S]
-    W = structure._w_agg @ (np.swapaxes(Jp_flat, 1, 2) @ Jf_of).reshape(-1, 18)
-    V = structure._v_agg @ (np.swapaxes(J_feat, 1, 2) @ J_feat).reshape(-1, 9)
-    r_of = residuals[structure._w_entries // S]
-    g_pose = structure._g_agg @ np.einsum('kdi,kd->ki', Jp_flat, r_of)
-    g_feat = structure._v_agg @ np.einsum('kdi,kd->ki', J_feat, residuals)
+    W = np.zeros((structure.w_block.shape[0], 18))
+    g_pose = np.zeros((structure.n_blocks, 6))
+    for ch in structure._obs_chunks:
+        # One observation's pose Jacobian as d x 6S: J^T J holds all its slot-pair blocks.
+        Jk = np.swapaxes(J_pose[ch.lo:ch.hi], 1, 2).reshape(-1, d, 6 * S)
+        JkT = np.swapaxes(Jk, 1, 2)
+        n = ch.hi - ch.lo
+        JtJ = (JkT @ Jk).reshape(n, S, 6, S, 6).transpose(0, 1, 3, 2, 4)
+        U += ch.u_agg @ JtJ.reshape(-1, 36)
+        W += ch.w_agg @ (JkT @ J_feat[ch.lo:ch.hi]).reshape(-1, 18)
+        g_pose += ch.g_agg @ np.einsum('kid,kd->ki', JkT, residuals[ch.lo:ch.hi]).reshape(-1, 6)
+    JfT = np.swapaxes(J_feat, 1, 2)
+    V = _sum_by_feature(structure, (JfT @ J_feat).reshape(-1, 9))
+    g_feat = _sum_by_feature(structure, np.einsum('kid,kd->ki', JfT, residuals))
     return NormalEquations(U.reshape(-1, 6, 6), W.reshape(-1, 6, 3), V.reshape(-1, 3, 3),
-                           np.asarray(g_pose), np.asarray(g_feat))
+                           g_pose, g_feat)
+
+
+def _sum_by_feature(structure: SchurStructure, values: FloatArray) -> FloatArray:
+    """Sum per-observation rows (K, c) by feature into (N, c)."""
+    out = np.empty((structure.n_feats, values.shape[1]))
+    for i in range(values.shape[1]):
+        out[:, i] = np.bincount(structure.feat_idx, weights=values[:, i],
+                                minlength=structure.n_feats)
+    return out
 
 
 def diagonal(structure: SchurStructure, eqs: NormalEquations) -> tuple[FloatArray, FloatArray]:
