@@ -176,8 +176,9 @@ def triangulate_points(problem: BAProblem, *, max_range_rel: float = 1e8) -> Flo
     (``R_k`` world -> camera, ``v_k`` the unit bearing) is the homogeneous point. All features
     are solved at once (batched 4x4 eigen-decompositions).
 
-    Points at or near infinity (zero baseline, or no parallax) are placed along the mean
-    observed ray at ``max_range_rel * s_j`` from ``c_j``.
+    Points at or near infinity (no parallax) are placed along the mean observed ray at
+    ``max_range_rel * s_j`` from ``c_j``; features whose observing cameras share one centre
+    (no baseline, ``s_j = 0``) are placed at ``max_range_rel`` (world units) along that ray.
 
     Args:
         problem: Poses and observations (the bearings are used, so distortion is removed).
@@ -203,7 +204,8 @@ def triangulate_points(problem: BAProblem, *, max_range_rel: float = 1e8) -> Flo
     c = np.add.reduceat(C, offsets, axis=0) / counts[:, None]  # (N, 3)
     d = C - c[obs.feat_idx]
     s = np.sqrt(np.add.reduceat(np.sum(d * d, axis=1), offsets) / counts)
-    s = np.where(s > 1e-12 * (1.0 + np.linalg.norm(c, axis=1)), s, 1.0)
+    no_baseline = s <= 1e-12 * (1.0 + np.linalg.norm(c, axis=1))
+    s = np.where(no_baseline, 1.0, s)
     P = np.empty((len(obs), 3, 4))
     P[:, :, :3] = R_cw
     P[:, :, 3] = np.einsum('kij,kj->ki', R_cw, -d / s[obs.feat_idx][:, None])
@@ -221,6 +223,10 @@ def triangulate_points(problem: BAProblem, *, max_range_rel: float = 1e8) -> Flo
     far = np.abs(w) < limit
     w = np.where(far, np.maximum(limit, 1e-300), w)
     points = c + s[:, None] * X[:, :3] / w[:, None]
+    # All observing centres coincide: any depth fits (and X = c is a spurious DLT solution).
+    far |= no_baseline
+    ray_dir = mean_ray / np.maximum(np.linalg.norm(mean_ray, axis=1, keepdims=True), 1e-300)
+    points = np.where(no_baseline[:, None], c + max_range_rel * ray_dir, points)
     depth = np.einsum('ki,ki->k', R_cw[:, 2], points[obs.feat_idx] - C)
     n_behind = int(np.count_nonzero(np.bincount(obs.feat_idx, weights=depth <= 0,
                                                 minlength=N)))
@@ -303,9 +309,10 @@ def _read_k(path: Path) -> FloatArray:
     for s, n in zip(lines, numbers, strict=True):
         _check_numeric(path, s.split(), n)
     values = np.array(' '.join(lines).split(), dtype=float)
-    last = numbers[-1] if numbers else 1
     if values.size != 9:
-        msg = f'{path}:{last}: expected 9 values (a 3x3 K), found {values.size}'
+        bad_rows = [n for s, n in zip(lines, numbers, strict=True) if len(s.split()) != 3]
+        where = bad_rows[0] if bad_rows else (numbers[-1] if numbers else 1)
+        msg = f'{path}:{where}: expected 9 values (a 3x3 K), found {values.size}'
         raise FormatError(msg)
     K = values.reshape(3, 3)
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
