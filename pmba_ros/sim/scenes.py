@@ -142,7 +142,6 @@ def street_scene(seed: int = 0, n_cams: int = 20, n_points: int = 500, noise_px:
     n_near = n_points - n_far
     n_col = max(1, round(collinear_fraction * n_far)) if n_far else 0
     near = _street_near_points(rng, _OVERSAMPLE * n_near, n_cams, s)
-    near = near[np.argsort(near[:, 0], kind='stable')]
     x_last = (n_cams - 1) * s
     n_far_cand = _OVERSAMPLE * n_far
     if max_track_length is None:
@@ -167,8 +166,6 @@ def street_scene(seed: int = 0, n_cams: int = 20, n_points: int = 500, noise_px:
     if max_track_length is None:
         anchor[:, 0] = x_last
     far = anchor + depth[:, None] * (rays_c @ base_R.T)
-    by_birth = np.argsort(birth, kind='stable')
-    far, birth, collinear = far[by_birth], birth[by_birth], collinear[by_birth]
 
     points = np.concatenate([near, far])
     kind_far = np.concatenate([np.zeros(len(near), bool), np.ones(n_far_cand, bool)])
@@ -380,22 +377,28 @@ def _street_candidates(near_x: FloatArray, far_birth: IntArray, cam_x: FloatArra
                        max_track_length: int | None) -> Callable[[int], IntArray]:
     """Return candidates(i): near points within reach of camera i, and the far points.
 
-    ``near_x`` and ``far_birth`` must be sorted; far points follow the near ones.
+    Far points follow the near ones in the point array. The points themselves stay in
+    generation order (so that keeping the first qualifying candidates is unbiased); only the
+    index lists are sorted, by x (near) and by birth camera (far).
     """
     n_near = near_x.shape[0]
+    near_order = np.argsort(near_x, kind='stable')
+    near_sorted = near_x[near_order]
     slack = 10.0 * s  # covers jitter: a visible near point has depth in (s, 50 s)
-    lo = np.searchsorted(near_x, cam_x - slack)
-    hi = np.searchsorted(near_x, cam_x + _NEAR_MAX_DEPTH_BASELINES * s + slack)
-    all_far = n_near + np.arange(far_birth.shape[0])
+    lo = np.searchsorted(near_sorted, cam_x - slack)
+    hi = np.searchsorted(near_sorted, cam_x + _NEAR_MAX_DEPTH_BASELINES * s + slack)
+    far_order = np.argsort(far_birth, kind='stable')
+    birth_sorted = far_birth[far_order]
+    all_far = n_near + far_order
 
     def candidates(i: int) -> IntArray:
         if max_track_length is None:
             far = all_far
         else:
-            f_lo = np.searchsorted(far_birth, i - max_track_length + 1)
-            f_hi = np.searchsorted(far_birth, i, side='right')
+            f_lo = np.searchsorted(birth_sorted, i - max_track_length + 1)
+            f_hi = np.searchsorted(birth_sorted, i, side='right')
             far = all_far[f_lo:f_hi]
-        return np.concatenate([np.arange(lo[i], hi[i]), far])
+        return np.concatenate([near_order[lo[i]:hi[i]], far])
 
     return candidates
 
@@ -482,6 +485,8 @@ def _finish(rng: np.random.Generator, R_wc: FloatArray, centers_w: FloatArray,
     new_id[chosen] = np.arange(chosen.size)
     keep = new_id[feat_idx] >= 0
     cam_idx, feat_idx, true_px = cam_idx[keep], new_id[feat_idx[keep]], true_px[keep]
+    order = np.lexsort((cam_idx, feat_idx))  # noise is drawn in (feature, camera) order
+    cam_idx, feat_idx, true_px = cam_idx[order], feat_idx[order], true_px[order]
     pixels = true_px + rng.normal(0.0, noise_px, true_px.shape) if noise_px > 0 else true_px
     gt = make_problem(R_wc, centers_w, intr, cam_idx, feat_idx, pixels,
                       points_w=points_w[chosen], n_feats=chosen.size,
