@@ -222,7 +222,7 @@ def triangulate_points(problem: BAProblem, *, max_range_rel: float = 1e8) -> Flo
     limit = np.linalg.norm(X[:, :3], axis=1) / max_range_rel
     far = np.abs(w) < limit
     w = np.where(far, np.maximum(limit, 1e-300), w)
-    points = c + s[:, None] * X[:, :3] / w[:, None]
+    points: FloatArray = c + s[:, None] * X[:, :3] / w[:, None]
     # All observing centres coincide: any depth fits (and X = c is a spurious DLT solution).
     far |= no_baseline
     ray_dir = mean_ray / np.maximum(np.linalg.norm(mean_ray, axis=1, keepdims=True), 1e-300)
