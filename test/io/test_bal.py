@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
@@ -28,7 +28,9 @@ def reprojection_errors_px(problem: BAProblem, points_w: FloatArray | None = Non
     obs = problem.obs
     h_c = np.einsum('kji,kj->ki', problem.R_wc[obs.cam_idx],
                     pts[obs.feat_idx] - problem.centers_w[obs.cam_idx])
-    return np.linalg.norm(project(h_c, problem.intrinsics, obs.cam_idx) - obs.pixels, axis=1)
+    err: FloatArray = np.linalg.norm(
+        project(h_c, problem.intrinsics, obs.cam_idx) - obs.pixels, axis=1)
+    return err
 
 
 @needs_data

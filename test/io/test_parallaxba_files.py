@@ -31,7 +31,9 @@ def reprojection_errors_px(problem: BAProblem, points_w: FloatArray) -> FloatArr
     obs = problem.obs
     h_c = np.einsum('kji,kj->ki', problem.R_wc[obs.cam_idx],
                     points_w[obs.feat_idx] - problem.centers_w[obs.cam_idx])
-    return np.linalg.norm(project(h_c, problem.intrinsics, obs.cam_idx) - obs.pixels, axis=1)
+    err: FloatArray = np.linalg.norm(
+        project(h_c, problem.intrinsics, obs.cam_idx) - obs.pixels, axis=1)
+    return err
 
 
 def test_euler_to_R_cw_matches_pdf_eq4_element_matrices() -> None:
