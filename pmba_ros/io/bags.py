@@ -1,0 +1,376 @@
+"""Reading and writing recordings with rosbags (no ROS install needed).
+
+Reading goes through :class:`rosbags.highlevel.AnyReader` (rosbag2 folders, bare ``.mcap`` /
+``.db3`` storage files, or several ROS 1 ``.bag`` files) with the ROS 2 Jazzy typestore as
+the default for bags without message definitions. Two pitfalls are handled
+(``ros2_notes.md`` §4.4):
+
+* **QoS mismatch** (§4.4.6): when the QoS profiles in a folder's ``metadata.yaml`` differ
+  from those stored in the storage file, opening the *folder* yields zero messages although
+  ``message_count`` is right. :func:`iter_messages` notices a folder that promised messages
+  and yielded none, and reads the storage files directly.
+* **Existing outputs** (§4.4.2): the rosbags writer refuses an existing path.
+  :func:`open_writer` writes into a fresh temporary folder and moves the storage file into
+  place when it closes, also when the writing code raises (the MCAP summary is always
+  written, so an interrupted run leaves a readable file).
+
+Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and the problem.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import struct
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from pmba_ros.errors import BagError
+
+logger = logging.getLogger(__name__)
+
+STORAGE_SUFFIXES = ('.mcap', '.db3')
+"""Suffixes of rosbag2 storage files that can be opened without their folder."""
+
+
+@lru_cache(maxsize=1)
+def jazzy_typestore() -> Any:
+    """Return the pinned ROS 2 Jazzy rosbags typestore (``Stores.LATEST`` is Kilted)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+class BagMessage(NamedTuple):
+    """One deserialized message of a recording.
+
+    Attributes:
+        topic: Topic name as recorded.
+        msgtype: Message type, e.g. 'nav_msgs/msg/Odometry'.
+        log_time_ns: Receive (log) time of the message, ns.
+        msg: The message (a rosbags typestore dataclass).
+    """
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    msg: Any
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """A topic of a recording.
+
+    Attributes:
+        topic: Topic name.
+        msgtype: Message type.
+        count: Number of messages the bag reports for it.
+    """
+
+    topic: str
+    msgtype: str
+    count: int
+
+
+def _reader_errors() -> tuple[type[BaseException], ...]:
+    """Return the exception types the rosbags readers raise on bad input."""
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Reader1Error
+    from rosbags.rosbag2 import ReaderError as Reader2Error
+    return (AnyReaderError, Reader1Error, Reader2Error, struct.error, EOFError, ValueError,
+            KeyError, IndexError, UnicodeDecodeError, AssertionError, OSError)
+
+
+def _describe(paths: Sequence[Path]) -> str:
+    """Return a short name for a list of bags."""
+    return ', '.join(str(p) for p in paths)
+
+
+def _check_paths(paths: Sequence[Path]) -> list[Path]:
+    """Validate bag paths and return them as a list.
+
+    Raises:
+        BagError: If no path is given, a path is missing, or ROS 1 and ROS 2 bags are mixed.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        msg = 'no bag given'
+        raise BagError(msg)
+    for path in paths:
+        if not path.exists():
+            msg = f'{path}: no such bag'
+            raise BagError(msg)
+    kinds = {p.suffix == '.bag' for p in paths}
+    if len(kinds) > 1:
+        msg = f'cannot mix ROS 1 (.bag) and ROS 2 recordings: {_describe(paths)}'
+        raise BagError(msg)
+    return paths
+
+
+def _storage_files(path: Path) -> list[Path]:
+    """Return the storage files inside a rosbag2 folder (sorted), or [] for a file."""
+    if not path.is_dir():
+        return []
+    return sorted(p for p in path.iterdir() if p.suffix in STORAGE_SUFFIXES)
+
+
+@contextmanager
+def _any_reader(paths: Sequence[Path]) -> Iterator[Any]:
+    """Open an AnyReader over ``paths`` with the Jazzy default typestore.
+
+    Raises:
+        BagError: If a bag cannot be opened (not a bag, truncated, unknown format).
+    """
+    from rosbags.highlevel import AnyReader
+    errors = _reader_errors()
+    try:
+        reader = AnyReader(list(paths), default_typestore=jazzy_typestore())
+        reader.open()
+    except FileNotFoundError as err:
+        msg = f'{_describe(paths)}: {err}'
+        raise BagError(msg) from err
+    except errors as err:
+        msg = (f'{_describe(paths)}: cannot open bag (not a bag, truncated or corrupt?): '
+               f'{_error_text(err)}')
+        raise BagError(msg) from err
+    try:
+        yield reader
+    finally:
+        try:
+            reader.close()
+        except errors as err:  # pragma: no cover - closing a read-only file rarely fails
+            logger.debug('closing %s failed: %s', _describe(paths), err)
+
+
+def _error_text(err: BaseException) -> str:
+    """Return a one-line description of a reader exception."""
+    text = ' '.join(str(a) for a in err.args) if err.args else ''
+    text = text.strip() or type(err).__name__
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def list_topics(paths: Sequence[Path | str]) -> dict[str, TopicInfo]:
+    """Return the topics of one or more recordings.
+
+    Args:
+        paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
+
+    Returns:
+        Topic name -> :class:`TopicInfo` (message counts summed over the bags).
+
+    Raises:
+        BagError: If a bag is missing or cannot be opened.
+    """
+    checked = _check_paths([Path(p) for p in paths])
+    topics: dict[str, TopicInfo] = {}
+    with _any_reader(checked) as reader:
+        for conn in reader.connections:
+            old = topics.get(conn.topic)
+            count = int(conn.msgcount) + (old.count if old else 0)
+            topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, count)
+    return topics
+
+
+def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]],
+                   bags: Sequence[Path | str]) -> None:
+    """Check that every wanted topic is recorded with one of the accepted types.
+
+    Args:
+        topics: Result of :func:`list_topics`.
+        wanted: Topic -> accepted message types (empty: any type).
+        bags: The bags (for the error message).
+
+    Raises:
+        BagError: If a topic is missing or has an unexpected type.
+    """
+    names = _describe([Path(b) for b in bags])
+    for topic, types in wanted.items():
+        info = topics.get(topic)
+        if info is None:
+            have = ', '.join(f'{t} [{i.msgtype}]' for t, i in sorted(topics.items())) or 'none'
+            msg = f'{names}: topic {topic!r} is not in the bag (topics: {have})'
+            raise BagError(msg)
+        if types and info.msgtype not in types:
+            msg = (f'{names}: topic {topic!r} has type {info.msgtype}, expected '
+                   f'{" or ".join(types)}')
+            raise BagError(msg)
+
+
+def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
+                  ) -> Iterator[BagMessage]:
+    """Yield the messages of one or more recordings in log-time order, deserialized.
+
+    A rosbag2 folder that reports messages on the selected topics but yields none (the
+    metadata/storage QoS mismatch of ``ros2_notes.md`` §4.4.6) is read again through its
+    storage files.
+
+    Args:
+        paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
+        topics: Topics to read; None reads all.
+
+    Yields:
+        :class:`BagMessage` tuples, merged over all bags in log-time order.
+
+    Raises:
+        BagError: If a bag is missing, cannot be opened, or is corrupt or truncated (raised
+            when the damaged part is reached; the messages before it have been yielded).
+    """
+    checked = _check_paths([Path(p) for p in paths])
+    expected, produced = 0, 0
+    for message in _iter_once(checked, topics):
+        produced += 1
+        yield message
+    if produced:
+        return
+    expected = sum(info.count for name, info in list_topics(checked).items()
+                   if topics is None or name in topics)
+    folders = [p for p in checked if _storage_files(p)]
+    if expected == 0 or not folders:
+        return
+    files = [f for p in checked for f in (_storage_files(p) or [p])]
+    logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
+                   'QoS differs from the storage file); reading %s directly', _describe(checked),
+                   expected, _describe(files))
+    yield from _iter_once(files, topics)
+
+
+def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None) -> Iterator[BagMessage]:
+    """Yield the messages of ``paths`` once (see :func:`iter_messages`)."""
+    errors = _reader_errors()
+    with _any_reader(paths) as reader:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            return
+        stream = reader.messages(connections=conns)
+        while True:
+            try:
+                conn, t_ns, raw = next(stream)
+            except StopIteration:
+                return
+            except errors as err:
+                msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
+                raise BagError(msg) from err
+            try:
+                msg_obj = reader.deserialize(raw, conn.msgtype)
+            except errors as err:
+                msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message on '
+                       f'{conn.topic} at {t_ns} ns: {_error_text(err)}')
+                raise BagError(msg) from err
+            yield BagMessage(conn.topic, conn.msgtype, int(t_ns), msg_obj)
+
+
+class BagWriter:
+    """Writes serialized messages to one rosbag2 MCAP recording (Jazzy typestore).
+
+    Use :func:`open_writer` to create one; connections are added on first use of a topic.
+    """
+
+    def __init__(self, writer: Any, typestore: Any) -> None:
+        """Wrap an open rosbags writer."""
+        self._writer = writer
+        self._typestore = typestore
+        self._connections: dict[str, Any] = {}
+        self.count = 0
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, msgtype: str | None = None,
+              ) -> None:
+        """Serialize and write one message.
+
+        Args:
+            topic: Absolute topic name.
+            msg: A message of the Jazzy typestore.
+            log_time_ns: Log time, ns.
+            msgtype: Message type; default ``msg.__msgtype__``.
+
+        Raises:
+            BagError: If the message does not serialize or the topic changes type.
+        """
+        msgtype = msgtype or getattr(msg, '__msgtype__', '')
+        conn = self._connections.get(topic)
+        if conn is None:
+            try:
+                conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
+            except Exception as err:
+                msg_ = f'cannot add topic {topic!r} of type {msgtype!r}: {err}'
+                raise BagError(msg_) from err
+            self._connections[topic] = conn
+        elif conn.msgtype != msgtype:
+            msg_ = f'topic {topic!r} has type {conn.msgtype}, cannot write a {msgtype}'
+            raise BagError(msg_)
+        try:
+            raw = self._typestore.serialize_cdr(msg, msgtype)
+        except Exception as err:
+            msg_ = f'cannot serialize a {msgtype} message for {topic!r}: {err}'
+            raise BagError(msg_) from err
+        self._writer.write(conn, int(log_time_ns), raw)
+        self.count += 1
+
+
+@contextmanager
+def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWriter]:
+    """Open a rosbag2 MCAP recording for writing (rosbag2 metadata version 9).
+
+    ``path`` ending in ``.mcap`` gives a bare storage file (readable by rosbags, mcap and
+    ``ros2 bag``); any other path gives a rosbag2 folder ``path/`` with ``metadata.yaml``
+    and ``path/<name>.mcap``. The recording is written into a temporary folder beside
+    ``path`` and moved into place when the block ends, normally or by an exception, so the
+    MCAP summary is always written.
+
+    Args:
+        path: Output file (``*.mcap``) or folder.
+        overwrite: Replace an existing output; otherwise an existing path is an error.
+
+    Yields:
+        The :class:`BagWriter`.
+
+    Raises:
+        BagError: If ``path`` exists (and ``overwrite`` is False) or cannot be written.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    path = Path(path)
+    bare = path.suffix == '.mcap'
+    if path.exists() and not overwrite:
+        msg = f'{path}: exists already (choose a new output path)'
+        raise BagError(msg)
+    tmp = path.with_name(f'.{path.name}.partial')
+    if tmp.exists():
+        shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+    except Exception as err:
+        msg = f'{path}: cannot create bag: {err}'
+        raise BagError(msg) from err
+    try:
+        yield BagWriter(writer, jazzy_typestore())
+    finally:
+        writer.close()
+        _move_into_place(tmp, path, bare)
+
+
+def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
+    """Move a finished temporary rosbag2 folder to ``path`` (file or folder)."""
+    if path.is_dir():
+        shutil.rmtree(path)
+    elif path.exists():
+        path.unlink()
+    if bare:
+        (tmp / f'{tmp.name}.mcap').replace(path)
+        shutil.rmtree(tmp)
+        return
+    storage = tmp / f'{tmp.name}.mcap'
+    final_storage = tmp / f'{path.name}.mcap'
+    storage.replace(final_storage)
+    meta = tmp / 'metadata.yaml'
+    text = meta.read_text(encoding='utf-8').replace(f'{tmp.name}.mcap', f'{path.name}.mcap')
+    meta.write_text(text, encoding='utf-8')
+    tmp.replace(path)
+
+
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'TopicInfo', 'iter_messages',
+           'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
