@@ -1,0 +1,216 @@
+"""Write a simulated sequence as a recording that looks like a real visual front-end's output.
+
+The bag carries, per keyframe stamp (``ros2_notes.md`` §3.1):
+
+The default topics are the node's default (relative) input names resolved in the root
+namespace, so ``pmba replay`` reads the bag without topic options.
+
+* feature tracks on :attr:`SimTopics.tracks`: ``sensor_msgs/PointCloud`` in a VINS layout
+  (default ``vins_fusion``, the node's default) or ``sensor_msgs/PointCloud2`` with named
+  fields (``named``);
+* the drifting front-end keyframe pose on :attr:`SimTopics.keyframes` as
+  ``nav_msgs/Odometry`` (frame ``world``, child ``body``; the body is the camera);
+* ``sensor_msgs/CameraInfo`` on :attr:`SimTopics.camera_info`;
+* the ground truth as ``geometry_msgs/PoseStamped`` on :attr:`SimTopics.groundtruth`.
+
+Messages are logged with a small, fixed receive latency after their header stamp (tracks
+5 ms, keyframe poses 30 ms, like an estimator that publishes after its update), so the log
+order differs from the stamp order as in a real recording. The ground truth also goes to a
+TUM file. Everything is deterministic: the same sequence gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from pmba_ros.backend.outputs import (
+    RosbagsBackend,
+    make_camera_info,
+    make_odometry,
+    make_pose_stamped,
+    make_tracks,
+)
+from pmba_ros.backend.tracks import LAYOUTS
+from pmba_ros.core import so3
+from pmba_ros.errors import BagError
+from pmba_ros.eval.trajectory import Trajectory, write_tum
+from pmba_ros.io.bags import jazzy_typestore, open_writer
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from pmba_ros._typing import FloatArray
+    from pmba_ros.backend.types import CameraModel, TrackFrame
+
+logger = logging.getLogger(__name__)
+
+TRACKS_LATENCY_NS = 5_000_000
+"""Log time minus header stamp of a tracks message, ns."""
+KEYFRAME_LATENCY_NS = 30_000_000
+"""Log time minus header stamp of a keyframe pose, ns."""
+GT_FILENAME = 'groundtruth.tum'
+"""Name of the ground-truth TUM file inside a bag folder."""
+
+
+class SequenceLike(Protocol):
+    """What :func:`write_sequence_bag` reads from a simulated sequence."""
+
+    stamps_ns: Any
+    R_wc_gt: FloatArray
+    centers_gt: FloatArray
+    R_wc_odom: FloatArray
+    centers_odom: FloatArray
+    frames: Sequence[TrackFrame]
+    camera: CameraModel
+    points_w: FloatArray
+
+
+@dataclass(frozen=True)
+class SimTopics:
+    """Topic and frame names of a simulated front-end recording.
+
+    Attributes:
+        tracks: Feature tracks.
+        keyframes: Keyframe poses (Odometry).
+        camera_info: Intrinsics.
+        groundtruth: Ground-truth poses (PoseStamped).
+        world_frame: Front-end world (odom) frame.
+        body_frame: Odometry child frame.
+        camera_frame: Camera optical frame (tracks, CameraInfo).
+    """
+
+    tracks: str = '/features'
+    keyframes: str = '/keyframe_pose'
+    camera_info: str = '/camera_info'
+    groundtruth: str = '/groundtruth/pose'
+    world_frame: str = 'world'
+    body_frame: str = 'body'
+    camera_frame: str = 'camera'
+
+
+@dataclass(frozen=True)
+class SimBagInfo:
+    """What :func:`write_sequence_bag` wrote.
+
+    Attributes:
+        bag: The recording (folder, or ``.mcap`` file).
+        groundtruth_tum: The ground-truth TUM file.
+        n_keyframes: Keyframes written.
+        n_messages: Messages written.
+        n_observations: Feature observations written.
+        duration_s: Stamp span of the recording, s.
+    """
+
+    bag: Path
+    groundtruth_tum: Path
+    n_keyframes: int
+    n_messages: int
+    n_observations: int
+    duration_s: float
+
+
+def groundtruth_path(bag: Path | str) -> Path:
+    """Return where :func:`write_sequence_bag` puts the ground truth of ``bag``.
+
+    Args:
+        bag: A bag folder or ``.mcap`` file.
+
+    Returns:
+        ``bag/groundtruth.tum`` for a folder, ``<stem>_groundtruth.tum`` beside a file.
+    """
+    bag = Path(bag)
+    if bag.suffix == '.mcap':
+        return bag.with_name(f'{bag.stem}_groundtruth.tum')
+    return bag / GT_FILENAME
+
+
+def sequence_trajectory(stamps_ns: Any, R_wc: FloatArray, centers: FloatArray) -> Trajectory:
+    """Return camera poses as an eval :class:`Trajectory` (stamps in seconds)."""
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    return Trajectory(stamps.astype(np.float64) * 1e-9, np.asarray(centers, dtype=np.float64),
+                      np.asarray(R_wc, dtype=np.float64))
+
+
+def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vins_fusion',
+                       topics: SimTopics | None = None, overwrite: bool = False,
+                       ) -> SimBagInfo:
+    """Write a simulated sequence as a front-end-like rosbag2 MCAP recording plus GT TUM.
+
+    Args:
+        seq: The sequence (``pmba_ros.sim.sequence.SimSequence``).
+        out: Bag folder, or a ``.mcap`` file path.
+        layout: Track layout, one of ``vins_mono``, ``vins_fusion``, ``per_point``
+            (PointCloud) or ``named`` (PointCloud2).
+        topics: Topic and frame names; default :class:`SimTopics`.
+        overwrite: Replace an existing output.
+
+    Returns:
+        A summary of what was written.
+
+    Raises:
+        BagError: If the output exists or cannot be written, or the layout is unknown.
+        MessageError: If a frame cannot be expressed in the layout.
+    """
+    if layout not in LAYOUTS:
+        msg = f'unknown track layout {layout!r} (expected one of {", ".join(LAYOUTS)})'
+        raise BagError(msg)
+    topics = topics or SimTopics()
+    out = Path(out)
+    stamps = np.asarray(seq.stamps_ns, dtype=np.int64)
+    n_kf = int(stamps.shape[0])
+    if len(seq.frames) != n_kf:
+        msg = f'sequence has {n_kf} stamps but {len(seq.frames)} track frames'
+        raise BagError(msg)
+    backend = RosbagsBackend(jazzy_typestore())
+    q_odom = so3.to_quat_xyzw(np.asarray(seq.R_wc_odom))
+    q_gt = so3.to_quat_xyzw(np.asarray(seq.R_wc_gt))
+    points_w = np.asarray(seq.points_w, dtype=np.float64)
+    odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
+    n_obs = 0
+    with open_writer(out, overwrite=overwrite) as writer:
+        for i in range(n_kf):
+            stamp = int(stamps[i])
+            frame = seq.frames[i]
+            n_obs += len(frame)
+            writer.write(topics.camera_info,
+                         make_camera_info(stamp, topics.camera_frame, seq.camera, backend),
+                         stamp)
+            writer.write(topics.groundtruth,
+                         make_pose_stamped(stamp, topics.world_frame, seq.centers_gt[i],
+                                           q_gt[i], backend), stamp)
+            landmarks = None
+            if layout in ('per_point', 'named') and len(frame):
+                ids = np.asarray(frame.feature_ids)
+                if ids.max() < points_w.shape[0]:
+                    landmarks = points_w[ids]
+            tracks = make_tracks(_with_frame(frame, stamp, topics.camera_frame), layout,
+                                 backend, landmarks_xyz=landmarks)
+            writer.write(topics.tracks, tracks, stamp + TRACKS_LATENCY_NS)
+            writer.write(topics.keyframes,
+                         make_odometry(stamp, topics.world_frame, topics.body_frame,
+                                       seq.centers_odom[i], q_odom[i], odom_cov, backend),
+                         stamp + KEYFRAME_LATENCY_NS)
+        n_messages = writer.count
+    gt_path = groundtruth_path(out)
+    write_tum(gt_path, sequence_trajectory(stamps, seq.R_wc_gt, seq.centers_gt))
+    duration = float(stamps[-1] - stamps[0]) * 1e-9 if n_kf else 0.0
+    logger.info('wrote %s: %d keyframes, %d messages, %d observations', out, n_kf, n_messages,
+                n_obs)
+    return SimBagInfo(out, gt_path, n_kf, n_messages, n_obs, duration)
+
+
+def _with_frame(frame: TrackFrame, stamp_ns: int, frame_id: str) -> TrackFrame:
+    """Return ``frame`` with the given stamp and frame id (same observations)."""
+    if frame.stamp_ns == stamp_ns and frame.frame_id == frame_id:
+        return frame
+    return type(frame)(stamp_ns, frame_id, frame.feature_ids, frame.camera_ids, frame.pixels,
+                       frame.normalized, frame.dropped)
+
+
+__all__ = ['GT_FILENAME', 'KEYFRAME_LATENCY_NS', 'TRACKS_LATENCY_NS', 'SimBagInfo', 'SimTopics',
+           'groundtruth_path', 'sequence_trajectory', 'write_sequence_bag']
