@@ -61,8 +61,8 @@ class SequenceLike(Protocol):
     """What :func:`write_sequence_bag` reads from a simulated sequence."""
 
     stamps_ns: Any
-    R_wc_gt: FloatArray
-    centers_gt: FloatArray
+    R_wc_gt: FloatArray | None
+    centers_gt: FloatArray | None
     R_wc_odom: FloatArray
     centers_odom: FloatArray
     frames: Sequence[TrackFrame]
@@ -99,7 +99,7 @@ class SimBagInfo:
 
     Attributes:
         bag: The recording (folder, or ``.mcap`` file).
-        groundtruth_tum: The ground-truth TUM file.
+        groundtruth_tum: The ground-truth TUM file (None without ground truth).
         n_keyframes: Keyframes written.
         n_messages: Messages written.
         n_observations: Feature observations written.
@@ -107,7 +107,7 @@ class SimBagInfo:
     """
 
     bag: Path
-    groundtruth_tum: Path
+    groundtruth_tum: Path | None
     n_keyframes: int
     n_messages: int
     n_observations: int
@@ -142,7 +142,9 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
     """Write a simulated sequence as a front-end-like rosbag2 MCAP recording plus GT TUM.
 
     Args:
-        seq: The sequence (``pmba_ros.sim.sequence.SimSequence``).
+        seq: The sequence (``pmba_ros.sim.sequence.SimSequence``, or a
+            :class:`~pmba_ros.io.kitti_tracks.KittiSequence`); ground truth is written when
+            ``seq.R_wc_gt`` is not None.
         out: Bag folder, or a ``.mcap`` file path.
         layout: Track layout, one of ``vins_mono``, ``vins_fusion``, ``per_point``
             (PointCloud) or ``named`` (PointCloud2).
@@ -168,7 +170,8 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
         raise BagError(msg)
     backend = RosbagsBackend(jazzy_typestore())
     q_odom = so3.to_quat_xyzw(np.asarray(seq.R_wc_odom))
-    q_gt = so3.to_quat_xyzw(np.asarray(seq.R_wc_gt))
+    has_gt = seq.R_wc_gt is not None and seq.centers_gt is not None
+    q_gt = so3.to_quat_xyzw(np.asarray(seq.R_wc_gt)) if has_gt else None
     points_w = np.asarray(seq.points_w, dtype=np.float64)
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     n_obs = 0
@@ -180,11 +183,12 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
             writer.write(topics.camera_info,
                          make_camera_info(stamp, topics.camera_frame, seq.camera, backend),
                          stamp)
-            writer.write(topics.groundtruth,
-                         make_pose_stamped(stamp, topics.world_frame, seq.centers_gt[i],
-                                           q_gt[i], backend), stamp)
+            if q_gt is not None and seq.centers_gt is not None:
+                writer.write(topics.groundtruth,
+                             make_pose_stamped(stamp, topics.world_frame, seq.centers_gt[i],
+                                               q_gt[i], backend), stamp)
             landmarks = None
-            if layout in ('per_point', 'named') and len(frame):
+            if layout in ('per_point', 'named') and len(frame) and len(points_w):
                 ids = np.asarray(frame.feature_ids)
                 if ids.max() < points_w.shape[0]:
                     landmarks = points_w[ids]
@@ -196,8 +200,9 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
                                        seq.centers_odom[i], q_odom[i], odom_cov, backend),
                          stamp + KEYFRAME_LATENCY_NS)
         n_messages = writer.count
-    gt_path = groundtruth_path(out)
-    write_tum(gt_path, sequence_trajectory(stamps, seq.R_wc_gt, seq.centers_gt))
+    gt_path = groundtruth_path(out) if has_gt else None
+    if gt_path is not None and seq.R_wc_gt is not None and seq.centers_gt is not None:
+        write_tum(gt_path, sequence_trajectory(stamps, seq.R_wc_gt, seq.centers_gt))
     duration = float(stamps[-1] - stamps[0]) * 1e-9 if n_kf else 0.0
     logger.info('wrote %s: %d keyframes, %d messages, %d observations', out, n_kf, n_messages,
                 n_obs)

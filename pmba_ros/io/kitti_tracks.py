@@ -1,0 +1,260 @@
+"""KITTI-00 stereo feature tracks (GTSAM's ``VO_*00s.txt``) as a monocular front-end recording.
+
+Input files (``/work/shared/data/SOURCES.md`` §3):
+
+* ``VO_calibration00s.txt``: ``fx fy skew cx cy baseline``;
+* ``VO_camera_poses00s.txt``: ``id`` + a row-major 4x4 camera -> world matrix (stereo VO
+  estimates, not ground truth), one per keyframe;
+* ``VO_stereo_factors00s.txt``: ``cam lmk uL uR v X Y Z`` per observation.
+
+The left image is used as a monocular front-end: each keyframe's ``(uL, v)`` observations
+become one tracks message (rectified images, so no distortion) and its VO pose the keyframe
+pose. Which KITTI frames the keyframes are is not stated in the files; :func:`find_frame_offset`
+finds it by comparing relative motions with the ground truth (for these files: the 77 poses
+are frames 0-76, stride 1). Stamps come from KITTI's ``times.txt`` for those frames.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.core import so3
+from pmba_ros.errors import FormatError
+from pmba_ros.eval.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from pmba_ros._typing import FloatArray, IntArray
+
+logger = logging.getLogger(__name__)
+
+CALIBRATION_FILE = 'VO_calibration00s.txt'
+POSES_FILE = 'VO_camera_poses00s.txt'
+FACTORS_FILE = 'VO_stereo_factors00s.txt'
+
+
+@dataclass(frozen=True, eq=False)
+class KittiTracks:
+    """KITTI stereo VO tracks as a monocular keyframe sequence (F keyframes).
+
+    Attributes:
+        keyframe_ids: VO pose ids, shape (F,).
+        R_wc: VO camera -> world rotations, shape (F, 3, 3).
+        centers: VO camera centres, shape (F, 3), m.
+        frames: One TrackFrame per keyframe (left-image pixels and normalized coordinates).
+        camera: Left camera model (rectified: no distortion).
+        baseline_m: Stereo baseline, m.
+    """
+
+    keyframe_ids: IntArray
+    R_wc: FloatArray
+    centers: FloatArray
+    frames: list[TrackFrame]
+    camera: CameraModel
+    baseline_m: float
+
+
+def _load(path: Path, min_cols: int) -> FloatArray:
+    """Load a whitespace-separated numeric table, raising FormatError on problems."""
+    try:
+        table = np.loadtxt(path, ndmin=2)
+    except OSError as err:
+        msg = f'{path}: cannot read: {err}'
+        raise FormatError(msg) from err
+    except ValueError as err:
+        msg = f'{path}: not a numeric table: {err}'
+        raise FormatError(msg) from err
+    if table.shape[0] == 0 or table.shape[1] < min_cols:
+        msg = f'{path}: expected rows of at least {min_cols} numbers, got shape {table.shape}'
+        raise FormatError(msg)
+    return table
+
+
+def read_kitti_tracks(directory: Path | str) -> KittiTracks:
+    """Read the three ``VO_*00s.txt`` files of a directory.
+
+    Args:
+        directory: Folder with :data:`CALIBRATION_FILE`, :data:`POSES_FILE` and
+            :data:`FACTORS_FILE`.
+
+    Returns:
+        The keyframe sequence (stamps are assigned by the caller).
+
+    Raises:
+        FormatError: If a file is missing or malformed, or an observation names an unknown
+            keyframe.
+    """
+    directory = Path(directory)
+    calib = _load(directory / CALIBRATION_FILE, 6)[0]
+    fx, fy, _skew, cx, cy, baseline = (float(v) for v in calib[:6])
+    camera = CameraModel(fx=fx, fy=fy, cx=cx, cy=cy, width=1241, height=376)
+    poses = _load(directory / POSES_FILE, 17)
+    ids = poses[:, 0].astype(np.int64)
+    mats = poses[:, 1:17].reshape(-1, 4, 4)
+    R_wc = so3.project(mats[:, :3, :3])
+    centers = mats[:, :3, 3].copy()
+    factors = _load(directory / FACTORS_FILE, 5)
+    cam = factors[:, 0].astype(np.int64)
+    lmk = factors[:, 1].astype(np.int64)
+    uv = factors[:, [2, 4]]
+    index = {int(k): i for i, k in enumerate(ids)}
+    unknown = sorted(set(np.unique(cam).tolist()) - set(index))
+    if unknown:
+        msg = f'{directory / FACTORS_FILE}: observations of unknown keyframes {unknown[:5]}'
+        raise FormatError(msg)
+    order = np.lexsort((lmk, cam))
+    cam, lmk, uv = cam[order], lmk[order], uv[order]
+    normalized = np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
+    bounds = np.searchsorted(cam, ids, side='left'), np.searchsorted(cam, ids, side='right')
+    frames = []
+    for k, (lo, hi) in enumerate(zip(*bounds, strict=True)):
+        frames.append(TrackFrame(stamp_ns=0, frame_id='camera', feature_ids=lmk[lo:hi],
+                                 camera_ids=np.zeros(hi - lo, dtype=np.int64),
+                                 pixels=uv[lo:hi], normalized=normalized[lo:hi]))
+        logger.debug('keyframe %d: %d observations', ids[k], hi - lo)
+    return KittiTracks(ids, R_wc, centers, frames, camera, baseline)
+
+
+def _relative(R_wc: FloatArray, centers: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return consecutive relative rotations and translations (in the earlier camera)."""
+    R_rel = np.einsum('kji,kjl->kil', R_wc[:-1], R_wc[1:])
+    t_rel = np.einsum('kji,kj->ki', R_wc[:-1], centers[1:] - centers[:-1])
+    return R_rel, t_rel
+
+
+def find_frame_offset(R_wc: FloatArray, centers: FloatArray, gt: Trajectory,
+                      max_stride: int = 3) -> tuple[int, int, float, float]:
+    """Find which ground-truth frames a VO keyframe sequence is, by relative motions.
+
+    Every candidate ``gt[offset + stride * k]`` is scored by the RMS rotation angle between
+    the VO and GT consecutive relative rotations (independent of scale and of the world
+    frame), ties broken by the RMS relative translation difference.
+
+    Args:
+        R_wc: VO camera -> world rotations, shape (F, 3, 3).
+        centers: VO camera centres, shape (F, 3).
+        gt: Ground-truth trajectory with at least F poses.
+        max_stride: Largest frame stride tried.
+
+    Returns:
+        ``(offset, stride, rms_rotation_deg, rms_translation_m)`` of the best candidate.
+
+    Raises:
+        FormatError: If the ground truth is shorter than the VO sequence.
+    """
+    n = R_wc.shape[0]
+    if len(gt) < n or n < 2:
+        msg = f'ground truth has {len(gt)} poses, fewer than the {n} VO keyframes'
+        raise FormatError(msg)
+    R_vo, t_vo = _relative(np.asarray(R_wc), np.asarray(centers))
+    best: tuple[float, float, int, int] | None = None
+    for stride in range(1, max_stride + 1):
+        for offset in range(len(gt) - stride * (n - 1)):
+            idx = offset + stride * np.arange(n)
+            R_gt, t_gt = _relative(gt.R_wc[idx], gt.positions_xyz[idx])
+            rot = float(np.sqrt(np.mean(np.degrees(so3.angle(R_gt, R_vo)) ** 2)))
+            trans = float(np.sqrt(np.mean(np.sum((t_gt - t_vo) ** 2, axis=1))))
+            if best is None or (rot, trans) < best[:2]:
+                best = (rot, trans, offset, stride)
+    if best is None:
+        msg = 'find_frame_offset: no candidate frames'
+        raise FormatError(msg)
+    rot, trans, offset, stride = best
+    logger.info('VO keyframes = GT frames %d + %d k (rms %.3f deg, %.3f m)', offset, stride,
+                rot, trans)
+    return offset, stride, rot, trans
+
+
+@dataclass(frozen=True, eq=False)
+class KittiSequence:
+    """KITTI tracks with stamps and optional ground truth, in the shape of a ``SimSequence``.
+
+    Attributes:
+        stamps_ns: Keyframe stamps, shape (F,), ns.
+        R_wc_odom: VO rotations (the front-end poses), shape (F, 3, 3).
+        centers_odom: VO centres, shape (F, 3).
+        R_wc_gt: Ground-truth rotations, shape (F, 3, 3), or None.
+        centers_gt: Ground-truth centres, shape (F, 3), or None.
+        frames: Track frames, stamped.
+        camera: Camera model.
+        points_w: Unused (no world points); shape (0, 3).
+        first_frame: KITTI frame of keyframe 0.
+        stride: KITTI frames between keyframes.
+    """
+
+    stamps_ns: IntArray
+    R_wc_odom: FloatArray
+    centers_odom: FloatArray
+    R_wc_gt: FloatArray | None
+    centers_gt: FloatArray | None
+    frames: list[TrackFrame]
+    camera: CameraModel
+    points_w: FloatArray
+    first_frame: int
+    stride: int
+
+
+def kitti_sequence(tracks: KittiTracks, times_s: FloatArray | None = None,
+                   gt: Trajectory | None = None, first_frame: int | None = None,
+                   stride: int | None = None) -> KittiSequence:
+    """Stamp KITTI tracks with their frames' times and attach the ground truth.
+
+    Args:
+        tracks: Result of :func:`read_kitti_tracks`.
+        times_s: KITTI ``times.txt`` values (s), one per KITTI frame; None gives 10 Hz stamps.
+        gt: KITTI ground truth (one pose per KITTI frame, e.g. ``read_kitti``), or None.
+        first_frame: KITTI frame of keyframe 0; None finds it with :func:`find_frame_offset`
+            (needs ``gt``; 0 without it).
+        stride: KITTI frames between keyframes; None: found with the offset (1 without gt).
+
+    Returns:
+        The stamped sequence; stamps are the KITTI times in ns.
+
+    Raises:
+        FormatError: If the times or ground truth do not cover the keyframes.
+    """
+    n = len(tracks.frames)
+    if first_frame is None or stride is None:
+        if gt is not None:
+            found_first, found_stride, _, _ = find_frame_offset(tracks.R_wc, tracks.centers, gt)
+        else:
+            found_first, found_stride = 0, 1
+        first_frame = found_first if first_frame is None else first_frame
+        stride = found_stride if stride is None else stride
+    frame_idx = first_frame + stride * np.arange(n)
+    if times_s is None:
+        stamps_s = frame_idx * 0.1
+    else:
+        times = np.asarray(times_s, dtype=np.float64).reshape(-1)
+        if frame_idx[-1] >= times.shape[0]:
+            msg = f'times cover {times.shape[0]} frames, keyframes need {frame_idx[-1] + 1}'
+            raise FormatError(msg)
+        stamps_s = times[frame_idx]
+    stamps_ns = np.round(stamps_s * 1e9).astype(np.int64)
+    R_gt = c_gt = None
+    if gt is not None:
+        if frame_idx[-1] >= len(gt):
+            msg = f'ground truth has {len(gt)} poses, keyframes need {frame_idx[-1] + 1}'
+            raise FormatError(msg)
+        R_gt, c_gt = gt.R_wc[frame_idx], gt.positions_xyz[frame_idx]
+    frames = [TrackFrame(int(t), f.frame_id, f.feature_ids, f.camera_ids, f.pixels,
+                         f.normalized) for t, f in zip(stamps_ns, tracks.frames, strict=True)]
+    return KittiSequence(stamps_ns, tracks.R_wc, tracks.centers, R_gt, c_gt, frames,
+                         tracks.camera, np.zeros((0, 3)), int(first_frame), int(stride))
+
+
+__all__ = [
+    'CALIBRATION_FILE',
+    'FACTORS_FILE',
+    'POSES_FILE',
+    'KittiSequence',
+    'KittiTracks',
+    'find_frame_offset',
+    'kitti_sequence',
+    'read_kitti_tracks',
+]
