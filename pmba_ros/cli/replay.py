@@ -1,0 +1,219 @@
+"""``pmba replay BAG... --out DIR``: run the back-end over recorded front-end topics.
+
+Usage examples::
+
+    pmba simulate --scenario street --keyframes 200 --out street_bag
+    pmba replay street_bag --out street_out --gt street_bag/groundtruth.tum
+    pmba replay vins.mcap --out out --tracks-topic /feature_tracker/feature \\
+        --tracks-layout vins_mono --keyframes-topic /vins_estimator/keyframe_pose \\
+        --intrinsics 458.654,457.296,367.215,248.375 --mode sliding --plot
+    pmba_bag_replay run.mcap --out out --params config/pmba.yaml --quiet
+
+Options left unset take their values from ``--params FILE.yaml`` (a ROS 2 parameter file of
+the node), or else the node's defaults. Writes ``DIR/result.mcap``,
+``DIR/keyframes_frontend.tum``, ``DIR/keyframes_optimized.tum``, ``DIR/landmarks.ply`` and
+``DIR/report.json`` (plus PNGs with ``--plot``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+from pmba_ros.errors import PmbaError
+
+if TYPE_CHECKING:
+    import argparse
+
+    from pmba_ros.replay import ReplayReport
+
+_LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
+_KEYFRAME_TYPES = ('odometry', 'pose_stamped')
+_MODES = ('global', 'sliding')
+
+_OVERRIDES = {'tracks_topic': 'features_topic', 'tracks_layout': 'feature_layout',
+              'keyframes_topic': 'keyframe_topic', 'keyframes_type': 'keyframe_type',
+              'camera_info_topic': 'camera_info_topic', 'mode': 'mode'}
+"""Command-line option (dest) -> BackendConfig field."""
+
+
+def _defaults() -> dict[str, Any]:
+    """Return the node's default parameters (for the help text)."""
+    try:
+        from pmba_ros.backend.config import BackendConfig
+    except ImportError:  # pragma: no cover - the config module ships with the package
+        return {}
+    defaults = BackendConfig()
+    return {f.name: getattr(defaults, f.name) for f in fields(defaults)}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare the arguments of the ``replay`` verb.
+
+    Args:
+        parser: Parser (or subparser) to add the arguments to.
+    """
+    d = _defaults()
+
+    def node_default(name: str) -> str:
+        return f'node default: {d[name]}' if name in d else 'node default'
+
+    parser.add_argument('bags', metavar='BAG', nargs='+', type=Path,
+                        help='rosbag2 folder or .mcap/.db3 file (or ROS 1 .bag files)')
+    parser.add_argument('--out', required=True, type=Path, metavar='DIR',
+                        help='output folder (created; outputs in it are replaced)')
+    parser.add_argument('--params', type=Path, metavar='FILE.yaml', default=None,
+                        help='ROS 2 parameter file of the node (defaults for the options below)')
+    group = parser.add_argument_group('inputs')
+    group.add_argument('--tracks-topic', default=None, metavar='TOPIC',
+                       help=f'feature tracks topic ({node_default("features_topic")})')
+    group.add_argument('--tracks-layout', choices=_LAYOUTS, default=None,
+                       help=f'track message layout ({node_default("feature_layout")})')
+    group.add_argument('--keyframes-topic', default=None, metavar='TOPIC',
+                       help=f'keyframe pose topic ({node_default("keyframe_topic")})')
+    group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=None,
+                       help=f'keyframe pose message type ({node_default("keyframe_type")})')
+    camera = group.add_mutually_exclusive_group()
+    camera.add_argument('--camera-info-topic', default=None, metavar='TOPIC',
+                        help=f'CameraInfo topic ({node_default("camera_info_topic")})')
+    camera.add_argument('--intrinsics', default=None, metavar='FX,FY,CX,CY',
+                        help='pinhole intrinsics (px) instead of a CameraInfo topic')
+    algo = parser.add_argument_group('back-end')
+    algo.add_argument('--mode', choices=_MODES, default=None,
+                      help=f'estimation mode ({node_default("mode")})')
+    evaluation = parser.add_argument_group('evaluation and output')
+    evaluation.add_argument('--gt', type=Path, default=None, metavar='FILE',
+                            help='ground truth (TUM, EuRoC CSV or KITTI) for ATE / RPE')
+    evaluation.add_argument('--align', choices=('sim3', 'se3', 'none'), default='sim3',
+                            help='alignment onto the ground truth')
+    evaluation.add_argument('--plot', action='store_true',
+                            help='write PNG plots (needs matplotlib)')
+    evaluation.add_argument('--quiet', action='store_true',
+                            help='no progress bar and no table (for scripts)')
+
+
+def _parse_intrinsics(text: str | None) -> tuple[float, ...] | None:
+    """Parse ``fx,fy,cx,cy``.
+
+    Raises:
+        PmbaError: If it is not four numbers.
+    """
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(','))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        msg = f'--intrinsics expects FX,FY,CX,CY (four numbers), got {text!r}'
+        raise PmbaError(msg)
+    return values
+
+
+def build_config(args: argparse.Namespace) -> Any:
+    """Return the BackendConfig of the ``--params`` file (or defaults) with the overrides.
+
+    Raises:
+        PmbaError: If the parameter file cannot be read or a value is invalid.
+    """
+    from pmba_ros.backend.config import BackendConfig
+
+    try:
+        config = (BackendConfig.from_yaml(args.params) if args.params is not None
+                  else BackendConfig())
+        changes = {field: getattr(args, opt) for opt, field in _OVERRIDES.items()
+                   if getattr(args, opt, None) is not None}
+        return replace(config, **changes)
+    except (OSError, ValueError) as err:
+        where = f'--params {args.params}: ' if args.params is not None else ''
+        msg = f'{where}{err}'
+        raise PmbaError(msg) from err
+
+
+class ProgressBar:
+    """A one-line text progress bar (redrawn at most 10 times a second)."""
+
+    def __init__(self, stream: TextIO, width: int = 30) -> None:
+        """Draw on ``stream``."""
+        self.stream = stream
+        self.width = width
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+
+    def __call__(self, done: int, total: int) -> None:
+        """Redraw with ``done`` of ``total`` messages."""
+        now = time.perf_counter()
+        if now - self.last < 0.1 and done < total:
+            return
+        self.last = now
+        frac = min(1.0, done / total) if total else 1.0
+        filled = round(frac * self.width)
+        bar = '#' * filled + '.' * (self.width - filled)
+        self.stream.write(f'\rreplay [{bar}] {100 * frac:5.1f}% {done}/{total} messages '
+                          f'{now - self.t0:6.1f} s')
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the line."""
+        self.stream.write('\n')
+        self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Replay the bags, print the accuracy table and where the outputs are.
+
+    Args:
+        args: Parsed arguments (see :func:`add_arguments`).
+
+    Returns:
+        0 on success.
+
+    Raises:
+        PmbaError: BagError / MessageError / FormatError / EvaluationError from the replay.
+    """
+    from pmba_ros.replay import replay
+
+    config = build_config(args)
+    intrinsics = _parse_intrinsics(args.intrinsics)
+    bar = ProgressBar(sys.stderr) if not args.quiet and sys.stderr.isatty() else None
+    try:
+        report = replay(args.bags, args.out, config, gt=args.gt, plot=args.plot,
+                        progress=bar, intrinsics=intrinsics, align=args.align)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(format_summary(report))
+    return 0
+
+
+def format_summary(report: ReplayReport) -> str:
+    """Return the text printed after a replay: counts, accuracy table, output files.
+
+    Args:
+        report: The replay report.
+
+    Returns:
+        Several lines, without a trailing newline.
+    """
+    head = (f'replayed {report.messages_in} messages ({report.keyframes_in} keyframes, '
+            f'{report.messages_rejected} rejected) in {report.wall_s:.2f} s '
+            f'({report.bag_duration_s:.1f} s of data, {report.realtime_factor:.1f}x real time)')
+    lines = [head, f'optimized keyframes: {report.keyframes_out}; solves: {len(report.solve_ms)}']
+    acc = report.accuracy
+    if acc is not None:
+        ratio = acc['ate_ratio']
+        ratio_text = f'{ratio:.3f}' if ratio is not None else '-'
+        ate = f'{acc["ate_frontend_m"]:>12.4f}{acc["ate_optimized_m"]:>12.4f}{ratio_text:>9}'
+        rpe = f'{acc["rpe_frontend"]:>12.4f}{acc["rpe_optimized"]:>12.4f}'
+        matched = f'{acc["matched_frontend"]:>12d}{acc["matched_optimized"]:>12d}'
+        lines += ['', f'accuracy vs ground truth (alignment {acc["alignment"]})',
+                  f'{"":<22}{"front-end":>12}{"optimized":>12}{"ratio":>9}',
+                  f'{"ATE rmse (m)":<22}{ate}', f'{"RPE rmse d=1 (m)":<22}{rpe}',
+                  f'{"matched poses":<22}{matched}']
+    lines += ['', f'outputs in {report.out_dir}:']
+    lines += [f'  {path.name}' for _, path in sorted(report.files.items())]
+    return '\n'.join(lines)

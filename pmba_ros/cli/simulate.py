@@ -1,0 +1,114 @@
+"""``pmba simulate``: write a simulated front-end recording, or a BAL problem.
+
+Usage examples::
+
+    pmba simulate --scenario street --keyframes 200 --seed 0 --out street_bag
+    pmba simulate --scenario loop --keyframes 300 --layout named --out loop.mcap
+    pmba simulate --format bal --scenario street --out street.txt     # for `pmba solve`
+    pmba simulate --format bal --scenario table3 --seed 1 --out table3.txt
+
+A bag (``--format bag``, the default) holds VINS-layout ``PointCloud`` tracks (``PointCloud2``
+with ``--layout named``), drifting ``Odometry`` keyframe poses, ``CameraInfo`` and the ground
+truth as ``PoseStamped``, on the topics the node reads by default; the ground truth also goes
+to ``BAG/groundtruth.tum`` (``<stem>_groundtruth.tum`` beside a ``.mcap`` file).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pmba_ros.errors import PmbaError
+
+if TYPE_CHECKING:
+    import argparse
+
+_BAG_SCENARIOS = ('street', 'aerial', 'loop', 'rotation')
+_BAL_SCENARIOS = ('street', 'table3')
+_LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare the arguments of the ``simulate`` verb.
+
+    Args:
+        parser: Parser (or subparser) to add the arguments to.
+    """
+    parser.add_argument('--format', choices=('bag', 'bal'), default='bag',
+                        help='bag: front-end recording; bal: BA problem for `pmba solve`')
+    parser.add_argument('--scenario', default='street',
+                        choices=sorted(set(_BAG_SCENARIOS) | set(_BAL_SCENARIOS)),
+                        help='bag: street|aerial|loop|rotation; bal: street|table3')
+    parser.add_argument('--keyframes', type=int, default=200, metavar='N',
+                        help='keyframes (bag) or cameras (bal street)')
+    parser.add_argument('--seed', type=int, default=0, metavar='S', help='random seed')
+    parser.add_argument('--out', required=True, type=Path, metavar='BAG|FILE',
+                        help='bag folder or .mcap file (bag), or problem file (bal)')
+    parser.add_argument('--layout', choices=_LAYOUTS, default='vins_fusion',
+                        help='track layout (named = PointCloud2 with named fields)')
+    parser.add_argument('--noise-px', type=float, default=0.5, metavar='PX',
+                        help='pixel noise standard deviation')
+    parser.add_argument('--drift', type=float, default=0.02,
+                        help='front-end drift (about this fraction of the distance)')
+    parser.add_argument('--rate-hz', type=float, default=10.0, metavar='HZ',
+                        help='keyframe rate')
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate and write the recording or problem.
+
+    Args:
+        args: Parsed arguments (see :func:`add_arguments`).
+
+    Returns:
+        0 on success.
+
+    Raises:
+        PmbaError: On invalid options or if the output cannot be written.
+    """
+    if args.format == 'bal':
+        return _run_bal(args)
+    if args.scenario not in _BAG_SCENARIOS:
+        msg = f'--scenario {args.scenario} is for --format bal; bags: {", ".join(_BAG_SCENARIOS)}'
+        raise PmbaError(msg)
+    from pmba_ros.sim.bag import write_sequence_bag
+    from pmba_ros.sim.sequence import simulate_sequence
+
+    try:
+        seq = simulate_sequence(args.scenario, n_keyframes=args.keyframes, seed=args.seed,
+                                noise_px=args.noise_px, drift=args.drift, rate_hz=args.rate_hz)
+    except ValueError as err:
+        raise PmbaError(str(err)) from err
+    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite)
+    print(f'wrote {info.bag}: {args.scenario}, {info.n_keyframes} keyframes '
+          f'({info.duration_s:.1f} s), {info.n_observations} observations, '
+          f'{info.n_messages} messages')
+    print(f'ground truth: {info.groundtruth_tum}')
+    return 0
+
+
+def _run_bal(args: argparse.Namespace) -> int:
+    """Write a BAL problem (the perturbed start of a simulated scene)."""
+    from pmba_ros.io.bal import write_bal
+    from pmba_ros.sim.scenes import street_scene, table3_scene
+
+    if args.scenario not in _BAL_SCENARIOS:
+        msg = f'--format bal supports --scenario {" or ".join(_BAL_SCENARIOS)}'
+        raise PmbaError(msg)
+    if args.out.exists() and not args.overwrite:
+        msg = f'{args.out}: exists already (use --overwrite)'
+        raise PmbaError(msg)
+    try:
+        if args.scenario == 'table3':
+            scene = table3_scene(seed=args.seed, noise_px=args.noise_px)
+        else:
+            scene = street_scene(seed=args.seed, n_cams=args.keyframes, noise_px=args.noise_px)
+        write_bal(args.out, scene.start)
+    except (ValueError, OSError) as err:
+        msg = f'{args.out}: {err}'
+        raise PmbaError(msg) from err
+    start = scene.start
+    print(f'wrote {args.out}: BAL {args.scenario}, {start.n_cams} cameras, {start.n_feats} '
+          f'points, {start.n_obs} observations (perturbed start; seed {args.seed})')
+    return 0

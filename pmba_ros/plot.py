@@ -1,0 +1,122 @@
+"""Replay plots (matplotlib, an optional extra imported only here, lazily).
+
+Install with ``pip install 'pmba_ros[plot]'`` (or ``pip install matplotlib``). The Agg
+backend is used, so no display is needed.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pmba_ros.errors import PmbaError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from pmba_ros.eval.trajectory import Trajectory
+
+logger = logging.getLogger(__name__)
+
+_DPI = 120
+
+
+def _pyplot() -> Any:
+    """Import matplotlib's pyplot with the Agg backend.
+
+    Raises:
+        PmbaError: If matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError as err:
+        msg = ("--plot needs matplotlib, which is not installed; install it with "
+               "\"pip install 'pmba_ros[plot]'\" or \"pip install matplotlib\"")
+        raise PmbaError(msg) from err
+    return plt
+
+
+def plot_top_view(path: Path, trajectories: Sequence[tuple[str, Trajectory]],
+                  title: str = 'Keyframe trajectories (top view)') -> Path:
+    """Plot x-y positions of several trajectories (already in one frame).
+
+    Args:
+        path: Output PNG.
+        trajectories: ``(label, trajectory)`` pairs, drawn in order.
+        title: Figure title.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        PmbaError: If matplotlib is missing or the file cannot be written.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    styles = {'ground truth': ('k', '-', 2.0), 'front-end': ('tab:red', '--', 1.2),
+              'optimized': ('tab:blue', '-', 1.2)}
+    for label, traj in trajectories:
+        color, line, width = styles.get(label, (None, '-', 1.0))
+        xy = traj.positions_xyz
+        ax.plot(xy[:, 0], xy[:, 1], color=color, linestyle=line, linewidth=width,
+                label=f'{label} ({len(traj)})')
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('y (m)')
+    ax.set_aspect('equal', adjustable='datalim')
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    return _save(fig, plt, path)
+
+
+def plot_series(path: Path, values: Sequence[float], ylabel: str, title: str, *,
+                log_scale: bool = False, xlabel: str = 'solve') -> Path:
+    """Plot one value per solve / keyframe.
+
+    Args:
+        path: Output PNG.
+        values: The values (NaN entries are skipped).
+        ylabel: Y axis label.
+        title: Figure title.
+        log_scale: Logarithmic y axis.
+        xlabel: X axis label.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        PmbaError: If matplotlib is missing or the file cannot be written.
+    """
+    plt = _pyplot()
+    arr = np.asarray(values, dtype=np.float64)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(np.arange(arr.shape[0]), arr, '.-', markersize=3, linewidth=0.8)
+    if log_scale and np.any(arr > 0):
+        ax.set_yscale('log')
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.set_title(title)
+    return _save(fig, plt, path)
+
+
+def _save(fig: Any, plt: Any, path: Path) -> Path:
+    """Save and close a figure."""
+    try:
+        fig.tight_layout()
+        fig.savefig(path, dpi=_DPI)
+    except OSError as err:
+        msg = f'{path}: cannot write plot: {err}'
+        raise PmbaError(msg) from err
+    finally:
+        plt.close(fig)
+    logger.debug('wrote %s', path)
+    return path
+
+
+__all__ = ['plot_series', 'plot_top_view']

@@ -1,0 +1,628 @@
+"""Offline ("serial") replay: recorded front-end topics -> back-end -> result bag and files.
+
+:func:`replay` reads one or more recordings with rosbags, feeds the tracks, keyframe poses
+and camera info to :class:`~pmba_ros.backend.logic.BackendLogic` in header-stamp order, and
+writes into ``out_dir``:
+
+==========================  ================================================================
+``result.mcap``             rosbag2 MCAP with every output of the node (``/tf`` included),
+                            logged at the stamp of the input that produced them
+``keyframes_frontend.tum``  front-end keyframe poses (TUM)
+``keyframes_optimized.tum`` optimized keyframe poses in the map frame (TUM)
+``landmarks.ply``           landmarks (binary PLY)
+``report.json``             counters, per-keyframe solve times and iterations, throughput,
+                            and with ground truth an accuracy block
+``*.png``                   with ``plot=True``: top view, cost per solve, solve time
+==========================  ================================================================
+
+The result bag is finalized even when the replay stops with an error or an interrupt, and the
+files of whatever was processed are still written (``report.json`` then has ``"complete":
+false`` and the error). With ``config.deterministic`` (forced here) two replays of the same
+bag give byte-identical TUM and PLY files.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmba_ros.errors import BagError, EvaluationError, MessageError, PmbaError
+from pmba_ros.io.bags import BagMessage, iter_messages, list_topics, open_writer
+
+logger = logging.getLogger(__name__)
+
+ProgressCallback = Callable[[int, int], None]
+"""``progress(messages_done, messages_total)``, called while replaying."""
+
+RESULT_BAG = 'result.mcap'
+FRONTEND_TUM = 'keyframes_frontend.tum'
+OPTIMIZED_TUM = 'keyframes_optimized.tum'
+LANDMARKS_PLY = 'landmarks.ply'
+REPORT_JSON = 'report.json'
+
+TRACKS_TYPES = {'named': ('sensor_msgs/msg/PointCloud2',)}
+"""Accepted message types of the tracks topic per layout (default: PointCloud)."""
+KEYFRAME_TYPES = {'odometry': ('nav_msgs/msg/Odometry',),
+                  'pose_stamped': ('geometry_msgs/msg/PoseStamped',)}
+CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
+
+REORDER_BUFFER = 256
+"""Messages held back to sort the log-time stream into header-stamp order."""
+MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
+"""Rejected tracks messages, with none accepted, after which the replay stops."""
+
+_KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
+
+
+@dataclass
+class ReplayReport:
+    """What a replay did and wrote (``report.json`` is :meth:`to_dict`).
+
+    Attributes:
+        bags: Input recordings.
+        out_dir: Output folder.
+        files: Output name -> path (result bag, TUM files, PLY, report, plots).
+        topics: Input role -> topic read ('tracks', 'keyframes', 'camera_info').
+        messages_in: Input messages fed to the back-end.
+        messages_rejected: Input messages the back-end rejected (parse errors).
+        messages_out: Output messages written to the result bag.
+        keyframes_in: Keyframe messages read.
+        keyframes_out: Keyframes in the optimized trajectory.
+        solve_ms: Solve time per keyframe solve, ms.
+        iterations: Solver iterations per solve.
+        costs: Final cost per solve (if the back-end reports it).
+        counters: The back-end's counters.
+        bag_duration_s: Header-stamp span of the inputs, s.
+        wall_s: Wall time of the replay, s.
+        accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
+        complete: False if the replay stopped early.
+        error: The error that stopped it, if any.
+        warnings: Non-fatal problems.
+    """
+
+    bags: list[Path]
+    out_dir: Path
+    files: dict[str, Path] = field(default_factory=dict)
+    topics: dict[str, str] = field(default_factory=dict)
+    messages_in: int = 0
+    messages_rejected: int = 0
+    messages_out: int = 0
+    keyframes_in: int = 0
+    keyframes_out: int = 0
+    solve_ms: list[float] = field(default_factory=list)
+    iterations: list[int] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    counters: dict[str, Any] = field(default_factory=dict)
+    bag_duration_s: float = 0.0
+    wall_s: float = 0.0
+    accuracy: dict[str, Any] | None = None
+    complete: bool = False
+    error: str | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def realtime_factor(self) -> float:
+        """Bag duration divided by wall time (how much faster than real time)."""
+        return self.bag_duration_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON-serializable report."""
+        solve = np.asarray(self.solve_ms, dtype=np.float64)
+        out: dict[str, Any] = {
+            'bags': [str(b) for b in self.bags],
+            'out_dir': str(self.out_dir),
+            'files': {k: str(v) for k, v in sorted(self.files.items())},
+            'topics': dict(self.topics),
+            'complete': self.complete,
+            'keyframes_in': self.keyframes_in,
+            'keyframes_out': self.keyframes_out,
+            'messages_in': self.messages_in,
+            'messages_rejected': self.messages_rejected,
+            'messages_out': self.messages_out,
+            'counters': _jsonable(self.counters),
+            'solves': len(self.solve_ms),
+            'solve_ms': [round(float(v), 3) for v in self.solve_ms],
+            'solve_ms_mean': float(solve.mean()) if solve.size else None,
+            'solve_ms_max': float(solve.max()) if solve.size else None,
+            'iterations': [int(v) for v in self.iterations],
+            'costs': [float(v) for v in self.costs],
+            'bag_duration_s': self.bag_duration_s,
+            'wall_s': self.wall_s,
+            'realtime_factor': (self.realtime_factor if math.isfinite(self.realtime_factor)
+                                else None),
+            'warnings': list(self.warnings),
+        }
+        if self.accuracy is not None:
+            out['accuracy'] = self.accuracy
+        if self.error is not None:
+            out['error'] = self.error
+        return out
+
+
+def _jsonable(value: Any) -> Any:
+    """Return ``value`` with numpy scalars / arrays turned into plain Python."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def resolve_topic(name: str, namespace: str = '/') -> str:
+    """Resolve a (relative) ROS topic name in a namespace, as rclpy does for a plain node.
+
+    Args:
+        name: Absolute ('/a/b') or relative ('a/b') name; '~' is not supported.
+        namespace: Node namespace.
+
+    Returns:
+        The absolute name.
+    """
+    if name.startswith('/'):
+        return name
+    ns = '/' + namespace.strip('/')
+    return f'{ns.rstrip("/")}/{name}'
+
+
+def _find_topic(wanted: str, recorded: Iterable[str]) -> str | None:
+    """Return the recorded topic matching ``wanted`` (ROS 1 bags may lack the '/')."""
+    names = list(recorded)
+    if wanted in names:
+        return wanted
+    bare = wanted.lstrip('/')
+    return next((n for n in names if n.lstrip('/') == bare), None)
+
+
+@dataclass(frozen=True)
+class _Input:
+    """Input topics of a replay."""
+
+    tracks: str
+    keyframes: str | None
+    camera_info: str | None
+
+
+def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
+                   warnings: list[str]) -> tuple[_Input, dict[str, int]]:
+    """Check the recorded topics against the configuration; return topics and counts.
+
+    Raises:
+        BagError: If a needed topic is missing.
+        MessageError: If the tracks / keyframe topic has a type the layout cannot read.
+    """
+    topics = list_topics(bags)
+    names = ', '.join(f'{t} [{i.msgtype}]' for t, i in sorted(topics.items())) or 'none'
+    where = ', '.join(str(b) for b in bags)
+
+    def need(option: str, name: str) -> str:
+        found = _find_topic(resolve_topic(name), topics)
+        if found is None:
+            msg = (f'{where}: {option} topic {resolve_topic(name)!r} is not in the bag '
+                   f'(recorded: {names})')
+            raise BagError(msg)
+        return found
+
+    tracks = need('tracks', config.features_topic)
+    layout = config.feature_layout
+    accepted = TRACKS_TYPES.get(layout, ('sensor_msgs/msg/PointCloud',))
+    if topics[tracks].msgtype not in accepted:
+        msg = (f'{where}: tracks topic {tracks!r} has type {topics[tracks].msgtype}, but layout '
+               f'{layout!r} reads {" or ".join(accepted)} (wrong --tracks-layout?)')
+        raise MessageError(msg)
+    keyframes = None
+    if config.keyframe_source == 'keyframe_topic':
+        keyframes = need('keyframes', config.keyframe_topic)
+        accepted = KEYFRAME_TYPES[config.keyframe_type]
+        if topics[keyframes].msgtype not in accepted:
+            msg = (f'{where}: keyframes topic {keyframes!r} has type '
+                   f'{topics[keyframes].msgtype}, but --keyframes-type '
+                   f'{config.keyframe_type!r} reads {accepted[0]}')
+            raise MessageError(msg)
+    camera_info = _find_topic(resolve_topic(config.camera_info_topic), topics)
+    if camera_info is not None and topics[camera_info].msgtype not in CAMERA_INFO_TYPES:
+        msg = (f'{where}: camera info topic {camera_info!r} has type '
+               f'{topics[camera_info].msgtype}, expected {CAMERA_INFO_TYPES[0]}')
+        raise BagError(msg)
+    if camera_given:
+        camera_info = None
+    elif camera_info is None:
+        text = (f'camera info topic {resolve_topic(config.camera_info_topic)!r} is not in the '
+                f'bag and no intrinsics were given; using normalized coordinates from the tracks')
+        logger.warning(text)
+        warnings.append(text)
+    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info) if t is not None}
+    return _Input(tracks, keyframes, camera_info), counts
+
+
+def _stamp_ns(msg: Any, fallback: int) -> int:
+    """Return a message's header stamp in ns (``fallback`` if it has no header)."""
+    try:
+        stamp = msg.header.stamp
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    except AttributeError:
+        return fallback
+
+
+def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],
+                  window: int = REORDER_BUFFER) -> Iterator[tuple[int, str, BagMessage]]:
+    """Reorder a log-time message stream into header-stamp order with a bounded buffer.
+
+    At equal stamps camera info comes before tracks, and tracks before keyframe poses (a
+    keyframe then finds its tracks). Messages more than ``window`` positions out of order are
+    passed on late rather than held indefinitely.
+
+    Args:
+        messages: Messages in log-time order.
+        kinds: Topic -> 'camera_info' | 'tracks' | 'keyframe'.
+        window: Messages held back.
+
+    Yields:
+        ``(stamp_ns, kind, message)`` in (almost) stamp order.
+    """
+    heap: list[tuple[int, int, int, str, BagMessage]] = []
+    for seq, message in enumerate(messages):
+        kind = kinds[message.topic]
+        stamp = _stamp_ns(message.msg, message.log_time_ns)
+        heapq.heappush(heap, (stamp, _KIND_ORDER[kind], seq, kind, message))
+        if len(heap) > window:
+            stamp, _, _, kind, message = heapq.heappop(heap)
+            yield stamp, kind, message
+    while heap:
+        stamp, _, _, kind, message = heapq.heappop(heap)
+        yield stamp, kind, message
+
+
+def camera_info_from_intrinsics(intrinsics: Sequence[float], stamp_ns: int = 0) -> Any:
+    """Return a Jazzy ``sensor_msgs/msg/CameraInfo`` for ``(fx, fy, cx, cy)``, no distortion.
+
+    Raises:
+        MessageError: If the intrinsics are not four positive, finite numbers.
+    """
+    from pmba_ros.backend.outputs import RosbagsBackend, make_camera_info
+    from pmba_ros.backend.types import CameraModel
+    from pmba_ros.io.bags import jazzy_typestore
+
+    values = [float(v) for v in intrinsics]
+    if len(values) != 4:
+        msg = f'intrinsics must be fx,fy,cx,cy (4 numbers), got {len(values)}'
+        raise MessageError(msg)
+    camera = CameraModel(fx=values[0], fy=values[1], cx=values[2], cy=values[3])
+    return make_camera_info(stamp_ns, 'camera', camera, RosbagsBackend(jazzy_typestore()))
+
+
+class _Run:
+    """State of one replay (feeds the logic, writes its outputs)."""
+
+    def __init__(self, logic: Any, writer: Any, report: ReplayReport,
+                 progress: ProgressCallback | None, total: int) -> None:
+        self.logic = logic
+        self.writer = writer
+        self.report = report
+        self.progress = progress
+        self.total = total
+        self.first_stamp: int | None = None
+        self.last_stamp = 0
+        self.tracks_accepted = 0
+        self.first_error: str | None = None
+
+    def feed(self, stamp: int, kind: str, message: BagMessage) -> None:
+        """Feed one input message, then write whatever the logic produced."""
+        report = self.report
+        report.messages_in += 1
+        if self.first_stamp is None:
+            self.first_stamp = stamp
+        self.last_stamp = max(self.last_stamp, stamp)
+        if kind == 'keyframe':
+            report.keyframes_in += 1
+        handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
+                   'keyframe': self.logic.on_keyframe}[kind]
+        try:
+            handler(message.msg)
+        except MessageError as err:
+            report.messages_rejected += 1
+            logger.debug('rejected %s message at %d ns: %s', message.topic, stamp, err)
+            if self.first_error is None:
+                self.first_error = f'{message.topic} at {stamp} ns: {err}'
+            if kind == 'tracks' and not self.tracks_accepted and \
+                    report.messages_rejected >= MAX_REJECTED_BEFORE_ANY_ACCEPTED:
+                self._raise_all_rejected()
+        else:
+            if kind == 'tracks':
+                self.tracks_accepted += 1
+        self.step()
+        if self.progress is not None:
+            self.progress(report.messages_in, self.total)
+
+    def _raise_all_rejected(self) -> None:
+        """Raise the error for a tracks topic none of whose messages parse."""
+        msg = (f'{self.report.messages_rejected} tracks messages rejected and none accepted '
+               f'(wrong --tracks-layout?); first error: {self.first_error}')
+        raise MessageError(msg)
+
+    def step(self) -> None:
+        """Run the logic's pending work and write its outputs."""
+        for topic, msg in self.logic.step():
+            name = resolve_topic(topic)
+            self.writer.write(name, msg, _stamp_ns(msg, self.last_stamp))
+            self.report.messages_out += 1
+
+    def finish(self) -> None:
+        """Drain the logic and check that the tracks were usable."""
+        finish = getattr(self.logic, 'finish', None)
+        if callable(finish):
+            for topic, msg in finish() or []:
+                self.writer.write(resolve_topic(topic), msg, _stamp_ns(msg, self.last_stamp))
+                self.report.messages_out += 1
+        self.step()
+        if self.report.messages_rejected and not self.tracks_accepted:
+            self._raise_all_rejected()
+
+
+def _make_logic(config: Any) -> Any:
+    """Create the back-end for a replay (deterministic, rosbags messages)."""
+    from pmba_ros.backend.logic import BackendLogic
+    from pmba_ros.backend.outputs import RosbagsBackend
+    from pmba_ros.io.bags import jazzy_typestore
+    return BackendLogic(config, RosbagsBackend(jazzy_typestore()))
+
+
+def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, *,
+           gt: Path | str | None = None, plot: bool = False,
+           progress: ProgressCallback | None = None,
+           intrinsics: Sequence[float] | None = None, align: str = 'sim3') -> ReplayReport:
+    """Run the back-end over recorded front-end topics and write the results.
+
+    Args:
+        bags: rosbag2 folders / storage files, or ROS 1 bags (merged in time).
+        out_dir: Output folder (created; existing outputs are replaced).
+        config: A :class:`~pmba_ros.backend.config.BackendConfig` (default: the node's
+            defaults); ``deterministic`` is forced on.
+        gt: Ground-truth trajectory file (TUM, EuRoC CSV or KITTI) for the accuracy block.
+        plot: Also write PNG plots (needs matplotlib).
+        progress: Called as ``progress(done, total)`` after each input message.
+        intrinsics: ``(fx, fy, cx, cy)`` to use instead of the bag's CameraInfo.
+        align: Alignment of the trajectories onto the ground truth ('sim3', 'se3', 'none').
+
+    Returns:
+        The report (also written to ``out_dir/report.json``).
+
+    Raises:
+        BagError: If a bag is missing, unreadable, corrupt or lacks a needed topic.
+        MessageError: If the tracks do not fit the configured layout.
+        FormatError: If the ground-truth file cannot be read.
+        EvaluationError: If the ground truth has no stamps overlapping the keyframes.
+        PmbaError: If plotting was asked for without matplotlib.
+    """
+    from pmba_ros.backend.config import BackendConfig
+
+    t_start = time.perf_counter()
+    bag_paths = [Path(b) for b in bags]
+    out = Path(out_dir)
+    config = BackendConfig() if config is None else config
+    config = replace(config, deterministic=True)
+    report = ReplayReport(bags=bag_paths, out_dir=out)
+    gt_traj = _read_gt(gt) if gt is not None else None
+    if plot:
+        from pmba_ros.plot import _pyplot
+        _pyplot()  # fail before the replay if matplotlib is missing
+    inputs, counts = _select_inputs(bag_paths, config, intrinsics is not None, report.warnings)
+    report.topics = {'tracks': inputs.tracks}
+    if inputs.keyframes:
+        report.topics['keyframes'] = inputs.keyframes
+    if inputs.camera_info:
+        report.topics['camera_info'] = inputs.camera_info
+    kinds = {inputs.tracks: 'tracks'}
+    if inputs.keyframes:
+        kinds[inputs.keyframes] = 'keyframe'
+    if inputs.camera_info:
+        kinds[inputs.camera_info] = 'camera_info'
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f'{out}: cannot create output folder: {err}'
+        raise BagError(msg) from err
+    logic = _make_logic(config)
+    if intrinsics is not None:
+        logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
+    report.files['result_bag'] = out / RESULT_BAG
+    run: _Run | None = None
+    try:
+        with open_writer(out / RESULT_BAG, overwrite=True) as writer:
+            run = _Run(logic, writer, report, progress, sum(counts.values()))
+            stream = iter_messages(bag_paths, topics=list(kinds))
+            for stamp, kind, message in stamp_ordered(stream, kinds):
+                run.feed(stamp, kind, message)
+            run.finish()
+        report.complete = True
+    except (PmbaError, KeyboardInterrupt) as err:
+        report.error = str(err) or type(err).__name__
+        raise
+    finally:
+        if run is not None and run.first_stamp is not None:
+            report.bag_duration_s = (run.last_stamp - run.first_stamp) * 1e-9
+        if run is not None and run.first_error and report.messages_rejected:
+            report.warnings.append(f'{report.messages_rejected} messages rejected; first: '
+                                   f'{run.first_error}')
+        _write_outputs(logic, report, out, gt_traj, plot, align, t_start)
+    return report
+
+
+def _read_gt(path: Path | str) -> Any:
+    """Read a ground-truth trajectory (format detected)."""
+    from pmba_ros.eval.trajectory import read_trajectory
+    return read_trajectory(path)
+
+
+def _write_outputs(logic: Any, report: ReplayReport, out: Path, gt_traj: Any, plot: bool,
+                   align: str, t_start: float) -> None:
+    """Write TUM, PLY, accuracy, plots and report.json (also after an error)."""
+    from pmba_ros.eval.trajectory import write_tum
+    from pmba_ros.io.ply import write_ply
+
+    _collect_stats(logic, report)
+    frontend = optimized = None
+    try:
+        frontend = logic.frontend_trajectory()
+        optimized = logic.optimized_trajectory()
+        write_tum(out / FRONTEND_TUM, frontend)
+        write_tum(out / OPTIMIZED_TUM, optimized)
+        report.files['frontend_tum'] = out / FRONTEND_TUM
+        report.files['optimized_tum'] = out / OPTIMIZED_TUM
+        report.keyframes_out = len(optimized)
+        ids, points = _landmarks(logic)
+        write_ply(out / LANDMARKS_PLY, points, ids)
+        report.files['landmarks_ply'] = out / LANDMARKS_PLY
+        if gt_traj is not None and report.complete:
+            report.accuracy = accuracy(frontend, optimized, gt_traj, align=align)
+        if plot and report.complete:
+            for name, path in write_plots(out, frontend, optimized, gt_traj, report,
+                                          align).items():
+                report.files[name] = path
+    except Exception as err:
+        if report.error is None:
+            report.error = str(err)
+            raise
+        logger.warning('writing outputs after an error failed: %s', err)
+    finally:
+        _dump_report(report, out, t_start)
+
+
+def _dump_report(report: ReplayReport, out: Path, t_start: float) -> None:
+    """Write report.json (best effort after an error)."""
+    report.wall_s = time.perf_counter() - t_start
+    report.files['report'] = out / REPORT_JSON
+    try:
+        (out / REPORT_JSON).write_text(json.dumps(report.to_dict(), indent=2) + '\n',
+                                       encoding='utf-8')
+    except OSError as err:
+        logger.warning('%s: cannot write report: %s', out / REPORT_JSON, err)
+
+
+def _landmarks(logic: Any) -> tuple[np.ndarray | None, np.ndarray]:
+    """Return ``(ids or None, points (N, 3))`` from the logic's ``landmarks()``."""
+    value = logic.landmarks()
+    if isinstance(value, tuple) and len(value) == 2:
+        ids, points = value
+        return (None if ids is None else np.asarray(ids)), np.asarray(points, dtype=np.float64)
+    return None, np.asarray(value, dtype=np.float64).reshape(-1, 3)
+
+
+def _collect_stats(logic: Any, report: ReplayReport) -> None:
+    """Copy per-solve timings, iterations, costs and counters from ``logic.stats``."""
+    stats = getattr(logic, 'stats', None)
+    if stats is None:
+        return
+    get = stats.get if isinstance(stats, dict) else (lambda k, d=None: getattr(stats, k, d))
+    report.solve_ms = [float(v) for v in (get('solve_ms', None) or [])]
+    report.iterations = [int(v) for v in (get('iterations', None) or [])]
+    costs = get('costs', None) or get('cost', None) or get('final_cost', None) or []
+    report.costs = [float(v) for v in costs] if not np.isscalar(costs) else []
+    counters = get('counters', None)
+    if counters is None and not isinstance(stats, dict):
+        counters = {k: v for k, v in vars(stats).items()
+                    if isinstance(v, int | float) and not isinstance(v, bool)}
+    report.counters = dict(counters or {})
+
+
+def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
+             max_diff_s: float = 0.01) -> dict[str, Any]:
+    """Return ATE / RPE of the front-end and optimized keyframes against ground truth.
+
+    Args:
+        frontend: Front-end trajectory.
+        optimized: Optimized trajectory.
+        gt: Ground truth.
+        align: Alignment mode for both ('sim3', 'se3' or 'none').
+        max_diff_s: Largest stamp difference for association, s.
+
+    Returns:
+        ``ate_frontend_m``, ``ate_optimized_m``, ``ate_ratio`` (optimized / front-end),
+        ``rpe_frontend``, ``rpe_optimized`` (RMSE, m, consecutive keyframes),
+        ``alignment`` and the full results under ``frontend`` / ``optimized``.
+
+    Raises:
+        EvaluationError: If a trajectory has no stamps overlapping the ground truth.
+    """
+    from pmba_ros.eval.metrics import evaluate
+
+    results = {}
+    for name, traj in (('frontend', frontend), ('optimized', optimized)):
+        try:
+            results[name] = evaluate(traj, gt, align=align, max_diff_s=max_diff_s)
+        except EvaluationError as err:
+            msg = f'ground truth vs {name} keyframes: {err}'
+            raise EvaluationError(msg) from err
+    ate_f = results['frontend']['ate'].rmse
+    ate_o = results['optimized']['ate'].rmse
+    return {
+        'alignment': align,
+        'ate_frontend_m': ate_f,
+        'ate_optimized_m': ate_o,
+        'ate_ratio': ate_o / ate_f if ate_f > 0 else None,
+        'rpe_frontend': results['frontend']['rpe'].rmse,
+        'rpe_optimized': results['optimized']['rpe'].rmse,
+        'matched_frontend': results['frontend']['ate'].n_matched,
+        'matched_optimized': results['optimized']['ate'].n_matched,
+        'frontend': {k: v.to_dict() for k, v in results['frontend'].items()},
+        'optimized': {k: v.to_dict() for k, v in results['optimized'].items()},
+    }
+
+
+def write_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report: ReplayReport,
+                align: str = 'sim3') -> dict[str, Path]:
+    """Write the replay PNGs: top view, cost per solve, solve time per keyframe.
+
+    With ground truth, both estimates are aligned onto it (``align``) for the top view.
+
+    Returns:
+        Plot name -> path.
+
+    Raises:
+        PmbaError: If matplotlib is missing or a file cannot be written.
+    """
+    from pmba_ros import plot as plots
+
+    curves: list[tuple[str, Any]] = []
+    if gt is not None:
+        from pmba_ros.eval.align import align_se3, align_sim3
+        from pmba_ros.eval.metrics import associate
+        aligner = align_sim3 if align == 'sim3' else align_se3
+        curves.append(('ground truth', gt))
+        for label, traj in (('front-end', frontend), ('optimized', optimized)):
+            try:
+                est_a, gt_a = associate(traj, gt)
+                if align == 'none':
+                    curves.append((label, traj))
+                    continue
+                _, fit = aligner(est_a, gt_a)
+                from pmba_ros.eval.align import apply_alignment
+                curves.append((label, apply_alignment(traj, fit)))
+            except EvaluationError:
+                curves.append((label, traj))
+    else:
+        curves = [('front-end', frontend), ('optimized', optimized)]
+    files = {'plot_top_view': plots.plot_top_view(out / 'trajectories_top.png', curves)}
+    files['plot_cost'] = plots.plot_series(out / 'cost_per_solve.png', report.costs,
+                                           'final cost', 'Cost per solve', log_scale=True)
+    files['plot_solve_time'] = plots.plot_series(out / 'solve_time.png', report.solve_ms,
+                                                 'solve time (ms)', 'Solve time per keyframe',
+                                                 xlabel='keyframe solve')
+    return files
+
+
+__all__ = ['FRONTEND_TUM', 'LANDMARKS_PLY', 'OPTIMIZED_TUM', 'REPORT_JSON', 'RESULT_BAG',
+           'ReplayReport', 'accuracy', 'camera_info_from_intrinsics', 'replay',
+           'resolve_topic', 'stamp_ordered', 'write_plots']
