@@ -81,7 +81,8 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
     from rosbags.rosbag1 import ReaderError as Reader1Error
     from rosbags.rosbag2 import ReaderError as Reader2Error
     return (AnyReaderError, Reader1Error, Reader2Error, struct.error, EOFError, ValueError,
-            KeyError, IndexError, UnicodeDecodeError, AssertionError, OSError)
+            KeyError, IndexError, UnicodeDecodeError, AssertionError, OSError, ArithmeticError,
+            MemoryError, TypeError, RuntimeError)
 
 
 def _describe(paths: Sequence[Path]) -> str:

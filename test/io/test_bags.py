@@ -1,0 +1,163 @@
+"""Tests of pmba_ros.io.bags: reading, the QoS-mismatch fallback, writing, bad bags."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.backend.outputs import RosbagsBackend, make_pose_stamped
+from pmba_ros.errors import BagError
+from pmba_ros.io.bags import (
+    iter_messages,
+    jazzy_typestore,
+    list_topics,
+    open_writer,
+    require_topics,
+)
+
+from ..conftest import shared_file
+
+
+def _write_poses(path: Path, n: int = 5, topic: str = '/gt') -> None:
+    """Write ``n`` PoseStamped messages, 0.1 s apart."""
+    backend = RosbagsBackend(jazzy_typestore())
+    with open_writer(path) as writer:
+        for i in range(n):
+            msg = make_pose_stamped(i * 10**8, 'map', np.array([i, 0.0, 0.0]),
+                                    np.array([0.0, 0.0, 0.0, 1.0]), backend)
+            writer.write(topic, msg, i * 10**8)
+
+
+@pytest.mark.parametrize('name', ['folder_bag', 'bare.mcap'])
+def test_written_bag_reads_back_with_rosbags_and_mcap_ros2(tmp_path: Path, name: str) -> None:
+    """A folder bag and a bare .mcap both read back through rosbags and mcap_ros2."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    out = tmp_path / name
+    _write_poses(out)
+    assert list_topics([out])['/gt'].count == 5
+    xs = [m.msg.pose.position.x for m in iter_messages([out])]
+    assert xs == [0.0, 1.0, 2.0, 3.0, 4.0]
+    storage = out if out.is_file() else out / f'{out.name}.mcap'
+    with storage.open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        decoded = [m.pose.position.x for *_, m in reader.iter_decoded_messages()]
+    assert decoded == xs
+    if out.is_dir():
+        assert (out / 'metadata.yaml').read_text().count(f'{out.name}.mcap') == 2
+
+
+def test_writer_refuses_existing_output_unless_overwrite(tmp_path: Path) -> None:
+    """An existing output is an error unless ``overwrite`` is set."""
+    out = tmp_path / 'b.mcap'
+    _write_poses(out, 2)
+    with pytest.raises(BagError, match='exists already'):
+        _write_poses(out, 2)
+    backend = RosbagsBackend(jazzy_typestore())
+    with open_writer(out, overwrite=True) as writer:
+        writer.write('/x', make_pose_stamped(0, 'map', np.zeros(3), np.array([0, 0, 0, 1.0]),
+                                             backend), 0)
+    assert list(list_topics([out])) == ['/x']
+
+
+def test_writer_finalizes_bag_when_the_block_raises(tmp_path: Path) -> None:
+    """An exception inside the writer block still leaves a readable bag (summary written)."""
+    out = tmp_path / 'partial.mcap'
+    backend = RosbagsBackend(jazzy_typestore())
+    with pytest.raises(KeyboardInterrupt), open_writer(out) as writer:
+        for i in range(3):
+            writer.write('/gt', make_pose_stamped(i, 'map', np.zeros(3),
+                                                  np.array([0, 0, 0, 1.0]), backend), i)
+        raise KeyboardInterrupt
+    assert sum(1 for _ in iter_messages([out])) == 3
+    assert not any(p.name.startswith('.') for p in tmp_path.iterdir())
+
+
+def test_truncated_bag_raises_bag_error(tmp_path: Path) -> None:
+    """Half an MCAP file gives one clear BagError."""
+    good = tmp_path / 'good.mcap'
+    _write_poses(good, 20)
+    bad = tmp_path / 'truncated.mcap'
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(BagError, match=r'truncated\.mcap: cannot open bag .*truncated or corrupt'):
+        list(iter_messages([bad]))
+
+
+def test_garbage_bytes_raise_bag_error(tmp_path: Path) -> None:
+    """A file that is not a bag gives a BagError naming it."""
+    bad = tmp_path / 'garbage.mcap'
+    bad.write_bytes(b'not a bag at all' * 64)
+    with pytest.raises(BagError, match=r'garbage\.mcap: cannot open bag'):
+        list_topics([bad])
+
+
+def test_corrupt_chunk_raises_bag_error(tmp_path: Path) -> None:
+    """Damaged bytes in the middle raise BagError while reading, not a raw exception."""
+    good = tmp_path / 'good.mcap'
+    _write_poses(good, 200)
+    data = bytearray(good.read_bytes())
+    middle = len(data) // 2
+    data[middle - 200:middle + 200] = b'\xff' * 400
+    bad = tmp_path / 'corrupt.mcap'
+    bad.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r'corrupt\.mcap'):
+        list(iter_messages([bad]))
+
+
+def test_missing_bag_and_missing_topic(tmp_path: Path) -> None:
+    """A missing path and a missing topic each give a BagError naming them."""
+    with pytest.raises(BagError, match='no such bag'):
+        list_topics([tmp_path / 'nope'])
+    out = tmp_path / 'b.mcap'
+    _write_poses(out)
+    topics = list_topics([out])
+    with pytest.raises(BagError, match=r"topic '/tracks' is not in the bag \(topics: /gt"):
+        require_topics(topics, {'/tracks': ()}, [out])
+    with pytest.raises(BagError, match='has type geometry_msgs/msg/PoseStamped, expected'):
+        require_topics(topics, {'/gt': ('nav_msgs/msg/Odometry',)}, [out])
+
+
+def test_qos_mismatch_folder_falls_back_to_storage_file(tmp_path: Path) -> None:
+    """metadata.yaml QoS differing from the storage file (ros2_notes §4.4.6) is handled."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    out = tmp_path / 'qos_bag'
+    backend = RosbagsBackend(jazzy_typestore())
+    ts = jazzy_typestore()
+    zero = QosTime(0, 0)
+    qos = Qos(QosHistory.KEEP_LAST, 10, QosReliability.RELIABLE, QosDurability.VOLATILE, zero,
+              zero, QosLiveliness.AUTOMATIC, zero, False)
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/gt', 'geometry_msgs/msg/PoseStamped', typestore=ts,
+                                     offered_qos_profiles=[qos])
+        for i in range(4):
+            msg = make_pose_stamped(i, 'map', np.zeros(3), np.array([0, 0, 0, 1.0]), backend)
+            writer.write(conn, i, ts.serialize_cdr(msg, msg.__msgtype__))
+    meta = out / 'metadata.yaml'
+    text = meta.read_text()
+    assert 'depth: 10' in text
+    meta.write_text(text.replace('depth: 10', 'depth: 11'))
+    from rosbags.highlevel import AnyReader
+    with AnyReader([out], default_typestore=ts) as reader:
+        assert sum(1 for _ in reader.messages()) == 0  # the pitfall itself
+    assert sum(1 for _ in iter_messages([out])) == 4
+
+
+def test_reads_ros1_bag_without_leading_slash() -> None:
+    """evo's ROS 1 example bag reads through the same API."""
+    bag = shared_file('bags', 'ROS_example.bag')
+    topics = list_topics([bag])
+    assert topics['groundtruth'].msgtype == 'geometry_msgs/msg/PoseStamped'
+    first = next(iter_messages([bag], topics=['groundtruth']))
+    assert first.msg.header.stamp.sec > 1_400_000_000

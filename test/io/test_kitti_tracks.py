@@ -1,0 +1,76 @@
+"""Tests of pmba_ros.io.kitti_tracks on the shared KITTI-00 stereo tracks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.errors import FormatError
+from pmba_ros.eval.trajectory import Trajectory, read_kitti
+from pmba_ros.io.kitti_tracks import (
+    find_frame_offset,
+    kitti_sequence,
+    read_kitti_tracks,
+)
+
+from ..conftest import shared_file
+
+
+@pytest.fixture(scope='module')
+def kitti_dir() -> Path:
+    """The shared KITTI-00 track folder (skip when absent)."""
+    return shared_file('kitti00_stereo_vo')
+
+
+def test_reads_77_keyframes_and_all_observations(kitti_dir: Path) -> None:
+    """Counts match SOURCES.md §3 and normalized coordinates follow from K."""
+    tracks = read_kitti_tracks(kitti_dir)
+    assert len(tracks.frames) == 77
+    assert sum(len(f) for f in tracks.frames) == 52544
+    ids = np.concatenate([f.feature_ids for f in tracks.frames])
+    assert np.unique(ids).shape[0] == 15638
+    assert tracks.camera.fx == pytest.approx(718.856)
+    assert tracks.baseline_m == pytest.approx(0.537, abs=1e-3)
+    frame = tracks.frames[5]
+    assert frame.pixels is not None and frame.normalized is not None
+    np.testing.assert_allclose(tracks.camera.normalize(frame.pixels), frame.normalized)
+    np.testing.assert_allclose(tracks.centers[0], 0.0)
+
+
+def test_frame_offset_is_found_from_relative_motions(kitti_dir: Path) -> None:
+    """The 77 VO poses are KITTI 00 frames 0..76 (stride 1)."""
+    tracks = read_kitti_tracks(kitti_dir)
+    times = np.loadtxt(shared_file('trajectories', 'evo', 'KITTI_00_gt_times.txt'))
+    gt = read_kitti(shared_file('trajectories', 'evo', 'KITTI_00_gt.txt'), times)
+    offset, stride, rot_deg, trans_m = find_frame_offset(tracks.R_wc, tracks.centers, gt)
+    assert (offset, stride) == (0, 1)
+    assert rot_deg < 0.2
+    assert trans_m < 0.1
+    seq = kitti_sequence(tracks, times, gt)
+    assert seq.stamps_ns[1] == round(times[1] * 1e9)
+    assert seq.R_wc_gt is not None
+    np.testing.assert_allclose(seq.centers_gt, gt.positions_xyz[:77])
+
+
+def test_frame_offset_recovers_a_synthetic_shift() -> None:
+    """A sub-sequence of a random-walk trajectory is located at its offset and stride."""
+    rng = np.random.default_rng(0)
+    n = 300
+    R = so3.exp(np.cumsum(rng.normal(scale=0.05, size=(n, 3)), axis=0))
+    C = np.cumsum(rng.normal(size=(n, 3)), axis=0)
+    gt = Trajectory(np.arange(n) * 0.1, C, R)
+    idx = 40 + 2 * np.arange(30)
+    # the VO frame differs from the GT world frame by a rigid motion
+    G = so3.exp(np.array([0.3, -0.2, 1.0]))
+    R_vo = np.einsum('ij,kjl->kil', G, R[idx])
+    C_vo = C[idx] @ G.T + np.array([5.0, 1.0, -2.0])
+    assert find_frame_offset(R_vo, C_vo, gt)[:2] == (40, 2)
+
+
+def test_missing_folder_raises_format_error(tmp_path: Path) -> None:
+    """A folder without the files gives a FormatError naming the file."""
+    with pytest.raises(FormatError, match='VO_calibration00s.txt'):
+        read_kitti_tracks(tmp_path)
