@@ -1,0 +1,278 @@
+"""Tests of pmba_ros.replay: outputs, determinism, bad inputs, and a small simulated replay."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pmba_ros import replay as replay_mod
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.outputs import make_path, make_tf
+from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
+from pmba_ros.errors import BagError, EvaluationError, MessageError
+from pmba_ros.eval.trajectory import Trajectory, read_tum, write_tum
+from pmba_ros.io.bags import iter_messages, jazzy_typestore, list_topics
+from pmba_ros.io.ply import read_ply
+from pmba_ros.replay import replay, resolve_topic, stamp_ordered
+from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
+from pmba_ros.sim.sequence import simulate_sequence
+
+
+class StubLogic:
+    """A stand-in back-end: parses inputs like the real one and echoes front-end poses."""
+
+    def __init__(self, config: BackendConfig, backend: Any) -> None:
+        """Keep the config and message backend."""
+        self.config = config
+        self.backend = backend
+        self.poses: list[Any] = []
+        self.pending: list[Any] = []
+        self.stats = {'solve_ms': [], 'iterations': [], 'counters': {'keyframes': 0}}
+
+    def on_camera_info(self, msg: Any) -> None:
+        """Parse a CameraInfo."""
+        parse_camera_info(msg)
+
+    def on_tracks(self, msg: Any) -> None:
+        """Parse tracks with the configured layout."""
+        parse_tracks(msg, self.config.feature_layout)
+
+    def on_keyframe(self, msg: Any) -> None:
+        """Queue a keyframe pose."""
+        pose = parse_keyframe(msg, self.config.keyframe_type)
+        self.poses.append(pose)
+        self.pending.append(pose)
+
+    def step(self) -> list[tuple[str, Any]]:
+        """Emit a path and a TF per queued keyframe."""
+        out = []
+        for pose in self.pending:
+            n = len(self.poses)
+            out.append(('pmba/path', make_path(
+                pose.stamp_ns, 'map', [p.position for p in self.poses],
+                [p.quat_xyzw for p in self.poses], [p.stamp_ns for p in self.poses],
+                self.backend)))
+            out.append(('/tf', make_tf(pose.stamp_ns, 'map', 'odom', np.zeros(3),
+                                       np.array([0, 0, 0, 1.0]), self.backend)))
+            self.stats['solve_ms'].append(1.0)
+            self.stats['iterations'].append(n % 3)
+            self.stats['counters']['keyframes'] += 1
+        self.pending = []
+        return out
+
+    def frontend_trajectory(self) -> Trajectory:
+        """Return the received poses."""
+        from pmba_ros.core import so3
+        return Trajectory(np.array([p.stamp_ns * 1e-9 for p in self.poses]),
+                          np.array([p.position for p in self.poses]).reshape(-1, 3),
+                          so3.from_quat_xyzw(np.array([p.quat_xyzw for p in self.poses])
+                                             .reshape(-1, 4)))
+
+    optimized_trajectory = frontend_trajectory
+
+    def landmarks(self) -> np.ndarray:
+        """Return no landmarks."""
+        return np.zeros((0, 3))
+
+
+@pytest.fixture
+def stub(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Replace the back-end with :class:`StubLogic`."""
+    monkeypatch.setattr(replay_mod, '_make_logic',
+                        lambda config: StubLogic(config, _backend()))
+
+
+def _backend() -> Any:
+    from pmba_ros.backend.outputs import RosbagsBackend
+    return RosbagsBackend(jazzy_typestore())
+
+
+@pytest.fixture(scope='module')
+def street_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 60-keyframe simulated street bag (vins_fusion layout, the node's default)."""
+    out = tmp_path_factory.mktemp('bags') / 'street'
+    write_sequence_bag(simulate_sequence('street', n_keyframes=60, seed=0), out)
+    return out
+
+
+def test_resolve_topic() -> None:
+    """Relative names resolve in the root namespace or a given one."""
+    assert resolve_topic('pmba/path') == '/pmba/path'
+    assert resolve_topic('/tf') == '/tf'
+    assert resolve_topic('path', '/robot1/') == '/robot1/path'
+
+
+def test_stamp_ordered_sorts_by_header_stamp_and_kind() -> None:
+    """Out-of-order log times come out in stamp order; tracks before keyframes at a tie."""
+    from types import SimpleNamespace
+
+    from pmba_ros.io.bags import BagMessage
+
+    def msg(topic: str, stamp: int, log: int) -> BagMessage:
+        header = SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=stamp))
+        return BagMessage(topic, '', log, SimpleNamespace(header=header))
+
+    stream = [msg('/kf', 10, 30), msg('/tr', 20, 31), msg('/tr', 10, 32), msg('/kf', 20, 50)]
+    got = [(s, k) for s, k, _ in stamp_ordered(stream, {'/kf': 'keyframe', '/tr': 'tracks'})]
+    assert got == [(10, 'tracks'), (10, 'keyframe'), (20, 'tracks'), (20, 'keyframe')]
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_writes_all_outputs(street_bag: Path, tmp_path: Path) -> None:
+    """The output folder holds a readable result bag, TUM files, PLY and the report."""
+    out = tmp_path / 'out'
+    report = replay([street_bag], out, gt=groundtruth_path(street_bag))
+    assert report.complete
+    assert report.keyframes_in == 60
+    assert report.messages_in == 180
+    topics = list_topics([out / 'result.mcap'])
+    assert topics['/pmba/path'].count == 60
+    assert topics['/tf'].msgtype == 'tf2_msgs/msg/TFMessage'
+    assert len(read_tum(out / 'keyframes_frontend.tum')) == 60
+    points, _ = read_ply(out / 'landmarks.ply')
+    assert points.shape == (0, 3)
+    data = json.loads((out / 'report.json').read_text())
+    for key in ('keyframes_in', 'keyframes_out', 'messages_rejected', 'solve_ms', 'iterations'):
+        assert key in data
+    acc = data['accuracy']
+    for key in ('ate_frontend_m', 'ate_optimized_m', 'rpe_frontend', 'rpe_optimized',
+                'alignment', 'ate_ratio'):
+        assert key in acc
+    assert acc['ate_ratio'] == pytest.approx(1.0)
+
+
+@pytest.mark.usefixtures('stub')
+def test_missing_topic_is_one_bag_error(street_bag: Path, tmp_path: Path) -> None:
+    """A tracks topic that is not recorded names the topic and what is recorded."""
+    config = BackendConfig(features_topic='/feature_tracker/feature')
+    with pytest.raises(BagError, match=r"tracks topic '/feature_tracker/feature' is not in "
+                                       r'the bag \(recorded: /camera_info'):
+        replay([street_bag], tmp_path / 'o', config)
+
+
+@pytest.mark.usefixtures('stub')
+def test_wrong_layout_type_is_one_message_error(street_bag: Path, tmp_path: Path) -> None:
+    """A PointCloud topic replayed as 'named' (PointCloud2) is refused before reading."""
+    config = BackendConfig(feature_layout='named')
+    with pytest.raises(MessageError, match='wrong --tracks-layout'):
+        replay([street_bag], tmp_path / 'o', config)
+
+
+@pytest.mark.usefixtures('stub')
+def test_wrong_layout_channels_is_one_message_error(street_bag: Path, tmp_path: Path) -> None:
+    """VINS-Fusion tracks read as VINS-Mono are all rejected: one error, valid result bag."""
+    config = BackendConfig(feature_layout='vins_mono')
+    out = tmp_path / 'o'
+    with pytest.raises(MessageError, match=r'tracks messages rejected and none accepted '
+                                           r'\(wrong --tracks-layout\?\); first error'):
+        replay([street_bag], out, config)
+    assert sum(1 for _ in iter_messages([out / 'result.mcap'])) >= 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['complete'] is False
+    assert 'wrong --tracks-layout' in report['error']
+
+
+@pytest.mark.usefixtures('stub')
+def test_truncated_bag_is_one_bag_error(street_bag: Path, tmp_path: Path) -> None:
+    """Half a recording gives a BagError."""
+    storage = street_bag / 'street.mcap'
+    bad = tmp_path / 'half.mcap'
+    bad.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
+    with pytest.raises(BagError, match=r'half\.mcap: cannot open bag'):
+        replay([bad], tmp_path / 'o')
+
+
+@pytest.mark.usefixtures('stub')
+def test_gt_without_overlap_is_one_evaluation_error(street_bag: Path, tmp_path: Path) -> None:
+    """Ground truth whose stamps miss every keyframe is an EvaluationError; outputs stay."""
+    gt = read_tum(groundtruth_path(street_bag))
+    shifted = tmp_path / 'shifted.tum'
+    write_tum(shifted, Trajectory(gt.stamps_s + 1000.0, gt.positions_xyz, gt.R_wc))
+    out = tmp_path / 'o'
+    with pytest.raises(EvaluationError, match='ground truth vs frontend keyframes'):
+        replay([street_bag], out, gt=shifted)
+    assert len(read_tum(out / 'keyframes_optimized.tum')) == 60
+    assert list_topics([out / 'result.mcap'])['/pmba/path'].count == 60
+
+
+@pytest.mark.usefixtures('stub')
+def test_interrupted_replay_leaves_valid_result_bag(street_bag: Path, tmp_path: Path) -> None:
+    """An interrupt mid-replay still finalizes result.mcap with what was written."""
+    calls = {'n': 0}
+
+    def progress(done: int, total: int) -> None:
+        calls['n'] += 1
+        if done == 90:
+            raise KeyboardInterrupt
+
+    out = tmp_path / 'o'
+    with pytest.raises(KeyboardInterrupt):
+        replay([street_bag], out, progress=progress)
+    n = list_topics([out / 'result.mcap'])['/pmba/path'].count
+    assert 0 < n < 60
+    assert json.loads((out / 'report.json').read_text())['complete'] is False
+
+
+# --- the real back-end -------------------------------------------------------------------
+
+
+def _real_logic_available() -> bool:
+    try:
+        import pmba_ros.backend.logic  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+needs_logic = pytest.mark.skipif(not _real_logic_available(),
+                                 reason='pmba_ros.backend.logic not available')
+
+
+@needs_logic
+def test_small_simulated_replay_improves_on_frontend(street_bag: Path, tmp_path: Path) -> None:
+    """60 simulated keyframes: the optimized ATE is below the front-end's."""
+    out = tmp_path / 'o'
+    report = replay([street_bag], out, gt=groundtruth_path(street_bag))
+    assert report.complete
+    assert report.messages_rejected == 0
+    assert report.accuracy is not None
+    assert report.accuracy['ate_optimized_m'] < report.accuracy['ate_frontend_m']
+    assert len(report.solve_ms) > 0
+    assert len(report.iterations) == len(report.solve_ms)
+
+
+@needs_logic
+def test_replay_twice_gives_identical_tum_bytes(street_bag: Path, tmp_path: Path) -> None:
+    """Deterministic replay: same bag, same TUM and PLY bytes."""
+    a, b = tmp_path / 'a', tmp_path / 'b'
+    replay([street_bag], a)
+    replay([street_bag], b)
+    for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+@needs_logic
+def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(street_bag: Path,
+                                                          tmp_path: Path) -> None:
+    """Every result message deserializes with the Jazzy typestore and with mcap_ros2."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.rosbag2 import Reader
+
+    out = tmp_path / 'o'
+    replay([street_bag], out)
+    ts = jazzy_typestore()
+    types = set()
+    with Reader(out / 'result.mcap') as reader:
+        for conn, _, raw in reader.messages():
+            ts.deserialize_cdr(raw, conn.msgtype)
+            types.add(conn.msgtype)
+    assert {'nav_msgs/msg/Path', 'tf2_msgs/msg/TFMessage'} <= types
+    with (out / 'result.mcap').open('rb') as stream:
+        n = sum(1 for _ in make_reader(stream, decoder_factories=[DecoderFactory()])
+                .iter_decoded_messages())
+    assert n > 0
