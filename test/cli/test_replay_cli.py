@@ -1,0 +1,182 @@
+"""Tests of the replay, simulate and import-tracks verbs (in-process, one subprocess each)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pmba_ros import replay as replay_mod
+from pmba_ros.cli.main import main
+from pmba_ros.io.bags import list_topics
+from pmba_ros.io.bal import read_bal
+
+from ..conftest import shared_file
+from ..test_replay import StubLogic, _backend
+
+
+@pytest.fixture
+def stub(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Replace the back-end with the replay tests' stub."""
+    monkeypatch.setattr(replay_mod, '_make_logic',
+                        lambda config: StubLogic(config, _backend()))
+
+
+@pytest.fixture(scope='module')
+def sim_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 20-keyframe street written by the simulate verb."""
+    out = tmp_path_factory.mktemp('cli') / 'street'
+    assert main(['simulate', '--scenario', 'street', '--keyframes', '20', '--seed', '1',
+                 '--out', str(out)]) == 0
+    return out
+
+
+def test_simulate_writes_front_end_topics(sim_bag: Path) -> None:
+    """The simulated bag has the node's default input topics and a GT file."""
+    topics = list_topics([sim_bag])
+    assert topics['/features'].msgtype == 'sensor_msgs/msg/PointCloud'
+    assert topics['/keyframe_pose'].msgtype == 'nav_msgs/msg/Odometry'
+    assert topics['/camera_info'].count == 20
+    assert (sim_bag / 'groundtruth.tum').exists()
+
+
+def test_simulate_named_layout_writes_pointcloud2(tmp_path: Path) -> None:
+    """--layout named gives PointCloud2 tracks."""
+    out = tmp_path / 'named.mcap'
+    assert main(['simulate', '--keyframes', '5', '--layout', 'named', '--out', str(out)]) == 0
+    assert list_topics([out])['/features'].msgtype == 'sensor_msgs/msg/PointCloud2'
+
+
+@pytest.mark.parametrize('scenario', ['street', 'table3'])
+def test_simulate_bal(tmp_path: Path, scenario: str) -> None:
+    """--format bal writes a problem read_bal accepts."""
+    out = tmp_path / f'{scenario}.txt'
+    assert main(['simulate', '--format', 'bal', '--scenario', scenario, '--keyframes', '8',
+                 '--out', str(out)]) == 0
+    problem = read_bal(out)
+    assert problem.n_cams == (4 if scenario == 'table3' else 8)
+
+
+def test_simulate_bad_scenario_is_one_error_line(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A BAL-only scenario for a bag is refused with one error line."""
+    assert main(['simulate', '--scenario', 'table3', '--out', str(tmp_path / 'x')]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('error: --scenario table3')
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_prints_table_and_outputs(sim_bag: Path, tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """The replay verb prints the accuracy table and the output files."""
+    out = tmp_path / 'out'
+    assert main(['replay', str(sim_bag), '--out', str(out), '--gt',
+                 str(sim_bag / 'groundtruth.tum')]) == 0
+    text = capsys.readouterr().out
+    assert 'ATE rmse (m)' in text and 'front-end' in text and 'optimized' in text
+    assert f'outputs in {out}' in text and 'result.mcap' in text
+    report = json.loads((out / 'report.json').read_text())
+    assert report['keyframes_in'] == 20
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_quiet_prints_nothing(sim_bag: Path, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """--quiet is silent on success."""
+    assert main(['replay', str(sim_bag), '--out', str(tmp_path / 'o'), '--quiet']) == 0
+    captured = capsys.readouterr()
+    assert captured.out == '' and captured.err == ''
+
+
+@pytest.mark.usefixtures('stub')
+@pytest.mark.parametrize(('extra', 'pattern'), [
+    (['--tracks-topic', '/nope'], "tracks topic '/nope' is not in the bag"),
+    (['--tracks-layout', 'named'], 'wrong --tracks-layout'),
+    (['--tracks-layout', 'vins_mono'], 'wrong --tracks-layout'),
+    (['--keyframes-type', 'pose_stamped'], "--keyframes-type 'pose_stamped'"),
+    (['--intrinsics', '1,2,3'], '--intrinsics expects FX,FY,CX,CY'),
+])
+def test_replay_errors_are_one_line(sim_bag: Path, tmp_path: Path,
+                                    capsys: pytest.CaptureFixture[str], extra: list[str],
+                                    pattern: str) -> None:
+    """Bad options or inputs give exit code 1 and exactly one 'error:' line."""
+    code = main(['replay', str(sim_bag), '--out', str(tmp_path / 'o'), '--quiet', *extra])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith('error: ') and pattern in err[0]
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_params_file_and_intrinsics(sim_bag: Path, tmp_path: Path) -> None:
+    """--params supplies defaults; options override them; --intrinsics replaces CameraInfo."""
+    params = tmp_path / 'p.yaml'
+    params.write_text('pmba_node:\n  ros__parameters:\n    features_topic: /nope\n'
+                      '    mode: global\n')
+    out = tmp_path / 'o'
+    assert main(['replay', str(sim_bag), '--out', str(out), '--params', str(params),
+                 '--tracks-topic', 'features', '--intrinsics', '400,400,320,240',
+                 '--quiet']) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['topics'] == {'tracks': '/features', 'keyframes': '/keyframe_pose'}
+
+
+def test_replay_bad_params_file(sim_bag: Path, tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
+    """An invalid parameter value is one error line naming the file."""
+    params = tmp_path / 'p.yaml'
+    params.write_text('mode: fast\n')
+    assert main(['replay', str(sim_bag), '--out', str(tmp_path / 'o'), '--params',
+                 str(params)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f'error: --params {params}')
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_plot(sim_bag: Path, tmp_path: Path) -> None:
+    """--plot writes the three PNGs."""
+    pytest.importorskip('matplotlib')
+    out = tmp_path / 'o'
+    assert main(['replay', str(sim_bag), '--out', str(out), '--gt',
+                 str(sim_bag / 'groundtruth.tum'), '--plot', '--quiet']) == 0
+    for name in ('trajectories_top.png', 'cost_per_solve.png', 'solve_time.png'):
+        assert (out / name).stat().st_size > 1000
+
+
+def test_plot_without_matplotlib_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A missing matplotlib gives a PmbaError that says how to install it."""
+    from pmba_ros import plot
+    from pmba_ros.errors import PmbaError
+
+    monkeypatch.setitem(sys.modules, 'matplotlib', None)
+    with pytest.raises(PmbaError, match=r'--plot needs matplotlib.*pip install'):
+        plot._pyplot()
+
+
+def test_import_tracks_writes_kitti_bag(tmp_path: Path) -> None:
+    """import-tracks turns the shared KITTI-00 tracks into a 77-keyframe bag with GT."""
+    shared_file('kitti00_stereo_vo', 'VO_stereo_factors00s.txt')
+    out = tmp_path / 'kitti'
+    assert main(['import-tracks', '--out', str(out)]) == 0
+    topics = list_topics([out])
+    assert topics['/features'].count == 77
+    assert topics['/groundtruth/pose'].count == 77
+    assert (out / 'groundtruth.tum').exists()
+
+
+def test_console_scripts_run_as_subprocesses(tmp_path: Path) -> None:
+    """``python -m pmba_ros simulate`` and the pmba_bag_replay script work end to end."""
+    bag = tmp_path / 'b.mcap'
+    done = subprocess.run([sys.executable, '-m', 'pmba_ros', 'simulate', '--keyframes', '5',
+                           '--out', str(bag)], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    script = Path(sys.executable).with_name('pmba_bag_replay')
+    if not script.exists():
+        pytest.skip('pmba_bag_replay script not installed')
+    done = subprocess.run([str(script), str(tmp_path / 'missing.mcap'), '--out',
+                           str(tmp_path / 'o')], capture_output=True, text=True, check=False)
+    assert done.returncode == 1
+    assert done.stderr.strip() == f'error: {tmp_path / "missing.mcap"}: no such bag'
