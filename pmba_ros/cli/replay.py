@@ -2,6 +2,7 @@
 
 Usage examples::
 
+    pmba replay --out demo                      # simulated street, replayed and evaluated
     pmba simulate --scenario street --keyframes 200 --out street_bag
     pmba replay street_bag --out street_out --gt street_bag/groundtruth.tum
     pmba replay vins.mcap --out out --tracks-topic /feature_tracker/feature \\
@@ -61,8 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     def node_default(name: str) -> str:
         return f'node default: {d[name]}' if name in d else 'node default'
 
-    parser.add_argument('bags', metavar='BAG', nargs='+', type=Path,
-                        help='rosbag2 folder or .mcap/.db3 file (or ROS 1 .bag files)')
+    parser.add_argument('bags', metavar='BAG', nargs='*', type=Path,
+                        help='rosbag2 folder or .mcap/.db3 file (or ROS 1 .bag files); none: '
+                        'simulate the default street (200 keyframes) into DIR/street_bag and '
+                        'replay it against its ground truth')
     parser.add_argument('--out', required=True, type=Path, metavar='DIR',
                         help='output folder (created; outputs in it are replaced)')
     parser.add_argument('--params', type=Path, metavar='FILE.yaml', default=None,
@@ -178,9 +181,12 @@ def run(args: argparse.Namespace) -> int:
 
     config = build_config(args)
     intrinsics = _parse_intrinsics(args.intrinsics)
+    bags, gt = list(args.bags), args.gt
+    if not bags:
+        bags, gt = _default_street(args.out, gt, quiet=args.quiet)
     bar = ProgressBar(sys.stderr) if not args.quiet and sys.stderr.isatty() else None
     try:
-        report = replay(args.bags, args.out, config, gt=args.gt, plot=args.plot,
+        report = replay(bags, args.out, config, gt=gt, plot=args.plot,
                         progress=bar, intrinsics=intrinsics, align=args.align)
     finally:
         if bar is not None:
@@ -188,6 +194,27 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(format_summary(report))
     return 0
+
+
+def _default_street(out: Path, gt: Path | None, *, quiet: bool) -> tuple[list[Path], Path]:
+    """Simulate the embedded default (street, 200 keyframes, seed 0) into ``out/street_bag``.
+
+    Returns:
+        The bag list and the ground truth to use.
+
+    Raises:
+        PmbaError: If the bag cannot be written.
+    """
+    from pmba_ros.sim.bag import write_sequence_bag
+    from pmba_ros.sim.sequence import simulate_sequence
+
+    bag = out / 'street_bag'
+    info = write_sequence_bag(simulate_sequence('street', n_keyframes=200, seed=0), bag,
+                              overwrite=True)
+    if not quiet:
+        print(f'no BAG given: simulated the default street ({info.n_keyframes} keyframes, '
+              f'{info.duration_s:.1f} s) into {bag}')
+    return [bag], gt if gt is not None else (info.groundtruth_tum or bag / 'groundtruth.tum')
 
 
 def format_summary(report: ReplayReport) -> str:

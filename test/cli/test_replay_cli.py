@@ -180,3 +180,16 @@ def test_console_scripts_run_as_subprocesses(tmp_path: Path) -> None:
                            str(tmp_path / 'o')], capture_output=True, text=True, check=False)
     assert done.returncode == 1
     assert done.stderr.strip() == f'error: {tmp_path / "missing.mcap"}: no such bag'
+
+
+@pytest.mark.usefixtures('stub')
+def test_replay_without_bag_runs_the_default_street(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """No BAG: the default street is simulated into DIR/street_bag and evaluated."""
+    out = tmp_path / 'demo'
+    assert main(['replay', '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'simulated the default street (200 keyframes' in text
+    assert 'ATE rmse (m)' in text
+    assert (out / 'street_bag' / 'groundtruth.tum').exists()
+    assert json.loads((out / 'report.json').read_text())['keyframes_in'] == 200
