@@ -124,3 +124,37 @@ def linearization_frames(R_wc: FloatArray, features: ParallaxFeatures,
     consistent = diff > 0.0
     return LinearizationFrames(alpha, Q, np.sin(np.clip(diff, 0.0, np.pi)),
                                np.sin(features.theta), consistent)
+
+
+def orient_anchors(R_wc: FloatArray, features: ParallaxFeatures, d_ma: FloatArray,
+                   bearing_assoc: FloatArray) -> tuple[ParallaxFeatures, BoolArray]:
+    """Swap main and associate anchors where only the swapped order gives a valid triangle.
+
+    A feature needs theta < alpha (pmba.md §1.1). For a feature nearly on the line of motion,
+    alpha is close to 0 with one anchor order and close to pi with the other, so a noisy
+    theta-bar can put the point "behind" (g <= 0) with the first order only. Swapping keeps
+    theta-bar, makes n-bar the associate's bearing and replaces alpha by the angle at the
+    other end of the baseline.
+
+    Args:
+        R_wc: Rotations, shape (M, 3, 3).
+        features: Features from rotations (n = v_m).
+        d_ma: xi(P_m - P_a) of every feature, shape (N, 3).
+        bearing_assoc: The associate anchor's measured bearing v_a, shape (N, 3).
+
+    Returns:
+        The features with swapped anchors where needed, and the swapped mask (N,).
+
+    References:
+        pmba.md §3.3 ("inconsistent triangle at init: pick another EG anchor pair").
+    """
+    u_m = np.einsum('nij,nj->ni', R_wc[features.main_idx], features.n)
+    u_a = np.einsum('nij,nj->ni', R_wc[features.assoc_idx], bearing_assoc)
+    alpha_m = np.arccos(np.clip(np.sum(d_ma * u_m, axis=1), -1.0, 1.0))
+    alpha_a = np.arccos(np.clip(np.sum(-d_ma * u_a, axis=1), -1.0, 1.0))
+    theta = features.theta
+    swap = (alpha_m <= theta) & (alpha_a - theta > alpha_m - theta)
+    main_idx = np.where(swap, features.assoc_idx, features.main_idx)
+    assoc_idx = np.where(swap, features.main_idx, features.assoc_idx)
+    n = np.where(swap[:, None], bearing_assoc, features.n)
+    return ParallaxFeatures(theta.copy(), n, main_idx, assoc_idx), swap

@@ -52,7 +52,7 @@ class LinearRays:
 
     def evaluate(self, centers_w: FloatArray) -> FloatArray:
         """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3)."""
-        return np.einsum('ksij,ksj->ki', self.coeff, centers_w[self.slots])
+        return np.matmul(self.coeff, centers_w[self.slots][..., None]).sum(axis=1)[..., 0]
 
 
 def linear_rays(R_wc: FloatArray, features: ParallaxFeatures, frames: LinearizationFrames,
@@ -100,22 +100,22 @@ def accumulate_normal_matrix(blocks: FloatArray, slots: IntArray, n_cams: int,
     Returns:
         The normal matrix over all camera positions (duplicates of a camera are summed).
     """
-    K = slots.shape[0]
+    K, S, R, _ = blocks.shape
     w = np.ones(K) if weights is None else weights
-    Gw = blocks * w[:, None, None, None]
-    H_blocks = np.einsum('ksri,ktrj->kstij', Gw, blocks)  # (K, S, S, 3, 3)
+    # A_k = [G_k1 ... G_kS] (R x 3S); H_k = A_k^T w_k A_k, scattered block by block.
+    A = blocks.transpose(0, 2, 1, 3).reshape(K, R, 3 * S)
+    H_k = np.matmul(A.transpose(0, 2, 1) * w[:, None, None], A)  # (K, 3S, 3S)
     n = 3 * n_cams
-    rows = 3 * slots[:, :, None, None, None] + np.arange(3)[None, None, None, :, None]
-    cols = 3 * slots[:, None, :, None, None] + np.arange(3)[None, None, None, None, :]
-    idx = np.broadcast_to(rows * n, H_blocks.shape) + np.broadcast_to(cols, H_blocks.shape)
-    return np.bincount(idx.ravel(), weights=H_blocks.ravel(), minlength=n * n).reshape(n, n)
+    idx = (3 * slots[:, :, None] + np.arange(3)[None, None, :]).reshape(K, 3 * S)
+    flat = idx[:, :, None] * n + idx[:, None, :]
+    return np.bincount(flat.ravel(), weights=H_k.ravel(), minlength=n * n).reshape(n, n)
 
 
 def accumulate_gradient(blocks: FloatArray, slots: IntArray, n_cams: int,
                         residuals: FloatArray, weights: FloatArray | None = None) -> FloatArray:
     """Return sum_k sum_s G_ks^T w_k e_k as a (3M,) vector (blocks (K,S,R,3), e (K,R))."""
     w = np.ones(slots.shape[0]) if weights is None else weights
-    g = np.einsum('ksri,kr->ksi', blocks, residuals * w[:, None])
+    g = np.matmul((residuals * w[:, None])[:, None, None, :], blocks)[:, :, 0, :]  # (K,S,3)
     idx = 3 * slots[:, :, None] + np.arange(3)[None, None, :]
     return np.bincount(idx.ravel(), weights=g.ravel(), minlength=3 * n_cams)
 
@@ -166,7 +166,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     w = np.ones(K) if weights is None else np.asarray(weights, dtype=float)
     cams = np.ones(n_cams, dtype=bool) if cameras is None else np.asarray(cameras, dtype=bool)
     # Rows [r_k]x C_slot (3 rows per observation), eq. (14).
-    B = np.einsum('kab,ksbj->ksaj', so3.hat(lin.rays), lin.coeff)
+    B = np.matmul(so3.hat(lin.rays)[:, None], lin.coeff)
     H = accumulate_normal_matrix(B, lin.slots, n_cams, w)
     # Cheirality rows h_k = r_k^T C_slot: r_k . N-bar_k(P) >= 0.
     # DEVIATION(eq. 14): the printed z(R_i N) >= 0 is read as "predicted ray on the measured

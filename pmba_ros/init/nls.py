@@ -88,7 +88,7 @@ def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tu
 
 def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: float,
               weights: FloatArray | None = None, cameras: BoolArray | None = None,
-              max_iterations: int = 50, function_tolerance: float = 1e-9,
+              max_iterations: int = 50, function_tolerance: float = 1e-5,
               step_tolerance: float = 1e-10) -> NlsResult:
     """Refine camera centres by eq. (13) with a Cauchy loss (LM, dense normal equations).
 
@@ -131,7 +131,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         norm = np.maximum(np.linalg.norm(N, axis=1), 1e-300)
         Nh = N / norm[:, None]
         J_N = (eye3 - Nh[:, :, None] * Nh[:, None, :]) / norm[:, None, None]
-        G = np.einsum('kab,ksbj->ksaj', J_N, lin.coeff)  # de/dP_slot
+        G = np.matmul(J_N[:, None], lin.coeff)  # de/dP_slot, (K, 3, 3, 3)
         _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
         wk = w * drho  # IRLS weights (first-order robust scaling)
         H = accumulate_normal_matrix(G, lin.slots, M, wk)[np.ix_(fidx, fidx)]
@@ -155,6 +155,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         if not accepted:
             converged = True
             break
+        logger.debug("NLS it %d cost %.6e lam %.1e", it, new_cost, lam)
         rel_dec = (cost - new_cost) / max(cost, 1e-300)
         rel_step = float(np.linalg.norm(step)) / max(float(np.linalg.norm(P[cams])), 1e-300)
         P, cost = P_new, new_cost

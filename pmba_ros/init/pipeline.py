@@ -65,8 +65,8 @@ class InitOptions:
         ransac_method: 'usac_accurate' (default; local optimization refines the essential
             matrix on its inliers), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's
             classic RANSAC, whose minimal-sample model is several times less accurate).
-        min_pair_parallax_px: Minimum median rotation-compensated parallax of a pair's inliers
-            (px); pairs below it have no usable baseline (pure rotation).
+        min_pair_parallax_px: Minimum median parallax (px) that the best pure rotation leaves
+            on a pair's inliers; pairs below it have no usable baseline (pure rotation).
         max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
             chained along the maximum spanning tree by more than this.
         max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
@@ -74,6 +74,8 @@ class InitOptions:
         cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
         nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
         nls_max_iterations: LM iteration limit of the NLS.
+        theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
+            divided by the main anchor's focal length) start the BA at infinity (theta = 0).
         solve_options: Options of the final (and only) BA; PMBA with Dogleg.
     """
 
@@ -82,12 +84,13 @@ class InitOptions:
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
     ransac_method: str = 'usac_accurate'
-    min_pair_parallax_px: float = 1.0
+    min_pair_parallax_px: float = 2.0
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0
     cls_max_penalty_iterations: int = 10
     nls_cauchy_px: float = 3.0
     nls_max_iterations: int = 50
+    theta_floor_px: float = 3.0
     solve_options: SolveOptions = field(default_factory=_default_solve_options)
 
     def __post_init__(self) -> None:
@@ -106,8 +109,8 @@ class InitOptions:
             if not getattr(self, name) > 0.0:
                 msg = f'`{name}` must be positive'
                 raise ValueError(msg)
-        if self.min_pair_parallax_px < 0.0:
-            msg = '`min_pair_parallax_px` must be >= 0'
+        if self.min_pair_parallax_px < 0.0 or self.theta_floor_px < 0.0:
+            msg = '`min_pair_parallax_px` and `theta_floor_px` must be >= 0'
             raise ValueError(msg)
         if self.solve_options.param.value != 'pmba':
             msg = '`solve_options.param` must be pmba (the features are parallax features)'
@@ -371,14 +374,24 @@ def _features(problem: BAProblem, R_wc: FloatArray, pairs: two_view.EGPairs, d_a
         raise InitError(msg)
     feats = conversions.features_from_rotations(sub, sub.R_wc, main_idx, assoc_idx)
     d_ma = anchors.anchor_directions(sub.n_cams, pa, pb, dd, main_idx, assoc_idx)
+    feats, swapped = _orient(sub, feats, d_ma)
+    d_ma = np.where(swapped[:, None], -d_ma, d_ma)
     frames = anchors.linearization_frames(sub.R_wc, feats, d_ma)
     entries = {'features_used': sub.n_feats, 'observations_used': sub.n_obs,
                'features_without_eg_anchor_pair': n_no_anchor,
                'features_single_observation_in_component': int(n_single),
+               'features_anchors_swapped': int(np.sum(swapped)),
                'features_inconsistent_triangle': int(np.sum(~frames.consistent)),
                'cameras_without_features': np.flatnonzero(comp & ~cameras).tolist(),
                'theta_deg': _angle_stats(np.rad2deg(feats.theta))}
     return sub, cam_index, feats, frames, entries
+
+
+def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
+            ) -> tuple[ParallaxFeatures, BoolArray]:
+    """Swap anchors of features whose triangle is only valid the other way round."""
+    v_a = problem.obs.bearings_c[conversions.anchor_observations(problem, feats.assoc_idx)]
+    return anchors.orient_anchors(problem.R_wc, feats, d_ma, v_a)
 
 
 def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
@@ -445,8 +458,24 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                     'iterations': res_nls.iterations, 'converged': res_nls.converged})
 
     init_problem = sub.with_poses(sub.R_wc, res_nls.centers_w)
+    # With positions known, alpha is recomputed by the BA: re-check the anchor order.
+    P = res_nls.centers_w
+    d_ma = P[feats.main_idx] - P[feats.assoc_idx]
+    d_ma /= np.maximum(np.linalg.norm(d_ma, axis=1, keepdims=True), 1e-300)
+    feats, swapped = _orient(init_problem, feats, d_ma)
+    report_swaps = int(np.sum(swapped))
+    # DEVIATION(Remark 5): theta-bar below theta_floor_px / f is noise (the maximum over the
+    # EG pairs of noise-level parallaxes); such features start at infinity, theta = 0, a
+    # valid PMBA state (pmba.md §1.3, §3.3). Near-collinear features otherwise start at a
+    # wrong finite depth, between the cameras, and the BA can stall there.
+    f_main = np.sqrt(sub.intrinsics.fx * sub.intrinsics.fy)[feats.main_idx]
+    low = feats.theta < options.theta_floor_px / f_main
+    feats = ParallaxFeatures(np.where(low, 0.0, feats.theta), feats.n, feats.main_idx,
+                             feats.assoc_idx)
     result = solve(init_problem, options.solve_options, feats)
-    st.done('ba', {'initial_cost': result.initial_cost, 'final_cost': result.final_cost,
+    st.done('ba', {'anchors_swapped_before_ba': report_swaps,
+                   'features_started_at_infinity': int(np.sum(low)),
+                   'initial_cost': result.initial_cost, 'final_cost': result.final_cost,
                    'initial_rms_px': result.initial_rms_px,
                    'final_rms_px': result.final_rms_px, 'iterations': result.iterations,
                    'linear_solves': result.linear_solves, 'converged': result.converged,

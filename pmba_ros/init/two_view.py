@@ -69,7 +69,7 @@ class EGPairs:
         offsets: CSR offsets (P+1,) into ``obs_a``/``obs_b`` (inlier correspondences only).
         obs_a: Inlier observation indices in cam_a, shape (C,).
         obs_b: Inlier observation indices in cam_b, shape (C,).
-        parallax_px: Median rotation-compensated parallax of the inliers (px), shape (P,).
+        parallax_px: Median parallax of the inliers left by the best pure rotation (px), (P,).
     """
 
     cam_a: IntArray
@@ -195,6 +195,23 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
     return lam1, lam2
 
 
+def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
+    """Return the median angle (rad) left between b2 and R b1 by the best pure rotation R.
+
+    R is the orthogonal Procrustes fit (b2 ~ R b1). For a pair without baseline (pure
+    rotation) the result is at noise level, whatever the essential matrix says.
+
+    Args:
+        b1: Unit bearings in camera 1, shape (C, 3).
+        b2: Unit bearings in camera 2, shape (C, 3).
+    """
+    U, _, Vt = np.linalg.svd(b2.T @ b1)
+    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    cosang = np.clip(np.sum((b1 @ R.T) * b2, axis=1), -1.0, 1.0)
+    return float(np.median(np.arccos(cosang)))
+
+
 def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
                       prob: float = 0.999, method: int = cv2.RANSAC,
                       ) -> tuple[FloatArray, FloatArray, BoolArray] | None:
@@ -238,8 +255,9 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
     A pair is kept if OpenCV returns a model with at least ``min_inliers`` cheirality inliers and
-    the median rotation-compensated parallax of the inliers is at least ``min_parallax_px``
-    (otherwise its translation direction is undetermined, e.g. pure rotation).
+    the median parallax that the best pure rotation leaves on its inliers
+    (:func:`rotation_only_parallax`) is at least ``min_parallax_px``; otherwise the pair has no
+    usable baseline (pure rotation) and its translation direction is undetermined.
 
     Args:
         bearings_c: Unit bearings of all observations (camera frame), shape (K, 3).
@@ -247,7 +265,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         corr: Candidate pairs and correspondences.
         threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         min_inliers: Minimum number of cheirality inliers.
-        min_parallax_px: Minimum median parallax (px) after removing the rotation.
+        min_parallax_px: Minimum median parallax (px) left by the best pure rotation.
         prob: RANSAC confidence.
         method: OpenCV robust method.
 
@@ -283,8 +301,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         if int(inl.sum()) < min_inliers:
             rejected['too_few_inliers'] += 1
             continue
-        cosang = np.clip(np.sum((b1[inl] @ R.T) * b2[inl], axis=1), -1.0, 1.0)
-        par_px = float(np.median(np.arccos(cosang))) * f
+        par_px = rotation_only_parallax(b1[inl], b2[inl]) * f
         if par_px < min_parallax_px:
             rejected['low_parallax'] += 1
             continue
