@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from pmba_ros.io.bags import jazzy_typestore, open_writer
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from pmba_ros._typing import FloatArray
+    from pmba_ros._typing import FloatArray, IntArray
     from pmba_ros.backend.types import CameraModel, TrackFrame
 
 logger = logging.getLogger(__name__)
@@ -58,16 +58,39 @@ GT_FILENAME = 'groundtruth.tum'
 
 
 class SequenceLike(Protocol):
-    """What :func:`write_sequence_bag` reads from a simulated sequence."""
+    """What :func:`write_sequence_bag` reads from a simulated sequence (read-only)."""
 
-    stamps_ns: Any
-    R_wc_gt: FloatArray | None
-    centers_gt: FloatArray | None
-    R_wc_odom: FloatArray
-    centers_odom: FloatArray
-    frames: Sequence[TrackFrame]
-    camera: CameraModel
-    points_w: FloatArray
+    @property
+    def stamps_ns(self) -> IntArray:
+        """Keyframe stamps, shape (F,), ns."""
+
+    @property
+    def R_wc_gt(self) -> FloatArray | None:
+        """True camera -> world rotations, shape (F, 3, 3), or None."""
+
+    @property
+    def centers_gt(self) -> FloatArray | None:
+        """True camera centres, shape (F, 3), or None."""
+
+    @property
+    def R_wc_odom(self) -> FloatArray:
+        """Front-end rotations, shape (F, 3, 3)."""
+
+    @property
+    def centers_odom(self) -> FloatArray:
+        """Front-end camera centres, shape (F, 3)."""
+
+    @property
+    def frames(self) -> Sequence[TrackFrame]:
+        """One track frame per keyframe."""
+
+    @property
+    def camera(self) -> CameraModel:
+        """The camera model."""
+
+    @property
+    def points_w(self) -> FloatArray:
+        """True points (row j = feature id j), shape (N, 3)."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +152,7 @@ def groundtruth_path(bag: Path | str) -> Path:
     return bag / GT_FILENAME
 
 
-def sequence_trajectory(stamps_ns: Any, R_wc: FloatArray, centers: FloatArray) -> Trajectory:
+def sequence_trajectory(stamps_ns: IntArray, R_wc: FloatArray, centers: FloatArray) -> Trajectory:
     """Return camera poses as an eval :class:`Trajectory` (stamps in seconds)."""
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     return Trajectory(stamps.astype(np.float64) * 1e-9, np.asarray(centers, dtype=np.float64),
