@@ -307,8 +307,9 @@ class _Run:
     """State of one replay (feeds the logic, writes its outputs)."""
 
     def __init__(self, logic: Any, writer: Any, report: ReplayReport,
-                 progress: ProgressCallback | None, total: int) -> None:
+                 progress: ProgressCallback | None, total: int, keyframe_kind: str) -> None:
         self.logic = logic
+        self.keyframe_kind = keyframe_kind
         self.writer = writer
         self.report = report
         self.progress = progress
@@ -325,7 +326,7 @@ class _Run:
         if self.first_stamp is None:
             self.first_stamp = stamp
         self.last_stamp = max(self.last_stamp, stamp)
-        if kind == 'keyframe':
+        if kind == self.keyframe_kind:
             report.keyframes_in += 1
         handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
                    'keyframe': self.logic.on_keyframe}[kind]
@@ -441,7 +442,8 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
     run: _Run | None = None
     try:
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
-            run = _Run(logic, writer, report, progress, sum(counts.values()))
+            keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
+            run = _Run(logic, writer, report, progress, sum(counts.values()), keyframe_kind)
             stream = iter_messages(bag_paths, topics=list(kinds))
             for stamp, kind, message in stamp_ordered(stream, kinds):
                 run.feed(stamp, kind, message)
