@@ -213,8 +213,8 @@ def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
 
 
 def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
-                      prob: float = 0.999, method: int = cv2.RANSAC,
-                      ) -> tuple[FloatArray, FloatArray, BoolArray] | None:
+                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      ) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray] | None:
     """Estimate one pair's relative pose with OpenCV's 5-point RANSAC and the cheirality check.
 
     Args:
@@ -225,7 +225,8 @@ def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
         method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
 
     Returns:
-        (R_cv (3, 3), t_cv (3,), inlier mask (C,)) or None if OpenCV finds no model.
+        (R_cv (3, 3), t_cv (3,), cheirality inlier mask (C,), RANSAC inlier mask (C,)), or
+        None if OpenCV finds no model.
 
     References:
         PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
@@ -243,14 +244,13 @@ def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
         return None
     E = E[:3]
     _, R, t, mask2 = cv2.recoverPose(E, x1, x2, eye, mask=mask.copy())
-    inl = mask2.ravel() > 0
-    return R.astype(float), t.ravel().astype(float), inl
+    return R.astype(float), t.ravel().astype(float), mask2.ravel() > 0, mask.ravel() > 0
 
 
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
-                      prob: float = 0.999, method: int = cv2.RANSAC,
+                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
@@ -295,15 +295,18 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         if out is None:
             rejected['ransac_failed'] += 1
             continue
-        R, t, inl_front = out
+        R, t, inl_front, ransac_front = out
+        # Parallax on the RANSAC inliers, before cheirality: without baseline the
+        # cheirality test of an arbitrary t drops points at random.
+        par_px = (rotation_only_parallax(b1[front][ransac_front], b2[front][ransac_front]) * f
+                  if int(ransac_front.sum()) >= 5 else 0.0)
+        if par_px < min_parallax_px:
+            rejected['low_parallax'] += 1
+            continue
         inl = np.zeros(front.shape[0], dtype=bool)
         inl[np.flatnonzero(front)[inl_front]] = True
         if int(inl.sum()) < min_inliers:
             rejected['too_few_inliers'] += 1
-            continue
-        par_px = rotation_only_parallax(b1[inl], b2[inl]) * f
-        if par_px < min_parallax_px:
-            rejected['low_parallax'] += 1
             continue
         keep_idx.append(p)
         Rs.append(R)

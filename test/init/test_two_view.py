@@ -1,0 +1,129 @@
+"""Tests of pmba_ros.init.two_view: pair correspondences, 5-point pairs, translations."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.init import two_view
+from test.init.scenes import street_scene
+
+
+def _two_cameras(rng: np.random.Generator, n: int = 80, noise: float = 0.0,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Bearings of n points in two cameras; returns b1, b2, R_cv, t_cv (unit)."""
+    R1 = so3.exp(rng.normal(scale=0.1, size=3))
+    R2 = so3.exp(rng.normal(scale=0.1, size=3))
+    P1, P2 = np.zeros(3), np.array([1.0, 0.2, 0.3])
+    X = rng.uniform([-4, -3, 6], [4, 3, 20], size=(n, 3))
+    b1 = (X - P1) @ R1
+    b2 = (X - P2) @ R2
+    b1 = b1 / np.linalg.norm(b1, axis=1, keepdims=True)
+    b2 = b2 / np.linalg.norm(b2, axis=1, keepdims=True)
+    if noise:
+        b1 = b1 + rng.normal(scale=noise, size=b1.shape)
+        b2 = b2 + rng.normal(scale=noise, size=b2.shape)
+        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+        b2 /= np.linalg.norm(b2, axis=1, keepdims=True)
+    R_cv = R2.T @ R1
+    t_cv = R2.T @ (P1 - P2)
+    return b1, b2, R_cv, t_cv / np.linalg.norm(t_cv)
+
+
+def test_pair_correspondences_equal_brute_force_join(rng: np.random.Generator) -> None:
+    """Vectorized joins give every common feature of every pair with enough matches."""
+    n_cams, n_feats = 7, 60
+    seen = rng.random((n_feats, n_cams)) < 0.45
+    feat, cam = np.nonzero(seen)
+    perm = rng.permutation(feat.shape[0])
+    feat, cam = feat[perm].astype(np.int64), cam[perm].astype(np.int64)
+    corr = two_view.pair_correspondences(cam, feat, n_cams, min_matches=10)
+    expected = {}
+    for a, b in itertools.combinations(range(n_cams), 2):
+        common = set(np.flatnonzero(seen[:, a] & seen[:, b]).tolist())
+        if len(common) >= 10:
+            expected[(a, b)] = common
+    got = {}
+    for p in range(corr.n_pairs):
+        sl = slice(corr.offsets[p], corr.offsets[p + 1])
+        a, b = int(corr.cam_a[p]), int(corr.cam_b[p])
+        assert np.all(cam[corr.obs_a[sl]] == a) and np.all(cam[corr.obs_b[sl]] == b)
+        assert np.array_equal(feat[corr.obs_a[sl]], feat[corr.obs_b[sl]])
+        got[(a, b)] = set(feat[corr.obs_a[sl]].tolist())
+    assert got == expected
+    counts = two_view.covisibility_counts(cam, feat, n_cams)
+    for (a, b), common in expected.items():
+        assert counts[a, b] == len(common)
+
+
+def test_relative_pose_5pt_recovers_noise_free_pose(rng: np.random.Generator) -> None:
+    """OpenCV's 5-point RANSAC returns R_cv = R_2^T R_1 and t_cv ~ R_2^T (P_1 - P_2)."""
+    b1, b2, R_cv, t_cv = _two_cameras(rng)
+    out = two_view.relative_pose_5pt(b1, b2, 1e-4)
+    assert out is not None
+    R, t, inl, ransac_inl = out
+    assert np.rad2deg(so3.angle(R, R_cv)) < 1e-3
+    assert np.dot(t, t_cv) > 1 - 1e-9
+    assert inl.all() and ransac_inl.all()
+
+
+def test_cheirality_depths_are_positive_in_front_and_flip_with_t(
+        rng: np.random.Generator) -> None:
+    """lambda1 R b1 + t = lambda2 b2 has positive depths for the true t, negative for -t."""
+    b1, b2, R_cv, t_cv = _two_cameras(rng)
+    lam1, lam2 = two_view.cheirality_depths(R_cv, t_cv, b1, b2)
+    assert np.all(lam1 > 0) and np.all(lam2 > 0)
+    np.testing.assert_allclose(lam1[:, None] * (b1 @ R_cv.T) + t_cv, lam2[:, None] * b2,
+                               atol=1e-9)
+    lam1n, lam2n = two_view.cheirality_depths(R_cv, -t_cv, b1, b2)
+    assert np.all(lam1n < 0) and np.all(lam2n < 0)
+
+
+def test_rotation_only_parallax_is_noise_level_for_pure_rotation(
+        rng: np.random.Generator) -> None:
+    """Pure rotation leaves no parallax after the Procrustes rotation; a baseline does."""
+    b1, b2, _, _ = _two_cameras(rng)
+    R = so3.exp(np.array([0.1, -0.2, 0.05]))
+    assert two_view.rotation_only_parallax(b1, b1 @ R.T) < 1e-12
+    assert two_view.rotation_only_parallax(b1, b2) > 1e-3
+
+
+def test_refine_translations_recovers_direction_and_sign() -> None:
+    """With true rotations, the smallest eigenvector gives xi(P_a - P_b) with the right sign."""
+    scene = street_scene(3, n_cams=6, n_points=200, noise_px=0.0, translation_jitter_m=0.3)
+    p = scene.gt
+    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
+                                          corr, min_parallax_px=0.0)
+    assert pairs.n_pairs == corr.n_pairs
+    pairs, d_ab = two_view.refine_translations(pairs, p.obs.bearings_c, p.R_wc)
+    d_true = p.centers_w[pairs.cam_a] - p.centers_w[pairs.cam_b]
+    d_true /= np.linalg.norm(d_true, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.sum(d_ab * d_true, axis=1), 1.0, atol=1e-8)
+
+
+def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
+    """Pairs of a rotating camera without baseline are rejected with reason low_parallax."""
+    p = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0).gt
+    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    assert corr.n_pairs > 0
+    pairs, rejected = two_view.estimate_eg_pairs(
+        p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr, min_parallax_px=2.0)
+    assert pairs.n_pairs == 0
+    assert rejected['low_parallax'] == corr.n_pairs, rejected
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> None:
+    """USAC_ACCURATE relative rotations are within a few hundredths of a degree."""
+    p = street_scene(seed, n_cams=8, n_points=300, noise_px=0.5).gt
+    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
+    pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
+                                          corr)
+    R_true = np.swapaxes(p.R_wc[pairs.cam_b], 1, 2) @ p.R_wc[pairs.cam_a]
+    err = np.rad2deg(so3.angle(R_true, pairs.R_rel))
+    assert pairs.n_pairs >= 20
+    assert err.mean() < 0.1
