@@ -1,0 +1,249 @@
+"""The back-end configuration: what the node's parameters (and ``--params FILE.yaml``) become.
+
+:class:`BackendConfig` is a frozen dataclass with validated fields; :meth:`BackendConfig.
+from_params` builds it from a flat parameter dict (the node's declared parameters) or from a
+ROS 2 parameter file's ``{node_name: {ros__parameters: {...}}}`` nesting, and
+:meth:`BackendConfig.from_yaml` reads such a file. ``config/pmba.yaml`` holds the defaults.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
+
+MODES = ('sliding', 'global')
+"""Estimation modes: sliding window (last K keyframes free) or global (all free)."""
+
+KEYFRAME_SOURCES = ('keyframe_topic', 'tracks')
+"""Where keyframes come from: front-end keyframe poses, or every tracks message."""
+
+QOS_RELIABILITIES = ('reliable', 'best_effort')
+LOSSES = ('none', 'huber', 'cauchy')
+
+NODE_NAME = 'pmba_node'
+"""Node name; ``config/pmba.yaml`` nests its parameters under it."""
+
+_IGNORED_PARAMS = ('use_sim_time', 'start_type_description_service')
+
+
+@dataclass(frozen=True, slots=True)
+class BackendConfig:
+    """Back-end and node configuration (ROS parameter names = field names).
+
+    Attributes:
+        mode: 'sliding' (the last ``window_size`` keyframes free, older ones fixed) or
+            'global' (every keyframe free at every refine).
+        window_size: Free keyframes K in sliding mode (>= 2).
+        max_fixed_keyframes: Older fixed keyframes added to a sliding problem (the ones that
+            co-observe most window features; >= 2 of them fix the gauge).
+        fixed_lookback: Keyframes before the window whose observations are kept for that.
+        init_batch_size: Keyframes collected before the global initialization (>= 3).
+        init_min_parallax_px: Rotation-compensated median parallax (px) between the first and
+            a later keyframe of the batch required to try the initialization.
+        init_retry_every: After a failed attempt, retry after this many new keyframes.
+        init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
+        init_max_iterations: Iteration budget of the initialization's BA.
+        min_observations: Keyframes with fewer observations are not optimized (their pose
+            comes from the front-end through the map <- odom similarity).
+        feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
+        num_cams: Front-end camera count (VINS ``NUM_OF_CAM``).
+        camera_id: Camera whose observations are used (monocular back-end).
+        keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
+        keyframe_source: 'keyframe_topic' or 'tracks' (every tracks message is a keyframe
+            without front-end pose).
+        features_topic: Input tracks topic (relative, remappable).
+        keyframe_topic: Input keyframe pose topic.
+        camera_info_topic: Input CameraInfo topic.
+        path_topic: Output nav_msgs/Path of optimized keyframes.
+        keyframes_topic: Output geometry_msgs/PoseArray of optimized keyframes.
+        landmarks_topic: Output sensor_msgs/PointCloud2 (xyz float32, transient local).
+        odometry_topic: Output nav_msgs/Odometry of the newest keyframe.
+        map_frame: Frame of all outputs.
+        odom_frame: Front-end frame (child of map_frame in TF); '' = the keyframe header's.
+        base_frame: Odometry child frame; '' = the keyframe's child_frame_id (or 'base_link').
+        publish_tf: Publish map -> odom on /tf.
+        transform_tolerance_s: Future-dating of the map -> odom stamp, s.
+        qos_reliability: Subscription reliability ('reliable' or 'best_effort').
+        qos_depth: Subscription / publisher history depth.
+        queue_size: Bounded queue between the callbacks and the solver thread.
+        buffer_size: Track frames / keyframes buffered for association.
+        stamp_tolerance_s: Largest stamp difference between a keyframe and its tracks, s.
+        association_timeout_s: A keyframe whose tracks did not arrive by then (input stamps)
+            is taken without tracks.
+        max_iterations: Dogleg iteration budget per refine.
+        max_time_s: Wall-time budget per refine, s (ignored if ``deterministic``).
+        loss: Robust loss of the refines ('huber', 'cauchy' or 'none').
+        loss_scale_px: Robust loss scale, px.
+        covariance_position_m2: Odometry position variance floor, m^2 (> 0).
+        covariance_rotation_rad2: Odometry rotation variance floor, rad^2 (> 0).
+        max_landmarks: Most retired landmarks kept for the map (oldest dropped).
+        fallback_focal_px: Focal length used for loss scaling before a CameraInfo arrives
+            (tracks with normalized coordinates do not need one).
+        deterministic: No time budgets and no wall-clock values in the outputs (replay).
+        seed: Seed of the initialization's RANSAC.
+        save_directory: Where the node's ~/save service writes (TUM trajectories, PLY map).
+    """
+
+    mode: str = 'sliding'
+    window_size: int = 20
+    max_fixed_keyframes: int = 16
+    fixed_lookback: int = 20
+    init_batch_size: int = 20
+    init_min_parallax_px: float = 3.0
+    init_retry_every: int = 5
+    init_max_batch: int = 60
+    init_max_iterations: int = 100
+    min_observations: int = 15
+    feature_layout: str = 'vins_fusion'
+    num_cams: int = 1
+    camera_id: int = 0
+    keyframe_type: str = 'odometry'
+    keyframe_source: str = 'keyframe_topic'
+    features_topic: str = 'features'
+    keyframe_topic: str = 'keyframe_pose'
+    camera_info_topic: str = 'camera_info'
+    path_topic: str = 'pmba/path'
+    keyframes_topic: str = 'pmba/keyframes'
+    landmarks_topic: str = 'pmba/landmarks'
+    odometry_topic: str = 'pmba/odometry'
+    map_frame: str = 'map'
+    odom_frame: str = ''
+    base_frame: str = ''
+    publish_tf: bool = True
+    transform_tolerance_s: float = 0.1
+    qos_reliability: str = 'reliable'
+    qos_depth: int = 100
+    queue_size: int = 200
+    buffer_size: int = 200
+    stamp_tolerance_s: float = 0.005
+    association_timeout_s: float = 1.0
+    max_iterations: int = 2
+    max_time_s: float = 0.05
+    loss: str = 'cauchy'
+    loss_scale_px: float = 2.0
+    covariance_position_m2: float = 1e-3
+    covariance_rotation_rad2: float = 1e-4
+    max_landmarks: int = 200_000
+    fallback_focal_px: float = 500.0
+    deterministic: bool = False
+    seed: int = 0
+    save_directory: str = 'pmba_output'
+
+    def __post_init__(self) -> None:
+        """Validate every field.
+
+        Raises:
+            ValueError: With the parameter name and the accepted values.
+        """
+        choices = {'mode': MODES, 'feature_layout': LAYOUTS, 'keyframe_type': KEYFRAME_KINDS,
+                   'keyframe_source': KEYFRAME_SOURCES, 'qos_reliability': QOS_RELIABILITIES,
+                   'loss': LOSSES}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                msg = f'parameter {name}={getattr(self, name)!r}: expected one of {allowed}'
+                raise ValueError(msg)
+        minimum = {'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0,
+                   'init_batch_size': 3, 'init_retry_every': 1, 'init_max_iterations': 1,
+                   'min_observations': 5, 'num_cams': 1, 'camera_id': 0, 'qos_depth': 1,
+                   'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
+                   'max_landmarks': 0}
+        for name, low in minimum.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                msg = f'parameter {name}={value!r}: expected an integer >= {low}'
+                raise ValueError(msg)
+        if self.init_max_batch < self.init_batch_size:
+            msg = (f'parameter init_max_batch={self.init_max_batch} must be >= '
+                   f'init_batch_size={self.init_batch_size}')
+            raise ValueError(msg)
+        if self.camera_id >= self.num_cams:
+            msg = f'parameter camera_id={self.camera_id} must be < num_cams={self.num_cams}'
+            raise ValueError(msg)
+        positive = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
+                    'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s')
+        non_negative = ('init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s')
+        for name in positive + non_negative:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or \
+                    not math.isfinite(value) and name != 'max_time_s':
+                msg = f'parameter {name}={value!r}: expected a finite number'
+                raise ValueError(msg)
+            if value < 0 or (name in positive and value == 0):
+                kind = '> 0' if name in positive else '>= 0'
+                msg = f'parameter {name}={value!r}: expected {kind}'
+                raise ValueError(msg)
+            object.__setattr__(self, name, float(value))
+        for name in ('features_topic', 'keyframe_topic', 'camera_info_topic', 'path_topic',
+                     'keyframes_topic', 'landmarks_topic', 'odometry_topic', 'map_frame',
+                     'save_directory'):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value:
+                msg = f'parameter {name}={value!r}: expected a non-empty string'
+                raise ValueError(msg)
+        for name in ('odom_frame', 'base_frame'):
+            if not isinstance(getattr(self, name), str):
+                msg = f'parameter {name}: expected a string'
+                raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+        for name in ('publish_tf', 'deterministic'):
+            if not isinstance(getattr(self, name), bool):
+                msg = f'parameter {name}={getattr(self, name)!r}: expected a bool'
+                raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> BackendConfig:
+        """Build a config from parameters; missing ones take their defaults.
+
+        Args:
+            params: Flat ``{name: value}`` (the node's parameters), or a parameter file's
+                ``{node_name: {'ros__parameters': {...}}}`` (``pmba_node`` or ``/**``).
+
+        Returns:
+            The validated config.
+
+        Raises:
+            ValueError: On unknown parameter names or invalid values.
+        """
+        flat = _unnest(params)
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(k for k in flat if k not in known and k not in _IGNORED_PARAMS
+                         and not k.startswith('qos_overrides.'))
+        if unknown:
+            msg = f'unknown parameter(s) {unknown}; known: {sorted(known)}'
+            raise ValueError(msg)
+        return cls(**{k: v for k, v in flat.items() if k in known})
+
+    @classmethod
+    def from_yaml(cls, path: str | os.PathLike[str]) -> BackendConfig:
+        """Read a ROS 2 parameter file (or a flat YAML mapping) into a config.
+
+        Raises:
+            ValueError: If the file is not a mapping, or on invalid parameters.
+            OSError: If the file cannot be read.
+        """
+        import yaml
+
+        with open(path, encoding='utf-8') as fh:
+            data = yaml.safe_load(fh)
+        if not isinstance(data, dict):
+            msg = f'{os.fspath(path)}: expected a YAML mapping of parameters'
+            raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+        return cls.from_params(data)
+
+    def to_params(self) -> dict[str, Any]:
+        """Return the flat parameter dict (the node declares these)."""
+        return asdict(self)
+
+
+def _unnest(params: dict[str, Any]) -> dict[str, Any]:
+    """Return the flat parameters of a possibly node-nested parameter mapping."""
+    for key in (NODE_NAME, f'/{NODE_NAME}', '/**'):
+        node = params.get(key)
+        if isinstance(node, dict) and isinstance(node.get('ros__parameters'), dict):
+            return dict(node['ros__parameters'])
+    if isinstance(params.get('ros__parameters'), dict):
+        return dict(params['ros__parameters'])
+    return dict(params)

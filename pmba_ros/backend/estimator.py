@@ -1,0 +1,389 @@
+"""The online estimator: collect -> global init -> refine each new keyframe (no ROS, no messages).
+
+State machine:
+
+``collecting``
+    Keyframes are stored until ``init_batch_size`` have arrived and the batch has parallax
+    (:func:`~pmba_ros.backend.window.rotation_compensated_parallax` between its first keyframe
+    and the latest one sharing >= 20 tracks, at least ``init_min_parallax_px``). Then
+    :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure (pure rotation, too
+    few pairs) moves to ``waiting_for_parallax`` and is retried every ``init_retry_every``
+    keyframes; the batch keeps at most ``init_max_batch`` keyframes (oldest dropped).
+``tracking``
+    The map is expressed in the front-end's odom frame at initialization (similarity fit of
+    the batch, so map -> odom starts at identity). Each new keyframe starts from the previous
+    keyframe's optimized pose composed with the front-end's relative motion, its translation
+    scaled by the current map <- odom similarity (constant velocity without front-end poses);
+    then a budgeted, robust Dogleg PMBA refines the window. ``sliding``: the last
+    ``window_size`` keyframes are free, plus up to ``max_fixed_keyframes`` fixed older
+    co-observers (two or more fix the gauge); features no free keyframe observes retire to the
+    landmark map. ``global``: every keyframe is free except the first (gauge root).
+
+Feature states between refines are world points; each problem re-derives parallax features
+from them (:func:`~pmba_ros.core.conversions.xyz_to_parallax`), and new features or points at
+infinity start from rotations only (PMBA Remark 5), so no triangulation is needed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.window import (
+    FeatureMap,
+    KeyframeObs,
+    KeyframeStatus,
+    KeyframeStore,
+    LandmarkStore,
+    Similarity,
+    estimate_similarity,
+    finite_rows,
+    gather_observations,
+    rotation_compensated_parallax,
+    select_fixed,
+)
+from pmba_ros.core import so3
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.conversions import xyz_to_parallax
+from pmba_ros.core.problem import BAProblem, make_problem, subset_features
+from pmba_ros.core.solve import SolveOptions, solve
+from pmba_ros.errors import InitError, PmbaError
+
+logger = logging.getLogger(__name__)
+
+STATES = ('collecting', 'waiting_for_parallax', 'tracking')
+_MIN_SHARED_FOR_PARALLAX = 20
+
+
+@dataclass
+class UpdateInfo:
+    """What one keyframe update did (for diagnostics and stats).
+
+    Attributes:
+        kind: 'collect', 'init', 'init_failed', 'refine', 'dead_reckoned' or 'dropped'.
+        keyframe: Index of the keyframe (-1 if it was dropped).
+        solve_ms: Solver wall time, ms (0 if no solve).
+        iterations: Solver iterations.
+        cost_before: Cost before the solve.
+        cost_after: Cost after the solve.
+        n_cams: Poses in the problem.
+        n_free: Free poses in the problem.
+        n_feats: Features in the problem.
+        n_obs: Observations in the problem.
+        message: Human-readable note (failure reason).
+    """
+
+    kind: str
+    keyframe: int = -1
+    solve_ms: float = 0.0
+    iterations: int = 0
+    cost_before: float = math.nan
+    cost_after: float = math.nan
+    n_cams: int = 0
+    n_free: int = 0
+    n_feats: int = 0
+    n_obs: int = 0
+    message: str = ''
+    dropped: dict[str, int] = field(default_factory=dict)
+
+
+class Estimator:
+    """Keyframe-by-keyframe PMBA estimator (see the module docstring)."""
+
+    def __init__(self, config: BackendConfig) -> None:
+        """Create an estimator in state ``collecting``."""
+        self.config = config
+        self.fx = self.fy = config.fallback_focal_px
+        self.cx = self.cy = 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every keyframe, feature and landmark."""
+        self.kf = KeyframeStore()
+        self.features = FeatureMap()
+        self.landmarks = LandmarkStore(self.config.max_landmarks)
+        self.state = 'collecting'
+        self.map_from_odom = Similarity.identity()
+        self.last_message = 'collecting keyframes for the global initialization'
+        self._next_init_attempt = self.config.init_batch_size
+
+    def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
+        """Set the pinhole used to express observations in pixels (loss scale, rms)."""
+        self.fx, self.fy, self.cx, self.cy = float(fx), float(fy), float(cx), float(cy)
+
+    # --- public update -------------------------------------------------------------------
+
+    def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
+                     obs: KeyframeObs | None) -> UpdateInfo:
+        """Add a keyframe and update the estimate.
+
+        Args:
+            stamp_ns: Keyframe stamp, ns (strictly increasing; the caller checks).
+            odom: Front-end pose (R_wc (3, 3), centre (3,)) in the odom frame, or None.
+            obs: Its observations, or None / too few for a keyframe without tracks.
+
+        Returns:
+            What the update did.
+        """
+        n_obs = 0 if obs is None else int(obs.ids.shape[0])
+        usable = n_obs >= self.config.min_observations
+        if self.state != 'tracking':
+            if not usable:
+                return UpdateInfo('dropped', message='keyframe without enough observations '
+                                  'before initialization')
+            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED)
+            return self._maybe_initialize(i)
+        if not usable:
+            return self._dead_reckon(stamp_ns, odom)
+        R0, C0 = self._predict(odom)
+        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE)
+        self.kf.R_map[i], self.kf.C_map[i] = R0, C0
+        info = self._refine()
+        info.keyframe = i
+        return info
+
+    # --- initialization ------------------------------------------------------------------
+
+    def _collected(self) -> IntArray:
+        return self.kf.indices(KeyframeStatus.COLLECTED)
+
+    def _maybe_initialize(self, i: int) -> UpdateInfo:
+        cfg = self.config
+        batch = self._collected()
+        if batch.shape[0] > cfg.init_max_batch:
+            dropped = batch[:batch.shape[0] - cfg.init_max_batch]
+            self.kf.status[dropped] = KeyframeStatus.DISCARDED
+            for j in dropped:
+                self.kf.obs.pop(int(j), None)
+            batch = self._collected()
+            info_drop = {'keyframes_dropped_before_init': int(dropped.shape[0])}
+        else:
+            info_drop = {}
+        if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
+            return UpdateInfo('collect', keyframe=i, message=self.last_message,
+                              dropped=info_drop)
+        parallax_px = self._batch_parallax_px(batch)
+        if parallax_px < cfg.init_min_parallax_px:
+            self.state = 'waiting_for_parallax'
+            self.last_message = (f'waiting for parallax: {parallax_px:.2f} px < '
+                                 f'{cfg.init_min_parallax_px:g} px over {batch.shape[0]} '
+                                 'keyframes')
+            self._next_init_attempt = self.kf.n + cfg.init_retry_every
+            return UpdateInfo('init_failed', keyframe=i, message=self.last_message,
+                              dropped=info_drop)
+        info = self._initialize(batch)
+        info.keyframe = i
+        info.dropped = info_drop
+        return info
+
+    def _batch_parallax_px(self, batch: IntArray) -> float:
+        first = self.kf.obs[int(batch[0])]
+        for j in batch[:0:-1]:
+            other = self.kf.obs[int(j)]
+            shared, a, b = np.intersect1d(first.ids, other.ids, return_indices=True)
+            if shared.shape[0] >= _MIN_SHARED_FOR_PARALLAX:
+                angle = rotation_compensated_parallax(first.bearings[a], other.bearings[b])
+                return angle * math.sqrt(self.fx * self.fy)
+        return 0.0
+
+    def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
+                       R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
+        """Build a problem over keyframes ``cams``; returns it and its feature ids."""
+        local, ids, bearings, xy = gather_observations(self.kf, cams, feature_filter)
+        uniq, feat_idx = np.unique(ids, return_inverse=True)
+        pixels = np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
+        intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)
+        problem = make_problem(R, C, intr, local, feat_idx.astype(np.int64), pixels,
+                               bearings_c=bearings, fixed=fixed, n_feats=uniq.shape[0],
+                               feature_ids=uniq)
+        return problem, uniq
+
+    def _initialize(self, batch: IntArray) -> UpdateInfo:
+        from pmba_ros.init.pipeline import InitOptions, global_init
+
+        cfg = self.config
+        M = batch.shape[0]
+        problem, _ = self._build_problem(batch, np.zeros(M, bool), None,
+                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)))
+        opts = InitOptions(solve_options=SolveOptions(
+            param='pmba', solver='dogleg', loss='none', max_iterations=cfg.init_max_iterations,
+            function_tolerance=1e-10))
+        t0 = time.perf_counter()
+        try:
+            import cv2
+
+            cv2.setRNGSeed(cfg.seed)
+            result = global_init(problem, opts)
+        except (InitError, PmbaError, np.linalg.LinAlgError, ValueError) as err:
+            self.state = 'waiting_for_parallax'
+            self.last_message = f'waiting for parallax: initialization failed: {err}'
+            self._next_init_attempt = self.kf.n + cfg.init_retry_every
+            logger.info('%s', self.last_message)
+            return UpdateInfo('init_failed', message=self.last_message)
+        res = result.solve
+        used = batch[result.camera_index]
+        R, C = res.R_wc, res.centers_w
+        # Express the map in the odom frame of the batch (map -> odom starts at identity).
+        with_odom = self.kf.has_odom[used]
+        sim = Similarity.identity()
+        if np.count_nonzero(with_odom) >= 2:
+            sim = estimate_similarity(self.kf.R_odom[used][with_odom],
+                                      self.kf.C_odom[used][with_odom], R[with_odom],
+                                      C[with_odom])
+        R, C = sim.apply_poses(R, C)
+        self.kf.R_map[used], self.kf.C_map[used] = R, C
+        fids = problem.feature_ids[result.feature_index]
+        points = sim.scale * res.points_w @ sim.rotation.T + sim.translation
+        self.features.upsert(fids, np.where(finite_rows(points)[:, None], points, np.nan))
+        self.kf.status[batch] = KeyframeStatus.ACTIVE
+        self.state = 'tracking'
+        self._update_similarity()
+        left_out = np.setdiff1d(batch, used)
+        for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
+            self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
+        info = UpdateInfo('init', solve_ms=1e3 * (time.perf_counter() - t0),
+                          iterations=res.iterations, cost_before=res.initial_cost,
+                          cost_after=res.final_cost, n_cams=res.problem.n_cams,
+                          n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
+                          n_obs=res.problem.n_obs,
+                          message=f'initialized {used.shape[0]} of {M} keyframes')
+        self._slide()
+        if left_out.shape[0]:
+            refine = self._refine()
+            info.message += f'; {left_out.shape[0]} refined afterwards'
+            info.solve_ms += refine.solve_ms
+        self.last_message = 'tracking'
+        logger.info('%s (%.0f ms)', info.message, info.solve_ms)
+        return info
+
+    def _pose_from_odom_or_neighbor(self, j: int, used: IntArray) -> tuple[FloatArray, FloatArray]:
+        if self.kf.has_odom[j]:
+            R, C = self.map_from_odom.apply_poses(self.kf.R_odom[j][None], self.kf.C_odom[j][None])
+            return R[0], C[0]
+        k = int(used[np.argmin(np.abs(used - j))])
+        return self.kf.R_map[k].copy(), self.kf.C_map[k].copy()
+
+    # --- tracking -------------------------------------------------------------------------
+
+    def _predict(self, odom: tuple[FloatArray, FloatArray] | None) -> tuple[FloatArray, FloatArray]:
+        """Initial pose of a new keyframe (front-end relative motion through map <- odom)."""
+        n = self.kf.n
+        prev = n - 1
+        if odom is not None and self.kf.has_odom[prev]:
+            R_po, C_po = self.kf.R_odom[prev], self.kf.C_odom[prev]
+            R_rel = R_po.T @ odom[0]
+            t_rel = R_po.T @ (odom[1] - C_po)
+            R_p, C_p = self.kf.R_map[prev], self.kf.C_map[prev]
+            return so3.project(R_p @ R_rel), C_p + self.map_from_odom.scale * R_p @ t_rel
+        if odom is not None:
+            R, C = self.map_from_odom.apply_poses(odom[0][None], odom[1][None])
+            return R[0], C[0]
+        if n >= 2:  # constant velocity
+            R_a, C_a = self.kf.R_map[n - 2], self.kf.C_map[n - 2]
+            R_b, C_b = self.kf.R_map[prev], self.kf.C_map[prev]
+            R_rel = R_a.T @ R_b
+            return so3.project(R_b @ R_rel), C_b + R_b @ (R_a.T @ (C_b - C_a))
+        return self.kf.R_map[prev].copy(), self.kf.C_map[prev].copy()
+
+    def _dead_reckon(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
+                     ) -> UpdateInfo:
+        if odom is None:
+            return UpdateInfo('dropped', message='keyframe without tracks or front-end pose')
+        R, C = self._predict(odom)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED)
+        self.kf.R_map[i], self.kf.C_map[i] = R, C
+        return UpdateInfo('dead_reckoned', keyframe=i,
+                          message='keyframe with too few observations: front-end pose')
+
+    def _slide(self) -> None:
+        """Fix keyframes that left the window; retire features and old observations."""
+        if self.config.mode != 'sliding':
+            return
+        active = self.kf.indices(KeyframeStatus.ACTIVE)
+        K = self.config.window_size
+        if active.shape[0] > K:
+            self.kf.status[active[:-K]] = KeyframeStatus.FIXED
+            active = active[-K:]
+        window_ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active]))
+        _, points = self.features.pop_except(window_ids)
+        self.landmarks.add(points)
+        self.kf.forget_observations_before(int(active[0]) - self.config.fixed_lookback)
+
+    def _refine(self) -> UpdateInfo:
+        cfg = self.config
+        self._slide()
+        active = self.kf.indices(KeyframeStatus.ACTIVE)
+        if cfg.mode == 'sliding':
+            window_ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active]))
+            older = np.array(sorted(i for i in self.kf.obs if i < active[0]), dtype=np.int64)
+            fixed_kf = select_fixed(self.kf, older, window_ids, cfg.max_fixed_keyframes)
+            cams = np.concatenate([fixed_kf, active])
+            fixed = np.concatenate([np.ones(fixed_kf.shape[0], bool),
+                                    np.zeros(active.shape[0], bool)])
+            feature_filter: IntArray | None = window_ids
+        else:
+            cams = np.array(sorted(i for i in self.kf.obs), dtype=np.int64)
+            fixed = np.zeros(cams.shape[0], bool)
+            fixed[0] = True
+            feature_filter = None
+        info = UpdateInfo('refine')
+        try:
+            problem, _ = self._build_problem(cams, fixed, feature_filter,
+                                             self.kf.R_map[cams], self.kf.C_map[cams])
+            pts = self.features.lookup(problem.feature_ids)
+            feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
+            if not np.all(ok):
+                problem = subset_features(problem, ok, 'features_without_anchor_baseline')
+                pts = self.features.lookup(problem.feature_ids)
+                feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
+            options = SolveOptions(param='pmba', solver='dogleg', loss=cfg.loss,
+                                   loss_scale_px=cfg.loss_scale_px,
+                                   max_iterations=cfg.max_iterations,
+                                   max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
+            res = solve(problem, options, feats)
+        except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
+            info.message = f'refine failed, keeping the prediction: {err}'
+            logger.warning('%s', info.message)
+            return info
+        free = ~res.problem.fixed
+        self.kf.R_map[cams[free]] = res.R_wc[free]
+        self.kf.C_map[cams[free]] = res.centers_w[free]
+        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
+        self.features.upsert(res.problem.feature_ids, pts)
+        self._update_similarity()
+        info.solve_ms = 1e3 * res.time_s
+        info.iterations = res.iterations
+        info.cost_before, info.cost_after = res.initial_cost, res.final_cost
+        info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
+        info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
+        return info
+
+    def _update_similarity(self) -> None:
+        """Re-estimate map <- odom from the free keyframes with front-end poses."""
+        active = self.kf.indices(KeyframeStatus.ACTIVE)
+        if self.config.mode == 'global':
+            active = active[-self.config.window_size:]
+        sel = active[self.kf.has_odom[active]]
+        if sel.shape[0] >= 2:
+            self.map_from_odom = estimate_similarity(self.kf.R_map[sel], self.kf.C_map[sel],
+                                                     self.kf.R_odom[sel], self.kf.C_odom[sel],
+                                                     self.map_from_odom.scale)
+
+    # --- accessors ------------------------------------------------------------------------
+
+    def estimated(self) -> IntArray:
+        """Return the keyframes that have a map pose (all but the collected ones)."""
+        status = self.kf.status[:self.kf.n]
+        return np.flatnonzero((status != KeyframeStatus.COLLECTED)
+                              & (status != KeyframeStatus.DISCARDED)).astype(np.int64)
+
+    def landmark_points(self) -> FloatArray:
+        """Return retired landmarks and the current features' finite points, shape (L, 3)."""
+        active = self.features.points[finite_rows(self.features.points)]
+        return np.concatenate([self.landmarks.points(), active])

@@ -1,0 +1,471 @@
+"""The ROS-free back-end: messages in, optimized keyframes, map, TF and diagnostics out.
+
+:class:`BackendLogic` is shared by the node (``pmba_ros.node``) and the bag replay tool. Its
+``on_*`` callbacks are cheap (parse and buffer) and never raise on bad input: every rejected
+message or observation is counted under a reason and shows up in the diagnostics. ``step()``
+associates keyframe poses with track frames by stamp (``stamp_tolerance_s``), feeds the
+:class:`~pmba_ros.backend.estimator.Estimator`, and returns the outputs as ``(topic, msg)``
+pairs: the config's relative topic names, ``'/tf'`` and ``'/diagnostics'``.
+
+Every output stamp comes from input headers (the newest processed keyframe; the map -> odom
+TF is future-dated by ``transform_tolerance_s``), never from a clock. With
+``deterministic=True`` (bag replay) there are no time budgets and no timings in the outputs,
+so identical inputs give byte-identical outputs.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.estimator import Estimator, UpdateInfo
+from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
+from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
+from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
+from pmba_ros.core import so3
+from pmba_ros.errors import MessageError
+from pmba_ros.eval.trajectory import Trajectory, write_tum
+
+logger = logging.getLogger(__name__)
+
+TF_TOPIC = '/tf'
+DIAGNOSTICS_TOPIC = '/diagnostics'
+DIAGNOSTICS_NAME = 'pmba_ros: back-end'
+
+
+@dataclass
+class BackendStats:
+    """Per-keyframe statistics and event counters.
+
+    Attributes:
+        solve_ms: Solver time of each optimized keyframe update, ms.
+        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
+        iterations: Solver iterations per optimized update.
+        cost_before: Cost before each solve.
+        cost_after: Cost after each solve.
+        counters: Event counts by reason (rejected inputs, drops, errors, ...).
+        keyframes: Keyframes handed to the estimator.
+    """
+
+    solve_ms: list[float] = field(default_factory=list)
+    update_ms: list[float] = field(default_factory=list)
+    iterations: list[int] = field(default_factory=list)
+    cost_before: list[float] = field(default_factory=list)
+    cost_after: list[float] = field(default_factory=list)
+    counters: Counter[str] = field(default_factory=Counter)
+    keyframes: int = 0
+
+
+@dataclass(frozen=True)
+class _Keyframe:
+    stamp_ns: int
+    pose: KeyframePose | None
+
+
+class BackendLogic:
+    """Online PMBA back-end driven by messages of any backend (rclpy, rosbags, mcap_ros2).
+
+    Args:
+        config: The configuration.
+        msg_backend: Builds the output messages (:class:`~pmba_ros.backend.outputs.
+            RclpyBackend` in the node, ``RosbagsBackend`` in the replay tool and tests).
+    """
+
+    def __init__(self, config: BackendConfig, msg_backend: out.MsgBackend) -> None:
+        """Create the logic in state ``collecting``."""
+        self.config = config
+        self.backend = msg_backend
+        self.camera: CameraModel | None = None
+        self.estimator = Estimator(config)
+        self._stats = BackendStats()
+        self._paused = False
+        self.last_error = ''
+        self._init_buffers()
+
+    def _init_buffers(self) -> None:
+        self._tracks: deque[TrackFrame] = deque()
+        self._pending: deque[_Keyframe] = deque()
+        self._last_kf_stamp = -1
+        self._newest_input_ns = -1
+        self._odom_frame = self.config.odom_frame or 'odom'
+        self._base_frame = self.config.base_frame or 'base_link'
+        self._pose_cache: dict[int, tuple[Any, Any]] = {}
+        self._last_info = UpdateInfo('none')
+        self._diag_dirty = True
+        self._counters_at_diag: Counter[str] = Counter()
+
+    # --- inputs ---------------------------------------------------------------------------
+
+    def count(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` events under ``reason`` (also used by the node for queue drops)."""
+        if n:
+            self._stats.counters[reason] += int(n)
+
+    def _reject(self, reason: str, err: Exception | str) -> None:
+        self.count(reason)
+        self.last_error = f'{reason}: {err}'
+        logger.warning('%s', self.last_error)
+
+    def on_camera_info(self, msg: Any) -> None:
+        """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted)."""
+        try:
+            camera = parse_camera_info(msg)
+        except Exception as err:  # noqa: BLE001 - bad input must never propagate
+            self._reject('bad_camera_info', err)
+            return
+        if self.camera is None:
+            logger.info('camera info: %s fx=%.1f fy=%.1f', camera.distortion_model, camera.fx,
+                        camera.fy)
+            self._diag_dirty = True
+        self.camera = camera
+        self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
+
+    def on_tracks(self, msg: Any) -> None:
+        """Parse and buffer a feature-track message (bad ones are counted)."""
+        if self._paused:
+            self.count('dropped_while_paused')
+            return
+        try:
+            frame = parse_tracks(msg, self.config.feature_layout, self.config.num_cams)
+        except Exception as err:  # noqa: BLE001
+            self._reject('bad_tracks', err)
+            return
+        self.count('dropped_observations', frame.dropped)
+        if frame.stamp_ns <= self._last_kf_stamp:
+            self.count('stale_tracks')
+            return
+        self._newest_input_ns = max(self._newest_input_ns, frame.stamp_ns)
+        if len(self._tracks) >= self.config.buffer_size:
+            self._tracks.popleft()
+            self.count('tracks_buffer_overflow')
+        self._tracks.append(frame)
+        if self.config.keyframe_source == 'tracks':
+            self._push_keyframe(_Keyframe(frame.stamp_ns, None))
+
+    def on_keyframe(self, msg: Any) -> None:
+        """Parse and buffer a keyframe pose message (bad ones are counted)."""
+        if self._paused:
+            self.count('dropped_while_paused')
+            return
+        if self.config.keyframe_source != 'keyframe_topic':
+            self.count('ignored_keyframe_messages')
+            return
+        try:
+            pose = parse_keyframe(msg, self.config.keyframe_type)
+        except Exception as err:  # noqa: BLE001
+            self._reject('bad_keyframes', err)
+            return
+        self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
+        self._push_keyframe(_Keyframe(pose.stamp_ns, pose))
+
+    def _push_keyframe(self, kf: _Keyframe) -> None:
+        newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
+        if kf.stamp_ns <= newest:
+            self._reject('keyframe_stamp_not_increasing',
+                         f'{kf.stamp_ns} ns after {newest} ns')
+            return
+        if len(self._pending) >= self.config.buffer_size:
+            self._pending.popleft()
+            self.count('keyframe_buffer_overflow')
+        self._pending.append(kf)
+
+    # --- control --------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget all keyframes, tracks and the map (the camera model is kept)."""
+        self.estimator.reset()
+        self._init_buffers()
+        self.count('resets')
+        logger.info('back-end reset')
+
+    def set_paused(self, paused: bool) -> None:
+        """Pause (drop and count inputs) or resume."""
+        if bool(paused) != self._paused:
+            self._paused = bool(paused)
+            self._diag_dirty = True
+            logger.info('back-end %s', 'paused' if paused else 'resumed')
+
+    @property
+    def paused(self) -> bool:
+        """Return True while paused."""
+        return self._paused
+
+    @property
+    def state(self) -> str:
+        """Return 'paused' or the estimator state ('collecting', 'waiting_for_parallax', ...)."""
+        return 'paused' if self._paused else self.estimator.state
+
+    @property
+    def stats(self) -> BackendStats:
+        """Return the statistics (live object)."""
+        return self._stats
+
+    # --- processing -----------------------------------------------------------------------
+
+    def step(self) -> list[tuple[str, Any]]:
+        """Process every keyframe whose tracks are available and return the outputs.
+
+        Returns:
+            ``(topic, message)`` pairs: path, keyframes, landmarks, odometry, ``/tf`` and
+            ``/diagnostics`` after keyframe updates; only ``/diagnostics`` when something
+            else changed (rejected input, pause); nothing otherwise.
+        """
+        processed = 0
+        while self._pending and not self._paused:
+            kf = self._pending[0]
+            frame, ready = self._match(kf.stamp_ns)
+            if not ready:
+                break
+            self._pending.popleft()
+            self._process(kf, frame)
+            processed += 1
+        try:
+            if processed:
+                return self._outputs()
+            if self._diag_dirty or self._stats.counters != self._counters_at_diag:
+                return [self._diagnostics(max(self._newest_input_ns, self._last_kf_stamp, 0))]
+        except Exception as err:
+            logger.exception('building outputs failed')
+            self._reject('output_errors', err)
+        return []
+
+    def _match(self, stamp_ns: int) -> tuple[TrackFrame | None, bool]:
+        """Return (tracks of the keyframe or None, whether the keyframe can be processed)."""
+        tol = round(self.config.stamp_tolerance_s * 1e9)
+        timed_out = self._newest_input_ns > stamp_ns + round(
+            self.config.association_timeout_s * 1e9)
+        best, best_dt = None, tol + 1
+        for frame in self._tracks:
+            dt = abs(frame.stamp_ns - stamp_ns)
+            if dt < best_dt:
+                best, best_dt = frame, dt
+        if best is None:
+            if timed_out:
+                self.count('keyframes_without_tracks')
+            return None, timed_out
+        if best.normalized is None and self.camera is None:
+            if timed_out:
+                self.count('tracks_without_camera_info')
+                return None, True
+            return None, False
+        return best, True
+
+    def _process(self, kf: _Keyframe, frame: TrackFrame | None) -> None:
+        t0 = time.perf_counter()
+        tol = round(self.config.stamp_tolerance_s * 1e9)
+        while self._tracks and self._tracks[0].stamp_ns <= kf.stamp_ns + tol:
+            old = self._tracks.popleft()
+            if old is not frame and old.stamp_ns < kf.stamp_ns - tol:
+                self.count('tracks_without_keyframe')
+        if frame is not None and frame in self._tracks:
+            self._tracks.remove(frame)
+        self._last_kf_stamp = kf.stamp_ns
+        odom = None
+        if kf.pose is not None:
+            odom = (so3.from_quat_xyzw(kf.pose.quat_xyzw), np.asarray(kf.pose.position))
+            self._odom_frame = self.config.odom_frame or kf.pose.frame_id or 'odom'
+            self._base_frame = self.config.base_frame or kf.pose.child_frame_id or 'base_link'
+        try:
+            obs = self._observations(frame) if frame is not None else None
+            info = self.estimator.add_keyframe(kf.stamp_ns, odom, obs)
+        except Exception as err:
+            logger.exception('keyframe update failed')
+            self._reject('internal_errors', err)
+            info = UpdateInfo('error', message=str(err))
+        self._stats.keyframes += 1
+        for reason, n in info.dropped.items():
+            self.count(reason, n)
+        if info.kind in ('dropped', 'dead_reckoned'):
+            self.count(f'keyframes_{info.kind}')
+        if info.kind in ('refine', 'init'):
+            self._stats.solve_ms.append(info.solve_ms)
+            self._stats.iterations.append(info.iterations)
+            self._stats.cost_before.append(info.cost_before)
+            self._stats.cost_after.append(info.cost_after)
+        self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))
+        self._last_info = info
+
+    def _observations(self, frame: TrackFrame) -> KeyframeObs:
+        """Return the unit bearings of the configured camera's finite observations."""
+        sel = frame.camera_ids == self.config.camera_id
+        self.count('other_camera_observations', int(np.count_nonzero(~sel)))
+        if frame.normalized is not None:
+            xy = frame.normalized[sel]
+        elif self.camera is not None and frame.pixels is not None:
+            xy = self.camera.normalize(frame.pixels[sel])
+        else:
+            msg = 'tracks without normalized coordinates need a CameraInfo'
+            raise MessageError(msg)
+        finite = np.all(np.isfinite(xy), axis=1)
+        self.count('non_finite_observations', int(np.count_nonzero(~finite)))
+        xy = xy[finite]
+        bearings = np.column_stack([xy, np.ones(xy.shape[0])])
+        bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
+        return KeyframeObs(frame.feature_ids[sel][finite], bearings, xy)
+
+    # --- outputs --------------------------------------------------------------------------
+
+    def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
+        """PoseStamped and Pose messages of keyframes ``idx`` (final poses are cached)."""
+        kf = self.estimator.kf
+        frame = self.config.map_frame
+        final = (kf.status[idx] == KeyframeStatus.FIXED) | (
+            kf.status[idx] == KeyframeStatus.DEAD_RECKONED)
+        stamped, plain = [], []
+        todo = [k for k, i in enumerate(idx) if int(i) not in self._pose_cache]
+        quats = so3.to_quat_xyzw(kf.R_map[idx[todo]]) if todo else np.zeros((0, 4))
+        fresh = dict(zip(todo, quats, strict=True))
+        for k, i in enumerate(idx):
+            i = int(i)
+            cached = self._pose_cache.get(i)
+            if cached is None:
+                ps = out.make_pose_stamped(int(kf.stamps_ns[i]), frame, kf.C_map[i], fresh[k],
+                                           self.backend)
+                cached = (ps, ps.pose)
+                if final[k]:
+                    self._pose_cache[i] = cached
+            stamped.append(cached[0])
+            plain.append(cached[1])
+        return stamped, plain
+
+    def _outputs(self) -> list[tuple[str, Any]]:
+        cfg = self.config
+        stamp = self._last_kf_stamp
+        idx = self.estimator.estimated()
+        result: list[tuple[str, Any]] = []
+        if idx.shape[0]:
+            kf = self.estimator.kf
+            stamped, plain = self._poses(idx)
+            header = out.header_msg(stamp, cfg.map_frame, self.backend)
+            result.append((cfg.path_topic, self.backend.new('nav_msgs/msg/Path', header=header,
+                                                            poses=stamped)))
+            result.append((cfg.keyframes_topic, self.backend.new(
+                'geometry_msgs/msg/PoseArray', header=header, poses=plain)))
+            result.append((cfg.landmarks_topic, out.make_point_cloud2_xyz(
+                stamp, cfg.map_frame, self.estimator.landmark_points(), self.backend)))
+            last = int(idx[-1])
+            if int(kf.stamps_ns[last]) == stamp:
+                result.append((cfg.odometry_topic, self._odometry(last)))
+                if cfg.publish_tf and kf.has_odom[last]:
+                    result.append((TF_TOPIC, self._map_to_odom(last)))
+        result.append(self._diagnostics(stamp))
+        return result
+
+    def _odometry(self, i: int) -> Any:
+        kf = self.estimator.kf
+        cfg = self.config
+        inflate = 10.0 if kf.status[i] == KeyframeStatus.DEAD_RECKONED else 1.0
+        cov = np.diag([cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        return out.make_odometry(int(kf.stamps_ns[i]), cfg.map_frame, self._base_frame,
+                                 kf.C_map[i], so3.to_quat_xyzw(kf.R_map[i]), inflate * cov,
+                                 self.backend)
+
+    def _map_to_odom(self, i: int) -> Any:
+        """REP-105: T_map_odom = T_map_kf (optimized) * T_odom_kf (front-end)^-1."""
+        kf = self.estimator.kf
+        R = kf.R_map[i] @ kf.R_odom[i].T
+        t = kf.C_map[i] - R @ kf.C_odom[i]
+        stamp = int(kf.stamps_ns[i]) + round(self.config.transform_tolerance_s * 1e9)
+        return out.make_tf(stamp, self.config.map_frame, self._odom_frame, t,
+                           so3.to_quat_xyzw(so3.project(R)), self.backend)
+
+    def _diagnostics(self, stamp: int) -> tuple[str, Any]:
+        cfg = self.config
+        info = self._last_info
+        counters = self._stats.counters
+        new_drops = any(counters[k] > self._counters_at_diag[k] for k in counters)
+        state = self.state
+        if info.kind == 'error' or (new_drops and counters['internal_errors']
+                                    > self._counters_at_diag['internal_errors']):
+            level = 'error'
+        elif state != 'tracking' or new_drops:
+            level = 'warn'
+        else:
+            level = 'ok'
+        message = {'paused': 'paused', 'tracking': 'tracking'}.get(
+            state, self.estimator.last_message)
+        if info.message and info.kind not in ('refine', 'collect'):
+            message = f'{message}; {info.message}' if message != info.message else message
+        values: dict[str, str | float] = {
+            'state': state, 'mode': cfg.mode, 'last_update': info.kind,
+            'keyframes': self._stats.keyframes,
+            'optimized_keyframes': int(self.estimator.estimated().shape[0]),
+            'iterations': info.iterations, 'cost_before': info.cost_before,
+            'cost_after': info.cost_after, 'problem_poses': info.n_cams,
+            'problem_free_poses': info.n_free, 'problem_features': info.n_feats,
+            'problem_observations': info.n_obs,
+            'input_lag_ms': max(0.0, (self._newest_input_ns - self._last_kf_stamp) * 1e-6)
+            if self._last_kf_stamp >= 0 else 0.0,
+            'pending_keyframes': len(self._pending), 'buffered_tracks': len(self._tracks),
+            'landmarks': int(len(self.estimator.landmarks) + len(self.estimator.features)),
+            'camera_info_received': self.camera is not None,
+            'map_from_odom_scale': self.estimator.map_from_odom.scale,
+        }
+        if not cfg.deterministic:
+            values['solve_ms'] = info.solve_ms
+            values['update_ms'] = self._stats.update_ms[-1] if self._stats.update_ms else 0.0
+        values['dropped_total'] = int(sum(v for k, v in counters.items() if k != 'resets'))
+        for reason in sorted(counters):
+            values[f'count.{reason}'] = int(counters[reason])
+        if self.last_error:
+            values['last_error'] = self.last_error
+        self._diag_dirty = False
+        self._counters_at_diag = Counter(counters)
+        return DIAGNOSTICS_TOPIC, out.make_diagnostics(stamp, DIAGNOSTICS_NAME, level, message,
+                                                       values, self.backend)
+
+    # --- accessors ------------------------------------------------------------------------
+
+    def optimized_trajectory(self) -> Trajectory:
+        """Return the optimized keyframe poses in map_frame (stamps in seconds)."""
+        kf = self.estimator.kf
+        idx = self.estimator.estimated()
+        return Trajectory(kf.stamps_ns[idx] * 1e-9, kf.C_map[idx], kf.R_map[idx])
+
+    def frontend_trajectory(self) -> Trajectory:
+        """Return the front-end poses of the keyframes received (odom frame)."""
+        kf = self.estimator.kf
+        idx = np.flatnonzero(kf.has_odom[:kf.n])
+        return Trajectory(kf.stamps_ns[idx] * 1e-9, kf.C_odom[idx], kf.R_odom[idx])
+
+    def landmarks(self) -> FloatArray:
+        """Return the map's landmarks in map_frame, shape (N, 3)."""
+        return self.estimator.landmark_points()
+
+    def save(self, directory: str | os.PathLike[str]) -> list[Path]:
+        """Write the trajectories (TUM) and the landmarks (ASCII PLY) into ``directory``.
+
+        Returns:
+            The written files: ``pmba_keyframes.tum``, ``frontend_keyframes.tum`` and
+            ``pmba_landmarks.ply``.
+
+        Raises:
+            OSError: If the directory cannot be created.
+            pmba_ros.errors.FormatError: If a file cannot be written.
+        """
+        root = Path(directory)
+        root.mkdir(parents=True, exist_ok=True)
+        paths = [root / 'pmba_keyframes.tum', root / 'frontend_keyframes.tum']
+        write_tum(paths[0], self.optimized_trajectory())
+        write_tum(paths[1], self.frontend_trajectory())
+        pts = self.landmarks()
+        ply = root / 'pmba_landmarks.ply'
+        header = ('ply\nformat ascii 1.0\n'
+                  f'element vertex {pts.shape[0]}\nproperty float x\nproperty float y\n'
+                  'property float z\nend_header\n')
+        body = ''.join(f'{x:.6g} {y:.6g} {z:.6g}\n' for x, y, z in pts.tolist())
+        ply.write_text(header + body, encoding='utf-8')
+        paths.append(ply)
+        logger.info('saved %s', ', '.join(str(p) for p in paths))
+        return paths
+

@@ -1,0 +1,279 @@
+"""Bookkeeping of the online back-end: keyframes, their observations, features, landmarks.
+
+Everything here is numpy and ROS-free. Keyframes are numbered 0, 1, ... in arrival order;
+their arrays grow by doubling. Observations are kept per keyframe only while they can still
+enter a problem (sliding mode drops them ``fixed_lookback`` keyframes behind the window);
+features live in :class:`FeatureMap` (sorted ids, world points) while a free keyframe observes
+them and then retire into :class:`LandmarkStore`, whose size is capped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import so3
+
+
+class KeyframeStatus(IntEnum):
+    """Life cycle of a keyframe."""
+
+    COLLECTED = 0  #: waiting for the global initialization
+    ACTIVE = 1  #: free in the problem
+    FIXED = 2  #: left the window (sliding mode), pose final
+    DEAD_RECKONED = 3  #: too few observations: pose from the front-end, never optimized
+    DISCARDED = 4  #: dropped from the initialization batch, no pose
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeObs:
+    """Observations of one keyframe (camera ``camera_id`` only).
+
+    Attributes:
+        ids: Feature ids, shape (K,), unique.
+        bearings: Unit bearings in the camera frame, shape (K, 3).
+        normalized: Normalized undistorted coordinates (x/z, y/z), shape (K, 2).
+    """
+
+    ids: IntArray
+    bearings: FloatArray
+    normalized: FloatArray
+
+
+class KeyframeStore:
+    """Poses (map and front-end), stamps and statuses of all keyframes (growing arrays)."""
+
+    def __init__(self) -> None:
+        """Create an empty store."""
+        self.n = 0
+        cap = 64
+        self.stamps_ns = np.zeros(cap, dtype=np.int64)
+        self.R_map = np.tile(np.eye(3), (cap, 1, 1))
+        self.C_map = np.zeros((cap, 3))
+        self.R_odom = np.tile(np.eye(3), (cap, 1, 1))
+        self.C_odom = np.zeros((cap, 3))
+        self.has_odom = np.zeros(cap, dtype=bool)
+        self.status = np.zeros(cap, dtype=np.int8)
+        self.obs: dict[int, KeyframeObs] = {}
+
+    def _grow(self) -> None:
+        cap = 2 * self.stamps_ns.shape[0]
+        for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'status'):
+            old = getattr(self, name)
+            new = np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
+            new[:old.shape[0]] = old
+            if name.startswith('R_'):
+                new[old.shape[0]:] = np.eye(3)
+            setattr(self, name, new)
+
+    def add(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
+            obs: KeyframeObs | None, status: KeyframeStatus) -> int:
+        """Append a keyframe and return its index."""
+        if self.n == self.stamps_ns.shape[0]:
+            self._grow()
+        i = self.n
+        self.stamps_ns[i] = stamp_ns
+        if odom is not None:
+            self.R_odom[i], self.C_odom[i] = odom
+            self.has_odom[i] = True
+        self.status[i] = status
+        if obs is not None:
+            self.obs[i] = obs
+        self.n += 1
+        return i
+
+    def indices(self, status: KeyframeStatus) -> IntArray:
+        """Return the indices of the keyframes with ``status``, ascending."""
+        return np.flatnonzero(self.status[:self.n] == status).astype(np.int64)
+
+    def forget_observations_before(self, index: int) -> None:
+        """Drop the stored observations of keyframes older than ``index``."""
+        for i in [i for i in self.obs if i < index]:
+            del self.obs[i]
+
+
+class FeatureMap:
+    """World points of the features in the problem, keyed by sorted feature id.
+
+    Non-finite rows mean "no usable point yet" (new features, points at infinity); the next
+    problem re-initializes them from rotations (PMBA Remark 5).
+    """
+
+    def __init__(self) -> None:
+        """Create an empty map."""
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.points = np.zeros((0, 3))
+
+    def __len__(self) -> int:
+        """Return the number of features."""
+        return int(self.ids.shape[0])
+
+    def lookup(self, ids: IntArray) -> FloatArray:
+        """Return the points of ``ids`` (NaN where unknown), shape (len(ids), 3)."""
+        pos = np.searchsorted(self.ids, ids)
+        pos = np.minimum(pos, max(len(self) - 1, 0))
+        found = (len(self) > 0) & (self.ids[pos] == ids) if len(self) else \
+            np.zeros(ids.shape[0], dtype=bool)
+        out = np.full((ids.shape[0], 3), np.nan)
+        out[found] = self.points[pos[found]]
+        return out
+
+    def upsert(self, ids: IntArray, points: FloatArray) -> None:
+        """Set the points of ``ids`` (inserting unknown ids)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        all_ids = np.concatenate([self.ids, ids])
+        all_pts = np.concatenate([self.points, points])
+        # Keep the last occurrence of every id (the update).
+        rev_ids = all_ids[::-1]
+        uniq, first = np.unique(rev_ids, return_index=True)
+        self.ids = uniq
+        self.points = all_pts[::-1][first]
+
+    def pop_except(self, keep_ids: IntArray) -> tuple[IntArray, FloatArray]:
+        """Remove every feature not in ``keep_ids``; return the removed ids and points."""
+        keep = np.isin(self.ids, keep_ids)
+        removed = (self.ids[~keep], self.points[~keep])
+        self.ids, self.points = self.ids[keep], self.points[keep]
+        return removed
+
+    def transform(self, scale: float, rotation: FloatArray, translation: FloatArray) -> None:
+        """Apply X -> scale R X + t to every point."""
+        self.points = scale * self.points @ rotation.T + translation
+
+
+class LandmarkStore:
+    """Retired landmarks (finite points only), capped at ``capacity`` (oldest dropped)."""
+
+    def __init__(self, capacity: int) -> None:
+        """Create an empty store."""
+        self.capacity = capacity
+        self._chunks: list[FloatArray] = []
+        self._count = 0
+
+    def __len__(self) -> int:
+        """Return the number of landmarks."""
+        return self._count
+
+    def add(self, points: FloatArray) -> None:
+        """Add finite points; drop the oldest beyond the capacity."""
+        pts = points[np.all(np.isfinite(points), axis=1)]
+        if pts.shape[0] == 0 or self.capacity == 0:
+            return
+        self._chunks.append(pts)
+        self._count += pts.shape[0]
+        if self._count > self.capacity:
+            merged = np.concatenate(self._chunks)[-self.capacity:]
+            self._chunks = [merged]
+            self._count = merged.shape[0]
+
+    def points(self) -> FloatArray:
+        """Return all landmarks, shape (L, 3)."""
+        if len(self._chunks) > 1:
+            self._chunks = [np.concatenate(self._chunks)]
+        return self._chunks[0] if self._chunks else np.zeros((0, 3))
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """X_a = scale * rotation @ X_b + translation (e.g. map <- odom)."""
+
+    scale: float
+    rotation: FloatArray
+    translation: FloatArray
+
+    @classmethod
+    def identity(cls) -> Similarity:
+        """Return the identity."""
+        return cls(1.0, np.eye(3), np.zeros(3))
+
+    def apply_poses(self, R: FloatArray, C: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Map poses (R_wc, centres) of frame b into frame a."""
+        return self.rotation @ R, self.scale * C @ self.rotation.T + self.translation
+
+
+def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: FloatArray,
+                        prior_scale: float = 1.0) -> Similarity:
+    """Estimate S with pose_a ~ S pose_b from corresponding poses (rotations and centres).
+
+    The rotation is the chordal mean of R_a R_b^T (well conditioned even for collinear
+    centres), then scale and translation are the least-squares fit of the centres. With less
+    than 1e-6 of centre spread the scale is ``prior_scale``.
+
+    Args:
+        R_a, C_a: Poses in frame a, shapes (P, 3, 3) and (P, 3).
+        R_b, C_b: The same poses in frame b.
+        prior_scale: Scale used when the centres do not determine it.
+
+    Returns:
+        The similarity a <- b.
+    """
+    rotation = so3.project(np.einsum('pij,pkj->ik', R_a, R_b))
+    mean_a, mean_b = C_a.mean(axis=0), C_b.mean(axis=0)
+    rb = (C_b - mean_b) @ rotation.T
+    denom = float(np.sum(rb * rb))
+    scale = float(np.sum((C_a - mean_a) * rb)) / denom if denom > 1e-12 else prior_scale
+    if not np.isfinite(scale) or scale <= 0:
+        scale = prior_scale
+    return Similarity(scale, rotation, mean_a - scale * rotation @ mean_b)
+
+
+def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
+    """Median angle (rad) between matched bearings after the best rotation b1 -> b2.
+
+    Pure rotation gives the noise level; translation gives parallax (Procrustes on bearings).
+
+    Args:
+        b1: Unit bearings in the first camera, shape (K, 3).
+        b2: The matching bearings in the second camera, shape (K, 3).
+
+    Returns:
+        The median residual angle, radians (0 for K < 3).
+    """
+    if b1.shape[0] < 3:
+        return 0.0
+    U, _, Vt = np.linalg.svd(b2.T @ b1)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)) or 1.0)])
+    R = U @ D @ Vt
+    cos = np.clip(np.sum(b2 * (b1 @ R.T), axis=1), -1.0, 1.0)
+    return float(np.median(np.arccos(cos)))
+
+
+def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,
+                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+    """Concatenate the observations of keyframes ``cams`` (optionally of some features only).
+
+    Returns:
+        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2).
+    """
+    parts = [store.obs[int(c)] for c in cams]
+    local = np.repeat(np.arange(len(parts)), [p.ids.shape[0] for p in parts])
+    ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
+    bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
+    pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
+    if feature_filter is not None:
+        keep = np.isin(ids, feature_filter)
+        local, ids, bearings, pixels = local[keep], ids[keep], bearings[keep], pixels[keep]
+    return local.astype(np.int64), ids, bearings, pixels
+
+
+def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntArray,
+                 max_fixed: int) -> IntArray:
+    """Pick up to ``max_fixed`` candidate keyframes co-observing most window features.
+
+    Ties go to the more recent keyframe; keyframes sharing nothing are never picked.
+    """
+    if max_fixed == 0 or candidates.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    counts = np.array([int(np.count_nonzero(np.isin(store.obs[int(c)].ids, window_feats)))
+                       for c in candidates])
+    order = np.lexsort((-candidates, -counts))[:max_fixed]
+    chosen = candidates[order][counts[order] > 0]
+    return np.sort(chosen).astype(np.int64)
+
+
+def finite_rows(points: FloatArray) -> BoolArray:
+    """Return the rows of ``points`` (N, 3) that are finite."""
+    return np.all(np.isfinite(points), axis=1)
