@@ -65,8 +65,15 @@ def step_quality(cost: float, new_cost: float, model_change: float) -> float:
 
 
 def dogleg_radius(radius: float, rho: float, step_norm: float, accepted: bool) -> float:
-    """Update the dogleg radius: halve below rho 0.25 or on rejection, grow above 0.75."""
-    if not accepted or rho < 0.25:
+    """Update the dogleg radius: halve below rho 0.25 or on rejection, grow above 0.75.
+
+    A rejected step halves the smaller of the radius and the step's length: when the
+    Gauss-Newton step lies well inside the region, halving the radius alone would propose the
+    same rejected step again (Madsen, Nielsen, Tingleff use Delta := |h_dl| / 2 likewise).
+    """
+    if not accepted:
+        return min(radius, step_norm) * 0.5
+    if rho < 0.25:
         return radius * 0.5
     if rho > 0.75:
         return max(radius, 3.0 * step_norm)

@@ -50,7 +50,6 @@ class TerminationReason(str, Enum):
     MAX_ITERATIONS = 'max_iterations'
     MAX_TIME = 'max_time'
     INVALID_STEPS = 'too_many_invalid_steps'
-    NO_PROGRESS = 'no_progress'
 
 
 _CONVERGED = {TerminationReason.FUNCTION_TOLERANCE, TerminationReason.GRADIENT_TOLERANCE,
@@ -413,14 +412,13 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         R_new, P_new, f_new = _retract(model, state, free_block, d_pose, d_feat)
         new_cost = cost_of(R_new, P_new, f_new)
         rho = dogleg.step_quality(state.cost, new_cost, model_change)
-        if options.solver is SolverKind.GN:
-            accepted = new_cost < state.cost
-        else:
-            accepted = rho > dogleg.MIN_RELATIVE_DECREASE
+        accepted = rho > dogleg.MIN_RELATIVE_DECREASE
         if options.solver is SolverKind.LM:
             radius, decrease_factor = dogleg.lm_radius(radius, decrease_factor, rho, accepted)
         elif options.solver is SolverKind.DOGLEG:
             radius = dogleg.dogleg_radius(radius, rho, step_norm, accepted)
+        else:
+            radius = options.initial_trust_region_radius if accepted else 0.5 * step_norm
         radius = min(radius, 1e16)
         cost_change = state.cost - new_cost
         old_cost = state.cost
@@ -439,9 +437,6 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             callback(record)
         if accepted and abs(cost_change) <= options.function_tolerance * old_cost:
             termination = TerminationReason.FUNCTION_TOLERANCE
-            break
-        if options.solver is SolverKind.GN and not accepted:
-            termination = TerminationReason.NO_PROGRESS
             break
         if radius < 1e-32:
             termination = TerminationReason.MIN_TRUST_REGION
@@ -472,8 +467,14 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
     if solver is SolverKind.LM:
         z_pose, z_feat = lin.solve(1.0 / radius)
         return z_pose, z_feat, 1
-    z_pose, z_feat = lin.solve(1e-12)
-    return z_pose, z_feat, 1
+    # Gauss-Newton: the (almost) undamped step, shortened to the radius by backtracking.
+    solves = 0
+    if lin.gn is None:
+        lin.gn = lin.solve(dogleg.MIN_MU)
+        solves = 1
+    norm = math.sqrt(float(np.sum(lin.gn[0] ** 2) + np.sum(lin.gn[1] ** 2)))
+    shrink = min(1.0, radius / norm) if norm > 0 else 1.0
+    return lin.gn[0] * shrink, lin.gn[1] * shrink, solves
 
 
 def _check_features(problem: BAProblem, feats: Features, param: Parameterization) -> None:

@@ -1,0 +1,25 @@
+"""Shared fixtures: seeded generators and the location of ../shared/data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+#: The read-only datasets live beside the repository (CI clones it with shared/ next to it).
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
+
+
+def shared_file(*parts: str) -> Path:
+    """Return a file under ../shared/data, skipping the test when it is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f'shared data not available: {path}')
+    return path
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """Return a seeded random generator."""
+    return np.random.default_rng(12345)

@@ -1,0 +1,74 @@
+"""Tests of the Schur-complement normal equations (pmba.md §1.7)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import conversions, normal_equations as ne
+from pmba_ros.core.gauge import choose_gauge
+from pmba_ros.core.models import ParallaxModel, XyzModel
+from pmba_ros.core.problem import XyzFeatures
+
+from .helpers import forward_problem
+
+
+def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
+    K, S, d, _ = J_pose.shape
+    J = np.zeros((K * d, 6 * n_blocks + 3 * n_feats))
+    for k in range(K):  # a reference implementation: loops are fine in a test
+        rows = slice(k * d, (k + 1) * d)
+        for s in range(S):
+            b = slot_block[k, s]
+            if b >= 0:
+                J[rows, 6 * b:6 * b + 6] += J_pose[k, s]
+        f = feat_idx[k]
+        J[rows, 6 * n_blocks + 3 * f:6 * n_blocks + 3 * f + 3] = J_feat[k]
+    return J
+
+
+@pytest.mark.parametrize('param', ['pmba', 'xyz'])
+def test_schur_solution_equals_dense_solve(param: str) -> None:
+    """The Schur path solves the same damped system as a dense solve of J^T J."""
+    problem = forward_problem(6, n_cams=5, n_points=25)
+    if param == 'pmba':
+        feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                               problem.points_w)
+        model = ParallaxModel(problem)
+    else:
+        feats = XyzFeatures(np.array(problem.points_w))
+        model = XyzModel(problem)
+    gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
+                         problem.obs.feat_idx, problem.n_feats)
+    st = ne.SchurStructure.build(model.slots(feats), problem.obs.feat_idx, problem.n_feats,
+                                 gauge.free_block())
+    r, Jp, Jf = model.linearize(problem.R_wc, problem.centers_w, feats)
+    eqs = ne.assemble(st, r, Jp, Jf)
+    damp_p = np.full((st.n_blocks, 6), 1e-3)
+    damp_f = np.full((problem.n_feats, 3), 1e-3)
+    mask = gauge.column_mask()
+    x_p, x_f = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
+    J = _dense_jacobian(Jp, Jf, st.slot_block, problem.obs.feat_idx, st.n_blocks,
+                        problem.n_feats)
+    H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
+    g = J.T @ r.ravel()
+    free = np.concatenate([mask.ravel(), np.ones(3 * problem.n_feats, dtype=bool)])
+    x = np.zeros(free.shape[0])
+    x[free] = np.linalg.solve(H[np.ix_(free, free)], -g[free])
+    np.testing.assert_allclose(np.concatenate([x_p.ravel(), x_f.ravel()]), x,
+                               rtol=1e-6, atol=1e-9)
+
+
+def test_pmba_gauge_has_seven_dimensions() -> None:
+    """Without gauge fixing, J^T J of PMBA has exactly 7 zero eigenvalues (Sim(3))."""
+    problem = forward_problem(7, n_cams=5, n_points=30, noise_px=0.0)
+    feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                           problem.points_w)
+    model = ParallaxModel(problem)
+    _, Jp, Jf = model.linearize(problem.R_wc, problem.centers_w, feats)
+    slot_block = model.slots(feats)
+    J = _dense_jacobian(Jp, Jf, slot_block, problem.obs.feat_idx, problem.n_cams,
+                        problem.n_feats)
+    ev = np.linalg.eigvalsh(J.T @ J)
+    assert ev[6] < 1e-9 * ev[-1]
+    assert ev[7] > 1e-7 * ev[-1]

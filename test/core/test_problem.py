@@ -1,0 +1,71 @@
+"""Tests of problem validation: bad input gets a clear error or a counted drop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import make_problem
+from pmba_ros.errors import ProblemError
+
+
+def _inputs(n_cams: int = 3):
+    R = np.broadcast_to(np.eye(3), (n_cams, 3, 3)).copy()
+    P = np.column_stack([np.arange(n_cams, dtype=float), np.zeros(n_cams), np.zeros(n_cams)])
+    intr = Intrinsics.uniform(n_cams, 500, 500, 320, 240)
+    cam = np.array([0, 1, 2, 0, 1, 2, 0])
+    feat = np.array([0, 0, 0, 1, 1, 1, 2])
+    pix = np.full((7, 2), 300.0)
+    return R, P, intr, cam, feat, pix
+
+
+def test_valid_problem_drops_single_observation_features() -> None:
+    """Feature 2 has one observation: it is dropped and counted, the rest is kept."""
+    p = make_problem(*_inputs())
+    assert (p.n_cams, p.n_feats, p.n_obs) == (3, 2, 6)
+    assert p.dropped == {'single_observation_features': 1,
+                         'observations_of_dropped_features': 1}
+    assert not p.obs.cam_idx.flags.writeable
+
+
+def test_non_finite_observations_are_dropped_and_counted() -> None:
+    """NaN and inf pixels are dropped with a count; nothing else is lost."""
+    R, P, intr, cam, feat, pix = _inputs()
+    pix[0, 0] = np.nan
+    pix[4, 1] = np.inf
+    p = make_problem(R, P, intr, cam, feat, pix)
+    assert p.dropped['non_finite_observations'] == 2
+    assert p.n_obs == 4 and np.all(np.isfinite(p.obs.bearings_c))
+
+
+@pytest.mark.parametrize('field,value,match', [
+    ('cam', np.array([0, 1, 5, 0, 1, 2, 0]), 'unknown camera index 5'),
+    ('feat', np.array([0, 0, 0, 1, 1, -1, 2]), 'unknown feature index -1'),
+    ('pix', np.zeros((6, 2)), 'expected cam_idx'),
+])
+def test_structural_errors_raise(field: str, value: np.ndarray, match: str) -> None:
+    """Unknown indices and wrong shapes raise ProblemError naming the problem."""
+    R, P, intr, cam, feat, pix = _inputs()
+    args = {'cam': cam, 'feat': feat, 'pix': pix}
+    args[field] = value
+    with pytest.raises(ProblemError, match=match):
+        make_problem(R, P, intr, args['cam'], args['feat'], args['pix'])
+
+
+def test_non_finite_pose_raises() -> None:
+    """A NaN pose is an error naming the pose."""
+    R, P, intr, cam, feat, pix = _inputs()
+    P[1, 0] = np.nan
+    with pytest.raises(ProblemError, match=r'pose\(s\) \[1\]'):
+        make_problem(R, P, intr, cam, feat, pix)
+
+
+def test_duplicate_observation_is_dropped() -> None:
+    """The same (camera, feature) twice keeps the first and counts the second."""
+    R, P, intr, cam, feat, pix = _inputs()
+    cam = np.append(cam, 0)
+    feat = np.append(feat, 0)
+    pix = np.vstack([pix, [1.0, 1.0]])
+    p = make_problem(R, P, intr, cam, feat, pix)
+    assert p.dropped['duplicate_observations'] == 1

@@ -1,0 +1,56 @@
+"""Tests of pmba_ros.core.so3: group identities over batch shapes and edge angles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+
+BATCHES = [(), (1,), (3, 2)]
+
+
+@pytest.mark.parametrize('batch', BATCHES)
+def test_exp_log_round_trip(batch: tuple[int, ...], rng: np.random.Generator) -> None:
+    """log(exp(w)) == w for rotation angles below pi, over batch shapes."""
+    axis = rng.normal(size=batch + (3,))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    w = axis * rng.uniform(0.0, np.pi - 1e-2, size=batch + (1,))
+    np.testing.assert_allclose(so3.log(so3.exp(w)), w, atol=1e-10)
+
+
+@pytest.mark.parametrize('angle', [0.0, 1e-12, 1e-7, 1e-3, np.pi - 1e-4, np.pi - 1e-7])
+def test_exp_log_edge_angles(angle: float) -> None:
+    """Small angles and angles near pi survive the round trip without NaN."""
+    w = np.array([0.6, -0.48, 0.64]) * angle
+    R = so3.exp(w)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    back = so3.log(R)
+    assert np.all(np.isfinite(back))
+    np.testing.assert_allclose(so3.exp(back), R, atol=1e-9)
+
+
+def test_hat_vee_and_cross_product(rng: np.random.Generator) -> None:
+    """hat(a) b == a x b and vee(hat(a)) == a."""
+    a, b = rng.normal(size=(2, 5, 3))
+    np.testing.assert_allclose(so3.hat(a) @ b[..., None], np.cross(a, b)[..., None])
+    np.testing.assert_allclose(so3.vee(so3.hat(a)), a)
+
+
+def test_quaternion_round_trip(rng: np.random.Generator) -> None:
+    """Quaternions (x, y, z, w) round trip and match the rotation of a known axis."""
+    R = so3.exp(rng.normal(size=(20, 3)))
+    np.testing.assert_allclose(so3.from_quat_xyzw(so3.to_quat_xyzw(R)), R, atol=1e-12)
+    q = so3.to_quat_xyzw(so3.exp(np.array([0.0, 0.0, np.pi / 2])))
+    np.testing.assert_allclose(q, [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)
+
+
+def test_project_returns_nearest_rotation(rng: np.random.Generator) -> None:
+    """Projecting a perturbed rotation gives a rotation close to the original."""
+    R = so3.exp(rng.normal(size=(4, 3)))
+    noisy = R + 1e-3 * rng.normal(size=R.shape)
+    P = so3.project(noisy)
+    np.testing.assert_allclose(P @ np.swapaxes(P, 1, 2), np.broadcast_to(np.eye(3), P.shape),
+                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(P), 1.0)
+    assert np.max(so3.angle(P, R)) < 5e-3

@@ -1,0 +1,220 @@
+"""Tests of the solver: convergence, oracles, Table 3 conditioning, real data, failure paths."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+from unittest import mock
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+from pmba_ros.core import so3
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.models import ParallaxModel, make_model
+from pmba_ros.core.problem import XyzFeatures, make_problem
+from pmba_ros.core.solve import SolveOptions, solve
+from pmba_ros.errors import SolverError
+from pmba_ros.sim.scenes import street_scene, table3_scene
+
+from ..conftest import shared_file
+
+
+class SolverMixin:
+    """Behaviour every strategy shares (scipy's BaseMixin pattern)."""
+
+    solver: ClassVar[str]
+
+    @pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])
+    def test_reaches_the_minimum_found_from_ground_truth(self, param: str) -> None:
+        """From a perturbed start the final cost equals the cost reached from ground truth."""
+        # A well-conditioned scene: XYZ's far points drift off slowly and features at
+        # ~infinity make separate minima, which are tested elsewhere.
+        scene = street_scene(seed=3, n_cams=8, n_points=150, rot_noise_deg=0.2,
+                             pos_noise_m=0.02, point_noise_rel=0.01, far_fraction=0.0,
+                             collinear_fraction=0.0)
+        options = SolveOptions(param=param, solver=self.solver, function_tolerance=1e-10,
+                               max_iterations=200)
+        from_gt = solve(scene.gt, options)
+        from_start = solve(scene.start, options)
+        assert from_start.converged
+        assert from_start.final_cost == pytest.approx(from_gt.final_cost, rel=1e-5)
+        assert from_start.final_rms_px < 0.75  # 2-D error norm at 0.5 px per axis
+
+    def test_result_never_aliases_or_mutates_the_input(self) -> None:
+        """The problem's arrays are untouched and the result owns new ones."""
+        scene = street_scene(seed=4, n_cams=6, n_points=80)
+        before = scene.start.centers_w.copy()
+        result = solve(scene.start, SolveOptions(solver=self.solver, max_iterations=5))
+        np.testing.assert_array_equal(scene.start.centers_w, before)
+        assert not np.shares_memory(result.centers_w, scene.start.centers_w)
+
+
+class TestDogleg(SolverMixin):
+    """Ceres' traditional dogleg."""
+
+    solver = 'dogleg'
+
+
+class TestLevenbergMarquardt(SolverMixin):
+    """Ceres' Levenberg-Marquardt."""
+
+    solver = 'lm'
+
+
+class TestGaussNewton(SolverMixin):
+    """Gauss-Newton with backtracking along the step."""
+
+    solver = 'gn'
+
+
+def test_xyz_matches_scipy_least_squares() -> None:
+    """XYZ-BA of this engine reaches the same minimum as scipy.optimize.least_squares."""
+    scene = street_scene(seed=5, n_cams=5, n_points=40, rot_noise_deg=0.3, pos_noise_m=0.03,
+                         point_noise_rel=0.03, far_fraction=0.0, collinear_fraction=0.0)
+    problem = scene.start
+    ours = solve(problem, SolveOptions(param='xyz', solver='lm', function_tolerance=1e-12,
+                                       max_iterations=200))
+    model = make_model(ours.options.param, problem)
+    M, N = problem.n_cams, problem.n_feats
+    R0 = np.array(problem.R_wc)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        R = R0 @ so3.exp(x[:3 * M].reshape(M, 3))
+        feats = XyzFeatures(x[6 * M:].reshape(N, 3))
+        return model.residuals(R, x[3 * M:6 * M].reshape(M, 3), feats).ravel()
+
+    x0 = np.concatenate([np.zeros(3 * M), np.ravel(problem.centers_w),
+                         np.ravel(problem.points_w)])
+    ref = scipy.optimize.least_squares(fun, x0, method='lm', ftol=1e-15, xtol=1e-15,
+                                       gtol=1e-15, max_nfev=20000)
+    assert ours.final_cost == pytest.approx(ref.cost, rel=1e-6)
+
+
+def _h_ff_condition(problem, options: SolveOptions, iterations: int) -> float:
+    """cond(H_FF) (block-diagonal feature Hessian) after a number of iterations."""
+    result = solve(problem, SolveOptions(**{**{f: getattr(options, f) for f in (
+        'param', 'solver', 'pixel_weighted')}, 'max_iterations': iterations}))
+    model = make_model(result.options.param, result.problem,
+                       pixel_weighted=result.options.pixel_weighted)
+    _, _, J_feat = model.linearize(result.R_wc, result.centers_w, result.features)
+    V = np.zeros((result.problem.n_feats, 3, 3))
+    np.add.at(V, result.problem.obs.feat_idx, np.swapaxes(J_feat, 1, 2) @ J_feat)
+    ev = np.linalg.eigvalsh(V)
+    return float(ev.max() / ev.min())
+
+
+def test_table3_pmba_feature_block_stays_well_conditioned() -> None:
+    """Paper Table 3: PMBA's cond(H_FF) stays below 100, XYZ's exceeds 1e6 every iteration.
+
+    PMBA is checked at the start, at the solution and in most iterations: a nearly collinear
+    feature whose parallax changes sign passes through infinity and can briefly put its point
+    on the line of cameras, where one observer's |N| -> 0 (a transient spike, measured and
+    reported in the notes).
+    """
+    scene = table3_scene(seed=0, rot_noise_deg=0.5, pos_noise_m=0.02, point_noise_rel=0.05)
+    pmba = SolveOptions(param='pmba', solver='dogleg', pixel_weighted=False)
+    xyz = SolveOptions(param='xyz', solver='lm')
+    n_iter = solve(scene.start, pmba).iterations
+    conds = [_h_ff_condition(scene.start, pmba, k) for k in range(n_iter + 1)]
+    assert conds[0] < 100.0 and conds[-1] < 100.0
+    assert np.median(conds) < 100.0
+    assert np.mean(np.array(conds) < 100.0) >= 0.8
+    for k in range(5):
+        assert _h_ff_condition(scene.start, xyz, k) > 1e6
+
+
+def test_table3_pmba_ends_with_lower_error() -> None:
+    """PMBA-Dogleg ends at a pixel error no worse than XYZ-LM on at least 8 of 10 seeds."""
+    wins = 0
+    for seed in range(10):
+        scene = table3_scene(seed=seed)
+        p = solve(scene.start, SolveOptions(param='pmba', solver='dogleg'))
+        x = solve(scene.start, SolveOptions(param='xyz', solver='lm'))
+        wins += p.final_rms_px <= 1.01 * x.final_rms_px
+    assert wins >= 8
+
+
+def test_zero_baseline_anchor_pairs_are_never_used() -> None:
+    """Features seen only from one position (a pure rotation pair) are dropped and counted."""
+    scene = street_scene(seed=6, n_cams=6, n_points=60)
+    gt = scene.gt
+    centers = np.array(gt.centers_w)
+    centers[1] = centers[0]  # cameras 0 and 1 share a centre: no baseline between them
+    only01 = np.isin(gt.obs.cam_idx, [0, 1])
+    seen = np.bincount(gt.obs.feat_idx[~only01], minlength=gt.n_feats) == 0
+    problem = gt.with_poses(gt.R_wc, centers)
+    result = solve(problem, SolveOptions(max_iterations=3))
+    dropped = result.problem.dropped.get('features_without_anchor_baseline', 0)
+    assert dropped == int(np.sum(seen))
+    anchors_baseline = np.linalg.norm(
+        result.centers_w[result.features.main_idx] - result.centers_w[result.features.assoc_idx],
+        axis=1)
+    assert np.all(anchors_baseline > 0)
+
+
+def test_failed_steps_are_rejected_never_applied() -> None:
+    """If every trial point evaluates to NaN, no step is accepted and poses stay finite."""
+    scene = street_scene(seed=7, n_cams=5, n_points=50)
+    real = ParallaxModel.residuals
+    calls = {'n': 0}
+
+    def nan_after_first(self, R, P, feats):
+        calls['n'] += 1
+        out = real(self, R, P, feats)
+        return out if calls['n'] == 1 else np.full_like(out, np.nan)
+
+    with mock.patch.object(ParallaxModel, 'residuals', nan_after_first):
+        result = solve(scene.start, SolveOptions(max_iterations=10))
+    assert result.accepted_steps == 0
+    assert np.all(np.isfinite(result.centers_w)) and np.all(np.isfinite(result.R_wc))
+    np.testing.assert_array_equal(result.centers_w, scene.start.centers_w)
+
+
+def test_non_finite_start_is_a_clear_error() -> None:
+    """A point exactly at a camera centre gives non-finite residuals: SolverError."""
+    R = np.broadcast_to(np.eye(3), (3, 3, 3)).copy()
+    P = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    X = np.array([[0.0, 0, 0], [0, 0, 5]])
+    cam = np.array([0, 1, 2, 0, 1, 2])
+    feat = np.array([0, 0, 0, 1, 1, 1])
+    pix = np.full((6, 2), 250.0)
+    problem = make_problem(R, P, Intrinsics.uniform(3, 500, 500, 320, 240), cam, feat, pix,
+                           points_w=X)
+    with pytest.raises(SolverError, match='not finite at the initial point'):
+        solve(problem, SolveOptions(param='xyz'))
+
+
+def test_progress_callback_sees_every_iteration() -> None:
+    """The callback receives the initial state and one record per iteration."""
+    scene = street_scene(seed=8, n_cams=5, n_points=50)
+    records = []
+    result = solve(scene.start, SolveOptions(max_iterations=4), callback=records.append)
+    assert len(records) == result.iterations + 1 == len(result.history)
+    assert records[0].iteration == 0 and records[-1].iteration == result.iterations
+    report = result.to_report()
+    assert {'param', 'solver', 'converged', 'iterations', 'linear_solves', 'initial_cost',
+            'final_cost', 'initial_rms_px', 'final_rms_px', 'time_s', 'history'} <= set(report)
+
+
+def _pmba_vs_xyz(problem) -> tuple[float, float]:
+    pmba = solve(problem, SolveOptions(param='pmba', solver='dogleg'))
+    xyz = solve(problem, SolveOptions(param='xyz', solver='lm'))
+    assert pmba.converged
+    return pmba.final_rms_px, xyz.final_rms_px
+
+
+@pytest.mark.parametrize('name', ['problem-49-7776-pre.txt', 'problem-21-11315-pre.txt'])
+def test_bal_pmba_dogleg_no_worse_than_xyz_lm(name: str) -> None:
+    """BAL Ladybug-49 and Trafalgar-21: PMBA-DL pixel RMS within 1% of XYZ-LM's (or better)."""
+    from pmba_ros.io.bal import read_bal
+    pmba, xyz = _pmba_vs_xyz(read_bal(shared_file('bal', name)))
+    assert pmba <= 1.01 * xyz
+
+
+def test_fake_pile_pmba_dogleg_no_worse_than_xyz_lm() -> None:
+    """ParallaxBA fake-pile (DLT start): PMBA-DL ends below XYZ-LM, which gets stuck."""
+    from pmba_ros.io.parallaxba_files import read_parallaxba, triangulate_points
+    problem = read_parallaxba(shared_file('parallaxba', 'fake-pile'))
+    pmba, xyz = _pmba_vs_xyz(problem.with_points(triangulate_points(problem)))
+    assert pmba <= 1.01 * xyz

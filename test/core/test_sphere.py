@@ -1,0 +1,40 @@
+"""Tests of pmba_ros.core.sphere: the S^2 retraction of PMBA eqs. (3)-(4)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmba_ros.core import so3, sphere
+
+
+def test_tangent_basis_is_a_rotation(rng: np.random.Generator) -> None:
+    """[a1 a2 n] is a rotation for random and axis-aligned n (PMBA eq. 3)."""
+    n = sphere.normalize(np.vstack([rng.normal(size=(50, 3)), np.eye(3), -np.eye(3)]))
+    A = sphere.tangent_basis(n)
+    frame = np.concatenate([A, n[:, :, None]], axis=2)
+    np.testing.assert_allclose(frame @ np.swapaxes(frame, 1, 2),
+                               np.broadcast_to(np.eye(3), frame.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(frame), 1.0)
+
+
+def test_retract_stays_on_sphere_and_matches_exp(rng: np.random.Generator) -> None:
+    """Exp(A_n dn) n, closed form == Rodrigues, and unit norm for large steps (eq. 4)."""
+    n = sphere.normalize(rng.normal(size=(30, 3)))
+    delta = rng.normal(size=(30, 2)) * 2.0
+    out = sphere.retract(n, delta)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
+    k = np.einsum('nij,nj->ni', sphere.tangent_basis(n), delta)
+    np.testing.assert_allclose(out, np.einsum('nij,nj->ni', so3.exp(k), n), atol=1e-12)
+    np.testing.assert_allclose(sphere.retract(n, np.zeros((30, 2))), n, atol=1e-15)
+
+
+def test_retract_derivative_at_zero(rng: np.random.Generator) -> None:
+    """d n / d dn at 0 is [-a2, a1] (pmba.md §1.5)."""
+    n = sphere.normalize(rng.normal(size=(5, 3)))
+    A = sphere.tangent_basis(n)
+    eps = 1e-6
+    for col, expected in ((0, -A[:, :, 1]), (1, A[:, :, 0])):
+        d = np.zeros((5, 2))
+        d[:, col] = eps
+        num = (sphere.retract(n, d) - sphere.retract(n, -d)) / (2 * eps)
+        np.testing.assert_allclose(num, expected, atol=1e-8)
