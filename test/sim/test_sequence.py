@@ -1,0 +1,115 @@
+"""Tests of pmba_ros.sim.sequence: shapes, determinism, geometry and drift of the scenarios."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.sim.sequence import (
+    SCENARIOS,
+    SimSequence,
+    observation_counts,
+    simulate_sequence,
+    track_lengths,
+)
+
+
+@pytest.fixture(scope='module', params=SCENARIOS)
+def seq(request: pytest.FixtureRequest) -> SimSequence:
+    return simulate_sequence(request.param, n_keyframes=40, seed=3)
+
+
+def test_shapes_and_stamps(seq: SimSequence) -> None:
+    F = len(seq)
+    assert F == 40 == len(seq.frames)
+    assert seq.R_wc_gt.shape == seq.R_wc_odom.shape == (F, 3, 3)
+    assert seq.centers_gt.shape == seq.centers_odom.shape == (F, 3)
+    assert np.all(np.diff(seq.stamps_ns) == 100_000_000)  # 10 Hz
+    assert [f.stamp_ns for f in seq.frames] == seq.stamps_ns.tolist()
+    np.testing.assert_allclose(np.einsum('fji,fjk->fik', seq.R_wc_gt, seq.R_wc_gt),
+                               np.tile(np.eye(3), (F, 1, 1)), atol=1e-12)
+    assert len(seq.gt_trajectory()) == len(seq.odom_trajectory()) == F
+
+
+def test_observations_are_noisy_projections(seq: SimSequence) -> None:
+    for i in (0, len(seq) // 2, len(seq) - 1):
+        f = seq.frames[i]
+        assert len(f) >= 50
+        assert np.all(f.camera_ids == 0)
+        assert np.unique(f.feature_ids).size == len(f)
+        h = (seq.points_w[f.feature_ids] - seq.centers_gt[i]) @ seq.R_wc_gt[i]
+        assert np.all(h[:, 2] > 0)
+        pix = seq.camera.denormalize(h[:, :2] / h[:, 2:3])
+        err = np.linalg.norm(pix - f.pixels, axis=1)
+        assert np.sqrt(np.mean(err ** 2)) == pytest.approx(seq.noise_px * np.sqrt(2), rel=0.3)
+        np.testing.assert_allclose(seq.camera.denormalize(f.normalized), f.pixels, atol=1e-6)
+        assert np.all((f.pixels >= 0) & (f.pixels < [seq.camera.width + 2,
+                                                     seq.camera.height + 2]))
+
+
+def test_tracks_are_local_and_contiguous(seq: SimSequence) -> None:
+    lengths = track_lengths(seq)
+    assert lengths.max() <= 40
+    seen = lengths > 0
+    assert np.mean(lengths[seen] >= 2) > 0.7
+    counts = observation_counts(seq)
+    assert counts.shape == (len(seq),)
+    # Contiguous: a feature seen at keyframes i and j is seen at every keyframe in between.
+    first = np.full(seq.points_w.shape[0], -1)
+    last = np.full(seq.points_w.shape[0], -1)
+    for i, f in enumerate(seq.frames):
+        first[f.feature_ids[first[f.feature_ids] < 0]] = i
+        last[f.feature_ids] = i
+    np.testing.assert_array_equal((last - first + 1)[seen], lengths[seen])
+
+
+def test_same_seed_same_sequence() -> None:
+    a = simulate_sequence('street', 15, seed=7)
+    b = simulate_sequence('street', 15, seed=7)
+    c = simulate_sequence('street', 15, seed=8)
+    np.testing.assert_array_equal(a.centers_odom, b.centers_odom)
+    np.testing.assert_array_equal(a.frames[-1].pixels, b.frames[-1].pixels)
+    assert not np.array_equal(a.frames[-1].pixels, c.frames[-1].pixels)
+
+
+def test_street_is_forward_motion_with_far_features() -> None:
+    seq = simulate_sequence('street', 100, seed=0)
+    steps = np.diff(seq.centers_gt, axis=0)
+    assert np.all(steps[:, 0] == pytest.approx(1.0))  # 10 m/s at 10 Hz
+    assert np.max(np.abs(seq.centers_gt[:, 1:])) < 0.35  # gentle weave
+    depth = np.linalg.norm(seq.points_w[np.concatenate([f.feature_ids for f in seq.frames])]
+                           - seq.centers_gt[0], axis=1)
+    assert np.mean(depth > 50.0) > 0.2  # a good share of far features
+
+
+def test_drift_is_about_the_requested_fraction() -> None:
+    seq = simulate_sequence('street', 200, seed=0, drift=0.02)
+    distance = np.sum(np.linalg.norm(np.diff(seq.centers_gt, axis=0), axis=1))
+    end_error = np.linalg.norm(seq.centers_odom[-1] - seq.centers_gt[-1])
+    assert 0.005 * distance < end_error < 0.04 * distance
+    exact = simulate_sequence('street', 20, seed=0, drift=0.0)
+    np.testing.assert_allclose(exact.centers_odom, exact.centers_gt, atol=1e-9)
+    np.testing.assert_allclose(exact.R_wc_odom, exact.R_wc_gt, atol=1e-9)
+
+
+def test_rotation_scenario_has_no_baseline() -> None:
+    seq = simulate_sequence('rotation', 30, seed=0)
+    assert np.all(seq.centers_gt == 0.0)
+    assert np.max(np.rad2deg(so3.angle(seq.R_wc_gt[0], seq.R_wc_gt))) > 10.0
+
+
+@pytest.mark.parametrize('distortion', ['none', 'plumb_bob', 'equidistant'])
+def test_distortion_models(distortion: str) -> None:
+    seq = simulate_sequence('aerial', 5, distortion=distortion, noise_px=0.0)
+    assert seq.camera.distortion_model == distortion
+    f = seq.frames[2]
+    np.testing.assert_allclose(seq.camera.denormalize(f.normalized), f.pixels, atol=1e-6)
+
+
+@pytest.mark.parametrize('kwargs', [{'scenario': 'city'}, {'n_keyframes': 1},
+                                    {'noise_px': -1.0}, {'rate_hz': 0.0},
+                                    {'distortion': 'fisheye'}, {'max_track_length': 1}])
+def test_invalid_arguments(kwargs: dict[str, object]) -> None:
+    with pytest.raises(ValueError, match='simulate_sequence|scenario|distortion'):
+        simulate_sequence(**kwargs)  # type: ignore[arg-type]
