@@ -60,6 +60,10 @@ REORDER_BUFFER = 256
 MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
+REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
+                                'keyframe_stamp_not_increasing', 'stale_tracks'})
+"""Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
+
 _KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
 
 
@@ -79,7 +83,9 @@ class ReplayReport:
         keyframes_out: Keyframes in the optimized trajectory.
         solve_ms: Solve time per keyframe solve, ms.
         iterations: Solver iterations per solve.
-        costs: Final cost per solve (if the back-end reports it).
+        costs: Cost after each solve.
+        costs_before: Cost before each solve.
+        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
         counters: The back-end's counters.
         bag_duration_s: Header-stamp span of the inputs, s.
         wall_s: Wall time of the replay, s.
@@ -101,6 +107,8 @@ class ReplayReport:
     solve_ms: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
+    costs_before: list[float] = field(default_factory=list)
+    update_ms: list[float] = field(default_factory=list)
     counters: dict[str, Any] = field(default_factory=dict)
     bag_duration_s: float = 0.0
     wall_s: float = 0.0
@@ -134,7 +142,9 @@ class ReplayReport:
             'solve_ms_mean': float(solve.mean()) if solve.size else None,
             'solve_ms_max': float(solve.max()) if solve.size else None,
             'iterations': [int(v) for v in self.iterations],
-            'costs': [float(v) for v in self.costs],
+            'costs': [_finite(v) for v in self.costs],
+            'costs_before': [_finite(v) for v in self.costs_before],
+            'update_ms': [round(float(v), 3) for v in self.update_ms],
             'bag_duration_s': self.bag_duration_s,
             'wall_s': self.wall_s,
             'realtime_factor': (self.realtime_factor if math.isfinite(self.realtime_factor)
@@ -146,6 +156,11 @@ class ReplayReport:
         if self.error is not None:
             out['error'] = self.error
         return out
+
+
+def _finite(value: float) -> float | None:
+    """Return ``value`` or None if it is not finite (JSON has no NaN)."""
+    return float(value) if math.isfinite(value) else None
 
 
 def _jsonable(value: Any) -> Any:
@@ -317,6 +332,7 @@ class _Run:
         self.first_stamp: int | None = None
         self.last_stamp = 0
         self.tracks_accepted = 0
+        self.tracks_rejected = 0
         self.first_error: str | None = None
 
     def feed(self, stamp: int, kind: str, message: BagMessage) -> None:
@@ -330,26 +346,41 @@ class _Run:
             report.keyframes_in += 1
         handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
                    'keyframe': self.logic.on_keyframe}[kind]
+        before = self._rejections()
         try:
             handler(message.msg)
         except MessageError as err:
-            report.messages_rejected += 1
-            logger.debug('rejected %s message at %d ns: %s', message.topic, stamp, err)
-            if self.first_error is None:
-                self.first_error = f'{message.topic} at {stamp} ns: {err}'
-            if kind == 'tracks' and not self.tracks_accepted and \
-                    report.messages_rejected >= MAX_REJECTED_BEFORE_ANY_ACCEPTED:
-                self._raise_all_rejected()
+            self._rejected(kind, message, stamp, str(err))
         else:
-            if kind == 'tracks':
+            if self._rejections() > before:
+                self._rejected(kind, message, stamp, str(getattr(self.logic, 'last_error', '')))
+            elif kind == 'tracks':
                 self.tracks_accepted += 1
         self.step()
         if self.progress is not None:
             self.progress(report.messages_in, self.total)
 
+    def _rejections(self) -> int:
+        """Return the logic's count of rejected input messages."""
+        counters = getattr(getattr(self.logic, 'stats', None), 'counters', None) or {}
+        return int(sum(v for k, v in counters.items() if k in REJECTION_COUNTERS))
+
+    def _rejected(self, kind: str, message: BagMessage, stamp: int, error: str) -> None:
+        """Count a rejected input; stop if no tracks message has been usable."""
+        report = self.report
+        report.messages_rejected += 1
+        logger.debug('rejected %s message at %d ns: %s', message.topic, stamp, error)
+        if self.first_error is None:
+            self.first_error = f'{message.topic} at {stamp} ns: {error}'
+        if kind == 'tracks':
+            self.tracks_rejected += 1
+            if not self.tracks_accepted and \
+                    self.tracks_rejected >= MAX_REJECTED_BEFORE_ANY_ACCEPTED:
+                self._raise_all_rejected()
+
     def _raise_all_rejected(self) -> None:
         """Raise the error for a tracks topic none of whose messages parse."""
-        msg = (f'{self.report.messages_rejected} tracks messages rejected and none accepted '
+        msg = (f'{self.tracks_rejected} tracks messages rejected and none accepted '
                f'(wrong --tracks-layout?); first error: {self.first_error}')
         raise MessageError(msg)
 
@@ -368,7 +399,7 @@ class _Run:
                 self.writer.write(resolve_topic(topic), msg, _stamp_ns(msg, self.last_stamp))
                 self.report.messages_out += 1
         self.step()
-        if self.report.messages_rejected and not self.tracks_accepted:
+        if self.tracks_rejected and not self.tracks_accepted:
             self._raise_all_rejected()
 
 
@@ -527,16 +558,14 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     stats = getattr(logic, 'stats', None)
     if stats is None:
         return
-    get = stats.get if isinstance(stats, dict) else (lambda k, d=None: getattr(stats, k, d))
-    report.solve_ms = [float(v) for v in (get('solve_ms', None) or [])]
-    report.iterations = [int(v) for v in (get('iterations', None) or [])]
-    costs = get('costs', None) or get('cost', None) or get('final_cost', None) or []
-    report.costs = [float(v) for v in costs] if not np.isscalar(costs) else []
-    counters = get('counters', None)
-    if counters is None and not isinstance(stats, dict):
-        counters = {k: v for k, v in vars(stats).items()
-                    if isinstance(v, int | float) and not isinstance(v, bool)}
-    report.counters = dict(counters or {})
+    report.solve_ms = [float(v) for v in getattr(stats, 'solve_ms', [])]
+    report.iterations = [int(v) for v in getattr(stats, 'iterations', [])]
+    report.costs = [float(v) for v in getattr(stats, 'cost_after', [])]
+    report.costs_before = [float(v) for v in getattr(stats, 'cost_before', [])]
+    report.update_ms = [float(v) for v in getattr(stats, 'update_ms', [])]
+    report.counters = dict(sorted(dict(getattr(stats, 'counters', {}) or {}).items()))
+    if hasattr(stats, 'keyframes'):
+        report.counters['keyframes_processed'] = int(stats.keyframes)
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',

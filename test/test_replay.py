@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -31,7 +32,7 @@ class StubLogic:
         self.backend = backend
         self.poses: list[Any] = []
         self.pending: list[Any] = []
-        self.stats = {'solve_ms': [], 'iterations': [], 'counters': {'keyframes': 0}}
+        self.stats = SimpleNamespace(solve_ms=[], iterations=[], counters={'keyframes': 0})
 
     def on_camera_info(self, msg: Any) -> None:
         """Parse a CameraInfo."""
@@ -58,9 +59,9 @@ class StubLogic:
                 self.backend)))
             out.append(('/tf', make_tf(pose.stamp_ns, 'map', 'odom', np.zeros(3),
                                        np.array([0, 0, 0, 1.0]), self.backend)))
-            self.stats['solve_ms'].append(1.0)
-            self.stats['iterations'].append(n % 3)
-            self.stats['counters']['keyframes'] += 1
+            self.stats.solve_ms.append(1.0)
+            self.stats.iterations.append(n % 3)
+            self.stats.counters['keyframes'] += 1
         self.pending = []
         return out
 
