@@ -1,0 +1,1 @@
+"""Tests of pmba_ros, mirroring the package layout."""

@@ -1,0 +1,1 @@
+"""The ROS-free back-end: message adapters, state machine and outputs."""

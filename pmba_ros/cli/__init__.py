@@ -1,0 +1,1 @@
+"""The ``pmba`` command line, one module per verb."""

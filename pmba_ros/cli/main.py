@@ -16,7 +16,7 @@ from pmba_ros import __version__
 from pmba_ros.errors import PmbaError
 
 VERBS: dict[str, tuple[str, str]] = {
-    'solve': ('pmba_ros.cli.solve', 'solve a BA problem file (BAL, ParallaxBA) or a simulated scene'),
+    'solve': ('pmba_ros.cli.solve', 'solve a BA problem (BAL, ParallaxBA, simulated scene)'),
     'simulate': ('pmba_ros.cli.simulate', 'write a simulated front-end bag or BA problem'),
     'replay': ('pmba_ros.cli.replay', 'run the back-end over recorded bags and evaluate'),
     'evaluate': ('pmba_ros.cli.evaluate', 'ATE / RPE of a trajectory against ground truth'),

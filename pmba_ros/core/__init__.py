@@ -1,0 +1,1 @@
+"""The PMBA engine: geometry, problems, residuals, normal equations and solvers."""

@@ -83,7 +83,8 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
         d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)
         swap = d_main > _SWAP_DEPTH_RATIO * d_assoc
-        main_idx, assoc_idx = np.where(swap, assoc_idx, main_idx), np.where(swap, main_idx, assoc_idx)
+        main_idx, assoc_idx = (np.where(swap, assoc_idx, main_idx),
+                               np.where(swap, main_idx, assoc_idx))
     return main_idx, assoc_idx, ok
 
 

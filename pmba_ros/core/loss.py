@@ -23,7 +23,7 @@ class Loss(str, Enum):
 
 
 def rho(sq_norm: FloatArray, loss: Loss, scale: float) -> tuple[FloatArray, FloatArray]:
-    """Return rho(z) (in residual units squared) and rho'(z) for z = sq_norm.
+    """Return the loss value (residual units squared) and its derivative at z = sq_norm.
 
     Args:
         sq_norm: Squared residual norms, shape (K,).

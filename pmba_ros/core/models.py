@@ -97,7 +97,7 @@ class ParallaxModel(Model[ParallaxFeatures]):
         return np.einsum('kij,kj->ki', self._weights, local)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
-        """Return slots (i, m, a)."""
+        """Return the observer, main and associate pose of each observation."""
         return residuals.pose_slots(feats, self.obs)
 
     def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
@@ -179,7 +179,7 @@ class IdpModel(Model[IdpFeatures]):
     pixel_residuals = True
 
     def slots(self, feats: IdpFeatures) -> IntArray:
-        """Return slots (i, h)."""
+        """Return the observer and anchor pose of each observation."""
         return baselines.idp_slots(feats, self.obs)
 
     def residuals(self, R_wc: FloatArray, centers_w: FloatArray,

@@ -260,7 +260,8 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         S_blocks -= agg @ (T[q1] @ np.swapaxes(eqs.W[q2], 1, 2)).reshape(-1, 36)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
-    rhs = -eqs.g_pose + _scatter_w(structure, np.einsum('qij,qj->qi', eqs.W, Vg[structure.w_feat]))
+    rhs = -eqs.g_pose + _scatter_w(structure,
+                                   np.einsum('qij,qj->qi', eqs.W, Vg[structure.w_feat]))
     free = pose_free.reshape(-1)
     dim = nb * 6
     rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
@@ -321,7 +322,7 @@ def _scatter_feat(structure: SchurStructure, values: FloatArray) -> FloatArray:
 
 def jacobian_product(structure: SchurStructure, J_pose: FloatArray, J_feat: FloatArray,
                      x_pose: FloatArray, x_feat: FloatArray) -> FloatArray:
-    """Return J x per observation, shape (K, d), for pose (n_blocks, 6) and feature (N, 3) steps."""
+    """Return J x per observation (K, d) for steps of poses (n_blocks, 6) and features (N, 3)."""
     blocks = structure.slot_block
     xp = np.where((blocks >= 0)[:, :, None], x_pose[np.maximum(blocks, 0)], 0.0)
     return (np.einsum('ksdi,ksi->kd', J_pose, xp)

@@ -172,10 +172,12 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     centers_w = np.asarray(centers_w, dtype=float)
     M = R_wc.shape[0] if R_wc.ndim == 3 else -1
     if R_wc.shape != (M, 3, 3) or centers_w.shape != (M, 3) or M < 1:
-        msg = f'poses: expected R_wc (M,3,3) and centers_w (M,3), got {R_wc.shape}, {centers_w.shape}'
+        msg = (f'poses: expected R_wc (M,3,3) and centers_w (M,3), got {R_wc.shape}, '
+               f'{centers_w.shape}')
         raise ProblemError(msg)
     if not (np.all(np.isfinite(R_wc)) and np.all(np.isfinite(centers_w))):
-        bad = np.flatnonzero(~(np.isfinite(R_wc).all(axis=(1, 2)) & np.isfinite(centers_w).all(axis=1)))
+        finite = np.isfinite(R_wc).all(axis=(1, 2)) & np.isfinite(centers_w).all(axis=1)
+        bad = np.flatnonzero(~finite)
         msg = f'poses: non-finite values in pose(s) {bad[:10].tolist()}'
         raise ProblemError(msg)
     if len(intrinsics) != M:
@@ -189,7 +191,9 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         msg = (f'observations: expected cam_idx (K,), feat_idx (K,), pixels (K,2); got '
                f'{cam_idx.shape}, {feat_idx.shape}, {pixels.shape}')
         raise ProblemError(msg)
-    if K and not (np.issubdtype(cam_idx.dtype, np.integer) and np.issubdtype(feat_idx.dtype, np.integer)):
+    integer = (np.issubdtype(cam_idx.dtype, np.integer)
+               and np.issubdtype(feat_idx.dtype, np.integer))
+    if K and not integer:
         msg = 'observations: cam_idx and feat_idx must be integer arrays'
         raise ProblemError(msg)
     cam_idx = cam_idx.astype(np.int64)
@@ -203,7 +207,8 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     bad_feat = (feat_idx < 0) | (feat_idx >= N)
     if np.any(bad_feat):
         k = int(np.flatnonzero(bad_feat)[0])
-        msg = f'observation {k}: unknown feature index {int(feat_idx[k])} (problem has {N} features)'
+        msg = (f'observation {k}: unknown feature index {int(feat_idx[k])} '
+               f'(problem has {N} features)')
         raise ProblemError(msg)
     if points_w is not None:
         points_w = np.asarray(points_w, dtype=float)
@@ -267,7 +272,8 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     pts = None if points_w is None else _readonly(points_w[feat_ok])
     return BAProblem(_readonly(R_wc.copy()), _readonly(centers_w.copy()), intrinsics, obs,
                      int(np.sum(feat_ok)), pts, _readonly(fixed_arr.copy()),
-                     _readonly(ids[feat_ok].astype(np.int64)), {k: v for k, v in dropped.items() if v})
+                     _readonly(ids[feat_ok].astype(np.int64)),
+                     {k: v for k, v in dropped.items() if v})
 
 
 def _count(dropped: dict[str, int], reason: str, count: int) -> None:

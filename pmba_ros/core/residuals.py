@@ -135,7 +135,8 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     J_N = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
     s_safe = np.maximum(s, _TINY)
     D_sq = np.sum(t * t, axis=1)
-    # dg/du = cos(theta) (D^2 u - c t)/s - sin(theta) t; dg/dt = cos(theta)(t - c u)/s - sin(theta) u
+    # dg/du = cos(theta) (D^2 u - c t)/s - sin(theta) t
+    # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
     dg_du = (cos_t / s_safe)[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
     dg_dt = (cos_t / s_safe)[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
     dN_du = g[:, None, None] * np.eye(3) + u[:, :, None] * dg_du[:, None, :]

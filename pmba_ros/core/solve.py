@@ -393,7 +393,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                 break
             continue
         linear_solves += lin_solved
-        step_norm = float(math.sqrt(z_pose.ravel() @ z_pose.ravel() + z_feat.ravel() @ z_feat.ravel()))
+        step_norm = math.sqrt(float(np.sum(z_pose ** 2) + np.sum(z_feat ** 2)))
         d_pose, d_feat = lin.to_delta(z_pose, z_feat)
         delta_norm = float(math.sqrt(np.sum(d_pose ** 2) + np.sum(d_feat ** 2)))
         if delta_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
@@ -463,7 +463,8 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
         alpha = dogleg.cauchy_alpha(g, float(np.sum(Jg * Jg)))
         step, _ = dogleg.dogleg_step(g, alpha, b, radius)
         n_pose = lin.g_pose.size
-        return step[:n_pose].reshape(lin.g_pose.shape), step[n_pose:].reshape(lin.g_feat.shape), solves
+        return (step[:n_pose].reshape(lin.g_pose.shape),
+                step[n_pose:].reshape(lin.g_feat.shape), solves)
     if solver is SolverKind.LM:
         z_pose, z_feat = lin.solve(1.0 / radius)
         return z_pose, z_feat, 1

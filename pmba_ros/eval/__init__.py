@@ -1,0 +1,1 @@
+"""Trajectory evaluation: formats, alignment, ATE and RPE."""

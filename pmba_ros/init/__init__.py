@@ -1,0 +1,1 @@
+"""Global initialization of PMBA from feature tracks alone (pmba.md §3-4)."""

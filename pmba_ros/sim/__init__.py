@@ -1,0 +1,1 @@
+"""Deterministic simulated scenes, sequences and front-end bags."""

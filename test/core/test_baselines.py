@@ -41,7 +41,7 @@ def test_idp_jacobians_match_central_differences() -> None:
 
 
 def test_idp_round_trip_to_xyz() -> None:
-    """xyz -> idp -> xyz reproduces the points."""
+    """Converting xyz -> idp -> xyz reproduces the points."""
     problem = forward_problem(5)
     feats = conversions.xyz_to_idp(problem, problem.R_wc, problem.centers_w, problem.points_w)
     back = conversions.idp_to_xyz(problem.R_wc, problem.centers_w, feats)

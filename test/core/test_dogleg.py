@@ -46,6 +46,6 @@ def test_radius_update_rules() -> None:
 
 
 def test_step_quality() -> None:
-    """rho is actual over predicted decrease; a non-positive prediction is -inf."""
+    """Step quality is actual over predicted decrease; non-positive prediction gives -inf."""
     assert dogleg.step_quality(10.0, 8.0, 4.0) == 0.5
     assert dogleg.step_quality(10.0, 8.0, 0.0) == -np.inf

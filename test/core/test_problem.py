@@ -30,7 +30,7 @@ def test_valid_problem_drops_single_observation_features() -> None:
 
 
 def test_non_finite_observations_are_dropped_and_counted() -> None:
-    """NaN and inf pixels are dropped with a count; nothing else is lost."""
+    """Non-finite pixels (NaN, inf) are dropped with a count; nothing else is lost."""
     R, P, intr, cam, feat, pix = _inputs()
     pix[0, 0] = np.nan
     pix[4, 1] = np.inf

@@ -213,7 +213,7 @@ def test_bal_pmba_dogleg_no_worse_than_xyz_lm(name: str) -> None:
 
 
 def test_fake_pile_pmba_dogleg_no_worse_than_xyz_lm() -> None:
-    """ParallaxBA fake-pile (DLT start): PMBA-DL ends below XYZ-LM, which gets stuck."""
+    """On ParallaxBA fake-pile (DLT start) PMBA-DL ends below XYZ-LM, which gets stuck."""
     from pmba_ros.io.parallaxba_files import read_parallaxba, triangulate_points
     problem = read_parallaxba(shared_file('parallaxba', 'fake-pile'))
     pmba, xyz = _pmba_vs_xyz(problem.with_points(triangulate_points(problem)))

@@ -29,7 +29,7 @@ def test_retract_stays_on_sphere_and_matches_exp(rng: np.random.Generator) -> No
 
 
 def test_retract_derivative_at_zero(rng: np.random.Generator) -> None:
-    """d n / d dn at 0 is [-a2, a1] (pmba.md §1.5)."""
+    """The derivative d n / d dn at 0 is [-a2, a1] (pmba.md §1.5)."""
     n = sphere.normalize(rng.normal(size=(5, 3)))
     A = sphere.tangent_basis(n)
     eps = 1e-6

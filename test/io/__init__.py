@@ -1,0 +1,1 @@
+"""Tests of pmba_ros.io."""
