@@ -7,10 +7,10 @@ Each verb module has ``add_arguments(parser)`` and ``run(args) -> int``. Library
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 import importlib
 import logging
 import sys
-from collections.abc import Sequence
 
 from pmba_ros import __version__
 from pmba_ros.errors import PmbaError

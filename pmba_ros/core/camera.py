@@ -49,7 +49,7 @@ class Intrinsics:
         if np.any(arrays[0] <= 0) or np.any(arrays[1] <= 0):
             msg = 'intrinsics: focal lengths must be positive'
             raise ProblemError(msg)
-        for name, arr in zip(('fx', 'fy', 'cx', 'cy', 'k1', 'k2'), arrays):
+        for name, arr in zip(('fx', 'fy', 'cx', 'cy', 'k1', 'k2'), arrays, strict=True):
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
 

@@ -13,8 +13,13 @@ import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import sphere
-from pmba_ros.core.problem import (BAProblem, IdpFeatures, ParallaxFeatures, XyzFeatures,
-                                   observation_pairs)
+from pmba_ros.core.problem import (
+    BAProblem,
+    IdpFeatures,
+    ParallaxFeatures,
+    XyzFeatures,
+    observation_pairs,
+)
 from pmba_ros.errors import ProblemError
 
 logger = logging.getLogger(__name__)

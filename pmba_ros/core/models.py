@@ -10,8 +10,13 @@ import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import baselines, residuals, so3
 from pmba_ros.core.camera import project, projection_jacobian
-from pmba_ros.core.problem import (BAProblem, IdpFeatures, Parameterization, ParallaxFeatures,
-                                   XyzFeatures)
+from pmba_ros.core.problem import (
+    BAProblem,
+    IdpFeatures,
+    ParallaxFeatures,
+    Parameterization,
+    XyzFeatures,
+)
 
 F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
 

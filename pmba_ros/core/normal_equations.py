@@ -172,7 +172,7 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
         J_pose: Pose Jacobian blocks per slot, shape (K, S, d, 6).
         J_feat: Feature Jacobian blocks, shape (K, d, 3).
     """
-    K, S, d, _ = J_pose.shape
+    _K, S, d, _ = J_pose.shape
     n_pairs = structure.pair_rows.shape[0]
     U = np.zeros((n_pairs, 36))
     W = np.zeros((structure.w_block.shape[0], 18))

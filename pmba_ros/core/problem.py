@@ -244,7 +244,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     # Features need two observing cameras (an associate anchor), pmba.md §3.3.
     counts = np.bincount(feat_idx[order], minlength=N)
     feat_ok = counts >= 2
-    _count(dropped, 'single_observation_features', int(np.sum((counts == 1))))
+    _count(dropped, 'single_observation_features', int(np.sum(counts == 1)))
     _count(dropped, 'unobserved_features', int(np.sum(counts == 0)))
     if points_w is not None:
         finite_pt = np.all(np.isfinite(points_w), axis=1)

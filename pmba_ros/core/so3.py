@@ -20,7 +20,7 @@ _EPS_SQ = 1e-10
 def hat(omega: FloatArray) -> FloatArray:
     """Return the skew-symmetric matrix [omega]x, shape (..., 3, 3)."""
     omega = np.asarray(omega, dtype=float)
-    out = np.zeros(omega.shape[:-1] + (3, 3))
+    out = np.zeros((*omega.shape[:-1], 3, 3))
     x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
     out[..., 0, 1] = -z
     out[..., 0, 2] = y
@@ -109,7 +109,7 @@ def from_quat_xyzw(quat_xyzw: FloatArray) -> FloatArray:
     q = np.asarray(quat_xyzw, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty(q.shape[:-1] + (3, 3))
+    out = np.empty((*q.shape[:-1], 3, 3))
     out[..., 0, 0] = 1 - 2 * (y * y + z * z)
     out[..., 0, 1] = 2 * (x * y - z * w)
     out[..., 0, 2] = 2 * (x * z + y * w)

@@ -21,12 +21,20 @@ from typing import Any
 import numpy as np
 
 from pmba_ros._typing import FloatArray
-from pmba_ros.core import conversions, dogleg, normal_equations as ne, so3
+from pmba_ros.core import conversions, dogleg, so3
+from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
 from pmba_ros.core.models import Model, make_model
-from pmba_ros.core.problem import (BAProblem, Features, IdpFeatures, Parameterization,
-                                   ParallaxFeatures, XyzFeatures, subset_features)
+from pmba_ros.core.problem import (
+    BAProblem,
+    Features,
+    IdpFeatures,
+    ParallaxFeatures,
+    Parameterization,
+    XyzFeatures,
+    subset_features,
+)
 from pmba_ros.errors import ProblemError, SolverError
 
 logger = logging.getLogger(__name__)
@@ -178,16 +186,18 @@ class SolveResult:
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
         p = self.problem
+        head = (f'{self.options.param.value.upper()} / {self.options.solver.value}'
+                f' (loss {self.options.loss.value}): {p.n_cams} poses, {p.n_feats} features,'
+                f' {p.n_obs} observations')
+        iters = (f'  iterations {self.iterations} (accepted {self.accepted_steps}),'
+                 f' linear solves {self.linear_solves}, {self.time_s:.3f} s')
+        state = 'converged' if self.converged else 'not converged'
         return '\n'.join([
-            f'{self.options.param.value.upper()} / {self.options.solver.value}'
-            f' (loss {self.options.loss.value}): {p.n_cams} poses, {p.n_feats} features,'
-            f' {p.n_obs} observations',
+            head,
             f'  cost     {self.initial_cost:.6e} -> {self.final_cost:.6e}',
             f'  rms_px   {self.initial_rms_px:.4f} -> {self.final_rms_px:.4f}',
-            f'  iterations {self.iterations} (accepted {self.accepted_steps}),'
-            f' linear solves {self.linear_solves}, {self.time_s:.3f} s',
-            f'  termination: {self.termination.value}'
-            f' ({"converged" if self.converged else "not converged"})'])
+            iters,
+            f'  termination: {self.termination.value} ({state})'])
 
     def to_report(self) -> dict[str, Any]:
         """Return the JSON-able report of the ``solve`` CLI."""

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmba_ros.core import conversions, normal_equations as ne
+from pmba_ros.core import conversions
+from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import ParallaxModel, XyzModel
 from pmba_ros.core.problem import XyzFeatures

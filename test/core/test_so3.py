@@ -13,9 +13,9 @@ BATCHES = [(), (1,), (3, 2)]
 @pytest.mark.parametrize('batch', BATCHES)
 def test_exp_log_round_trip(batch: tuple[int, ...], rng: np.random.Generator) -> None:
     """log(exp(w)) == w for rotation angles below pi, over batch shapes."""
-    axis = rng.normal(size=batch + (3,))
+    axis = rng.normal(size=(*batch, 3))
     axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-    w = axis * rng.uniform(0.0, np.pi - 1e-2, size=batch + (1,))
+    w = axis * rng.uniform(0.0, np.pi - 1e-2, size=(*batch, 1))
     np.testing.assert_allclose(so3.log(so3.exp(w)), w, atol=1e-10)
 
 
