@@ -1,0 +1,98 @@
+"""Imports point downward only, and ROS / bag libraries stay in the modules that need them."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / 'pmba_ros'
+
+#: Rank of each top-level part of the package: a module may import ranks <= its own.
+RANKS = {
+    'errors': 0, '_typing': 0, '': 0,
+    'core': 1,
+    'init': 2, 'eval': 2,
+    'backend': 3, 'io': 3, 'sim': 3,
+    'node': 4, 'replay': 4, 'plot': 4, 'cli': 4, '__main__': 4,
+}
+
+#: Within the engine, the order of style.md §6.1: geometry -> problem -> residuals -> solver.
+CORE_RANKS = {
+    'so3': 0, 'sphere': 0, 'camera': 0,
+    'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1,
+    'conversions': 2, 'residuals': 2, 'baselines': 2,
+    'models': 3, 'normal_equations': 3,
+    'solve': 4,
+}
+
+#: Third-party modules allowed only in some places (top-level or lazy imports alike).
+RESTRICTED = {
+    'rclpy': {'node'},
+    'rosbags': {'io.bags', 'backend.outputs'},
+    'mcap': {'io.bags'},
+    'mcap_ros2': {'io.bags'},
+    'matplotlib': {'plot', 'cli.solve'},
+}
+
+
+def _modules() -> list[tuple[str, Path]]:
+    out = []
+    for path in sorted(PACKAGE.rglob('*.py')):
+        rel = path.relative_to(PACKAGE).with_suffix('')
+        parts = [p for p in rel.parts if p != '__init__']
+        out.append(('.'.join(parts), path))
+    return out
+
+
+def _imports(path: Path) -> list[str]:
+    names = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.append(node.module)
+            if node.module == 'pmba_ros':
+                names += [f'pmba_ros.{a.name}' for a in node.names]
+    return names
+
+
+def _rank(module: str) -> tuple[int, int]:
+    top = module.split('.')[0]
+    inner = CORE_RANKS.get(module.split('.')[1], -1) if top == 'core' and '.' in module else -1
+    return RANKS[top], inner
+
+
+@pytest.mark.parametrize(('module', 'path'), _modules(), ids=[m for m, _ in _modules()])
+def test_imports_point_downward(module: str, path: Path) -> None:
+    """A module imports only its own layer and the layers below it."""
+    own = _rank(module)
+    for name in _imports(path):
+        if not name.startswith('pmba_ros.'):
+            continue
+        target = name[len('pmba_ros.'):]
+        if target.split('.')[0] not in RANKS:
+            continue
+        other = _rank(target)
+        assert other[0] <= own[0], f'{module} imports the higher layer {target}'
+        if own[0] == other[0] == 1 and own[1] >= 0 and other[1] >= 0:
+            assert other[1] <= own[1], f'{module} imports the higher engine module {target}'
+
+
+@pytest.mark.parametrize(('module', 'path'), _modules(), ids=[m for m, _ in _modules()])
+def test_ros_and_bag_libraries_stay_where_they_belong(module: str, path: Path) -> None:
+    """Only node.py imports rclpy; bag libraries live in the bag I/O modules."""
+    for name in _imports(path):
+        top = name.split('.')[0]
+        if top in RESTRICTED:
+            assert module in RESTRICTED[top], f'{module} imports {name}'
+
+
+def test_package_imports_without_ros() -> None:
+    """Importing the package and its CLI pulls in neither rclpy nor the node."""
+    import subprocess
+    import sys
+    code = ('import sys, pmba_ros, pmba_ros.cli.main, pmba_ros.backend.logic; '
+            'assert "rclpy" not in sys.modules and "pmba_ros.node" not in sys.modules')
+    subprocess.run([sys.executable, '-c', code], check=True)
