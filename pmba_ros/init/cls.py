@@ -21,8 +21,8 @@ h_k         (rows)        (K,3,3)     r_k^T C_slot: the cheirality row r_k . N-b
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 
 import numpy as np
 import scipy.linalg
@@ -189,7 +189,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     active = np.zeros(K, dtype=bool)
     p = np.zeros(3 * n_cams)
     it = 0
-    for it in range(max_penalty_iterations + 1):
+    for it in range(max_penalty_iterations + 1):  # noqa: B007 - reported after the loop
         Hp = H.copy()
         if np.any(active):
             ha = h[active]

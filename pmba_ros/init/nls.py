@@ -21,8 +21,8 @@ f           f_scale       scalar      Cauchy scale (ray units, ~ px / focal)
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 
 import numpy as np
 import scipy.linalg

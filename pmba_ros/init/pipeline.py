@@ -21,10 +21,10 @@ the input), because cameras without an EG pair have no rotation to start from.
 
 from __future__ import annotations
 
-import logging
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+import logging
+import time
 from typing import Any
 
 import cv2

@@ -17,8 +17,8 @@ Correspondences are built for all pairs at once with vectorized joins on the fea
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 
 import cv2
 import numpy as np
