@@ -233,47 +233,90 @@ needs_logic = pytest.mark.skipif(not _real_logic_available(),
                                  reason='pmba_ros.backend.logic not available')
 
 
-@needs_logic
-def test_small_simulated_replay_improves_on_frontend(street_bag: Path, tmp_path: Path) -> None:
+@pytest.fixture(scope='module')
+def real_replay(street_bag: Path, tmp_path_factory: pytest.TempPathFactory,
+                ) -> tuple[Path, replay_mod.ReplayReport]:
+    """One replay of the 60-keyframe street with the real back-end."""
+    if not _real_logic_available():
+        pytest.skip('pmba_ros.backend.logic not available')
+    out = tmp_path_factory.mktemp('real') / 'a'
+    return out, replay([street_bag], out, gt=groundtruth_path(street_bag))
+
+
+def test_small_simulated_replay_improves_on_frontend(
+        real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """60 simulated keyframes: the optimized ATE is below the front-end's."""
-    out = tmp_path / 'o'
-    report = replay([street_bag], out, gt=groundtruth_path(street_bag))
+    _, report = real_replay
     assert report.complete
     assert report.messages_rejected == 0
+    assert report.keyframes_in == 60
     assert report.accuracy is not None
     assert report.accuracy['ate_optimized_m'] < report.accuracy['ate_frontend_m']
     assert len(report.solve_ms) > 0
     assert len(report.iterations) == len(report.solve_ms)
 
 
-@needs_logic
-def test_replay_twice_gives_identical_tum_bytes(street_bag: Path, tmp_path: Path) -> None:
+def test_replay_twice_gives_identical_tum_bytes(
+        real_replay: tuple[Path, replay_mod.ReplayReport], street_bag: Path,
+        tmp_path: Path) -> None:
     """Deterministic replay: same bag, same TUM and PLY bytes."""
-    a, b = tmp_path / 'a', tmp_path / 'b'
-    replay([street_bag], a)
-    replay([street_bag], b)
+    a, _ = real_replay
+    b = tmp_path / 'b'
+    replay([street_bag], b, gt=groundtruth_path(street_bag))
     for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
 
 
-@needs_logic
-def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(street_bag: Path,
-                                                          tmp_path: Path) -> None:
+def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(
+        real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """Every result message deserializes with the Jazzy typestore and with mcap_ros2."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     from rosbags.rosbag2 import Reader
 
-    out = tmp_path / 'o'
-    replay([street_bag], out)
+    out, report = real_replay
     ts = jazzy_typestore()
-    types = set()
+    counts: dict[str, int] = {}
     with Reader(out / 'result.mcap') as reader:
         for conn, _, raw in reader.messages():
             ts.deserialize_cdr(raw, conn.msgtype)
-            types.add(conn.msgtype)
-    assert {'nav_msgs/msg/Path', 'tf2_msgs/msg/TFMessage'} <= types
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+    assert {'/pmba/path', '/pmba/keyframes', '/pmba/landmarks', '/pmba/odometry', '/tf',
+            '/diagnostics'} <= set(counts)
+    assert sum(counts.values()) == report.messages_out
     with (out / 'result.mcap').open('rb') as stream:
         n = sum(1 for _ in make_reader(stream, decoder_factories=[DecoderFactory()])
                 .iter_decoded_messages())
-    assert n > 0
+    assert n == report.messages_out
+
+
+@needs_logic
+@pytest.mark.slow
+def test_street_200_optimized_ate_at_most_30_percent_of_frontend(tmp_path: Path) -> None:
+    """Acceptance: the 200-keyframe default street (about 35 s here)."""
+    bag = tmp_path / 'street'
+    write_sequence_bag(simulate_sequence('street', n_keyframes=200, seed=0), bag)
+    report = replay([bag], tmp_path / 'o', gt=groundtruth_path(bag))
+    assert report.accuracy is not None
+    assert report.accuracy['ate_optimized_m'] <= 0.3 * report.accuracy['ate_frontend_m']
+
+
+@needs_logic
+@pytest.mark.slow
+def test_kitti00_replay_reports_both_ates(tmp_path: Path) -> None:
+    """KITTI-00 tracks: front-end and optimized ATE against the KITTI ground truth."""
+    from pmba_ros.eval.trajectory import read_kitti
+    from pmba_ros.io.kitti_tracks import kitti_sequence, read_kitti_tracks
+
+    from .conftest import shared_file
+
+    tracks = read_kitti_tracks(shared_file('kitti00_stereo_vo'))
+    times = np.loadtxt(shared_file('trajectories', 'evo', 'KITTI_00_gt_times.txt'))
+    gt = read_kitti(shared_file('trajectories', 'evo', 'KITTI_00_gt.txt'), times)
+    bag = tmp_path / 'kitti'
+    write_sequence_bag(kitti_sequence(tracks, times, gt), bag)
+    report = replay([bag], tmp_path / 'o', gt=groundtruth_path(bag))
+    assert report.accuracy is not None
+    assert report.accuracy['matched_optimized'] == 77
+    assert 0.0 < report.accuracy['ate_frontend_m'] < 1.0
+    assert 0.0 < report.accuracy['ate_optimized_m'] < 1.0
