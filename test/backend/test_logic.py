@@ -1,0 +1,416 @@
+"""BackendLogic driven by real Jazzy message classes (rosbags typestore), no ROS install.
+
+Covers every track layout, serialization of every output with the Jazzy typestore, the bad
+inputs of issue 4 (each counted in the diagnostics), control (pause, reset, save),
+determinism, bounded memory in sliding mode, and the 200-keyframe street acceptance tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
+from pmba_ros.backend.types import TrackFrame
+from pmba_ros.core import so3
+from pmba_ros.eval.metrics import ate
+from pmba_ros.eval.trajectory import read_tum
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+
+BACKEND = out.RosbagsBackend()
+OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
+                 DIAGNOSTICS_TOPIC)
+
+
+# --- helpers (also used by the node tests) --------------------------------------------------
+
+
+def keyframe_msg(seq: SimSequence, i: int, backend: out.MsgBackend = BACKEND) -> Any:
+    """Front-end keyframe pose of keyframe i as nav_msgs/Odometry (frame odom)."""
+    return out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
+                             so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend)
+
+
+def tracks_msg(seq: SimSequence, i: int, layout: str = 'vins_fusion',
+               backend: out.MsgBackend = BACKEND, frame: TrackFrame | None = None) -> Any:
+    """Track message of keyframe i in a layout."""
+    return out.make_tracks(seq.frames[i] if frame is None else frame, layout, backend)
+
+
+def camera_info_msg(seq: SimSequence, backend: out.MsgBackend = BACKEND) -> Any:
+    return out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
+
+
+def feed(logic: BackendLogic, seq: SimSequence, indices: range | list[int],
+         layout: str = 'vins_fusion') -> Iterator[list[tuple[str, Any]]]:
+    """Feed tracks then keyframe pose of each keyframe; yield the outputs of each step."""
+    for i in indices:
+        logic.on_tracks(tracks_msg(seq, i, layout))
+        yield logic.step()
+        logic.on_keyframe(keyframe_msg(seq, i))
+        yield logic.step()
+
+
+def run(logic: BackendLogic, seq: SimSequence, n: int | None = None,
+        layout: str = 'vins_fusion') -> list[tuple[str, Any]]:
+    """Feed the first n keyframes (CameraInfo first) and return all outputs."""
+    logic.on_camera_info(camera_info_msg(seq))
+    result: list[tuple[str, Any]] = []
+    for outs in feed(logic, seq, range(len(seq) if n is None else n), layout):
+        result.extend(outs)
+    return result
+
+
+def last(outputs: list[tuple[str, Any]], topic: str) -> Any:
+    msgs = [m for t, m in outputs if t == topic]
+    assert msgs, f'no output on {topic}'
+    return msgs[-1]
+
+
+def diag_values(msg: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in msg.status[0].values}
+
+
+def stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def config(**kwargs: Any) -> BackendConfig:
+    return BackendConfig(deterministic=True, **kwargs)
+
+
+@pytest.fixture(scope='module')
+def street() -> SimSequence:
+    return simulate_sequence('street', n_keyframes=200, seed=0)
+
+
+@pytest.fixture(scope='module')
+def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]:
+    logic = BackendLogic(config(), BACKEND)
+    return logic, run(logic, street, 28)
+
+
+# --- config ---------------------------------------------------------------------------------
+
+
+def test_config_yaml_matches_defaults() -> None:
+    path = Path(__file__).resolve().parents[2] / 'config' / 'pmba.yaml'
+    assert BackendConfig.from_yaml(path) == BackendConfig()
+
+
+def test_config_from_params_flat_and_nested() -> None:
+    flat = BackendConfig.from_params({'mode': 'global', 'window_size': 7, 'use_sim_time': True})
+    nested = BackendConfig.from_params(
+        {'pmba_node': {'ros__parameters': {'mode': 'global', 'window_size': 7}}})
+    assert flat == nested
+    assert flat.mode == 'global' and flat.window_size == 7
+    assert BackendConfig.from_params({'max_time_s': 1}).max_time_s == 1.0
+
+
+@pytest.mark.parametrize(('params', 'match'), [
+    ({'mode': 'batch'}, 'mode'),
+    ({'feature_layout': 'orb'}, 'feature_layout'),
+    ({'window_size': 1}, 'window_size'),
+    ({'window_size': 2.5}, 'window_size'),
+    ({'init_batch_size': 30, 'init_max_batch': 20}, 'init_max_batch'),
+    ({'camera_id': 1}, 'camera_id'),
+    ({'max_time_s': 0.0}, 'max_time_s'),
+    ({'stamp_tolerance_s': float('nan')}, 'stamp_tolerance_s'),
+    ({'publish_tf': 'yes'}, 'publish_tf'),
+    ({'path_topic': ''}, 'path_topic'),
+    ({'windowsize': 20}, 'unknown parameter'),
+])
+def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        BackendConfig.from_params(params)
+
+
+# --- normal operation -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize('layout', ['vins_mono', 'vins_fusion', 'per_point', 'named'])
+def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) -> None:
+    logic = BackendLogic(config(feature_layout=layout), BACKEND)
+    outputs = run(logic, street, 24, layout)
+    assert logic.state == 'tracking'
+    assert len(logic.optimized_trajectory()) == 24
+    assert {t for t, _ in outputs} == set(OUTPUT_TOPICS)
+    assert not {k: v for k, v in logic.stats.counters.items() if k != 'dropped_observations'}
+    gt = street.gt_trajectory().take(np.arange(24))
+    assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse < 0.05
+
+
+def test_outputs_serialize_with_the_jazzy_typestore(
+        short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
+    _, outputs = short_run
+    types = {}
+    for topic, msg in outputs:
+        raw = BACKEND.serialize(msg)
+        back = BACKEND.typestore.deserialize_cdr(raw, msg.__msgtype__)
+        assert back.__msgtype__ == msg.__msgtype__
+        types[topic] = msg.__msgtype__
+    assert types == {'pmba/path': 'nav_msgs/msg/Path',
+                     'pmba/keyframes': 'geometry_msgs/msg/PoseArray',
+                     'pmba/landmarks': 'sensor_msgs/msg/PointCloud2',
+                     'pmba/odometry': 'nav_msgs/msg/Odometry', TF_TOPIC: 'tf2_msgs/msg/TFMessage',
+                     DIAGNOSTICS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray'}
+
+
+def test_output_contents_frames_and_stamps(
+        street: SimSequence, short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
+    logic, outputs = short_run
+    stamp = int(street.stamps_ns[27])
+    path = last(outputs, 'pmba/path')
+    assert path.header.frame_id == 'map' and stamp_ns(path.header) == stamp
+    assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns[:28].tolist()
+    assert len(last(outputs, 'pmba/keyframes').poses) == 28
+    cloud = last(outputs, 'pmba/landmarks')
+    assert [f.name for f in cloud.fields] == ['x', 'y', 'z'] and cloud.point_step == 12
+    assert cloud.width == logic.landmarks().shape[0] > 100
+    odom = last(outputs, 'pmba/odometry')
+    assert odom.header.frame_id == 'map' and odom.child_frame_id == 'camera'
+    cov = np.asarray(odom.pose.covariance).reshape(6, 6)
+    assert np.all(np.diag(cov) > 0)
+    tf = last(outputs, TF_TOPIC).transforms[0]
+    assert (tf.header.frame_id, tf.child_frame_id) == ('map', 'odom')
+    assert stamp_ns(tf.header) == stamp + 100_000_000  # transform_tolerance_s
+    # REP-105: map->odom composed with the front-end pose gives the optimized pose.
+    q = tf.transform.rotation
+    R = so3.from_quat_xyzw(np.array([q.x, q.y, q.z, q.w]))
+    t = np.array([tf.transform.translation.x, tf.transform.translation.y,
+                  tf.transform.translation.z])
+    p = odom.pose.pose.position
+    np.testing.assert_allclose(R @ street.centers_odom[27] + t, [p.x, p.y, p.z], atol=1e-6)
+    diag = last(outputs, DIAGNOSTICS_TOPIC)
+    values = diag_values(diag)
+    assert diag.status[0].level == 0 and values['state'] == 'tracking'
+    for key in ('iterations', 'cost_before', 'cost_after', 'problem_poses', 'problem_features',
+                'problem_observations', 'input_lag_ms', 'dropped_total'):
+        assert key in values
+    assert 'solve_ms' not in values  # deterministic config: no wall-clock values
+
+
+def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence) -> None:
+    logic = BackendLogic(BackendConfig(init_batch_size=10), BACKEND)
+    values = diag_values(last(run(logic, street, 14), DIAGNOSTICS_TOPIC))
+    assert float(values['solve_ms']) > 0 and float(values['update_ms']) > 0
+    assert len(logic.stats.solve_ms) == len(logic.stats.iterations) == 5  # init + 4 refines
+
+
+def test_deterministic_outputs_are_byte_identical(street: SimSequence) -> None:
+    def serialized() -> list[bytes]:
+        logic = BackendLogic(config(init_batch_size=10), BACKEND)
+        return [BACKEND.serialize(m) for _, m in run(logic, street, 16)]
+    assert serialized() == serialized()
+
+
+def test_keyframes_as_tracks_without_frontend_poses(street: SimSequence) -> None:
+    logic = BackendLogic(config(keyframe_source='tracks'), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    outputs = []
+    for i in range(26):
+        logic.on_tracks(tracks_msg(street, i))
+        outputs += logic.step()
+    assert logic.state == 'tracking' and len(logic.optimized_trajectory()) == 26
+    assert TF_TOPIC not in {t for t, _ in outputs}  # no front-end, no map->odom
+    assert len(logic.frontend_trajectory()) == 0
+
+
+# --- bad input: never raises, always counted in the diagnostics -----------------------------
+
+
+def _counts(logic: BackendLogic, outputs: list[tuple[str, Any]]) -> dict[str, str]:
+    return {k: v for k, v in diag_values(last(outputs, DIAGNOSTICS_TOPIC)).items()
+            if k.startswith('count.')}
+
+
+def test_non_finite_and_duplicate_observations_are_dropped(street: SimSequence) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    outputs: list[tuple[str, Any]] = []
+    for i in range(22):
+        f = street.frames[i]
+        pixels, normalized = f.pixels.copy(), f.normalized.copy()
+        pixels[:3] = np.nan
+        normalized[3:5] = np.inf
+        ids = f.feature_ids.copy()
+        ids[5] = ids[6]  # duplicate id in one frame
+        bad = TrackFrame(f.stamp_ns, f.frame_id, ids, f.camera_ids, pixels, normalized)
+        logic.on_tracks(tracks_msg(street, i, frame=bad))
+        outputs += logic.step()
+        logic.on_keyframe(keyframe_msg(street, i))
+        outputs += logic.step()
+    assert logic.state == 'tracking'
+    assert int(_counts(logic, outputs)['count.dropped_observations']) == 22 * 6
+
+
+def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
+    logic = BackendLogic(config(feature_layout='vins_fusion'), BACKEND)
+    logic.on_tracks(object())
+    logic.on_tracks(tracks_msg(street, 0, 'named'))  # PointCloud2 into a PointCloud layout
+    logic.on_tracks(tracks_msg(street, 1, 'per_point'))  # one channel per point
+    outputs = logic.step()
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    assert values['count.bad_tracks'] == '3'
+    assert 'wrong layout' in values['last_error']
+    assert last(outputs, DIAGNOSTICS_TOPIC).status[0].level == 1  # WARN
+
+
+def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    outputs = run(logic, street, 22)
+    empty = TrackFrame.empty(int(street.stamps_ns[22]), 'odom')
+    logic.on_tracks(tracks_msg(street, 22, frame=empty))
+    logic.on_keyframe(keyframe_msg(street, 22))
+    outputs += logic.step()
+    logic.on_keyframe(keyframe_msg(street, 23))  # its tracks never arrive
+    outputs += logic.step()
+    assert len(logic.optimized_trajectory()) == 23  # empty cloud: dead-reckoned keyframe
+    for i in range(24, 36):  # tracks 1.2 s later time keyframe 23 out
+        logic.on_tracks(tracks_msg(street, i))
+        logic.on_keyframe(keyframe_msg(street, i))
+        outputs += logic.step()
+    counts = _counts(logic, outputs)
+    assert counts['count.keyframes_dead_reckoned'] == '2'
+    assert counts['count.keyframes_without_tracks'] == '1'
+    assert len(logic.optimized_trajectory()) == 36  # every keyframe is in the path
+    assert len(last(outputs, 'pmba/path').poses) == 36
+    assert logic.state == 'tracking'
+
+
+def test_stamps_going_backwards(street: SimSequence) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    outputs = run(logic, street, 22)
+    logic.on_keyframe(keyframe_msg(street, 10))
+    logic.on_tracks(tracks_msg(street, 12))
+    logic.on_keyframe(keyframe_msg(street, 21))  # same stamp again
+    outputs += logic.step()
+    counts = _counts(logic, outputs)
+    assert counts['count.keyframe_stamp_not_increasing'] == '2'
+    assert counts['count.stale_tracks'] == '1'
+    outputs += [o for outs in feed(logic, street, range(22, 24)) for o in outs]
+    assert len(logic.optimized_trajectory()) == 24
+
+
+def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
+    logic = BackendLogic(config(feature_layout='per_point'), BACKEND)
+    outputs: list[tuple[str, Any]] = []
+    for i in range(3):  # OpenVINS style: pixels only, x_n = y_n = 0
+        f = street.frames[i]
+        pixels_only = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids, f.pixels,
+                                 None)
+        logic.on_tracks(tracks_msg(street, i, 'per_point', frame=pixels_only))
+        logic.on_keyframe(keyframe_msg(street, i))
+        outputs += logic.step()
+    assert logic.stats.keyframes == 0
+    assert diag_values(last(outputs, DIAGNOSTICS_TOPIC))['camera_info_received'] == 'false'
+    logic.on_camera_info(camera_info_msg(street))
+    outputs += logic.step()
+    assert logic.stats.keyframes == 3
+    # Tracks with normalized coordinates do not need a CameraInfo.
+    logic2 = BackendLogic(config(), BACKEND)
+    for _ in feed(logic2, street, range(3)):
+        pass
+    assert logic2.stats.keyframes == 3
+
+
+def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    info = camera_info_msg(street)
+    info.k[0] = -1.0
+    logic.on_camera_info(info)
+    kf = keyframe_msg(street, 0)
+    kf.pose.pose.orientation.w = float('nan')
+    logic.on_keyframe(kf)
+    logic.on_keyframe(tracks_msg(street, 0))  # wrong type
+    values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
+    assert values['count.bad_camera_info'] == '1'
+    assert values['count.bad_keyframes'] == '2'
+    assert logic.camera is None
+
+
+def test_pure_rotation_waits_for_parallax() -> None:
+    seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
+    logic = BackendLogic(config(), BACKEND)
+    outputs = run(logic, seq)
+    assert logic.state == 'waiting_for_parallax'
+    diag = last(outputs, DIAGNOSTICS_TOPIC)
+    assert 'waiting for parallax' in diag.status[0].message
+    assert diag.status[0].level == 1
+    assert 'pmba/path' not in {t for t, _ in outputs}
+    assert len(logic.optimized_trajectory()) == 0
+
+
+# --- control --------------------------------------------------------------------------------
+
+
+def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, street, 22)
+    logic.set_paused(True)
+    outputs = [o for outs in feed(logic, street, range(22, 25)) for o in outs]
+    assert logic.state == 'paused'
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    assert values['state'] == 'paused' and values['count.dropped_while_paused'] == '6'
+    assert len(logic.optimized_trajectory()) == 22
+    logic.set_paused(False)
+    for _ in feed(logic, street, range(25, 27)):
+        pass
+    assert len(logic.optimized_trajectory()) == 24
+
+    paths = logic.save(tmp_path / 'out')
+    assert [p.name for p in paths] == ['pmba_keyframes.tum', 'frontend_keyframes.tum',
+                                       'pmba_landmarks.ply']
+    assert len(read_tum(paths[0])) == 24 and len(read_tum(paths[1])) == 24
+    assert f'element vertex {logic.landmarks().shape[0]}' in paths[2].read_text()
+
+    logic.reset()
+    assert logic.state == 'collecting' and len(logic.optimized_trajectory()) == 0
+    values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
+    assert values['count.resets'] == '1'
+    run(logic, street, 21)  # starts over (earlier stamps are fine after a reset)
+    assert logic.state == 'tracking'
+
+
+def test_sliding_memory_is_bounded(street: SimSequence) -> None:
+    logic = BackendLogic(config(window_size=10, fixed_lookback=5, max_fixed_keyframes=4,
+                                init_batch_size=10), BACKEND)
+    sizes = []
+    logic.on_camera_info(camera_info_msg(street))
+    for k, _ in enumerate(feed(logic, street, range(70))):
+        if k % 2 and k > 60:
+            est = logic.estimator
+            sizes.append((len(est.kf.obs), len(est.features)))
+    assert max(s[0] for s in sizes) <= 10 + 5
+    assert max(s[1] for s in sizes) < 700
+    assert logic.stats.keyframes == 70
+
+
+# --- acceptance (issue 4): 200-keyframe street, both modes ----------------------------------
+
+
+def _acceptance(street: SimSequence, **kwargs: Any) -> tuple[float, float, Any]:
+    logic = BackendLogic(config(**kwargs), BACKEND)
+    outputs = run(logic, street)
+    path = last(outputs, 'pmba/path')
+    be = ate(logic.optimized_trajectory(), street.gt_trajectory(), 'sim3').rmse
+    fe = ate(street.odom_trajectory(), street.gt_trajectory(), 'sim3').rmse
+    return be, fe, path
+
+
+def test_acceptance_street_sliding(street: SimSequence) -> None:
+    be, fe, path = _acceptance(street, mode='sliding')
+    assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
+    assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
+
+
+def test_acceptance_street_global(street: SimSequence) -> None:
+    be, fe, path = _acceptance(street, mode='global', max_iterations=1)
+    assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
+    assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
