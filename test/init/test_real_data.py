@@ -1,0 +1,77 @@
+"""Global initialization on real data (skipped when ../shared/data is absent).
+
+Each run is compared with PMBA started from the file's own initial values (BAL: poses and
+points; fake-pile: Cam.txt poses with points triangulated from them) on the same sub-problem
+and with the same solver options: the final pixel RMS must agree within 2 %, with one BA.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.core.problem import BAProblem
+from pmba_ros.core.solve import solve
+from pmba_ros.init.pipeline import InitResult, global_init
+
+logger = logging.getLogger(__name__)
+
+DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+
+
+def _data(*parts: str) -> Path:
+    path = DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f'shared data not available: {path}')
+    return path
+
+
+def _rms_from_file(problem: BAProblem, res: InitResult, points_w: np.ndarray) -> float:
+    """Final RMS (px) of PMBA started from the file's poses and points, same sub-problem."""
+    ci, fi = res.camera_index, res.feature_index
+    start = res.problem.with_poses(problem.R_wc[ci], problem.centers_w[ci])
+    start = start.with_points(points_w[fi])
+    ref = solve(start, res.solve.options)
+    logger.info('from file: %s', ref.summary())
+    return ref.final_rms_px
+
+
+def _check(problem: BAProblem, points_w: np.ndarray) -> None:
+    res = global_init(problem)
+    logger.info('global init: %s\n%s', res.report['time_s'], res.solve.summary())
+    assert res.ba_invocations == 1
+    assert res.solve.converged
+    ref_rms = _rms_from_file(problem, res, points_w)
+    assert res.solve.final_rms_px <= 1.02 * ref_rms, (res.solve.final_rms_px, ref_rms)
+    assert res.problem.n_cams >= 0.9 * problem.n_cams
+
+
+def test_ladybug_49_matches_pmba_from_file() -> None:
+    """BAL Ladybug-49 (sequential): final RMS within 2 % of PMBA from the file's values."""
+    from pmba_ros.io.bal import read_bal
+
+    problem = read_bal(_data('bal', 'problem-49-7776-pre.txt'))
+    assert problem.points_w is not None
+    _check(problem, problem.points_w)
+
+
+@pytest.mark.slow
+def test_trafalgar_21_out_of_order_matches_pmba_from_file() -> None:
+    """BAL Trafalgar-21 (unordered photos): final RMS within 2 % of PMBA from the file."""
+    from pmba_ros.io.bal import read_bal
+
+    problem = read_bal(_data('bal', 'problem-21-11315-pre.txt'))
+    assert problem.points_w is not None
+    _check(problem, problem.points_w)
+
+
+@pytest.mark.slow
+def test_fake_pile_matches_pmba_from_file() -> None:
+    """ParallaxBA fake-pile: final RMS within 2 % of PMBA from Cam.txt (triangulated points)."""
+    from pmba_ros.io.parallaxba_files import read_parallaxba, triangulate_points
+
+    problem = read_parallaxba(_data('parallaxba', 'fake-pile'))
+    _check(problem, triangulate_points(problem))
