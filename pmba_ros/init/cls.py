@@ -108,7 +108,8 @@ def accumulate_normal_matrix(blocks: FloatArray, slots: IntArray, n_cams: int,
     n = 3 * n_cams
     idx = (3 * slots[:, :, None] + np.arange(3)[None, None, :]).reshape(K, 3 * S)
     flat = idx[:, :, None] * n + idx[:, None, :]
-    return np.bincount(flat.ravel(), weights=H_k.ravel(), minlength=n * n).reshape(n, n)
+    H = np.bincount(flat.ravel(), weights=H_k.ravel(), minlength=n * n)
+    return np.asarray(H, dtype=np.float64).reshape(n, n)
 
 
 def accumulate_gradient(blocks: FloatArray, slots: IntArray, n_cams: int,
@@ -117,7 +118,8 @@ def accumulate_gradient(blocks: FloatArray, slots: IntArray, n_cams: int,
     w = np.ones(slots.shape[0]) if weights is None else weights
     g = np.matmul((residuals * w[:, None])[:, None, None, :], blocks)[:, :, 0, :]  # (K,S,3)
     idx = 3 * slots[:, :, None] + np.arange(3)[None, None, :]
-    return np.bincount(idx.ravel(), weights=g.ravel(), minlength=3 * n_cams)
+    return np.asarray(np.bincount(idx.ravel(), weights=g.ravel(), minlength=3 * n_cams),
+                      dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)

@@ -32,8 +32,9 @@ import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import conversions
-from pmba_ros.core.problem import BAProblem, ParallaxFeatures, make_problem
-from pmba_ros.core.solve import SolveOptions, SolveResult, solve
+from pmba_ros.core.loss import Loss
+from pmba_ros.core.problem import BAProblem, ParallaxFeatures, Parameterization, make_problem
+from pmba_ros.core.solve import SolveOptions, SolveResult, SolverKind, solve
 from pmba_ros.errors import InitError
 from pmba_ros.init import anchors, cls, nls, rotation_averaging, two_view, view_graph
 
@@ -49,8 +50,8 @@ STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'ba')
 
 
 def _default_solve_options() -> SolveOptions:
-    return SolveOptions(param='pmba', solver='dogleg', loss='none', max_iterations=200,
-                        function_tolerance=1e-10)
+    return SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
+                        max_iterations=200, function_tolerance=1e-10)
 
 
 @dataclass(frozen=True, slots=True)

@@ -102,11 +102,11 @@ class EGPairs:
                        self.obs_a[corr_keep], self.obs_b[corr_keep], self.parallax_px[keep])
 
 
-def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, IntArray]:
+def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, int]:
     """Return observation order sorted by (feature, camera) and the max track length."""
     order = np.lexsort((cam_idx, feat_idx)).astype(np.int64)
     max_len = int(np.bincount(feat_idx).max()) if feat_idx.size else 0
-    return order, np.int64(max_len)
+    return order, max_len
 
 
 def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> IntArray:
@@ -123,7 +123,7 @@ def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> I
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
     counts = np.zeros(n_cams * n_cams, dtype=np.int64)
-    for d in range(1, int(max_len)):  # loop over the offset inside a track, not observations
+    for d in range(1, max_len):  # loop over the offset inside a track, not observations
         same = f[d:] == f[:-d]
         key = c[:-d][same] * n_cams + c[d:][same]
         counts += np.bincount(key, minlength=n_cams * n_cams)
@@ -150,7 +150,7 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     keys: list[IntArray] = []
     first: list[IntArray] = []
     second: list[IntArray] = []
-    for d in range(1, int(max_len)):
+    for d in range(1, max_len):
         same = np.flatnonzero(f[d:] == f[:-d])
         key = c[same] * n_cams + c[same + d]
         sel = selected[key]
