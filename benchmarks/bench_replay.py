@@ -15,10 +15,10 @@ front-end's and the replay runs at least 10x faster than real time.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.replay import ReplayReport, replay

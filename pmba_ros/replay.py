@@ -23,14 +23,14 @@ bag give byte-identical TUM and PLY files.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
 import heapq
 import json
 import logging
 import math
-import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np

@@ -18,10 +18,11 @@ the node), or else the node's defaults. Writes ``DIR/result.mcap``,
 
 from __future__ import annotations
 
+from dataclasses import fields, replace
+import logging
+from pathlib import Path
 import sys
 import time
-from dataclasses import fields, replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from pmba_ros.errors import PmbaError
@@ -181,6 +182,9 @@ def run(args: argparse.Namespace) -> int:
 
     config = build_config(args)
     intrinsics = _parse_intrinsics(args.intrinsics)
+    if not getattr(args, 'verbose', False):
+        # The report counts rejected inputs; one warning per message would bury the summary.
+        logging.getLogger('pmba_ros.backend').setLevel(logging.ERROR)
     bags, gt = list(args.bags), args.gt
     if not bags:
         bags, gt = _default_street(args.out, gt, quiet=args.quiet)

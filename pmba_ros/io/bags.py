@@ -19,14 +19,14 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 
 from __future__ import annotations
 
-import logging
-import shutil
-import struct
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
+import logging
 from pathlib import Path
+import shutil
+import struct
 from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError

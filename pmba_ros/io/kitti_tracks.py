@@ -16,8 +16,8 @@ are frames 0-76, stride 1). Stamps come from KITTI's ``times.txt`` for those fra
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 

@@ -21,8 +21,8 @@ TUM file. Everything is deterministic: the same sequence gives the same bytes.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -193,3 +193,15 @@ def test_replay_without_bag_runs_the_default_street(tmp_path: Path,
     assert 'ATE rmse (m)' in text
     assert (out / 'street_bag' / 'groundtruth.tum').exists()
     assert json.loads((out / 'report.json').read_text())['keyframes_in'] == 200
+
+
+def test_wrong_layout_with_real_backend_is_one_error_line(
+        sim_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The real back-end rejects mis-laid-out tracks silently; the verb prints one line."""
+    pytest.importorskip('pmba_ros.backend.logic')
+    code = main(['replay', str(sim_bag), '--out', str(tmp_path / 'o'), '--tracks-layout',
+                 'vins_mono'])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert 'wrong --tracks-layout' in err[0] and 'first error' in err[0]

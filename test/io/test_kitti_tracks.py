@@ -72,5 +72,5 @@ def test_frame_offset_recovers_a_synthetic_shift() -> None:
 
 def test_missing_folder_raises_format_error(tmp_path: Path) -> None:
     """A folder without the files gives a FormatError naming the file."""
-    with pytest.raises(FormatError, match='VO_calibration00s.txt'):
+    with pytest.raises(FormatError, match=r'VO_calibration00s\.txt'):
         read_kitti_tracks(tmp_path)
