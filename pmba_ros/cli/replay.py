@@ -18,6 +18,7 @@ the node), or else the node's defaults. Writes ``DIR/result.mcap``,
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import fields, replace
 import logging
 from pathlib import Path
@@ -28,8 +29,6 @@ from typing import TYPE_CHECKING, Any, TextIO
 from pmba_ros.errors import PmbaError
 
 if TYPE_CHECKING:
-    import argparse
-
     from pmba_ros.replay import ReplayReport
 
 _LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
@@ -63,39 +62,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     def node_default(name: str) -> str:
         return f'node default: {d[name]}' if name in d else 'node default'
 
-    parser.add_argument('bags', metavar='BAG', nargs='*', type=Path,
+    parser.add_argument('bags', metavar='BAG', nargs='*', type=Path, default=argparse.SUPPRESS,
                         help='rosbag2 folder or .mcap/.db3 file (or ROS 1 .bag files); none: '
                         'simulate the default street (200 keyframes) into DIR/street_bag and '
                         'replay it against its ground truth')
     parser.add_argument('--out', required=True, type=Path, metavar='DIR',
+                        default=argparse.SUPPRESS,
                         help='output folder (created; outputs in it are replaced)')
-    parser.add_argument('--params', type=Path, metavar='FILE.yaml', default=None,
+    parser.add_argument('--params', type=Path, metavar='FILE.yaml', default=argparse.SUPPRESS,
                         help='ROS 2 parameter file of the node (defaults for the options below)')
     group = parser.add_argument_group('inputs')
-    group.add_argument('--tracks-topic', default=None, metavar='TOPIC',
+    group.add_argument('--tracks-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'feature tracks topic ({node_default("features_topic")})')
-    group.add_argument('--tracks-layout', choices=_LAYOUTS, default=None,
+    group.add_argument('--tracks-layout', choices=_LAYOUTS, default=argparse.SUPPRESS,
                        help=f'track message layout ({node_default("feature_layout")})')
-    group.add_argument('--keyframes-topic', default=None, metavar='TOPIC',
+    group.add_argument('--keyframes-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'keyframe pose topic ({node_default("keyframe_topic")})')
-    group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=None,
+    group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=argparse.SUPPRESS,
                        help=f'keyframe pose message type ({node_default("keyframe_type")})')
     camera = group.add_mutually_exclusive_group()
-    camera.add_argument('--camera-info-topic', default=None, metavar='TOPIC',
+    camera.add_argument('--camera-info-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                         help=f'CameraInfo topic ({node_default("camera_info_topic")})')
-    camera.add_argument('--intrinsics', default=None, metavar='FX,FY,CX,CY',
+    camera.add_argument('--intrinsics', default=argparse.SUPPRESS, metavar='FX,FY,CX,CY',
                         help='pinhole intrinsics (px) instead of a CameraInfo topic')
     algo = parser.add_argument_group('back-end')
-    algo.add_argument('--mode', choices=_MODES, default=None,
+    algo.add_argument('--mode', choices=_MODES, default=argparse.SUPPRESS,
                       help=f'estimation mode ({node_default("mode")})')
     evaluation = parser.add_argument_group('evaluation and output')
-    evaluation.add_argument('--gt', type=Path, default=None, metavar='FILE',
+    evaluation.add_argument('--gt', type=Path, default=argparse.SUPPRESS, metavar='FILE',
                             help='ground truth (TUM, EuRoC CSV or KITTI) for ATE / RPE')
     evaluation.add_argument('--align', choices=('sim3', 'se3', 'none'), default='sim3',
                             help='alignment onto the ground truth')
-    evaluation.add_argument('--plot', action='store_true',
+    evaluation.add_argument('--plot', action='store_true', default=argparse.SUPPRESS,
                             help='write PNG plots (needs matplotlib)')
-    evaluation.add_argument('--quiet', action='store_true',
+    evaluation.add_argument('--quiet', action='store_true', default=argparse.SUPPRESS,
                             help='no progress bar and no table (for scripts)')
 
 
@@ -126,13 +126,13 @@ def build_config(args: argparse.Namespace) -> Any:
     from pmba_ros.backend.config import BackendConfig
 
     try:
-        config = (BackendConfig.from_yaml(args.params) if args.params is not None
-                  else BackendConfig())
+        params = getattr(args, 'params', None)
+        config = BackendConfig.from_yaml(params) if params is not None else BackendConfig()
         changes = {field: getattr(args, opt) for opt, field in _OVERRIDES.items()
                    if getattr(args, opt, None) is not None}
         return replace(config, **changes)
     except (OSError, ValueError) as err:
-        where = f'--params {args.params}: ' if args.params is not None else ''
+        where = f'--params {params}: ' if params is not None else ''
         msg = f'{where}{err}'
         raise PmbaError(msg) from err
 
@@ -180,22 +180,24 @@ def run(args: argparse.Namespace) -> int:
     """
     from pmba_ros.replay import replay
 
+    opts = {name: getattr(args, name, None) for name in ('intrinsics', 'gt')}
+    quiet, plot = bool(getattr(args, 'quiet', False)), bool(getattr(args, 'plot', False))
     config = build_config(args)
-    intrinsics = _parse_intrinsics(args.intrinsics)
+    intrinsics = _parse_intrinsics(opts['intrinsics'])
     if not getattr(args, 'verbose', False):
         # The report counts rejected inputs; one warning per message would bury the summary.
         logging.getLogger('pmba_ros.backend').setLevel(logging.ERROR)
-    bags, gt = list(args.bags), args.gt
+    bags, gt = list(getattr(args, 'bags', [])), opts['gt']
     if not bags:
-        bags, gt = _default_street(args.out, gt, quiet=args.quiet)
-    bar = ProgressBar(sys.stderr) if not args.quiet and sys.stderr.isatty() else None
+        bags, gt = _default_street(args.out, gt, quiet=quiet)
+    bar = ProgressBar(sys.stderr) if not quiet and sys.stderr.isatty() else None
     try:
-        report = replay(bags, args.out, config, gt=gt, plot=args.plot,
+        report = replay(bags, args.out, config, gt=gt, plot=plot,
                         progress=bar, intrinsics=intrinsics, align=args.align)
     finally:
         if bar is not None:
             bar.close()
-    if not args.quiet:
+    if not quiet:
         print(format_summary(report))
     return 0
 
