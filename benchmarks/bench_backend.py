@@ -1,0 +1,157 @@
+"""Benchmark of the online back-end (not a test): ATE, per-keyframe latency, memory.
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py ate --mode sliding
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py latency --keyframes 200
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py memory --keyframes 2000
+
+``ate``: ATE (Sim(3) alignment) of the optimized keyframes and of the front-end on the
+simulated street, deterministic config. ``latency``: wall and CPU time of each ``step()``
+that processes a keyframe (association, solve, outputs), with the node's default budgets.
+``memory``: tracemalloc and RSS every ``--every`` keyframes over a long street; the
+optimization state (stored observations, features in the problem) must stay flat, the
+outputs (path, retired landmarks) grow by design. Prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import time
+import tracemalloc
+from typing import Any
+
+import numpy as np
+
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.core import so3
+from pmba_ros.eval.metrics import ate
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+
+logger = logging.getLogger('bench_backend')
+
+
+def _feed(logic: BackendLogic, seq: SimSequence, backend: out.MsgBackend, i: int,
+          ) -> tuple[float, float, list[tuple[str, Any]]]:
+    """Feed keyframe i; return wall and CPU seconds of the processing step and its outputs."""
+    logic.on_tracks(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+    logic.step()
+    logic.on_keyframe(out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera',
+                                        seq.centers_odom[i], so3.to_quat_xyzw(seq.R_wc_odom[i]),
+                                        np.eye(6) * 1e-3, backend))
+    t0, c0 = time.perf_counter(), time.process_time()
+    outputs = logic.step()
+    return time.perf_counter() - t0, time.process_time() - c0, outputs
+
+
+def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.MsgBackend]:
+    backend = out.RosbagsBackend()
+    logic = BackendLogic(config, backend)
+    logic.on_camera_info(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera,
+                                              backend))
+    return logic, backend
+
+
+def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
+    seq = simulate_sequence('street', args.keyframes, seed=args.seed)
+    cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
+                        max_iterations=args.iterations)
+    logic, backend = _start(cfg, seq)
+    t0 = time.perf_counter()
+    path_len = 0
+    for i in range(len(seq)):
+        for topic, msg in _feed(logic, seq, backend, i)[2]:
+            if topic == cfg.path_topic:
+                path_len = len(msg.poses)
+    be = ate(logic.optimized_trajectory(), seq.gt_trajectory(), 'sim3').rmse
+    fe = ate(seq.odom_trajectory(), seq.gt_trajectory(), 'sim3').rmse
+    return {'bench': 'ate', 'mode': args.mode, 'seed': args.seed, 'keyframes': len(seq),
+            'path_poses': path_len, 'ate_backend_m': be, 'ate_frontend_m': fe,
+            'ratio': be / fe, 'wall_s': time.perf_counter() - t0}
+
+
+def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
+    seq = simulate_sequence('street', args.keyframes, seed=args.seed)
+    cfg = BackendConfig(mode='sliding', window_size=args.window)
+    if args.iterations:
+        cfg = BackendConfig(mode='sliding', window_size=args.window,
+                            max_iterations=args.iterations)
+    logic, backend = _start(cfg, seq)
+    wall, cpu = [], []
+    for i in range(len(seq)):
+        w, c, _ = _feed(logic, seq, backend, i)
+        if logic.estimator.state == 'tracking' and i >= cfg.init_batch_size:
+            wall.append(1e3 * w)
+            cpu.append(1e3 * c)
+    solve = np.asarray(logic.stats.solve_ms[1:])
+
+    def stats(v: list[float] | np.ndarray) -> dict[str, float]:
+        return {'median_ms': float(np.median(v)), 'p95_ms': float(np.percentile(v, 95)),
+                'max_ms': float(np.max(v))}
+
+    return {'bench': 'latency', 'window': args.window, 'keyframes': len(seq),
+            'max_iterations': cfg.max_iterations, 'max_time_s': cfg.max_time_s,
+            'step_wall': stats(wall), 'step_cpu': stats(cpu), 'solve_wall': stats(solve),
+            'load_average': os.getloadavg()[0],
+            'openblas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default')}
+
+
+def _rss_mb() -> float:
+    with open('/proc/self/statm', encoding='ascii') as fh:
+        return int(fh.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 2**20
+
+
+def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
+    seq = simulate_sequence('street', args.keyframes, seed=args.seed)
+    cfg = BackendConfig(mode='sliding', window_size=args.window, deterministic=True,
+                        max_iterations=1)
+    logic, backend = _start(cfg, seq)
+    tracemalloc.start()
+    rows = []
+    for i in range(len(seq)):
+        _feed(logic, seq, backend, i)
+        if (i + 1) % args.every == 0:
+            est = logic.estimator
+            current, _ = tracemalloc.get_traced_memory()
+            rows.append({'keyframe': i + 1, 'traced_mb': current / 2**20, 'rss_mb': _rss_mb(),
+                         'stored_observation_sets': len(est.kf.obs),
+                         'features_in_problem': len(est.features),
+                         'retired_landmarks': len(est.landmarks),
+                         'cached_path_poses': len(logic._pose_cache)})
+    tracemalloc.stop()
+    state = [r['stored_observation_sets'] for r in rows[1:]]
+    feats = [r['features_in_problem'] for r in rows[1:]]
+    return {'bench': 'memory', 'keyframes': len(seq), 'window': args.window, 'rows': rows,
+            'stored_observation_sets_max': max(state), 'features_in_problem_max': max(feats),
+            'traced_growth_mb': rows[-1]['traced_mb'] - rows[0]['traced_mb'],
+            'rss_growth_mb': rows[-1]['rss_mb'] - rows[0]['rss_mb']}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('bench', choices=('ate', 'latency', 'memory'))
+    parser.add_argument('--mode', choices=('sliding', 'global'), default='sliding')
+    parser.add_argument('--keyframes', type=int, default=None)
+    parser.add_argument('--window', type=int, default=20)
+    parser.add_argument('--iterations', type=int, default=None)
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--every', type=int, default=200)
+    args = parser.parse_args(argv)
+    if args.keyframes is None:
+        args.keyframes = 2000 if args.bench == 'memory' else 200
+    if args.bench == 'ate' and args.iterations is None:
+        args.iterations = BackendConfig().max_iterations
+    logging.basicConfig(level=logging.WARNING)
+    result = {'ate': bench_ate, 'latency': bench_latency, 'memory': bench_memory}[args.bench](
+        args)
+    print(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
