@@ -118,14 +118,13 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if not self.pixel_weighted:
             return res, J_pose, J_feat
         R_i_T = np.swapaxes(R_wc[self.obs.cam_idx], 1, 2)
-        v = self.obs.bearings_c
-        y = np.einsum('kij,kj->ki', R_i_T, res) + v  # R_i^T xi(N)
-        J_pose = R_i_T[:, None] @ J_pose
-        # In the observer's frame, d/d phi_i acts on R_i^T xi(N) instead of on R_i v.
-        J_pose[:, 0, :, :3] += so3.hat(y) - so3.hat(v)
+        local = np.einsum('kij,kj->ki', R_i_T, res)  # R_i^T xi(N) - v
         W = self._weights
-        return (np.einsum('kij,kj->ki', W, y - v), W[:, None] @ J_pose,
-                W @ (R_i_T @ J_feat))
+        A = W @ R_i_T                                # (K, 2, 3): world error -> pixels
+        J_pose = A[:, None] @ J_pose
+        # In the observer's frame, d/d phi_i acts on R_i^T xi(N) instead of on R_i v.
+        J_pose[:, 0, :, :3] += W @ so3.hat(local)
+        return np.einsum('kij,kj->ki', W, local), J_pose, A @ J_feat
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""

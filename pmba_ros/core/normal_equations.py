@@ -62,7 +62,8 @@ class SchurStructure:
         n_feats: Number of features.
         slot_block: Free block of each observation slot, shape (K, S), -1 if none.
         feat_idx: Feature of each observation, shape (K,).
-        pair_rows, pair_cols: Covisible block pairs (both orders, diagonal included).
+        pair_rows, pair_cols: Covisible block pairs, upper triangle (row <= col) incl. the
+            diagonal: S is symmetric and its lower blocks are the transposes.
         w_block, w_feat: Block and feature of each non-zero W block, shape (nW,).
     """
 
@@ -111,10 +112,16 @@ class SchurStructure:
         first = np.repeat(starts[w_feat], per_entry)
         offs = np.cumsum(per_entry) - per_entry
         q2 = first + (np.arange(q1.shape[0]) - np.repeat(offs, per_entry))
+        # S is symmetric: keep the upper block triangle only (a feature's W blocks are sorted
+        # by pose block, so q1 <= q2 means block(q1) <= block(q2)).
+        upper = q1 <= q2
+        q1, q2 = q1[upper], q2[upper]
 
-        # U entries (k, s, t): both slots valid.
+        # U entries (k, s, t) with both slots valid, upper block triangle only; entries of two
+        # slots on the same pose (observer = associate anchor) are all kept.
         vs = valid.reshape(K, S)
-        u_valid = (vs[:, :, None] & vs[:, None, :]).reshape(-1)
+        u_valid = (vs[:, :, None] & vs[:, None, :]
+                   & (slot_block[:, :, None] <= slot_block[:, None, :])).reshape(-1)
         u_keys = (slot_block[:, :, None] * n_blocks + slot_block[:, None, :]).reshape(-1)
 
         pair_keys = np.concatenate([u_keys[u_valid], w_block[q1] * n_blocks + w_block[q2],
@@ -272,6 +279,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     if int(free.sum()) <= DENSE_LIMIT:
         S = np.zeros((dim, dim))
         S[rows[:, :, None], cols[:, None, :]] = S_blocks
+        S[cols[:, :, None], rows[:, None, :]] = np.swapaxes(S_blocks, 1, 2)
         S[d_idx[:, None] * 6 + np.arange(6), d_idx[:, None] * 6 + np.arange(6)] += damp_pose
         try:
             factor = scipy.linalg.cho_factor(S[np.ix_(free, free)], check_finite=False)
@@ -280,12 +288,16 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
             raise ReducedSystemError(msg) from err
         x[free] = scipy.linalg.cho_solve(factor, rhs.reshape(-1)[free], check_finite=False)
     else:
-        r_idx = np.broadcast_to(rows[:, :, None], S_blocks.shape).reshape(-1)
-        c_idx = np.broadcast_to(cols[:, None, :], S_blocks.shape).reshape(-1)
+        off = structure.pair_rows != structure.pair_cols
+        r_idx = np.broadcast_to(rows[:, :, None], S_blocks.shape)
+        c_idx = np.broadcast_to(cols[:, None, :], S_blocks.shape)
         diag = np.arange(dim)
         S_sp = scipy.sparse.csc_matrix(
-            (np.concatenate([S_blocks.reshape(-1), damp_pose.reshape(-1)]),
-             (np.concatenate([r_idx, diag]), np.concatenate([c_idx, diag]))), shape=(dim, dim))
+            (np.concatenate([S_blocks.reshape(-1), S_blocks[off].reshape(-1),
+                             damp_pose.reshape(-1)]),
+             (np.concatenate([r_idx.reshape(-1), c_idx[off].reshape(-1), diag]),
+              np.concatenate([c_idx.reshape(-1), r_idx[off].reshape(-1), diag]))),
+            shape=(dim, dim))
         S_sp = S_sp[free][:, free]
         try:
             lu = scipy.sparse.linalg.splu(S_sp.tocsc(), permc_spec='MMD_AT_PLUS_A')

@@ -254,10 +254,12 @@ class _Linearized:
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
         r, J_pose, J_feat = model.linearize(state.R_wc, state.centers_w, state.feats)
-        w = robust_weights(r, loss, loss_scale)
-        self.r = r * w[:, None]
-        self.J_pose = J_pose * w[:, None, None, None]
-        self.J_feat = J_feat * w[:, None, None]
+        if loss is not Loss.NONE:
+            w = robust_weights(r, loss, loss_scale)
+            r = r * w[:, None]
+            J_pose = J_pose * w[:, None, None, None]
+            J_feat = J_feat * w[:, None, None]
+        self.r, self.J_pose, self.J_feat = r, J_pose, J_feat
         eqs = ne.assemble(structure, self.r, self.J_pose, self.J_feat)
         d_pose, d_feat = ne.diagonal(structure, eqs)
         if jacobi:
@@ -278,6 +280,15 @@ class _Linearized:
             np.max(np.abs(eqs.g_feat), initial=0.0)))
         self.structure = structure
         self.gn: tuple[np.ndarray, np.ndarray] | None = None
+        self._cauchy: float | None = None
+
+    def cauchy_alpha(self) -> float:
+        """Return the Cauchy step length of this linearization (computed once)."""
+        if self._cauchy is None:
+            g = np.concatenate([self.g_pose.ravel(), self.g_feat.ravel()])
+            Jg = self.J_times(*self.to_delta(self.g_pose, self.g_feat))
+            self._cauchy = dogleg.cauchy_alpha(g, float(np.sum(Jg * Jg)))
+        return self._cauchy
 
     def to_delta(self, z_pose: FloatArray, z_feat: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Map a scaled-space step z to parameter increments delta = c * z / D."""
@@ -469,9 +480,7 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
             solves = 1
         b = np.concatenate([lin.gn[0].ravel(), lin.gn[1].ravel()])
         g = np.concatenate([lin.g_pose.ravel(), lin.g_feat.ravel()])
-        Jg = lin.J_times(*lin.to_delta(lin.g_pose, lin.g_feat))
-        alpha = dogleg.cauchy_alpha(g, float(np.sum(Jg * Jg)))
-        step, _ = dogleg.dogleg_step(g, alpha, b, radius)
+        step, _ = dogleg.dogleg_step(g, lin.cauchy_alpha(), b, radius)
         n_pose = lin.g_pose.size
         return (step[:n_pose].reshape(lin.g_pose.shape),
                 step[n_pose:].reshape(lin.g_feat.shape), solves)

@@ -29,8 +29,11 @@ def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
 
 
 @pytest.mark.parametrize('param', ['pmba', 'xyz'])
-def test_schur_solution_equals_dense_solve(param: str) -> None:
-    """The Schur path solves the same damped system as a dense solve of J^T J."""
+@pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
+def test_schur_solution_equals_dense_solve(param: str, dense_limit: int,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Schur path (dense and sparse S) solves the damped system of J^T J exactly."""
+    monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
     problem = forward_problem(6, n_cams=5, n_points=25)
     if param == 'pmba':
         feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
