@@ -105,6 +105,43 @@ def plot_series(path: Path, values: Sequence[float], ylabel: str, title: str, *,
     return _save(fig, plt, path)
 
 
+def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabel: str,
+                title: str, *, log_scale: bool = False, xlabel: str = 'keyframe') -> Path:
+    """Plot several labelled series against their index.
+
+    Args:
+        path: Output PNG.
+        curves: ``(label, values)`` pairs.
+        ylabel: Y axis label.
+        title: Figure title.
+        log_scale: Logarithmic y axis.
+        xlabel: X axis label.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        PmbaError: If matplotlib is missing or the file cannot be written.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    colors = {'front-end': 'tab:red', 'optimized': 'tab:blue'}
+    positive = False
+    for label, values in curves:
+        arr = np.asarray(values, dtype=np.float64)
+        positive = positive or bool(np.any(arr > 0))
+        ax.plot(np.arange(arr.shape[0]), arr, '.-', markersize=3, linewidth=0.8,
+                color=colors.get(label), label=label)
+    if log_scale and positive:
+        ax.set_yscale('log')
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    return _save(fig, plt, path)
+
+
 def _save(fig: Any, plt: Any, path: Path) -> Path:
     """Save and close a figure."""
     try:
@@ -119,4 +156,4 @@ def _save(fig: Any, plt: Any, path: Path) -> Path:
     return path
 
 
-__all__ = ['plot_series', 'plot_top_view']
+__all__ = ['plot_curves', 'plot_series', 'plot_top_view']

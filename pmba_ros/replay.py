@@ -627,31 +627,41 @@ def write_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report: Repla
     from pmba_ros import plot as plots
 
     curves: list[tuple[str, Any]] = []
+    errors: list[tuple[str, Any]] = []
     if gt is not None:
-        from pmba_ros.eval.align import align_se3, align_sim3
-        from pmba_ros.eval.metrics import associate
-        aligner = align_sim3 if align == 'sim3' else align_se3
+        from pmba_ros.eval.metrics import ate
         curves.append(('ground truth', gt))
         for label, traj in (('front-end', frontend), ('optimized', optimized)):
             try:
-                est_a, gt_a = associate(traj, gt)
-                if align == 'none':
-                    curves.append((label, traj))
-                    continue
-                _, fit = aligner(est_a, gt_a)
-                from pmba_ros.eval.align import apply_alignment
-                curves.append((label, apply_alignment(traj, fit)))
+                result = ate(traj, gt, align=align)
             except EvaluationError:
                 curves.append((label, traj))
+                continue
+            curves.append((label, _aligned(traj, result)))
+            errors.append((label, result.errors))
     else:
         curves = [('front-end', frontend), ('optimized', optimized)]
     files = {'plot_top_view': plots.plot_top_view(out / 'trajectories_top.png', curves)}
-    files['plot_cost'] = plots.plot_series(out / 'cost_per_solve.png', report.costs,
-                                           'final cost', 'Cost per solve', log_scale=True)
+    if errors:
+        files['plot_ate'] = plots.plot_curves(out / 'ate_per_keyframe.png', errors,
+                                              'position error (m)',
+                                              f'ATE per keyframe ({align}-aligned)')
+    files['plot_cost'] = plots.plot_curves(out / 'cost_per_solve.png',
+                                           [('before', report.costs_before),
+                                            ('after', report.costs)],
+                                           'cost', 'Cost per solve', log_scale=True,
+                                           xlabel='solve')
     files['plot_solve_time'] = plots.plot_series(out / 'solve_time.png', report.solve_ms,
                                                  'solve time (ms)', 'Solve time per keyframe',
                                                  xlabel='keyframe solve')
     return files
+
+
+def _aligned(traj: Any, result: Any) -> Any:
+    """Return ``traj`` moved by the alignment of an ATE result."""
+    from pmba_ros.eval.align import UmeyamaResult, apply_alignment
+    fit = UmeyamaResult(result.rotation, result.translation, result.scale)
+    return apply_alignment(traj, fit)
 
 
 __all__ = ['FRONTEND_TUM', 'LANDMARKS_PLY', 'OPTIMIZED_TUM', 'REPORT_JSON', 'RESULT_BAG',

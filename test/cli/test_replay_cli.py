@@ -137,12 +137,13 @@ def test_replay_bad_params_file(sim_bag: Path, tmp_path: Path,
 
 @pytest.mark.usefixtures('stub')
 def test_replay_plot(sim_bag: Path, tmp_path: Path) -> None:
-    """--plot writes the three PNGs."""
+    """--plot writes the PNGs (top view, ATE per keyframe, cost, solve time)."""
     pytest.importorskip('matplotlib')
     out = tmp_path / 'o'
     assert main(['replay', str(sim_bag), '--out', str(out), '--gt',
                  str(sim_bag / 'groundtruth.tum'), '--plot', '--quiet']) == 0
-    for name in ('trajectories_top.png', 'cost_per_solve.png', 'solve_time.png'):
+    for name in ('trajectories_top.png', 'ate_per_keyframe.png', 'cost_per_solve.png',
+                 'solve_time.png'):
         assert (out / name).stat().st_size > 1000
 
 
