@@ -379,17 +379,17 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
 
 
 def test_sliding_memory_is_bounded(street: SimSequence) -> None:
-    logic = BackendLogic(config(window_size=10, fixed_lookback=5, max_fixed_keyframes=4,
-                                init_batch_size=10), BACKEND)
+    logic = BackendLogic(config(window_size=6, fixed_lookback=3, max_fixed_keyframes=2,
+                                init_batch_size=10, max_iterations=1), BACKEND)
     sizes = []
     logic.on_camera_info(camera_info_msg(street))
-    for k, _ in enumerate(feed(logic, street, range(70))):
-        if k % 2 and k > 60:
+    for k, _ in enumerate(feed(logic, street, range(56))):
+        if k % 2 and k > 40:
             est = logic.estimator
             sizes.append((len(est.kf.obs), len(est.features)))
-    assert max(s[0] for s in sizes) <= 10 + 5
-    assert max(s[1] for s in sizes) < 700
-    assert logic.stats.keyframes == 70
+    assert max(s[0] for s in sizes) <= 6 + 3
+    assert max(s[1] for s in sizes) < 500
+    assert logic.stats.keyframes == 56
 
 
 # --- acceptance (issue 4): 200-keyframe street, both modes ----------------------------------
@@ -410,7 +410,21 @@ def test_acceptance_street_sliding(street: SimSequence) -> None:
     assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
 
 
+@pytest.mark.slow
 def test_acceptance_street_global(street: SimSequence) -> None:
+    """Global mode re-solves every keyframe over all keyframes: ~30 s CPU for 200 keyframes
+    on this engine (2-4x that in wall time on a loaded 2-core machine), hence ``slow``."""
     be, fe, path = _acceptance(street, mode='global', max_iterations=1)
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
     assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
+
+
+def test_global_mode_short_street(street: SimSequence) -> None:
+    logic = BackendLogic(config(mode='global', max_iterations=1), BACKEND)
+    outputs = run(logic, street, 45)
+    assert len(last(outputs, 'pmba/path').poses) == 45
+    info = logic._last_info
+    assert info.n_free == 44 and info.n_cams == 45  # all free but the gauge root
+    gt = street.gt_trajectory().take(np.arange(45))
+    fe = ate(street.odom_trajectory().take(np.arange(45)), gt, 'sim3').rmse
+    assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 0.5 * fe
