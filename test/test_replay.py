@@ -320,3 +320,20 @@ def test_kitti00_replay_reports_both_ates(tmp_path: Path) -> None:
     assert report.accuracy['matched_optimized'] == 77
     assert 0.0 < report.accuracy['ate_frontend_m'] < 1.0
     assert 0.0 < report.accuracy['ate_optimized_m'] < 1.0
+
+
+@pytest.mark.usefixtures('stub')
+def test_several_bags_are_merged_in_time(street_bag: Path, tmp_path: Path) -> None:
+    """Tracks and keyframe poses recorded into two bags replay like one bag."""
+    from pmba_ros.io.bags import open_writer
+
+    first, second = tmp_path / 'tracks.mcap', tmp_path / 'poses.mcap'
+    with open_writer(first) as a, open_writer(second) as b:
+        for message in iter_messages([street_bag]):
+            target = b if message.topic == '/keyframe_pose' else a
+            target.write(message.topic, message.msg, message.log_time_ns)
+    merged = replay([first, second], tmp_path / 'm')
+    single = replay([street_bag], tmp_path / 's')
+    assert merged.keyframes_in == single.keyframes_in == 60
+    assert ((tmp_path / 'm' / 'keyframes_frontend.tum').read_bytes()
+            == (tmp_path / 's' / 'keyframes_frontend.tum').read_bytes())
