@@ -335,7 +335,7 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
     path = Path(path)
     bare = path.suffix == '.mcap'
     if path.exists() and not overwrite:
-        msg = f'{path}: exists already (choose a new output path)'
+        msg = f'{path}: exists already (choose a new path or overwrite it)'
         raise BagError(msg)
     tmp = path.with_name(f'.{path.name}.partial')
     if tmp.exists():
