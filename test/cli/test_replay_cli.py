@@ -206,3 +206,20 @@ def test_wrong_layout_with_real_backend_is_one_error_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert 'wrong --tracks-layout' in err[0] and 'first error' in err[0]
+
+
+def test_progress_bar_draws_and_finishes() -> None:
+    """The progress bar redraws one line and ends it on close."""
+    import io
+
+    from pmba_ros.cli.replay import ProgressBar
+
+    stream = io.StringIO()
+    bar = ProgressBar(stream, width=10)
+    bar(5, 10)
+    bar(10, 10)
+    bar.close()
+    text = stream.getvalue()
+    assert '[#####.....]  50.0% 5/10 messages' in text
+    assert '[##########] 100.0% 10/10 messages' in text
+    assert text.endswith('\n') and text.count('\n') == 1
