@@ -13,12 +13,12 @@ publishes its outputs, so solving never blocks the executor. Run with
 
 from __future__ import annotations
 
+from collections import Counter
+from dataclasses import fields
 import importlib
 import logging
 import queue
 import threading
-from collections import Counter
-from dataclasses import fields
 from typing import Any
 
 from pmba_ros.backend.config import NODE_NAME, BackendConfig
@@ -168,7 +168,7 @@ class PmbaNode:
         try:
             with self._lock:
                 paths = self.logic.save(self.config.save_directory)
-        except Exception as err:  # noqa: BLE001 - report the failure to the caller
+        except Exception as err:
             response.success = False
             response.message = f'save failed: {err}'
             return response
@@ -223,7 +223,7 @@ class PmbaNode:
                     self.tf_broadcaster.sendTransform(list(msg.transforms))
                 elif topic in self.publishers:
                     self.publishers[topic].publish(msg)
-            except Exception as err:  # noqa: BLE001 - a failed publish must not stop solving
+            except Exception as err:
                 self.node.get_logger().error(f'publishing on {topic} failed: {err}')
 
     def _run(self) -> None:

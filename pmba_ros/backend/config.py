@@ -8,9 +8,9 @@ ROS 2 parameter file's ``{node_name: {ros__parameters: {...}}}`` nesting, and
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass, fields
 import math
 import os
-from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
@@ -169,7 +169,7 @@ class BackendConfig:
         for name in positive + non_negative:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or \
-                    not math.isfinite(value) and name != 'max_time_s':
+                    (not math.isfinite(value) and name != 'max_time_s'):
                 msg = f'parameter {name}={value!r}: expected a finite number'
                 raise ValueError(msg)
             if value < 0 or (name in positive and value == 0):
@@ -187,11 +187,11 @@ class BackendConfig:
         for name in ('odom_frame', 'base_frame'):
             if not isinstance(getattr(self, name), str):
                 msg = f'parameter {name}: expected a string'
-                raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+                raise ValueError(msg)
         for name in ('publish_tf', 'deterministic'):
             if not isinstance(getattr(self, name), bool):
                 msg = f'parameter {name}={getattr(self, name)!r}: expected a bool'
-                raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+                raise ValueError(msg)
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> BackendConfig:
@@ -230,7 +230,7 @@ class BackendConfig:
             data = yaml.safe_load(fh)
         if not isinstance(data, dict):
             msg = f'{os.fspath(path)}: expected a YAML mapping of parameters'
-            raise ValueError(msg)  # noqa: TRY004 - one error type for bad parameters
+            raise ValueError(msg)
         return cls.from_params(data)
 
     def to_params(self) -> dict[str, Any]:

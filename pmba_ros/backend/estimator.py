@@ -26,10 +26,10 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import logging
 import math
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -271,7 +271,8 @@ class Estimator:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _predict(self, odom: tuple[FloatArray, FloatArray] | None) -> tuple[FloatArray, FloatArray]:
+    def _predict(self, odom: tuple[FloatArray, FloatArray] | None,
+                 ) -> tuple[FloatArray, FloatArray]:
         """Initial pose of a new keyframe (front-end relative motion through map <- odom)."""
         n = self.kf.n
         prev = n - 1

@@ -15,12 +15,12 @@ so identical inputs give byte-identical outputs.
 
 from __future__ import annotations
 
-import logging
-import os
-import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
+import logging
+import os
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np
@@ -41,6 +41,8 @@ logger = logging.getLogger(__name__)
 TF_TOPIC = '/tf'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
+INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets'})
+"""Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
 
 
 @dataclass
@@ -120,7 +122,7 @@ class BackendLogic:
         """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted)."""
         try:
             camera = parse_camera_info(msg)
-        except Exception as err:  # noqa: BLE001 - bad input must never propagate
+        except Exception as err:
             self._reject('bad_camera_info', err)
             return
         if self.camera is None:
@@ -137,7 +139,7 @@ class BackendLogic:
             return
         try:
             frame = parse_tracks(msg, self.config.feature_layout, self.config.num_cams)
-        except Exception as err:  # noqa: BLE001
+        except Exception as err:
             self._reject('bad_tracks', err)
             return
         self.count('dropped_observations', frame.dropped)
@@ -162,7 +164,7 @@ class BackendLogic:
             return
         try:
             pose = parse_keyframe(msg, self.config.keyframe_type)
-        except Exception as err:  # noqa: BLE001
+        except Exception as err:
             self._reject('bad_keyframes', err)
             return
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
@@ -383,7 +385,8 @@ class BackendLogic:
         cfg = self.config
         info = self._last_info
         counters = self._stats.counters
-        new_drops = any(counters[k] > self._counters_at_diag[k] for k in counters)
+        new_drops = any(counters[k] > self._counters_at_diag[k] for k in counters
+                        if k not in INFO_COUNTERS)
         state = self.state
         if info.kind == 'error' or (new_drops and counters['internal_errors']
                                     > self._counters_at_diag['internal_errors']):
@@ -414,7 +417,8 @@ class BackendLogic:
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms
             values['update_ms'] = self._stats.update_ms[-1] if self._stats.update_ms else 0.0
-        values['dropped_total'] = int(sum(v for k, v in counters.items() if k != 'resets'))
+        values['dropped_total'] = int(sum(v for k, v in counters.items()
+                                          if k not in INFO_COUNTERS))
         for reason in sorted(counters):
             values[f'count.{reason}'] = int(counters[reason])
         if self.last_error:

@@ -33,8 +33,8 @@ noise of ``0.2 * drift`` of each step (translation) and ``0.01 * drift`` rad (ro
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 
 import numpy as np
 

@@ -284,6 +284,20 @@ def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
     assert logic.state == 'tracking'
 
 
+def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
+    logic = BackendLogic(config(), BACKEND)
+    outputs = run(logic, street, 21)
+    shifted = street.frames[21]
+    between = TrackFrame(shifted.stamp_ns - 50_000_000, 'odom', shifted.feature_ids,
+                         shifted.camera_ids, shifted.pixels, shifted.normalized)
+    logic.on_tracks(tracks_msg(street, 21, frame=between))  # a frame between keyframes
+    outputs = [o for outs in feed(logic, street, [21]) for o in outs]
+    diag = last(outputs, DIAGNOSTICS_TOPIC)
+    values = diag_values(diag)
+    assert values['count.tracks_without_keyframe'] == '1'
+    assert values['dropped_total'] == '0' and diag.status[0].level == 0
+
+
 def test_stamps_going_backwards(street: SimSequence) -> None:
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)

@@ -111,5 +111,5 @@ def test_distortion_models(distortion: str) -> None:
                                     {'noise_px': -1.0}, {'rate_hz': 0.0},
                                     {'distortion': 'fisheye'}, {'max_track_length': 1}])
 def test_invalid_arguments(kwargs: dict[str, object]) -> None:
-    with pytest.raises(ValueError, match='simulate_sequence|scenario|distortion'):
+    with pytest.raises(ValueError, match=r'simulate_sequence|scenario|distortion'):
         simulate_sequence(**kwargs)  # type: ignore[arg-type]
