@@ -51,8 +51,9 @@ from pmba_ros.backend.window import (
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
-from pmba_ros.core.problem import BAProblem, make_problem, subset_features
-from pmba_ros.core.solve import SolveOptions, solve
+from pmba_ros.core.loss import Loss
+from pmba_ros.core.problem import BAProblem, Parameterization, make_problem, subset_features
+from pmba_ros.core.solve import SolveOptions, SolverKind, solve
 from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
@@ -212,7 +213,8 @@ class Estimator:
         problem, _ = self._build_problem(batch, np.zeros(M, bool), None,
                                          np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)))
         opts = InitOptions(solve_options=SolveOptions(
-            param='pmba', solver='dogleg', loss='none', max_iterations=cfg.init_max_iterations,
+            param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
+            max_iterations=cfg.init_max_iterations,
             function_tolerance=1e-10))
         t0 = time.perf_counter()
         try:
@@ -343,7 +345,8 @@ class Estimator:
                 problem = subset_features(problem, ok, 'features_without_anchor_baseline')
                 pts = self.features.lookup(problem.feature_ids)
                 feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
-            options = SolveOptions(param='pmba', solver='dogleg', loss=cfg.loss,
+            options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
+                                   loss=Loss(cfg.loss),
                                    loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)

@@ -434,13 +434,15 @@ class BackendLogic:
         """Return the optimized keyframe poses in map_frame (stamps in seconds)."""
         kf = self.estimator.kf
         idx = self.estimator.estimated()
-        return Trajectory(kf.stamps_ns[idx] * 1e-9, kf.C_map[idx], kf.R_map[idx])
+        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, kf.C_map[idx],
+                          kf.R_map[idx])
 
     def frontend_trajectory(self) -> Trajectory:
         """Return the front-end poses of the keyframes received (odom frame)."""
         kf = self.estimator.kf
         idx = np.flatnonzero(kf.has_odom[:kf.n])
-        return Trajectory(kf.stamps_ns[idx] * 1e-9, kf.C_odom[idx], kf.R_odom[idx])
+        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, kf.C_odom[idx],
+                          kf.R_odom[idx])
 
     def landmarks(self) -> FloatArray:
         """Return the map's landmarks in map_frame, shape (N, 3)."""

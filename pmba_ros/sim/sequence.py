@@ -94,11 +94,12 @@ class SimSequence:
 
     def gt_trajectory(self) -> Trajectory:
         """Return the true camera trajectory (stamps in seconds)."""
-        return Trajectory(self.stamps_ns * 1e-9, self.centers_gt, self.R_wc_gt)
+        return Trajectory(self.stamps_ns.astype(np.float64) * 1e-9, self.centers_gt, self.R_wc_gt)
 
     def odom_trajectory(self) -> Trajectory:
         """Return the front-end camera trajectory in the odom frame (stamps in seconds)."""
-        return Trajectory(self.stamps_ns * 1e-9, self.centers_odom, self.R_wc_odom)
+        return Trajectory(self.stamps_ns.astype(np.float64) * 1e-9, self.centers_odom,
+                          self.R_wc_odom)
 
 
 def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: int = 0,
@@ -242,7 +243,7 @@ def _ray_depths(rng: np.random.Generator, scenario: str, origin: FloatArray,
             z = origin[2] + hit * rays_w[:, 2]
             hit = np.where((z > -2.0) & (z < 10.0), hit, np.inf)
             return np.where(np.isfinite(hit), hit, far)
-    return rng.uniform(5.0, 100.0, S)
+    return np.asarray(rng.uniform(5.0, 100.0, S), dtype=np.float64)
 
 
 def _tracks(rng: np.random.Generator, scenario: str, R_wc: FloatArray, centers: FloatArray,
