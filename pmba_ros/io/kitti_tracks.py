@@ -127,6 +127,14 @@ def _relative(R_wc: FloatArray, centers: FloatArray) -> tuple[FloatArray, FloatA
     return R_rel, t_rel
 
 
+def _relative_strided(R_wc: FloatArray, centers: FloatArray,
+                      stride: int) -> tuple[FloatArray, FloatArray]:
+    """Return the relative motions from frame k to frame k + stride, for every k."""
+    R_rel = np.einsum('kji,kjl->kil', R_wc[:-stride], R_wc[stride:])
+    t_rel = np.einsum('kji,kj->ki', R_wc[:-stride], centers[stride:] - centers[:-stride])
+    return R_rel, t_rel
+
+
 def find_frame_offset(R_wc: FloatArray, centers: FloatArray, gt: Trajectory,
                       max_stride: int = 3) -> tuple[int, int, float, float]:
     """Find which ground-truth frames a VO keyframe sequence is, by relative motions.
@@ -154,13 +162,24 @@ def find_frame_offset(R_wc: FloatArray, centers: FloatArray, gt: Trajectory,
     R_vo, t_vo = _relative(np.asarray(R_wc), np.asarray(centers))
     best: tuple[float, float, int, int] | None = None
     for stride in range(1, max_stride + 1):
-        for offset in range(len(gt) - stride * (n - 1)):
-            idx = offset + stride * np.arange(n)
-            R_gt, t_gt = _relative(gt.R_wc[idx], gt.positions_xyz[idx])
-            rot = float(np.sqrt(np.mean(np.degrees(so3.angle(R_gt, R_vo)) ** 2)))
-            trans = float(np.sqrt(np.mean(np.sum((t_gt - t_vo) ** 2, axis=1))))
-            if best is None or (rot, trans) < best[:2]:
-                best = (rot, trans, offset, stride)
+        n_off = len(gt) - stride * (n - 1)
+        if n_off <= 0:
+            break
+        # relative motions of every GT frame pair (k, k + stride), then gathered per offset
+        R_gt, t_gt = _relative_strided(gt.R_wc, gt.positions_xyz, stride)
+        rot_sq = np.zeros(n_off)
+        trans_sq = np.zeros(n_off)
+        for j in range(n - 1):
+            rows = np.arange(n_off) + stride * j
+            cos = (np.einsum('kab,ab->k', R_gt[rows], R_vo[j]) - 1.0) / 2.0
+            rot_sq += np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) ** 2
+            trans_sq += np.sum((t_gt[rows] - t_vo[j]) ** 2, axis=1)
+        rot_rms = np.sqrt(rot_sq / (n - 1))
+        trans_rms = np.sqrt(trans_sq / (n - 1))
+        k = int(np.lexsort((trans_rms, rot_rms))[0])
+        candidate = (float(rot_rms[k]), float(trans_rms[k]), k, stride)
+        if best is None or candidate[:2] < best[:2]:
+            best = candidate
     if best is None:
         msg = 'find_frame_offset: no candidate frames'
         raise FormatError(msg)
