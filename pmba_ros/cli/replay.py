@@ -234,7 +234,7 @@ def format_summary(report: ReplayReport) -> str:
     """
     head = (f'replayed {report.messages_in} messages ({report.keyframes_in} keyframes, '
             f'{report.messages_rejected} rejected) in {report.wall_s:.2f} s '
-            f'({report.bag_duration_s:.1f} s of data, {report.realtime_factor:.1f}x real time)')
+            f'({report.bag_duration_s:.1f} s of data, {report.realtime_factor:.2f}x real time)')
     lines = [head, f'optimized keyframes: {report.keyframes_out}; solves: {len(report.solve_ms)}']
     acc = report.accuracy
     if acc is not None:
