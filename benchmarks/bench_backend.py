@@ -77,10 +77,13 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
 
 def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     seq = simulate_sequence('street', args.keyframes, seed=args.seed)
-    cfg = BackendConfig(mode='sliding', window_size=args.window)
+    kwargs: dict[str, Any] = {'mode': 'sliding', 'window_size': args.window,
+                              'deterministic': args.deterministic}
     if args.iterations:
-        cfg = BackendConfig(mode='sliding', window_size=args.window,
-                            max_iterations=args.iterations)
+        kwargs['max_iterations'] = args.iterations
+    if args.max_time is not None:
+        kwargs['max_time_s'] = args.max_time
+    cfg = BackendConfig(**kwargs)
     logic, backend = _start(cfg, seq)
     wall, cpu = [], []
     for i in range(len(seq)):
@@ -94,8 +97,12 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
         return {'median_ms': float(np.median(v)), 'p95_ms': float(np.percentile(v, 95)),
                 'max_ms': float(np.max(v))}
 
+    iterations = np.asarray(logic.stats.iterations[1:])
     return {'bench': 'latency', 'window': args.window, 'keyframes': len(seq),
-            'max_iterations': cfg.max_iterations, 'max_time_s': cfg.max_time_s,
+            'max_iterations': cfg.max_iterations,
+            'max_time_s': None if cfg.deterministic else cfg.max_time_s,
+            'iterations_mean': float(iterations.mean()),
+            'zero_iteration_refines': int(np.sum(iterations == 0)),
             'step_wall': stats(wall), 'step_cpu': stats(cpu), 'solve_wall': stats(solve),
             'load_average': os.getloadavg()[0],
             'openblas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default')}
@@ -141,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--iterations', type=int, default=None)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--every', type=int, default=200)
+    parser.add_argument('--deterministic', action='store_true',
+                        help='latency: no time budget (fixed iterations; CPU time is then the '
+                        'unloaded-machine estimate)')
+    parser.add_argument('--max-time', type=float, default=None, help='latency: max_time_s')
     args = parser.parse_args(argv)
     if args.keyframes is None:
         args.keyframes = 2000 if args.bench == 'memory' else 200
