@@ -81,7 +81,7 @@ def linear_rays(R_wc: FloatArray, features: ParallaxFeatures, frames: Linearizat
     coeff = np.empty((j.shape[0], 3, 3, 3))
     coeff[:, 0] = sQ  # on P_a
     coeff[:, 1] = -sQ + st[:, None, None] * eye  # on P_m
-    coeff[:, 2] = -st[:, None, None] * eye  # on P_i  (eq. 12)
+    coeff[:, 2] = -st[:, None, None] * eye  # on P_i, eq. (12)
     slots = np.stack([features.assoc_idx[j], features.main_idx[j], cam_idx], axis=1)
     rays = np.einsum('kij,kj->ki', R_wc[cam_idx], bearings_c)
     return LinearRays(slots.astype(np.int64), coeff, rays)
@@ -168,7 +168,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     w = np.ones(K) if weights is None else np.asarray(weights, dtype=float)
     cams = np.ones(n_cams, dtype=bool) if cameras is None else np.asarray(cameras, dtype=bool)
     # Rows [r_k]x C_slot (3 rows per observation), eq. (14).
-    B = np.matmul(so3.hat(lin.rays)[:, None], lin.coeff)
+    B = np.matmul(so3.hat(lin.rays)[:, None], lin.coeff)  # eq. (14): [r_k]x N-bar_k
     H = accumulate_normal_matrix(B, lin.slots, n_cams, w)
     # Cheirality rows h_k = r_k^T C_slot: r_k . N-bar_k(P) >= 0.
     # DEVIATION(eq. 14): the printed z(R_i N) >= 0 is read as "predicted ray on the measured

@@ -133,7 +133,8 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         J_N = (eye3 - Nh[:, :, None] * Nh[:, None, :]) / norm[:, None, None]
         G = np.matmul(J_N[:, None], lin.coeff)  # de/dP_slot, (K, 3, 3, 3)
         _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
-        wk = w * drho  # IRLS weights (first-order robust scaling)
+        # DEVIATION(eq. 13): Cauchy-weighted (IRLS) instead of plain L2 (pmba.md §8 item 5).
+        wk = w * drho
         H = accumulate_normal_matrix(G, lin.slots, M, wk)[np.ix_(fidx, fidx)]
         g = accumulate_gradient(G, lin.slots, M, e, wk)[fidx]
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))

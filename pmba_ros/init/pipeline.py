@@ -50,8 +50,8 @@ STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'ba')
 
 
 def _default_solve_options() -> SolveOptions:
-    return SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
-                        max_iterations=200, function_tolerance=1e-10)
+    # The engine's (Ceres') defaults; tighten function_tolerance to compare optima closely.
+    return SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,7 +77,8 @@ class InitOptions:
         nls_max_iterations: LM iteration limit of the NLS.
         theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
             divided by the main anchor's focal length) start the BA at infinity (theta = 0).
-        solve_options: Options of the final (and only) BA; PMBA with Dogleg.
+        solve_options: Options of the final (and only) BA: PMBA with Dogleg, no loss, the
+            engine's defaults otherwise (function_tolerance 1e-6, as Ceres).
     """
 
     min_pair_matches: int = 30
