@@ -47,6 +47,9 @@ class BackendConfig:
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
+        max_observations_per_feature: Sliding problems keep at most this many observations
+            of a feature, evenly spread over its track (0: all; the Schur complement's cost
+            grows with the square of it).
         min_observations: Keyframes with fewer observations are not optimized (their pose
             comes from the front-end through the map <- odom similarity).
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
@@ -97,6 +100,7 @@ class BackendConfig:
     init_retry_every: int = 5
     init_max_batch: int = 60
     init_max_iterations: int = 100
+    max_observations_per_feature: int = 0
     min_observations: int = 15
     feature_layout: str = 'vins_fusion'
     num_cams: int = 1
@@ -150,7 +154,7 @@ class BackendConfig:
                    'init_batch_size': 3, 'init_retry_every': 1, 'init_max_iterations': 1,
                    'min_observations': 5, 'num_cams': 1, 'camera_id': 0, 'qos_depth': 1,
                    'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
-                   'max_landmarks': 0}
+                   'max_landmarks': 0, 'max_observations_per_feature': 0}
         for name, low in minimum.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -159,6 +163,10 @@ class BackendConfig:
         if self.init_max_batch < self.init_batch_size:
             msg = (f'parameter init_max_batch={self.init_max_batch} must be >= '
                    f'init_batch_size={self.init_batch_size}')
+            raise ValueError(msg)
+        if self.max_observations_per_feature == 1 or self.max_observations_per_feature == 2:
+            msg = ('parameter max_observations_per_feature: expected 0 (no cap) or >= 3, got '
+                   f'{self.max_observations_per_feature}')
             raise ValueError(msg)
         if self.camera_id >= self.num_cams:
             msg = f'parameter camera_id={self.camera_id} must be < num_cams={self.num_cams}'

@@ -47,6 +47,7 @@ from pmba_ros.backend.window import (
     gather_observations,
     rotation_compensated_parallax,
     select_fixed,
+    thin_tracks,
 )
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
@@ -197,6 +198,9 @@ class Estimator:
                        R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
         """Build a problem over keyframes ``cams``; returns it and its feature ids."""
         local, ids, bearings, xy = gather_observations(self.kf, cams, feature_filter)
+        if self.config.max_observations_per_feature and feature_filter is not None:
+            keep = thin_tracks(ids, local, self.config.max_observations_per_feature)
+            local, ids, bearings, xy = local[keep], ids[keep], bearings[keep], xy[keep]
         uniq, feat_idx = np.unique(ids, return_inverse=True)
         pixels = np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
         intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)

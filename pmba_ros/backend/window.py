@@ -274,6 +274,36 @@ def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntAr
     return np.sort(chosen).astype(np.int64)
 
 
+def thin_tracks(ids: IntArray, cams: IntArray, cap: int) -> BoolArray:
+    """Keep at most ``cap`` observations per feature, evenly spread over its track.
+
+    The first and the last (newest) observation of every feature are always kept. The Schur
+    complement's cost grows with the square of a feature's observation count, and the
+    interior observations of long, low-parallax tracks add little.
+
+    Args:
+        ids: Feature id of each observation, shape (K,).
+        cams: Camera (time order) of each observation, shape (K,).
+        cap: Largest number of observations per feature (>= 2).
+
+    Returns:
+        Mask of the observations to keep, shape (K,).
+    """
+    order = np.lexsort((cams, ids))
+    sorted_ids = ids[order]
+    start = np.concatenate([[True], sorted_ids[1:] != sorted_ids[:-1]])
+    first = np.maximum.accumulate(np.where(start, np.arange(ids.shape[0]), 0))
+    rank = np.arange(ids.shape[0]) - first
+    counts = np.bincount(np.cumsum(start) - 1)
+    n = counts[np.cumsum(start) - 1]
+    span = np.maximum(n - 1, 1)
+    k = np.rint(rank * (cap - 1) / span)
+    keep_sorted = (n <= cap) | (np.rint(k * span / (cap - 1)) == rank)
+    keep = np.empty(ids.shape[0], dtype=bool)
+    keep[order] = keep_sorted
+    return keep
+
+
 def finite_rows(points: FloatArray) -> BoolArray:
     """Return the rows of ``points`` (N, 3) that are finite."""
     return np.all(np.isfinite(points), axis=1)

@@ -18,6 +18,7 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.types import TrackFrame
+from pmba_ros.backend.window import thin_tracks
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
@@ -129,6 +130,16 @@ def test_config_from_params_flat_and_nested() -> None:
 def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
     with pytest.raises(ValueError, match=match):
         BackendConfig.from_params(params)
+
+
+def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
+    ids = np.array([5] * 20 + [3] * 4 + [7] * 9)
+    cams = np.concatenate([np.arange(20), np.arange(4), np.arange(9)])
+    keep = thin_tracks(ids, cams, 6)
+    np.testing.assert_array_equal(cams[:20][keep[:20]], [0, 4, 8, 11, 15, 19])
+    assert keep[20:24].all() and np.count_nonzero(keep[24:]) == 6 and keep[24] and keep[-1]
+    with pytest.raises(ValueError, match='max_observations_per_feature'):
+        BackendConfig(max_observations_per_feature=2)
 
 
 # --- normal operation -----------------------------------------------------------------------
