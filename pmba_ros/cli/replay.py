@@ -1,12 +1,12 @@
-"""``pmba replay BAG... --out DIR``: run the back-end over recorded front-end topics.
+r"""``pmba replay BAG... --out DIR``: run the back-end over recorded front-end topics.
 
 Usage examples::
 
     pmba replay --out demo                      # simulated street, replayed and evaluated
     pmba simulate --scenario street --keyframes 200 --out street_bag
     pmba replay street_bag --out street_out --gt street_bag/groundtruth.tum
-    pmba replay vins.mcap --out out --tracks-topic /feature_tracker/feature \\
-        --tracks-layout vins_mono --keyframes-topic /vins_estimator/keyframe_pose \\
+    pmba replay vins.mcap --out out --tracks-topic /feature_tracker/feature \
+        --tracks-layout vins_mono --keyframes-topic /vins_estimator/keyframe_pose \
         --intrinsics 458.654,457.296,367.215,248.375 --mode sliding --plot
     pmba_bag_replay run.mcap --out out --params config/pmba.yaml --quiet
 

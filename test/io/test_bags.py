@@ -155,7 +155,7 @@ def test_qos_mismatch_folder_falls_back_to_storage_file(tmp_path: Path) -> None:
 
 
 def test_reads_ros1_bag_without_leading_slash() -> None:
-    """evo's ROS 1 example bag reads through the same API."""
+    """The ROS 1 example bag of evo reads through the same API."""
     bag = shared_file('bags', 'ROS_example.bag')
     topics = list_topics([bag])
     assert topics['groundtruth'].msgtype == 'geometry_msgs/msg/PoseStamped'
