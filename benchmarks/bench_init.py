@@ -12,20 +12,17 @@ times slower (measured: 143x143 Cholesky 39 ms vs 0.26 ms). The setting is print
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
-
 import argparse
 from collections.abc import Callable
 import json
 import logging
+import os
 from pathlib import Path
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pmba_ros.core.problem import BAProblem
-from pmba_ros.init.pipeline import STAGES, global_init
+if TYPE_CHECKING:
+    from pmba_ros.core.problem import BAProblem
 
 logger = logging.getLogger('bench_init')
 
@@ -52,6 +49,8 @@ CASES: dict[str, Callable[[], BAProblem | None]] = {'ladybug': _ladybug,
 
 def run_case(name: str, repeat: int) -> dict[str, Any] | None:
     """Run global_init ``repeat`` times on one case; return the best total and its stages."""
+    from pmba_ros.init.pipeline import global_init
+
     problem = CASES[name]()
     if problem is None:
         logger.warning('%s: data not available, skipped', name)
@@ -77,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--repeat', type=int, default=1)
     parser.add_argument('--json', type=Path)
     args = parser.parse_args(argv)
+    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # before numpy is first imported
+    from pmba_ros.init.pipeline import STAGES
     logging.basicConfig(level=logging.WARNING)
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
           f'cpu_count={os.cpu_count()}, load={os.getloadavg()[0]:.2f}')

@@ -218,8 +218,8 @@ def _check_input(problem: BAProblem) -> dict[str, Any]:
     return info
 
 
-def _estimate_pairs(problem: BAProblem, options: InitOptions) -> tuple[two_view.EGPairs,
-                                                                        dict[str, Any]]:
+def _estimate_pairs(problem: BAProblem, options: InitOptions,
+                    ) -> tuple[two_view.EGPairs, dict[str, Any]]:
     obs = problem.obs
     corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
                                          options.min_pair_matches)

@@ -70,7 +70,7 @@ def test_trafalgar_21_out_of_order_matches_pmba_from_file() -> None:
 
 @pytest.mark.slow
 def test_fake_pile_matches_pmba_from_file() -> None:
-    """ParallaxBA fake-pile: final RMS within 2 % of PMBA from Cam.txt (triangulated points)."""
+    """The fake-pile set: final RMS within 2 % of PMBA from Cam.txt (triangulated points)."""
     from pmba_ros.io.parallaxba_files import read_parallaxba, triangulate_points
 
     problem = read_parallaxba(_data('parallaxba', 'fake-pile'))

@@ -60,7 +60,7 @@ def test_pair_correspondences_equal_brute_force_join(rng: np.random.Generator) -
 
 
 def test_relative_pose_5pt_recovers_noise_free_pose(rng: np.random.Generator) -> None:
-    """OpenCV's 5-point RANSAC returns R_cv = R_2^T R_1 and t_cv ~ R_2^T (P_1 - P_2)."""
+    """The 5-point RANSAC returns R_cv = R_2^T R_1 and t_cv ~ R_2^T (P_1 - P_2)."""
     b1, b2, R_cv, t_cv = _two_cameras(rng)
     out = two_view.relative_pose_5pt(b1, b2, 1e-4)
     assert out is not None
