@@ -48,7 +48,7 @@ class _ObsChunk:
 
     lo: int
     hi: int
-    u_agg: scipy.sparse.csr_matrix  # (n_pairs, n * S * S): U blocks per slot pair
+    u_agg: scipy.sparse.csr_matrix  # (6 n_pairs, 6 n S S): rows of U blocks, see assemble
     w_agg: scipy.sparse.csr_matrix  # (nW, n * S): W blocks per slot
     g_agg: scipy.sparse.csr_matrix  # (n_blocks, n * S): pose gradient per slot
 
@@ -132,12 +132,20 @@ class SchurStructure:
         u_pair[u_valid] = pair_inv[:int(u_valid.sum())]
         s_pair = pair_inv[int(u_valid.sum()):int(u_valid.sum()) + q1.shape[0]]
 
+        # Row i of the (s, t) block of observation k's J^T J (6S x 6S, row-major) starts at
+        # flat row (k * 6S + 6s + i) * S + t of the (., 6) view; it adds to row 6 pair + i.
+        u_pair_kst = u_pair.reshape(K, S, S)
+        i6 = np.arange(6)
+        u_rows = np.where(u_pair_kst[:, :, None, :] >= 0,
+                          u_pair_kst[:, :, None, :] * 6 + i6[None, None, :, None], -1)
+        u_rows = u_rows.reshape(-1)                                  # order (k, s, i, t)
         step = max(1, _CHUNK // (S * S))
         obs_chunks = []
         for lo in range(0, K, step):
             hi = min(lo + step, K)
+            per_obs = 6 * S * S
             obs_chunks.append(_ObsChunk(
-                lo, hi, _aggregator(u_pair[lo * S * S:hi * S * S], n_pairs),
+                lo, hi, _aggregator(u_rows[lo * per_obs:hi * per_obs], 6 * n_pairs),
                 _aggregator(entry_w[lo * S:hi * S], w_block.shape[0]),
                 _aggregator(entry_block[lo * S:hi * S], n_blocks)))
         s_chunks = []
@@ -179,20 +187,19 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
         J_pose: Pose Jacobian blocks per slot, shape (K, S, d, 6).
         J_feat: Feature Jacobian blocks, shape (K, d, 3).
     """
-    _K, S, d, _ = J_pose.shape
+    S, d = J_pose.shape[1], J_pose.shape[2]
     n_pairs = structure.pair_rows.shape[0]
-    U = np.zeros((n_pairs, 36))
+    U = np.zeros((6 * n_pairs, 6))
     W = np.zeros((structure.w_block.shape[0], 18))
     g_pose = np.zeros((structure.n_blocks, 6))
     for ch in structure._obs_chunks:
-        # One observation's pose Jacobian as d x 6S: J^T J holds all its slot-pair blocks.
-        Jk = np.swapaxes(J_pose[ch.lo:ch.hi], 1, 2).reshape(-1, d, 6 * S)
-        JkT = np.swapaxes(Jk, 1, 2)
         n = ch.hi - ch.lo
-        JtJ = (JkT @ Jk).reshape(n, S, 6, S, 6).transpose(0, 1, 3, 2, 4)
-        U += ch.u_agg @ JtJ.reshape(-1, 36)
+        # One observation's pose Jacobian as d x 6S: J^T J holds all its slot-pair blocks.
+        Jk = np.swapaxes(J_pose[ch.lo:ch.hi], 1, 2).reshape(n, d, 6 * S)
+        JkT = np.swapaxes(Jk, 1, 2)
+        U += ch.u_agg @ (JkT @ Jk).reshape(-1, 6)
         W += ch.w_agg @ (JkT @ J_feat[ch.lo:ch.hi]).reshape(-1, 18)
-        g_pose += ch.g_agg @ np.einsum('kid,kd->ki', JkT, residuals[ch.lo:ch.hi]).reshape(-1, 6)
+        g_pose += ch.g_agg @ (JkT @ residuals[ch.lo:ch.hi, :, None]).reshape(-1, 6)
     JfT = np.swapaxes(J_feat, 1, 2)
     V = _sum_by_feature(structure, (JfT @ J_feat).reshape(-1, 9))
     g_feat = _sum_by_feature(structure, np.einsum('kid,kd->ki', JfT, residuals))
