@@ -582,7 +582,8 @@ def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
     Returns:
         ``ate_frontend_m``, ``ate_optimized_m``, ``ate_ratio`` (optimized / front-end),
         ``rpe_frontend``, ``rpe_optimized`` (RMSE, m, consecutive keyframes),
-        ``alignment`` and the full results under ``frontend`` / ``optimized``.
+        ``alignment`` and the full results under ``frontend`` / ``optimized``. The
+        optimized entries are None if the back-end optimized no keyframe.
 
     Raises:
         EvaluationError: If a trajectory has no stamps overlapping the ground truth.
@@ -591,24 +592,29 @@ def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
 
     results = {}
     for name, traj in (('frontend', frontend), ('optimized', optimized)):
+        if len(traj) == 0 and name == 'optimized':
+            logger.warning('the back-end optimized no keyframe; no optimized accuracy')
+            continue
         try:
             results[name] = evaluate(traj, gt, align=align, max_diff_s=max_diff_s)
         except EvaluationError as err:
-            msg = f'ground truth vs {name} keyframes: {err}'
+            hint = ' (try --align none)' if 'degenerate' in str(err) and align != 'none' else ''
+            msg = f'ground truth vs {name} keyframes: {err}{hint}'
             raise EvaluationError(msg) from err
     ate_f = results['frontend']['ate'].rmse
-    ate_o = results['optimized']['ate'].rmse
+    opt = results.get('optimized')
+    ate_o = opt['ate'].rmse if opt is not None else None
     return {
         'alignment': align,
         'ate_frontend_m': ate_f,
         'ate_optimized_m': ate_o,
-        'ate_ratio': ate_o / ate_f if ate_f > 0 else None,
+        'ate_ratio': ate_o / ate_f if ate_o is not None and ate_f > 0 else None,
         'rpe_frontend': results['frontend']['rpe'].rmse,
-        'rpe_optimized': results['optimized']['rpe'].rmse,
+        'rpe_optimized': opt['rpe'].rmse if opt is not None else None,
         'matched_frontend': results['frontend']['ate'].n_matched,
-        'matched_optimized': results['optimized']['ate'].n_matched,
+        'matched_optimized': opt['ate'].n_matched if opt is not None else 0,
         'frontend': {k: v.to_dict() for k, v in results['frontend'].items()},
-        'optimized': {k: v.to_dict() for k, v in results['optimized'].items()},
+        'optimized': {k: v.to_dict() for k, v in opt.items()} if opt is not None else None,
     }
 
 

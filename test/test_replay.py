@@ -337,3 +337,22 @@ def test_several_bags_are_merged_in_time(street_bag: Path, tmp_path: Path) -> No
     assert merged.keyframes_in == single.keyframes_in == 60
     assert ((tmp_path / 'm' / 'keyframes_frontend.tum').read_bytes()
             == (tmp_path / 's' / 'keyframes_frontend.tum').read_bytes())
+
+
+def test_no_optimized_keyframes_reports_frontend_only(street_bag: Path, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A back-end that never initializes gives front-end accuracy and empty optimized fields."""
+    class Uninitialized(StubLogic):
+        def optimized_trajectory(self) -> Trajectory:
+            return Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+
+    monkeypatch.setattr(replay_mod, '_make_logic',
+                        lambda config: Uninitialized(config, _backend()))
+    report = replay([street_bag], tmp_path / 'o', gt=groundtruth_path(street_bag))
+    assert report.accuracy is not None
+    assert report.accuracy['ate_frontend_m'] > 0
+    assert report.accuracy['ate_optimized_m'] is None
+    assert report.accuracy['ate_ratio'] is None
+    assert report.keyframes_out == 0
+    lines = (tmp_path / 'o' / 'keyframes_optimized.tum').read_text().splitlines()
+    assert lines == ['# timestamp tx ty tz qx qy qz qw']

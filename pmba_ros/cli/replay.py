@@ -223,6 +223,11 @@ def _default_street(out: Path, gt: Path | None, *, quiet: bool) -> tuple[list[Pa
     return [bag], gt if gt is not None else (info.groundtruth_tum or bag / 'groundtruth.tum')
 
 
+def _num(value: float | None) -> str:
+    """Format one table cell (12 wide; '-' for a missing value)."""
+    return f'{value:>12.4f}' if value is not None else f'{"-":>12}'
+
+
 def format_summary(report: ReplayReport) -> str:
     """Return the text printed after a replay: counts, accuracy table, output files.
 
@@ -240,8 +245,8 @@ def format_summary(report: ReplayReport) -> str:
     if acc is not None:
         ratio = acc['ate_ratio']
         ratio_text = f'{ratio:.3f}' if ratio is not None else '-'
-        ate = f'{acc["ate_frontend_m"]:>12.4f}{acc["ate_optimized_m"]:>12.4f}{ratio_text:>9}'
-        rpe = f'{acc["rpe_frontend"]:>12.4f}{acc["rpe_optimized"]:>12.4f}'
+        ate = f'{_num(acc["ate_frontend_m"])}{_num(acc["ate_optimized_m"])}{ratio_text:>9}'
+        rpe = f'{_num(acc["rpe_frontend"])}{_num(acc["rpe_optimized"])}'
         matched = f'{acc["matched_frontend"]:>12d}{acc["matched_optimized"]:>12d}'
         lines += ['', f'accuracy vs ground truth (alignment {acc["alignment"]})',
                   f'{"":<22}{"front-end":>12}{"optimized":>12}{"ratio":>9}',
