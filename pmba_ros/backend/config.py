@@ -100,7 +100,7 @@ class BackendConfig:
     init_retry_every: int = 5
     init_max_batch: int = 60
     init_max_iterations: int = 100
-    max_observations_per_feature: int = 0
+    max_observations_per_feature: int = 14
     min_observations: int = 15
     feature_layout: str = 'vins_fusion'
     num_cams: int = 1
