@@ -161,3 +161,15 @@ def test_reads_ros1_bag_without_leading_slash() -> None:
     assert topics['groundtruth'].msgtype == 'geometry_msgs/msg/PoseStamped'
     first = next(iter_messages([bag], topics=['groundtruth']))
     assert first.msg.header.stamp.sec > 1_400_000_000
+
+
+@pytest.mark.parametrize(('parts', 'topic', 'count'), [
+    (('bags', 'tf_example'), '/tf', 517),
+    (('bags', 'nav2_turtlebot.mcap'), '/odom', 2639),
+])
+def test_reads_shared_rosbag2_recordings(parts: tuple[str, ...], topic: str,
+                                         count: int) -> None:
+    """A sqlite3 rosbag2 folder and a bare MCAP recorded by ROS 2 read completely."""
+    bag = shared_file(*parts)
+    assert list_topics([bag])[topic].count == count
+    assert sum(1 for _ in iter_messages([bag], topics=[topic])) == count
