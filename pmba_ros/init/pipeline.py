@@ -17,6 +17,19 @@ Only the input problem's observations and intrinsics are used; its poses and poi
 ignored. The result's problem holds only the cameras of the largest component of the view
 graph and the features anchored on EG pairs (``camera_index``/``feature_index`` map back to
 the input), because cameras without an EG pair have no rotation to start from.
+
+Deviations from the paper (tagged ``DEVIATION`` in the code, pmba.md §8):
+
+- eq. (11): n_z is normalised.
+- eq. (14): cheirality is read as r_k . N-bar_k >= 0 and enforced by an active-set quadratic
+  penalty (no QP solver); a scale equality sum_k r_k . N-bar_k = K is added.
+- eq. (13): Cauchy loss (IRLS Levenberg-Marquardt), because frozen noisy theta-bar act as
+  outliers.
+- Remark 5: features whose rotation-only parallax is below ``theta_floor_px`` start the BA at
+  infinity (theta = 0), and anchors are swapped when only the other order gives a valid
+  triangle (pmba.md §3.3); otherwise near-collinear features can stall the BA.
+
+The CLS and NLS use dense (3M x 3M) normal matrices: fine up to about 1500 cameras.
 """
 
 from __future__ import annotations
@@ -126,7 +139,9 @@ class InitResult:
     Attributes:
         problem: The problem handed to the final BA: cameras of the largest component of the
             view graph (renumbered), features anchored on EG pairs, poses from the NLS.
-        features: Initial PMBA features of ``problem`` (rotations only, Remark 5).
+        features: The PMBA features the BA started from: theta-bar and n-bar from the
+            averaged rotations (Remark 5), anchors on EG pairs oriented so that the triangle
+            is valid, theta = 0 (infinity) below ``InitOptions.theta_floor_px``.
         solve: The final PMBA result (its R_wc, centers_w, features and points are the output).
         camera_index: Input camera index of each camera of ``problem``, shape (M',).
         feature_index: Input feature index of each feature of ``problem``, shape (N',).
