@@ -22,6 +22,7 @@ import argparse
 from dataclasses import fields, replace
 import logging
 from pathlib import Path
+import signal
 import sys
 import time
 from typing import TYPE_CHECKING, Any, TextIO
@@ -191,15 +192,33 @@ def run(args: argparse.Namespace) -> int:
     if not bags:
         bags, gt = _default_street(args.out, gt, quiet=quiet)
     bar = ProgressBar(sys.stderr) if not quiet and sys.stderr.isatty() else None
+    previous = _interrupt_on_sigterm()
     try:
         report = replay(bags, args.out, config, gt=gt, plot=plot,
                         progress=bar, intrinsics=intrinsics, align=args.align)
     finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
         if bar is not None:
             bar.close()
     if not quiet:
         print(format_summary(report))
     return 0
+
+
+def _interrupt_on_sigterm() -> Any:
+    """Make SIGTERM raise KeyboardInterrupt, so that the result bag is finalized.
+
+    Returns:
+        The previous handler, or None if none could be installed (not the main thread).
+    """
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:
+        return None
 
 
 def _default_street(out: Path, gt: Path | None, *, quiet: bool) -> tuple[list[Path], Path]:

@@ -223,3 +223,30 @@ def test_progress_bar_draws_and_finishes() -> None:
     assert '[#####.....]  50.0% 5/10 messages' in text
     assert '[##########] 100.0% 10/10 messages' in text
     assert text.endswith('\n') and text.count('\n') == 1
+
+
+def test_sigterm_leaves_a_readable_result_bag(tmp_path: Path) -> None:
+    """A replay killed with SIGTERM exits non-zero and leaves a finalized result.mcap."""
+    import signal
+    import time
+
+    pytest.importorskip('pmba_ros.backend.logic')
+    bag = tmp_path / 'street'
+    assert main(['simulate', '--keyframes', '200', '--out', str(bag)]) == 0
+    out = tmp_path / 'o'
+    proc = subprocess.Popen([sys.executable, '-m', 'pmba_ros', 'replay', str(bag), '--out',
+                             str(out), '--quiet'], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (out / 'report.json').exists() and not any(out.glob('.result.mcap.partial')):
+        assert time.monotonic() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip('the replay finished before the signal')
+    assert proc.returncode == 130
+    assert err.strip().splitlines()[-1] == 'error: interrupted'
+    topics = list_topics([out / 'result.mcap'])
+    assert 0 < topics['/pmba/path'].count < 200
+    assert json.loads((out / 'report.json').read_text())['complete'] is False
