@@ -94,7 +94,8 @@ def _check_paths(paths: Sequence[Path]) -> list[Path]:
     """Validate bag paths and return them as a list.
 
     Raises:
-        BagError: If no path is given, a path is missing, or ROS 1 and ROS 2 bags are mixed.
+        BagError: If no path is given, a path is missing or is a folder without a bag, or
+            ROS 1 and ROS 2 bags are mixed.
     """
     paths = [Path(p) for p in paths]
     if not paths:
@@ -104,6 +105,18 @@ def _check_paths(paths: Sequence[Path]) -> list[Path]:
         if not path.exists():
             msg = f'{path}: no such bag'
             raise BagError(msg)
+    expanded: list[Path] = []
+    for path in paths:
+        if path.is_dir() and not (path / 'metadata.yaml').exists():
+            files = _storage_files(path)
+            if not files:
+                msg = f'{path}: not a bag (no metadata.yaml and no .mcap or .db3 file in it)'
+                raise BagError(msg)
+            logger.info('%s has no metadata.yaml; reading %s', path, _describe(files))
+            expanded.extend(files)
+        else:
+            expanded.append(path)
+    paths = expanded
     kinds = {p.suffix == '.bag' for p in paths}
     if len(kinds) > 1:
         msg = f'cannot mix ROS 1 (.bag) and ROS 2 recordings: {_describe(paths)}'

@@ -173,3 +173,15 @@ def test_reads_shared_rosbag2_recordings(parts: tuple[str, ...], topic: str,
     bag = shared_file(*parts)
     assert list_topics([bag])[topic].count == count
     assert sum(1 for _ in iter_messages([bag], topics=[topic])) == count
+
+
+def test_folder_without_metadata(tmp_path: Path) -> None:
+    """An empty folder is not a bag; a folder holding only an .mcap file is read."""
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    with pytest.raises(BagError, match=r'empty: not a bag \(no metadata.yaml'):
+        list_topics([empty])
+    loose = tmp_path / 'loose'
+    loose.mkdir()
+    _write_poses(loose / 'x.mcap', 3)
+    assert sum(1 for _ in iter_messages([loose])) == 3
