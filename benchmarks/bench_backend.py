@@ -50,6 +50,7 @@ def _feed(logic: BackendLogic, seq: SimSequence, backend: out.MsgBackend, i: int
 
 
 def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.MsgBackend]:
+    """Start."""
     backend = out.RosbagsBackend()
     logic = BackendLogic(config, backend)
     logic.on_camera_info(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera,
@@ -58,6 +59,7 @@ def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.M
 
 
 def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
+    """Bench ate."""
     seq = simulate_sequence('street', args.keyframes, seed=args.seed)
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
                         max_iterations=args.iterations)
@@ -76,6 +78,7 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
+    """Bench latency."""
     seq = simulate_sequence('street', args.keyframes, seed=args.seed)
     kwargs: dict[str, Any] = {'mode': 'sliding', 'window_size': args.window,
                               'deterministic': args.deterministic}
@@ -94,6 +97,7 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     solve = np.asarray(logic.stats.solve_ms[1:])
 
     def stats(v: list[float] | np.ndarray) -> dict[str, float]:
+        """Stats."""
         return {'median_ms': float(np.median(v)), 'p95_ms': float(np.percentile(v, 95)),
                 'max_ms': float(np.max(v))}
 
@@ -109,11 +113,13 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _rss_mb() -> float:
+    """Rss mb."""
     with open('/proc/self/statm', encoding='ascii') as fh:
         return int(fh.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 2**20
 
 
 def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
+    """Bench memory."""
     seq = simulate_sequence('street', args.keyframes, seed=args.seed)
     cfg = BackendConfig(mode='sliding', window_size=args.window, deterministic=True,
                         max_iterations=1)
@@ -140,6 +146,7 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Main."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bench', choices=('ate', 'latency', 'memory'))
     parser.add_argument('--mode', choices=('sliding', 'global'), default='sliding')

@@ -28,6 +28,7 @@ from pmba_ros.sim.sequence import simulate_sequence  # noqa: E402
 
 @pytest.fixture
 def ros() -> Iterator[tuple[Context, SingleThreadedExecutor]]:
+    """Ros."""
     context = Context()
     rclpy.init(context=context)
     executor = SingleThreadedExecutor(context=context)
@@ -38,6 +39,7 @@ def ros() -> Iterator[tuple[Context, SingleThreadedExecutor]]:
 
 def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool],
                timeout_s: float = 30.0) -> bool:
+    """Spin until."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
@@ -48,6 +50,7 @@ def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool],
 
 def test_node_publishes_path_tf_and_diagnostics(
         ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """Test: node publishes path tf and diagnostics."""
     context, executor = ros
     seq = simulate_sequence('street', n_keyframes=16, seed=1)
     node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
@@ -94,6 +97,7 @@ def test_node_publishes_path_tf_and_diagnostics(
 
 
 def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path: Any) -> None:
+    """Test: services respond."""
     context, executor = ros
     node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
         Parameter('save_directory', value=str(tmp_path))])

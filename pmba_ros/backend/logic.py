@@ -204,7 +204,7 @@ class BackendLogic:
 
     @property
     def state(self) -> str:
-        """Return 'paused' or the estimator state ('collecting', 'waiting_for_parallax', ...)."""
+        """Return the state: 'paused' or the estimator's ('collecting', 'tracking', ...)."""
         return 'paused' if self._paused else self.estimator.state
 
     @property
@@ -318,7 +318,7 @@ class BackendLogic:
     # --- outputs --------------------------------------------------------------------------
 
     def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
-        """PoseStamped and Pose messages of keyframes ``idx`` (final poses are cached)."""
+        """Return PoseStamped and Pose messages of keyframes ``idx`` (final ones cached)."""
         kf = self.estimator.kf
         frame = self.config.map_frame
         final = (kf.status[idx] == KeyframeStatus.FIXED) | (
@@ -474,4 +474,3 @@ class BackendLogic:
         paths.append(ply)
         logger.info('saved %s', ', '.join(str(p) for p in paths))
         return paths
-

@@ -307,8 +307,8 @@ def _drifted(rng: np.random.Generator, R_wc: FloatArray, centers: FloatArray,
     omega = (0.01 * drift * step)[:, None] * bias_axis \
         + rng.normal(0.0, 0.01 * drift, (F - 1, 3))
     R_rel_o = R_rel @ so3.exp(omega)
-    t_rel_o = scale[:, None] * t_rel + rng.normal(0.0, 1.0, (F - 1, 3)) * (0.2 * drift
-                                                                             * step)[:, None]
+    noise_t = rng.normal(0.0, 1.0, (F - 1, 3)) * (0.2 * drift * step)[:, None]
+    t_rel_o = scale[:, None] * t_rel + noise_t
     R_o = np.empty_like(R_wc)
     c_o = np.empty_like(centers)
     R_o[0] = R_wc[0]
@@ -328,4 +328,3 @@ def track_lengths(seq: SimSequence) -> IntArray:
     """Return the number of keyframes observing each feature, shape (N,)."""
     ids = np.concatenate([f.feature_ids for f in seq.frames])
     return np.bincount(ids, minlength=seq.points_w.shape[0]).astype(np.int64)
-

@@ -45,6 +45,7 @@ def tracks_msg(seq: SimSequence, i: int, layout: str = 'vins_fusion',
 
 
 def camera_info_msg(seq: SimSequence, backend: out.MsgBackend = BACKEND) -> Any:
+    """Camera info msg."""
     return out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
 
 
@@ -69,30 +70,36 @@ def run(logic: BackendLogic, seq: SimSequence, n: int | None = None,
 
 
 def last(outputs: list[tuple[str, Any]], topic: str) -> Any:
+    """Last."""
     msgs = [m for t, m in outputs if t == topic]
     assert msgs, f'no output on {topic}'
     return msgs[-1]
 
 
 def diag_values(msg: Any) -> dict[str, str]:
+    """Diag values."""
     return {kv.key: kv.value for kv in msg.status[0].values}
 
 
 def stamp_ns(header: Any) -> int:
+    """Stamp ns."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def config(**kwargs: Any) -> BackendConfig:
+    """Config."""
     return BackendConfig(deterministic=True, **kwargs)
 
 
 @pytest.fixture(scope='module')
 def street() -> SimSequence:
+    """Street."""
     return simulate_sequence('street', n_keyframes=200, seed=0)
 
 
 @pytest.fixture(scope='module')
 def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]:
+    """Short run."""
     logic = BackendLogic(config(), BACKEND)
     return logic, run(logic, street, 28)
 
@@ -101,11 +108,13 @@ def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]
 
 
 def test_config_yaml_matches_defaults() -> None:
+    """Test: config yaml matches defaults."""
     path = Path(__file__).resolve().parents[2] / 'config' / 'pmba.yaml'
     assert BackendConfig.from_yaml(path) == BackendConfig()
 
 
 def test_config_from_params_flat_and_nested() -> None:
+    """Test: config from params flat and nested."""
     flat = BackendConfig.from_params({'mode': 'global', 'window_size': 7, 'use_sim_time': True})
     nested = BackendConfig.from_params(
         {'pmba_node': {'ros__parameters': {'mode': 'global', 'window_size': 7}}})
@@ -128,11 +137,13 @@ def test_config_from_params_flat_and_nested() -> None:
     ({'windowsize': 20}, 'unknown parameter'),
 ])
 def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
+    """Test: config rejects bad params."""
     with pytest.raises(ValueError, match=match):
         BackendConfig.from_params(params)
 
 
 def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
+    """Test: thin tracks keeps ends and caps counts."""
     ids = np.array([5] * 20 + [3] * 4 + [7] * 9)
     cams = np.concatenate([np.arange(20), np.arange(4), np.arange(9)])
     keep = thin_tracks(ids, cams, 6)
@@ -147,6 +158,7 @@ def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
 
 @pytest.mark.parametrize('layout', ['vins_mono', 'vins_fusion', 'per_point', 'named'])
 def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) -> None:
+    """Test: every layout initializes and refines."""
     logic = BackendLogic(config(feature_layout=layout), BACKEND)
     outputs = run(logic, street, 24, layout)
     assert logic.state == 'tracking'
@@ -159,6 +171,7 @@ def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) 
 
 def test_outputs_serialize_with_the_jazzy_typestore(
         short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
+    """Test: outputs serialize with the jazzy typestore."""
     _, outputs = short_run
     types = {}
     for topic, msg in outputs:
@@ -175,6 +188,7 @@ def test_outputs_serialize_with_the_jazzy_typestore(
 
 def test_output_contents_frames_and_stamps(
         street: SimSequence, short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
+    """Test: output contents frames and stamps."""
     logic, outputs = short_run
     stamp = int(street.stamps_ns[27])
     path = last(outputs, 'pmba/path')
@@ -208,6 +222,7 @@ def test_output_contents_frames_and_stamps(
 
 
 def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence) -> None:
+    """Test: solve timing in diagnostics when not deterministic."""
     logic = BackendLogic(BackendConfig(init_batch_size=10), BACKEND)
     values = diag_values(last(run(logic, street, 14), DIAGNOSTICS_TOPIC))
     assert float(values['solve_ms']) > 0 and float(values['update_ms']) > 0
@@ -215,13 +230,16 @@ def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence)
 
 
 def test_deterministic_outputs_are_byte_identical(street: SimSequence) -> None:
+    """Test: deterministic outputs are byte identical."""
     def serialized() -> list[bytes]:
+        """Serialized."""
         logic = BackendLogic(config(init_batch_size=10), BACKEND)
         return [BACKEND.serialize(m) for _, m in run(logic, street, 16)]
     assert serialized() == serialized()
 
 
 def test_keyframes_as_tracks_without_frontend_poses(street: SimSequence) -> None:
+    """Test: keyframes as tracks without frontend poses."""
     logic = BackendLogic(config(keyframe_source='tracks'), BACKEND)
     logic.on_camera_info(camera_info_msg(street))
     outputs = []
@@ -237,11 +255,13 @@ def test_keyframes_as_tracks_without_frontend_poses(street: SimSequence) -> None
 
 
 def _counts(logic: BackendLogic, outputs: list[tuple[str, Any]]) -> dict[str, str]:
+    """Counts."""
     return {k: v for k, v in diag_values(last(outputs, DIAGNOSTICS_TOPIC)).items()
             if k.startswith('count.')}
 
 
 def test_non_finite_and_duplicate_observations_are_dropped(street: SimSequence) -> None:
+    """Test: non finite and duplicate observations are dropped."""
     logic = BackendLogic(config(), BACKEND)
     logic.on_camera_info(camera_info_msg(street))
     outputs: list[tuple[str, Any]] = []
@@ -262,6 +282,7 @@ def test_non_finite_and_duplicate_observations_are_dropped(street: SimSequence) 
 
 
 def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
+    """Test: message in the wrong layout is counted."""
     logic = BackendLogic(config(feature_layout='vins_fusion'), BACKEND)
     logic.on_tracks(object())
     logic.on_tracks(tracks_msg(street, 0, 'named'))  # PointCloud2 into a PointCloud layout
@@ -274,6 +295,7 @@ def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
 
 
 def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
+    """Test: empty clouds and keyframes without tracks."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)
     empty = TrackFrame.empty(int(street.stamps_ns[22]), 'odom')
@@ -296,6 +318,7 @@ def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
 
 
 def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
+    """Test: tracks of non keyframes are normal."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 21)
     shifted = street.frames[21]
@@ -310,6 +333,7 @@ def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
 
 
 def test_stamps_going_backwards(street: SimSequence) -> None:
+    """Test: stamps going backwards."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)
     logic.on_keyframe(keyframe_msg(street, 10))
@@ -324,6 +348,7 @@ def test_stamps_going_backwards(street: SimSequence) -> None:
 
 
 def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
+    """Test: tracks before camera info wait for it."""
     logic = BackendLogic(config(feature_layout='per_point'), BACKEND)
     outputs: list[tuple[str, Any]] = []
     for i in range(3):  # OpenVINS style: pixels only, x_n = y_n = 0
@@ -346,6 +371,7 @@ def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
 
 
 def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
+    """Test: bad camera info and bad keyframes."""
     logic = BackendLogic(config(), BACKEND)
     info = camera_info_msg(street)
     info.k[0] = -1.0
@@ -361,6 +387,7 @@ def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
 
 
 def test_pure_rotation_waits_for_parallax() -> None:
+    """Test: pure rotation waits for parallax."""
     seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, seq)
@@ -376,6 +403,7 @@ def test_pure_rotation_waits_for_parallax() -> None:
 
 
 def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
+    """Test: pause reset and save."""
     logic = BackendLogic(config(), BACKEND)
     run(logic, street, 22)
     logic.set_paused(True)
@@ -404,6 +432,7 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
 
 
 def test_sliding_memory_is_bounded(street: SimSequence) -> None:
+    """Test: sliding memory is bounded."""
     logic = BackendLogic(config(window_size=6, fixed_lookback=3, max_fixed_keyframes=2,
                                 init_batch_size=10, max_iterations=1), BACKEND)
     sizes = []
@@ -421,6 +450,7 @@ def test_sliding_memory_is_bounded(street: SimSequence) -> None:
 
 
 def _acceptance(street: SimSequence, **kwargs: Any) -> tuple[float, float, Any]:
+    """Acceptance."""
     logic = BackendLogic(config(**kwargs), BACKEND)
     outputs = run(logic, street)
     path = last(outputs, 'pmba/path')
@@ -430,6 +460,7 @@ def _acceptance(street: SimSequence, **kwargs: Any) -> tuple[float, float, Any]:
 
 
 def test_acceptance_street_sliding(street: SimSequence) -> None:
+    """Test: acceptance street sliding."""
     be, fe, path = _acceptance(street, mode='sliding')
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
     assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
@@ -437,14 +468,18 @@ def test_acceptance_street_sliding(street: SimSequence) -> None:
 
 @pytest.mark.slow
 def test_acceptance_street_global(street: SimSequence) -> None:
-    """Global mode re-solves every keyframe over all keyframes: ~30 s CPU for 200 keyframes
-    on this engine (2-4x that in wall time on a loaded 2-core machine), hence ``slow``."""
+    """Test: acceptance street global.
+
+    Global mode re-solves every keyframe over all keyframes: minutes of wall time for 200
+    keyframes on a loaded 2-core machine, hence ``slow``.
+    """
     be, fe, path = _acceptance(street, mode='global', max_iterations=1)
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
     assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
 
 
 def test_global_mode_short_street(street: SimSequence) -> None:
+    """Test: global mode short street."""
     logic = BackendLogic(config(mode='global', max_iterations=1), BACKEND)
     outputs = run(logic, street, 45)
     assert len(last(outputs, 'pmba/path').poses) == 45

@@ -37,24 +37,29 @@ MSG_PACKAGES = ('builtin_interfaces', 'std_msgs', 'geometry_msgs', 'nav_msgs', '
 
 
 class ReliabilityPolicy(Enum):
+    """Fake ReliabilityPolicy."""
     RELIABLE = 1
     BEST_EFFORT = 2
 
 
 class DurabilityPolicy(Enum):
+    """Fake DurabilityPolicy."""
     TRANSIENT_LOCAL = 1
     VOLATILE = 2
 
 
 class HistoryPolicy(Enum):
+    """Fake HistoryPolicy."""
     KEEP_LAST = 1
     KEEP_ALL = 2
 
 
 class QoSProfile:
+    """Fake QoSProfile."""
     def __init__(self, *, depth: int | None = None, history: HistoryPolicy | None = None,
                  reliability: ReliabilityPolicy = ReliabilityPolicy.RELIABLE,
                  durability: DurabilityPolicy = DurabilityPolicy.VOLATILE, **kwargs: Any) -> None:
+        """Initialize."""
         if depth is None and history is None:
             msg = 'QoSProfile needs depth or history'
             raise ValueError(msg)
@@ -64,27 +69,33 @@ class QoSProfile:
 
 
 class ExternalShutdownException(Exception):
+    """Fake ExternalShutdownException."""
     pass
 
 
 @dataclass
 class Parameter:
+    """Fake Parameter."""
     name: str
     value: Any
 
 
 class Publisher:
+    """Fake Publisher."""
     def __init__(self, msg_type: type, topic: str, qos: QoSProfile) -> None:
+        """Initialize."""
         self.msg_type, self.topic, self.qos = msg_type, topic, qos
         self.published: list[Any] = []
 
     def publish(self, msg: Any) -> None:
+        """Publish."""
         assert isinstance(msg, self.msg_type), (type(msg), self.msg_type)
         self.published.append(msg)
 
 
 @dataclass
 class Subscription:
+    """Fake Subscription."""
     msg_type: type
     topic: str
     callback: Callable[[Any], None]
@@ -93,23 +104,29 @@ class Subscription:
 
 @dataclass
 class Service:
+    """Fake Service."""
     srv_type: type
     name: str
     callback: Callable[[Any, Any], Any]
 
 
 class Logger:
+    """Fake Logger."""
     def __init__(self) -> None:
+        """Initialize."""
         self.lines: list[tuple[str, str]] = []
 
     def __getattr__(self, level: str) -> Callable[[str], None]:
+        """Implement __getattr__."""
         assert level in ('debug', 'info', 'warning', 'warn', 'error', 'fatal'), level
         return lambda text: self.lines.append((level, text))
 
 
 class Node:
+    """Fake Node."""
     def __init__(self, node_name: str, *, parameter_overrides: dict[str, Any] | None = None,
                  **kwargs: Any) -> None:
+        """Initialize."""
         assert set(kwargs) <= {'context', 'cli_args', 'namespace', 'use_global_arguments',
                                'enable_rosout', 'start_parameter_services',
                                'allow_undeclared_parameters',
@@ -125,6 +142,7 @@ class Node:
 
     def declare_parameter(self, name: str, value: Any = None, descriptor: Any = None,
                           ignore_override: bool = False) -> Parameter:
+        """Declare parameter."""
         assert name not in self.parameters, f'parameter {name} declared twice'
         if name in self.overrides and not ignore_override:
             override = self.overrides[name]
@@ -136,12 +154,14 @@ class Node:
         return self.parameters[name]
 
     def get_parameter(self, name: str) -> Parameter:
+        """Get parameter."""
         return self.parameters[name]
 
     def create_subscription(self, msg_type: type, topic: str, callback: Callable[[Any], None],
                             qos_profile: QoSProfile | int, *, callback_group: Any = None,
                             event_callbacks: Any = None, qos_overriding_options: Any = None,
                             raw: bool = False) -> Subscription:
+        """Create subscription."""
         assert isinstance(qos_profile, QoSProfile | int)
         sub = Subscription(msg_type, topic, callback, qos_profile)  # type: ignore[arg-type]
         self.subscriptions.append(sub)
@@ -151,6 +171,7 @@ class Node:
                          callback_group: Any = None, event_callbacks: Any = None,
                          qos_overriding_options: Any = None,
                          publisher_class: Any = None) -> Publisher:
+        """Create publisher."""
         assert isinstance(qos_profile, QoSProfile | int)
         pub = Publisher(msg_type, topic, qos_profile)  # type: ignore[arg-type]
         self.publishers.append(pub)
@@ -159,24 +180,30 @@ class Node:
     def create_service(self, srv_type: type, srv_name: str,
                        callback: Callable[[Any, Any], Any], *, qos_profile: Any = None,
                        callback_group: Any = None) -> Service:
+        """Create service."""
         assert hasattr(srv_type, 'Request') and hasattr(srv_type, 'Response')
         srv = Service(srv_type, srv_name, callback)
         self.services.append(srv)
         return srv
 
     def get_logger(self) -> Logger:
+        """Get logger."""
         return self.logger
 
     def destroy_node(self) -> None:
+        """Destroy node."""
         self.destroyed = True
 
 
 class TransformBroadcaster:
+    """Fake TransformBroadcaster."""
     def __init__(self, node: Node, qos: Any = None) -> None:
+        """Initialize."""
         assert isinstance(node, Node)
         self.sent: list[Any] = []
 
     def sendTransform(self, transform: Any) -> None:
+        """SendTransform."""
         items = transform if isinstance(transform, list) else [transform]
         for t in items:
             assert t.__msgtype__ == 'geometry_msgs/msg/TransformStamped'
@@ -184,12 +211,16 @@ class TransformBroadcaster:
 
 
 def _trigger() -> type:
+    """Trigger."""
+
     @dataclass
     class Request:
+        """Fake Request."""
         pass
 
     @dataclass
     class Response:
+        """Fake Response."""
         success: bool = False
         message: str = ''
 
@@ -197,12 +228,16 @@ def _trigger() -> type:
 
 
 def _set_bool() -> type:
+    """Set bool."""
+
     @dataclass
     class Request:
+        """Fake Request."""
         data: bool = False
 
     @dataclass
     class Response:
+        """Fake Response."""
         success: bool = False
         message: str = ''
 
@@ -211,6 +246,7 @@ def _set_bool() -> type:
 
 @dataclass
 class FakeRclpy:
+    """Fake FakeRclpy."""
     created: list[Node]
     shutdowns: list[bool]
     spin: list[Callable[[Node], None]]
@@ -218,23 +254,28 @@ class FakeRclpy:
 
 @pytest.fixture
 def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
+    """Fake ros."""
     state = FakeRclpy([], [], [])
     rclpy_mod = types.ModuleType('rclpy')
 
     def init(*, args: Any = None, context: Any = None, domain_id: Any = None,
              signal_handler_options: Any = None) -> None:
+        """Init."""
         return None
 
     def create_node(node_name: str, **kwargs: Any) -> Node:
+        """Create node."""
         node = Node(node_name, **kwargs)
         state.created.append(node)
         return node
 
     def spin(node: Node, executor: Any = None) -> None:
+        """Spin."""
         for fn in state.spin:
             fn(node)
 
     def try_shutdown(*, context: Any = None, uninstall_handlers: Any = None) -> None:
+        """Try shutdown."""
         state.shutdowns.append(True)
 
     rclpy_mod.init = init  # type: ignore[attr-defined]
@@ -272,10 +313,12 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
 
 @pytest.fixture(scope='module')
 def seq() -> SimSequence:
+    """Seq."""
     return simulate_sequence('street', n_keyframes=16, seed=1)
 
 
 def make(fake: FakeRclpy, **overrides: Any) -> Any:
+    """Make."""
     import rclpy as fake_rclpy
 
     from pmba_ros.node import PmbaNode
@@ -284,6 +327,7 @@ def make(fake: FakeRclpy, **overrides: Any) -> Any:
 
 
 def by_topic(node: Node) -> dict[str, Publisher]:
+    """By topic."""
     return {p.topic: p for p in node.publishers}
 
 
@@ -291,6 +335,7 @@ def by_topic(node: Node) -> dict[str, Publisher]:
 
 
 def test_parameters_topics_types_and_qos(fake_ros: FakeRclpy) -> None:
+    """Test: parameters topics types and qos."""
     wrapper = make(fake_ros, features_topic='vins/feature', qos_reliability='best_effort',
                    qos_depth=7)
     node = fake_ros.created[0]
@@ -313,6 +358,7 @@ def test_parameters_topics_types_and_qos(fake_ros: FakeRclpy) -> None:
 
 
 def test_named_layout_and_pose_stamped_types(fake_ros: FakeRclpy) -> None:
+    """Test: named layout and pose stamped types."""
     make(fake_ros, feature_layout='named', keyframe_type='pose_stamped')
     subs = {s.topic: s.msg_type.__msgtype__ for s in fake_ros.created[0].subscriptions}
     assert subs['features'] == 'sensor_msgs/msg/PointCloud2'
@@ -320,6 +366,7 @@ def test_named_layout_and_pose_stamped_types(fake_ros: FakeRclpy) -> None:
 
 
 def test_invalid_parameters_raise(fake_ros: FakeRclpy) -> None:
+    """Test: invalid parameters raise."""
     with pytest.raises(ValueError, match='window_size'):
         make(fake_ros, window_size=1)
     with pytest.raises(TypeError):
@@ -327,6 +374,7 @@ def test_invalid_parameters_raise(fake_ros: FakeRclpy) -> None:
 
 
 def test_callbacks_to_published_outputs(fake_ros: FakeRclpy, seq: SimSequence) -> None:
+    """Test: callbacks to published outputs."""
     wrapper = make(fake_ros, init_batch_size=10, deterministic=True)
     node = fake_ros.created[0]
     subs = {s.topic: s.callback for s in node.subscriptions}
@@ -348,6 +396,7 @@ def test_callbacks_to_published_outputs(fake_ros: FakeRclpy, seq: SimSequence) -
 
 
 def test_queue_overflow_is_counted(fake_ros: FakeRclpy, seq: SimSequence) -> None:
+    """Test: queue overflow is counted."""
     wrapper = make(fake_ros, queue_size=2)
     subs = {s.topic: s.callback for s in fake_ros.created[0].subscriptions}
     for i in range(5):
@@ -359,6 +408,7 @@ def test_queue_overflow_is_counted(fake_ros: FakeRclpy, seq: SimSequence) -> Non
 
 
 def test_services(fake_ros: FakeRclpy, seq: SimSequence, tmp_path: Any) -> None:
+    """Test: services."""
     wrapper = make(fake_ros, save_directory=str(tmp_path / 'saved'), init_batch_size=10)
     services = {s.name: s for s in fake_ros.created[0].services}
     pause = services['~/pause']
@@ -375,6 +425,7 @@ def test_services(fake_ros: FakeRclpy, seq: SimSequence, tmp_path: Any) -> None:
 
 
 def test_worker_thread_and_close(fake_ros: FakeRclpy, seq: SimSequence) -> None:
+    """Test: worker thread and close."""
     import rclpy as fake_rclpy
 
     from pmba_ros.node import PmbaNode
@@ -393,9 +444,11 @@ def test_worker_thread_and_close(fake_ros: FakeRclpy, seq: SimSequence) -> None:
 
 @pytest.mark.parametrize('exc', [KeyboardInterrupt, ExternalShutdownException])
 def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) -> None:
+    """Test: main shuts down cleanly."""
     from pmba_ros.node import main
 
     def interrupt(node: Node) -> None:
+        """Interrupt."""
         raise exc
 
     fake_ros.spin.append(interrupt)
@@ -405,9 +458,11 @@ def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) 
 
 def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Test: main exits on invalid parameters."""
     import pmba_ros.node as node_mod
 
     def bad_config(node: Any) -> Any:
+        """Bad config."""
         msg = 'parameter window_size=1: expected an integer >= 2'
         raise ValueError(msg)
 
