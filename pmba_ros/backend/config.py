@@ -126,7 +126,7 @@ class BackendConfig:
     stamp_tolerance_s: float = 0.005
     association_timeout_s: float = 1.0
     max_iterations: int = 2
-    max_time_s: float = 0.05
+    max_time_s: float = 0.15
     loss: str = 'cauchy'
     loss_scale_px: float = 2.0
     covariance_position_m2: float = 1e-3
