@@ -269,9 +269,9 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
     T = eqs.W @ V_inv[structure.w_feat]                         # W V^-1, per W block
-    S_blocks = eqs.U.reshape(-1, 36).copy()
+    S_flat = eqs.U.reshape(-1, 36).copy()
     for q1, q2, agg in structure._s_chunks:
-        S_blocks -= agg @ (T[q1] @ np.swapaxes(eqs.W[q2], 1, 2)).reshape(-1, 36)
+        S_flat -= agg @ (T[q1] @ np.swapaxes(eqs.W[q2], 1, 2)).reshape(-1, 36)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
     rhs = -eqs.g_pose + _scatter_w(structure,
@@ -280,7 +280,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     dim = nb * 6
     rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
     cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
-    S_blocks = S_blocks.reshape(-1, 6, 6)
+    S_blocks = S_flat.reshape(-1, 6, 6)
     d_idx = np.arange(nb)
     x = np.zeros(dim)
     if int(free.sum()) <= DENSE_LIMIT:

@@ -346,7 +346,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     if features is None:
         problem, features = initial_features(problem, options.param)
     _check_features(problem, features, options.param)
-    model = make_model(options.param, problem, pixel_weighted=options.pixel_weighted)
+    model: Model[Any] = make_model(options.param, problem,
+                                   pixel_weighted=options.pixel_weighted)
     gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                          problem.obs.feat_idx, problem.n_feats)
     free_block = gauge.free_block()
@@ -389,18 +390,20 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     rms = initial_rms
     it = 0
     while True:
+        # Budgets first: a linearization that no step will use is wasted work. The time
+        # budget allows at least one iteration, so a loaded machine still makes progress.
+        if it >= options.max_iterations:
+            termination = TerminationReason.MAX_ITERATIONS
+            break
+        if it > 0 and time.perf_counter() - t0 > options.max_time_s:
+            termination = TerminationReason.MAX_TIME
+            break
         if lin is None:
             lin = _Linearized(model, structure, state, options.loss, loss_scale,
                               options.jacobi_scaling, col_mask)
             if lin.gradient_max <= options.gradient_tolerance:
                 termination = TerminationReason.GRADIENT_TOLERANCE
                 break
-        if it >= options.max_iterations:
-            termination = TerminationReason.MAX_ITERATIONS
-            break
-        if time.perf_counter() - t0 > options.max_time_s:
-            termination = TerminationReason.MAX_TIME
-            break
         it += 1
         try:
             z_pose, z_feat, lin_solved = _propose(lin, options.solver, radius, mu)
