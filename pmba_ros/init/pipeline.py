@@ -74,6 +74,8 @@ class InitOptions:
     Attributes:
         min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
+        max_pair_partners: If set, try only the pairs that are among the most co-visible
+            partners of one of their cameras (None: every pair with enough common tracks).
         ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         ransac_confidence: RANSAC confidence.
         ransac_method: 'usac_accurate' (default; local optimization refines the essential
@@ -96,6 +98,7 @@ class InitOptions:
 
     min_pair_matches: int = 30
     min_pair_inliers: int = 20
+    max_pair_partners: int | None = None
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
     ransac_method: str = 'usac_accurate'
@@ -112,6 +115,9 @@ class InitOptions:
         """Validate ranges."""
         if self.min_pair_matches < 5 or self.min_pair_inliers < 5:
             msg = '`min_pair_matches` and `min_pair_inliers` must be >= 5 (5-point solver)'
+            raise ValueError(msg)
+        if self.max_pair_partners is not None and self.max_pair_partners < 1:
+            msg = '`max_pair_partners` must be None or >= 1'
             raise ValueError(msg)
         if self.ransac_method not in _RANSAC_METHODS:
             msg = f'`ransac_method` must be one of {sorted(_RANSAC_METHODS)}'
@@ -237,7 +243,8 @@ def _estimate_pairs(problem: BAProblem, options: InitOptions,
                     ) -> tuple[two_view.EGPairs, dict[str, Any]]:
     obs = problem.obs
     corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
-                                         options.min_pair_matches)
+                                         options.min_pair_matches,
+                                         max_partners=options.max_pair_partners)
     if corr.n_pairs == 0:
         msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
                'tracks (min_pair_matches)')

@@ -131,7 +131,8 @@ def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> I
 
 
 def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
-                         min_matches: int) -> PairCorrespondences:
+                         min_matches: int, *, max_partners: int | None = None,
+                         ) -> PairCorrespondences:
     """Return all camera pairs with at least ``min_matches`` common features and their matches.
 
     Args:
@@ -139,12 +140,24 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
         feat_idx: Feature of each observation, shape (K,); one observation per (camera, feature).
         n_cams: Number of cameras M.
         min_matches: Minimum number of common features of a pair.
+        max_partners: If set, keep a pair only if it is among the ``max_partners`` most
+            co-visible partners of one of its cameras (limits the pairs of long sequences).
 
     Returns:
         The pairs (sorted by (cam_a, cam_b)) and their correspondences.
     """
     counts = covisibility_counts(cam_idx, feat_idx, n_cams)
-    selected = counts.ravel() >= max(int(min_matches), 1)
+    eligible = counts >= max(int(min_matches), 1)
+    if max_partners is not None and max_partners < n_cams - 1:
+        sym = np.where(eligible, counts, 0)
+        sym = sym + sym.T
+        # Rank of every partner of a camera by co-visibility (0 = most co-visible).
+        rank = np.empty_like(sym)
+        np.put_along_axis(rank, np.argsort(-sym, axis=1, kind='stable'),
+                          np.arange(n_cams)[None, :].repeat(n_cams, axis=0), axis=1)
+        top = rank < max_partners
+        eligible &= top | top.T
+    selected = eligible.ravel()
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
     keys: list[IntArray] = []

@@ -127,3 +127,20 @@ def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> No
     err = np.rad2deg(so3.angle(R_true, pairs.R_rel))
     assert pairs.n_pairs >= 20
     assert err.mean() < 0.1
+
+
+def test_max_partners_keeps_each_cameras_most_covisible_pairs() -> None:
+    """With max_partners=2 on a sequence, every kept pair is a top-2 pair of one camera."""
+    p = street_scene(1, n_cams=10, n_points=300).gt
+    full = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    few = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20,
+                                        max_partners=2)
+    assert 0 < few.n_pairs < full.n_pairs
+    counts = two_view.covisibility_counts(p.obs.cam_idx, p.obs.feat_idx, p.n_cams)
+    sym = counts + counts.T
+    for a, b in zip(few.cam_a.tolist(), few.cam_b.tolist(), strict=True):
+        top_a = np.argsort(-sym[a], kind='stable')[:2]
+        top_b = np.argsort(-sym[b], kind='stable')[:2]
+        assert b in top_a or a in top_b
+    # Every camera keeps at least its best partner.
+    assert set(few.cam_a.tolist()) | set(few.cam_b.tolist()) == set(range(p.n_cams))
