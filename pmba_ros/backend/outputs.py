@@ -15,10 +15,10 @@ they are the inverses of :func:`pmba_ros.backend.tracks.parse_tracks` and
 
 from __future__ import annotations
 
-import array
-import importlib
 from abc import ABC, abstractmethod
+import array
 from collections.abc import Callable, Mapping, Sequence
+import importlib
 from types import ModuleType
 from typing import Any
 

@@ -11,6 +11,7 @@ Usage examples::
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 import json
 from pathlib import Path
 import sys
@@ -19,8 +20,10 @@ from typing import Any
 import numpy as np
 
 from pmba_ros.core import so3
-from pmba_ros.core.problem import BAProblem
-from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, solve
+from pmba_ros.core.loss import Loss
+from pmba_ros.core.problem import BAProblem, Parameterization
+from pmba_ros.core.solve import (IterationRecord, SolveOptions, SolveResult, SolverKind,
+                                 solve)
 from pmba_ros.errors import FormatError
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
@@ -61,8 +64,9 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
         from pmba_ros.sim import scenes
         name, _, seed_text = spec[4:].partition(':')
         seed = int(seed_text) if seed_text else 0
-        makers = {'street': scenes.street_scene, 'table3': scenes.table3_scene,
-                  'large': scenes.synthetic_large}
+        makers: dict[str, Callable[..., scenes.SimScene]] = {
+            'street': scenes.street_scene, 'table3': scenes.table3_scene,
+            'large': scenes.synthetic_large}
         if name not in makers:
             msg = f'unknown simulated scene {name!r}; choose one of {sorted(makers)}'
             raise FormatError(msg)
@@ -99,11 +103,12 @@ def run(args: argparse.Namespace) -> int:
     print(f'{args.problem}: {problem.n_cams} cameras, {problem.n_feats} features, '
           f'{problem.n_obs} observations' + (f', dropped {problem.dropped}' if problem.dropped
                                              else ''))
-    runs = COMPARE if args.compare else ((args.param, args.solver),)
+    runs: tuple[tuple[str, str], ...] = COMPARE if args.compare else ((args.param, args.solver),)
     results: list[SolveResult] = []
     report: dict[str, Any] = {}
     for param, solver in runs:
-        options = SolveOptions(param=param, solver=solver, loss=args.loss,
+        options = SolveOptions(param=Parameterization(param), solver=SolverKind(solver),
+                               loss=Loss(args.loss),
                                loss_scale_px=args.loss_scale, max_iterations=args.max_iters,
                                pixel_weighted=not args.paper_error)
         callback = None if args.quiet else _progress(f'{param}-{solver}')

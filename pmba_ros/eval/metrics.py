@@ -27,8 +27,8 @@ for all poses at once.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np

@@ -19,8 +19,8 @@ error.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
@@ -31,8 +31,8 @@ from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError
 
 if TYPE_CHECKING:
-    import os
     from collections.abc import Sequence
+    import os
 
 logger = logging.getLogger(__name__)
 

@@ -273,8 +273,8 @@ def _read_lines(path: Path) -> tuple[list[str], list[int]]:
     return [lines[i - 1] for i in numbers], numbers
 
 
-def _read_table(path: Path, n_cols: tuple[int, ...], layout: str) -> tuple[FloatArray,
-                                                                            list[int]]:
+def _read_table(path: Path, n_cols: tuple[int, ...],
+                layout: str) -> tuple[FloatArray, list[int]]:
     """Read a table of finite numbers with one of ``n_cols`` columns (same on every row)."""
     lines, numbers = _read_lines(path)
     if not lines:

@@ -20,8 +20,8 @@ collinear_mask  (N,) features generated nearly on the line of motion (tiny paral
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
+import logging
 from typing import TYPE_CHECKING
 
 import numpy as np

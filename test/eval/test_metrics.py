@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import copy
-import json
 from functools import cache
+import json
 from pathlib import Path
 from typing import Any
 

@@ -82,7 +82,7 @@ def test_trajectory_raises_on_inconsistent_shapes(stamps: np.ndarray, positions:
 
 
 def test_trajectory_raises_on_non_finite_values() -> None:
-    """NaN positions are rejected."""
+    """Non-finite (NaN) positions are rejected."""
     with pytest.raises(EvaluationError, match='positions_xyz contains non-finite'):
         Trajectory(np.zeros(1), np.full((1, 3), np.nan), np.eye(3)[None])
 
@@ -152,7 +152,7 @@ def test_read_tum_skips_comments_and_blank_lines(tmp_path: Path) -> None:
 
 
 def test_read_euroc_csv_reads_wxyz_and_nanoseconds(tmp_path: Path) -> None:
-    """EuRoC rows are t_ns, p, q_wxyz, then ignored columns; 8 columns suffice."""
+    """Rows of EuRoC CSV are t_ns, p, q_wxyz, then ignored columns; 8 columns suffice."""
     rows = ('#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z\n'
             '1403715524907143168,1,2,3,0.7071067811865476,0,0,0.7071067811865476,9,9\n'
             '1403715524912143104, 4, 5, 6, 1, 0, 0, 0\n')

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import re
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -98,7 +98,7 @@ def test_read_bal_single_observation_file_has_no_features() -> None:
 
 @needs_data
 def test_write_read_round_trip_of_bal_file(tmp_path: Path) -> None:
-    """read -> write -> read keeps poses, intrinsics, observations and points."""
+    """A read -> write -> read cycle keeps poses, intrinsics, observations and points."""
     first = read_bal(BAL_DIR / 'bal-ladybug-problem-49-7776-pre-shrink-1800.txt')
     out = tmp_path / 'round.txt'
     write_bal(out, first)
@@ -131,7 +131,7 @@ def _synthetic_problem(rng: np.random.Generator) -> tuple[BAProblem, FloatArray]
 
 
 def test_write_bal_rescales_pixels_for_general_intrinsics(tmp_path: Path) -> None:
-    """fy != fx and cx, cy != 0 are written exactly: the BAL file reprojects to zero error."""
+    """Intrinsics with fy != fx and cx, cy != 0 are written exactly (zero reprojection)."""
     problem, points = _synthetic_problem(np.random.default_rng(3))
     out = tmp_path / 'synthetic.txt'
     write_bal(out, problem, points_w=points)

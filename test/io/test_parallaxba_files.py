@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 import re
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
