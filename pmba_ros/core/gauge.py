@@ -1,8 +1,10 @@
 """Gauge fixing of the 7-DoF similarity freedom of monocular BA (pmba.md §2).
 
-ParallaxBA's rule: hold the root pose (6 columns) and the coordinate of one more camera's
-centre with the largest |P_k - P_root| component (1 column, the scale). Poses the caller
-fixes count: one fixed pose replaces the root, two or more fix the gauge on their own.
+Two choices: :func:`choose_gauge` is ParallaxBA's rule: hold the root pose (6 columns) and the
+coordinate of one more camera's centre with the largest |P_k - P_root| component (1 column,
+the scale); poses the caller fixes count: one fixed pose replaces the root, two or more fix
+the gauge on their own. :func:`free_gauge` holds nothing but the caller's fixed poses and
+leaves the null space to the damping, as Ceres does; it converges in fewer iterations.
 """
 
 from __future__ import annotations
@@ -41,6 +43,20 @@ class Gauge:
         if self.scale_pose >= 0:
             mask[self.free_block()[self.scale_pose], 3 + self.scale_axis] = False
         return mask
+
+
+def free_gauge(n_cams: int, fixed: BoolArray, cam_idx: IntArray) -> Gauge:
+    """Hold only the caller's fixed poses and poses without observations (Ceres' way).
+
+    The 7-DoF null space is then left to the trust region's damping mu D^2 (mu >= 1e-8),
+    which keeps the reduced system positive definite. Holding a start pose and one
+    coordinate of a second, both carrying the start's errors, forces the whole reconstruction
+    to move into that gauge: on a 100-camera ring XYZ-LM then needs 28 iterations instead
+    of 6 to the same cost.
+    """
+    held = np.array(fixed, dtype=bool)
+    held |= np.bincount(cam_idx, minlength=n_cams) == 0
+    return Gauge(held, -1, -1)
 
 
 def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,

@@ -339,10 +339,14 @@ def _scatter_feat(structure: SchurStructure, values: FloatArray) -> FloatArray:
     return out
 
 
-def jacobian_product(structure: SchurStructure, J_pose: FloatArray, J_feat: FloatArray,
-                     x_pose: FloatArray, x_feat: FloatArray) -> FloatArray:
-    """Return J x per observation (K, d) for steps of poses (n_blocks, 6) and features (N, 3)."""
-    blocks = structure.slot_block
-    xp = np.where((blocks >= 0)[:, :, None], x_pose[np.maximum(blocks, 0)], 0.0)
-    return (np.einsum('ksdi,ksi->kd', J_pose, xp)
-            + np.einsum('kdi,ki->kd', J_feat, x_feat[structure.feat_idx]))
+def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: FloatArray,
+                   x_feat: FloatArray) -> float:
+    """Return x^T H x for H = J^T J held as (upper) U, W and V blocks; cheaper than |J x|^2."""
+    r, c = structure.pair_rows, structure.pair_cols
+    Ux = np.einsum('pij,pj->pi', eqs.U, x_pose[c])
+    weight = np.where(r == c, 1.0, 2.0)  # off-diagonal blocks stand for themselves and U^T
+    quad = float(np.sum(weight * np.sum(x_pose[r] * Ux, axis=1)))
+    Wx = np.einsum('qij,qj->qi', eqs.W, x_feat[structure.w_feat])
+    quad += 2.0 * float(np.sum(x_pose[structure.w_block] * Wx))
+    quad += float(np.sum(x_feat * np.einsum('nij,nj->ni', eqs.V, x_feat)))
+    return quad

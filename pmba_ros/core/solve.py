@@ -23,7 +23,7 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
-from pmba_ros.core.gauge import choose_gauge
+from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
 from pmba_ros.core.models import Model, make_model
 from pmba_ros.core.problem import (
@@ -84,6 +84,9 @@ class SolveOptions:
         pixel_weighted: PMBA only: map ray errors to pixels by the projection Jacobian at the
             measured bearing (see :class:`~pmba_ros.core.models.ParallaxModel`); False is
             the paper's isotropic chordal error.
+        fix_gauge: Hold the root pose and one centre coordinate (ParallaxBA's gauge, pmba.md
+            §2) instead of leaving the similarity freedom to the damping, as Ceres does
+            (see :func:`~pmba_ros.core.gauge.free_gauge`).
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -98,6 +101,7 @@ class SolveOptions:
     initial_trust_region_radius: float = 1e4
     jacobi_scaling: bool = True
     pixel_weighted: bool = True
+    fix_gauge: bool = False
 
     def __post_init__(self) -> None:
         """Coerce enum strings and validate ranges."""
@@ -286,8 +290,9 @@ class _Linearized:
         """Return the Cauchy step length of this linearization (computed once)."""
         if self._cauchy is None:
             g = np.concatenate([self.g_pose.ravel(), self.g_feat.ravel()])
-            Jg = self.J_times(*self.to_delta(self.g_pose, self.g_feat))
-            self._cauchy = dogleg.cauchy_alpha(g, float(np.sum(Jg * Jg)))
+            x_pose = np.where(self.col_mask, self.g_pose / self.D_pose, 0.0)
+            Jg_sq = ne.quadratic_form(self.structure, self.eqs, x_pose, self.g_feat / self.D_feat)
+            self._cauchy = dogleg.cauchy_alpha(g, Jg_sq)
         return self._cauchy
 
     def to_delta(self, z_pose: FloatArray, z_feat: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -295,14 +300,14 @@ class _Linearized:
         return (np.where(self.col_mask, z_pose / self.D_pose * self.c_pose, 0.0),
                 z_feat / self.D_feat * self.c_feat)
 
-    def J_times(self, d_pose: FloatArray, d_feat: FloatArray) -> FloatArray:
-        """Return J delta per observation."""
-        return ne.jacobian_product(self.structure, self.J_pose, self.J_feat, d_pose, d_feat)
-
     def model_change(self, d_pose: FloatArray, d_feat: FloatArray) -> float:
-        """Return the predicted cost decrease -(J d)^T (r + J d / 2)."""
-        Jd = self.J_times(d_pose, d_feat)
-        return -float(np.sum(Jd * (self.r + 0.5 * Jd)))
+        """Return the predicted cost decrease -(J d)^T (r + J d / 2) = -(g^T d + d^T H d / 2).
+
+        Evaluated on the normal equations of the scaled Jacobian, x = d / c.
+        """
+        x_pose, x_feat = d_pose / self.c_pose, d_feat / self.c_feat
+        g_x = float(np.sum(self.eqs.g_pose * x_pose) + np.sum(self.eqs.g_feat * x_feat))
+        return -(g_x + 0.5 * ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat))
 
     def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
         """Solve (J~^T J~ + mu D^2) y = -J~^T r and return the scaled step b = D y."""
@@ -348,8 +353,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     _check_features(problem, features, options.param)
     model: Model[Any] = make_model(options.param, problem,
                                    pixel_weighted=options.pixel_weighted)
-    gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
-                         problem.obs.feat_idx, problem.n_feats)
+    if options.fix_gauge:
+        gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
+                             problem.obs.feat_idx, problem.n_feats)
+    else:
+        gauge = free_gauge(problem.n_cams, problem.fixed, problem.obs.cam_idx)
     free_block = gauge.free_block()
     structure = ne.SchurStructure.build(model.slots(features), problem.obs.feat_idx,
                                         problem.n_feats, free_block)

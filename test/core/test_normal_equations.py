@@ -32,7 +32,7 @@ def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
 def test_schur_solution_equals_dense_solve(param: str, dense_limit: int,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
-    """The Schur path (dense and sparse S) solves the damped system of J^T J exactly."""
+    """The Schur path (dense and sparse S) solves J^T J exactly; x^T H x equals |J x|^2."""
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
     problem = forward_problem(6, n_cams=5, n_points=25)
     if param == 'pmba':
@@ -56,6 +56,10 @@ def test_schur_solution_equals_dense_solve(param: str, dense_limit: int,
                         problem.n_feats)
     H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
     g = J.T @ r.ravel()
+    x_rand = np.random.default_rng(0).normal(size=J.shape[1])
+    quad = ne.quadratic_form(st, eqs, x_rand[:6 * st.n_blocks].reshape(-1, 6),
+                             x_rand[6 * st.n_blocks:].reshape(-1, 3))
+    assert quad == pytest.approx(float(np.sum((J @ x_rand) ** 2)), rel=1e-10)
     free = np.concatenate([mask.ravel(), np.ones(3 * problem.n_feats, dtype=bool)])
     x = np.zeros(free.shape[0])
     x[free] = np.linalg.solve(H[np.ix_(free, free)], -g[free])
