@@ -8,7 +8,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, residuals, so3
+from pmba_ros.core import baselines, residuals
 from pmba_ros.core.camera import project, projection_jacobian
 from pmba_ros.core.problem import (
     BAProblem,
@@ -91,15 +91,12 @@ class ParallaxModel(Model[ParallaxFeatures]):
         """Bind the model; precompute the per-observation pixel weights if requested."""
         super().__init__(problem)
         self.pixel_weighted = pixel_weighted
+        self._weights: FloatArray | None = None
         if pixel_weighted:
             self.residual_dim = 2
             self.pixel_residuals = True
             v = problem.obs.bearings_c
             _, self._weights = projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx)
-
-    def _to_pixels(self, R_wc: FloatArray, res: FloatArray) -> FloatArray:
-        local = np.einsum('kji,kj->ki', R_wc[self.obs.cam_idx], res)  # = R_i^T xi(N) - v
-        return np.einsum('kij,kj->ki', self._weights, local)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
@@ -109,22 +106,15 @@ class ParallaxModel(Model[ParallaxFeatures]):
                   feats: ParallaxFeatures) -> FloatArray:
         """Return ray errors (K, 3), or pixel-weighted ones (K, 2)."""
         res = residuals.ray_residuals(R_wc, centers_w, feats, self.obs)
-        return self._to_pixels(R_wc, res) if self.pixel_weighted else res
+        if self._weights is None:
+            return res
+        local = np.einsum('kji,kj->ki', R_wc[self.obs.cam_idx], res)  # R_i^T xi(N) - v
+        return np.einsum('kij,kj->ki', self._weights, local)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
-        res, J_pose, J_feat = residuals.ray_jacobians(R_wc, centers_w, feats, self.obs)
-        if not self.pixel_weighted:
-            return res, J_pose, J_feat
-        R_i_T = np.swapaxes(R_wc[self.obs.cam_idx], 1, 2)
-        local = np.einsum('kij,kj->ki', R_i_T, res)  # R_i^T xi(N) - v
-        W = self._weights
-        A = W @ R_i_T                                # (K, 2, 3): world error -> pixels
-        J_pose = A[:, None] @ J_pose
-        # In the observer's frame, d/d phi_i acts on R_i^T xi(N) instead of on R_i v.
-        J_pose[:, 0, :, :3] += W @ so3.hat(local)
-        return np.einsum('kij,kj->ki', W, local), J_pose, A @ J_feat
+        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""

@@ -108,13 +108,22 @@ def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
 
 
 def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
-                  obs: Observations) -> tuple[FloatArray, FloatArray, FloatArray]:
+                  obs: Observations, weights: FloatArray | None = None,
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Residuals and analytic Jacobians of eq. (8), vectorized over observations.
 
+    Args:
+        R_wc: Camera -> world rotations, shape (M, 3, 3).
+        centers_w: Camera centres, shape (M, 3).
+        feats: PMBA features.
+        obs: Observations.
+        weights: Optional (K, 2, 3) maps of observer-frame errors to pixels: the residual
+            becomes ``weights (R_i^T xi(N) - v)`` (see ``ParallaxModel``), d = 2.
+
     Returns:
-        residuals (K, 3); J_pose (K, 3, 3, 6), the blocks of slots (i, m, a) as in
-        :func:`pose_slots`, columns [d phi, d P]; J_feat (K, 3, 3), columns
-        [d theta, d n_1, d n_2].
+        residuals (K, d); J_pose (K, 3, d, 6), the blocks of slots (i, m, a) as in
+        :func:`pose_slots`, columns [d phi, d P]; J_feat (K, d, 3), columns
+        [d theta, d n_1, d n_2]. d = 3 without weights.
 
     References:
         pmba.md §1.6 (checked against central differences in the tests).
@@ -126,6 +135,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     R_i = R_wc[obs.cam_idx]
     R_m = R_wc[feats.main_idx[j]]
     n = feats.n[j]
+    v = obs.bearings_c
     A_n = sphere.tangent_basis(n)
     u, t, s, c, g = geo.u, geo.t, geo.s, geo.c, geo.g
     sin_t, cos_t = geo.sin_t, geo.cos_t
@@ -133,38 +143,54 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     norm = np.maximum(np.linalg.norm(geo.N, axis=1), _TINY)
     N_hat = geo.N / norm[:, None]
     J_N = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
+    if weights is None:
+        L = J_N                                   # left factor of every block: d xi / d N
+    else:
+        R_i_T = np.swapaxes(R_i, 1, 2)
+        local = np.einsum('kij,kj->ki', R_i_T, res)  # R_i^T xi(N) - v
+        L = (weights @ R_i_T) @ J_N
+        res = np.einsum('kij,kj->ki', weights, local)
+    d = L.shape[1]
     s_safe = np.maximum(s, _TINY)
     D_sq = np.sum(t * t, axis=1)
     # dg/du = cos(theta) (D^2 u - c t)/s - sin(theta) t
     # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
     dg_du = (cos_t / s_safe)[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
     dg_dt = (cos_t / s_safe)[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
-    dN_du = g[:, None, None] * np.eye(3) + u[:, :, None] * dg_du[:, None, :]
-    u_dg_dt = u[:, :, None] * dg_dt[:, None, :]
+    Lu = np.einsum('kij,kj->ki', L, u)
+    # L dN/du = L (g I + u dg/du^T) and L u dg/dt^T, as outer products of small vectors.
+    L_dNdu = g[:, None, None] * L + Lu[:, :, None] * dg_du[:, None, :]
+    L_u_dgdt = Lu[:, :, None] * dg_dt[:, None, :]
     dN_dtheta = (-(s * sin_t + c * cos_t)[:, None] * u
                  + cos_t[:, None] * geo.P_m_minus_P_i)
-    Rm_nx = R_m @ so3.hat(n)
-    JN_dNdu_Rm_nx = J_N @ dN_du @ Rm_nx
+    J_phi_m = -(L_dNdu @ (R_m @ so3.hat(n)))          # d u / d phi_m = -R_m [n]x
 
-    J_pose = np.zeros((K, 3, 3, 6))
-    J_pose[:, 0, :, :3] = R_i @ so3.hat(obs.bearings_c)            # d e / d phi_i
-    J_pose[:, 0, :, 3:] = -sin_t[:, None, None] * J_N              # d e / d P_i
-    J_pose[:, 1, :, :3] = -JN_dNdu_Rm_nx                           # d e / d phi_m
-    J_pose[:, 1, :, 3:] = J_N @ (u_dg_dt + sin_t[:, None, None] * np.eye(3))  # d e / d P_m
-    J_pose[:, 2, :, 3:] = -J_N @ u_dg_dt                           # d e / d P_a
-    J_feat = np.empty((K, 3, 3))
-    J_feat[:, :, 0] = np.einsum('kij,kj->ki', J_N, dN_dtheta)      # d e / d theta
-    J_feat[:, :, 1:] = -JN_dNdu_Rm_nx @ A_n                        # d e / d n
+    L_sin = sin_t[:, None, None] * L
+    J_pose = np.zeros((K, 3, d, 6))
+    if weights is None:
+        J_pose[:, 0, :, :3] = R_i @ so3.hat(v)        # d e / d phi_i
+    else:
+        J_pose[:, 0, :, :3] = weights @ so3.hat(local + v)
+    J_pose[:, 0, :, 3:] = -L_sin                      # d e / d P_i
+    J_pose[:, 1, :, :3] = J_phi_m                     # d e / d phi_m
+    J_pose[:, 1, :, 3:] = L_u_dgdt + L_sin            # d e / d P_m
+    J_pose[:, 2, :, 3:] = -L_u_dgdt                   # d e / d P_a
+    J_feat = np.empty((K, d, 3))
+    J_feat[:, :, 0] = np.einsum('kij,kj->ki', L, dN_dtheta)   # d e / d theta
+    J_feat[:, :, 1:] = J_phi_m @ A_n                           # d e / d n
 
     main = _is_main(feats, obs)
     if np.any(main):
         sign_g = np.where(g[main] >= 0.0, 1.0, -1.0)[:, None, None]
-        hat_v = so3.hat(obs.bearings_c[main])
-        hat_n = so3.hat(n[main])
+        hat_n_A = so3.hat(n[main]) @ A_n[main]
         J_pose[main] = 0.0
-        J_pose[main, 0, :, :3] = R_m[main] @ (hat_v - sign_g * hat_n)
         J_feat[main, :, 0] = 0.0
-        J_feat[main, :, 1:] = -sign_g * (R_m[main] @ hat_n @ A_n[main])
+        if weights is None:
+            J_pose[main, 0, :, :3] = R_m[main] @ (so3.hat(v[main]) - sign_g * so3.hat(n[main]))
+            J_feat[main, :, 1:] = -sign_g * (R_m[main] @ hat_n_A)
+        else:
+            # In the main anchor's own frame its error sign(g) n - v does not depend on R_m.
+            J_feat[main, :, 1:] = -sign_g * (weights[main] @ hat_n_A)
     return res, J_pose, J_feat
 
 
