@@ -42,6 +42,17 @@ def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
                                    shape=(n_rows, n))
 
 
+def _unique_inverse(keys: IntArray, n_keys: int) -> tuple[IntArray, IntArray]:
+    """np.unique(keys, return_inverse=True) for keys in [0, n_keys), without sorting if small."""
+    if n_keys > 50_000_000:
+        uniq, inv = np.unique(keys, return_inverse=True)
+        return uniq, inv.reshape(-1)
+    present = np.zeros(n_keys, dtype=bool)
+    present[keys] = True
+    rank = np.cumsum(present) - 1
+    return np.flatnonzero(present), rank[keys]
+
+
 @dataclass(frozen=True, eq=False)
 class _ObsChunk:
     """Aggregators of one chunk of observations [lo, hi) (entries are (k, s) or (k, s, t))."""
@@ -93,16 +104,12 @@ class SchurStructure:
         entry_block = slot_block.reshape(-1)
         entry_feat = np.repeat(feat_idx, S)
 
-        # W blocks: one per distinct (block, feature), sorted by feature.
-        keys = entry_block * n_feats + entry_feat
-        uniq, inv = np.unique(keys[valid], return_inverse=True)
-        w_block, w_feat = uniq // n_feats, uniq % n_feats
-        order = np.argsort(w_feat, kind='stable')
-        rank = np.empty_like(order)
-        rank[order] = np.arange(order.shape[0])
-        w_block, w_feat = w_block[order], w_feat[order]
+        # W blocks: one per distinct (feature, block), sorted by feature, then block.
+        keys = entry_feat * n_blocks + entry_block
+        uniq, inv = _unique_inverse(keys[valid], n_feats * n_blocks)
+        w_block, w_feat = uniq % n_blocks, uniq // n_blocks
         entry_w = np.full(K * S, -1)
-        entry_w[valid] = rank[inv]
+        entry_w[valid] = inv
 
         # Schur pairs: every ordered pair of W blocks of one feature.
         counts = np.bincount(w_feat, minlength=n_feats)
@@ -126,7 +133,7 @@ class SchurStructure:
 
         pair_keys = np.concatenate([u_keys[u_valid], w_block[q1] * n_blocks + w_block[q2],
                                     np.arange(n_blocks) * (n_blocks + 1)])
-        pair_uniq, pair_inv = np.unique(pair_keys, return_inverse=True)
+        pair_uniq, pair_inv = _unique_inverse(pair_keys, n_blocks * n_blocks)
         n_pairs = pair_uniq.shape[0]
         u_pair = np.full(u_keys.shape[0], -1)
         u_pair[u_valid] = pair_inv[:int(u_valid.sum())]
