@@ -69,13 +69,10 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         scale = float(np.ptp(centers_w, axis=0).max()) if centers_w.shape[0] > 1 else 0.0
         baseline = np.linalg.norm(centers_w[c1] - centers_w[c2], axis=1)
         admissible &= baseline > max(scale, 1.0) * 1e-9
-    cos_par = np.clip(np.sum(rays[k1] * rays[k2], axis=1), -1.0, 1.0)
-    score = np.where(admissible, np.arccos(cos_par), -1.0)
+    # -cos is monotonic in the parallax angle; inadmissible pairs score below every angle.
+    score = np.where(admissible, -np.sum(rays[k1] * rays[k2], axis=1), -2.0)
+    best = _first_argmax_per_group(score, obs.feat_idx[k1])
     pair_feat = obs.feat_idx[k1]
-    order = np.lexsort((score, pair_feat))
-    last = np.ones(order.shape[0], dtype=bool)
-    last[:-1] = pair_feat[order][1:] != pair_feat[order][:-1]
-    best = order[last]
     N = problem.n_feats
     main_idx = np.zeros(N, dtype=np.int64)
     assoc_idx = np.zeros(N, dtype=np.int64)
@@ -83,7 +80,7 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     f_best = pair_feat[best]
     main_idx[f_best] = c2[best]
     assoc_idx[f_best] = c1[best]
-    ok[f_best] = score[best] >= 0.0
+    ok[f_best] = score[best] > -2.0
     if points_w is not None and centers_w is not None:
         d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
         d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)
@@ -91,6 +88,18 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         main_idx, assoc_idx = (np.where(swap, assoc_idx, main_idx),
                                np.where(swap, main_idx, assoc_idx))
     return main_idx, assoc_idx, ok
+
+
+def _first_argmax_per_group(score: FloatArray, group: IntArray) -> IntArray:
+    """Index of the first maximum of ``score`` within each run of equal, sorted ``group``."""
+    if score.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    sizes = np.diff(np.r_[starts, score.shape[0]])
+    run = np.repeat(np.arange(starts.shape[0]), sizes)
+    cand = np.flatnonzero(score == np.maximum.reduceat(score, starts)[run])
+    first = np.r_[True, run[cand][1:] != run[cand][:-1]]
+    return cand[first].astype(np.int64)
 
 
 def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:

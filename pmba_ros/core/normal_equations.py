@@ -42,6 +42,31 @@ def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
                                    shape=(n_rows, n))
 
 
+def _schur_chunks(counts: IntArray, starts: IntArray, w_block: IntArray, n_blocks: int,
+                  pair_uniq: IntArray) -> list[tuple[IntArray, scipy.sparse.csr_matrix]]:
+    """Group features by their number c of W blocks for one (6c x 3)(3 x 6c) product each.
+
+    Returns (W index (n, c), aggregator) per group: the aggregator adds row i of block (a, b),
+    a <= b, of every feature's W V^-1 W^T (rows of 6 values, flat row (f 6c + 6a + i) c + b)
+    to row 6 pair(a, b) + i of the reduced system.
+    """
+    chunks = []
+    for c in np.unique(counts[counts > 0]):
+        feats = np.flatnonzero(counts == c)
+        per_feat = 36 * c * c
+        step = max(1, _CHUNK * 18 // per_feat)
+        for lo in range(0, feats.shape[0], step):
+            idx = starts[feats[lo:lo + step]][:, None] + np.arange(c)      # (n, c)
+            blk = w_block[idx]
+            keys = blk[:, :, None] * n_blocks + blk[:, None, :]           # (n, a, b)
+            pair = np.searchsorted(pair_uniq, keys)
+            upper = np.arange(c)[:, None] <= np.arange(c)[None, :]
+            rows = np.where(upper[None, :, None, :],
+                            pair[:, :, None, :] * 6 + np.arange(6)[None, None, :, None], -1)
+            chunks.append((idx, _aggregator(rows.reshape(-1), 6 * pair_uniq.shape[0])))
+    return chunks
+
+
 def _unique_inverse(keys: IntArray, n_keys: int) -> tuple[IntArray, IntArray]:
     """np.unique(keys, return_inverse=True) for keys in [0, n_keys), without sorting if small."""
     if n_keys > 50_000_000:
@@ -87,7 +112,7 @@ class SchurStructure:
     w_block: IntArray
     w_feat: IntArray
     _obs_chunks: list[_ObsChunk]
-    _s_chunks: list[tuple[IntArray, IntArray, scipy.sparse.csr_matrix]]
+    _s_chunks: list[tuple[IntArray, scipy.sparse.csr_matrix]]
     _diag_pairs: IntArray
 
     @classmethod
@@ -137,7 +162,6 @@ class SchurStructure:
         n_pairs = pair_uniq.shape[0]
         u_pair = np.full(u_keys.shape[0], -1)
         u_pair[u_valid] = pair_inv[:int(u_valid.sum())]
-        s_pair = pair_inv[int(u_valid.sum()):int(u_valid.sum()) + q1.shape[0]]
 
         # Row i of the (s, t) block of observation k's J^T J (6S x 6S, row-major) starts at
         # flat row (k * 6S + 6s + i) * S + t of the (., 6) view; it adds to row 6 pair + i.
@@ -155,10 +179,7 @@ class SchurStructure:
                 lo, hi, _aggregator(u_rows[lo * per_obs:hi * per_obs], 6 * n_pairs),
                 _aggregator(entry_w[lo * S:hi * S], w_block.shape[0]),
                 _aggregator(entry_block[lo * S:hi * S], n_blocks)))
-        s_chunks = []
-        for lo in range(0, q1.shape[0], _CHUNK):
-            sl = slice(lo, min(lo + _CHUNK, q1.shape[0]))
-            s_chunks.append((q1[sl], q2[sl], _aggregator(s_pair[sl], n_pairs)))
+        s_chunks = _schur_chunks(counts, starts, w_block, n_blocks, pair_uniq)
         pair_rows = pair_uniq // n_blocks
         pair_cols = pair_uniq % n_blocks
         return cls(n_blocks, n_feats, slot_block, feat_idx, pair_rows, pair_cols, w_block,
@@ -276,9 +297,12 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
     T = eqs.W @ V_inv[structure.w_feat]                         # W V^-1, per W block
-    S_flat = eqs.U.reshape(-1, 36).copy()
-    for q1, q2, agg in structure._s_chunks:
-        S_flat -= agg @ (T[q1] @ np.swapaxes(eqs.W[q2], 1, 2)).reshape(-1, 36)
+    S_flat = eqs.U.reshape(-1, 6).copy()
+    for idx, agg in structure._s_chunks:
+        n, c = idx.shape
+        T_f = T[idx].reshape(n, 6 * c, 3)
+        W_f = eqs.W[idx].reshape(n, 6 * c, 3)
+        S_flat -= agg @ (T_f @ np.swapaxes(W_f, 1, 2)).reshape(-1, 6)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
     rhs = -eqs.g_pose + _scatter_w(structure,
