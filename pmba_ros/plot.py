@@ -92,17 +92,8 @@ def plot_series(path: Path, values: Sequence[float], ylabel: str, title: str, *,
     Raises:
         PmbaError: If matplotlib is missing or the file cannot be written.
     """
-    plt = _pyplot()
-    arr = np.asarray(values, dtype=np.float64)
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    ax.plot(np.arange(arr.shape[0]), arr, '.-', markersize=3, linewidth=0.8)
-    if log_scale and np.any(arr > 0):
-        ax.set_yscale('log')
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.grid(True, alpha=0.3)
-    ax.set_title(title)
-    return _save(fig, plt, path)
+    return plot_curves(path, [('', values)], ylabel, title, log_scale=log_scale,
+                       xlabel=xlabel)
 
 
 def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabel: str,
@@ -131,13 +122,14 @@ def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabe
         arr = np.asarray(values, dtype=np.float64)
         positive = positive or bool(np.any(arr > 0))
         ax.plot(np.arange(arr.shape[0]), arr, '.-', markersize=3, linewidth=0.8,
-                color=colors.get(label), label=label)
+                color=colors.get(label), label=label or None)
     if log_scale and positive:
         ax.set_yscale('log')
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
-    ax.legend()
+    if any(label for label, _ in curves):
+        ax.legend()
     ax.set_title(title)
     return _save(fig, plt, path)
 

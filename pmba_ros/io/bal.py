@@ -33,6 +33,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
+from pmba_ros.io.text import nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -66,7 +67,7 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
         OSError: If the file cannot be read.
     """
     path = Path(path)
-    lines, line_no = _nonblank_lines(path)
+    lines, line_no = nonblank_lines(path)
     if not lines:
         msg = f'{path}: empty file, expected a BAL header "n_cams n_points n_obs"'
         raise FormatError(msg)
@@ -173,18 +174,6 @@ def write_bal(path: str | PathLike[str], problem: BAProblem, R_wc: FloatArray | 
         np.savetxt(fh, table, fmt='%d %d %.17g %.17g')
         np.savetxt(fh, np.concatenate([cams.ravel(), points_w.ravel()]), fmt='%.17g')
     logger.info('write_bal %s: %d cameras, %d points, %d observations', path, M, N, len(obs))
-
-
-def _nonblank_lines(path: Path) -> tuple[list[str], list[int]]:
-    """Return the non-blank lines of ``path`` and their 1-based line numbers."""
-    try:
-        text = path.read_text(encoding='utf-8')
-    except UnicodeDecodeError as err:
-        msg = f'{path}: not a text file ({err})'
-        raise FormatError(msg) from err
-    lines = text.splitlines()
-    numbers = [i for i, s in enumerate(lines, start=1) if s.strip()]
-    return [lines[i - 1] for i in numbers], numbers
 
 
 def _parse_header(path: Path, line: str, line_no: int) -> tuple[int, int, int]:

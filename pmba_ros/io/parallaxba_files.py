@@ -32,6 +32,7 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
+from pmba_ros.io.text import nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -261,22 +262,10 @@ def _find(directory: Path, patterns: tuple[str, ...], what: str) -> Path | None:
     return found.pop() if found else None
 
 
-def _read_lines(path: Path) -> tuple[list[str], list[int]]:
-    """Return the non-blank lines of ``path`` and their 1-based line numbers."""
-    try:
-        text = path.read_text(encoding='utf-8')
-    except UnicodeDecodeError as err:
-        msg = f'{path}: not a text file ({err})'
-        raise FormatError(msg) from err
-    lines = text.splitlines()
-    numbers = [i for i, s in enumerate(lines, start=1) if s.strip()]
-    return [lines[i - 1] for i in numbers], numbers
-
-
 def _read_table(path: Path, n_cols: tuple[int, ...],
                 layout: str) -> tuple[FloatArray, list[int]]:
     """Read a table of finite numbers with one of ``n_cols`` columns (same on every row)."""
-    lines, numbers = _read_lines(path)
+    lines, numbers = nonblank_lines(path)
     if not lines:
         msg = f'{path}: empty file, expected rows "{layout}"'
         raise FormatError(msg)
@@ -305,7 +294,7 @@ def _read_table(path: Path, n_cols: tuple[int, ...],
 
 def _read_k(path: Path) -> FloatArray:
     """Read a 3x3 calibration matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
-    lines, numbers = _read_lines(path)
+    lines, numbers = nonblank_lines(path)
     for s, n in zip(lines, numbers, strict=True):
         _check_numeric(path, s.split(), n)
     values = np.array(' '.join(lines).split(), dtype=float)
@@ -329,7 +318,7 @@ def _read_k(path: Path) -> FloatArray:
 
 def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatArray, int]:
     """Parse a feature file; return cam_idx (K,), feat_idx (K,), pixels (K, 2), n_feats."""
-    lines, numbers = _read_lines(path)
+    lines, numbers = nonblank_lines(path)
     if not lines:
         msg = f'{path}: empty feature file'
         raise FormatError(msg)
