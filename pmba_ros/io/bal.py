@@ -33,7 +33,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import nonblank_lines
+from pmba_ros.io.text import integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -79,8 +79,8 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
         raise FormatError(msg)
     obs = _parse_observations(path, lines[1:1 + n_obs], line_no[1:1 + n_obs])
     obs_lines = line_no[1:1 + n_obs]
-    cam_idx = _parse_index(path, obs[:, 0], n_cams, 'camera', obs_lines)
-    pt_idx = _parse_index(path, obs[:, 1], n_points, 'point', obs_lines)
+    cam_idx = integer_indices(path, obs[:, 0], n_cams, 'camera', obs_lines)
+    pt_idx = integer_indices(path, obs[:, 1], n_points, 'point', obs_lines)
     if not np.all(np.isfinite(obs[:, 2:])):
         k = int(np.flatnonzero(~np.all(np.isfinite(obs[:, 2:]), axis=1))[0])
         msg = f'{path}:{obs_lines[k]}: non-finite pixel coordinate'
@@ -209,20 +209,6 @@ def _parse_observations(path: Path, lines: list[str], line_no: list[int]) -> Flo
         msg = f'{path}: cannot parse the observation lines'  # pragma: no cover
         raise FormatError(msg)  # pragma: no cover
     return obs
-
-
-def _parse_index(path: Path, values: FloatArray, n: int, what: str,
-                 line_no: list[int]) -> np.ndarray:
-    """Check that ``values`` are integers in [0, n) and return them as int64."""
-    finite = np.isfinite(values)
-    idx = np.clip(np.where(finite, values, -1.0), -1.0, float(n)).astype(np.int64)
-    bad = ~finite | (idx != values) | (idx < 0) | (idx >= n)
-    if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
-        msg = (f'{path}:{line_no[k]}: {what} index {values[k]:g} is not an integer in '
-               f'[0, {n})')
-        raise FormatError(msg)
-    return idx
 
 
 def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params: int,

@@ -32,7 +32,7 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import nonblank_lines
+from pmba_ros.io.text import integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -341,15 +341,8 @@ def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatAr
     n_per = n_obs.astype(np.int64)
     triples = np.delete(values, starts).reshape(-1, 3)
     line_of = np.repeat(np.arange(len(lines)), n_per)
-    cams = triples[:, 0]
-    finite = np.isfinite(cams)
-    cam_idx = np.clip(np.where(finite, cams, -1.0), -1.0, float(n_cams)).astype(np.int64)
-    bad = ~finite | (cam_idx != cams) | (cam_idx < 0) | (cam_idx >= n_cams)
-    if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
-        msg = (f'{path}:{numbers[line_of[k]]}: camera index {cams[k]:g} is not an integer in '
-               f'[0, {n_cams})')
-        raise FormatError(msg)
+    cam_idx = integer_indices(path, triples[:, 0], n_cams, 'camera',
+                              np.asarray(numbers)[line_of].tolist())
     bad = ~np.all(np.isfinite(triples[:, 1:]), axis=1)
     if np.any(bad):
         k = int(np.flatnonzero(bad)[0])

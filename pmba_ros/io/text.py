@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from pmba_ros.errors import FormatError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from pmba_ros._typing import FloatArray, IntArray
 
 
 def nonblank_lines(path: Path) -> tuple[list[str], list[int]]:
@@ -21,3 +29,28 @@ def nonblank_lines(path: Path) -> tuple[list[str], list[int]]:
     lines = text.splitlines()
     numbers = [i for i, s in enumerate(lines, start=1) if s.strip()]
     return [lines[i - 1] for i in numbers], numbers
+
+
+def integer_indices(path: Path, values: FloatArray, n: int, what: str,
+                    line_numbers: Sequence[int]) -> IntArray:
+    """Check that ``values`` are integers in [0, n) and return them as int64.
+
+    Args:
+        path: The file (for the message).
+        values: Parsed values, shape (K,).
+        n: Exclusive upper bound.
+        what: What the index is, e.g. 'camera'.
+        line_numbers: 1-based line of each value, shape (K,).
+
+    Raises:
+        FormatError: Naming the file, line and value of the first bad index.
+    """
+    finite = np.isfinite(values)
+    idx = np.clip(np.where(finite, values, -1.0), -1.0, float(n)).astype(np.int64)
+    bad = ~finite | (idx != values) | (idx < 0) | (idx >= n)
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        msg = (f'{path}:{line_numbers[k]}: {what} index {values[k]:g} is not an integer in '
+               f'[0, {n})')
+        raise FormatError(msg)
+    return idx
