@@ -36,10 +36,13 @@ def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
 
     Entries with index -1 are left out.
     """
-    n = index.shape[0]
     keep = index >= 0
-    return scipy.sparse.csr_matrix((np.ones(int(keep.sum())), (index[keep], np.flatnonzero(keep))),
-                                   shape=(n_rows, n))
+    # At most one entry per column: the CSC arrays are direct, and CSC -> CSR is linear.
+    indptr = np.concatenate([[0], np.cumsum(keep)])
+    rows = index[keep]
+    agg = scipy.sparse.csc_matrix((np.ones(rows.shape[0]), rows, indptr),
+                                  shape=(n_rows, index.shape[0]))
+    return agg.tocsr()
 
 
 def _schur_chunks(counts: IntArray, starts: IntArray, w_block: IntArray, n_blocks: int,
@@ -59,10 +62,10 @@ def _schur_chunks(counts: IntArray, starts: IntArray, w_block: IntArray, n_block
             idx = starts[feats[lo:lo + step]][:, None] + np.arange(c)      # (n, c)
             blk = w_block[idx]
             keys = blk[:, :, None] * n_blocks + blk[:, None, :]           # (n, a, b)
-            pair = np.searchsorted(pair_uniq, keys)
-            upper = np.arange(c)[:, None] <= np.arange(c)[None, :]
-            rows = np.where(upper[None, :, None, :],
-                            pair[:, :, None, :] * 6 + np.arange(6)[None, None, :, None], -1)
+            pair = np.searchsorted(pair_uniq, keys)[:, :, None, :]           # (n, a, 1, b)
+            rows = pair * 6 + np.arange(6)[:, None]                        # (n, a, i, b)
+            lower = np.arange(c)[:, None] > np.arange(c)[None, :]
+            rows[np.broadcast_to(lower[None, :, None, :], rows.shape)] = -1
             chunks.append((idx, _aggregator(rows.reshape(-1), 6 * pair_uniq.shape[0])))
     return chunks
 
@@ -165,11 +168,10 @@ class SchurStructure:
 
         # Row i of the (s, t) block of observation k's J^T J (6S x 6S, row-major) starts at
         # flat row (k * 6S + 6s + i) * S + t of the (., 6) view; it adds to row 6 pair + i.
-        u_pair_kst = u_pair.reshape(K, S, S)
-        i6 = np.arange(6)
-        u_rows = np.where(u_pair_kst[:, :, None, :] >= 0,
-                          u_pair_kst[:, :, None, :] * 6 + i6[None, None, :, None], -1)
-        u_rows = u_rows.reshape(-1)                                  # order (k, s, i, t)
+        u_pair_kst = u_pair.reshape(K, S, 1, S)
+        u_rows = u_pair_kst * 6 + np.arange(6)[:, None]              # order (k, s, i, t)
+        u_rows[np.broadcast_to(u_pair_kst < 0, u_rows.shape)] = -1
+        u_rows = u_rows.reshape(-1)
         step = max(1, _CHUNK // (S * S))
         obs_chunks = []
         for lo in range(0, K, step):
