@@ -18,18 +18,22 @@ setup(
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
     ],
     python_requires='>=3.10',
+    # Console scripts that colcon generates check install_requires by distribution name at
+    # run time; on ROS, OpenCV comes from rosdep's python3-opencv, which is no
+    # 'opencv-python-headless' distribution, so pip installs take it as the 'opencv' extra.
     install_requires=[
         'setuptools',
         'numpy>=1.24',
         'scipy>=1.10',
-        'opencv-python-headless>=4.5',
         'rosbags>=0.11',
         'mcap>=1.1',
         'mcap-ros2-support>=0.5',
         'PyYAML',
     ],
     extras_require={
-        'test': ['pytest', 'evo', 'ruff', 'mypy', 'ament-lint-flake8', 'ament-lint-pep257'],
+        'opencv': ['opencv-python-headless>=4.5'],
+        'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
+                 'ament-lint-flake8', 'ament-lint-pep257'],
         'plot': ['matplotlib'],
     },
     zip_safe=False,
