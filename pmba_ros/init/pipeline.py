@@ -40,7 +40,6 @@ import logging
 import time
 from typing import Any
 
-import cv2
 import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -56,8 +55,6 @@ logger = logging.getLogger(__name__)
 ProgressCallback = Callable[[str, Mapping[str, Any]], None]
 """Called after every stage with the stage name and its report entries."""
 
-_RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
-                   'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT}
 
 STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'ba')
 
@@ -119,8 +116,8 @@ class InitOptions:
         if self.max_pair_partners is not None and self.max_pair_partners < 1:
             msg = '`max_pair_partners` must be None or >= 1'
             raise ValueError(msg)
-        if self.ransac_method not in _RANSAC_METHODS:
-            msg = f'`ransac_method` must be one of {sorted(_RANSAC_METHODS)}'
+        if self.ransac_method not in two_view.RANSAC_METHODS:
+            msg = f'`ransac_method` must be one of {sorted(two_view.RANSAC_METHODS)}'
             raise ValueError(msg)
         if not 0.0 < self.ransac_confidence < 1.0:
             msg = '`ransac_confidence` must be in (0, 1)'
@@ -253,7 +250,7 @@ def _estimate_pairs(problem: BAProblem, options: InitOptions,
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
-        prob=options.ransac_confidence, method=_RANSAC_METHODS[options.ransac_method])
+        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method])
     entries = {'pairs_candidate': corr.n_pairs, 'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,
                'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs

@@ -20,12 +20,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 import logging
 
-import cv2
 import numpy as np
+
+try:
+    import cv2
+except ImportError as err:  # pragma: no cover - depends on the installation
+    msg = ("PMBA's global initialization needs OpenCV: pip install 'pmba_ros[opencv]' "
+           '(on ROS, rosdep installs python3-opencv)')
+    raise ImportError(msg) from err
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
+
+#: OpenCV robust estimators by name (``InitOptions.ransac_method``).
+RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
+                  'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT}
 
 
 @dataclass(frozen=True, eq=False)
