@@ -68,6 +68,20 @@ class TestGaussNewton(SolverMixin):
     solver = 'gn'
 
 
+@pytest.mark.parametrize('param', ['pmba', 'xyz'])
+def test_fixed_gauge_reaches_the_same_minimum_and_holds_the_root(param: str) -> None:
+    """ParallaxBA's gauge (root pose + one centre coordinate) ends at the free gauge's cost."""
+    scene = street_scene(seed=9, n_cams=6, n_points=100, rot_noise_deg=0.2, pos_noise_m=0.02,
+                         point_noise_rel=0.01, far_fraction=0.0, collinear_fraction=0.0)
+    common = {'param': param, 'solver': 'lm', 'function_tolerance': 1e-12,
+              'max_iterations': 200}
+    free = solve(scene.start, SolveOptions(**common))
+    fixed = solve(scene.start, SolveOptions(**common, fix_gauge=True))
+    assert fixed.final_cost == pytest.approx(free.final_cost, rel=1e-6)
+    moved = np.linalg.norm(fixed.centers_w - scene.start.centers_w, axis=1)
+    assert np.min(moved) == 0.0  # the root pose is held exactly
+
+
 def test_xyz_matches_scipy_least_squares() -> None:
     """XYZ-BA of this engine reaches the same minimum as scipy.optimize.least_squares."""
     scene = street_scene(seed=5, n_cams=5, n_points=40, rot_noise_deg=0.3, pos_noise_m=0.03,
