@@ -22,4 +22,4 @@ def test_flake8():
     """The package and its tests pass ament_flake8."""
     main_with_errors = pytest.importorskip('ament_flake8.main').main_with_errors
     rc, errors = main_with_errors(argv=[])
-    assert rc == 0, 'Found %d code style errors / warnings:\n' % len(errors) + '\n'.join(errors)
+    assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + '\n'.join(errors)

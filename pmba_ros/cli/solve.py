@@ -22,8 +22,7 @@ import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
-from pmba_ros.core.solve import (IterationRecord, SolveOptions, SolveResult, SolverKind,
-                                 solve)
+from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, SolverKind, solve
 from pmba_ros.errors import FormatError
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.

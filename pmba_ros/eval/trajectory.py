@@ -175,7 +175,7 @@ def _parse_matrix(path: str | os.PathLike[str], text: str, *, delimiter: str | N
 def _raise_bad_value(path: str | os.PathLike[str], lines: list[tuple[int, str]],
                      rows: list[list[str]], n_cols: int, what: str) -> NoReturn:
     """Find the first value that is not a finite number and raise a FormatError naming it."""
-    for (lineno, _), row in zip(lines, rows):
+    for (lineno, _), row in zip(lines, rows, strict=True):
         for col, tok in enumerate(row[:n_cols], start=1):
             try:
                 value = float(tok)

@@ -389,7 +389,7 @@ def test_keyframe_rejects_bad_quaternion(backend: Any, quat: list[float]) -> Non
     msg = outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1], backend)
     msg.pose.orientation.x, msg.pose.orientation.y = quat[0], quat[1]
     msg.pose.orientation.z, msg.pose.orientation.w = quat[2], quat[3]
-    with pytest.raises(MessageError, match='non-finite|zero-norm'):
+    with pytest.raises(MessageError, match=r'non-finite|zero-norm'):
         parse_keyframe(msg, 'pose_stamped')
 
 

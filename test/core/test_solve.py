@@ -70,7 +70,7 @@ class TestGaussNewton(SolverMixin):
 
 @pytest.mark.parametrize('param', ['pmba', 'xyz'])
 def test_fixed_gauge_reaches_the_same_minimum_and_holds_the_root(param: str) -> None:
-    """ParallaxBA's gauge (root pose + one centre coordinate) ends at the free gauge's cost."""
+    """The fixed gauge of ParallaxBA (root pose + one centre coordinate) ends at the same cost."""
     scene = street_scene(seed=9, n_cams=6, n_points=100, rot_noise_deg=0.2, pos_noise_m=0.02,
                          point_noise_rel=0.01, far_fraction=0.0, collinear_fraction=0.0)
     common = {'param': param, 'solver': 'lm', 'function_tolerance': 1e-12,
