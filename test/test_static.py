@@ -1,0 +1,29 @@
+"""ruff and mypy over the package, as CI runs them (skipped where the tools are missing)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.linter
+def test_ruff_is_clean() -> None:
+    """Ruff finds nothing with the repository's ruff.toml."""
+    pytest.importorskip('ruff')
+    proc = subprocess.run([sys.executable, '-m', 'ruff', 'check', '--no-cache', '.'], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+@pytest.mark.linter
+def test_mypy_is_clean() -> None:
+    """Mypy finds nothing in the package (configuration in setup.cfg)."""
+    pytest.importorskip('mypy')
+    proc = subprocess.run([sys.executable, '-m', 'mypy', '--no-incremental', 'pmba_ros'],
+                          cwd=ROOT, capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
