@@ -62,11 +62,6 @@ class Intrinsics:
         return Intrinsics(self.fx[index], self.fy[index], self.cx[index], self.cy[index],
                           self.k1[index], self.k2[index])
 
-    @property
-    def has_distortion(self) -> bool:
-        """Return True if any camera has a non-zero radial coefficient."""
-        return bool(np.any(self.k1 != 0.0) or np.any(self.k2 != 0.0))
-
 
 def project(h_c: FloatArray, intr: Intrinsics, cam_idx: np.ndarray) -> FloatArray:
     """Project camera-frame directions h_c (K, 3) of cameras cam_idx (K,) to pixels (K, 2).

@@ -25,11 +25,9 @@ class Model(ABC, Generic[F]):
     """Residuals, Jacobians and feature retraction of one parameterization.
 
     Attributes:
-        residual_dim: Size d of one observation's residual (3 rays, 2 pixels).
         pixel_residuals: True if residuals are pixels (False: unit-ray chordal errors).
     """
 
-    residual_dim: int
     pixel_residuals: bool
 
     def __init__(self, problem: BAProblem) -> None:
@@ -84,7 +82,6 @@ class ParallaxModel(Model[ParallaxFeatures]):
     the Schur structure; ``pixel_weighted=False`` gives the paper's exact objective.
     """
 
-    residual_dim = 3
     pixel_residuals = False
 
     def __init__(self, problem: BAProblem, pixel_weighted: bool = False) -> None:
@@ -93,7 +90,6 @@ class ParallaxModel(Model[ParallaxFeatures]):
         self.pixel_weighted = pixel_weighted
         self._weights: FloatArray | None = None
         if pixel_weighted:
-            self.residual_dim = 2
             self.pixel_residuals = True
             v = problem.obs.bearings_c
             _, self._weights = projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx)
@@ -133,7 +129,6 @@ class ParallaxModel(Model[ParallaxFeatures]):
 class XyzModel(Model[XyzFeatures]):
     """XYZ-BA: Euclidean points, pixel errors."""
 
-    residual_dim = 2
     pixel_residuals = True
 
     def slots(self, feats: XyzFeatures) -> IntArray:
@@ -169,7 +164,6 @@ class XyzModel(Model[XyzFeatures]):
 class IdpModel(Model[IdpFeatures]):
     """IDP-BA: inverse depth from the first observing camera, pixel errors."""
 
-    residual_dim = 2
     pixel_residuals = True
 
     def slots(self, feats: IdpFeatures) -> IntArray:

@@ -127,14 +127,6 @@ class BAProblem:
         pts = None if points_w is None else _readonly(np.array(points_w, dtype=float))
         return replace(self, points_w=pts)
 
-    def with_fixed(self, fixed: BoolArray) -> BAProblem:
-        """Return a copy with other fixed-pose flags."""
-        fixed = np.asarray(fixed, dtype=bool)
-        if fixed.shape != (self.n_cams,):
-            msg = f'with_fixed: expected shape ({self.n_cams},), got {fixed.shape}'
-            raise ProblemError(msg)
-        return replace(self, fixed=_readonly(fixed.copy()))
-
     def feature_offsets(self) -> IntArray:
         """Return CSR offsets (N+1,) of each feature's observations (obs are sorted by feature)."""
         counts = np.bincount(self.obs.feat_idx, minlength=self.n_feats)
