@@ -1,0 +1,86 @@
+"""Tests of the ``solve`` verb, in process and once through the console entry point."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+
+from pmba_ros.cli.main import main
+
+REPORT_KEYS = {'param', 'solver', 'converged', 'iterations', 'linear_solves', 'initial_cost',
+               'final_cost', 'initial_rms_px', 'final_rms_px', 'time_s', 'history'}
+
+
+def test_solve_writes_the_report_and_outputs(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """`solve sim:table3` converges and writes the JSON report, TUM poses and points."""
+    report = tmp_path / 'r.json'
+    rc = main(['solve', 'sim:table3', '--quiet', '--report', str(report),
+               '--out', str(tmp_path / 'out')])
+    assert rc == 0
+    data = json.loads(report.read_text())
+    assert REPORT_KEYS <= set(data)
+    assert data['param'] == 'pmba' and data['solver'] == 'dogleg'
+    assert data['final_rms_px'] < data['initial_rms_px']
+    assert {'cost', 'rms_px', 'accepted', 'time_s'} <= set(data['history'][0])
+    poses = (tmp_path / 'out' / 'poses_pmba_dogleg.tum').read_text().splitlines()
+    assert len(poses) == 4 and len(poses[0].split()) == 8
+    assert 'termination' in capsys.readouterr().out
+
+
+def test_solve_compare_prints_one_table(capsys: pytest.CaptureFixture[str]) -> None:
+    """`--compare` runs PMBA-DL, XYZ-LM and IDP-LM and prints a row for each."""
+    assert main(['solve', 'sim:table3', '--compare', '--quiet']) == 0
+    out = capsys.readouterr().out
+    assert all(label in out for label in ('PMBA-dogleg', 'XYZ-lm', 'IDP-lm'))
+
+
+def test_solve_shows_progress_unless_quiet(capsys: pytest.CaptureFixture[str]) -> None:
+    """Without --quiet every iteration is reported on stderr."""
+    assert main(['solve', 'sim:table3', '--max-iters', '3']) == 0
+    err = capsys.readouterr().err
+    assert err.count(' it ') >= 2
+
+
+def test_solve_global_init_reports_stages(tmp_path: Path) -> None:
+    """`--init global` ignores the file's start and reports the stages and one BA."""
+    report = tmp_path / 'r.json'
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet',
+                 '--report', str(report)]) == 0
+    data = json.loads(report.read_text())
+    assert data['ba_invocations'] == 1
+    assert 'init' in data and data['converged']
+
+
+@pytest.mark.parametrize(('content', 'match'), [
+    ('3 2\n', 'bad.txt:1:'),
+    ('1 1 1\n0 0 1.0 x\n', 'bad.txt:2:'),
+])
+def test_malformed_problem_file_is_one_error_line(tmp_path: Path, content: str, match: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """A malformed BAL file gives exit code 1 and one `error:` line naming the line."""
+    bad = tmp_path / 'bad.txt'
+    bad.write_text(content)
+    assert main(['solve', str(bad), '--quiet']) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('error:') and match in err[0]
+
+
+def test_unknown_scene_and_missing_file_are_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    """Unknown `sim:` scenes and missing files are one error line, exit code 1."""
+    assert main(['solve', 'sim:nowhere', '--quiet']) == 1
+    assert main(['solve', '/no/such/problem.txt', '--quiet']) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith('error:') for line in lines)
+
+
+def test_console_entry_point_runs() -> None:
+    """`python -m pmba_ros solve` works as a subprocess (the installed script's path)."""
+    proc = subprocess.run([sys.executable, '-m', 'pmba_ros', 'solve', 'sim:table3', '--quiet'],
+                          capture_output=True, text=True, check=False, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert 'PMBA / dogleg' in proc.stdout
