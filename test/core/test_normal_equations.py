@@ -9,7 +9,7 @@ from pmba_ros.core import conversions
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import ParallaxModel, XyzModel
-from pmba_ros.core.problem import XyzFeatures
+from pmba_ros.core.problem import XyzFeatures, make_problem
 
 from .helpers import forward_problem
 
@@ -28,13 +28,26 @@ def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
     return J
 
 
+def _uneven_tracks(problem):
+    """Drop observations so that features have 2 to 5 observers (uneven Schur groups)."""
+    obs = problem.obs
+    keep = (obs.feat_idx + obs.cam_idx) % 5 < 2 + obs.feat_idx % 4
+    return make_problem(problem.R_wc, problem.centers_w, problem.intrinsics,
+                        obs.cam_idx[keep], obs.feat_idx[keep], obs.pixels[keep],
+                        points_w=problem.points_w)
+
+
 @pytest.mark.parametrize('param', ['pmba', 'xyz'])
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
-def test_schur_solution_equals_dense_solve(param: str, dense_limit: int,
+@pytest.mark.parametrize('tracks', ['full', 'uneven'])
+def test_schur_solution_equals_dense_solve(param: str, dense_limit: int, tracks: str,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """The Schur path (dense and sparse S) solves J^T J exactly; x^T H x equals |J x|^2."""
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
     problem = forward_problem(6, n_cams=5, n_points=25)
+    if tracks == 'uneven':
+        problem = _uneven_tracks(problem)
+        assert len(set(np.bincount(problem.obs.feat_idx).tolist())) >= 3
     if param == 'pmba':
         feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
                                                problem.points_w)
