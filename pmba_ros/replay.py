@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from pmba_ros._json import to_jsonable
 from pmba_ros.errors import BagError, EvaluationError, MessageError, PmbaError
 from pmba_ros.io.bags import BagMessage, iter_messages, list_topics, open_writer
 
@@ -136,7 +137,7 @@ class ReplayReport:
             'messages_in': self.messages_in,
             'messages_rejected': self.messages_rejected,
             'messages_out': self.messages_out,
-            'counters': _jsonable(self.counters),
+            'counters': to_jsonable(self.counters),
             'solves': len(self.solve_ms),
             'solve_ms': [round(float(v), 3) for v in self.solve_ms],
             'solve_ms_mean': float(solve.mean()) if solve.size else None,
@@ -161,19 +162,6 @@ class ReplayReport:
 def _finite(value: float) -> float | None:
     """Return ``value`` or None if it is not finite (JSON has no NaN)."""
     return float(value) if math.isfinite(value) else None
-
-
-def _jsonable(value: Any) -> Any:
-    """Return ``value`` with numpy scalars / arrays turned into plain Python."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def resolve_topic(name: str, namespace: str = '/') -> str:

@@ -231,18 +231,18 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
         W += ch.w_agg @ (JkT @ J_feat[ch.lo:ch.hi]).reshape(-1, 18)
         g_pose += ch.g_agg @ (JkT @ residuals[ch.lo:ch.hi, :, None]).reshape(-1, 6)
     JfT = np.swapaxes(J_feat, 1, 2)
-    V = _sum_by_feature(structure, (JfT @ J_feat).reshape(-1, 9))
-    g_feat = _sum_by_feature(structure, np.einsum('kid,kd->ki', JfT, residuals))
+    V = _scatter_add(structure.feat_idx, (JfT @ J_feat).reshape(-1, 9), structure.n_feats)
+    g_feat = _scatter_add(structure.feat_idx, np.einsum('kid,kd->ki', JfT, residuals),
+                          structure.n_feats)
     return NormalEquations(U.reshape(-1, 6, 6), W.reshape(-1, 6, 3), V.reshape(-1, 3, 3),
                            g_pose, g_feat)
 
 
-def _sum_by_feature(structure: SchurStructure, values: FloatArray) -> FloatArray:
-    """Sum per-observation rows (K, c) by feature into (N, c)."""
-    out = np.empty((structure.n_feats, values.shape[1]))
+def _scatter_add(index: IntArray, values: FloatArray, n_rows: int) -> FloatArray:
+    """Sum rows of ``values`` (n, c) into (n_rows, c) by ``index`` (n,), one bincount a column."""
+    out = np.empty((n_rows, values.shape[1]))
     for i in range(values.shape[1]):
-        out[:, i] = np.bincount(structure.feat_idx, weights=values[:, i],
-                                minlength=structure.n_feats)
+        out[:, i] = np.bincount(index, weights=values[:, i], minlength=n_rows)
     return out
 
 
@@ -307,8 +307,9 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         S_flat -= agg @ (T_f @ np.swapaxes(W_f, 1, 2)).reshape(-1, 6)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
-    rhs = -eqs.g_pose + _scatter_w(structure,
-                                   np.einsum('qij,qj->qi', eqs.W, Vg[structure.w_feat]))
+    rhs = -eqs.g_pose + _scatter_add(structure.w_block,
+                                     np.einsum('qij,qj->qi', eqs.W, Vg[structure.w_feat]),
+                                     structure.n_blocks)
     free = pose_free.reshape(-1)
     dim = nb * 6
     rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
@@ -350,26 +351,9 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
     Wt_x = np.einsum('qji,qj->qi', eqs.W, x_pose[structure.w_block])
-    x_feat = np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - _scatter_feat(structure, Wt_x))
+    W_x = _scatter_add(structure.w_feat, Wt_x, structure.n_feats)
+    x_feat = np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - W_x)
     return x_pose, x_feat
-
-
-def _scatter_w(structure: SchurStructure, values: FloatArray) -> FloatArray:
-    """Sum per-W-block pose vectors (nW, 6) into blocks (n_blocks, 6)."""
-    out = np.zeros((structure.n_blocks, 6))
-    for i in range(6):
-        out[:, i] = np.bincount(structure.w_block, weights=values[:, i],
-                                minlength=structure.n_blocks)
-    return out
-
-
-def _scatter_feat(structure: SchurStructure, values: FloatArray) -> FloatArray:
-    """Sum per-W-block feature vectors (nW, 3) into features (N, 3)."""
-    out = np.zeros((structure.n_feats, 3))
-    for i in range(3):
-        out[:, i] = np.bincount(structure.w_feat, weights=values[:, i],
-                                minlength=structure.n_feats)
-    return out
 
 
 def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: FloatArray,

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from pmba_ros._json import to_jsonable
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import conversions
 from pmba_ros.core.loss import Loss
@@ -174,21 +175,7 @@ class InitResult:
 
     def to_report(self) -> dict[str, Any]:
         """Return the JSON-able report: one entry per stage and ``time_s`` per stage."""
-        return _jsonable(self.report)
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating | float):
-        return float(value)
-    return value
+        return to_jsonable(self.report)
 
 
 def _angle_stats(angles_deg: FloatArray) -> dict[str, float]:

@@ -33,7 +33,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import integer_indices, nonblank_lines
+from pmba_ros.io.text import check_numeric, integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -201,7 +201,7 @@ def _parse_observations(path: Path, lines: list[str], line_no: list[int]) -> Flo
     if obs is None or obs.shape != (len(lines), 4):
         for s, n in zip(lines, line_no, strict=True):
             tokens = s.split()
-            _check_numeric(path, tokens, n)
+            check_numeric(path, tokens, n)
             if len(tokens) != 4:
                 msg = (f'{path}:{n}: observation line has {len(tokens)} values, '
                        f'expected 4 (cam pt x y)')
@@ -219,7 +219,7 @@ def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params
         values = np.array(tokens, dtype=float)
     except ValueError:
         for s, n in zip(lines, line_no, strict=True):
-            _check_numeric(path, s.split(), n)
+            check_numeric(path, s.split(), n)
         raise  # pragma: no cover
     if values.size < n_params:
         msg = (f'{path}:{last_line}: truncated file: expected {n_params} camera and point '
@@ -239,13 +239,3 @@ def _value_lines(lines: list[str], line_no: list[int]) -> list[int]:
     for s, n in zip(lines, line_no, strict=True):
         out.extend([n] * len(s.split()))
     return out
-
-
-def _check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
-    """Raise FormatError naming the first token that is not a number."""
-    for tok in tokens:
-        try:
-            float(tok)
-        except ValueError:
-            msg = f'{path}:{line_no}: non-numeric token {tok!r}'
-            raise FormatError(msg) from None

@@ -32,7 +32,7 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import integer_indices, nonblank_lines
+from pmba_ros.io.text import check_numeric, integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -277,7 +277,7 @@ def _read_table(path: Path, n_cols: tuple[int, ...],
     if table is None or table.shape[1] not in n_cols:
         for s, n in zip(lines, numbers, strict=True):
             tokens = s.split()
-            _check_numeric(path, tokens, n)
+            check_numeric(path, tokens, n)
             if len(tokens) not in n_cols or len(tokens) != width:
                 expected = ' or '.join(str(k) for k in n_cols)
                 msg = f'{path}:{n}: row has {len(tokens)} values, expected {expected} ({layout})'
@@ -296,7 +296,7 @@ def _read_k(path: Path) -> FloatArray:
     """Read a 3x3 calibration matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
     lines, numbers = nonblank_lines(path)
     for s, n in zip(lines, numbers, strict=True):
-        _check_numeric(path, s.split(), n)
+        check_numeric(path, s.split(), n)
     values = np.array(' '.join(lines).split(), dtype=float)
     if values.size != 9:
         bad_rows = [n for s, n in zip(lines, numbers, strict=True) if len(s.split()) != 3]
@@ -327,7 +327,7 @@ def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatAr
         values = np.array(' '.join(lines).split(), dtype=float)
     except ValueError:
         for s, n in zip(lines, numbers, strict=True):
-            _check_numeric(path, s.split(), n)
+            check_numeric(path, s.split(), n)
         raise  # pragma: no cover
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     n_obs = values[starts]
@@ -349,13 +349,3 @@ def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatAr
         msg = f'{path}:{numbers[line_of[k]]}: non-finite pixel coordinate'
         raise FormatError(msg)
     return cam_idx, line_of.astype(np.int64), triples[:, 1:].copy(), len(lines)
-
-
-def _check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
-    """Raise FormatError naming the first token that is not a number."""
-    for tok in tokens:
-        try:
-            float(tok)
-        except ValueError:
-            msg = f'{path}:{line_no}: non-numeric token {tok!r}'
-            raise FormatError(msg) from None

@@ -54,3 +54,13 @@ def integer_indices(path: Path, values: FloatArray, n: int, what: str,
                f'[0, {n})')
         raise FormatError(msg)
     return idx
+
+
+def check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
+    """Raise FormatError naming the first token that is not a number."""
+    for tok in tokens:
+        try:
+            float(tok)
+        except ValueError:
+            msg = f'{path}:{line_no}: non-numeric token {tok!r}'
+            raise FormatError(msg) from None

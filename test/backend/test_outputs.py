@@ -15,7 +15,6 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
 
 from pmba_ros.backend import outputs
 from pmba_ros.backend.tracks import parse_camera_info
@@ -33,18 +32,6 @@ CAMERAS = {
     'equidistant': CameraModel(380.8, 380.3, 510.3, 514.3, 'equidistant',
                                [0.0107, -0.0064, 0.0021, -0.0005], 1024, 1024),
 }
-
-
-@pytest.fixture(scope='module')
-def ts() -> Any:
-    """Return the pinned Jazzy typestore."""
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-@pytest.fixture(scope='module')
-def backend(ts: Any) -> outputs.RosbagsBackend:
-    """Return a rosbags message backend on the Jazzy store."""
-    return outputs.RosbagsBackend(ts)
 
 
 def builders() -> dict[str, Callable[[Any], Any]]:

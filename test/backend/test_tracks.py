@@ -12,7 +12,6 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
 
 from pmba_ros.backend import outputs
 from pmba_ros.backend.tracks import LAYOUTS, parse_keyframe, parse_tracks, stamp_to_ns
@@ -23,18 +22,6 @@ STAMP_NS = 1_700_000_123_456_789
 # (layout, num_cams) cases; per_point carries camera 0 only
 CASES = [('vins_mono', 1), ('vins_mono', 2), ('vins_fusion', 1), ('vins_fusion', 2),
          ('per_point', 1), ('named', 1), ('named', 3)]
-
-
-@pytest.fixture(scope='module')
-def ts() -> Any:
-    """Return the pinned Jazzy typestore."""
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-@pytest.fixture(scope='module')
-def backend(ts: Any) -> outputs.RosbagsBackend:
-    """Return a rosbags message backend on the Jazzy store."""
-    return outputs.RosbagsBackend(ts)
 
 
 def cdr_roundtrip(ts: Any, msg: Any) -> Any:

@@ -15,7 +15,8 @@ from pmba_ros.errors import EvaluationError, FormatError, PmbaError
 from pmba_ros.eval.metrics import ALIGN_MODES, evaluate
 from pmba_ros.eval.trajectory import FORMATS, Trajectory, read_trajectory, write_tum
 
-DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+from ..conftest import SHARED_DATA as DATA
+
 EVO_DIR = DATA / 'trajectories' / 'evo'
 needs_data = pytest.mark.skipif(not EVO_DIR.is_dir(), reason=f'{EVO_DIR} is not available')
 

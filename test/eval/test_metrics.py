@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 from functools import cache
 import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,7 +23,8 @@ from pmba_ros.eval.metrics import (
 )
 from pmba_ros.eval.trajectory import Trajectory, read_trajectory
 
-DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+from ..conftest import SHARED_DATA as DATA
+
 EVO_DIR = DATA / 'trajectories' / 'evo'
 needs_data = pytest.mark.skipif(not EVO_DIR.is_dir(), reason=f'{EVO_DIR} is not available')
 

@@ -8,7 +8,6 @@ and with the same solver options: the final pixel RMS must agree within 2 %, wit
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,16 +16,9 @@ from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import solve
 from pmba_ros.init.pipeline import InitResult, global_init
 
+from ..conftest import shared_file
+
 logger = logging.getLogger(__name__)
-
-DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
-
-
-def _data(*parts: str) -> Path:
-    path = DATA.joinpath(*parts)
-    if not path.exists():
-        pytest.skip(f'shared data not available: {path}')
-    return path
 
 
 def _rms_from_file(problem: BAProblem, res: InitResult, points_w: np.ndarray) -> float:
@@ -53,7 +45,7 @@ def test_ladybug_49_matches_pmba_from_file() -> None:
     """BAL Ladybug-49 (sequential): final RMS within 2 % of PMBA from the file's values."""
     from pmba_ros.io.bal import read_bal
 
-    problem = read_bal(_data('bal', 'problem-49-7776-pre.txt'))
+    problem = read_bal(shared_file('bal', 'problem-49-7776-pre.txt'))
     assert problem.points_w is not None
     _check(problem, problem.points_w)
 
@@ -63,7 +55,7 @@ def test_trafalgar_21_out_of_order_matches_pmba_from_file() -> None:
     """BAL Trafalgar-21 (unordered photos): final RMS within 2 % of PMBA from the file."""
     from pmba_ros.io.bal import read_bal
 
-    problem = read_bal(_data('bal', 'problem-21-11315-pre.txt'))
+    problem = read_bal(shared_file('bal', 'problem-21-11315-pre.txt'))
     assert problem.points_w is not None
     _check(problem, problem.points_w)
 
@@ -73,5 +65,5 @@ def test_fake_pile_matches_pmba_from_file() -> None:
     """The fake-pile set: final RMS within 2 % of PMBA from Cam.txt (triangulated points)."""
     from pmba_ros.io.parallaxba_files import read_parallaxba, triangulate_points
 
-    problem = read_parallaxba(_data('parallaxba', 'fake-pile'))
+    problem = read_parallaxba(shared_file('parallaxba', 'fake-pile'))
     _check(problem, triangulate_points(problem))

@@ -17,7 +17,9 @@ from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.bal import read_bal, write_bal
 
-BAL_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'bal'
+from ..conftest import SHARED_DATA
+
+BAL_DIR = SHARED_DATA / 'bal'
 needs_data = pytest.mark.skipif(not BAL_DIR.is_dir(), reason='shared/data/bal not available')
 
 

@@ -21,8 +21,9 @@ from pmba_ros.io.parallaxba_files import (
 )
 from pmba_ros.sim.scenes import street_scene, table3_scene
 
-FAKE_PILE = (Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'parallaxba'
-             / 'fake-pile')
+from ..conftest import SHARED_DATA
+
+FAKE_PILE = SHARED_DATA / 'parallaxba' / 'fake-pile'
 needs_data = pytest.mark.skipif(not FAKE_PILE.is_dir(), reason='shared fake-pile not available')
 
 
