@@ -26,9 +26,11 @@ class Model(ABC, Generic[F]):
 
     Attributes:
         pixel_residuals: True if residuals are pixels (False: unit-ray chordal errors).
+        anchor_cols: Pose columns (start, stop) that each anchor slot (slot 1, 2, ...) touches.
     """
 
     pixel_residuals: bool
+    anchor_cols: tuple[tuple[int, int], ...] = ()
 
     def __init__(self, problem: BAProblem) -> None:
         """Bind the model to a problem's observations and intrinsics."""
@@ -83,6 +85,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
     """
 
     pixel_residuals = False
+    # The main anchor's rotation and centre; the associate anchor's centre only.
+    anchor_cols = ((0, 6), (3, 6))
 
     def __init__(self, problem: BAProblem, pixel_weighted: bool = False) -> None:
         """Bind the model; precompute the per-observation pixel weights if requested."""
@@ -165,6 +169,7 @@ class IdpModel(Model[IdpFeatures]):
     """IDP-BA: inverse depth from the first observing camera, pixel errors."""
 
     pixel_residuals = True
+    anchor_cols = ((0, 6),)
 
     def slots(self, feats: IdpFeatures) -> IntArray:
         """Return the observer and anchor pose of each observation."""

@@ -7,10 +7,20 @@ V = J_F^T J_F is block-diagonal with 3x3 blocks. The reduced camera system is
 
     S x_T = -g_T + W V^-1 g_F,   S = U - W V^-1 W^T,
 
-and x_F = V^-1 (-g_F - W^T x_T). S has the covisibility pattern, so it is assembled from the
-list of covisible block pairs. Every index array that depends only on the problem's
-structure is built once in :class:`SchurStructure`; each iteration only fills values, with
-no Python loop over observations (scatter-adds are sparse products with 0/1 matrices).
+and x_F = V^-1 (-g_F - W^T x_T).
+
+Every parameterization has the same shape: an observation's Jacobian has one *observer*
+block (its own pose) and *anchor* blocks that are the same for all observations of a feature
+(PMBA: main anchor, and the associate anchor's centre; IDP: the anchor pose; XYZ: none). So
+the anchor rows of J^T J are summed per feature, by one (c d x A) product per feature of c
+observations, and only the observer rows are formed per observation. Features are ordered by
+their number of observations (see :func:`feature_order`), so the features with c
+observations hold a contiguous range of observations and every per-feature product is a
+reshape, never a gather. The Schur complement forms each feature's W V^-1 W^T blocks for
+observation pairs (a, a + delta) only, a <= b, and the blocks of both orders of a pose pair
+meet in a final fold. Every index array that depends only on the structure is built once in
+:class:`SchurStructure`; each iteration fills values, with no Python loop over observations
+(scatter-adds are sparse products with 0/1 matrices).
 """
 
 from __future__ import annotations
@@ -25,10 +35,16 @@ import scipy.sparse.linalg
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.errors import SolverError
 
-#: Observations / pairs processed per vectorized chunk (bounds temporary memory).
-_CHUNK = 200_000
+#: Observations (or 6x6 blocks) per vectorized chunk; bounds temporary memory.
+_CHUNK = 100_000
 #: Above this many free pose columns the reduced system is solved as a sparse matrix.
 DENSE_LIMIT = 6000
+
+
+def feature_order(feat_idx: IntArray, n_feats: int) -> IntArray:
+    """Return features sorted by their number of observations (stable): new -> old index."""
+    counts = np.bincount(feat_idx, minlength=n_feats)
+    return np.argsort(counts, kind='stable')
 
 
 def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
@@ -45,31 +61,6 @@ def _aggregator(index: IntArray, n_rows: int) -> scipy.sparse.csr_matrix:
     return agg.tocsr()
 
 
-def _schur_chunks(counts: IntArray, starts: IntArray, w_block: IntArray, n_blocks: int,
-                  pair_uniq: IntArray) -> list[tuple[IntArray, scipy.sparse.csr_matrix]]:
-    """Group features by their number c of W blocks for one (6c x 3)(3 x 6c) product each.
-
-    Returns (W index (n, c), aggregator) per group: the aggregator adds row i of block (a, b),
-    a <= b, of every feature's W V^-1 W^T (rows of 6 values, flat row (f 6c + 6a + i) c + b)
-    to row 6 pair(a, b) + i of the reduced system.
-    """
-    chunks = []
-    for c in np.unique(counts[counts > 0]):
-        feats = np.flatnonzero(counts == c)
-        per_feat = 36 * c * c
-        step = max(1, _CHUNK * 18 // per_feat)
-        for lo in range(0, feats.shape[0], step):
-            idx = starts[feats[lo:lo + step]][:, None] + np.arange(c)      # (n, c)
-            blk = w_block[idx]
-            keys = blk[:, :, None] * n_blocks + blk[:, None, :]           # (n, a, b)
-            pair = np.searchsorted(pair_uniq, keys)[:, :, None, :]           # (n, a, 1, b)
-            rows = pair * 6 + np.arange(6)[:, None]                        # (n, a, i, b)
-            lower = np.arange(c)[:, None] > np.arange(c)[None, :]
-            rows[np.broadcast_to(lower[None, :, None, :], rows.shape)] = -1
-            chunks.append((idx, _aggregator(rows.reshape(-1), 6 * pair_uniq.shape[0])))
-    return chunks
-
-
 def _unique_inverse(keys: IntArray, n_keys: int) -> tuple[IntArray, IntArray]:
     """np.unique(keys, return_inverse=True) for keys in [0, n_keys), without sorting if small."""
     if n_keys > 50_000_000:
@@ -81,111 +72,206 @@ def _unique_inverse(keys: IntArray, n_keys: int) -> tuple[IntArray, IntArray]:
     return np.flatnonzero(present), rank[keys]
 
 
+def _lookup(sorted_keys: IntArray, keys: IntArray) -> IntArray:
+    """Index of each key in ``sorted_keys`` (all present), -1 where the key is -1."""
+    out = np.searchsorted(sorted_keys, np.maximum(keys, 0))
+    return np.where(keys >= 0, out, -1)
+
+
+def _find(sorted_keys: IntArray, keys: IntArray) -> IntArray:
+    """Index of each key in ``sorted_keys``, or len(sorted_keys) where it is absent."""
+    n = sorted_keys.shape[0]
+    if n == 0:
+        return np.zeros(keys.shape, dtype=np.int64)
+    idx = np.minimum(np.searchsorted(sorted_keys, keys), n - 1)
+    return np.where(sorted_keys[idx] == keys, idx, n)
+
+
+def _pair_key(a: IntArray, b: IntArray, n_blocks: int) -> IntArray:
+    """Key a * n_blocks + b of a directed block pair, -1 if either block is -1."""
+    return np.where((a >= 0) & (b >= 0), a * n_blocks + b, -1)
+
+
 @dataclass(frozen=True, eq=False)
 class _ObsChunk:
-    """Aggregators of one chunk of observations [lo, hi) (entries are (k, s) or (k, s, t))."""
+    """Aggregators of the observations [lo, hi)."""
 
     lo: int
     hi: int
-    u_agg: scipy.sparse.csr_matrix  # (6 n_pairs, 6 n S S): rows of U blocks, see assemble
-    w_agg: scipy.sparse.csr_matrix  # (nW, n * S): W blocks per slot
-    g_agg: scipy.sparse.csr_matrix  # (n_blocks, n * S): pose gradient per slot
+    self_agg: scipy.sparse.csr_matrix     # (n_blocks, n): observer block
+    cross_aggs: list[scipy.sparse.csr_matrix]  # per anchor slot, (n_dir, n)
+
+
+@dataclass(frozen=True, eq=False)
+class _FeatChunk:
+    """Features [f_lo, f_hi) with c observations each: observations [lo, hi).
+
+    ``schur_aggs[delta - 1]`` adds the blocks (a, a + delta) of every feature's W V^-1 W^T,
+    in (feature, a) order, to their directed pair.
+    """
+
+    lo: int
+    hi: int
+    f_lo: int
+    f_hi: int
+    c: int
+    schur_aggs: list[scipy.sparse.csr_matrix]
 
 
 @dataclass(frozen=True, eq=False)
 class SchurStructure:
     """Index structure of the normal equations, fixed during a solve.
 
+    Observations must be sorted by feature, and features by their number of observations
+    (:func:`feature_order`).
+
     Attributes:
         n_blocks: Number of free pose blocks (6 columns each).
         n_feats: Number of features.
-        slot_block: Free block of each observation slot, shape (K, S), -1 if none.
+        n_dir: Number of directed block pairs (a, b) that receive off-diagonal sums.
         feat_idx: Feature of each observation, shape (K,).
+        anchor_cols: Pose columns (start, stop) of each anchor slot.
         pair_rows, pair_cols: Covisible block pairs, upper triangle (row <= col) incl. the
             diagonal: S is symmetric and its lower blocks are the transposes.
-        w_block, w_feat: Block and feature of each non-zero W block, shape (nW,).
+        w_block, w_feat: Block and feature of each W block (one per observation: the block of
+            its observer, 0 with a zero W block if that pose is fixed), shape (K,).
     """
 
     n_blocks: int
     n_feats: int
-    slot_block: IntArray
+    n_dir: int
     feat_idx: IntArray
+    anchor_cols: tuple[tuple[int, int], ...]
     pair_rows: IntArray
     pair_cols: IntArray
     w_block: IntArray
     w_feat: IntArray
+    _obs_fixed: BoolArray
+    _anchor_block: IntArray   # (N, S - 1)
+    _anchor_obs: IntArray     # (N, S - 1) observation of the feature by each anchor, or -1
+    _anchor_self: list[scipy.sparse.csr_matrix]         # per slot s: (n_blocks, N)
+    _anchor_cross: dict[tuple[int, int], scipy.sparse.csr_matrix]  # s < t: (n_dir, N)
     _obs_chunks: list[_ObsChunk]
-    _s_chunks: list[tuple[IntArray, scipy.sparse.csr_matrix]]
+    _feat_chunks: list[_FeatChunk]
+    _fold_fwd: IntArray       # directed pair (row, col) of each upper pair, or n_dir (zero)
+    _fold_bwd: IntArray       # directed pair (col, row), or n_dir
     _diag_pairs: IntArray
 
     @classmethod
-    def build(cls, slot_pose: IntArray, feat_idx: IntArray, n_feats: int,
-              free_block: IntArray) -> SchurStructure:
-        """Build the structure from pose slots (K, S), features (K,) and free blocks (M,)."""
+    def build(cls, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, n_feats: int,
+              free_block: IntArray, anchor_cols: tuple[tuple[int, int], ...] = (),
+              ) -> SchurStructure:
+        """Build the structure of K observations.
+
+        Args:
+            cam_idx: Observing pose of each observation, shape (K,).
+            feat_idx: Feature of each observation, shape (K,), ordered as the class requires.
+            slot_pose: Pose of each Jacobian slot, shape (K, S): slot 0 is the observer (or
+                -1 where its block is zero), slots 1.. are anchors, the same pose for every
+                observation of a feature (or -1 where that block is zero).
+            n_feats: Number of features N.
+            free_block: Free block of each pose, shape (M,), -1 for fixed poses.
+            anchor_cols: Columns (start, stop) of the pose that each anchor slot touches.
+
+        Raises:
+            SolverError: If no pose is free or the observations are not ordered.
+        """
         K, S = slot_pose.shape
+        if len(anchor_cols) != S - 1:
+            msg = f'{S - 1} anchor slots but {len(anchor_cols)} column ranges'
+            raise SolverError(msg)
         n_blocks = int(free_block.max()) + 1 if free_block.size and free_block.max() >= 0 else 0
         if n_blocks == 0:
             msg = 'no free pose: every pose is fixed'
             raise SolverError(msg)
-        slot_block = np.where(slot_pose >= 0, free_block[np.maximum(slot_pose, 0)], -1)
-        valid = (slot_block >= 0).reshape(-1)               # per entry e = k * S + s
-        entry_block = slot_block.reshape(-1)
-        entry_feat = np.repeat(feat_idx, S)
+        counts = np.bincount(feat_idx, minlength=n_feats)
+        if (np.any(np.diff(feat_idx) < 0) or np.any(np.diff(counts) < 0)
+                or np.any(counts == 0)):
+            msg = 'observations must be sorted by feature, features by observation count'
+            raise SolverError(msg)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        obs_block = free_block[cam_idx]
 
-        # W blocks: one per distinct (feature, block), sorted by feature, then block.
-        keys = entry_feat * n_blocks + entry_block
-        uniq, inv = _unique_inverse(keys[valid], n_feats * n_blocks)
-        w_block, w_feat = uniq % n_blocks, uniq // n_blocks
-        entry_w = np.full(K * S, -1)
-        entry_w[valid] = inv
+        # Anchors: one pose per feature and slot (the maximum, since unused entries are -1).
+        n_anchor = S - 1
+        anchor_pose = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+        anchor_obs = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+        for s in range(n_anchor):
+            col = slot_pose[:, s + 1]
+            anchor_pose[:, s] = np.maximum.reduceat(col, starts[:-1])
+            per_obs = anchor_pose[feat_idx, s]
+            if np.any((col >= 0) & (col != per_obs)):
+                msg = f'anchor slot {s + 1} names different poses within one feature'
+                raise SolverError(msg)
+            hit = np.flatnonzero(cam_idx == per_obs)
+            anchor_obs[feat_idx[hit], s] = hit
+            if np.any((anchor_pose[:, s] >= 0) & (anchor_obs[:, s] < 0)):
+                msg = f'anchor slot {s + 1}: an anchor pose does not observe its feature'
+                raise SolverError(msg)
+        anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
 
-        # Schur pairs: every ordered pair of W blocks of one feature.
-        counts = np.bincount(w_feat, minlength=n_feats)
-        starts = np.concatenate([[0], np.cumsum(counts)])[:-1]
-        per_entry = counts[w_feat]
-        q1 = np.repeat(np.arange(w_feat.shape[0]), per_entry)
-        first = np.repeat(starts[w_feat], per_entry)
-        offs = np.cumsum(per_entry) - per_entry
-        q2 = first + (np.arange(q1.shape[0]) - np.repeat(offs, per_entry))
-        # S is symmetric: keep the upper block triangle only (a feature's W blocks are sorted
-        # by pose block, so q1 <= q2 means block(q1) <= block(q2)).
-        upper = q1 <= q2
-        q1, q2 = q1[upper], q2[upper]
+        # Directed block pairs: observer-anchor, anchor-anchor and Schur (a, a + delta).
+        obs_anchor_keys = [_pair_key(obs_block, anchor_block[feat_idx, s], n_blocks)
+                           for s in range(n_anchor)]
+        anchor_keys = {(s, t): _pair_key(anchor_block[:, s], anchor_block[:, t], n_blocks)
+                       for s in range(n_anchor) for t in range(s + 1, n_anchor)}
+        schur_keys: list[tuple[int, int, int, int, int, list[IntArray]]] = []
+        for c in np.unique(counts):
+            c = int(c)
+            feats = np.flatnonzero(counts == c)
+            step = max(1, _CHUNK // (c * c))
+            for f_lo in range(int(feats[0]), int(feats[-1]) + 1, step):
+                f_hi = min(f_lo + step, int(feats[-1]) + 1)
+                lo, hi = int(starts[f_lo]), int(starts[f_hi])
+                blk = obs_block[lo:hi].reshape(f_hi - f_lo, c)
+                keys = [_pair_key(blk[:, :c - delta], blk[:, delta:], n_blocks).reshape(-1)
+                        for delta in range(1, c)]
+                schur_keys.append((lo, hi, f_lo, f_hi, c, keys))
+        all_keys = np.concatenate(
+            [*obs_anchor_keys, *anchor_keys.values(),
+             *(k for *_, keys in schur_keys for k in keys), np.zeros(0, dtype=np.int64)])
+        all_keys = all_keys[all_keys >= 0]
+        dir_uniq, _ = _unique_inverse(all_keys, n_blocks * n_blocks)
+        n_dir = dir_uniq.shape[0]
 
-        # U entries (k, s, t) with both slots valid, upper block triangle only; entries of two
-        # slots on the same pose (observer = associate anchor) are all kept.
-        vs = valid.reshape(K, S)
-        u_valid = (vs[:, :, None] & vs[:, None, :]
-                   & (slot_block[:, :, None] <= slot_block[:, None, :])).reshape(-1)
-        u_keys = (slot_block[:, :, None] * n_blocks + slot_block[:, None, :]).reshape(-1)
-
-        pair_keys = np.concatenate([u_keys[u_valid], w_block[q1] * n_blocks + w_block[q2],
+        # Upper pairs: every directed pair folded to row <= col, and the diagonal.
+        a, b = dir_uniq // n_blocks, dir_uniq % n_blocks
+        pair_keys = np.concatenate([np.minimum(a, b) * n_blocks + np.maximum(a, b),
                                     np.arange(n_blocks) * (n_blocks + 1)])
-        pair_uniq, pair_inv = _unique_inverse(pair_keys, n_blocks * n_blocks)
-        n_pairs = pair_uniq.shape[0]
-        u_pair = np.full(u_keys.shape[0], -1)
-        u_pair[u_valid] = pair_inv[:int(u_valid.sum())]
+        pair_uniq, _ = _unique_inverse(pair_keys, n_blocks * n_blocks)
+        pair_rows, pair_cols = pair_uniq // n_blocks, pair_uniq % n_blocks
 
-        # Row i of the (s, t) block of observation k's J^T J (6S x 6S, row-major) starts at
-        # flat row (k * 6S + 6s + i) * S + t of the (., 6) view; it adds to row 6 pair + i.
-        u_pair_kst = u_pair.reshape(K, S, 1, S)
-        u_rows = u_pair_kst * 6 + np.arange(6)[:, None]              # order (k, s, i, t)
-        u_rows[np.broadcast_to(u_pair_kst < 0, u_rows.shape)] = -1
-        u_rows = u_rows.reshape(-1)
-        step = max(1, _CHUNK // (S * S))
+        # Each upper pair reads directed pair (row, col) and (col, row); n_dir is a zero block.
+        fold_fwd = _find(dir_uniq, pair_rows * n_blocks + pair_cols)
+        fold_bwd = _find(dir_uniq, pair_cols * n_blocks + pair_rows)
+
         obs_chunks = []
-        for lo in range(0, K, step):
-            hi = min(lo + step, K)
-            per_obs = 6 * S * S
+        for lo in range(0, K, _CHUNK):
+            hi = min(lo + _CHUNK, K)
             obs_chunks.append(_ObsChunk(
-                lo, hi, _aggregator(u_rows[lo * per_obs:hi * per_obs], 6 * n_pairs),
-                _aggregator(entry_w[lo * S:hi * S], w_block.shape[0]),
-                _aggregator(entry_block[lo * S:hi * S], n_blocks)))
-        s_chunks = _schur_chunks(counts, starts, w_block, n_blocks, pair_uniq)
-        pair_rows = pair_uniq // n_blocks
-        pair_cols = pair_uniq % n_blocks
-        return cls(n_blocks, n_feats, slot_block, feat_idx, pair_rows, pair_cols, w_block,
-                   w_feat, obs_chunks, s_chunks, np.flatnonzero(pair_rows == pair_cols))
+                lo, hi, _aggregator(obs_block[lo:hi], n_blocks),
+                [_aggregator(_lookup(dir_uniq, k[lo:hi]), n_dir) for k in obs_anchor_keys]))
+        feat_chunks = [
+            _FeatChunk(lo, hi, f_lo, f_hi, c,
+                       [_aggregator(_lookup(dir_uniq, k), n_dir) for k in keys])
+            for lo, hi, f_lo, f_hi, c, keys in schur_keys]
+        anchor_self = [_aggregator(anchor_block[:, s], n_blocks) for s in range(n_anchor)]
+        anchor_cross = {st: _aggregator(_lookup(dir_uniq, k), n_dir)
+                        for st, k in anchor_keys.items()}
+        return cls(n_blocks, n_feats, n_dir, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
+                   np.maximum(obs_block, 0), feat_idx, obs_block < 0, anchor_block,
+                   anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, fold_fwd,
+                   fold_bwd, np.flatnonzero(pair_rows == pair_cols))
+
+    def fold(self, self_blocks: FloatArray, cross: FloatArray) -> FloatArray:
+        """Return upper pair blocks (n_pairs, 6, 6) from per-block and directed-pair sums.
+
+        A pair (x, y), x <= y, is cross(x, y) + cross(y, x)^T, plus self(x) on the diagonal.
+        """
+        padded = np.concatenate([cross, np.zeros((1, 6, 6))])
+        out = padded[self._fold_fwd] + np.swapaxes(padded[self._fold_bwd], 1, 2)
+        out[self._diag_pairs] += self_blocks[self.pair_rows[self._diag_pairs]]
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,7 +280,7 @@ class NormalEquations:
 
     Attributes:
         U: Pose blocks per covisible pair, shape (n_pairs, 6, 6).
-        W: Pose-feature blocks, shape (nW, 6, 3).
+        W: Pose-feature blocks, one per observation, shape (K, 6, 3).
         V: Feature blocks, shape (N, 3, 3).
         g_pose: Gradient J_T^T r, shape (n_blocks, 6).
         g_feat: Gradient J_F^T r, shape (N, 3).
@@ -214,28 +300,64 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
     Args:
         structure: The problem's :class:`SchurStructure`.
         residuals: Residuals, shape (K, d).
-        J_pose: Pose Jacobian blocks per slot, shape (K, S, d, 6).
+        J_pose: Pose Jacobian blocks per slot (observer, anchors...), shape (K, S, d, 6).
         J_feat: Feature Jacobian blocks, shape (K, d, 3).
     """
-    S, d = J_pose.shape[1], J_pose.shape[2]
-    n_pairs = structure.pair_rows.shape[0]
-    U = np.zeros((6 * n_pairs, 6))
-    W = np.zeros((structure.w_block.shape[0], 18))
-    g_pose = np.zeros((structure.n_blocks, 6))
-    for ch in structure._obs_chunks:
+    st = structure
+    K, _, d, _ = J_pose.shape
+    nb, N, n_dir = st.n_blocks, st.n_feats, st.n_dir
+    offs = 10 + np.cumsum([0] + [hi - lo for lo, hi in st.anchor_cols])
+    A = int(offs[-1]) - 10
+    # One row per residual: [observer (6) | residual | feature (3) | anchors (A)].
+    E = np.empty((K, d, 10 + A))
+    E[:, :, :6] = J_pose[:, 0]
+    E[:, :, 6] = residuals
+    E[:, :, 7:10] = J_feat
+    for s, (lo, hi) in enumerate(st.anchor_cols):
+        E[:, :, offs[s]:offs[s + 1]] = J_pose[:, s + 1, :, lo:hi]
+
+    self_blocks = np.zeros((nb, 6, 6))
+    cross = np.zeros((n_dir, 6, 6))
+    g_pose = np.zeros((nb, 6))
+    W = np.empty((K, 6, 3))
+    for ch in st._obs_chunks:
+        Ec = E[ch.lo:ch.hi]
         n = ch.hi - ch.lo
-        # One observation's pose Jacobian as d x 6S: J^T J holds all its slot-pair blocks.
-        Jk = np.swapaxes(J_pose[ch.lo:ch.hi], 1, 2).reshape(n, d, 6 * S)
-        JkT = np.swapaxes(Jk, 1, 2)
-        U += ch.u_agg @ (JkT @ Jk).reshape(-1, 6)
-        W += ch.w_agg @ (JkT @ J_feat[ch.lo:ch.hi]).reshape(-1, 18)
-        g_pose += ch.g_agg @ (JkT @ residuals[ch.lo:ch.hi, :, None]).reshape(-1, 6)
-    JfT = np.swapaxes(J_feat, 1, 2)
-    V = _scatter_add(structure.feat_idx, (JfT @ J_feat).reshape(-1, 9), structure.n_feats)
-    g_feat = _scatter_add(structure.feat_idx, np.einsum('kid,kd->ki', JfT, residuals),
-                          structure.n_feats)
-    return NormalEquations(U.reshape(-1, 6, 6), W.reshape(-1, 6, 3), V.reshape(-1, 3, 3),
-                           g_pose, g_feat)
+        # Observer rows of J^T [J | r], as separate contiguous products (no slicing copies).
+        Jt = np.ascontiguousarray(np.swapaxes(Ec[:, :, :6], 1, 2))
+        summed = ch.self_agg @ (Jt @ Ec[:, :, :7]).reshape(n, 42)    # [U_ii | g_i] rows
+        self_blocks += summed.reshape(nb, 6, 7)[:, :, :6]
+        g_pose += summed.reshape(nb, 6, 7)[:, :, 6]
+        np.matmul(Jt, Ec[:, :, 7:10], out=W[ch.lo:ch.hi])
+        for s, (lo, hi) in enumerate(st.anchor_cols):
+            block = (Jt @ Ec[:, :, offs[s]:offs[s + 1]]).reshape(n, -1)
+            cross[:, :, lo:hi] += (ch.cross_aggs[s] @ block).reshape(n_dir, 6, hi - lo)
+
+    # Anchor rows, V and g_F: one (A + 4) x (A + 4) product per feature, over the columns
+    # [residual | feature | anchors] (Q's index 0 is the residual, 1:4 the feature).
+    Q = np.empty((N, A + 4, A + 4))
+    for fc in st._feat_chunks:
+        G = E[fc.lo:fc.hi].reshape(fc.f_hi - fc.f_lo, fc.c * d, 10 + A)[:, :, 6:]
+        Q[fc.f_lo:fc.f_hi] = np.swapaxes(G, 1, 2) @ G
+    q_offs = offs - 6
+    for s, (lo, hi) in enumerate(st.anchor_cols):
+        rs = slice(q_offs[s], q_offs[s + 1])
+        w = hi - lo
+        blocks = st._anchor_self[s] @ np.concatenate(
+            [Q[:, rs, rs].reshape(N, -1), Q[:, rs, 0]], axis=1)
+        self_blocks[:, lo:hi, lo:hi] += blocks[:, :w * w].reshape(nb, w, w)
+        g_pose[:, lo:hi] += blocks[:, w * w:]
+        for t in range(s + 1, len(st.anchor_cols)):
+            lo_t, hi_t = st.anchor_cols[t]
+            rt = slice(q_offs[t], q_offs[t + 1])
+            cross[:, lo:hi, lo_t:hi_t] += (st._anchor_cross[s, t] @ Q[:, rs, rt].reshape(N, -1)
+                                           ).reshape(n_dir, w, hi_t - lo_t)
+        has = st._anchor_block[:, s] >= 0
+        W[st._anchor_obs[has, s], lo:hi] += Q[has, rs, 1:4]
+    W[st._obs_fixed] = 0.0
+    V = np.ascontiguousarray(Q[:, 1:4, 1:4])
+    g_feat = np.ascontiguousarray(Q[:, 1:4, 0])
+    return NormalEquations(st.fold(self_blocks, cross), W, V, g_pose, g_feat)
 
 
 def _scatter_add(index: IntArray, values: FloatArray, n_rows: int) -> FloatArray:
@@ -270,6 +392,26 @@ class ReducedSystemError(SolverError):
     """The reduced camera system is not positive definite."""
 
 
+def _schur_blocks(structure: SchurStructure, W: FloatArray, T: FloatArray) -> FloatArray:
+    """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks, given T = W V^-1 per W block."""
+    st = structure
+    n_dir = st.n_dir
+    self_blocks = np.zeros((st.n_blocks, 6, 6))
+    cross = np.zeros((n_dir, 6, 6))
+    Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))
+    for ch in st._obs_chunks:
+        prod = T[ch.lo:ch.hi] @ Wt[ch.lo:ch.hi]
+        self_blocks += (ch.self_agg @ prod.reshape(-1, 36)).reshape(-1, 6, 6)
+    for fc in st._feat_chunks:
+        n, c = fc.f_hi - fc.f_lo, fc.c
+        T_f = T[fc.lo:fc.hi].reshape(n, c, 6, 3)
+        W_f = Wt[fc.lo:fc.hi].reshape(n, c, 3, 6)
+        for delta in range(1, c):
+            prod = T_f[:, :c - delta] @ W_f[:, delta:]            # blocks (a, a + delta)
+            cross += (fc.schur_aggs[delta - 1] @ prod.reshape(-1, 36)).reshape(n_dir, 6, 6)
+    return st.fold(self_blocks, cross)
+
+
 def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: FloatArray,
                 damp_feat: FloatArray, pose_free: BoolArray,
                 ) -> tuple[FloatArray, FloatArray]:
@@ -299,12 +441,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
     T = eqs.W @ V_inv[structure.w_feat]                         # W V^-1, per W block
-    S_flat = eqs.U.reshape(-1, 6).copy()
-    for idx, agg in structure._s_chunks:
-        n, c = idx.shape
-        T_f = T[idx].reshape(n, 6 * c, 3)
-        W_f = eqs.W[idx].reshape(n, 6 * c, 3)
-        S_flat -= agg @ (T_f @ np.swapaxes(W_f, 1, 2)).reshape(-1, 6)
+    S_blocks = eqs.U - _schur_blocks(structure, eqs.W, T)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
     rhs = -eqs.g_pose + _scatter_add(structure.w_block,
@@ -314,7 +451,6 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     dim = nb * 6
     rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
     cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
-    S_blocks = S_flat.reshape(-1, 6, 6)
     d_idx = np.arange(nb)
     x = np.zeros(dim)
     if int(free.sum()) <= DENSE_LIMIT:

@@ -22,7 +22,7 @@ indices, shapes) with :class:`~pmba_ros.errors.ProblemError` and drops unusable 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from enum import Enum
 import logging
 
@@ -343,6 +343,31 @@ def subset_features(problem: BAProblem, keep: BoolArray, reason: str) -> BAProbl
     pts = None if problem.points_w is None else _readonly(problem.points_w[keep])
     return replace(problem, obs=obs, n_feats=int(np.sum(keep)), points_w=pts,
                    feature_ids=_readonly(problem.feature_ids[keep]), dropped=dropped)
+
+
+def permute_features(problem: BAProblem, order: IntArray) -> BAProblem:
+    """Return the problem with feature ``order[j]`` renumbered j (observations re-sorted).
+
+    Args:
+        problem: The problem.
+        order: A permutation of the N features: new index -> old index.
+    """
+    new_index = np.empty(problem.n_feats, dtype=np.int64)
+    new_index[order] = np.arange(problem.n_feats)
+    feat = new_index[problem.obs.feat_idx]
+    by_feature = np.lexsort((problem.obs.cam_idx, feat))
+    obs = problem.obs.take(by_feature)
+    obs = Observations(_readonly(obs.cam_idx), _readonly(feat[by_feature]),
+                       _readonly(obs.bearings_c), _readonly(obs.pixels))
+    pts = None if problem.points_w is None else _readonly(problem.points_w[order])
+    return replace(problem, obs=obs, points_w=pts,
+                   feature_ids=_readonly(problem.feature_ids[order]))
+
+
+def take_features(feats: Features, index: IntArray) -> Features:
+    """Return the features selected (or permuted) by ``index`` (every field is per feature)."""
+    columns = {f.name: np.asarray(getattr(feats, f.name))[index] for f in fields(feats)}
+    return type(feats)(**columns)
 
 
 def observation_pairs(feat_idx: IntArray, n_feats: int) -> tuple[IntArray, IntArray]:

@@ -33,7 +33,9 @@ from pmba_ros.core.problem import (
     ParallaxFeatures,
     Parameterization,
     XyzFeatures,
+    permute_features,
     subset_features,
+    take_features,
 )
 from pmba_ros.errors import ProblemError, SolverError
 
@@ -351,7 +353,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     if features is None:
         problem, features = initial_features(problem, options.param)
     _check_features(problem, features, options.param)
-    model: Model[Any] = make_model(options.param, problem,
+    # The normal equations want features ordered by their number of observations; the
+    # solve runs on that order and the result is returned in the caller's.
+    order = ne.feature_order(problem.obs.feat_idx, problem.n_feats)
+    solved = permute_features(problem, order)
+    model: Model[Any] = make_model(options.param, solved,
                                    pixel_weighted=options.pixel_weighted)
     if options.fix_gauge:
         gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
@@ -359,8 +365,10 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     else:
         gauge = free_gauge(problem.n_cams, problem.fixed, problem.obs.cam_idx)
     free_block = gauge.free_block()
-    structure = ne.SchurStructure.build(model.slots(features), problem.obs.feat_idx,
-                                        problem.n_feats, free_block)
+    features = take_features(features, order)
+    structure = ne.SchurStructure.build(solved.obs.cam_idx, solved.obs.feat_idx,
+                                        model.slots(features), problem.n_feats, free_block,
+                                        model.anchor_cols)
     col_mask = gauge.column_mask()
     focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
     loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
@@ -474,8 +482,9 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             termination = TerminationReason.MIN_TRUST_REGION
             break
 
-    points = conversions.to_xyz(state.R_wc, state.centers_w, state.feats)
-    return SolveResult(state.R_wc, state.centers_w, state.feats, points, problem, options,
+    final_feats = take_features(state.feats, np.argsort(order))
+    points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
+    return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
                        time.perf_counter() - t0, history)

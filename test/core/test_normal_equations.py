@@ -8,8 +8,9 @@ import pytest
 from pmba_ros.core import conversions
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
-from pmba_ros.core.models import ParallaxModel, XyzModel
-from pmba_ros.core.problem import XyzFeatures, make_problem
+from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
+from pmba_ros.core.problem import XyzFeatures, make_problem, permute_features
+from pmba_ros.errors import SolverError
 
 from .helpers import forward_problem
 
@@ -37,35 +38,47 @@ def _uneven_tracks(problem):
                         points_w=problem.points_w)
 
 
-@pytest.mark.parametrize('param', ['pmba', 'xyz'])
+def _model_and_features(problem, param: str, weighted: bool = False):
+    if param == 'pmba':
+        feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                               problem.points_w)
+        return ParallaxModel(problem, pixel_weighted=weighted), feats
+    if param == 'idp':
+        return IdpModel(problem), conversions.xyz_to_idp(problem, problem.R_wc,
+                                                         problem.centers_w, problem.points_w)
+    return XyzModel(problem), XyzFeatures(np.array(problem.points_w))
+
+
+@pytest.mark.parametrize(('param', 'weighted'),
+                         [('pmba', False), ('pmba', True), ('xyz', False), ('idp', False)])
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
 @pytest.mark.parametrize('tracks', ['full', 'uneven'])
-def test_schur_solution_equals_dense_solve(param: str, dense_limit: int, tracks: str,
-                                           monkeypatch: pytest.MonkeyPatch) -> None:
+def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_limit: int,
+                                           tracks: str, monkeypatch: pytest.MonkeyPatch,
+                                           ) -> None:
     """The Schur path (dense and sparse S) solves J^T J exactly; x^T H x equals |J x|^2."""
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
     problem = forward_problem(6, n_cams=5, n_points=25)
     if tracks == 'uneven':
         problem = _uneven_tracks(problem)
         assert len(set(np.bincount(problem.obs.feat_idx).tolist())) >= 3
-    if param == 'pmba':
-        feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                               problem.points_w)
-        model = ParallaxModel(problem)
-    else:
-        feats = XyzFeatures(np.array(problem.points_w))
-        model = XyzModel(problem)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, param, weighted)
     gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                          problem.obs.feat_idx, problem.n_feats)
-    st = ne.SchurStructure.build(model.slots(feats), problem.obs.feat_idx, problem.n_feats,
-                                 gauge.free_block())
+    free_block = gauge.free_block()
+    slots = model.slots(feats)
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
+                                 problem.n_feats, free_block, model.anchor_cols)
     r, Jp, Jf = model.linearize(problem.R_wc, problem.centers_w, feats)
     eqs = ne.assemble(st, r, Jp, Jf)
     damp_p = np.full((st.n_blocks, 6), 1e-3)
     damp_f = np.full((problem.n_feats, 3), 1e-3)
     mask = gauge.column_mask()
     x_p, x_f = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
-    J = _dense_jacobian(Jp, Jf, st.slot_block, problem.obs.feat_idx, st.n_blocks,
+    slot_block = np.where(slots >= 0, free_block[np.maximum(slots, 0)], -1)
+    J = _dense_jacobian(Jp, Jf, slot_block, problem.obs.feat_idx, st.n_blocks,
                         problem.n_feats)
     H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
     g = J.T @ r.ravel()
@@ -78,6 +91,15 @@ def test_schur_solution_equals_dense_solve(param: str, dense_limit: int, tracks:
     x[free] = np.linalg.solve(H[np.ix_(free, free)], -g[free])
     np.testing.assert_allclose(np.concatenate([x_p.ravel(), x_f.ravel()]), x,
                                rtol=1e-6, atol=1e-9)
+
+
+def test_structure_rejects_unordered_features() -> None:
+    """Observations whose features are not ordered by track length are refused."""
+    problem = _uneven_tracks(forward_problem(6, n_cams=5, n_points=25))
+    model, feats = _model_and_features(problem, 'xyz')
+    with pytest.raises(SolverError, match='sorted by feature'):
+        ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx,
+                                model.slots(feats), problem.n_feats, np.arange(5))
 
 
 def test_pmba_gauge_has_seven_dimensions() -> None:
