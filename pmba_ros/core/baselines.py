@@ -27,11 +27,9 @@ def xyz_camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
     return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], d)
 
 
-def xyz_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
-                  obs: Observations, intr: Intrinsics) -> FloatArray:
-    """Pixel errors pi(h) - (u, v) of XYZ-BA, shape (K, 2)."""
-    h = xyz_camera_rays(R_wc, centers_w, feats, obs)
-    return project(h, intr, obs.cam_idx) - obs.pixels
+def pixel_errors(h_c: FloatArray, obs: Observations, intr: Intrinsics) -> FloatArray:
+    """Pixel errors pi(h) - (u, v) of predicted camera-frame directions, shape (K, 2)."""
+    return project(h_c, intr, obs.cam_idx) - obs.pixels
 
 
 def xyz_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
@@ -62,13 +60,6 @@ def idp_camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
     world = (np.einsum('kij,kj->ki', R_wc[h_idx], m)
              + feats.rho[j][:, None] * (centers_w[h_idx] - centers_w[obs.cam_idx]))
     return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], world)
-
-
-def idp_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
-                  obs: Observations, intr: Intrinsics) -> FloatArray:
-    """Pixel errors of IDP-BA, shape (K, 2)."""
-    h = idp_camera_rays(R_wc, centers_w, feats, obs)
-    return project(h, intr, obs.cam_idx) - obs.pixels
 
 
 def idp_slots(feats: IdpFeatures, obs: Observations) -> IntArray:

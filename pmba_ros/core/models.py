@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Generic, TypeVar
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -21,15 +22,32 @@ from pmba_ros.core.problem import (
 F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
 
 
+@dataclass(frozen=True, eq=False)
+class Evaluation:
+    """Residuals at one state, and what the reprojection error and linearization reuse.
+
+    Attributes:
+        residuals: Residuals, shape (K, d).
+        rays_c: Each observation's predicted direction in its camera frame, shape (K, 3).
+        geometry: Model-specific intermediates for :meth:`Model.linearize`, or None.
+    """
+
+    residuals: FloatArray
+    rays_c: FloatArray
+    geometry: Any = None
+
+
 class Model(ABC, Generic[F]):
     """Residuals, Jacobians and feature retraction of one parameterization.
 
     Attributes:
         pixel_residuals: True if residuals are pixels (False: unit-ray chordal errors).
+        exact_pixel_residuals: True if residuals are the reprojection errors themselves.
         anchor_cols: Pose columns (start, stop) that each anchor slot (slot 1, 2, ...) touches.
     """
 
     pixel_residuals: bool
+    exact_pixel_residuals = False
     anchor_cols: tuple[tuple[int, int], ...] = ()
 
     def __init__(self, problem: BAProblem) -> None:
@@ -42,31 +60,35 @@ class Model(ABC, Generic[F]):
         """Return the pose of each observation's Jacobian slots, shape (K, S), -1 unused."""
 
     @abstractmethod
+    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> Evaluation:
+        """Return the residuals at a state, with the predicted camera-frame directions."""
+
     def residuals(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:
         """Return residuals, shape (K, d)."""
+        return self.evaluate(R_wc, centers_w, feats).residuals
 
     @abstractmethod
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: F,
+                  evaluation: Evaluation | None = None,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Return residuals (K, d), J_pose (K, S, d, 6) and J_feat (K, d, 3)."""
+        """Return residuals (K, d), J_pose (K, S, d, 6) and J_feat (K, d, 3).
+
+        ``evaluation`` is :meth:`evaluate` at the same state, if the caller has it.
+        """
 
     @abstractmethod
     def retract(self, feats: F, delta: FloatArray) -> F:
         """Return features moved by delta (N, 3)."""
 
     @abstractmethod
-    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:
-        """Return each observation's predicted direction in its camera frame, shape (K, 3)."""
-
-    @abstractmethod
     def parameter_norm_sq(self, feats: F) -> float:
         """Return the squared norm of the feature parameters (for the parameter tolerance)."""
 
-    def reprojection_errors_px(self, R_wc: FloatArray, centers_w: FloatArray,
-                               feats: F) -> FloatArray:
+    def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
-        h = self.camera_rays(R_wc, centers_w, feats)
-        pix = project(h, self.problem.intrinsics, self.obs.cam_idx)
+        if self.exact_pixel_residuals:
+            return np.linalg.norm(evaluation.residuals, axis=1)
+        pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
         return np.linalg.norm(pix - self.obs.pixels, axis=1)
 
 
@@ -102,28 +124,29 @@ class ParallaxModel(Model[ParallaxFeatures]):
         """Return the observer, main and associate pose of each observation."""
         return residuals.pose_slots(feats, self.obs)
 
-    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
-                  feats: ParallaxFeatures) -> FloatArray:
-        """Return ray errors (K, 3), or pixel-weighted ones (K, 2)."""
-        res = residuals.ray_residuals(R_wc, centers_w, feats, self.obs)
+    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
+                 feats: ParallaxFeatures) -> Evaluation:
+        """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T N_ji."""
+        geo = residuals.observation_rays(R_wc, centers_w, feats, self.obs)
+        rays_c = residuals.camera_rays_from(geo, R_wc, feats, self.obs)
         if self._weights is None:
-            return res
-        local = np.einsum('kji,kj->ki', R_wc[self.obs.cam_idx], res)  # R_i^T xi(N) - v
-        return np.einsum('kij,kj->ki', self._weights, local)
+            res = residuals.residuals_from(geo, R_wc, feats, self.obs)
+        else:
+            norm = np.maximum(np.linalg.norm(rays_c, axis=1, keepdims=True), 1e-300)
+            local = rays_c / norm - self.obs.bearings_c         # R_i^T xi(N) - v
+            res = np.einsum('kij,kj->ki', self._weights, local)
+        return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+                  evaluation: Evaluation | None = None,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
-        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
+        geo = evaluation.geometry if evaluation is not None else None
+        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights, geo)
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""
         return residuals.retract_features(feats, delta)
-
-    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
-                    feats: ParallaxFeatures) -> FloatArray:
-        """Return R_i^T N_ji."""
-        return residuals.camera_rays(R_wc, centers_w, feats, self.obs)
 
     def parameter_norm_sq(self, feats: ParallaxFeatures) -> float:
         """Return |theta|^2 + |n|^2."""
@@ -134,18 +157,20 @@ class XyzModel(Model[XyzFeatures]):
     """XYZ-BA: Euclidean points, pixel errors."""
 
     pixel_residuals = True
+    exact_pixel_residuals = True
 
     def slots(self, feats: XyzFeatures) -> IntArray:
         """Return slot (i)."""
         return baselines.xyz_slots(self.obs)
 
-    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
-                  feats: XyzFeatures) -> FloatArray:
-        """Return pixel errors (K, 2)."""
-        return baselines.xyz_residuals(R_wc, centers_w, feats, self.obs,
-                                       self.problem.intrinsics)
+    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
+                 feats: XyzFeatures) -> Evaluation:
+        """Return pixel errors (K, 2) and R_i^T (X - P_i)."""
+        h = baselines.xyz_camera_rays(R_wc, centers_w, feats, self.obs)
+        return Evaluation(baselines.pixel_errors(h, self.obs, self.problem.intrinsics), h)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
+                  evaluation: Evaluation | None = None,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Return pixel errors and Jacobians."""
         return baselines.xyz_jacobians(R_wc, centers_w, feats, self.obs,
@@ -154,11 +179,6 @@ class XyzModel(Model[XyzFeatures]):
     def retract(self, feats: XyzFeatures, delta: FloatArray) -> XyzFeatures:
         """Return X + dX."""
         return XyzFeatures(feats.points_w + delta)
-
-    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
-                    feats: XyzFeatures) -> FloatArray:
-        """Return R_i^T (X - P_i)."""
-        return baselines.xyz_camera_rays(R_wc, centers_w, feats, self.obs)
 
     def parameter_norm_sq(self, feats: XyzFeatures) -> float:
         """Return |X|^2."""
@@ -169,19 +189,21 @@ class IdpModel(Model[IdpFeatures]):
     """IDP-BA: inverse depth from the first observing camera, pixel errors."""
 
     pixel_residuals = True
+    exact_pixel_residuals = True
     anchor_cols = ((0, 6),)
 
     def slots(self, feats: IdpFeatures) -> IntArray:
         """Return the observer and anchor pose of each observation."""
         return baselines.idp_slots(feats, self.obs)
 
-    def residuals(self, R_wc: FloatArray, centers_w: FloatArray,
-                  feats: IdpFeatures) -> FloatArray:
-        """Return pixel errors (K, 2)."""
-        return baselines.idp_residuals(R_wc, centers_w, feats, self.obs,
-                                       self.problem.intrinsics)
+    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
+                 feats: IdpFeatures) -> Evaluation:
+        """Return pixel errors (K, 2) and R_i^T (R_h m + rho (P_h - P_i))."""
+        h = baselines.idp_camera_rays(R_wc, centers_w, feats, self.obs)
+        return Evaluation(baselines.pixel_errors(h, self.obs, self.problem.intrinsics), h)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
+                  evaluation: Evaluation | None = None,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Return pixel errors and Jacobians."""
         return baselines.idp_jacobians(R_wc, centers_w, feats, self.obs,
@@ -190,11 +212,6 @@ class IdpModel(Model[IdpFeatures]):
     def retract(self, feats: IdpFeatures, delta: FloatArray) -> IdpFeatures:
         """Return (a, b, rho) + delta."""
         return IdpFeatures(feats.anchor_idx, feats.ab + delta[:, :2], feats.rho + delta[:, 2])
-
-    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
-                    feats: IdpFeatures) -> FloatArray:
-        """Return R_i^T (R_h m + rho (P_h - P_i))."""
-        return baselines.idp_camera_rays(R_wc, centers_w, feats, self.obs)
 
     def parameter_norm_sq(self, feats: IdpFeatures) -> float:
         """Return |(a, b, rho)|^2."""

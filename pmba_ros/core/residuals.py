@@ -80,15 +80,16 @@ def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         PMBA eq. (8); |e| = 2 sin(beta/2) for the angle beta between the rays (pmba.md §1.4).
     """
     geo = observation_rays(R_wc, centers_w, feats, obs)
-    return _residuals_from(geo, R_wc, feats, obs)
+    return residuals_from(geo, R_wc, feats, obs)
 
 
 def _is_main(feats: ParallaxFeatures, obs: Observations) -> np.ndarray:
     return obs.cam_idx == feats.main_idx[obs.feat_idx]
 
 
-def _residuals_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
-                    obs: Observations) -> FloatArray:
+def residuals_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
+                   obs: Observations) -> FloatArray:
+    """Ray-direction errors (PMBA eq. 8) from the rays of :func:`observation_rays`."""
     norm = np.linalg.norm(geo.N, axis=1, keepdims=True)
     N_hat = geo.N / np.maximum(norm, _TINY)
     # The main anchor's ray is exactly sign(g) u; computing it so avoids cancellation.
@@ -109,6 +110,7 @@ def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
 
 def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   obs: Observations, weights: FloatArray | None = None,
+                  geo: RayGeometry | None = None,
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Residuals and analytic Jacobians of eq. (8), vectorized over observations.
 
@@ -119,6 +121,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         obs: Observations.
         weights: Optional (K, 2, 3) maps of observer-frame errors to pixels: the residual
             becomes ``weights (R_i^T xi(N) - v)`` (see ``ParallaxModel``), d = 2.
+        geo: :func:`observation_rays` at this state, if the caller has it.
 
     Returns:
         residuals (K, d); J_pose (K, 3, d, 6), the blocks of slots (i, m, a) as in
@@ -128,27 +131,36 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     References:
         pmba.md §1.6 (checked against central differences in the tests).
     """
-    geo = observation_rays(R_wc, centers_w, feats, obs)
-    res = _residuals_from(geo, R_wc, feats, obs)
-    K = res.shape[0]
+    if geo is None:
+        geo = observation_rays(R_wc, centers_w, feats, obs)
+    K = obs.cam_idx.shape[0]
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
-    R_m = R_wc[feats.main_idx[j]]
-    n = feats.n[j]
     v = obs.bearings_c
-    A_n = sphere.tangent_basis(n)
+    main = _is_main(feats, obs)
     u, t, s, c, g = geo.u, geo.t, geo.s, geo.c, geo.g
     sin_t, cos_t = geo.sin_t, geo.cos_t
+    # Per-feature factors: R_m [n]x and A_n (every observation of a feature shares them).
+    Rm_hat_n = so3.times_hat(R_wc[feats.main_idx], feats.n)
+    A_f = sphere.tangent_basis(feats.n)
 
     norm = np.maximum(np.linalg.norm(geo.N, axis=1), _TINY)
     N_hat = geo.N / norm[:, None]
-    J_N = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
+    # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
+    # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
     if weights is None:
-        L = J_N                                   # left factor of every block: d xi / d N
+        L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
     else:
-        R_i_T = np.swapaxes(R_i, 1, 2)
-        local = np.einsum('kij,kj->ki', R_i_T, res)  # R_i^T xi(N) - v
-        L = (weights @ R_i_T) @ J_N
+        B = weights @ np.swapaxes(R_i, 1, 2)
+        L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
+             ) / norm[:, None, None]
+    # The main anchor's ray is exactly sign(g) u (as in residuals_from).
+    sign_g = np.where(g >= 0.0, 1.0, -1.0)
+    N_hat = np.where(main[:, None], sign_g[:, None] * u, N_hat)
+    if weights is None:
+        res = N_hat - np.einsum('kij,kj->ki', R_i, v)
+    else:
+        local = np.einsum('kji,kj->ki', R_i, N_hat) - v          # R_i^T xi(N) - v
         res = np.einsum('kij,kj->ki', weights, local)
     d = L.shape[1]
     s_safe = np.maximum(s, _TINY)
@@ -163,34 +175,36 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     L_u_dgdt = Lu[:, :, None] * dg_dt[:, None, :]
     dN_dtheta = (-(s * sin_t + c * cos_t)[:, None] * u
                  + cos_t[:, None] * geo.P_m_minus_P_i)
-    J_phi_m = -(L_dNdu @ (R_m @ so3.hat(n)))          # d u / d phi_m = -R_m [n]x
 
-    L_sin = sin_t[:, None, None] * L
-    J_pose = np.zeros((K, 3, d, 6))
+    # Blocks are written in place: J_pose is (K, 3, d, 6) and each block a strided view.
+    J_pose = np.empty((K, 3, d, 6))
     if weights is None:
-        J_pose[:, 0, :, :3] = R_i @ so3.hat(v)        # d e / d phi_i
+        J_pose[:, 0, :, :3] = so3.times_hat(R_i, v)                # d e / d phi_i
     else:
-        J_pose[:, 0, :, :3] = weights @ so3.hat(local + v)
-    J_pose[:, 0, :, 3:] = -L_sin                      # d e / d P_i
-    J_pose[:, 1, :, :3] = J_phi_m                     # d e / d phi_m
-    J_pose[:, 1, :, 3:] = L_u_dgdt + L_sin            # d e / d P_m
-    J_pose[:, 2, :, 3:] = -L_u_dgdt                   # d e / d P_a
+        J_pose[:, 0, :, :3] = so3.times_hat(weights, local + v)
+    L_sin = sin_t[:, None, None] * L
+    np.negative(L_sin, out=J_pose[:, 0, :, 3:])                    # d e / d P_i
+    np.matmul(L_dNdu, -Rm_hat_n[j], out=J_pose[:, 1, :, :3])        # d e / d phi_m
+    np.add(L_u_dgdt, L_sin, out=J_pose[:, 1, :, 3:])                # d e / d P_m
+    J_pose[:, 2, :, :3] = 0.0
+    np.negative(L_u_dgdt, out=J_pose[:, 2, :, 3:])                  # d e / d P_a
     J_feat = np.empty((K, d, 3))
-    J_feat[:, :, 0] = np.einsum('kij,kj->ki', L, dN_dtheta)   # d e / d theta
-    J_feat[:, :, 1:] = J_phi_m @ A_n                           # d e / d n
+    J_feat[:, :, 0] = np.einsum('kij,kj->ki', L, dN_dtheta)         # d e / d theta
+    np.matmul(J_pose[:, 1, :, :3], A_f[j], out=J_feat[:, :, 1:])    # d e / d n
 
-    main = _is_main(feats, obs)
     if np.any(main):
-        sign_g = np.where(g[main] >= 0.0, 1.0, -1.0)[:, None, None]
-        hat_n_A = so3.hat(n[main]) @ A_n[main]
+        jm = j[main]
+        sgn = sign_g[main][:, None, None]
+        hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
         J_pose[main] = 0.0
         J_feat[main, :, 0] = 0.0
         if weights is None:
-            J_pose[main, 0, :, :3] = R_m[main] @ (so3.hat(v[main]) - sign_g * so3.hat(n[main]))
-            J_feat[main, :, 1:] = -sign_g * (R_m[main] @ hat_n_A)
+            R_m = R_wc[feats.main_idx[jm]]
+            J_pose[main, 0, :, :3] = so3.times_hat(R_m, v[main]) - sgn * Rm_hat_n[jm]
+            J_feat[main, :, 1:] = -sgn * (R_m @ hat_n_A)
         else:
             # In the main anchor's own frame its error sign(g) n - v does not depend on R_m.
-            J_feat[main, :, 1:] = -sign_g * (weights[main] @ hat_n_A)
+            J_feat[main, :, 1:] = -sgn * (weights[main] @ hat_n_A)
     return res, J_pose, J_feat
 
 
@@ -200,14 +214,13 @@ def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeat
                             feats.main_idx, feats.assoc_idx)
 
 
-def camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
-                obs: Observations) -> FloatArray:
+def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
+                     obs: Observations) -> FloatArray:
     """Predicted directions in each observer's camera frame, R_i^T N_ji, shape (K, 3).
 
     Projecting them gives the pixel reprojection of eq. (2) points without dividing by
     sin(theta), so points at infinity project to their direction.
     """
-    geo = observation_rays(R_wc, centers_w, feats, obs)
     main = _is_main(feats, obs)
     N = np.where(main[:, None], np.where(geo.g >= 0, 1.0, -1.0)[:, None] * geo.u, geo.N)
     return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], N)

@@ -31,6 +31,20 @@ def hat(omega: FloatArray) -> FloatArray:
     return out
 
 
+def times_hat(matrix: FloatArray, omega: FloatArray) -> FloatArray:
+    """Return M [w]x for matrices M (..., r, 3) and vectors w (..., 3), without forming [w]x.
+
+    Row i of the product is m_i x w, since m_i^T [w]x y = m_i . (w x y) = (m_i x w) . y.
+    """
+    m0, m1, m2 = matrix[..., 0], matrix[..., 1], matrix[..., 2]
+    w0, w1, w2 = (omega[..., None, k] for k in range(3))
+    out = np.empty(np.broadcast_shapes(matrix.shape, omega[..., None, :].shape))
+    out[..., 0] = m1 * w2 - m2 * w1
+    out[..., 1] = m2 * w0 - m0 * w2
+    out[..., 2] = m0 * w1 - m1 * w0
+    return out
+
+
 def vee(matrix: FloatArray) -> FloatArray:
     """Return the vector of a skew-symmetric matrix (inverse of :func:`hat`), shape (..., 3)."""
     matrix = np.asarray(matrix, dtype=float)

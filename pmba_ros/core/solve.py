@@ -25,7 +25,7 @@ from pmba_ros.core import conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
-from pmba_ros.core.models import Model, make_model
+from pmba_ros.core.models import Evaluation, Model, make_model
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
@@ -252,6 +252,7 @@ class _State:
     centers_w: FloatArray
     feats: Any
     cost: float
+    evaluation: Evaluation
 
 
 class _Linearized:
@@ -259,7 +260,8 @@ class _Linearized:
 
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
-        r, J_pose, J_feat = model.linearize(state.R_wc, state.centers_w, state.feats)
+        r, J_pose, J_feat = model.linearize(state.R_wc, state.centers_w, state.feats,
+                                            state.evaluation)
         if loss is not Loss.NONE:
             w = robust_weights(r, loss, loss_scale)
             r = r * w[:, None]
@@ -373,18 +375,17 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
     loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
 
-    def cost_of(R: FloatArray, P: FloatArray, feats: Any) -> float:
-        r = model.residuals(R, P, feats)
-        if not np.all(np.isfinite(r)):
-            return math.inf
-        return robust_cost(r, options.loss, loss_scale)
+    def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
+        ev = model.evaluate(R, P, feats)
+        if not np.all(np.isfinite(ev.residuals)):
+            return _State(R, P, feats, math.inf, ev)
+        return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale), ev)
 
     def rms_of(state: _State) -> float:
-        err = model.reprojection_errors_px(state.R_wc, state.centers_w, state.feats)
+        err = model.reprojection_errors_px(state.evaluation)
         return float(np.sqrt(np.mean(err * err))) if err.size else 0.0
 
-    state = _State(np.array(problem.R_wc), np.array(problem.centers_w), features,
-                   cost_of(problem.R_wc, problem.centers_w, features))
+    state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
     if not math.isfinite(state.cost):
         msg = 'residuals are not finite at the initial point'
         raise SolverError(msg)
@@ -449,8 +450,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                 break
             continue
         invalid = 0
-        R_new, P_new, f_new = _retract(model, state, free_block, d_pose, d_feat)
-        new_cost = cost_of(R_new, P_new, f_new)
+        trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
+        new_cost = trial.cost
         rho = dogleg.step_quality(state.cost, new_cost, model_change)
         accepted = rho > dogleg.MIN_RELATIVE_DECREASE
         if options.solver is SolverKind.LM:
@@ -464,10 +465,10 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         old_cost = state.cost
         if accepted:
             accepted_steps += 1
-            state = _State(R_new, P_new, f_new, new_cost)
+            state = trial
             rms = rms_of(state)
-            x_norm = math.sqrt(problem.n_cams + float(np.sum(P_new ** 2))
-                               + model.parameter_norm_sq(f_new))
+            x_norm = math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
+                               + model.parameter_norm_sq(state.feats))
             mu = max(dogleg.MIN_MU, mu / 5.0)
             lin = None
         record = IterationRecord(it, state.cost, rms, accepted, radius, step_norm, rho,

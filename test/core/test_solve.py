@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import ClassVar
 from unittest import mock
 
@@ -170,15 +171,17 @@ def test_zero_baseline_anchor_pairs_are_never_used() -> None:
 def test_failed_steps_are_rejected_never_applied() -> None:
     """If every trial point evaluates to NaN, no step is accepted and poses stay finite."""
     scene = street_scene(seed=7, n_cams=5, n_points=50)
-    real = ParallaxModel.residuals
+    real = ParallaxModel.evaluate
     calls = {'n': 0}
 
     def nan_after_first(self, R, P, feats):
         calls['n'] += 1
         out = real(self, R, P, feats)
-        return out if calls['n'] == 1 else np.full_like(out, np.nan)
+        if calls['n'] == 1:
+            return out
+        return replace(out, residuals=np.full_like(out.residuals, np.nan))
 
-    with mock.patch.object(ParallaxModel, 'residuals', nan_after_first):
+    with mock.patch.object(ParallaxModel, 'evaluate', nan_after_first):
         result = solve(scene.start, SolveOptions(max_iterations=10))
     assert result.accepted_steps == 0
     assert np.all(np.isfinite(result.centers_w)) and np.all(np.isfinite(result.R_wc))
