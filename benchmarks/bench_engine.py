@@ -232,9 +232,9 @@ class ScipyXyzProblem:
     def jac(self, x: np.ndarray) -> scipy.sparse.csr_matrix:
         """Return the analytic sparse Jacobian (2K, 6M + 3N)."""
         delta, R, C, X = self.unpack(x)
-        _, J_pose, J_feat = self.model.linearize(R, C, XyzFeatures(X))
+        lin = self.model.linearize(R, C, XyzFeatures(X))
         Jr = so3_right_jacobian(delta)[self.problem.obs.cam_idx]
-        data = np.concatenate([J_pose[:, 0, :, :3] @ Jr, J_pose[:, 0, :, 3:], J_feat], axis=2)
+        data = np.concatenate([lin.J_obs[:, :, :3] @ Jr, lin.J_obs[:, :, 3:], lin.J_feat], axis=2)
         return scipy.sparse.csr_matrix((data.reshape(-1), self.indices, self.indptr),
                                        shape=self.shape)
 

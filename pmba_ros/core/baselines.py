@@ -6,8 +6,7 @@ Both predict a camera-frame direction h and compare its projection with the meas
 * IDP: h = R_i^T (R_h [a, b, 1]^T + rho (P_h - P_i)), i.e. rho times the XYZ direction, which
   keeps points at infinity (rho = 0) finite; two pose slots (i, h), h the anchor camera.
 
-Jacobian layout as in :mod:`pmba_ros.core.residuals`: J_pose (K, S, 2, 6) with columns
-[d phi, d P] (R <- R Exp(d phi)), J_feat (K, 2, 3).
+Jacobian layout: :mod:`pmba_ros.core.jacobian`, columns [d phi, d P] (R <- R Exp(d phi)).
 """
 
 from __future__ import annotations
@@ -17,6 +16,7 @@ import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project, projection_jacobian
+from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import IdpFeatures, Observations, XyzFeatures
 
 
@@ -33,22 +33,26 @@ def pixel_errors(h_c: FloatArray, obs: Observations, intr: Intrinsics) -> FloatA
 
 
 def xyz_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
-                  obs: Observations, intr: Intrinsics,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Residuals (K, 2), J_pose (K, 1, 2, 6) and J_feat (K, 2, 3) of XYZ-BA."""
+                  obs: Observations, intr: Intrinsics) -> Linearization:
+    """Pixel errors and Jacobian of XYZ-BA (no anchor slots)."""
     h = xyz_camera_rays(R_wc, centers_w, feats, obs)
     pix, J_h = projection_jacobian(h, intr, obs.cam_idx)
-    R_i_T = np.swapaxes(R_wc[obs.cam_idx], 1, 2)
-    J_pose = np.empty((h.shape[0], 1, 2, 6))
-    J_pose[:, 0, :, :3] = J_h @ so3.hat(h)       # dh/d phi_i = [h]x
-    J_feat = J_h @ R_i_T                         # dh/dX = R_i^T
-    J_pose[:, 0, :, 3:] = -J_feat                # dh/dP_i = -R_i^T
-    return pix - obs.pixels, J_pose, J_feat
+    lin = Linearization.empty(h.shape[0], 2)
+    E = lin.rows
+    E[:, :, 0:3] = so3.times_hat(J_h, h)                          # dh/d phi_i = [h]x
+    np.matmul(J_h, R_wc[obs.cam_idx].swapaxes(1, 2), out=E[:, :, 7:10])  # dh/dX = R_i^T
+    np.negative(E[:, :, 7:10], out=E[:, :, 3:6])                  # dh/dP_i = -R_i^T
+    E[:, :, 6] = pix - obs.pixels
+    return lin
 
 
 def xyz_slots(obs: Observations) -> IntArray:
     """Pose slots of XYZ-BA observations, shape (K, 1)."""
     return obs.cam_idx[:, None].astype(np.int64)
+
+
+#: IDP's one anchor slot touches all six columns of the anchor pose.
+IDP_ANCHOR_COLS = ((0, 6),)
 
 
 def idp_camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
@@ -71,9 +75,8 @@ def idp_slots(feats: IdpFeatures, obs: Observations) -> IntArray:
 
 
 def idp_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
-                  obs: Observations, intr: Intrinsics,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Residuals (K, 2), J_pose (K, 2, 2, 6) and J_feat (K, 2, 3) of IDP-BA."""
+                  obs: Observations, intr: Intrinsics) -> Linearization:
+    """Pixel errors and Jacobian of IDP-BA, anchor slot h with all six columns."""
     j = obs.feat_idx
     h_idx = feats.anchor_idx[j]
     rho = feats.rho[j]
@@ -83,15 +86,20 @@ def idp_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
     R_h = R_wc[h_idx]
     m = np.concatenate([feats.ab[j], np.ones((j.shape[0], 1))], axis=1)
     Ri_T_Rh = R_i_T @ R_h
-    J_pose = np.empty((h.shape[0], 2, 2, 6))
-    J_pose[:, 0, :, :3] = J_h @ so3.hat(h)
-    J_pose[:, 0, :, 3:] = -rho[:, None, None] * (J_h @ R_i_T)
-    J_pose[:, 1, :, :3] = -(J_h @ Ri_T_Rh @ so3.hat(m))
-    J_pose[:, 1, :, 3:] = -J_pose[:, 0, :, 3:]
-    J_feat = np.empty((h.shape[0], 2, 3))
-    J_feat[:, :, :2] = J_h @ Ri_T_Rh[:, :, :2]
-    J_feat[:, :, 2] = np.einsum('kij,kj->ki', J_h @ R_i_T,
-                                centers_w[h_idx] - centers_w[obs.cam_idx])
+    lin = Linearization.empty(h.shape[0], 2, IDP_ANCHOR_COLS)
+    E = lin.rows
+    E[:, :, 0:3] = so3.times_hat(J_h, h)
+    J_h_Ri_T = J_h @ R_i_T
+    E[:, :, 3:6] = -rho[:, None, None] * J_h_Ri_T
+    E[:, :, 6] = pix - obs.pixels
+    J_h_Ri_T_Rh = J_h @ Ri_T_Rh
+    E[:, :, 7:9] = J_h_Ri_T_Rh[:, :, :2]
+    np.einsum('kij,kj->ki', J_h_Ri_T, centers_w[h_idx] - centers_w[obs.cam_idx],
+              out=E[:, :, 9])
+    E[:, :, 10:13] = -so3.times_hat(J_h_Ri_T_Rh, m)
+    np.negative(E[:, :, 3:6], out=E[:, :, 13:16])
     # At the anchor h = m exactly: the pose terms cancel, so drop them rather than add noise.
-    J_pose[obs.cam_idx == h_idx] = 0.0
-    return pix - obs.pixels, J_pose, J_feat
+    at_anchor = obs.cam_idx == h_idx
+    E[at_anchor, :, :6] = 0.0
+    E[at_anchor, :, 10:] = 0.0
+    return lin

@@ -11,6 +11,7 @@ import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import baselines, residuals
 from pmba_ros.core.camera import project, projection_jacobian
+from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -70,8 +71,8 @@ class Model(ABC, Generic[F]):
     @abstractmethod
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: F,
                   evaluation: Evaluation | None = None,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Return residuals (K, d), J_pose (K, S, d, 6) and J_feat (K, d, 3).
+                  ) -> Linearization:
+        """Return residuals and Jacobian (:mod:`pmba_ros.core.jacobian`), anchor_cols slots.
 
         ``evaluation`` is :meth:`evaluate` at the same state, if the caller has it.
         """
@@ -107,8 +108,7 @@ class ParallaxModel(Model[ParallaxFeatures]):
     """
 
     pixel_residuals = False
-    # The main anchor's rotation and centre; the associate anchor's centre only.
-    anchor_cols = ((0, 6), (3, 6))
+    anchor_cols = residuals.ANCHOR_COLS
 
     def __init__(self, problem: BAProblem, pixel_weighted: bool = False) -> None:
         """Bind the model; precompute the per-observation pixel weights if requested."""
@@ -139,7 +139,7 @@ class ParallaxModel(Model[ParallaxFeatures]):
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   evaluation: Evaluation | None = None,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+                  ) -> Linearization:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
         geo = evaluation.geometry if evaluation is not None else None
         return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights, geo)
@@ -171,7 +171,7 @@ class XyzModel(Model[XyzFeatures]):
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
                   evaluation: Evaluation | None = None,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+                  ) -> Linearization:
         """Return pixel errors and Jacobians."""
         return baselines.xyz_jacobians(R_wc, centers_w, feats, self.obs,
                                        self.problem.intrinsics)
@@ -190,7 +190,7 @@ class IdpModel(Model[IdpFeatures]):
 
     pixel_residuals = True
     exact_pixel_residuals = True
-    anchor_cols = ((0, 6),)
+    anchor_cols = baselines.IDP_ANCHOR_COLS
 
     def slots(self, feats: IdpFeatures) -> IntArray:
         """Return the observer and anchor pose of each observation."""
@@ -204,7 +204,7 @@ class IdpModel(Model[IdpFeatures]):
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
                   evaluation: Evaluation | None = None,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+                  ) -> Linearization:
         """Return pixel errors and Jacobians."""
         return baselines.idp_jacobians(R_wc, centers_w, feats, self.obs,
                                        self.problem.intrinsics)

@@ -33,6 +33,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core.jacobian import ANCHOR_START, Linearization
 from pmba_ros.errors import SolverError
 
 #: Observations (or 6x6 blocks) per vectorized chunk; bounds temporary memory.
@@ -293,28 +294,22 @@ class NormalEquations:
     g_feat: FloatArray
 
 
-def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArray,
-             J_feat: FloatArray) -> NormalEquations:
-    """Assemble U, W, V and the gradient from residuals (K, d) and Jacobians.
+def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
+    """Assemble U, W, V and the gradient from residuals and Jacobian blocks.
 
     Args:
         structure: The problem's :class:`SchurStructure`.
-        residuals: Residuals, shape (K, d).
-        J_pose: Pose Jacobian blocks per slot (observer, anchors...), shape (K, S, d, 6).
-        J_feat: Feature Jacobian blocks, shape (K, d, 3).
+        lin: Residuals and Jacobian (observations in the structure's order).
     """
     st = structure
-    K, _, d, _ = J_pose.shape
+    if lin.anchor_cols != st.anchor_cols:
+        msg = f'anchor columns {lin.anchor_cols} do not match the structure {st.anchor_cols}'
+        raise SolverError(msg)
+    E = lin.rows
+    K, d, width = E.shape
     nb, N, n_dir = st.n_blocks, st.n_feats, st.n_dir
-    offs = 10 + np.cumsum([0] + [hi - lo for lo, hi in st.anchor_cols])
-    A = int(offs[-1]) - 10
-    # One row per residual: [observer (6) | residual | feature (3) | anchors (A)].
-    E = np.empty((K, d, 10 + A))
-    E[:, :, :6] = J_pose[:, 0]
-    E[:, :, 6] = residuals
-    E[:, :, 7:10] = J_feat
-    for s, (lo, hi) in enumerate(st.anchor_cols):
-        E[:, :, offs[s]:offs[s + 1]] = J_pose[:, s + 1, :, lo:hi]
+    offs = lin.anchor_offsets()
+    A = width - ANCHOR_START
 
     self_blocks = np.zeros((nb, 6, 6))
     cross = np.zeros((n_dir, 6, 6))
@@ -337,9 +332,9 @@ def assemble(structure: SchurStructure, residuals: FloatArray, J_pose: FloatArra
     # [residual | feature | anchors] (Q's index 0 is the residual, 1:4 the feature).
     Q = np.empty((N, A + 4, A + 4))
     for fc in st._feat_chunks:
-        G = E[fc.lo:fc.hi].reshape(fc.f_hi - fc.f_lo, fc.c * d, 10 + A)[:, :, 6:]
+        G = E[fc.lo:fc.hi].reshape(fc.f_hi - fc.f_lo, fc.c * d, width)[:, :, 6:]
         Q[fc.f_lo:fc.f_hi] = np.swapaxes(G, 1, 2) @ G
-    q_offs = offs - 6
+    q_offs = [o - 6 for o in offs]
     for s, (lo, hi) in enumerate(st.anchor_cols):
         rs = slice(q_offs[s], q_offs[s + 1])
         w = hi - lo

@@ -14,11 +14,12 @@ e_ji     residuals    (K,3)   xi(N) - R_i v, eq. (8)
 J_N      J_N          (K,3,3) (I - N^ N^T) / |N|, the Jacobian of xi at N
 =======  ===========  ======  ==================================================
 
-Jacobian layout: each observation touches up to three pose "slots", (i, m, a), with 6 columns
-each, ``[d phi (right perturbation R <- R Exp(d phi)), d P]``, and 3 feature columns
-``[d theta, d n_1, d n_2]`` (n <- Exp(A_n dn) n). When i equals a the two slots name the same
-pose and their blocks add up to pmba.md's merged associate-anchor block; main-anchor
-observations (i = m) use the closed forms of §1.6, which touch R_m and n only.
+Jacobian layout (:mod:`pmba_ros.core.jacobian`): each observation touches up to three pose
+"slots", (i, m, a), columns ``[d phi (right perturbation R <- R Exp(d phi)), d P]`` (the
+associate anchor's d P only), and 3 feature columns ``[d theta, d n_1, d n_2]``
+(n <- Exp(A_n dn) n). When i equals a the two slots name the same pose and their blocks add
+up to pmba.md's merged associate-anchor block; main-anchor observations (i = m) use the
+closed forms of §1.6, which touch R_m and n only.
 """
 
 from __future__ import annotations
@@ -29,8 +30,12 @@ import numpy as np
 
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import so3, sphere
+from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 
+#: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
+#: anchor's centre (its rotation does not enter eq. 6).
+ANCHOR_COLS = ((0, 6), (3, 6))
 #: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
 _TINY = 1e-300
 
@@ -110,8 +115,7 @@ def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
 
 def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   obs: Observations, weights: FloatArray | None = None,
-                  geo: RayGeometry | None = None,
-                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+                  geo: RayGeometry | None = None) -> Linearization:
     """Residuals and analytic Jacobians of eq. (8), vectorized over observations.
 
     Args:
@@ -124,9 +128,9 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         geo: :func:`observation_rays` at this state, if the caller has it.
 
     Returns:
-        residuals (K, d); J_pose (K, 3, d, 6), the blocks of slots (i, m, a) as in
-        :func:`pose_slots`, columns [d phi, d P]; J_feat (K, d, 3), columns
-        [d theta, d n_1, d n_2]. d = 3 without weights.
+        The residuals and Jacobian in the layout of :mod:`pmba_ros.core.jacobian`, anchor
+        slots (m, a) with :data:`ANCHOR_COLS`; feature columns [d theta, d n_1, d n_2].
+        d = 3 without weights.
 
     References:
         pmba.md §1.6 (checked against central differences in the tests).
@@ -176,36 +180,37 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     dN_dtheta = (-(s * sin_t + c * cos_t)[:, None] * u
                  + cos_t[:, None] * geo.P_m_minus_P_i)
 
-    # Blocks are written in place: J_pose is (K, 3, d, 6) and each block a strided view.
-    J_pose = np.empty((K, 3, d, 6))
+    # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
+    lin = Linearization.empty(K, d, ANCHOR_COLS)
+    E = lin.rows
+    E[:, :, 6] = res
     if weights is None:
-        J_pose[:, 0, :, :3] = so3.times_hat(R_i, v)                # d e / d phi_i
+        E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
     else:
-        J_pose[:, 0, :, :3] = so3.times_hat(weights, local + v)
+        E[:, :, 0:3] = so3.times_hat(weights, local + v)
     L_sin = sin_t[:, None, None] * L
-    np.negative(L_sin, out=J_pose[:, 0, :, 3:])                    # d e / d P_i
-    np.matmul(L_dNdu, -Rm_hat_n[j], out=J_pose[:, 1, :, :3])        # d e / d phi_m
-    np.add(L_u_dgdt, L_sin, out=J_pose[:, 1, :, 3:])                # d e / d P_m
-    J_pose[:, 2, :, :3] = 0.0
-    np.negative(L_u_dgdt, out=J_pose[:, 2, :, 3:])                  # d e / d P_a
-    J_feat = np.empty((K, d, 3))
-    J_feat[:, :, 0] = np.einsum('kij,kj->ki', L, dN_dtheta)         # d e / d theta
-    np.matmul(J_pose[:, 1, :, :3], A_f[j], out=J_feat[:, :, 1:])    # d e / d n
+    np.negative(L_sin, out=E[:, :, 3:6])                         # d e / d P_i
+    np.einsum('kij,kj->ki', L, dN_dtheta, out=E[:, :, 7])        # d e / d theta
+    np.matmul(L_dNdu, -Rm_hat_n[j], out=E[:, :, 10:13])          # d e / d phi_m
+    np.matmul(E[:, :, 10:13], A_f[j], out=E[:, :, 8:10])         # d e / d n
+    np.add(L_u_dgdt, L_sin, out=E[:, :, 13:16])                  # d e / d P_m
+    np.negative(L_u_dgdt, out=E[:, :, 16:19])                    # d e / d P_a
 
     if np.any(main):
         jm = j[main]
         sgn = sign_g[main][:, None, None]
         hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
-        J_pose[main] = 0.0
-        J_feat[main, :, 0] = 0.0
+        E[main, :, :6] = 0.0
+        E[main, :, 7] = 0.0
+        E[main, :, 10:] = 0.0
         if weights is None:
             R_m = R_wc[feats.main_idx[jm]]
-            J_pose[main, 0, :, :3] = so3.times_hat(R_m, v[main]) - sgn * Rm_hat_n[jm]
-            J_feat[main, :, 1:] = -sgn * (R_m @ hat_n_A)
+            E[main, :, 0:3] = so3.times_hat(R_m, v[main]) - sgn * Rm_hat_n[jm]
+            E[main, :, 8:10] = -sgn * (R_m @ hat_n_A)
         else:
             # In the main anchor's own frame its error sign(g) n - v does not depend on R_m.
-            J_feat[main, :, 1:] = -sgn * (weights[main] @ hat_n_A)
-    return res, J_pose, J_feat
+            E[main, :, 8:10] = -sgn * (weights[main] @ hat_n_A)
+    return lin
 
 
 def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:

@@ -260,15 +260,10 @@ class _Linearized:
 
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
-        r, J_pose, J_feat = model.linearize(state.R_wc, state.centers_w, state.feats,
-                                            state.evaluation)
+        lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
         if loss is not Loss.NONE:
-            w = robust_weights(r, loss, loss_scale)
-            r = r * w[:, None]
-            J_pose = J_pose * w[:, None, None, None]
-            J_feat = J_feat * w[:, None, None]
-        self.r, self.J_pose, self.J_feat = r, J_pose, J_feat
-        eqs = ne.assemble(structure, self.r, self.J_pose, self.J_feat)
+            lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
+        eqs = ne.assemble(structure, lin)
         d_pose, d_feat = ne.diagonal(structure, eqs)
         if jacobi:
             self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))

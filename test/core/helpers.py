@@ -38,7 +38,8 @@ def forward_problem(seed: int = 0, n_cams: int = 6, n_points: int = 40, noise_px
 def check_jacobians(model: Model[Any], R_wc: np.ndarray, centers_w: np.ndarray, feats: Any,
                     eps: float = 1e-6) -> tuple[float, float]:
     """Return the max abs error of pose and feature Jacobians against central differences."""
-    _, J_pose, J_feat = model.linearize(R_wc, centers_w, feats)
+    lin = model.linearize(R_wc, centers_w, feats)
+    J_pose, J_feat = lin.J_pose(), lin.J_feat
     slots = model.slots(feats)
     M = R_wc.shape[0]
     pose_err = 0.0

@@ -71,8 +71,9 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
     slots = model.slots(feats)
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
                                  problem.n_feats, free_block, model.anchor_cols)
-    r, Jp, Jf = model.linearize(problem.R_wc, problem.centers_w, feats)
-    eqs = ne.assemble(st, r, Jp, Jf)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    r, Jp, Jf = lin.residuals, lin.J_pose(), lin.J_feat
+    eqs = ne.assemble(st, lin)
     damp_p = np.full((st.n_blocks, 6), 1e-3)
     damp_f = np.full((problem.n_feats, 3), 1e-3)
     mask = gauge.column_mask()
@@ -108,7 +109,8 @@ def test_pmba_gauge_has_seven_dimensions() -> None:
     feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
                                            problem.points_w)
     model = ParallaxModel(problem)
-    _, Jp, Jf = model.linearize(problem.R_wc, problem.centers_w, feats)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    Jp, Jf = lin.J_pose(), lin.J_feat
     slot_block = model.slots(feats)
     J = _dense_jacobian(Jp, Jf, slot_block, problem.obs.feat_idx, problem.n_cams,
                         problem.n_feats)

@@ -87,7 +87,7 @@ def test_feature_block_bounded_below_by_0382() -> None:
     """H_FF of the two anchors alone has lambda_min = (3 - sqrt 5)/2 (pmba.md §1.7, FLAG)."""
     problem, R, P, feats = _perturbed()
     model = ParallaxModel(problem)
-    _, _, J_feat = model.linearize(R, P, feats)
+    J_feat = model.linearize(R, P, feats).J_feat
     slots = pose_slots(feats, problem.obs)
     anchor = np.all(slots[:, 1:] < 0, axis=1) | (slots[:, 0] == slots[:, 2])
     V = np.zeros((problem.n_feats, 3, 3))

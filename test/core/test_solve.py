@@ -112,7 +112,7 @@ def _h_ff_condition(problem, options: SolveOptions, iterations: int) -> float:
         'param', 'solver', 'pixel_weighted')}, 'max_iterations': iterations}))
     model = make_model(result.options.param, result.problem,
                        pixel_weighted=result.options.pixel_weighted)
-    _, _, J_feat = model.linearize(result.R_wc, result.centers_w, result.features)
+    J_feat = model.linearize(result.R_wc, result.centers_w, result.features).J_feat
     V = np.zeros((result.problem.n_feats, 3, 3))
     np.add.at(V, result.problem.obs.feat_idx, np.swapaxes(J_feat, 1, 2) @ J_feat)
     ev = np.linalg.eigvalsh(V)
