@@ -1,17 +1,18 @@
 """PMBA observation rays, ray-direction errors and their analytic Jacobians (pmba.md §1.3-1.6).
 
-Notation (per observation k of feature j by camera i; all world frame unless noted):
+Notation (per observation k of feature j by camera i; all world frame unless noted). Only N
+and P_m - P_i depend on the observer; the rest is computed once per feature (N features):
 
 =======  ===========  ======  ==================================================
 paper    code         shape   meaning
 =======  ===========  ======  ==================================================
-u        u            (K,3)   R_m n, the main anchor's ray
-t        t            (K,3)   P_m - P_a, anchor baseline (D = |t|)
-s, c     s, c         (K,)    |t x u| = D sin(alpha), t . u = D cos(alpha)
-g        g            (K,)    s cos(theta) - c sin(theta) = D sin(alpha - theta)
+u        u            (N,3)   R_m n, the main anchor's ray
+t        t            (N,3)   P_m - P_a, anchor baseline (D = |t|)
+s, c     s, c         (N,)    |t x u| = D sin(alpha), t . u = D cos(alpha)
+g        g            (N,)    s cos(theta) - c sin(theta) = D sin(alpha - theta)
 N_ji     N            (K,3)   g u + sin(theta) (P_m - P_i), eq. (6) arccos-free
 e_ji     residuals    (K,3)   xi(N) - R_i v, eq. (8)
-J_N      J_N          (K,3,3) (I - N^ N^T) / |N|, the Jacobian of xi at N
+J_N      (in L)       (K,3,3) (I - N^ N^T) / |N|, the Jacobian of xi at N
 =======  ===========  ======  ==================================================
 
 Jacobian layout (:mod:`pmba_ros.core.jacobian`): each observation touches up to three pose
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3, sphere
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
@@ -42,17 +43,18 @@ _TINY = 1e-300
 
 @dataclass(frozen=True, eq=False)
 class RayGeometry:
-    """Intermediate quantities of eq. (6) for every observation (see the module table)."""
+    """Intermediate quantities of eq. (6) (see the module table): per feature, then N and
+    P_m - P_i per observation."""
 
     u: FloatArray
     t: FloatArray
     s: FloatArray
     c: FloatArray
     g: FloatArray
-    N: FloatArray
-    P_m_minus_P_i: FloatArray
     sin_t: FloatArray
     cos_t: FloatArray
+    N: FloatArray
+    P_m_minus_P_i: FloatArray
 
 
 def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -62,19 +64,33 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     References:
         PMBA eq. (6), arccos-free form (pmba.md §1.3).
     """
-    j = obs.feat_idx
-    m = feats.main_idx[j]
-    P_m = centers_w[m]
-    u = np.einsum('kij,kj->ki', R_wc[m], feats.n[j])
-    t = P_m - centers_w[feats.assoc_idx[j]]
+    P_m = centers_w[feats.main_idx]
+    u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
+    t = P_m - centers_w[feats.assoc_idx]
     s = np.linalg.norm(np.cross(t, u), axis=1)
     c = np.sum(t * u, axis=1)
-    theta = feats.theta[j]
-    sin_t, cos_t = np.sin(theta), np.cos(theta)
+    sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     g = s * cos_t - c * sin_t
-    d = P_m - centers_w[obs.cam_idx]
-    N = g[:, None] * u + sin_t[:, None] * d  # eq. (6)
-    return RayGeometry(u, t, s, c, g, N, d, sin_t, cos_t)
+    j = obs.feat_idx
+    d = P_m[j] - centers_w[obs.cam_idx]
+    N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
+    return RayGeometry(u, t, s, c, g, sin_t, cos_t, N, d)
+
+
+def _unit_rays(geo: RayGeometry, feats: ParallaxFeatures, obs: Observations,
+               ) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray]:
+    """Return xi(N) (K, 3), |N| (K,), the main-anchor observations and sign(g) (N,).
+
+    The main anchor's own ray is exactly sign(g) u; taking it so avoids the cancellation in
+    g u + sin(theta) 0.
+    """
+    norm = np.maximum(np.linalg.norm(geo.N, axis=1), _TINY)
+    N_hat = geo.N / norm[:, None]
+    main = _is_main(feats, obs)
+    sign_g = np.where(geo.g >= 0.0, 1.0, -1.0)
+    jm = obs.feat_idx[main]
+    N_hat[main] = sign_g[jm, None] * geo.u[jm]
+    return N_hat, norm, main, sign_g
 
 
 def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -95,12 +111,7 @@ def _is_main(feats: ParallaxFeatures, obs: Observations) -> np.ndarray:
 def residuals_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
                    obs: Observations) -> FloatArray:
     """Ray-direction errors (PMBA eq. 8) from the rays of :func:`observation_rays`."""
-    norm = np.linalg.norm(geo.N, axis=1, keepdims=True)
-    N_hat = geo.N / np.maximum(norm, _TINY)
-    # The main anchor's ray is exactly sign(g) u; computing it so avoids cancellation.
-    main = _is_main(feats, obs)
-    sign_g = np.where(geo.g >= 0.0, 1.0, -1.0)
-    N_hat = np.where(main[:, None], sign_g[:, None] * geo.u, N_hat)
+    N_hat = _unit_rays(geo, feats, obs)[0]
     return N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
 
 
@@ -141,44 +152,40 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
     v = obs.bearings_c
-    main = _is_main(feats, obs)
     u, t, s, c, g = geo.u, geo.t, geo.s, geo.c, geo.g
     sin_t, cos_t = geo.sin_t, geo.cos_t
-    # Per-feature factors: R_m [n]x and A_n (every observation of a feature shares them).
+    # Per-feature factors: R_m [n]x, A_n and the derivatives of g (shared by a feature's
+    # observations):
+    # dg/du = cos(theta) (D^2 u - c t)/s - sin(theta) t
+    # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
     Rm_hat_n = so3.times_hat(R_wc[feats.main_idx], feats.n)
     A_f = sphere.tangent_basis(feats.n)
+    cos_over_s = cos_t / np.maximum(s, _TINY)
+    D_sq = np.sum(t * t, axis=1)
+    dg_du = (cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t)
+             - sin_t[:, None] * t)[j]
+    dg_dt = (cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u)[j]
 
-    norm = np.maximum(np.linalg.norm(geo.N, axis=1), _TINY)
-    N_hat = geo.N / norm[:, None]
+    N_hat, norm, main, sign_g = _unit_rays(geo, feats, obs)
     # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
     # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
+    # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
     if weights is None:
         L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
+        res = N_hat - np.einsum('kij,kj->ki', R_i, v)
     else:
         B = weights @ np.swapaxes(R_i, 1, 2)
         L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
              ) / norm[:, None, None]
-    # The main anchor's ray is exactly sign(g) u (as in residuals_from).
-    sign_g = np.where(g >= 0.0, 1.0, -1.0)
-    N_hat = np.where(main[:, None], sign_g[:, None] * u, N_hat)
-    if weights is None:
-        res = N_hat - np.einsum('kij,kj->ki', R_i, v)
-    else:
         local = np.einsum('kji,kj->ki', R_i, N_hat) - v          # R_i^T xi(N) - v
         res = np.einsum('kij,kj->ki', weights, local)
     d = L.shape[1]
-    s_safe = np.maximum(s, _TINY)
-    D_sq = np.sum(t * t, axis=1)
-    # dg/du = cos(theta) (D^2 u - c t)/s - sin(theta) t
-    # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
-    dg_du = (cos_t / s_safe)[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
-    dg_dt = (cos_t / s_safe)[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
-    Lu = np.einsum('kij,kj->ki', L, u)
+    u_j = u[j]
+    Lu = np.einsum('kij,kj->ki', L, u_j)
     # L dN/du = L (g I + u dg/du^T) and L u dg/dt^T, as outer products of small vectors.
-    L_dNdu = g[:, None, None] * L + Lu[:, :, None] * dg_du[:, None, :]
+    L_dNdu = g[j, None, None] * L + Lu[:, :, None] * dg_du[:, None, :]
     L_u_dgdt = Lu[:, :, None] * dg_dt[:, None, :]
-    dN_dtheta = (-(s * sin_t + c * cos_t)[:, None] * u
-                 + cos_t[:, None] * geo.P_m_minus_P_i)
+    dN_dtheta = ((-(s * sin_t + c * cos_t))[:, None] * u)[j] + cos_t[j, None] * geo.P_m_minus_P_i
 
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
     lin = Linearization.empty(K, d, ANCHOR_COLS)
@@ -188,7 +195,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
     else:
         E[:, :, 0:3] = so3.times_hat(weights, local + v)
-    L_sin = sin_t[:, None, None] * L
+    L_sin = sin_t[j, None, None] * L
     np.negative(L_sin, out=E[:, :, 3:6])                         # d e / d P_i
     np.einsum('kij,kj->ki', L, dN_dtheta, out=E[:, :, 7])        # d e / d theta
     np.matmul(L_dNdu, -Rm_hat_n[j], out=E[:, :, 10:13])          # d e / d phi_m
@@ -198,7 +205,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
 
     if np.any(main):
         jm = j[main]
-        sgn = sign_g[main][:, None, None]
+        sgn = sign_g[jm][:, None, None]
         hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
         E[main, :, :6] = 0.0
         E[main, :, 7] = 0.0
@@ -227,5 +234,7 @@ def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures
     sin(theta), so points at infinity project to their direction.
     """
     main = _is_main(feats, obs)
-    N = np.where(main[:, None], np.where(geo.g >= 0, 1.0, -1.0)[:, None] * geo.u, geo.N)
+    jm = obs.feat_idx[main]
+    N = geo.N.copy()
+    N[main] = np.where(geo.g[jm] >= 0, 1.0, -1.0)[:, None] * geo.u[jm]
     return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], N)
