@@ -177,8 +177,8 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         B = weights @ np.swapaxes(R_i, 1, 2)
         L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
              ) / norm[:, None, None]
-        local = np.einsum('kji,kj->ki', R_i, N_hat) - v          # R_i^T xi(N) - v
-        res = np.einsum('kij,kj->ki', weights, local)
+        h_hat = np.einsum('kji,kj->ki', R_i, N_hat)             # R_i^T xi(N)
+        res = np.einsum('kij,kj->ki', weights, h_hat - v)
     d = L.shape[1]
     u_j = u[j]
     Lu = np.einsum('kij,kj->ki', L, u_j)
@@ -194,7 +194,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     if weights is None:
         E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
     else:
-        E[:, :, 0:3] = so3.times_hat(weights, local + v)
+        E[:, :, 0:3] = so3.times_hat(weights, h_hat)
     L_sin = sin_t[j, None, None] * L
     np.negative(L_sin, out=E[:, :, 3:6])                         # d e / d P_i
     np.einsum('kij,kj->ki', L, dN_dtheta, out=E[:, :, 7])        # d e / d theta
@@ -204,19 +204,20 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     np.negative(L_u_dgdt, out=E[:, :, 16:19])                    # d e / d P_a
 
     if np.any(main):
-        jm = j[main]
+        rows = np.flatnonzero(main)
+        jm = j[rows]
         sgn = sign_g[jm][:, None, None]
         hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
-        E[main, :, :6] = 0.0
-        E[main, :, 7] = 0.0
-        E[main, :, 10:] = 0.0
+        res_main = E[rows, :, 6]
+        E[rows] = 0.0
+        E[rows, :, 6] = res_main
         if weights is None:
             R_m = R_wc[feats.main_idx[jm]]
-            E[main, :, 0:3] = so3.times_hat(R_m, v[main]) - sgn * Rm_hat_n[jm]
-            E[main, :, 8:10] = -sgn * (R_m @ hat_n_A)
+            E[rows, :, 0:3] = so3.times_hat(R_m, v[rows]) - sgn * Rm_hat_n[jm]
+            E[rows, :, 8:10] = -sgn * (R_m @ hat_n_A)
         else:
             # In the main anchor's own frame its error sign(g) n - v does not depend on R_m.
-            E[main, :, 8:10] = -sgn * (weights[main] @ hat_n_A)
+            E[rows, :, 8:10] = -sgn * (weights[rows] @ hat_n_A)
     return lin
 
 
