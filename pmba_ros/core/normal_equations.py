@@ -107,8 +107,9 @@ class _ObsChunk:
 class _FeatChunk:
     """Features [f_lo, f_hi) with c observations each: observations [lo, hi).
 
-    ``schur_aggs[delta - 1]`` adds the blocks (a, a + delta) of every feature's W V^-1 W^T,
-    in (feature, a) order, to their directed pair.
+    ``self_agg`` adds the blocks (a, a) of every feature's W V^-1 W^T to their pose block;
+    ``schur_aggs[delta - 1]`` adds the blocks (a, a + delta), in (feature, a) order, to their
+    directed pair.
     """
 
     lo: int
@@ -116,6 +117,7 @@ class _FeatChunk:
     f_lo: int
     f_hi: int
     c: int
+    self_agg: scipy.sparse.csr_matrix     # (n_blocks, hi - lo): observer block
     schur_aggs: list[scipy.sparse.csr_matrix]
 
 
@@ -253,7 +255,7 @@ class SchurStructure:
                 lo, hi, _aggregator(obs_block[lo:hi], n_blocks),
                 [_aggregator(_lookup(dir_uniq, k[lo:hi]), n_dir) for k in obs_anchor_keys]))
         feat_chunks = [
-            _FeatChunk(lo, hi, f_lo, f_hi, c,
+            _FeatChunk(lo, hi, f_lo, f_hi, c, _aggregator(obs_block[lo:hi], n_blocks),
                        [_aggregator(_lookup(dir_uniq, k), n_dir) for k in keys])
             for lo, hi, f_lo, f_hi, c, keys in schur_keys]
         anchor_self = [_aggregator(anchor_block[:, s], n_blocks) for s in range(n_anchor)]
@@ -373,12 +375,17 @@ def diagonal(structure: SchurStructure, eqs: NormalEquations) -> tuple[FloatArra
 
 def scale(structure: SchurStructure, eqs: NormalEquations, c_pose: FloatArray,
           c_feat: FloatArray) -> NormalEquations:
-    """Return the equations of the column-scaled Jacobian J diag(c) (Jacobi scaling)."""
+    """Return the equations of the column-scaled Jacobian J diag(c) (Jacobi scaling).
+
+    The W blocks, the largest array, are scaled in place: ``eqs.W`` is consumed.
+    """
     cp_r = c_pose[structure.pair_rows]
     cp_c = c_pose[structure.pair_cols]
+    W = eqs.W
+    W *= c_pose[structure.w_block][:, :, None]
+    W *= c_feat[structure.w_feat][:, None, :]
     return NormalEquations(
-        eqs.U * cp_r[:, :, None] * cp_c[:, None, :],
-        eqs.W * c_pose[structure.w_block][:, :, None] * c_feat[structure.w_feat][:, None, :],
+        eqs.U * cp_r[:, :, None] * cp_c[:, None, :], W,
         eqs.V * c_feat[:, :, None] * c_feat[:, None, :],
         eqs.g_pose * c_pose, eqs.g_feat * c_feat)
 
@@ -387,23 +394,23 @@ class ReducedSystemError(SolverError):
     """The reduced camera system is not positive definite."""
 
 
-def _schur_blocks(structure: SchurStructure, W: FloatArray, T: FloatArray) -> FloatArray:
-    """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks, given T = W V^-1 per W block."""
+def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -> FloatArray:
+    """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks (n_pairs, 6, 6).
+
+    Block (a, b) of a feature is W_a (V^-1 W_b^T); V^-1 W^T is formed per feature group
+    with V^-1 broadcast over the group's observations (no gather).
+    """
     st = structure
-    n_dir = st.n_dir
     self_blocks = np.zeros((st.n_blocks, 6, 6))
-    cross = np.zeros((n_dir, 6, 6))
-    Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))
-    for ch in st._obs_chunks:
-        prod = T[ch.lo:ch.hi] @ Wt[ch.lo:ch.hi]
-        self_blocks += (ch.self_agg @ prod.reshape(-1, 36)).reshape(-1, 6, 6)
+    cross = np.zeros((st.n_dir, 6, 6))
     for fc in st._feat_chunks:
         n, c = fc.f_hi - fc.f_lo, fc.c
-        T_f = T[fc.lo:fc.hi].reshape(n, c, 6, 3)
-        W_f = Wt[fc.lo:fc.hi].reshape(n, c, 3, 6)
+        W_f = W[fc.lo:fc.hi].reshape(n, c, 6, 3)
+        Vi_Wt = V_inv[fc.f_lo:fc.f_hi, None] @ np.swapaxes(W_f, 2, 3)    # (n, c, 3, 6)
+        self_blocks += (fc.self_agg @ (W_f @ Vi_Wt).reshape(-1, 36)).reshape(-1, 6, 6)
         for delta in range(1, c):
-            prod = T_f[:, :c - delta] @ W_f[:, delta:]            # blocks (a, a + delta)
-            cross += (fc.schur_aggs[delta - 1] @ prod.reshape(-1, 36)).reshape(n_dir, 6, 6)
+            prod = W_f[:, :c - delta] @ Vi_Wt[:, delta:]          # blocks (a, a + delta)
+            cross += (fc.schur_aggs[delta - 1] @ prod.reshape(-1, 36)).reshape(-1, 6, 6)
     return st.fold(self_blocks, cross)
 
 
@@ -428,15 +435,14 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     """
     V = eqs.V + damp_feat[:, :, None] * np.eye(3)
     try:
-        V_inv = np.linalg.inv(V)
+        V_inv = np.asarray(np.linalg.inv(V), dtype=np.float64)
     except np.linalg.LinAlgError as err:
         msg = 'singular feature block'
         raise ReducedSystemError(msg) from err
     if not np.all(np.isfinite(V_inv)):
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
-    T = eqs.W @ V_inv[structure.w_feat]                         # W V^-1, per W block
-    S_blocks = eqs.U - _schur_blocks(structure, eqs.W, T)
+    S_blocks = eqs.U - _schur_blocks(structure, eqs.W, V_inv)
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
     rhs = -eqs.g_pose + _scatter_add(structure.w_block,
