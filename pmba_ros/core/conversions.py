@@ -18,7 +18,6 @@ from pmba_ros.core.problem import (
     IdpFeatures,
     ParallaxFeatures,
     XyzFeatures,
-    observation_pairs,
 )
 from pmba_ros.errors import ProblemError
 
@@ -60,27 +59,38 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     """
     obs = problem.obs
     rays = world_rays(problem, R_wc)
-    k1, k2 = observation_pairs(obs.feat_idx, problem.n_feats)
-    c1, c2 = obs.cam_idx[k1], obs.cam_idx[k2]
-    admissible = np.ones(k1.shape[0], dtype=bool)
-    if allowed_pairs is not None:
-        admissible &= allowed_pairs[c1, c2]
-    if centers_w is not None:
-        scale = float(np.ptp(centers_w, axis=0).max()) if centers_w.shape[0] > 1 else 0.0
-        baseline = np.linalg.norm(centers_w[c1] - centers_w[c2], axis=1)
-        admissible &= baseline > max(scale, 1.0) * 1e-9
-    # -cos is monotonic in the parallax angle; inadmissible pairs score below every angle.
-    score = np.where(admissible, -np.sum(rays[k1] * rays[k2], axis=1), -2.0)
-    best = _first_argmax_per_group(score, obs.feat_idx[k1])
-    pair_feat = obs.feat_idx[k1]
     N = problem.n_feats
     main_idx = np.zeros(N, dtype=np.int64)
     assoc_idx = np.zeros(N, dtype=np.int64)
     ok = np.zeros(N, dtype=bool)
-    f_best = pair_feat[best]
-    main_idx[f_best] = c2[best]
-    assoc_idx[f_best] = c1[best]
-    ok[f_best] = score[best] > -2.0
+    M = R_wc.shape[0]
+    close = np.zeros(0, dtype=np.int64)
+    if centers_w is not None:
+        close = _coincident_pairs(centers_w)
+    counts = np.bincount(obs.feat_idx, minlength=N)
+    starts = np.concatenate([[0], np.cumsum(counts)])[:-1]
+    # Features with c observations at a time: all pairwise cosines as one (c x c) Gram matrix
+    # per feature; the first minimum of the upper triangle (row-major) is the widest pair.
+    for c in np.unique(counts[counts >= 2]):
+        c = int(c)
+        feats = np.flatnonzero(counts == c)
+        k = starts[feats][:, None] + np.arange(c)                      # (n, c)
+        r = rays[k]
+        cos = r @ np.swapaxes(r, 1, 2)
+        cams = obs.cam_idx[k]
+        # Inadmissible pairs (and the lower triangle) score above every cosine.
+        bad = np.broadcast_to(~np.triu(np.ones((c, c), dtype=bool), 1), cos.shape).copy()
+        if allowed_pairs is not None:
+            bad |= ~allowed_pairs[cams[:, :, None], cams[:, None, :]]
+        if close.size:
+            bad |= np.isin(cams[:, :, None] * M + cams[:, None, :], close)
+        cos[bad] = 2.0
+        best = np.argmin(cos.reshape(-1, c * c), axis=1)
+        a, b = best // c, best % c
+        rows = np.arange(feats.shape[0])
+        main_idx[feats] = cams[rows, b]      # the later camera is the main anchor
+        assoc_idx[feats] = cams[rows, a]
+        ok[feats] = cos.reshape(-1, c * c)[rows, best] < 2.0
     if points_w is not None and centers_w is not None:
         d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
         d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)
@@ -90,16 +100,25 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     return main_idx, assoc_idx, ok
 
 
-def _first_argmax_per_group(score: FloatArray, group: IntArray) -> IntArray:
-    """Index of the first maximum of ``score`` within each run of equal, sorted ``group``."""
-    if score.shape[0] == 0:
-        return np.zeros(0, dtype=np.int64)
-    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-    sizes = np.diff(np.r_[starts, score.shape[0]])
-    run = np.repeat(np.arange(starts.shape[0]), sizes)
-    cand = np.flatnonzero(score == np.maximum.reduceat(score, starts)[run])
-    first = np.r_[True, run[cand][1:] != run[cand][:-1]]
-    return cand[first].astype(np.int64)
+def _coincident_pairs(centers_w: FloatArray) -> IntArray:
+    """Keys a * M + b (both orders) of camera pairs closer than 1e-9 of the scene size.
+
+    Such pairs have no baseline (pmba.md §3.3). A sweep along x finds the candidates in
+    O(M log M); they are usually none.
+    """
+    M = centers_w.shape[0]
+    scale = float(np.ptp(centers_w, axis=0).max()) if M > 1 else 0.0
+    tol = max(scale, 1.0) * 1e-9
+    order = np.argsort(centers_w[:, 0], kind='stable')
+    x = centers_w[order, 0]
+    span = np.searchsorted(x, x + tol, side='right') - np.arange(M) - 1   # later within tol
+    first = np.repeat(np.arange(M), span)
+    second = first + 1 + (np.arange(first.shape[0]) - np.repeat(np.cumsum(span) - span, span))
+    a, b = order[first], order[second]
+    diff = centers_w[a] - centers_w[b]
+    near = np.einsum('ij,ij->i', diff, diff) <= tol * tol
+    a, b = a[near], b[near]
+    return np.concatenate([a * M + b, b * M + a]).astype(np.int64)
 
 
 def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:

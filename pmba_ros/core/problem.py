@@ -368,24 +368,3 @@ def take_features(feats: Features, index: IntArray) -> Features:
     """Return the features selected (or permuted) by ``index`` (every field is per feature)."""
     columns = {f.name: np.asarray(getattr(feats, f.name))[index] for f in fields(feats)}
     return type(feats)(**columns)
-
-
-def observation_pairs(feat_idx: IntArray, n_feats: int) -> tuple[IntArray, IntArray]:
-    """Return all pairs (k1 < k2) of observations of the same feature (obs sorted by feature).
-
-    Args:
-        feat_idx: Feature of each observation, sorted ascending, shape (K,).
-        n_feats: Number of features N.
-
-    Returns:
-        Observation indices k1, k2 of every within-feature pair, each of shape (P,).
-    """
-    K = feat_idx.shape[0]
-    counts = np.bincount(feat_idx, minlength=n_feats)
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    local = np.arange(K) - offsets[feat_idx]
-    later = counts[feat_idx] - 1 - local
-    k1 = np.repeat(np.arange(K), later)
-    start = np.cumsum(later) - later
-    k2 = k1 + 1 + (np.arange(k1.shape[0]) - np.repeat(start, later))
-    return k1.astype(np.int64), k2.astype(np.int64)

@@ -1,0 +1,63 @@
+"""Tests of anchor selection and the XYZ <-> PMBA conversions (pmba.md §3)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from pmba_ros.core import conversions
+from pmba_ros.core.problem import make_problem
+
+from .helpers import forward_problem
+
+
+def _uneven(problem, seed: int):
+    """Keep a random subset of each feature's observers (several track lengths); features
+    0-3 keep only cameras 2 and 4."""
+    rng = np.random.default_rng(seed)
+    obs = problem.obs
+    keep = rng.random(obs.cam_idx.shape[0]) < 0.6
+    only_2_4 = obs.feat_idx < 4
+    keep[only_2_4] = np.isin(obs.cam_idx[only_2_4], [2, 4])
+    return make_problem(problem.R_wc, problem.centers_w, problem.intrinsics,
+                        obs.cam_idx[keep], obs.feat_idx[keep], obs.pixels[keep])
+
+
+def _brute_force(problem, R_wc, centers_w, tol):
+    """Widest admissible observer pair per feature by enumeration (first in pair order)."""
+    rays = conversions.world_rays(problem, R_wc)
+    out = {}
+    for f in range(problem.n_feats):
+        ks = np.flatnonzero(problem.obs.feat_idx == f)
+        best, best_cos = None, 2.0
+        for k1, k2 in itertools.combinations(ks, 2):
+            c1, c2 = problem.obs.cam_idx[k1], problem.obs.cam_idx[k2]
+            if np.linalg.norm(centers_w[c1] - centers_w[c2]) <= tol:
+                continue
+            cos = float(rays[k1] @ rays[k2])
+            if cos < best_cos:
+                best, best_cos = (int(c2), int(c1)), cos
+        out[f] = best
+    return out
+
+
+def test_select_anchors_takes_the_widest_admissible_pair() -> None:
+    """Anchors equal an enumeration of all observer pairs, with coincident cameras excluded."""
+    base = forward_problem(3, n_cams=7, n_points=30)
+    centers = np.array(base.centers_w)
+    centers[4] = centers[2] + 1e-12            # no baseline between cameras 2 and 4
+    problem = make_problem(base.R_wc, centers, base.intrinsics, base.obs.cam_idx,
+                           base.obs.feat_idx, base.obs.pixels)
+    problem = _uneven(problem, 3)
+    assert len(set(np.bincount(problem.obs.feat_idx).tolist())) >= 3
+    main, assoc, ok = conversions.select_anchors(problem, problem.R_wc,
+                                                 centers_w=problem.centers_w)
+    scale = float(np.ptp(centers, axis=0).max())
+    expected = _brute_force(problem, problem.R_wc, problem.centers_w, scale * 1e-9)
+    for f, pair in expected.items():
+        assert bool(ok[f]) == (pair is not None)
+        if pair is not None:
+            assert (int(main[f]), int(assoc[f])) == pair
+    assert not np.any(ok[:4])                 # seen from one place only: no anchor pair
+    assert not np.any((np.minimum(main, assoc) == 2) & (np.maximum(main, assoc) == 4) & ok)
