@@ -43,8 +43,10 @@ _TINY = 1e-300
 
 @dataclass(frozen=True, eq=False)
 class RayGeometry:
-    """Intermediate quantities of eq. (6) (see the module table): per feature, then N and
-    P_m - P_i per observation."""
+    """Intermediate quantities of eq. (6) (see the module table).
+
+    u, t, s, c, g, sin_t and cos_t are per feature; N and P_m - P_i per observation.
+    """
 
     u: FloatArray
     t: FloatArray

@@ -13,8 +13,10 @@ from .helpers import forward_problem
 
 
 def _uneven(problem, seed: int):
-    """Keep a random subset of each feature's observers (several track lengths); features
-    0-3 keep only cameras 2 and 4."""
+    """Keep a random subset of each feature's observers (several track lengths).
+
+    Features 0-3 keep only cameras 2 and 4.
+    """
     rng = np.random.default_rng(seed)
     obs = problem.obs
     keep = rng.random(obs.cam_idx.shape[0]) < 0.6
