@@ -38,6 +38,11 @@ from pmba_ros.errors import SolverError
 
 #: Observations (or 6x6 blocks) per vectorized chunk; bounds temporary memory.
 _CHUNK = 100_000
+#: 6x6 blocks per Schur batch: the buffer (1.2 MB) stays in cache until it is summed.
+_SCHUR_BATCH = 4096
+#: Feature chunks with fewer features form their Schur blocks pair by pair (gathers) rather
+#: than in one product per delta (Python calls).
+LOOP_MIN_FEATURES = 64
 #: Above this many free pose columns the reduced system is solved as a sparse matrix.
 DENSE_LIMIT = 6000
 
@@ -105,20 +110,31 @@ class _ObsChunk:
 
 @dataclass(frozen=True, eq=False)
 class _FeatChunk:
-    """Features [f_lo, f_hi) with c observations each: observations [lo, hi).
-
-    ``self_agg`` adds the blocks (a, a) of every feature's W V^-1 W^T to their pose block;
-    ``schur_aggs[delta - 1]`` adds the blocks (a, a + delta), in (feature, a) order, to their
-    directed pair.
-    """
+    """Features [f_lo, f_hi) with c observations each: observations [lo, hi)."""
 
     lo: int
     hi: int
     f_lo: int
     f_hi: int
     c: int
-    self_agg: scipy.sparse.csr_matrix     # (n_blocks, hi - lo): observer block
-    schur_aggs: list[scipy.sparse.csr_matrix]
+
+
+@dataclass(frozen=True, eq=False)
+class _SchurBatch:
+    """Schur products written to one buffer and summed by one aggregator.
+
+    Each task (chunk, delta, row) puts the blocks (a, a + delta) of W V^-1 W^T of the chunk's
+    features, in (feature, a) order, at buffer rows [row, row + n (c - delta)); then the
+    blocks of the observation pairs (pair_a, pair_b) follow, one product each (small chunks,
+    where one product per delta would cost more in calls than the gathers). ``agg`` adds the
+    rows to [0, n_blocks) (a = b: the pose block) or n_blocks + directed pair.
+    """
+
+    n_rows: int
+    tasks: list[tuple[int, int, int]]
+    pair_a: IntArray
+    pair_b: IntArray
+    agg: scipy.sparse.csr_matrix
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,6 +172,7 @@ class SchurStructure:
     _anchor_cross: dict[tuple[int, int], scipy.sparse.csr_matrix]  # s < t: (n_dir, N)
     _obs_chunks: list[_ObsChunk]
     _feat_chunks: list[_FeatChunk]
+    _schur_batches: list[_SchurBatch]
     _fold_fwd: IntArray       # directed pair (row, col) of each upper pair, or n_dir (zero)
     _fold_bwd: IntArray       # directed pair (col, row), or n_dir
     _diag_pairs: IntArray
@@ -218,7 +235,11 @@ class SchurStructure:
                            for s in range(n_anchor)]
         anchor_keys = {(s, t): _pair_key(anchor_block[:, s], anchor_block[:, t], n_blocks)
                        for s in range(n_anchor) for t in range(s + 1, n_anchor)}
-        schur_keys: list[tuple[int, int, int, int, int, list[IntArray]]] = []
+        # Schur blocks (a, a + delta) of each chunk of features with c observations: one
+        # product per delta for chunks of many features, one per pair for the others.
+        feat_chunks: list[_FeatChunk] = []
+        tasks: list[tuple[int, int, IntArray]] = []
+        pairs: list[tuple[IntArray, IntArray, IntArray]] = []
         for c in np.unique(counts):
             c = int(c)
             feats = np.flatnonzero(counts == c)
@@ -227,12 +248,24 @@ class SchurStructure:
                 f_hi = min(f_lo + step, int(feats[-1]) + 1)
                 lo, hi = int(starts[f_lo]), int(starts[f_hi])
                 blk = obs_block[lo:hi].reshape(f_hi - f_lo, c)
-                keys = [_pair_key(blk[:, :c - delta], blk[:, delta:], n_blocks).reshape(-1)
-                        for delta in range(1, c)]
-                schur_keys.append((lo, hi, f_lo, f_hi, c, keys))
+                feat_chunks.append(_FeatChunk(lo, hi, f_lo, f_hi, c))
+                if f_hi - f_lo < LOOP_MIN_FEATURES:
+                    ta, tb = np.triu_indices(c)
+                    first = lo + c * np.arange(f_hi - f_lo)[:, None]
+                    ia, ib = (first + ta).reshape(-1), (first + tb).reshape(-1)
+                    keys = np.where(ia == ib, -2, _pair_key(obs_block[ia], obs_block[ib],
+                                                            n_blocks))
+                    pairs.append((ia, ib, keys))
+                    continue
+                fi = len(feat_chunks) - 1
+                tasks.append((fi, 0, blk.reshape(-1)))
+                tasks += [(fi, delta,
+                           _pair_key(blk[:, :c - delta], blk[:, delta:], n_blocks).reshape(-1))
+                          for delta in range(1, c)]
         all_keys = np.concatenate(
             [*obs_anchor_keys, *anchor_keys.values(),
-             *(k for *_, keys in schur_keys for k in keys), np.zeros(0, dtype=np.int64)])
+             *(k for _, delta, k in tasks if delta > 0), *(k for *_, k in pairs),
+             np.zeros(0, dtype=np.int64)])
         all_keys = all_keys[all_keys >= 0]
         dir_uniq, _ = _unique_inverse(all_keys, n_blocks * n_blocks)
         n_dir = dir_uniq.shape[0]
@@ -254,17 +287,38 @@ class SchurStructure:
             obs_chunks.append(_ObsChunk(
                 lo, hi, _aggregator(obs_block[lo:hi], n_blocks),
                 [_aggregator(_lookup(dir_uniq, k[lo:hi]), n_dir) for k in obs_anchor_keys]))
-        feat_chunks = [
-            _FeatChunk(lo, hi, f_lo, f_hi, c, _aggregator(obs_block[lo:hi], n_blocks),
-                       [_aggregator(_lookup(dir_uniq, k), n_dir) for k in keys])
-            for lo, hi, f_lo, f_hi, c, keys in schur_keys]
+        none = np.zeros(0, dtype=np.int64)
+        batches = []
+        batch: list[tuple[int, int, IntArray]] = []
+        rows = 0
+        for i, task in enumerate(tasks):
+            batch.append(task)
+            rows += task[2].shape[0]
+            if rows >= _SCHUR_BATCH or i == len(tasks) - 1:
+                targets = np.concatenate(
+                    [k if delta == 0 else np.where(k >= 0, n_blocks + _lookup(dir_uniq, k), -1)
+                     for _, delta, k in batch])
+                offsets = np.cumsum([0] + [k.shape[0] for *_, k in batch])[:-1]
+                batches.append(_SchurBatch(
+                    rows, [(fi, delta, int(off))
+                           for (fi, delta, _), off in zip(batch, offsets, strict=True)],
+                    none, none, _aggregator(targets, n_blocks + n_dir)))
+                batch, rows = [], 0
+        if pairs:
+            ia, ib, keys = (np.concatenate(x) for x in zip(*pairs, strict=True))
+            targets = np.where(keys == -2, obs_block[ia],
+                               np.where(keys >= 0, n_blocks + _lookup(dir_uniq, keys), -1))
+            for lo in range(0, ia.shape[0], _SCHUR_BATCH):
+                hi = min(lo + _SCHUR_BATCH, ia.shape[0])
+                batches.append(_SchurBatch(hi - lo, [], ia[lo:hi], ib[lo:hi],
+                                           _aggregator(targets[lo:hi], n_blocks + n_dir)))
         anchor_self = [_aggregator(anchor_block[:, s], n_blocks) for s in range(n_anchor)]
         anchor_cross = {st: _aggregator(_lookup(dir_uniq, k), n_dir)
                         for st, k in anchor_keys.items()}
         return cls(n_blocks, n_feats, n_dir, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
                    np.maximum(obs_block, 0), feat_idx, obs_block < 0, anchor_block,
-                   anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, fold_fwd,
-                   fold_bwd, np.flatnonzero(pair_rows == pair_cols))
+                   anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, batches,
+                   fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols))
 
     def fold(self, self_blocks: FloatArray, cross: FloatArray) -> FloatArray:
         """Return upper pair blocks (n_pairs, 6, 6) from per-block and directed-pair sums.
@@ -397,21 +451,30 @@ class ReducedSystemError(SolverError):
 def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -> FloatArray:
     """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks (n_pairs, 6, 6).
 
-    Block (a, b) of a feature is W_a (V^-1 W_b^T); V^-1 W^T is formed per feature group
-    with V^-1 broadcast over the group's observations (no gather).
+    Block (a, b) of a feature is W_a (V^-1 W_b^T); V^-1 W^T is formed per feature chunk with
+    V^-1 broadcast over the chunk's observations (no gather).
     """
     st = structure
-    self_blocks = np.zeros((st.n_blocks, 6, 6))
-    cross = np.zeros((st.n_dir, 6, 6))
-    for fc in st._feat_chunks:
-        n, c = fc.f_hi - fc.f_lo, fc.c
-        W_f = W[fc.lo:fc.hi].reshape(n, c, 6, 3)
-        Vi_Wt = V_inv[fc.f_lo:fc.f_hi, None] @ np.swapaxes(W_f, 2, 3)    # (n, c, 3, 6)
-        self_blocks += (fc.self_agg @ (W_f @ Vi_Wt).reshape(-1, 36)).reshape(-1, 6, 6)
-        for delta in range(1, c):
-            prod = W_f[:, :c - delta] @ Vi_Wt[:, delta:]          # blocks (a, a + delta)
-            cross += (fc.schur_aggs[delta - 1] @ prod.reshape(-1, 36)).reshape(-1, 6, 6)
-    return st.fold(self_blocks, cross)
+    nb = st.n_blocks
+    acc = np.zeros((nb + st.n_dir, 36))
+    cached = -1
+    for batch in st._schur_batches:
+        buf = np.empty((batch.n_rows, 6, 6))
+        for fi, delta, row in batch.tasks:
+            fc = st._feat_chunks[fi]
+            n, c = fc.f_hi - fc.f_lo, fc.c
+            if fi != cached:
+                W_f = W[fc.lo:fc.hi].reshape(n, c, 6, 3)
+                Vi_Wt = V_inv[fc.f_lo:fc.f_hi, None] @ np.swapaxes(W_f, 2, 3)  # (n, c, 3, 6)
+                cached = fi
+            out = buf[row:row + n * (c - delta)].reshape(n, c - delta, 6, 6)
+            np.matmul(W_f[:, :c - delta], Vi_Wt[:, delta:], out=out)     # (a, a + delta)
+        if batch.pair_a.size:
+            b = batch.pair_b
+            np.matmul(W[batch.pair_a], V_inv[st.w_feat[b]] @ np.swapaxes(W[b], 1, 2),
+                      out=buf[batch.n_rows - b.shape[0]:])
+        acc += batch.agg @ buf.reshape(-1, 36)
+    return st.fold(acc[:nb].reshape(nb, 6, 6), acc[nb:].reshape(-1, 6, 6))
 
 
 def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: FloatArray,

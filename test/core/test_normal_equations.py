@@ -53,11 +53,19 @@ def _model_and_features(problem, param: str, weighted: bool = False):
                          [('pmba', False), ('pmba', True), ('xyz', False), ('idp', False)])
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
 @pytest.mark.parametrize('tracks', ['full', 'uneven'])
+@pytest.mark.parametrize('schur_products', ['pairs', 'per_delta'])
 def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_limit: int,
-                                           tracks: str, monkeypatch: pytest.MonkeyPatch,
-                                           ) -> None:
-    """The Schur path (dense and sparse S) solves J^T J exactly; x^T H x equals |J x|^2."""
+                                           tracks: str, schur_products: str,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Schur path solves J^T J exactly; x^T H x equals |J x|^2.
+
+    Both ways of forming the Schur blocks (per pair, per delta) in small batches, and both
+    dense and sparse S.
+    """
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
+    if schur_products == 'per_delta':
+        monkeypatch.setattr(ne, 'LOOP_MIN_FEATURES', 1)
+    monkeypatch.setattr(ne, '_SCHUR_BATCH', 37)
     problem = forward_problem(6, n_cams=5, n_points=25)
     if tracks == 'uneven':
         problem = _uneven_tracks(problem)
