@@ -43,6 +43,9 @@ _SCHUR_BATCH = 4096
 #: Feature chunks with fewer features form their Schur blocks pair by pair (gathers) rather
 #: than in one product per delta (Python calls).
 LOOP_MIN_FEATURES = 64
+#: Dense Schur products when they take fewer multiply-adds than this many times the per-pair
+#: ones (measured: a 20-pose, 363-feature window takes 0.9 ms dense, 4.3 ms per pair).
+DENSE_SCHUR_RATIO = 5000
 #: Above this many free pose columns the reduced system is solved as a sparse matrix.
 DENSE_LIMIT = 6000
 
@@ -173,6 +176,7 @@ class SchurStructure:
     _obs_chunks: list[_ObsChunk]
     _feat_chunks: list[_FeatChunk]
     _schur_batches: list[_SchurBatch]
+    _dense_schur: bool
     _fold_fwd: IntArray       # directed pair (row, col) of each upper pair, or n_dir (zero)
     _fold_bwd: IntArray       # directed pair (col, row), or n_dir
     _diag_pairs: IntArray
@@ -235,8 +239,19 @@ class SchurStructure:
                            for s in range(n_anchor)]
         anchor_keys = {(s, t): _pair_key(anchor_block[:, s], anchor_block[:, t], n_blocks)
                        for s in range(n_anchor) for t in range(s + 1, n_anchor)}
-        # Schur blocks (a, a + delta) of each chunk of features with c observations: one
-        # product per delta for chunks of many features, one per pair for the others.
+        # Small problems form W V^-1 W^T as one dense product over all pose columns (a few
+        # BLAS calls); it pays when (6 n_blocks)^2 3 N multiply-adds cost less than the
+        # per-pair products (about DENSE_SCHUR_RATIO times more per multiply-add in numpy).
+        n_schur_pairs = int(np.sum(counts * (counts + 1) // 2))
+        dense = ((6 * n_blocks) ** 2 * 3 * n_feats < DENSE_SCHUR_RATIO * n_schur_pairs
+                 and 18 * n_feats * n_blocks <= 4_000_000)
+        if dense:
+            own = obs_block >= 0
+            keys = feat_idx[own] * n_blocks + obs_block[own]
+            dense = np.unique(keys).shape[0] == keys.shape[0]  # one W block per (j, pose)
+        # Otherwise the Schur blocks (a, a + delta) of each chunk of features with c
+        # observations: one product per delta for chunks of many features, one per pair
+        # for the others.
         feat_chunks: list[_FeatChunk] = []
         tasks: list[tuple[int, int, IntArray]] = []
         pairs: list[tuple[IntArray, IntArray, IntArray]] = []
@@ -249,6 +264,8 @@ class SchurStructure:
                 lo, hi = int(starts[f_lo]), int(starts[f_hi])
                 blk = obs_block[lo:hi].reshape(f_hi - f_lo, c)
                 feat_chunks.append(_FeatChunk(lo, hi, f_lo, f_hi, c))
+                if dense:
+                    continue
                 if f_hi - f_lo < LOOP_MIN_FEATURES:
                     ta, tb = np.triu_indices(c)
                     first = lo + c * np.arange(f_hi - f_lo)[:, None]
@@ -274,6 +291,9 @@ class SchurStructure:
         a, b = dir_uniq // n_blocks, dir_uniq % n_blocks
         pair_keys = np.concatenate([np.minimum(a, b) * n_blocks + np.maximum(a, b),
                                     np.arange(n_blocks) * (n_blocks + 1)])
+        if dense:
+            upper_r, upper_c = np.triu_indices(n_blocks)
+            pair_keys = upper_r * n_blocks + upper_c
         pair_uniq, _ = _unique_inverse(pair_keys, n_blocks * n_blocks)
         pair_rows, pair_cols = pair_uniq // n_blocks, pair_uniq % n_blocks
 
@@ -318,7 +338,7 @@ class SchurStructure:
         return cls(n_blocks, n_feats, n_dir, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
                    np.maximum(obs_block, 0), feat_idx, obs_block < 0, anchor_block,
                    anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, batches,
-                   fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols))
+                   dense, fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols))
 
     def fold(self, self_blocks: FloatArray, cross: FloatArray) -> FloatArray:
         """Return upper pair blocks (n_pairs, 6, 6) from per-block and directed-pair sums.
@@ -456,6 +476,14 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
     """
     st = structure
     nb = st.n_blocks
+    if st._dense_schur:
+        own = ~st._obs_fixed
+        Wd = np.zeros((st.n_feats, 3, nb, 6))        # W^T of every feature, all pose columns
+        Wd[st.w_feat[own], :, st.w_block[own], :] = np.swapaxes(W[own], 1, 2)
+        flat = Wd.reshape(st.n_feats * 3, 6 * nb)
+        Y = (V_inv @ Wd.reshape(st.n_feats, 3, 6 * nb)).reshape(st.n_feats * 3, 6 * nb)
+        S = (flat.T @ Y).reshape(nb, 6, nb, 6)
+        return S[st.pair_rows, :, st.pair_cols, :]
     acc = np.zeros((nb + st.n_dir, 36))
     cached = -1
     for batch in st._schur_batches:

@@ -53,16 +53,18 @@ def _model_and_features(problem, param: str, weighted: bool = False):
                          [('pmba', False), ('pmba', True), ('xyz', False), ('idp', False)])
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
 @pytest.mark.parametrize('tracks', ['full', 'uneven'])
-@pytest.mark.parametrize('schur_products', ['pairs', 'per_delta'])
+@pytest.mark.parametrize('schur_products', ['dense', 'pairs', 'per_delta'])
 def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_limit: int,
                                            tracks: str, schur_products: str,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """The Schur path solves J^T J exactly; x^T H x equals |J x|^2.
 
-    Both ways of forming the Schur blocks (per pair, per delta) in small batches, and both
-    dense and sparse S.
+    Every way of forming W V^-1 W^T (one dense product; per pair or per delta, in small
+    batches), and both a dense and a sparse reduced system.
     """
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
+    if schur_products != 'dense':
+        monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
     if schur_products == 'per_delta':
         monkeypatch.setattr(ne, 'LOOP_MIN_FEATURES', 1)
     monkeypatch.setattr(ne, '_SCHUR_BATCH', 37)
@@ -79,6 +81,7 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
     slots = model.slots(feats)
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
                                  problem.n_feats, free_block, model.anchor_cols)
+    assert st._dense_schur == (schur_products == 'dense')
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
     r, Jp, Jf = lin.residuals, lin.J_pose(), lin.J_feat
     eqs = ne.assemble(st, lin)
