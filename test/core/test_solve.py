@@ -119,22 +119,19 @@ def _h_ff_condition(problem, options: SolveOptions, iterations: int) -> float:
     return float(ev.max() / ev.min())
 
 
-def test_table3_pmba_feature_block_stays_well_conditioned() -> None:
+@pytest.mark.parametrize('pixel_weighted', [False, True])
+def test_table3_pmba_feature_block_stays_well_conditioned(pixel_weighted: bool) -> None:
     """Paper Table 3: PMBA's cond(H_FF) stays below 100, XYZ's exceeds 1e6 every iteration.
 
-    PMBA is checked at the start, at the solution and in most iterations: a nearly collinear
-    feature whose parallax changes sign passes through infinity and can briefly put its point
-    on the line of cameras, where one observer's |N| -> 0 (a transient spike, measured and
-    reported in the notes).
+    (Other seeds of the generator can drive the collinear feature through infinity onto a
+    camera centre, where that observer's |N| -> 0; see the issue notes.)
     """
     scene = table3_scene(seed=0, rot_noise_deg=0.5, pos_noise_m=0.02, point_noise_rel=0.05)
-    pmba = SolveOptions(param='pmba', solver='dogleg', pixel_weighted=False)
+    pmba = SolveOptions(param='pmba', solver='dogleg', pixel_weighted=pixel_weighted)
     xyz = SolveOptions(param='xyz', solver='lm')
     n_iter = solve(scene.start, pmba).iterations
     conds = [_h_ff_condition(scene.start, pmba, k) for k in range(n_iter + 1)]
-    assert conds[0] < 100.0 and conds[-1] < 100.0
-    assert np.median(conds) < 100.0
-    assert np.mean(np.array(conds) < 100.0) >= 0.8
+    assert max(conds) < 100.0, conds
     for k in range(5):
         assert _h_ff_condition(scene.start, xyz, k) > 1e6
 
