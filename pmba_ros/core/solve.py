@@ -347,8 +347,10 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     """
     options = options or SolveOptions()
     t0 = time.perf_counter()
+    _check_not_empty(problem)
     if features is None:
         problem, features = initial_features(problem, options.param)
+        _check_not_empty(problem)
     _check_features(problem, features, options.param)
     # The normal equations want features ordered by their number of observations; the
     # solve runs on that order and the result is returned in the caller's.
@@ -511,6 +513,15 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
     norm = math.sqrt(float(np.sum(lin.gn[0] ** 2) + np.sum(lin.gn[1] ** 2)))
     shrink = min(1.0, radius / norm) if norm > 0 else 1.0
     return lin.gn[0] * shrink, lin.gn[1] * shrink, solves
+
+
+def _check_not_empty(problem: BAProblem) -> None:
+    """Raise ProblemError if no feature is left to solve for (all were dropped)."""
+    if problem.n_feats == 0 or problem.n_obs == 0:
+        dropped = ', '.join(f'{k}: {v}' for k, v in problem.dropped.items()) or 'none'
+        msg = ('nothing to solve: no feature is seen by two or more cameras '
+               f'(dropped: {dropped})')
+        raise ProblemError(msg)
 
 
 def _check_features(problem: BAProblem, feats: Features, param: Parameterization) -> None:

@@ -15,7 +15,7 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.models import ParallaxModel, make_model
 from pmba_ros.core.problem import XyzFeatures, make_problem
 from pmba_ros.core.solve import SolveOptions, solve
-from pmba_ros.errors import SolverError
+from pmba_ros.errors import ProblemError, SolverError
 from pmba_ros.sim.scenes import street_scene, table3_scene
 
 from ..conftest import shared_file
@@ -197,6 +197,19 @@ def test_non_finite_start_is_a_clear_error() -> None:
                            points_w=X)
     with pytest.raises(SolverError, match='not finite at the initial point'):
         solve(problem, SolveOptions(param='xyz'))
+
+
+@pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])
+def test_problem_with_no_feature_left_is_a_clear_error(param: str) -> None:
+    """Every feature seen once (all dropped): ProblemError naming why, not an index error."""
+    R = np.broadcast_to(np.eye(3), (2, 3, 3)).copy()
+    P = np.array([[0.0, 0, 0], [1, 0, 0]])
+    problem = make_problem(R, P, Intrinsics.uniform(2, 500, 500, 320, 240), np.array([0, 1]),
+                           np.array([0, 1]), np.full((2, 2), 250.0),
+                           points_w=np.array([[0.0, 0, 5], [1, 0, 5]]))
+    assert problem.n_feats == 0
+    with pytest.raises(ProblemError, match=r'nothing to solve.*single_observation_features'):
+        solve(problem, SolveOptions(param=param))
 
 
 def test_progress_callback_sees_every_iteration() -> None:
