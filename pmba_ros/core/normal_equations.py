@@ -16,11 +16,15 @@ the anchor rows of J^T J are summed per feature, by one (c d x A) product per fe
 observations, and only the observer rows are formed per observation. Features are ordered by
 their number of observations (see :func:`feature_order`), so the features with c
 observations hold a contiguous range of observations and every per-feature product is a
-reshape, never a gather. The Schur complement forms each feature's W V^-1 W^T blocks for
-observation pairs (a, a + delta) only, a <= b, and the blocks of both orders of a pose pair
-meet in a final fold. Every index array that depends only on the structure is built once in
-:class:`SchurStructure`; each iteration fills values, with no Python loop over observations
-(scatter-adds are sparse products with 0/1 matrices).
+reshape, never a gather.
+
+The Schur complement forms each feature's W V^-1 W^T blocks for observation pairs (a, b),
+a <= b, only: one product per offset b - a for chunks of many features, one per pair for
+small chunks, in cache-sized batches; the blocks of both orders of a pose pair meet in a
+final fold. Small problems (few poses) instead take one dense product over all pose columns,
+whichever needs fewer multiply-adds. Every index array that depends only on the structure is
+built once in :class:`SchurStructure`; each iteration fills values, with no Python loop over
+observations (scatter-adds are sparse products with 0/1 matrices).
 """
 
 from __future__ import annotations
