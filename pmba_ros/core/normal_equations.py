@@ -144,6 +144,66 @@ class _SchurBatch:
     agg: scipy.sparse.csr_matrix
 
 
+def _anchors(cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, starts: IntArray,
+             ) -> tuple[IntArray, IntArray]:
+    """Return each feature's anchor poses (N, S - 1) and its observation by each, or -1.
+
+    An anchor slot names one pose per feature; unused entries are -1, so it is the maximum.
+    """
+    n_feats, n_anchor = starts.shape[0] - 1, slot_pose.shape[1] - 1
+    anchor_pose = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+    anchor_obs = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+    for s in range(n_anchor):
+        col = slot_pose[:, s + 1]
+        anchor_pose[:, s] = np.maximum.reduceat(col, starts[:-1])
+        per_obs = anchor_pose[feat_idx, s]
+        if np.any((col >= 0) & (col != per_obs)):
+            msg = f'anchor slot {s + 1} names different poses within one feature'
+            raise SolverError(msg)
+        hit = np.flatnonzero(cam_idx == per_obs)
+        anchor_obs[feat_idx[hit], s] = hit
+        if np.any((anchor_pose[:, s] >= 0) & (anchor_obs[:, s] < 0)):
+            msg = f'anchor slot {s + 1}: an anchor pose does not observe its feature'
+            raise SolverError(msg)
+    return anchor_pose, anchor_obs
+
+
+def _batches(tasks: list[tuple[int, int, IntArray]],
+             pairs: list[tuple[IntArray, IntArray, IntArray]], obs_block: IntArray,
+             dir_uniq: IntArray, n_blocks: int) -> list[_SchurBatch]:
+    """Group the Schur products into batches of about _SCHUR_BATCH blocks, one aggregator each.
+
+    Tasks are (chunk, delta, pair keys) and pairs (a rows, b rows, keys; -2 where a = b).
+    """
+    n_rows = n_blocks + dir_uniq.shape[0]
+    none = np.zeros(0, dtype=np.int64)
+    batches = []
+    batch: list[tuple[int, int, IntArray]] = []
+    rows = 0
+    for i, task in enumerate(tasks):
+        batch.append(task)
+        rows += task[2].shape[0]
+        if rows >= _SCHUR_BATCH or i == len(tasks) - 1:
+            targets = np.concatenate(
+                [k if delta == 0 else np.where(k >= 0, n_blocks + _lookup(dir_uniq, k), -1)
+                 for _, delta, k in batch])
+            offsets = np.cumsum([0] + [k.shape[0] for *_, k in batch])[:-1]
+            batches.append(_SchurBatch(
+                rows, [(fi, delta, int(off))
+                       for (fi, delta, _), off in zip(batch, offsets, strict=True)],
+                none, none, _aggregator(targets, n_rows)))
+            batch, rows = [], 0
+    if pairs:
+        ia, ib, keys = (np.concatenate(x) for x in zip(*pairs, strict=True))
+        targets = np.where(keys == -2, obs_block[ia],
+                           np.where(keys >= 0, n_blocks + _lookup(dir_uniq, keys), -1))
+        for lo in range(0, ia.shape[0], _SCHUR_BATCH):
+            hi = min(lo + _SCHUR_BATCH, ia.shape[0])
+            batches.append(_SchurBatch(hi - lo, [], ia[lo:hi], ib[lo:hi],
+                                       _aggregator(targets[lo:hi], n_rows)))
+    return batches
+
+
 @dataclass(frozen=True, eq=False)
 class SchurStructure:
     """Index structure of the normal equations, fixed during a solve.
@@ -220,22 +280,8 @@ class SchurStructure:
         starts = np.concatenate([[0], np.cumsum(counts)])
         obs_block = free_block[cam_idx]
 
-        # Anchors: one pose per feature and slot (the maximum, since unused entries are -1).
         n_anchor = S - 1
-        anchor_pose = np.full((n_feats, n_anchor), -1, dtype=np.int64)
-        anchor_obs = np.full((n_feats, n_anchor), -1, dtype=np.int64)
-        for s in range(n_anchor):
-            col = slot_pose[:, s + 1]
-            anchor_pose[:, s] = np.maximum.reduceat(col, starts[:-1])
-            per_obs = anchor_pose[feat_idx, s]
-            if np.any((col >= 0) & (col != per_obs)):
-                msg = f'anchor slot {s + 1} names different poses within one feature'
-                raise SolverError(msg)
-            hit = np.flatnonzero(cam_idx == per_obs)
-            anchor_obs[feat_idx[hit], s] = hit
-            if np.any((anchor_pose[:, s] >= 0) & (anchor_obs[:, s] < 0)):
-                msg = f'anchor slot {s + 1}: an anchor pose does not observe its feature'
-                raise SolverError(msg)
+        anchor_pose, anchor_obs = _anchors(cam_idx, feat_idx, slot_pose, starts)
         anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
 
         # Directed block pairs: observer-anchor, anchor-anchor and Schur (a, a + delta).
@@ -311,31 +357,7 @@ class SchurStructure:
             obs_chunks.append(_ObsChunk(
                 lo, hi, _aggregator(obs_block[lo:hi], n_blocks),
                 [_aggregator(_lookup(dir_uniq, k[lo:hi]), n_dir) for k in obs_anchor_keys]))
-        none = np.zeros(0, dtype=np.int64)
-        batches = []
-        batch: list[tuple[int, int, IntArray]] = []
-        rows = 0
-        for i, task in enumerate(tasks):
-            batch.append(task)
-            rows += task[2].shape[0]
-            if rows >= _SCHUR_BATCH or i == len(tasks) - 1:
-                targets = np.concatenate(
-                    [k if delta == 0 else np.where(k >= 0, n_blocks + _lookup(dir_uniq, k), -1)
-                     for _, delta, k in batch])
-                offsets = np.cumsum([0] + [k.shape[0] for *_, k in batch])[:-1]
-                batches.append(_SchurBatch(
-                    rows, [(fi, delta, int(off))
-                           for (fi, delta, _), off in zip(batch, offsets, strict=True)],
-                    none, none, _aggregator(targets, n_blocks + n_dir)))
-                batch, rows = [], 0
-        if pairs:
-            ia, ib, keys = (np.concatenate(x) for x in zip(*pairs, strict=True))
-            targets = np.where(keys == -2, obs_block[ia],
-                               np.where(keys >= 0, n_blocks + _lookup(dir_uniq, keys), -1))
-            for lo in range(0, ia.shape[0], _SCHUR_BATCH):
-                hi = min(lo + _SCHUR_BATCH, ia.shape[0])
-                batches.append(_SchurBatch(hi - lo, [], ia[lo:hi], ib[lo:hi],
-                                           _aggregator(targets[lo:hi], n_blocks + n_dir)))
+        batches = _batches(tasks, pairs, obs_block, dir_uniq, n_blocks)
         anchor_self = [_aggregator(anchor_block[:, s], n_blocks) for s in range(n_anchor)]
         anchor_cross = {st: _aggregator(_lookup(dir_uniq, k), n_dir)
                         for st, k in anchor_keys.items()}
