@@ -105,6 +105,46 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
                                rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])
+@pytest.mark.parametrize('schur_products', ['dense', 'pairs', 'per_delta'])
+@pytest.mark.parametrize('seed', [1, 2])
+def test_schur_with_fixed_poses_equals_dense_solve(param: str, schur_products: str, seed: int,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Poses held fixed (anchors and observers alike), as the sliding window does."""
+    if schur_products != 'dense':
+        monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
+    if schur_products == 'per_delta':
+        monkeypatch.setattr(ne, 'LOOP_MIN_FEATURES', 1)
+    monkeypatch.setattr(ne, '_SCHUR_BATCH', 29)
+    base = forward_problem(seed, n_cams=7, n_points=30)
+    rng = np.random.default_rng(seed)
+    keep = rng.random(base.n_obs) < 0.7
+    problem = make_problem(base.R_wc, base.centers_w, base.intrinsics, base.obs.cam_idx[keep],
+                           base.obs.feat_idx[keep], base.obs.pixels[keep],
+                           points_w=base.points_w)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, param, weighted=param == 'pmba')
+    fixed = rng.permutation(7)[:3]
+    free_block = np.full(7, -1)
+    free_block[np.setdiff1d(np.arange(7), fixed)] = np.arange(4)
+    slots = model.slots(feats)
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
+                                 problem.n_feats, free_block, model.anchor_cols)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    eqs = ne.assemble(st, lin)
+    damp_p = np.full((st.n_blocks, 6), 1e-3)
+    damp_f = np.full((problem.n_feats, 3), 1e-3)
+    x_p, x_f = ne.solve_schur(st, eqs, damp_p, damp_f, np.ones((st.n_blocks, 6), dtype=bool))
+    slot_block = np.where(slots >= 0, free_block[np.maximum(slots, 0)], -1)
+    J = _dense_jacobian(lin.J_pose(), lin.J_feat, slot_block, problem.obs.feat_idx,
+                        st.n_blocks, problem.n_feats)
+    H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
+    x = np.linalg.solve(H, -J.T @ lin.residuals.ravel())
+    np.testing.assert_allclose(np.concatenate([x_p.ravel(), x_f.ravel()]), x,
+                               rtol=1e-6, atol=1e-9)
+
+
 def test_structure_rejects_unordered_features() -> None:
     """Observations whose features are not ordered by track length are refused."""
     problem = _uneven_tracks(forward_problem(6, n_cams=5, n_points=25))
