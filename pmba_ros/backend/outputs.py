@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend.tracks import LAYOUTS, POINTFIELD_DTYPES
-from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.backend.types import CameraModel, TrackFrame, float_rows
 from pmba_ros.errors import MessageError
 
 DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
@@ -218,10 +218,7 @@ def _vec(value: ArrayLike, n: int, what: str) -> FloatArray:
 
 def _rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
     """Return ``value`` as a finite (N, n_cols) float64 array."""
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != n_cols:
-        msg = f'{what}: expected shape (N, {n_cols}), got {arr.shape}'
-        raise MessageError(msg)
+    arr = float_rows(value, n_cols, what)
     if not np.all(np.isfinite(arr)):
         msg = f'{what}: non-finite values'
         raise MessageError(msg)
@@ -531,10 +528,7 @@ def make_point_cloud(stamp_ns: int, frame_id: str, points: ArrayLike,
     Raises:
         MessageError: If ``points`` is not (N, 3).
     """
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        msg = f'make_point_cloud: points must have shape (N, 3), got {pts.shape}'
-        raise MessageError(msg)
+    pts = float_rows(points, 3, 'make_point_cloud: points')
     point_type = backend.msg_class('geometry_msgs/msg/Point32')
     point_msgs = [point_type(x=x, y=y, z=z) for x, y, z in pts.tolist()]
     channel_msgs = [backend.new('sensor_msgs/msg/ChannelFloat32', name=str(name),
@@ -610,10 +604,7 @@ def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
     Raises:
         MessageError: If ``points`` is not (N, 3).
     """
-    pts = np.asarray(points, dtype=np.float32)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        msg = f'make_point_cloud2_xyz: points must have shape (N, 3), got {pts.shape}'
-        raise MessageError(msg)
+    pts = float_rows(points, 3, 'make_point_cloud2_xyz: points').astype(np.float32)
     return make_point_cloud2_named(stamp_ns, frame_id,
                                    {'x': pts[:, 0], 'y': pts[:, 1], 'z': pts[:, 2]}, backend)
 

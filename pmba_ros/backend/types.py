@@ -49,6 +49,15 @@ def _frozen_array(value: Any, dtype: type, shape_tail: tuple[int, ...], what: st
     return arr
 
 
+def float_rows(value: Any, n_cols: int, what: str, rows: str = 'N') -> FloatArray:
+    """Return ``value`` as a float64 array of shape (rows, n_cols); MessageError if not."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != n_cols:
+        msg = f'{what}: expected shape ({rows}, {n_cols}), got {arr.shape}'
+        raise MessageError(msg)
+    return arr
+
+
 @dataclass(frozen=True, eq=False)
 class TrackFrame:
     """Feature observations of one front-end frame.
@@ -284,10 +293,7 @@ class CameraModel:
         Raises:
             MessageError: If ``pixels`` is not (K, 2).
         """
-        px = np.asarray(pixels, dtype=np.float64)
-        if px.ndim != 2 or px.shape[1] != 2:
-            msg = f'normalize: pixels must have shape (K, 2), got {px.shape}'
-            raise MessageError(msg)
+        px = float_rows(pixels, 2, 'normalize: pixels', 'K')
         xy_d = np.stack([(px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy], 1)
         if self.distortion_model == 'plumb_bob' and np.any(self.d):
             return _undistort_plumb_bob(xy_d, self.d)
@@ -308,10 +314,7 @@ class CameraModel:
         Raises:
             MessageError: If ``normalized`` is not (K, 2).
         """
-        xy = np.asarray(normalized, dtype=np.float64)
-        if xy.ndim != 2 or xy.shape[1] != 2:
-            msg = f'denormalize: normalized must have shape (K, 2), got {xy.shape}'
-            raise MessageError(msg)
+        xy = float_rows(normalized, 2, 'denormalize: normalized', 'K')
         if self.distortion_model == 'plumb_bob':
             xy_d = _distort_plumb_bob(xy, self.d)
         elif self.distortion_model == 'equidistant':

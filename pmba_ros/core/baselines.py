@@ -33,9 +33,11 @@ def pixel_errors(h_c: FloatArray, obs: Observations, intr: Intrinsics) -> FloatA
 
 
 def xyz_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
-                  obs: Observations, intr: Intrinsics) -> Linearization:
-    """Pixel errors and Jacobian of XYZ-BA (no anchor slots)."""
-    h = xyz_camera_rays(R_wc, centers_w, feats, obs)
+                  obs: Observations, intr: Intrinsics, h: FloatArray | None = None,
+                  ) -> Linearization:
+    """Pixel errors and Jacobian of XYZ-BA (no anchor slots); h: the camera rays, if known."""
+    if h is None:
+        h = xyz_camera_rays(R_wc, centers_w, feats, obs)
     pix, J_h = projection_jacobian(h, intr, obs.cam_idx)
     lin = Linearization.empty(h.shape[0], 2)
     E = lin.rows
@@ -75,12 +77,17 @@ def idp_slots(feats: IdpFeatures, obs: Observations) -> IntArray:
 
 
 def idp_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
-                  obs: Observations, intr: Intrinsics) -> Linearization:
-    """Pixel errors and Jacobian of IDP-BA, anchor slot h with all six columns."""
+                  obs: Observations, intr: Intrinsics, h: FloatArray | None = None,
+                  ) -> Linearization:
+    """Pixel errors and Jacobian of IDP-BA, anchor slot h with all six columns.
+
+    h: the camera rays of :func:`idp_camera_rays`, if known.
+    """
     j = obs.feat_idx
     h_idx = feats.anchor_idx[j]
     rho = feats.rho[j]
-    h = idp_camera_rays(R_wc, centers_w, feats, obs)
+    if h is None:
+        h = idp_camera_rays(R_wc, centers_w, feats, obs)
     pix, J_h = projection_jacobian(h, intr, obs.cam_idx)
     R_i_T = np.swapaxes(R_wc[obs.cam_idx], 1, 2)
     R_h = R_wc[h_idx]

@@ -43,12 +43,10 @@ class Model(ABC, Generic[F]):
 
     Attributes:
         pixel_residuals: True if residuals are pixels (False: unit-ray chordal errors).
-        exact_pixel_residuals: True if residuals are the reprojection errors themselves.
         anchor_cols: Pose columns (start, stop) that each anchor slot (slot 1, 2, ...) touches.
     """
 
     pixel_residuals: bool
-    exact_pixel_residuals = False
     anchor_cols: tuple[tuple[int, int], ...] = ()
 
     def __init__(self, problem: BAProblem) -> None:
@@ -87,8 +85,6 @@ class Model(ABC, Generic[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
-        if self.exact_pixel_residuals:
-            return np.linalg.norm(evaluation.residuals, axis=1)
         pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
         return np.linalg.norm(pix - self.obs.pixels, axis=1)
 
@@ -126,15 +122,13 @@ class ParallaxModel(Model[ParallaxFeatures]):
 
     def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
                  feats: ParallaxFeatures) -> Evaluation:
-        """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T N_ji."""
+        """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
         geo = residuals.observation_rays(R_wc, centers_w, feats, self.obs)
-        rays_c = residuals.camera_rays_from(geo, R_wc, feats, self.obs)
+        rays_c = residuals.camera_rays_from(geo, R_wc, self.obs)
         if self._weights is None:
-            res = residuals.residuals_from(geo, R_wc, feats, self.obs)
-        else:
-            norm = np.maximum(np.linalg.norm(rays_c, axis=1, keepdims=True), 1e-300)
-            local = rays_c / norm - self.obs.bearings_c         # R_i^T xi(N) - v
-            res = np.einsum('kij,kj->ki', self._weights, local)
+            res = residuals.residuals_from(geo, R_wc, self.obs)
+        else:                                              # weights (R_i^T xi(N) - v)
+            res = np.einsum('kij,kj->ki', self._weights, rays_c - self.obs.bearings_c)
         return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -153,28 +147,44 @@ class ParallaxModel(Model[ParallaxFeatures]):
         return float(np.sum(feats.theta ** 2) + feats.n.shape[0])
 
 
-class XyzModel(Model[XyzFeatures]):
-    """XYZ-BA: Euclidean points, pixel errors."""
+class _PixelErrorModel(Model[F]):
+    """A parameterization whose residual is the reprojection error pi(h) - (u, v) itself."""
 
     pixel_residuals = True
-    exact_pixel_residuals = True
+
+    @abstractmethod
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:
+        """Return each observation's predicted direction in its camera frame, shape (K, 3)."""
+
+    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> Evaluation:
+        """Return pixel errors (K, 2) and the camera rays they project."""
+        h = self.camera_rays(R_wc, centers_w, feats)
+        return Evaluation(baselines.pixel_errors(h, self.obs, self.problem.intrinsics), h)
+
+    def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
+        """Return the residual norms: they are the reprojection errors."""
+        return np.linalg.norm(evaluation.residuals, axis=1)
+
+
+class XyzModel(_PixelErrorModel[XyzFeatures]):
+    """XYZ-BA: Euclidean points, pixel errors."""
 
     def slots(self, feats: XyzFeatures) -> IntArray:
         """Return slot (i)."""
         return baselines.xyz_slots(self.obs)
 
-    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
-                 feats: XyzFeatures) -> Evaluation:
-        """Return pixel errors (K, 2) and R_i^T (X - P_i)."""
-        h = baselines.xyz_camera_rays(R_wc, centers_w, feats, self.obs)
-        return Evaluation(baselines.pixel_errors(h, self.obs, self.problem.intrinsics), h)
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
+                    feats: XyzFeatures) -> FloatArray:
+        """Return R_i^T (X - P_i)."""
+        return baselines.xyz_camera_rays(R_wc, centers_w, feats, self.obs)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
                   evaluation: Evaluation | None = None,
                   ) -> Linearization:
         """Return pixel errors and Jacobians."""
+        h = evaluation.rays_c if evaluation is not None else None
         return baselines.xyz_jacobians(R_wc, centers_w, feats, self.obs,
-                                       self.problem.intrinsics)
+                                       self.problem.intrinsics, h)
 
     def retract(self, feats: XyzFeatures, delta: FloatArray) -> XyzFeatures:
         """Return X + dX."""
@@ -185,29 +195,27 @@ class XyzModel(Model[XyzFeatures]):
         return float(np.sum(feats.points_w ** 2))
 
 
-class IdpModel(Model[IdpFeatures]):
+class IdpModel(_PixelErrorModel[IdpFeatures]):
     """IDP-BA: inverse depth from the first observing camera, pixel errors."""
 
-    pixel_residuals = True
-    exact_pixel_residuals = True
     anchor_cols = baselines.IDP_ANCHOR_COLS
 
     def slots(self, feats: IdpFeatures) -> IntArray:
         """Return the observer and anchor pose of each observation."""
         return baselines.idp_slots(feats, self.obs)
 
-    def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
-                 feats: IdpFeatures) -> Evaluation:
-        """Return pixel errors (K, 2) and R_i^T (R_h m + rho (P_h - P_i))."""
-        h = baselines.idp_camera_rays(R_wc, centers_w, feats, self.obs)
-        return Evaluation(baselines.pixel_errors(h, self.obs, self.problem.intrinsics), h)
+    def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray,
+                    feats: IdpFeatures) -> FloatArray:
+        """Return R_i^T (R_h m + rho (P_h - P_i))."""
+        return baselines.idp_camera_rays(R_wc, centers_w, feats, self.obs)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
                   evaluation: Evaluation | None = None,
                   ) -> Linearization:
         """Return pixel errors and Jacobians."""
+        h = evaluation.rays_c if evaluation is not None else None
         return baselines.idp_jacobians(R_wc, centers_w, feats, self.obs,
-                                       self.problem.intrinsics)
+                                       self.problem.intrinsics, h)
 
     def retract(self, feats: IdpFeatures, delta: FloatArray) -> IdpFeatures:
         """Return (a, b, rho) + delta."""

@@ -215,12 +215,12 @@ class SchurStructure:
         n_blocks: Number of free pose blocks (6 columns each).
         n_feats: Number of features.
         n_dir: Number of directed block pairs (a, b) that receive off-diagonal sums.
-        feat_idx: Feature of each observation, shape (K,).
+        feat_idx: Feature of each observation (and of its W block), shape (K,).
         anchor_cols: Pose columns (start, stop) of each anchor slot.
         pair_rows, pair_cols: Covisible block pairs, upper triangle (row <= col) incl. the
             diagonal: S is symmetric and its lower blocks are the transposes.
-        w_block, w_feat: Block and feature of each W block (one per observation: the block of
-            its observer, 0 with a zero W block if that pose is fixed), shape (K,).
+        w_block: Pose block of each W block (one per observation: the block of its observer,
+            0 with a zero W block if that pose is fixed), shape (K,).
     """
 
     n_blocks: int
@@ -231,7 +231,6 @@ class SchurStructure:
     pair_rows: IntArray
     pair_cols: IntArray
     w_block: IntArray
-    w_feat: IntArray
     _obs_fixed: BoolArray
     _anchor_block: IntArray   # (N, S - 1)
     _anchor_obs: IntArray     # (N, S - 1) observation of the feature by each anchor, or -1
@@ -362,7 +361,7 @@ class SchurStructure:
         anchor_cross = {st: _aggregator(_lookup(dir_uniq, k), n_dir)
                         for st, k in anchor_keys.items()}
         return cls(n_blocks, n_feats, n_dir, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
-                   np.maximum(obs_block, 0), feat_idx, obs_block < 0, anchor_block,
+                   np.maximum(obs_block, 0), obs_block < 0, anchor_block,
                    anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, batches,
                    dense, fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols))
 
@@ -483,7 +482,7 @@ def scale(structure: SchurStructure, eqs: NormalEquations, c_pose: FloatArray,
     cp_c = c_pose[structure.pair_cols]
     W = eqs.W
     W *= c_pose[structure.w_block][:, :, None]
-    W *= c_feat[structure.w_feat][:, None, :]
+    W *= c_feat[structure.feat_idx][:, None, :]
     return NormalEquations(
         eqs.U * cp_r[:, :, None] * cp_c[:, None, :], W,
         eqs.V * c_feat[:, :, None] * c_feat[:, None, :],
@@ -505,7 +504,7 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
     if st._dense_schur:
         own = ~st._obs_fixed
         Wd = np.zeros((st.n_feats, 3, nb, 6))        # W^T of every feature, all pose columns
-        Wd[st.w_feat[own], :, st.w_block[own], :] = np.swapaxes(W[own], 1, 2)
+        Wd[st.feat_idx[own], :, st.w_block[own], :] = np.swapaxes(W[own], 1, 2)
         flat = Wd.reshape(st.n_feats * 3, 6 * nb)
         Y = (V_inv @ Wd.reshape(st.n_feats, 3, 6 * nb)).reshape(st.n_feats * 3, 6 * nb)
         S = (flat.T @ Y).reshape(nb, 6, nb, 6)
@@ -525,7 +524,7 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
             np.matmul(W_f[:, :c - delta], Vi_Wt[:, delta:], out=out)     # (a, a + delta)
         if batch.pair_a.size:
             b = batch.pair_b
-            np.matmul(W[batch.pair_a], V_inv[st.w_feat[b]] @ np.swapaxes(W[b], 1, 2),
+            np.matmul(W[batch.pair_a], V_inv[st.feat_idx[b]] @ np.swapaxes(W[b], 1, 2),
                       out=buf[batch.n_rows - b.shape[0]:])
         acc += batch.agg @ buf.reshape(-1, 36)
     return st.fold(acc[:nb].reshape(nb, 6, 6), acc[nb:].reshape(-1, 6, 6))
@@ -563,7 +562,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     nb = structure.n_blocks
     Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
     rhs = -eqs.g_pose + _scatter_add(structure.w_block,
-                                     np.einsum('qij,qj->qi', eqs.W, Vg[structure.w_feat]),
+                                     np.einsum('qij,qj->qi', eqs.W, Vg[structure.feat_idx]),
                                      structure.n_blocks)
     free = pose_free.reshape(-1)
     dim = nb * 6
@@ -605,7 +604,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
     Wt_x = np.einsum('qji,qj->qi', eqs.W, x_pose[structure.w_block])
-    W_x = _scatter_add(structure.w_feat, Wt_x, structure.n_feats)
+    W_x = _scatter_add(structure.feat_idx, Wt_x, structure.n_feats)
     x_feat = np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - W_x)
     return x_pose, x_feat
 
@@ -617,7 +616,7 @@ def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: Floa
     Ux = np.einsum('pij,pj->pi', eqs.U, x_pose[c])
     weight = np.where(r == c, 1.0, 2.0)  # off-diagonal blocks stand for themselves and U^T
     quad = float(np.sum(weight * np.sum(x_pose[r] * Ux, axis=1)))
-    Wx = np.einsum('qij,qj->qi', eqs.W, x_feat[structure.w_feat])
+    Wx = np.einsum('qij,qj->qi', eqs.W, x_feat[structure.feat_idx])
     quad += 2.0 * float(np.sum(x_pose[structure.w_block] * Wx))
     quad += float(np.sum(x_feat * np.einsum('nij,nj->ni', eqs.V, x_feat)))
     return quad

@@ -45,7 +45,10 @@ _TINY = 1e-300
 class RayGeometry:
     """Intermediate quantities of eq. (6) (see the module table).
 
-    u, t, s, c, g, sin_t and cos_t are per feature; N and P_m - P_i per observation.
+    u, t, s, c, g, sin_t and cos_t are per feature; the rest per observation: N, P_m - P_i,
+    the unit ray N_hat = xi(N) and |N| (floored), and which observations are the main
+    anchor's own. The main anchor's N_hat is exactly sign(g) u, which avoids the
+    cancellation in g u + sin(theta) 0.
     """
 
     u: FloatArray
@@ -57,6 +60,9 @@ class RayGeometry:
     cos_t: FloatArray
     N: FloatArray
     P_m_minus_P_i: FloatArray
+    N_hat: FloatArray
+    norm: FloatArray
+    main: BoolArray
 
 
 def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -76,23 +82,12 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     j = obs.feat_idx
     d = P_m[j] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
-    return RayGeometry(u, t, s, c, g, sin_t, cos_t, N, d)
-
-
-def _unit_rays(geo: RayGeometry, feats: ParallaxFeatures, obs: Observations,
-               ) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray]:
-    """Return xi(N) (K, 3), |N| (K,), the main-anchor observations and sign(g) (N,).
-
-    The main anchor's own ray is exactly sign(g) u; taking it so avoids the cancellation in
-    g u + sin(theta) 0.
-    """
-    norm = np.maximum(np.linalg.norm(geo.N, axis=1), _TINY)
-    N_hat = geo.N / norm[:, None]
+    norm = np.maximum(np.linalg.norm(N, axis=1), _TINY)
+    N_hat = N / norm[:, None]
     main = _is_main(feats, obs)
-    sign_g = np.where(geo.g >= 0.0, 1.0, -1.0)
-    jm = obs.feat_idx[main]
-    N_hat[main] = sign_g[jm, None] * geo.u[jm]
-    return N_hat, norm, main, sign_g
+    jm = j[main]
+    N_hat[main] = np.where(g[jm] >= 0.0, 1.0, -1.0)[:, None] * u[jm]
+    return RayGeometry(u, t, s, c, g, sin_t, cos_t, N, d, N_hat, norm, main)
 
 
 def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -102,19 +97,16 @@ def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     References:
         PMBA eq. (8); |e| = 2 sin(beta/2) for the angle beta between the rays (pmba.md §1.4).
     """
-    geo = observation_rays(R_wc, centers_w, feats, obs)
-    return residuals_from(geo, R_wc, feats, obs)
+    return residuals_from(observation_rays(R_wc, centers_w, feats, obs), R_wc, obs)
 
 
 def _is_main(feats: ParallaxFeatures, obs: Observations) -> np.ndarray:
     return obs.cam_idx == feats.main_idx[obs.feat_idx]
 
 
-def residuals_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
-                   obs: Observations) -> FloatArray:
+def residuals_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> FloatArray:
     """Ray-direction errors (PMBA eq. 8) from the rays of :func:`observation_rays`."""
-    N_hat = _unit_rays(geo, feats, obs)[0]
-    return N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    return geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
 
 
 def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
@@ -168,7 +160,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
              - sin_t[:, None] * t)[j]
     dg_dt = (cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u)[j]
 
-    N_hat, norm, main, sign_g = _unit_rays(geo, feats, obs)
+    N_hat, norm, main = geo.N_hat, geo.norm, geo.main
     # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
     # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
     # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
@@ -208,7 +200,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     if np.any(main):
         rows = np.flatnonzero(main)
         jm = j[rows]
-        sgn = sign_g[jm][:, None, None]
+        sgn = np.where(g[jm] >= 0.0, 1.0, -1.0)[:, None, None]
         hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
         res_main = E[rows, :, 6]
         E[rows] = 0.0
@@ -229,15 +221,10 @@ def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeat
                             feats.main_idx, feats.assoc_idx)
 
 
-def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, feats: ParallaxFeatures,
-                     obs: Observations) -> FloatArray:
-    """Predicted directions in each observer's camera frame, R_i^T N_ji, shape (K, 3).
+def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> FloatArray:
+    """Predicted unit directions in each observer's camera frame, R_i^T xi(N_ji), (K, 3).
 
     Projecting them gives the pixel reprojection of eq. (2) points without dividing by
     sin(theta), so points at infinity project to their direction.
     """
-    main = _is_main(feats, obs)
-    jm = obs.feat_idx[main]
-    N = geo.N.copy()
-    N[main] = np.where(geo.g[jm] >= 0, 1.0, -1.0)[:, None] * geo.u[jm]
-    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], N)
+    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], geo.N_hat)
