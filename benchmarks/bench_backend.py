@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from pmba_ros._heap import keep_freed_memory
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
@@ -147,6 +148,7 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     """Main."""
+    keep_freed_memory()
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bench', choices=('ate', 'latency', 'memory'))
     parser.add_argument('--mode', choices=('sliding', 'global'), default='sliding')

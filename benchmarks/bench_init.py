@@ -21,6 +21,8 @@ from pathlib import Path
 import time
 from typing import TYPE_CHECKING, Any
 
+from pmba_ros._heap import keep_freed_memory
+
 if TYPE_CHECKING:
     from pmba_ros.core.problem import BAProblem
 
@@ -71,6 +73,7 @@ def run_case(name: str, repeat: int) -> dict[str, Any] | None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print one table per case."""
+    keep_freed_memory()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--only', choices=sorted(CASES), action='append')
     parser.add_argument('--repeat', type=int, default=1)

@@ -21,6 +21,7 @@ import queue
 import threading
 from typing import Any
 
+from pmba_ros._heap import keep_freed_memory
 from pmba_ros.backend.config import NODE_NAME, BackendConfig
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.outputs import RclpyBackend
@@ -256,6 +257,7 @@ def main(args: list[str] | None = None) -> None:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    keep_freed_memory()
     rclpy.init(args=args)
     node = rclpy.create_node(NODE_NAME)
     try:

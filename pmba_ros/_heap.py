@@ -1,0 +1,44 @@
+"""Process-level heap tuning for the executables (``pmba``, ``pmba_node``, the benchmarks).
+
+A solve allocates the same temporaries (100 kB to a few MB each) at every iteration. With
+glibc's default settings freed memory at the top of the heap is given back to the kernel, and
+arrays above the mmap threshold get fresh pages: every new array is then page-faulted in again.
+On the replay's window solves (2,600 observations, two iterations) that is about 1,200 minor
+faults and 2.5 ms of an 18 ms solve. Keeping freed memory in the process removes both. Only
+the programs that own the process call :func:`keep_freed_memory`; importing the library
+changes nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+
+logger = logging.getLogger(__name__)
+
+#: mallopt(3) parameters (glibc malloc.h).
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+#: Arrays below this come from the heap (glibc's own dynamic limit on 64-bit systems).
+MMAP_THRESHOLD_BYTES = 32 << 20
+#: Free memory kept at the top of the heap before any is returned to the kernel.
+TRIM_THRESHOLD_BYTES = 64 << 20
+
+
+def keep_freed_memory() -> bool:
+    """Keep freed heap memory in the process (glibc only); return whether it was applied."""
+    name = ctypes.util.find_library('c')
+    try:
+        libc = ctypes.CDLL(name)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError, TypeError):
+        logger.debug('no glibc mallopt: heap left at its defaults')
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    ok = (mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1
+          and mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1)
+    if not ok:
+        logger.debug('mallopt refused the heap settings')
+    return ok
