@@ -267,8 +267,10 @@ def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntAr
     """
     if max_fixed == 0 or candidates.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
-    counts = np.array([int(np.count_nonzero(np.isin(store.obs[int(c)].ids, window_feats)))
-                       for c in candidates])
+    ids = [store.obs[int(c)].ids for c in candidates]
+    owner = np.repeat(np.arange(candidates.shape[0]), [a.shape[0] for a in ids])
+    shared = np.isin(np.concatenate(ids), window_feats)
+    counts = np.bincount(owner[shared], minlength=candidates.shape[0])
     order = np.lexsort((-candidates, -counts))[:max_fixed]
     chosen = candidates[order][counts[order] > 0]
     return np.sort(chosen).astype(np.int64)

@@ -25,12 +25,19 @@ def tangent_basis(n: FloatArray) -> FloatArray:
     [a1 a2 n] is a rotation (PMBA eq. 3).
     """
     n = np.asarray(n, dtype=float)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
     k = np.argmin(np.abs(n), axis=-1)
-    e = np.zeros(n.shape)
-    np.put_along_axis(e, k[..., None], 1.0, axis=-1)
-    a1 = normalize(np.cross(e, n))
-    a2 = np.cross(n, a1)
-    return np.stack([a1, a2], axis=-1)
+    zero = np.zeros(x.shape)
+    # e_k x n for the three axes, picked per vector (np.cross is slow on short rows).
+    a1 = np.stack([np.choose(k, [zero, z, -y]), np.choose(k, [-z, zero, x]),
+                   np.choose(k, [y, -x, zero])], axis=-1)
+    a1 /= np.linalg.norm(a1, axis=-1, keepdims=True)
+    out = np.empty((*n.shape, 2))
+    out[..., 0] = a1
+    out[..., 0, 1] = y * a1[..., 2] - z * a1[..., 1]
+    out[..., 1, 1] = z * a1[..., 0] - x * a1[..., 2]
+    out[..., 2, 1] = x * a1[..., 1] - y * a1[..., 0]
+    return out
 
 
 def retract(n: FloatArray, delta: FloatArray, basis: FloatArray | None = None) -> FloatArray:

@@ -18,7 +18,8 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.types import TrackFrame
-from pmba_ros.backend.window import thin_tracks
+from pmba_ros.backend.window import (KeyframeObs, KeyframeStatus, KeyframeStore, select_fixed,
+                                     thin_tracks)
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
@@ -151,6 +152,26 @@ def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
     assert keep[20:24].all() and np.count_nonzero(keep[24:]) == 6 and keep[24] and keep[-1]
     with pytest.raises(ValueError, match='max_observations_per_feature'):
         BackendConfig(max_observations_per_feature=2)
+
+
+def test_select_fixed_counts_shared_features_and_prefers_recent() -> None:
+    """Test: select_fixed ranks candidates by shared window features, newer first on ties."""
+    store = KeyframeStore()
+    rng = np.random.default_rng(3)
+    shared = [4, 0, 7, 7, 2, 0, 5]
+    window = np.arange(100, 120)
+    for n_shared in shared:
+        ids = np.concatenate([rng.choice(window, n_shared, replace=False),
+                              rng.choice(np.arange(1000, 2000), 30, replace=False)])
+        store.add(0, None, KeyframeObs(ids, np.zeros((ids.shape[0], 3)),
+                                       np.zeros((ids.shape[0], 2))), KeyframeStatus.FIXED)
+    cands = np.arange(len(shared), dtype=np.int64)
+    np.testing.assert_array_equal(select_fixed(store, cands, window, 3), [2, 3, 6])
+    np.testing.assert_array_equal(select_fixed(store, cands, window, 4), [0, 2, 3, 6])
+    # Keyframes that share nothing are never picked, whatever the budget.
+    np.testing.assert_array_equal(select_fixed(store, cands, window, 10), [0, 2, 3, 4, 6])
+    assert select_fixed(store, cands[:0], window, 3).shape == (0,)
+    assert select_fixed(store, cands, window, 0).shape == (0,)
 
 
 # --- normal operation -----------------------------------------------------------------------
