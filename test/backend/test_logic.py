@@ -18,8 +18,13 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.types import TrackFrame
-from pmba_ros.backend.window import (KeyframeObs, KeyframeStatus, KeyframeStore, select_fixed,
-                                     thin_tracks)
+from pmba_ros.backend.window import (
+    KeyframeObs,
+    KeyframeStatus,
+    KeyframeStore,
+    select_fixed,
+    thin_tracks,
+)
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum

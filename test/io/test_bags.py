@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import struct
 
 import numpy as np
 import pytest
@@ -28,6 +29,22 @@ def _write_poses(path: Path, n: int = 5, topic: str = '/gt') -> None:
             msg = make_pose_stamped(i * 10**8, 'map', np.array([i, 0.0, 0.0]),
                                     np.array([0.0, 0.0, 0.0, 1.0]), backend)
             writer.write(topic, msg, i * 10**8)
+
+
+def _first_chunk_payload(data: bytes) -> tuple[int, int]:
+    """Byte range of the (compressed) records of the first MCAP chunk record."""
+    pos = 8  # magic
+    while pos < len(data):
+        opcode = data[pos]
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        body = pos + 9
+        if opcode == 0x06:  # Chunk: 3 u64, u32 crc, compression string, u64 records length
+            (name_len,) = struct.unpack_from('<I', data, body + 28)
+            start = body + 32 + name_len + 8
+            return start, body + length
+        pos = body + length
+    msg = 'no chunk record'
+    raise AssertionError(msg)
 
 
 @pytest.mark.parametrize('name', ['folder_bag', 'bare.mcap'])
@@ -99,8 +116,9 @@ def test_corrupt_chunk_raises_bag_error(tmp_path: Path) -> None:
     good = tmp_path / 'good.mcap'
     _write_poses(good, 200)
     data = bytearray(good.read_bytes())
-    middle = len(data) // 2
-    data[middle - 200:middle + 200] = b'\xff' * 400
+    lo, hi = _first_chunk_payload(bytes(data))
+    middle = (lo + hi) // 2
+    data[middle - 20:middle + 20] = b'\xff' * 40
     bad = tmp_path / 'corrupt.mcap'
     bad.write_bytes(bytes(data))
     with pytest.raises(BagError, match=r'corrupt\.mcap'):
