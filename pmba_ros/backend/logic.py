@@ -323,18 +323,18 @@ class BackendLogic:
         frame = self.config.map_frame
         final = (kf.status[idx] == KeyframeStatus.FIXED) | (
             kf.status[idx] == KeyframeStatus.DEAD_RECKONED)
+        todo = np.array([k for k, i in enumerate(idx.tolist()) if i not in self._pose_cache],
+                        dtype=np.int64)
+        sel = idx[todo]
+        fresh = iter(out.pose_stamped_msgs(kf.stamps_ns[sel], frame, kf.C_map[sel],
+                                           so3.to_quat_xyzw(kf.R_map[sel]), self.backend))
         stamped, plain = [], []
-        todo = [k for k, i in enumerate(idx) if int(i) not in self._pose_cache]
-        quats = so3.to_quat_xyzw(kf.R_map[idx[todo]]) if todo else np.zeros((0, 4))
-        fresh = dict(zip(todo, quats, strict=True))
-        for k, i in enumerate(idx):
-            i = int(i)
+        for i, is_final in zip(idx.tolist(), final.tolist(), strict=True):
             cached = self._pose_cache.get(i)
             if cached is None:
-                ps = out.make_pose_stamped(int(kf.stamps_ns[i]), frame, kf.C_map[i], fresh[k],
-                                           self.backend)
+                ps = next(fresh)
                 cached = (ps, ps.pose)
-                if final[k]:
+                if is_final:
                     self._pose_cache[i] = cached
             stamped.append(cached[0])
             plain.append(cached[1])

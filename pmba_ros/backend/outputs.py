@@ -284,6 +284,19 @@ def _quat(backend: MsgBackend, quat_xyzw: ArrayLike) -> Any:
     return backend.new('geometry_msgs/msg/Quaternion', x=x, y=y, z=z, w=w)
 
 
+def _pose_msgs(positions: FloatArray, quats: FloatArray, backend: MsgBackend) -> list[Any]:
+    """Return Pose messages of checked (N, 3) positions and unit (N, 4) quaternions.
+
+    Built from plain floats, without numpy per pose: a path is rebuilt at every keyframe.
+    """
+    pose_t = backend.msg_class('geometry_msgs/msg/Pose')
+    point_t = backend.msg_class('geometry_msgs/msg/Point')
+    quat_t = backend.msg_class('geometry_msgs/msg/Quaternion')
+    rows = zip(positions.tolist(), quats.tolist(), strict=True)
+    return [pose_t(position=point_t(x=x, y=y, z=z), orientation=quat_t(x=qx, y=qy, z=qz, w=qw))
+            for (x, y, z), (qx, qy, qz, qw) in rows]
+
+
 def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> Any:
     """Return a ``geometry_msgs/msg/Pose``.
 
@@ -299,9 +312,8 @@ def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> 
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
     pos = _vec(position, 3, 'position')
-    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])[0]
-    return backend.new('geometry_msgs/msg/Pose', position=_point(backend, pos),
-                       orientation=_quat(backend, quat))
+    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])
+    return _pose_msgs(pos[None, :], quat, backend)[0]
 
 
 # --- back-end outputs ---------------------------------------------------------------------
@@ -347,6 +359,28 @@ def make_path(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: Ar
     Raises:
         MessageError: On shape mismatches, non-finite values or zero quaternions.
     """
+    poses = pose_stamped_msgs(stamps_ns, frame_id, positions, quats_xyzw, backend)
+    return backend.new('nav_msgs/msg/Path', header=header_msg(stamp_ns, frame_id, backend),
+                       poses=poses)
+
+
+def pose_stamped_msgs(stamps_ns: ArrayLike, frame_id: str, positions: ArrayLike,
+                      quats_xyzw: ArrayLike, backend: MsgBackend) -> list[Any]:
+    """Return N ``geometry_msgs/msg/PoseStamped`` messages (a path's poses), checked at once.
+
+    Args:
+        stamps_ns: Pose stamps, shape (N,), ns.
+        frame_id: Frame of every pose.
+        positions: Translations, shape (N, 3), m.
+        quats_xyzw: Rotation quaternions (x, y, z, w), shape (N, 4); normalized here.
+        backend: Message backend.
+
+    Returns:
+        The messages.
+
+    Raises:
+        MessageError: On shape mismatches, non-finite values or zero quaternions.
+    """
     pos = _rows(positions, 3, 'positions')
     quats = _unit_quats(quats_xyzw)
     stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
@@ -354,10 +388,9 @@ def make_path(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: Ar
         msg = (f'make_path: {pos.shape[0]} positions, {quats.shape[0]} quaternions, '
                f'{stamps.shape[0]} stamps')
         raise MessageError(msg)
-    poses = [make_pose_stamped(int(t), frame_id, p, q, backend)
-             for t, p, q in zip(stamps, pos, quats, strict=True)]
-    return backend.new('nav_msgs/msg/Path', header=header_msg(stamp_ns, frame_id, backend),
-                       poses=poses)
+    stamped_t = backend.msg_class('geometry_msgs/msg/PoseStamped')
+    return [stamped_t(header=header_msg(t, frame_id, backend), pose=pose)
+            for t, pose in zip(stamps.tolist(), _pose_msgs(pos, quats, backend), strict=True)]
 
 
 def make_pose_array(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: ArrayLike,
@@ -382,7 +415,7 @@ def make_pose_array(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xy
     if pos.shape[0] != quats.shape[0]:
         msg = f'make_pose_array: {pos.shape[0]} positions, {quats.shape[0]} quaternions'
         raise MessageError(msg)
-    poses = [pose_msg(p, q, backend) for p, q in zip(pos, quats, strict=True)]
+    poses = _pose_msgs(pos, quats, backend)
     return backend.new('geometry_msgs/msg/PoseArray',
                        header=header_msg(stamp_ns, frame_id, backend), poses=poses)
 
@@ -738,5 +771,5 @@ __all__ = [
     'DIAGNOSTIC_LEVELS', 'MsgBackend', 'RclpyBackend', 'RosbagsBackend', 'header_msg',
     'make_camera_info', 'make_diagnostics', 'make_odometry', 'make_path', 'make_point_cloud',
     'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array', 'make_pose_stamped',
-    'make_tf', 'make_tracks', 'pose_msg', 'time_msg',
+    'make_tf', 'make_tracks', 'pose_msg', 'pose_stamped_msgs', 'time_msg',
 ]
