@@ -31,7 +31,8 @@ def tangent_basis(n: FloatArray) -> FloatArray:
     # e_k x n for the three axes, picked per vector (np.cross is slow on short rows).
     a1 = np.stack([np.choose(k, [zero, z, -y]), np.choose(k, [-z, zero, x]),
                    np.choose(k, [y, -x, zero])], axis=-1)
-    a1 /= np.linalg.norm(a1, axis=-1, keepdims=True)
+    norm = np.linalg.norm(a1, axis=-1, keepdims=True)
+    a1 /= np.where(norm > 0.0, norm, 1.0)  # n = 0 (a zero baseline's direction) gives A = 0
     out = np.empty((*n.shape, 2))
     out[..., 0] = a1
     out[..., 0, 1] = y * a1[..., 2] - z * a1[..., 1]

@@ -38,3 +38,11 @@ def test_retract_derivative_at_zero(rng: np.random.Generator) -> None:
         d[:, col] = eps
         num = (sphere.retract(n, d) - sphere.retract(n, -d)) / (2 * eps)
         np.testing.assert_allclose(num, expected, atol=1e-8)
+
+
+def test_tangent_basis_of_zero_vector_is_zero_and_follows_batch_shape() -> None:
+    """A zero direction (zero baseline) gives a zero basis, not NaN; batch axes are kept."""
+    A = sphere.tangent_basis(np.zeros((2, 4, 3)))
+    assert A.shape == (2, 4, 3, 2)
+    np.testing.assert_array_equal(A, 0.0)
+    assert sphere.tangent_basis(np.array([0.0, 0.0, 1.0])).shape == (3, 2)
