@@ -323,9 +323,7 @@ class BackendLogic:
         frame = self.config.map_frame
         final = (kf.status[idx] == KeyframeStatus.FIXED) | (
             kf.status[idx] == KeyframeStatus.DEAD_RECKONED)
-        todo = np.array([k for k, i in enumerate(idx.tolist()) if i not in self._pose_cache],
-                        dtype=np.int64)
-        sel = idx[todo]
+        sel = idx[np.array([i not in self._pose_cache for i in idx.tolist()], dtype=bool)]
         fresh = iter(out.pose_stamped_msgs(kf.stamps_ns[sel], frame, kf.C_map[sel],
                                            so3.to_quat_xyzw(kf.R_map[sel]), self.backend))
         stamped, plain = [], []

@@ -127,16 +127,18 @@ class ParallaxModel(Model[ParallaxFeatures]):
         rays_c = residuals.camera_rays_from(geo, R_wc, self.obs)
         if self._weights is None:
             res = residuals.residuals_from(geo, R_wc, self.obs)
-        else:                                              # weights (R_i^T xi(N) - v)
-            res = np.einsum('kij,kj->ki', self._weights, rays_c - self.obs.bearings_c)
+        else:
+            res = residuals.pixel_weighted_residuals(self._weights, rays_c, self.obs)
         return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   evaluation: Evaluation | None = None,
                   ) -> Linearization:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
-        geo = evaluation.geometry if evaluation is not None else None
-        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights, geo)
+        if evaluation is None:
+            return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
+        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights,
+                                       evaluation.geometry, evaluation.rays_c)
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""

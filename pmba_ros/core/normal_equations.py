@@ -313,7 +313,6 @@ class SchurStructure:
             for f_lo in range(int(feats[0]), int(feats[-1]) + 1, step):
                 f_hi = min(f_lo + step, int(feats[-1]) + 1)
                 lo, hi = int(starts[f_lo]), int(starts[f_hi])
-                blk = obs_block[lo:hi].reshape(f_hi - f_lo, c)
                 feat_chunks.append(_FeatChunk(lo, hi, f_lo, f_hi, c))
                 if dense:
                     continue
@@ -326,6 +325,7 @@ class SchurStructure:
                     pairs.append((ia, ib, keys))
                     continue
                 fi = len(feat_chunks) - 1
+                blk = obs_block[lo:hi].reshape(f_hi - f_lo, c)
                 tasks.append((fi, 0, blk.reshape(-1)))
                 tasks += [(fi, delta,
                            _pair_key(blk[:, :c - delta], blk[:, delta:], n_blocks).reshape(-1))

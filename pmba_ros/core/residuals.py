@@ -109,6 +109,12 @@ def residuals_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> Flo
     return geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
 
 
+def pixel_weighted_residuals(weights: FloatArray, rays_c: FloatArray,
+                             obs: Observations) -> FloatArray:
+    """Return weights (R_i^T xi(N) - v), the ray errors mapped to pixels, shape (K, 2)."""
+    return np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
+
+
 def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
     """Pose index of each observation's Jacobian slots (i, m, a), shape (K, 3); -1 = unused."""
     j = obs.feat_idx
@@ -120,7 +126,8 @@ def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
 
 def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                   obs: Observations, weights: FloatArray | None = None,
-                  geo: RayGeometry | None = None) -> Linearization:
+                  geo: RayGeometry | None = None, rays_c: FloatArray | None = None,
+                  ) -> Linearization:
     """Residuals and analytic Jacobians of eq. (8), vectorized over observations.
 
     Args:
@@ -131,6 +138,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         weights: Optional (K, 2, 3) maps of observer-frame errors to pixels: the residual
             becomes ``weights (R_i^T xi(N) - v)`` (see ``ParallaxModel``), d = 2.
         geo: :func:`observation_rays` at this state, if the caller has it.
+        rays_c: :func:`camera_rays_from` of ``geo``, if the caller has it (weighted only).
 
     Returns:
         The residuals and Jacobian in the layout of :mod:`pmba_ros.core.jacobian`, anchor
@@ -166,13 +174,13 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
     if weights is None:
         L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
-        res = N_hat - np.einsum('kij,kj->ki', R_i, v)
+        res = residuals_from(geo, R_wc, obs)
     else:
         B = weights @ np.swapaxes(R_i, 1, 2)
         L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
              ) / norm[:, None, None]
-        h_hat = np.einsum('kji,kj->ki', R_i, N_hat)             # R_i^T xi(N)
-        res = np.einsum('kij,kj->ki', weights, h_hat - v)
+        h_hat = camera_rays_from(geo, R_wc, obs) if rays_c is None else rays_c
+        res = pixel_weighted_residuals(weights, h_hat, obs)
     d = L.shape[1]
     u_j = u[j]
     Lu = np.einsum('kij,kj->ki', L, u_j)

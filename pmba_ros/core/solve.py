@@ -378,6 +378,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             return _State(R, P, feats, math.inf, ev)
         return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale), ev)
 
+    def norm_of(state: _State) -> float:
+        """|x| of the parameters (rotations count 1 each), for the parameter tolerance."""
+        return math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
+                         + model.parameter_norm_sq(state.feats))
+
     def rms_of(state: _State) -> float:
         err = model.reprojection_errors_px(state.evaluation)
         return float(np.sqrt(np.mean(err * err))) if err.size else 0.0
@@ -386,8 +391,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     if not math.isfinite(state.cost):
         msg = 'residuals are not finite at the initial point'
         raise SolverError(msg)
-    x_norm = math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
-                       + model.parameter_norm_sq(state.feats))
+    x_norm = norm_of(state)
     initial_cost, initial_rms = state.cost, rms_of(state)
     history = [IterationRecord(0, initial_cost, initial_rms, True,
                                options.initial_trust_region_radius, 0.0, math.nan, 0, 0.0)]
@@ -464,8 +468,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             accepted_steps += 1
             state = trial
             rms = rms_of(state)
-            x_norm = math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
-                               + model.parameter_norm_sq(state.feats))
+            x_norm = norm_of(state)
             mu = max(dogleg.MIN_MU, mu / 5.0)
             lin = None
         record = IterationRecord(it, state.cost, rms, accepted, radius, step_norm, rho,

@@ -62,6 +62,9 @@ def test_jacobians_match_central_differences(pixel_weighted: bool) -> None:
     scale = 500.0 if pixel_weighted else 1.0
     assert pose_err < 1e-6 * scale
     assert feat_err < 1e-6 * scale
+    # The solver linearizes from its evaluation (rays and residuals reused): the same rows.
+    reused = model.linearize(R, P, feats, model.evaluate(R, P, feats))
+    np.testing.assert_allclose(reused.rows, model.linearize(R, P, feats).rows, rtol=0, atol=0)
 
 
 def test_jacobians_at_tiny_parallax() -> None:
