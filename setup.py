@@ -32,6 +32,8 @@ setup(
     ],
     extras_require={
         'opencv': ['opencv-python-headless>=4.5'],
+        # Compiled normal-equation loops (pmba_ros.core.kernels); numpy is used without it.
+        'fast': ['numba>=0.58'],
         'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
                  'ament-lint-flake8', 'ament-lint-pep257'],
         'plot': ['matplotlib'],

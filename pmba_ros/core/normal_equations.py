@@ -37,6 +37,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import kernels
 from pmba_ros.core.jacobian import ANCHOR_START, Linearization
 from pmba_ros.errors import SolverError
 
@@ -245,6 +246,8 @@ class SchurStructure:
     _fold_fwd: IntArray       # directed pair (row, col) of each upper pair, or n_dir (zero)
     _fold_bwd: IntArray       # directed pair (col, row), or n_dir
     _diag_pairs: IntArray
+    _starts: IntArray         # (N + 1,) first observation of each feature
+    _pair_index: IntArray | None  # (n_blocks, n_blocks) upper pair of (a, b), a <= b; compiled
 
     @classmethod
     def build(cls, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, n_feats: int,
@@ -284,6 +287,10 @@ class SchurStructure:
         n_anchor = S - 1
         anchor_pose, anchor_obs = _anchors(cam_idx, feat_idx, slot_pose, starts)
         anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
+
+        if kernels.ENABLED and n_blocks <= kernels.MAX_BLOCKS:
+            return cls._build_compiled(cam_idx, feat_idx, n_feats, obs_block, anchor_cols,
+                                       anchor_block, anchor_obs, starts)
 
         # Directed block pairs: observer-anchor, anchor-anchor and Schur (a, a + delta).
         obs_anchor_keys = [_pair_key(obs_block, anchor_block[feat_idx, s], n_blocks)
@@ -365,7 +372,35 @@ class SchurStructure:
         return cls(n_blocks, n_feats, n_dir, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
                    np.maximum(obs_block, 0), obs_block < 0, anchor_block,
                    anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, batches,
-                   dense, fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols))
+                   dense, fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols), starts,
+                   None)
+
+    @classmethod
+    def _build_compiled(cls, cam_idx: IntArray, feat_idx: IntArray, n_feats: int,
+                        obs_block: IntArray, anchor_cols: tuple[tuple[int, int], ...],
+                        anchor_block: IntArray, anchor_obs: IntArray, starts: IntArray,
+                        ) -> SchurStructure:
+        """Build the structure that the compiled loops of :mod:`kernels` read.
+
+        The pose pairs are the covisible ones: two free poses that observe one feature (the
+        anchors observe their features, so they are among the observers).
+        """
+        n_blocks = int(obs_block.max()) + 1
+        own = obs_block >= 0
+        incidence = scipy.sparse.csr_matrix(
+            (np.ones(int(own.sum())), (feat_idx[own], obs_block[own])),
+            shape=(n_feats, n_blocks))
+        covis = scipy.sparse.triu(incidence.T @ incidence).tocoo()
+        pair_keys = np.union1d(covis.row.astype(np.int64) * n_blocks + covis.col,
+                               np.arange(n_blocks) * (n_blocks + 1))
+        pair_rows, pair_cols = pair_keys // n_blocks, pair_keys % n_blocks
+        pair_index = np.full((n_blocks, n_blocks), -1, dtype=np.int64)
+        pair_index[pair_rows, pair_cols] = np.arange(pair_keys.shape[0])
+        none = np.zeros(0, dtype=np.int64)
+        return cls(n_blocks, n_feats, 0, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
+                   np.maximum(obs_block, 0), obs_block < 0, anchor_block, anchor_obs, [], {},
+                   [], [], [], False, none, none, np.flatnonzero(pair_rows == pair_cols),
+                   starts, pair_index)
 
     def fold(self, self_blocks: FloatArray, cross: FloatArray) -> FloatArray:
         """Return upper pair blocks (n_pairs, 6, 6) from per-block and directed-pair sums.
@@ -409,6 +444,10 @@ def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
         msg = f'anchor columns {lin.anchor_cols} do not match the structure {st.anchor_cols}'
         raise SolverError(msg)
     E = lin.rows
+    if st._pair_index is not None:
+        return NormalEquations(*kernels.assemble(
+            E, st._starts, np.where(st._obs_fixed, -1, st.w_block), st._anchor_block,
+            st._anchor_obs, st.anchor_cols, st._pair_index, st.pair_rows.shape[0]))
     K, d, width = E.shape
     nb, N, n_dir = st.n_blocks, st.n_feats, st.n_dir
     offs = lin.anchor_offsets()
@@ -503,6 +542,9 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
     """
     st = structure
     nb = st.n_blocks
+    if st._pair_index is not None:
+        return kernels.schur_blocks(W, V_inv, st._starts, np.where(st._obs_fixed, -1, st.w_block),
+                                    st._pair_index, st.pair_rows.shape[0])
     if st._dense_schur:
         own = ~st._obs_fixed
         Wd = np.zeros((st.n_feats, 3, nb, 6))        # W^T of every feature, all pose columns

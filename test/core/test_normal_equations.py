@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmba_ros.core import conversions
+from pmba_ros.core import conversions, kernels
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
@@ -13,6 +13,16 @@ from pmba_ros.core.problem import XyzFeatures, make_problem, permute_features
 from pmba_ros.errors import SolverError
 
 from .helpers import forward_problem
+
+#: Ways of assembling J^T J and forming W V^-1 W^T: numpy's (one dense product; per pair or
+#: per delta, in small batches) and the compiled loops of pmba_ros.core.kernels.
+SCHUR_PATHS = ['dense', 'pairs', 'per_delta', 'compiled']
+
+
+def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    if schur_products == 'compiled':
+        pytest.importorskip('numba')
+    monkeypatch.setattr(kernels, 'ENABLED', schur_products == 'compiled')
 
 
 def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
@@ -53,16 +63,17 @@ def _model_and_features(problem, param: str, weighted: bool = False):
                          [('pmba', False), ('pmba', True), ('xyz', False), ('idp', False)])
 @pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
 @pytest.mark.parametrize('tracks', ['full', 'uneven'])
-@pytest.mark.parametrize('schur_products', ['dense', 'pairs', 'per_delta'])
+@pytest.mark.parametrize('schur_products', SCHUR_PATHS)
 def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_limit: int,
                                            tracks: str, schur_products: str,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """The Schur path solves J^T J exactly; x^T H x equals |J x|^2.
 
-    Every way of forming W V^-1 W^T (one dense product; per pair or per delta, in small
-    batches), and both a dense and a sparse reduced system.
+    Every way of forming W V^-1 W^T (:data:`SCHUR_PATHS`), and both a dense and a sparse
+    reduced system.
     """
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
+    _select_path(schur_products, monkeypatch)
     if schur_products != 'dense':
         monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
     if schur_products == 'per_delta':
@@ -106,11 +117,12 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
 
 
 @pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])
-@pytest.mark.parametrize('schur_products', ['dense', 'pairs', 'per_delta'])
+@pytest.mark.parametrize('schur_products', SCHUR_PATHS)
 @pytest.mark.parametrize('seed', [1, 2])
 def test_schur_with_fixed_poses_equals_dense_solve(param: str, schur_products: str, seed: int,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """Poses held fixed (anchors and observers alike), as the sliding window does."""
+    _select_path(schur_products, monkeypatch)
     if schur_products != 'dense':
         monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
     if schur_products == 'per_delta':
