@@ -23,3 +23,13 @@ def shared_file(*parts: str) -> Path:
 def rng() -> np.random.Generator:
     """Return a seeded random generator."""
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(params=['numpy', 'compiled'])
+def engine_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Run a test on the numpy engine, then on the compiled loops of pmba_ros.core.kernels."""
+    from pmba_ros.core import kernels
+    if request.param == 'compiled':
+        pytest.importorskip('numba')
+    monkeypatch.setattr(kernels, 'ENABLED', request.param == 'compiled')
+    return str(request.param)

@@ -43,7 +43,7 @@ def _jit(fn: Any) -> Any:
     """Compile ``fn`` lazily (cached on disk) when numba is there, else keep it as is."""
     if _NUMBA is None:
         return fn
-    return _NUMBA.njit(cache=True, nogil=True)(fn)
+    return _NUMBA.njit(cache=True, nogil=True, inline='always')(fn)
 
 
 @_jit
@@ -196,3 +196,107 @@ def schur_blocks(W: FloatArray, V_inv: FloatArray, starts: IntArray, w_block: In
     _schur(np.ascontiguousarray(W), np.ascontiguousarray(V_inv), starts, w_block,
            pair_index, out)
     return out
+
+
+@_jit
+def _cross_into(out: Any, a0: float, a1: float, a2: float, b0: float, b1: float,
+                b2: float, scale: float) -> None:
+    """out[:] = scale (a x b), for a row or column view of length 3."""
+    out[0] = scale * (a1 * b2 - a2 * b1)
+    out[1] = scale * (a2 * b0 - a0 * b2)
+    out[2] = scale * (a0 * b1 - a1 * b0)
+
+
+@_jit
+def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: Any, v: Any,
+               N_hat: Any, norm: Any, d_mi: Any, n: Any, u: Any, g: Any, sin_t: Any,
+               cos_t: Any, dg_du: Any, dg_dt: Any, dth_u: Any, Rm_hat_n: Any, A_f: Any,
+               weights: Any, rays_c: Any, E: Any) -> None:
+    """Residual and Jacobian rows of PMBA observations; see residuals.ray_jacobians."""
+    K, d, width = E.shape
+    weighted = weights.shape[0] > 0
+    L = np.empty((d, 3))
+    B = np.empty((d, 3))
+    Lu = np.empty(d)
+    LdN = np.empty((d, 3))
+    nA = np.empty((3, 2))
+    row = np.empty(3)
+    for k in range(K):
+        j = feat_idx[k]
+        R = R_wc[cam_idx[k]]
+        nh0, nh1, nh2 = N_hat[k, 0], N_hat[k, 1], N_hat[k, 2]
+        inv = 1.0 / norm[k]
+        e = E[k]
+        for r in range(d):
+            if weighted:
+                for c in range(3):
+                    B[r, c] = (weights[k, r, 0] * R[c, 0] + weights[k, r, 1] * R[c, 1]
+                               + weights[k, r, 2] * R[c, 2])
+                e[r, 6] = (weights[k, r, 0] * (rays_c[k, 0] - v[k, 0])
+                           + weights[k, r, 1] * (rays_c[k, 1] - v[k, 1])
+                           + weights[k, r, 2] * (rays_c[k, 2] - v[k, 2]))
+                _cross_into(row, weights[k, r, 0], weights[k, r, 1], weights[k, r, 2],
+                            rays_c[k, 0], rays_c[k, 1], rays_c[k, 2], 1.0)
+            else:
+                for c in range(3):
+                    B[r, c] = 1.0 if r == c else 0.0
+                e[r, 6] = N_hat[k, r] - (R[r, 0] * v[k, 0] + R[r, 1] * v[k, 1]
+                                         + R[r, 2] * v[k, 2])
+                _cross_into(row, R[r, 0], R[r, 1], R[r, 2], v[k, 0], v[k, 1], v[k, 2], 1.0)
+            bn = B[r, 0] * nh0 + B[r, 1] * nh1 + B[r, 2] * nh2
+            L[r, 0] = (B[r, 0] - bn * nh0) * inv
+            L[r, 1] = (B[r, 1] - bn * nh1) * inv
+            L[r, 2] = (B[r, 2] - bn * nh2) * inv
+            for c in range(3):
+                e[r, c] = row[c]
+        if is_main[k]:
+            # The main anchor's own observation: closed forms of pmba.md §1.6.
+            sgn = 1.0 if g[j] >= 0.0 else -1.0
+            for q in range(2):
+                _cross_into(nA[:, q], n[j, 0], n[j, 1], n[j, 2], A_f[j, 0, q], A_f[j, 1, q],
+                            A_f[j, 2, q], 1.0)
+            Rm = R_wc[main_idx[j]]
+            for r in range(d):
+                for c in range(width):
+                    if c != 6 and (c >= 3 or weighted):
+                        e[r, c] = 0.0
+                for c in range(3):
+                    if not weighted:
+                        e[r, c] -= sgn * Rm_hat_n[j, r, c]
+                for q in range(2):
+                    acc = 0.0
+                    for c in range(3):
+                        m = weights[k, r, c] if weighted else Rm[r, c]
+                        acc += m * nA[c, q]
+                    e[r, 8 + q] = -sgn * acc
+            continue
+        s_t, c_t, g_j = sin_t[j], cos_t[j], g[j]
+        for r in range(d):
+            Lu[r] = L[r, 0] * u[j, 0] + L[r, 1] * u[j, 1] + L[r, 2] * u[j, 2]
+            acc = 0.0
+            for c in range(3):
+                LdN[r, c] = g_j * L[r, c] + Lu[r] * dg_du[j, c]
+                acc += L[r, c] * (dth_u[j, c] + c_t * d_mi[k, c])
+                L_u_dgdt = Lu[r] * dg_dt[j, c]
+                e[r, 3 + c] = -s_t * L[r, c]
+                e[r, 13 + c] = L_u_dgdt + s_t * L[r, c]
+                e[r, 16 + c] = -L_u_dgdt
+            e[r, 7] = acc
+            for c in range(3):
+                e[r, 10 + c] = -(LdN[r, 0] * Rm_hat_n[j, 0, c] + LdN[r, 1] * Rm_hat_n[j, 1, c]
+                                 + LdN[r, 2] * Rm_hat_n[j, 2, c])
+            for q in range(2):
+                e[r, 8 + q] = (e[r, 10] * A_f[j, 0, q] + e[r, 11] * A_f[j, 1, q]
+                               + e[r, 12] * A_f[j, 2, q])
+
+
+def pmba_rows(obs: Any, feats: Any, R_wc: FloatArray, geo: Any, dg_du: FloatArray,
+              dg_dt: FloatArray, dth_u: FloatArray, Rm_hat_n: FloatArray, A_f: FloatArray,
+              weights: FloatArray | None, rays_c: FloatArray | None, E: FloatArray) -> None:
+    """Fill E (K, d, 19) with PMBA rows from the per-feature factors of ray_jacobians."""
+    empty = np.zeros((0, 2, 3))
+    _pmba_rows(obs.cam_idx, obs.feat_idx, feats.main_idx, geo.main, R_wc, obs.bearings_c,
+               geo.N_hat, geo.norm, geo.P_m_minus_P_i, feats.n, geo.u, geo.g, geo.sin_t,
+               geo.cos_t, dg_du, dg_dt, dth_u, Rm_hat_n, A_f,
+               empty if weights is None else weights,
+               geo.N_hat if rays_c is None else rays_c, E)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import so3, sphere
+from pmba_ros.core import kernels, so3, sphere
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 
@@ -164,22 +164,30 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     A_f = sphere.tangent_basis(feats.n)
     cos_over_s = cos_t / np.maximum(s, _TINY)
     D_sq = np.sum(t * t, axis=1)
-    dg_du = (cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t)
-             - sin_t[:, None] * t)[j]
-    dg_dt = (cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u)[j]
+    dg_du_f = cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
+    dg_dt_f = cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
+    dth_u = (-(s * sin_t + c * cos_t))[:, None] * u      # d N / d theta without cos(theta) d
+    if weights is not None and rays_c is None:
+        rays_c = camera_rays_from(geo, R_wc, obs)
+    if kernels.ENABLED:  # the same rows from compiled loops
+        lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
+        kernels.pmba_rows(obs, feats, R_wc, geo, dg_du_f, dg_dt_f, dth_u, Rm_hat_n, A_f,
+                          weights, rays_c, lin.rows)
+        return lin
+    dg_du, dg_dt = dg_du_f[j], dg_dt_f[j]
 
     N_hat, norm, main = geo.N_hat, geo.norm, geo.main
     # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
     # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
     # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
-    if weights is None:
+    h_hat = rays_c
+    if weights is None or h_hat is None:
         L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
         res = residuals_from(geo, R_wc, obs)
     else:
         B = weights @ np.swapaxes(R_i, 1, 2)
         L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
              ) / norm[:, None, None]
-        h_hat = camera_rays_from(geo, R_wc, obs) if rays_c is None else rays_c
         res = pixel_weighted_residuals(weights, h_hat, obs)
     d = L.shape[1]
     u_j = u[j]
@@ -187,13 +195,13 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # L dN/du = L (g I + u dg/du^T) and L u dg/dt^T, as outer products of small vectors.
     L_dNdu = g[j, None, None] * L + Lu[:, :, None] * dg_du[:, None, :]
     L_u_dgdt = Lu[:, :, None] * dg_dt[:, None, :]
-    dN_dtheta = ((-(s * sin_t + c * cos_t))[:, None] * u)[j] + cos_t[j, None] * geo.P_m_minus_P_i
+    dN_dtheta = dth_u[j] + cos_t[j, None] * geo.P_m_minus_P_i
 
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
     lin = Linearization.empty(K, d, ANCHOR_COLS)
     E = lin.rows
     E[:, :, 6] = res
-    if weights is None:
+    if weights is None or h_hat is None:
         E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
     else:
         E[:, :, 0:3] = so3.times_hat(weights, h_hat)

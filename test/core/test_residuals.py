@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmba_ros.core import conversions, so3, sphere
+from pmba_ros.core import conversions, kernels, so3, sphere
 from pmba_ros.core.models import ParallaxModel
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.core.residuals import observation_rays, pose_slots, ray_residuals
@@ -50,7 +50,7 @@ def test_theta_zero_is_a_point_at_infinity() -> None:
 
 
 @pytest.mark.parametrize('pixel_weighted', [False, True])
-def test_jacobians_match_central_differences(pixel_weighted: bool) -> None:
+def test_jacobians_match_central_differences(pixel_weighted: bool, engine_path: str) -> None:
     """All blocks, all observer kinds, incl. near-collinear and 1e4-baseline features."""
     problem, R, P, feats = _perturbed()
     slots = pose_slots(feats, problem.obs)
@@ -67,13 +67,28 @@ def test_jacobians_match_central_differences(pixel_weighted: bool) -> None:
     np.testing.assert_allclose(reused.rows, model.linearize(R, P, feats).rows, rtol=0, atol=0)
 
 
-def test_jacobians_at_tiny_parallax() -> None:
+def test_jacobians_at_tiny_parallax(engine_path: str) -> None:
     """Jacobians stay exact as theta -> 0 (far features are harmless)."""
     problem, R, P, feats = _perturbed()
     tiny = ParallaxFeatures(np.full_like(feats.theta, 1e-9), feats.n, feats.main_idx,
                             feats.assoc_idx)
     pose_err, feat_err = check_jacobians(ParallaxModel(problem), R, P, tiny)
     assert pose_err < 1e-6 and feat_err < 1e-6
+
+
+@pytest.mark.parametrize('pixel_weighted', [False, True])
+def test_compiled_rows_equal_numpy_rows(pixel_weighted: bool,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled PMBA rows (pmba_ros.core.kernels) equal numpy's to rounding."""
+    pytest.importorskip('numba')
+    problem, R, P, feats = _perturbed()
+    model = ParallaxModel(problem, pixel_weighted)
+    rows = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(kernels, 'ENABLED', compiled)
+        rows[compiled] = model.linearize(R, P, feats, model.evaluate(R, P, feats)).rows
+    scale = np.max(np.abs(rows[False]))
+    np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12 * scale)
 
 
 def test_cost_invariant_under_similarity() -> None:
