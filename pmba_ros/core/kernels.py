@@ -64,7 +64,9 @@ def _add_block(U: Any, pair_index: Any, a: int, b: int, src: Any, i0: int, k0: i
     for i in range(n_r):
         for k in range(n_c):
             U[p, r0 + i, c0 + k] += src[i0 + i, k0 + k]
-            if a == b and not symmetric:
+    if a == b and not symmetric:
+        for i in range(n_r):
+            for k in range(n_c):
                 U[p, c0 + k, r0 + i] += src[i0 + i, k0 + k]
 
 
@@ -88,7 +90,7 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
             for r in range(d):
                 for i in range(width - 6):
                     x = E[k, r, 6 + i]
-                    for m in range(i, width - 6):
+                    for m in range(width - 6):
                         Q[i, m] += x * E[k, r, 6 + m]
             b0 = obs_block[k]
             if b0 < 0:
@@ -111,9 +113,6 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
                     _add_block(U, pair_index, b0, a, P, 0, col, 6, anchor_w[s], 0, anchor_lo[s],
                                False)
                 col += anchor_w[s]
-        for i in range(width - 6):
-            for m in range(i):
-                Q[i, m] = Q[m, i]
         for i in range(3):
             g_feat[f, i] = Q[1 + i, 0]
             for m in range(3):
