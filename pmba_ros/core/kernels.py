@@ -34,6 +34,8 @@ def _import_numba() -> Any:
 _NUMBA = _import_numba()
 #: Whether the compiled loops are used (numba importable and not turned off).
 ENABLED = _NUMBA is not None and os.environ.get('PMBA_NUMBA', '1') != '0'
+#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
+TINY = 1e-300
 #: Largest number of free pose blocks for the compiled loops: their (n, n) pair index
 #: stays under 200 MB.
 MAX_BLOCKS = 5000
@@ -138,8 +140,9 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
 
 
 @_jit
-def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: Any) -> None:
-    """Add W_a V^-1 W_b^T of every feature's observation pairs (a <= b) to ``out``."""
+def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: Any,
+           sign: float) -> None:
+    """Add sign W_a V^-1 W_b^T of every feature's observation pairs (a <= b) to ``out``."""
     M = np.empty((6, 6))
     for f in range(starts.shape[0] - 1):
         lo, hi = starts[f], starts[f + 1]
@@ -161,7 +164,7 @@ def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: 
                 for i in range(6):
                     w0, w1, w2 = W[lo + a, i, 0], W[lo + a, i, 1], W[lo + a, i, 2]
                     for k in range(6):
-                        M[i, k] = w0 * Y[b, 0, k] + w1 * Y[b, 1, k] + w2 * Y[b, 2, k]
+                        M[i, k] = sign * (w0 * Y[b, 0, k] + w1 * Y[b, 1, k] + w2 * Y[b, 2, k])
                 _add_block(out, pair_index, ba, bb, M, 0, 0, 6, 6, 0, 0, a == b)
 
 
@@ -193,7 +196,7 @@ def schur_blocks(W: FloatArray, V_inv: FloatArray, starts: IntArray, w_block: In
     """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks (n_pairs, 6, 6)."""
     out = np.zeros((n_pairs, 6, 6))
     _schur(np.ascontiguousarray(W), np.ascontiguousarray(V_inv), starts, w_block,
-           pair_index, out)
+           pair_index, out, 1.0)
     return out
 
 
@@ -299,3 +302,189 @@ def pmba_rows(obs: Any, feats: Any, R_wc: FloatArray, geo: Any, dg_du: FloatArra
                geo.cos_t, dg_du, dg_dt, dth_u, Rm_hat_n, A_f,
                empty if weights is None else weights,
                geo.N_hat if rays_c is None else rays_c, E)
+
+
+@_jit
+def _scale_w(W: Any, feat_idx: Any, w_block: Any, c_pose: Any, c_feat: Any) -> None:
+    """W_k <- diag(c_pose of its block) W_k diag(c_feat of its feature), in place."""
+    for k in range(W.shape[0]):
+        b, f = w_block[k], feat_idx[k]
+        if b < 0:
+            continue
+        for i in range(6):
+            for m in range(3):
+                W[k, i, m] *= c_pose[b, i] * c_feat[f, m]
+
+
+@_jit
+def _inverse3(A: Any, out: Any) -> bool:
+    """Write A^-1 of a 3x3 matrix (by its adjugate) to out; False if A is singular."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    if not (abs(det) > 0.0 and np.isfinite(det)):
+        return False
+    inv = 1.0 / det
+    out[0, 0] = c00 * inv
+    out[1, 0] = c01 * inv
+    out[2, 0] = c02 * inv
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) * inv
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) * inv
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) * inv
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) * inv
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) * inv
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) * inv
+    return True
+
+
+@_jit
+def _reduce(U: Any, W: Any, V: Any, damp_feat: Any, g_pose: Any, g_feat: Any, starts: Any,
+            w_block: Any, pair_index: Any, V_inv: Any, S: Any, rhs: Any) -> int:
+    """Schur complement of the damped feature blocks; returns -1, or the singular feature.
+
+    S = U - sum_f W_f V_f^-1 W_f^T (upper pair blocks) and rhs = -g_T + W V^-1 g_F.
+    """
+    A = np.empty((3, 3))
+    Vg = np.empty(3)
+    S[:] = U
+    for b in range(rhs.shape[0]):
+        for i in range(6):
+            rhs[b, i] = -g_pose[b, i]
+    for f in range(starts.shape[0] - 1):
+        for i in range(3):
+            for m in range(3):
+                A[i, m] = V[f, i, m]
+            A[i, i] += damp_feat[f, i]
+        if not _inverse3(A, V_inv[f]):
+            return f
+        for i in range(3):
+            Vg[i] = V_inv[f, i, 0] * g_feat[f, 0] + V_inv[f, i, 1] * g_feat[f, 1] \
+                + V_inv[f, i, 2] * g_feat[f, 2]
+        for k in range(starts[f], starts[f + 1]):
+            b = w_block[k]
+            if b >= 0:
+                for i in range(6):
+                    rhs[b, i] += W[k, i, 0] * Vg[0] + W[k, i, 1] * Vg[1] + W[k, i, 2] * Vg[2]
+    _schur(W, V_inv, starts, w_block, pair_index, S, -1.0)
+    return -1
+
+
+@_jit
+def _back_substitute(W: Any, V_inv: Any, g_feat: Any, x_pose: Any, starts: Any,
+                     w_block: Any, x_feat: Any) -> None:
+    """x_F = V^-1 (-g_F - W^T x_T), feature by feature."""
+    r = np.empty(3)
+    for f in range(starts.shape[0] - 1):
+        for m in range(3):
+            r[m] = -g_feat[f, m]
+        for k in range(starts[f], starts[f + 1]):
+            b = w_block[k]
+            if b < 0:
+                continue
+            for m in range(3):
+                acc = 0.0
+                for i in range(6):
+                    acc += W[k, i, m] * x_pose[b, i]
+                r[m] -= acc
+        for i in range(3):
+            x_feat[f, i] = V_inv[f, i, 0] * r[0] + V_inv[f, i, 1] * r[1] + V_inv[f, i, 2] * r[2]
+
+
+@_jit
+def _quadratic_form(U: Any, pair_rows: Any, pair_cols: Any, W: Any, V: Any, x_pose: Any,
+                    x_feat: Any, feat_idx: Any, w_block: Any) -> float:
+    """x^T H x from upper pair blocks U, W and V."""
+    quad = 0.0
+    for p in range(U.shape[0]):
+        a, b = pair_rows[p], pair_cols[p]
+        t = 0.0
+        for i in range(6):
+            for m in range(6):
+                t += x_pose[a, i] * U[p, i, m] * x_pose[b, m]
+        quad += t if a == b else 2.0 * t
+    for k in range(W.shape[0]):
+        b, f = w_block[k], feat_idx[k]
+        if b < 0:
+            continue
+        t = 0.0
+        for i in range(6):
+            for m in range(3):
+                t += x_pose[b, i] * W[k, i, m] * x_feat[f, m]
+        quad += 2.0 * t
+    for f in range(V.shape[0]):
+        for i in range(3):
+            for m in range(3):
+                quad += x_feat[f, i] * V[f, i, m] * x_feat[f, m]
+    return quad
+
+
+def scale_w(W: FloatArray, feat_idx: IntArray, obs_block: IntArray, c_pose: FloatArray,
+            c_feat: FloatArray) -> None:
+    """Scale the W blocks in place by their pose and feature column scales."""
+    _scale_w(W, feat_idx, obs_block, c_pose, c_feat)
+
+
+def reduce(U: FloatArray, W: FloatArray, V: FloatArray, damp_feat: FloatArray,
+           g_pose: FloatArray, g_feat: FloatArray, starts: IntArray, obs_block: IntArray,
+           pair_index: IntArray) -> tuple[FloatArray, FloatArray, FloatArray, int]:
+    """Return S (upper pair blocks), the right-hand side, V^-1, and -1 or a singular feature."""
+    V_inv = np.empty_like(V)
+    S = np.empty_like(U)
+    rhs = np.empty_like(g_pose)
+    bad = _reduce(U, W, V, damp_feat, g_pose, g_feat, starts, obs_block, pair_index, V_inv,
+                  S, rhs)
+    return S, rhs, V_inv, int(bad)
+
+
+def back_substitute(W: FloatArray, V_inv: FloatArray, g_feat: FloatArray,
+                    x_pose: FloatArray, starts: IntArray, obs_block: IntArray) -> FloatArray:
+    """Return x_F = V^-1 (-g_F - W^T x_T)."""
+    x_feat = np.empty_like(g_feat)
+    _back_substitute(W, V_inv, g_feat, np.ascontiguousarray(x_pose), starts, obs_block, x_feat)
+    return x_feat
+
+
+def quadratic_form(U: FloatArray, pair_rows: IntArray, pair_cols: IntArray, W: FloatArray,
+                   V: FloatArray, x_pose: FloatArray, x_feat: FloatArray, feat_idx: IntArray,
+                   obs_block: IntArray) -> float:
+    """Return x^T H x for H held as upper pair blocks U, W and V."""
+    return float(_quadratic_form(U, pair_rows, pair_cols, W, V, np.ascontiguousarray(x_pose),
+                                 np.ascontiguousarray(x_feat), feat_idx, obs_block))
+
+
+@_jit
+def _pmba_rays(cam_idx: Any, feat_idx: Any, main_idx: Any, centers_w: Any, u: Any, g: Any,
+               sin_t: Any, N: Any, d: Any, N_hat: Any, norm: Any, main: Any) -> None:
+    """N = g u + sin(theta) (P_m - P_i) per observation and its unit ray (PMBA eq. 6)."""
+    for k in range(cam_idx.shape[0]):
+        j, i = feat_idx[k], cam_idx[k]
+        m = main_idx[j]
+        sq = 0.0
+        for c in range(3):
+            d[k, c] = centers_w[m, c] - centers_w[i, c]
+            N[k, c] = g[j] * u[j, c] + sin_t[j] * d[k, c]
+            sq += N[k, c] * N[k, c]
+        norm[k] = max(np.sqrt(sq), TINY)
+        main[k] = i == m
+        if main[k]:
+            # The main anchor's ray is exactly sign(g) u (no cancellation in g u + 0).
+            sgn = 1.0 if g[j] >= 0.0 else -1.0
+            for c in range(3):
+                N_hat[k, c] = sgn * u[j, c]
+        else:
+            for c in range(3):
+                N_hat[k, c] = N[k, c] / norm[k]
+
+
+def pmba_rays(cam_idx: IntArray, feat_idx: IntArray, main_idx: IntArray,
+              centers_w: FloatArray, u: FloatArray, g: FloatArray, sin_t: FloatArray,
+              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Any]:
+    """Return N, P_m - P_i, N_hat, |N| (floored) and the main-anchor mask, per observation."""
+    K = cam_idx.shape[0]
+    N, d, N_hat = np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3))
+    norm = np.empty(K)
+    main = np.empty(K, dtype=np.bool_)
+    _pmba_rays(cam_idx, feat_idx, main_idx, np.ascontiguousarray(centers_w), u, g, sin_t, N, d,
+               N_hat, norm, main)
+    return N, d, N_hat, norm, main

@@ -247,6 +247,7 @@ class SchurStructure:
     _fold_bwd: IntArray       # directed pair (col, row), or n_dir
     _diag_pairs: IntArray
     _starts: IntArray         # (N + 1,) first observation of each feature
+    _obs_block: IntArray      # (K,) free block of each observer, -1 if fixed
     _pair_index: IntArray | None  # (n_blocks, n_blocks) upper pair of (a, b), a <= b; compiled
 
     @classmethod
@@ -373,7 +374,7 @@ class SchurStructure:
                    np.maximum(obs_block, 0), obs_block < 0, anchor_block,
                    anchor_obs, anchor_self, anchor_cross, obs_chunks, feat_chunks, batches,
                    dense, fold_fwd, fold_bwd, np.flatnonzero(pair_rows == pair_cols), starts,
-                   None)
+                   obs_block, None)
 
     @classmethod
     def _build_compiled(cls, cam_idx: IntArray, feat_idx: IntArray, n_feats: int,
@@ -400,7 +401,7 @@ class SchurStructure:
         return cls(n_blocks, n_feats, 0, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
                    np.maximum(obs_block, 0), obs_block < 0, anchor_block, anchor_obs, [], {},
                    [], [], [], False, none, none, np.flatnonzero(pair_rows == pair_cols),
-                   starts, pair_index)
+                   starts, obs_block, pair_index)
 
     def fold(self, self_blocks: FloatArray, cross: FloatArray) -> FloatArray:
         """Return upper pair blocks (n_pairs, 6, 6) from per-block and directed-pair sums.
@@ -446,7 +447,7 @@ def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
     E = lin.rows
     if st._pair_index is not None:
         return NormalEquations(*kernels.assemble(
-            E, st._starts, np.where(st._obs_fixed, -1, st.w_block), st._anchor_block,
+            E, st._starts, st._obs_block, st._anchor_block,
             st._anchor_obs, st.anchor_cols, st._pair_index, st.pair_rows.shape[0]))
     K, d, width = E.shape
     nb, N, n_dir = st.n_blocks, st.n_feats, st.n_dir
@@ -522,8 +523,11 @@ def scale(structure: SchurStructure, eqs: NormalEquations, c_pose: FloatArray,
     cp_r = c_pose[structure.pair_rows]
     cp_c = c_pose[structure.pair_cols]
     W = eqs.W
-    W *= c_pose[structure.w_block][:, :, None]
-    W *= c_feat[structure.feat_idx][:, None, :]
+    if structure._pair_index is not None:
+        kernels.scale_w(W, structure.feat_idx, structure._obs_block, c_pose, c_feat)
+    else:
+        W *= c_pose[structure.w_block][:, :, None]
+        W *= c_feat[structure.feat_idx][:, None, :]
     return NormalEquations(
         eqs.U * cp_r[:, :, None] * cp_c[:, None, :], W,
         eqs.V * c_feat[:, :, None] * c_feat[:, None, :],
@@ -543,8 +547,8 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
     st = structure
     nb = st.n_blocks
     if st._pair_index is not None:
-        return kernels.schur_blocks(W, V_inv, st._starts, np.where(st._obs_fixed, -1, st.w_block),
-                                    st._pair_index, st.pair_rows.shape[0])
+        return kernels.schur_blocks(W, V_inv, st._starts, st._obs_block, st._pair_index,
+                                    st.pair_rows.shape[0])
     if st._dense_schur:
         own = ~st._obs_fixed
         Wd = np.zeros((st.n_feats, 3, nb, 6))        # W^T of every feature, all pose columns
@@ -593,21 +597,20 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     Raises:
         ReducedSystemError: If S or a feature block is not positive definite.
     """
-    V = eqs.V + damp_feat[:, :, None] * np.eye(3)
-    try:
-        V_inv = np.asarray(np.linalg.inv(V), dtype=np.float64)
-    except np.linalg.LinAlgError as err:
-        msg = 'singular feature block'
-        raise ReducedSystemError(msg) from err
+    st = structure
+    if st._pair_index is not None:
+        S_blocks, rhs, V_inv, bad = kernels.reduce(eqs.U, eqs.W, eqs.V, damp_feat, eqs.g_pose,
+                                                   eqs.g_feat, st._starts, st._obs_block,
+                                                   st._pair_index)
+        if bad >= 0:
+            msg = f'singular feature block (feature {bad})'
+            raise ReducedSystemError(msg)
+    else:
+        S_blocks, rhs, V_inv = _reduce(st, eqs, damp_feat)
     if not np.all(np.isfinite(V_inv)):
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
-    S_blocks = eqs.U - _schur_blocks(structure, eqs.W, V_inv)
     nb = structure.n_blocks
-    Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
-    rhs = -eqs.g_pose + _scatter_add(structure.w_block,
-                                     np.einsum('qij,qj->qi', eqs.W, Vg[structure.feat_idx]),
-                                     structure.n_blocks)
     free = pose_free.reshape(-1)
     dim = nb * 6
     rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
@@ -647,16 +650,39 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         msg = 'reduced camera system solve produced non-finite values'
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
+    if st._pair_index is not None:
+        return x_pose, kernels.back_substitute(eqs.W, V_inv, eqs.g_feat, x_pose, st._starts,
+                                               st._obs_block)
     Wt_x = np.einsum('qji,qj->qi', eqs.W, x_pose[structure.w_block])
     W_x = _scatter_add(structure.feat_idx, Wt_x, structure.n_feats)
     x_feat = np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - W_x)
     return x_pose, x_feat
 
 
+def _reduce(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,
+            ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return S = U - W V^-1 W^T (upper pair blocks), -g_T + W V^-1 g_F and V^-1."""
+    V = eqs.V + damp_feat[:, :, None] * np.eye(3)
+    try:
+        V_inv = np.asarray(np.linalg.inv(V), dtype=np.float64)
+    except np.linalg.LinAlgError as err:
+        msg = 'singular feature block'
+        raise ReducedSystemError(msg) from err
+    S_blocks = eqs.U - _schur_blocks(structure, eqs.W, V_inv)
+    Vg = np.einsum('nij,nj->ni', V_inv, eqs.g_feat)
+    rhs = -eqs.g_pose + _scatter_add(structure.w_block,
+                                     np.einsum('qij,qj->qi', eqs.W, Vg[structure.feat_idx]),
+                                     structure.n_blocks)
+    return S_blocks, rhs, V_inv
+
+
 def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: FloatArray,
                    x_feat: FloatArray) -> float:
     """Return x^T H x for H = J^T J held as (upper) U, W and V blocks; cheaper than |J x|^2."""
     r, c = structure.pair_rows, structure.pair_cols
+    if structure._pair_index is not None:
+        return kernels.quadratic_form(eqs.U, r, c, eqs.W, eqs.V, x_pose, x_feat,
+                                      structure.feat_idx, structure._obs_block)
     Ux = np.einsum('pij,pj->pi', eqs.U, x_pose[c])
     weight = np.where(r == c, 1.0, 2.0)  # off-diagonal blocks stand for themselves and U^T
     quad = float(np.sum(weight * np.sum(x_pose[r] * Ux, axis=1)))

@@ -37,8 +37,8 @@ from pmba_ros.core.problem import Observations, ParallaxFeatures
 #: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
 #: anchor's centre (its rotation does not enter eq. 6).
 ANCHOR_COLS = ((0, 6), (3, 6))
-#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
-_TINY = 1e-300
+
+_TINY = kernels.TINY
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,6 +79,10 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     c = np.sum(t * u, axis=1)
     sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     g = s * cos_t - c * sin_t
+    if kernels.ENABLED:
+        return RayGeometry(u, t, s, c, g, sin_t, cos_t,
+                           *kernels.pmba_rays(obs.cam_idx, obs.feat_idx, feats.main_idx,
+                                              centers_w, u, g, sin_t))
     j = obs.feat_idx
     d = P_m[j] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)

@@ -180,3 +180,20 @@ def test_pmba_gauge_has_seven_dimensions() -> None:
     ev = np.linalg.eigvalsh(J.T @ J)
     assert ev[6] < 1e-9 * ev[-1]
     assert ev[7] > 1e-7 * ev[-1]
+
+
+def test_singular_feature_block_is_a_clear_error(engine_path: str) -> None:
+    """A feature whose Jacobian columns are zero, undamped: ReducedSystemError, not NaN."""
+    problem = forward_problem(4, n_cams=5, n_points=20)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'xyz')
+    free_block = np.arange(problem.n_cams)
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats),
+                                 problem.n_feats, free_block, model.anchor_cols)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    lin.rows[problem.obs.feat_idx == 7, :, 7:10] = 0.0
+    eqs = ne.assemble(st, lin)
+    with pytest.raises(ne.ReducedSystemError, match='singular feature block'):
+        ne.solve_schur(st, eqs, np.full((st.n_blocks, 6), 1e-3),
+                       np.zeros((problem.n_feats, 3)), np.ones((st.n_blocks, 6), dtype=bool))

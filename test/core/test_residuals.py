@@ -26,7 +26,7 @@ def _perturbed(seed: int = 3):
     return problem, R, P, ParallaxFeatures(theta, n, feats.main_idx, feats.assoc_idx)
 
 
-def test_observation_rays_eq6_equals_eq2_projection() -> None:
+def test_observation_rays_eq6_equals_eq2_projection(engine_path: str) -> None:
     """xi(N_ji) of eq. (6) equals the direction from P_i to the eq. (2) point."""
     problem, R, P, feats = _perturbed()
     X = conversions.parallax_to_xyz(R, P, feats)
@@ -38,7 +38,7 @@ def test_observation_rays_eq6_equals_eq2_projection() -> None:
                                atol=1e-9)
 
 
-def test_theta_zero_is_a_point_at_infinity() -> None:
+def test_theta_zero_is_a_point_at_infinity(engine_path: str) -> None:
     """At theta = 0 every observer's predicted ray is R_m n (pmba.md §1.3)."""
     problem, R, P, feats = _perturbed()
     feats0 = ParallaxFeatures(np.zeros_like(feats.theta), feats.n, feats.main_idx,
