@@ -12,7 +12,7 @@ import logging
 import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import sphere
+from pmba_ros.core import kernels, sphere
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -68,6 +68,11 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     if centers_w is not None:
         close = _coincident_pairs(centers_w)
     counts = np.bincount(obs.feat_idx, minlength=N)
+    if kernels.ENABLED:
+        main_idx, assoc_idx, ok = kernels.widest_pairs(
+            rays, obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]), allowed_pairs, close,
+            M)
+        return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)
     starts = np.concatenate([[0], np.cumsum(counts)])[:-1]
     # Features with c observations at a time: all pairwise cosines as one (c x c) Gram matrix
     # per feature; the first minimum of the upper triangle (row-major) is the widest pair.
@@ -91,6 +96,13 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         main_idx[feats] = cams[rows, b]      # the later camera is the main anchor
         assoc_idx[feats] = cams[rows, a]
         ok[feats] = cos.reshape(-1, c * c)[rows, best] < 2.0
+    return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)
+
+
+def _swap_far_main(main_idx: IntArray, assoc_idx: IntArray, ok: BoolArray,
+                   centers_w: FloatArray | None, points_w: FloatArray | None,
+                   ) -> tuple[IntArray, IntArray, BoolArray]:
+    """Swap the anchors of points over 30 times farther from the main anchor."""
     if points_w is not None and centers_w is not None:
         d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
         d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)

@@ -488,3 +488,86 @@ def pmba_rays(cam_idx: IntArray, feat_idx: IntArray, main_idx: IntArray,
     _pmba_rays(cam_idx, feat_idx, main_idx, np.ascontiguousarray(centers_w), u, g, sin_t, N, d,
                N_hat, norm, main)
     return N, d, N_hat, norm, main
+
+
+@_jit
+def _covisible(starts: Any, obs_block: Any, pair_index: Any) -> None:
+    """Number the covisible upper block pairs (and the diagonal) row by row in pair_index."""
+    n = pair_index.shape[0]
+    pair_index[:] = -1
+    for f in range(starts.shape[0] - 1):
+        for a in range(starts[f], starts[f + 1]):
+            ba = obs_block[a]
+            if ba < 0:
+                continue
+            for b in range(a, starts[f + 1]):
+                bb = obs_block[b]
+                if bb >= 0:
+                    pair_index[min(ba, bb), max(ba, bb)] = 0
+    count = 0
+    for i in range(n):
+        pair_index[i, i] = 0
+        for m in range(i, n):
+            if pair_index[i, m] == 0:
+                pair_index[i, m] = count
+                count += 1
+
+
+def covisible_pairs(starts: IntArray, obs_block: IntArray, n_blocks: int) -> IntArray:
+    """Return the (n_blocks, n_blocks) upper pair index of poses that observe a common feature.
+
+    Entry (a, b), a <= b, numbers the pair in row-major order, -1 where a and b share no
+    feature; every pose pairs with itself.
+    """
+    pair_index = np.empty((n_blocks, n_blocks), dtype=np.int64)
+    _covisible(starts, obs_block, pair_index)
+    return pair_index
+
+
+@_jit
+def _widest_pairs(rays: Any, cam_idx: Any, starts: Any, allowed: Any, close: Any, M: int,
+                  main_idx: Any, assoc_idx: Any, ok: Any) -> None:
+    """Find each feature's admissible observation pair of smallest ray cosine.
+
+    The first such pair in row-major order, as numpy's argmin; the later observation's
+    camera is the main anchor.
+    """
+    for f in range(starts.shape[0] - 1):
+        lo, hi = starts[f], starts[f + 1]
+        best, best_a, best_b = 2.0, lo, lo
+        for a in range(lo, hi):
+            ca = cam_idx[a]
+            for b in range(a + 1, hi):
+                cb = cam_idx[b]
+                if allowed.shape[0] > 0 and not allowed[ca, cb]:
+                    continue
+                if close.shape[0] > 0:
+                    key = ca * M + cb
+                    pos = np.searchsorted(close, key)
+                    if pos < close.shape[0] and close[pos] == key:
+                        continue
+                cos = rays[a, 0] * rays[b, 0] + rays[a, 1] * rays[b, 1] + rays[a, 2] * rays[b, 2]
+                if cos < best:
+                    best, best_a, best_b = cos, a, b
+        if hi - lo >= 2:
+            main_idx[f] = cam_idx[best_b]
+            assoc_idx[f] = cam_idx[best_a]
+            ok[f] = best < 2.0
+
+
+def widest_pairs(rays: FloatArray, cam_idx: IntArray, starts: IntArray,
+                 allowed: Any, close: IntArray, n_cams: int,
+                 ) -> tuple[IntArray, IntArray, Any]:
+    """Return main and associate anchors and ok of each feature (conversions.select_anchors).
+
+    ``allowed`` is an (M, M) mask of admissible camera pairs or None, ``close`` the sorted
+    keys a * M + b of inadmissible ones.
+    """
+    N = starts.shape[0] - 1
+    main_idx = np.zeros(N, dtype=np.int64)
+    assoc_idx = np.zeros(N, dtype=np.int64)
+    ok = np.zeros(N, dtype=np.bool_)
+    mask = np.zeros((0, 0), dtype=np.bool_) if allowed is None else np.asarray(allowed, bool)
+    _widest_pairs(rays, cam_idx, starts, mask, np.sort(close).astype(np.int64), n_cams,
+                  main_idx, assoc_idx, ok)
+    return main_idx, assoc_idx, ok

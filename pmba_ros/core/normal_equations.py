@@ -387,16 +387,8 @@ class SchurStructure:
         anchors observe their features, so they are among the observers).
         """
         n_blocks = int(obs_block.max()) + 1
-        own = obs_block >= 0
-        incidence = scipy.sparse.csr_matrix(
-            (np.ones(int(own.sum())), (feat_idx[own], obs_block[own])),
-            shape=(n_feats, n_blocks))
-        covis = scipy.sparse.triu(incidence.T @ incidence).tocoo()
-        pair_keys = np.union1d(covis.row.astype(np.int64) * n_blocks + covis.col,
-                               np.arange(n_blocks) * (n_blocks + 1))
-        pair_rows, pair_cols = pair_keys // n_blocks, pair_keys % n_blocks
-        pair_index = np.full((n_blocks, n_blocks), -1, dtype=np.int64)
-        pair_index[pair_rows, pair_cols] = np.arange(pair_keys.shape[0])
+        pair_index = kernels.covisible_pairs(starts, obs_block, n_blocks)
+        pair_rows, pair_cols = np.nonzero(pair_index >= 0)
         none = np.zeros(0, dtype=np.int64)
         return cls(n_blocks, n_feats, 0, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
                    np.maximum(obs_block, 0), obs_block < 0, anchor_block, anchor_obs, [], {},

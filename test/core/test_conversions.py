@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 
 from pmba_ros.core import conversions
 from pmba_ros.core.problem import make_problem
@@ -26,7 +27,7 @@ def _uneven(problem, seed: int):
                         obs.cam_idx[keep], obs.feat_idx[keep], obs.pixels[keep])
 
 
-def _brute_force(problem, R_wc, centers_w, tol):
+def _brute_force(problem, R_wc, centers_w, tol, allowed=None):
     """Widest admissible observer pair per feature by enumeration (first in pair order)."""
     rays = conversions.world_rays(problem, R_wc)
     out = {}
@@ -37,6 +38,8 @@ def _brute_force(problem, R_wc, centers_w, tol):
             c1, c2 = problem.obs.cam_idx[k1], problem.obs.cam_idx[k2]
             if np.linalg.norm(centers_w[c1] - centers_w[c2]) <= tol:
                 continue
+            if allowed is not None and not allowed[c1, c2]:
+                continue
             cos = float(rays[k1] @ rays[k2])
             if cos < best_cos:
                 best, best_cos = (int(c2), int(c1)), cos
@@ -44,8 +47,13 @@ def _brute_force(problem, R_wc, centers_w, tol):
     return out
 
 
-def test_select_anchors_takes_the_widest_admissible_pair() -> None:
-    """Anchors equal an enumeration of all observer pairs, with coincident cameras excluded."""
+@pytest.mark.parametrize('restricted', [False, True])
+def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
+                                                         engine_path: str) -> None:
+    """Anchors equal an enumeration of all observer pairs, with coincident cameras excluded.
+
+    ``restricted``: only some camera pairs may anchor (the epipolar-geometry pairs of init).
+    """
     base = forward_problem(3, n_cams=7, n_points=30)
     centers = np.array(base.centers_w)
     centers[4] = centers[2] + 1e-12            # no baseline between cameras 2 and 4
@@ -53,10 +61,14 @@ def test_select_anchors_takes_the_widest_admissible_pair() -> None:
                            base.obs.feat_idx, base.obs.pixels)
     problem = _uneven(problem, 3)
     assert len(set(np.bincount(problem.obs.feat_idx).tolist())) >= 3
-    main, assoc, ok = conversions.select_anchors(problem, problem.R_wc,
+    allowed = None
+    if restricted:
+        allowed = np.random.default_rng(5).random((7, 7)) < 0.6
+        allowed |= allowed.T
+    main, assoc, ok = conversions.select_anchors(problem, problem.R_wc, allowed_pairs=allowed,
                                                  centers_w=problem.centers_w)
     scale = float(np.ptp(centers, axis=0).max())
-    expected = _brute_force(problem, problem.R_wc, problem.centers_w, scale * 1e-9)
+    expected = _brute_force(problem, problem.R_wc, problem.centers_w, scale * 1e-9, allowed)
     for f, pair in expected.items():
         assert bool(ok[f]) == (pair is not None)
         if pair is not None:
