@@ -31,6 +31,7 @@ import struct
 from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
+from pmba_ros.io import cdr
 
 logger = logging.getLogger(__name__)
 
@@ -313,7 +314,7 @@ class BagWriter:
         Raises:
             BagError: If the message does not serialize or the topic changes type.
         """
-        msgtype = msgtype or getattr(msg, '__msgtype__', '')
+        msgtype = str(msgtype or getattr(msg, '__msgtype__', ''))
         conn = self._connections.get(topic)
         if conn is None:
             try:
@@ -326,7 +327,9 @@ class BagWriter:
             msg_ = f'topic {topic!r} has type {conn.msgtype}, cannot write a {msgtype}'
             raise BagError(msg_)
         try:
-            raw = self._typestore.serialize_cdr(msg, msgtype)
+            raw = cdr.encode(msg, msgtype)
+            if raw is None:
+                raw = self._typestore.serialize_cdr(msg, msgtype)
         except Exception as err:
             msg_ = f'cannot serialize a {msgtype} message for {topic!r}: {err}'
             raise BagError(msg_) from err
