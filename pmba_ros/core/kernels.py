@@ -292,15 +292,56 @@ def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: A
                                + e[r, 12] * A_f[j, 2, q])
 
 
-def pmba_rows(obs: Any, feats: Any, R_wc: FloatArray, geo: Any, dg_du: FloatArray,
-              dg_dt: FloatArray, dth_u: FloatArray, Rm_hat_n: FloatArray, A_f: FloatArray,
-              weights: FloatArray | None, rays_c: FloatArray | None, E: FloatArray) -> None:
-    """Fill E (K, d, 19) with PMBA rows from the per-feature factors of ray_jacobians."""
-    empty = np.zeros((0, 2, 3))
+@_jit
+def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: Any, c: Any,
+                          sin_t: Any, cos_t: Any, Rm_hat_n: Any, A_f: Any, dg_du: Any,
+                          dg_dt: Any, dth_u: Any) -> None:
+    """Compute the per-feature factors of residuals.ray_jacobians.
+
+    R_m [n]x, A_n (as sphere.tangent_basis), dg/du, dg/dt and -(s sin(theta) + c cos(theta)) u.
+    """
+    for j in range(n.shape[0]):
+        R = R_wc[main_idx[j]]
+        n0, n1, n2 = n[j, 0], n[j, 1], n[j, 2]
+        for r in range(3):
+            _cross_into(Rm_hat_n[j, r], R[r, 0], R[r, 1], R[r, 2], n0, n1, n2, 1.0)
+        # A_n: a1 = xi(e_k x n) for the axis k least aligned with n (the first on ties).
+        k = 0
+        if abs(n1) < abs(n0):
+            k = 1
+        if abs(n2) < abs((n0, n1)[k]):
+            k = 2
+        a0, a1, a2 = (0.0, -n2, n1) if k == 0 else ((n2, 0.0, -n0) if k == 1 else
+                                                    (-n1, n0, 0.0))
+        na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        if na > 0.0:
+            a0, a1, a2 = a0 / na, a1 / na, a2 / na
+        A_f[j, 0, 0], A_f[j, 1, 0], A_f[j, 2, 0] = a0, a1, a2
+        A_f[j, 0, 1] = n1 * a2 - n2 * a1
+        A_f[j, 1, 1] = n2 * a0 - n0 * a2
+        A_f[j, 2, 1] = n0 * a1 - n1 * a0
+        cos_over_s = cos_t[j] / max(s[j], TINY)
+        D_sq = t[j, 0] * t[j, 0] + t[j, 1] * t[j, 1] + t[j, 2] * t[j, 2]
+        for r in range(3):
+            dg_du[j, r] = cos_over_s * (D_sq * u[j, r] - c[j] * t[j, r]) - sin_t[j] * t[j, r]
+            dg_dt[j, r] = cos_over_s * (t[j, r] - c[j] * u[j, r]) - sin_t[j] * u[j, r]
+            dth_u[j, r] = -(s[j] * sin_t[j] + c[j] * cos_t[j]) * u[j, r]
+
+
+def pmba_rows(obs: Any, feats: Any, R_wc: FloatArray, geo: Any, weights: FloatArray | None,
+              rays_c: FloatArray | None, E: FloatArray) -> None:
+    """Fill E (K, d, 19) with the PMBA rows of residuals.ray_jacobians."""
+    N = feats.n.shape[0]
+    Rm_hat_n = np.empty((N, 3, 3))
+    A_f = np.empty((N, 3, 2))
+    dg_du, dg_dt, dth_u = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3))
+    R_wc = np.ascontiguousarray(R_wc)
+    _pmba_feature_factors(R_wc, feats.n, feats.main_idx, geo.u, geo.t, geo.s, geo.c,
+                          geo.sin_t, geo.cos_t, Rm_hat_n, A_f, dg_du, dg_dt, dth_u)
     _pmba_rows(obs.cam_idx, obs.feat_idx, feats.main_idx, geo.main, R_wc, obs.bearings_c,
                geo.N_hat, geo.norm, geo.P_m_minus_P_i, feats.n, geo.u, geo.g, geo.sin_t,
                geo.cos_t, dg_du, dg_dt, dth_u, Rm_hat_n, A_f,
-               empty if weights is None else weights,
+               np.zeros((0, 2, 3)) if weights is None else weights,
                geo.N_hat if rays_c is None else rays_c, E)
 
 
@@ -454,40 +495,65 @@ def quadratic_form(U: FloatArray, pair_rows: IntArray, pair_cols: IntArray, W: F
 
 
 @_jit
-def _pmba_rays(cam_idx: Any, feat_idx: Any, main_idx: Any, centers_w: Any, u: Any, g: Any,
-               sin_t: Any, N: Any, d: Any, N_hat: Any, norm: Any, main: Any) -> None:
-    """N = g u + sin(theta) (P_m - P_i) per observation and its unit ray (PMBA eq. 6)."""
+def _pmba_rays(R_wc: Any, centers_w: Any, theta: Any, n: Any, main_idx: Any, assoc_idx: Any,
+               cam_idx: Any, feat_idx: Any, v: Any, weights: Any, u: Any, t: Any, s: Any,
+               c: Any, g: Any, sin_t: Any, cos_t: Any, N: Any, d: Any, N_hat: Any, norm: Any,
+               main: Any, rays_c: Any, res: Any) -> None:
+    """Rays N = g u + sin(theta) (P_m - P_i) (PMBA eq. 6), R_i^T xi(N) and the errors (eq. 8)."""
+    for j in range(theta.shape[0]):
+        m, a = main_idx[j], assoc_idx[j]
+        for r in range(3):
+            u[j, r] = R_wc[m, r, 0] * n[j, 0] + R_wc[m, r, 1] * n[j, 1] + R_wc[m, r, 2] * n[j, 2]
+            t[j, r] = centers_w[m, r] - centers_w[a, r]
+        x0 = t[j, 1] * u[j, 2] - t[j, 2] * u[j, 1]
+        x1 = t[j, 2] * u[j, 0] - t[j, 0] * u[j, 2]
+        x2 = t[j, 0] * u[j, 1] - t[j, 1] * u[j, 0]
+        s[j] = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        c[j] = t[j, 0] * u[j, 0] + t[j, 1] * u[j, 1] + t[j, 2] * u[j, 2]
+        sin_t[j], cos_t[j] = np.sin(theta[j]), np.cos(theta[j])
+        g[j] = s[j] * cos_t[j] - c[j] * sin_t[j]
+    weighted = weights.shape[0] > 0
     for k in range(cam_idx.shape[0]):
         j, i = feat_idx[k], cam_idx[k]
         m = main_idx[j]
         sq = 0.0
-        for c in range(3):
-            d[k, c] = centers_w[m, c] - centers_w[i, c]
-            N[k, c] = g[j] * u[j, c] + sin_t[j] * d[k, c]
-            sq += N[k, c] * N[k, c]
+        for r in range(3):
+            d[k, r] = centers_w[m, r] - centers_w[i, r]
+            N[k, r] = g[j] * u[j, r] + sin_t[j] * d[k, r]
+            sq += N[k, r] * N[k, r]
         norm[k] = max(np.sqrt(sq), TINY)
         main[k] = i == m
-        if main[k]:
-            # The main anchor's ray is exactly sign(g) u (no cancellation in g u + 0).
-            sgn = 1.0 if g[j] >= 0.0 else -1.0
-            for c in range(3):
-                N_hat[k, c] = sgn * u[j, c]
-        else:
-            for c in range(3):
-                N_hat[k, c] = N[k, c] / norm[k]
+        # The main anchor's ray is exactly sign(g) u (no cancellation in g u + 0).
+        sgn = 1.0 if g[j] >= 0.0 else -1.0
+        for r in range(3):
+            N_hat[k, r] = sgn * u[j, r] if main[k] else N[k, r] / norm[k]
+        for r in range(3):
+            rays_c[k, r] = (R_wc[i, 0, r] * N_hat[k, 0] + R_wc[i, 1, r] * N_hat[k, 1]
+                            + R_wc[i, 2, r] * N_hat[k, 2])
+        for r in range(res.shape[1]):
+            if weighted:
+                res[k, r] = (weights[k, r, 0] * (rays_c[k, 0] - v[k, 0])
+                             + weights[k, r, 1] * (rays_c[k, 1] - v[k, 1])
+                             + weights[k, r, 2] * (rays_c[k, 2] - v[k, 2]))
+            else:
+                res[k, r] = N_hat[k, r] - (R_wc[i, r, 0] * v[k, 0] + R_wc[i, r, 1] * v[k, 1]
+                                           + R_wc[i, r, 2] * v[k, 2])
 
 
-def pmba_rays(cam_idx: IntArray, feat_idx: IntArray, main_idx: IntArray,
-              centers_w: FloatArray, u: FloatArray, g: FloatArray, sin_t: FloatArray,
-              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Any]:
-    """Return N, P_m - P_i, N_hat, |N| (floored) and the main-anchor mask, per observation."""
-    K = cam_idx.shape[0]
-    N, d, N_hat = np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3))
+def pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: Any, obs: Any,
+              weights: FloatArray | None) -> tuple[tuple[Any, ...], FloatArray, FloatArray]:
+    """Return the fields of residuals.RayGeometry, the camera rays and the residuals."""
+    N_f, K = feats.theta.shape[0], obs.cam_idx.shape[0]
+    per_feat = [np.empty((N_f, 3)), np.empty((N_f, 3))] + [np.empty(N_f) for _ in range(5)]
+    N, d, N_hat, rays_c = (np.empty((K, 3)) for _ in range(4))
     norm = np.empty(K)
     main = np.empty(K, dtype=np.bool_)
-    _pmba_rays(cam_idx, feat_idx, main_idx, np.ascontiguousarray(centers_w), u, g, sin_t, N, d,
-               N_hat, norm, main)
-    return N, d, N_hat, norm, main
+    res = np.empty((K, 3 if weights is None else 2))
+    _pmba_rays(np.ascontiguousarray(R_wc), np.ascontiguousarray(centers_w), feats.theta,
+               feats.n, feats.main_idx, feats.assoc_idx, obs.cam_idx, obs.feat_idx,
+               obs.bearings_c, np.zeros((0, 2, 3)) if weights is None else weights, *per_feat,
+               N, d, N_hat, norm, main, rays_c, res)
+    return (*per_feat, N, d, N_hat, norm, main), rays_c, res
 
 
 @_jit
@@ -571,3 +637,29 @@ def widest_pairs(rays: FloatArray, cam_idx: IntArray, starts: IntArray,
     _widest_pairs(rays, cam_idx, starts, mask, np.sort(close).astype(np.int64), n_cams,
                   main_idx, assoc_idx, ok)
     return main_idx, assoc_idx, ok
+
+
+@_jit
+def _reprojection_errors(rays_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, k1: Any, k2: Any,
+                         cam_idx: Any, pixels: Any, out: Any) -> None:
+    """|pi(h) - (u, v)| per observation, pi as camera.project (radial k1, k2)."""
+    for k in range(rays_c.shape[0]):
+        i = cam_idx[k]
+        z = rays_c[k, 2]
+        if abs(z) < 1e-300:
+            z = 1e-300
+        x, y = rays_c[k, 0] / z, rays_c[k, 1] / z
+        r2 = x * x + y * y
+        dist = 1.0 + k1[i] * r2 + k2[i] * r2 * r2
+        du = fx[i] * dist * x + cx[i] - pixels[k, 0]
+        dv = fy[i] * dist * y + cy[i] - pixels[k, 1]
+        out[k] = np.sqrt(du * du + dv * dv)
+
+
+def reprojection_errors(rays_c: FloatArray, intr: Any, cam_idx: IntArray,
+                        pixels: FloatArray) -> FloatArray:
+    """Return the pixel reprojection error of camera-frame rays, shape (K,)."""
+    out = np.empty(rays_c.shape[0])
+    _reprojection_errors(rays_c, intr.fx, intr.fy, intr.cx, intr.cy, intr.k1, intr.k2, cam_idx,
+                         pixels, out)
+    return out

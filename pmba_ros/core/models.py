@@ -9,7 +9,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, residuals
+from pmba_ros.core import baselines, kernels, residuals
 from pmba_ros.core.camera import project, projection_jacobian
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
@@ -85,6 +85,9 @@ class Model(ABC, Generic[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
+        if kernels.ENABLED:
+            return kernels.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
+                                               self.obs.cam_idx, self.obs.pixels)
         pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
         return np.linalg.norm(pix - self.obs.pixels, axis=1)
 
@@ -123,12 +126,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
     def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
                  feats: ParallaxFeatures) -> Evaluation:
         """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
-        geo = residuals.observation_rays(R_wc, centers_w, feats, self.obs)
-        rays_c = residuals.camera_rays_from(geo, R_wc, self.obs)
-        if self._weights is None:
-            res = residuals.residuals_from(geo, R_wc, self.obs)
-        else:
-            res = residuals.pixel_weighted_residuals(self._weights, rays_c, self.obs)
+        geo, rays_c, res = residuals.rays_and_residuals(R_wc, centers_w, feats, self.obs,
+                                                        self._weights)
         return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,

@@ -72,6 +72,8 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     References:
         PMBA eq. (6), arccos-free form (pmba.md §1.3).
     """
+    if kernels.ENABLED:
+        return rays_and_residuals(R_wc, centers_w, feats, obs)[0]
     P_m = centers_w[feats.main_idx]
     u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
     t = P_m - centers_w[feats.assoc_idx]
@@ -79,10 +81,6 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     c = np.sum(t * u, axis=1)
     sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     g = s * cos_t - c * sin_t
-    if kernels.ENABLED:
-        return RayGeometry(u, t, s, c, g, sin_t, cos_t,
-                           *kernels.pmba_rays(obs.cam_idx, obs.feat_idx, feats.main_idx,
-                                              centers_w, u, g, sin_t))
     j = obs.feat_idx
     d = P_m[j] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
@@ -92,6 +90,23 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     jm = j[main]
     N_hat[main] = np.where(g[jm] >= 0.0, 1.0, -1.0)[:, None] * u[jm]
     return RayGeometry(u, t, s, c, g, sin_t, cos_t, N, d, N_hat, norm, main)
+
+
+def rays_and_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+                       obs: Observations, weights: FloatArray | None = None,
+                       ) -> tuple[RayGeometry, FloatArray, FloatArray]:
+    """Return the rays of eq. (6), R_i^T xi(N) and the errors of eq. (8) (weighted: in pixels).
+
+    ``weights`` as in :func:`ray_jacobians`. One compiled pass where numba is there.
+    """
+    if kernels.ENABLED:
+        fields, rays_c, res = kernels.pmba_rays(R_wc, centers_w, feats, obs, weights)
+        return RayGeometry(*fields), rays_c, res
+    geo = observation_rays(R_wc, centers_w, feats, obs)
+    rays_c = camera_rays_from(geo, R_wc, obs)
+    if weights is None:
+        return geo, rays_c, residuals_from(geo, R_wc, obs)
+    return geo, rays_c, pixel_weighted_residuals(weights, rays_c, obs)
 
 
 def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -155,6 +170,12 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     if geo is None:
         geo = observation_rays(R_wc, centers_w, feats, obs)
     K = obs.cam_idx.shape[0]
+    if weights is not None and rays_c is None:
+        rays_c = camera_rays_from(geo, R_wc, obs)
+    if kernels.ENABLED:  # the same rows from compiled loops
+        lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
+        kernels.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, lin.rows)
+        return lin
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
     v = obs.bearings_c
@@ -171,13 +192,6 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     dg_du_f = cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
     dg_dt_f = cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
     dth_u = (-(s * sin_t + c * cos_t))[:, None] * u      # d N / d theta without cos(theta) d
-    if weights is not None and rays_c is None:
-        rays_c = camera_rays_from(geo, R_wc, obs)
-    if kernels.ENABLED:  # the same rows from compiled loops
-        lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
-        kernels.pmba_rows(obs, feats, R_wc, geo, dg_du_f, dg_dt_f, dth_u, Rm_hat_n, A_f,
-                          weights, rays_c, lin.rows)
-        return lin
     dg_du, dg_dt = dg_du_f[j], dg_dt_f[j]
 
     N_hat, norm, main = geo.N_hat, geo.norm, geo.main

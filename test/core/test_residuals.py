@@ -79,16 +79,23 @@ def test_jacobians_at_tiny_parallax(engine_path: str) -> None:
 @pytest.mark.parametrize('pixel_weighted', [False, True])
 def test_compiled_rows_equal_numpy_rows(pixel_weighted: bool,
                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The compiled PMBA rows (pmba_ros.core.kernels) equal numpy's to rounding."""
+    """The compiled PMBA evaluation and rows (pmba_ros.core.kernels) equal numpy's."""
     pytest.importorskip('numba')
     problem, R, P, feats = _perturbed()
     model = ParallaxModel(problem, pixel_weighted)
-    rows = {}
+    rows, evals = {}, {}
     for compiled in (False, True):
         monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        rows[compiled] = model.linearize(R, P, feats, model.evaluate(R, P, feats)).rows
+        evals[compiled] = model.evaluate(R, P, feats)
+        rows[compiled] = model.linearize(R, P, feats, evals[compiled]).rows
     scale = np.max(np.abs(rows[False]))
     np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12 * scale)
+    for name in ('residuals', 'rays_c'):
+        np.testing.assert_allclose(getattr(evals[True], name), getattr(evals[False], name),
+                                   rtol=0, atol=1e-12 * scale)
+    for name in ('N', 'N_hat', 'norm', 'g', 's', 'c', 'main'):
+        np.testing.assert_allclose(getattr(evals[True].geometry, name),
+                                   getattr(evals[False].geometry, name), rtol=1e-12, atol=1e-12)
 
 
 def test_cost_invariant_under_similarity() -> None:
@@ -114,3 +121,20 @@ def test_feature_block_bounded_below_by_0382() -> None:
     lam = np.linalg.eigvalsh(V)[:, 0]
     assert np.all(lam > 0.38)
     assert np.min(lam) < 0.39  # the bound is attained, not 1 as Theorem 1 says
+
+
+def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pixel errors from the compiled loop equal camera.project's, radial distortion included."""
+    pytest.importorskip('numba')
+    from dataclasses import replace
+
+    problem, R, P, feats = _perturbed()
+    M = problem.n_cams
+    intr = replace(problem.intrinsics, k1=np.linspace(-0.2, 0.1, M), k2=np.full(M, 0.03))
+    model = ParallaxModel(replace(problem, intrinsics=intr), pixel_weighted=True)
+    errors = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(kernels, 'ENABLED', compiled)
+        errors[compiled] = model.reprojection_errors_px(model.evaluate(R, P, feats))
+    assert np.all(errors[False] > 0)
+    np.testing.assert_allclose(errors[True], errors[False], rtol=1e-9, atol=1e-9)
