@@ -293,6 +293,27 @@ def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: A
 
 
 @_jit
+def _tangent_basis_into(n0: float, n1: float, n2: float, A: Any) -> None:
+    """Write sphere.tangent_basis of n to A (3, 2): a1 = xi(e_k x n), a2 = n x a1.
+
+    e_k is the axis least aligned with n (the first on ties, as numpy's argmin).
+    """
+    k = 0
+    if abs(n1) < abs(n0):
+        k = 1
+    if abs(n2) < abs((n0, n1)[k]):
+        k = 2
+    a0, a1, a2 = (0.0, -n2, n1) if k == 0 else ((n2, 0.0, -n0) if k == 1 else (-n1, n0, 0.0))
+    na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if na > 0.0:
+        a0, a1, a2 = a0 / na, a1 / na, a2 / na
+    A[0, 0], A[1, 0], A[2, 0] = a0, a1, a2
+    A[0, 1] = n1 * a2 - n2 * a1
+    A[1, 1] = n2 * a0 - n0 * a2
+    A[2, 1] = n0 * a1 - n1 * a0
+
+
+@_jit
 def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: Any, c: Any,
                           sin_t: Any, cos_t: Any, Rm_hat_n: Any, A_f: Any, dg_du: Any,
                           dg_dt: Any, dth_u: Any) -> None:
@@ -305,21 +326,7 @@ def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: A
         n0, n1, n2 = n[j, 0], n[j, 1], n[j, 2]
         for r in range(3):
             _cross_into(Rm_hat_n[j, r], R[r, 0], R[r, 1], R[r, 2], n0, n1, n2, 1.0)
-        # A_n: a1 = xi(e_k x n) for the axis k least aligned with n (the first on ties).
-        k = 0
-        if abs(n1) < abs(n0):
-            k = 1
-        if abs(n2) < abs((n0, n1)[k]):
-            k = 2
-        a0, a1, a2 = (0.0, -n2, n1) if k == 0 else ((n2, 0.0, -n0) if k == 1 else
-                                                    (-n1, n0, 0.0))
-        na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        if na > 0.0:
-            a0, a1, a2 = a0 / na, a1 / na, a2 / na
-        A_f[j, 0, 0], A_f[j, 1, 0], A_f[j, 2, 0] = a0, a1, a2
-        A_f[j, 0, 1] = n1 * a2 - n2 * a1
-        A_f[j, 1, 1] = n2 * a0 - n0 * a2
-        A_f[j, 2, 1] = n0 * a1 - n1 * a0
+        _tangent_basis_into(n0, n1, n2, A_f[j])
         cos_over_s = cos_t[j] / max(s[j], TINY)
         D_sq = t[j, 0] * t[j, 0] + t[j, 1] * t[j, 1] + t[j, 2] * t[j, 2]
         for r in range(3):
@@ -662,4 +669,34 @@ def reprojection_errors(rays_c: FloatArray, intr: Any, cam_idx: IntArray,
     out = np.empty(rays_c.shape[0])
     _reprojection_errors(rays_c, intr.fx, intr.fy, intr.cx, intr.cy, intr.k1, intr.k2, cam_idx,
                          pixels, out)
+    return out
+
+
+@_jit
+def _sphere_retract(n: Any, delta: Any, out: Any) -> None:
+    """Retract unit rays: xi(cos(phi) n + sin(phi)/phi A_n (d2, -d1)), phi = |delta|."""
+    A = np.empty((3, 2))
+    for j in range(n.shape[0]):
+        _tangent_basis_into(n[j, 0], n[j, 1], n[j, 2], A)
+        d0, d1 = delta[j, 0], delta[j, 1]
+        phi_sq = d0 * d0 + d1 * d1
+        if phi_sq < 1e-12:
+            sinc = 1.0 - phi_sq / 6.0
+        else:
+            sinc = np.sin(np.sqrt(phi_sq)) / np.sqrt(phi_sq)
+        cos_phi = np.cos(np.sqrt(phi_sq))
+        sq = 0.0
+        for r in range(3):
+            out[j, r] = cos_phi * n[j, r] + sinc * (A[r, 0] * d1 - A[r, 1] * d0)
+            sq += out[j, r] * out[j, r]
+        if sq > 0.0:
+            inv = 1.0 / np.sqrt(sq)
+            for r in range(3):
+                out[j, r] *= inv
+
+
+def sphere_retract(n: FloatArray, delta: FloatArray) -> FloatArray:
+    """Return Exp(A_n delta) n for unit vectors n (N, 3) and delta (N, 2) (PMBA eq. 4)."""
+    out = np.empty_like(n)
+    _sphere_retract(np.ascontiguousarray(n), np.ascontiguousarray(delta), out)
     return out

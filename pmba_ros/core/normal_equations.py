@@ -611,14 +611,14 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     d_idx = np.arange(nb)
     x = np.zeros(dim)
     if int(free.sum()) <= DENSE_LIMIT:
+        # The upper triangle only (pair blocks have row <= col): LAPACK's potrf/potrs,
+        # called directly, read no more; scipy's cho_factor wrapper costs more than a
+        # window's factorization.
         S = np.zeros((dim, dim))
         S[rows[:, :, None], cols[:, None, :]] = S_blocks
-        S[cols[:, :, None], rows[:, None, :]] = np.swapaxes(S_blocks, 1, 2)
         S[d_idx[:, None] * 6 + np.arange(6), d_idx[:, None] * 6 + np.arange(6)] += damp_pose
-        # LAPACK's potrf/potrs directly: scipy's cho_factor wrapper costs more than a
-        # window's factorization.
-        factor, info = scipy.linalg.lapack.dpotrf(S[np.ix_(free, free)], lower=False,
-                                                  clean=False, overwrite_a=True)
+        factor, info = scipy.linalg.lapack.dpotrf(S if free.all() else S[np.ix_(free, free)],
+                                                  lower=False, clean=False, overwrite_a=True)
         if info != 0:
             msg = 'reduced camera system is not positive definite'
             raise ReducedSystemError(msg)

@@ -251,7 +251,8 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
 
 def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
     """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3)."""
-    return ParallaxFeatures(feats.theta + delta[:, 0], sphere.retract(feats.n, delta[:, 1:]),
+    retract = kernels.sphere_retract if kernels.ENABLED else sphere.retract
+    return ParallaxFeatures(feats.theta + delta[:, 0], retract(feats.n, delta[:, 1:]),
                             feats.main_idx, feats.assoc_idx)
 
 

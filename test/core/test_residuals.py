@@ -138,3 +138,19 @@ def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatc
         errors[compiled] = model.reprojection_errors_px(model.evaluate(R, P, feats))
     assert np.all(errors[False] > 0)
     np.testing.assert_allclose(errors[True], errors[False], rtol=1e-9, atol=1e-9)
+
+
+def test_compiled_sphere_retraction_equals_numpy() -> None:
+    """kernels.sphere_retract equals sphere.retract.
+
+    Small, zero and large steps; rays on the axes and diagonals (the tangent basis' ties).
+    """
+    pytest.importorskip('numba')
+    rng = np.random.default_rng(7)
+    n = np.concatenate([rng.normal(size=(50, 3)), np.eye(3), -np.eye(3),
+                        np.ones((1, 3)), np.array([[1.0, 1.0, 0.0], [0.0, -1.0, 1.0]])])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    delta = rng.normal(size=(n.shape[0], 2)) * np.logspace(-9, 0.5, n.shape[0])[:, None]
+    delta[:3] = 0.0
+    np.testing.assert_allclose(kernels.sphere_retract(n, delta), sphere.retract(n, delta),
+                               rtol=0, atol=1e-14)
