@@ -73,6 +73,26 @@ def _add_block(U: Any, pair_index: Any, a: int, b: int, src: Any, i0: int, k0: i
 
 
 @_jit
+def _outer_add(E: Any, k: int, i0: int, m0: int, out: Any) -> None:
+    """Add E_k[:, i0 + i]^T E_k[:, m0 + m] to out[i, m] (E_k = E[k], d rows).
+
+    Two rows at a time: the inner loops run along contiguous columns and vectorize.
+    """
+    d = E.shape[1]
+    n_i, n_m = out.shape
+    for r in range(0, d - 1, 2):
+        for i in range(n_i):
+            x0, x1 = E[k, r, i0 + i], E[k, r + 1, i0 + i]
+            for m in range(n_m):
+                out[i, m] += x0 * E[k, r, m0 + m] + x1 * E[k, r + 1, m0 + m]
+    if d % 2:
+        for i in range(n_i):
+            x = E[k, d - 1, i0 + i]
+            for m in range(n_m):
+                out[i, m] += x * E[k, d - 1, m0 + m]
+
+
+@_jit
 def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs: Any,
               anchor_lo: Any, anchor_w: Any, pair_index: Any, U: Any, W: Any, V: Any,
               g_pose: Any, g_feat: Any) -> None:
@@ -88,21 +108,12 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
     for f in range(starts.shape[0] - 1):
         Q[:] = 0.0
         for k in range(starts[f], starts[f + 1]):
-            # Rank-1 updates row by row: the inner loops run along contiguous columns.
-            for r in range(d):
-                for i in range(width - 6):
-                    x = E[k, r, 6 + i]
-                    for m in range(width - 6):
-                        Q[i, m] += x * E[k, r, 6 + m]
+            _outer_add(E, k, 6, 6, Q)
             b0 = obs_block[k]
             if b0 < 0:
                 continue
             P[:] = 0.0
-            for r in range(d):
-                for i in range(6):
-                    x = E[k, r, i]
-                    for m in range(width):
-                        P[i, m] += x * E[k, r, m]
+            _outer_add(E, k, 0, 0, P)
             _add_block(U, pair_index, b0, b0, P, 0, 0, 6, 6, 0, 0, True)
             for i in range(6):
                 g_pose[b0, i] += P[i, 6]
