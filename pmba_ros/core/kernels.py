@@ -101,7 +101,7 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
     As in the numpy assembly, the observer's rows are formed per observation and the rows
     of the residual, the feature and the anchors summed per feature (Q) and added once.
     """
-    _, d, width = E.shape
+    width = E.shape[2]
     n_anchor = anchor_lo.shape[0]
     P = np.empty((6, width))        # observer rows of one observation
     Q = np.empty((width - 6, width - 6))
@@ -710,4 +710,33 @@ def sphere_retract(n: FloatArray, delta: FloatArray) -> FloatArray:
     """Return Exp(A_n delta) n for unit vectors n (N, 3) and delta (N, 2) (PMBA eq. 4)."""
     out = np.empty_like(n)
     _sphere_retract(np.ascontiguousarray(n), np.ascontiguousarray(delta), out)
+    return out
+
+
+@_jit
+def _projection_jacobian(h_c: Any, fx: Any, fy: Any, k1: Any, k2: Any, cam_idx: Any,
+                         out: Any) -> None:
+    """Write d pi / d h of camera.project at each h_c (radial k1, k2) to out (K, 2, 3)."""
+    for k in range(h_c.shape[0]):
+        i = cam_idx[k]
+        z = h_c[k, 2]
+        if abs(z) < 1e-300:
+            z = 1e-300
+        inv_z = 1.0 / z
+        x, y = h_c[k, 0] * inv_z, h_c[k, 1] * inv_z
+        r2 = x * x + y * y
+        dist = 1.0 + k1[i] * r2 + k2[i] * r2 * r2
+        dd = 2.0 * (k1[i] + 2.0 * k2[i] * r2)
+        a, b = fx[i] * (dist + dd * x * x), fx[i] * dd * x * y
+        c, e = fy[i] * dd * x * y, fy[i] * (dist + dd * y * y)
+        # [[a, b], [c, e]] times [[1/z, 0, -x/z], [0, 1/z, -y/z]].
+        out[k, 0, 0], out[k, 0, 1], out[k, 0, 2] = a * inv_z, b * inv_z, -(a * x + b * y) * inv_z
+        out[k, 1, 0], out[k, 1, 1], out[k, 1, 2] = c * inv_z, e * inv_z, -(c * x + e * y) * inv_z
+
+
+def projection_jacobian(h_c: FloatArray, intr: Any, cam_idx: IntArray) -> FloatArray:
+    """Return d(pixel)/d(h_c) (K, 2, 3) of camera.project (camera.projection_jacobian's)."""
+    out = np.empty((h_c.shape[0], 2, 3))
+    _projection_jacobian(np.ascontiguousarray(h_c), intr.fx, intr.fy, intr.k1, intr.k2,
+                         cam_idx, out)
     return out

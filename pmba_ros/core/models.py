@@ -117,7 +117,12 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            _, self._weights = projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx)
+            if kernels.ENABLED:
+                self._weights = kernels.projection_jacobian(v, problem.intrinsics,
+                                                            problem.obs.cam_idx)
+            else:
+                _, self._weights = projection_jacobian(v, problem.intrinsics,
+                                                       problem.obs.cam_idx)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""

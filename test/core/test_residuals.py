@@ -124,7 +124,10 @@ def test_feature_block_bounded_below_by_0382() -> None:
 
 
 def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Pixel errors from the compiled loop equal camera.project's, radial distortion included."""
+    """Pixel errors and projection Jacobians from the compiled loops equal camera.py's.
+
+    Radial distortion included.
+    """
     pytest.importorskip('numba')
     from dataclasses import replace
 
@@ -138,6 +141,11 @@ def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatc
         errors[compiled] = model.reprojection_errors_px(model.evaluate(R, P, feats))
     assert np.all(errors[False] > 0)
     np.testing.assert_allclose(errors[True], errors[False], rtol=1e-9, atol=1e-9)
+    from pmba_ros.core.camera import projection_jacobian
+    _, weights = projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx)
+    np.testing.assert_allclose(
+        kernels.projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx),
+        weights, rtol=1e-12, atol=1e-12 * np.max(np.abs(weights)))
 
 
 def test_compiled_sphere_retraction_equals_numpy() -> None:
