@@ -740,3 +740,59 @@ def projection_jacobian(h_c: FloatArray, intr: Any, cam_idx: IntArray) -> FloatA
     _projection_jacobian(np.ascontiguousarray(h_c), intr.fx, intr.fy, intr.k1, intr.k2,
                          cam_idx, out)
     return out
+
+
+#: Loss codes of the compiled robust loops (loss.Loss order: none, huber, cauchy).
+LOSS_CODES = {'none': 0, 'huber': 1, 'cauchy': 2}
+
+
+@_jit
+def _rho(z: float, code: int) -> tuple[float, float]:
+    """Return rho(z) and rho'(z) of a unit-scale loss (loss.rho)."""
+    if code == 1:
+        if z <= 1.0:
+            return z, 1.0
+        root = np.sqrt(z)
+        return 2.0 * root - 1.0, 1.0 / root
+    if code == 2:
+        return np.log1p(z), 1.0 / (1.0 + z)
+    return z, 1.0
+
+
+@_jit
+def _robust_cost(res: Any, code: int, scale: float) -> float:
+    """1/2 sum a^2 rho(|e|^2 / a^2), or inf if a residual is not finite."""
+    a2 = scale * scale
+    total = 0.0
+    for k in range(res.shape[0]):
+        sq = 0.0
+        for r in range(res.shape[1]):
+            sq += res[k, r] * res[k, r]
+        if not np.isfinite(sq):
+            return np.inf
+        total += _rho(sq / a2, code)[0] * a2
+    return 0.5 * total
+
+
+@_jit
+def _robust_scale_rows(E: Any, code: int, scale: float) -> None:
+    """Scale each observation's rows (residual column 6 included) by sqrt(rho'(|e|^2))."""
+    a2 = scale * scale
+    for k in range(E.shape[0]):
+        sq = 0.0
+        for r in range(E.shape[1]):
+            sq += E[k, r, 6] * E[k, r, 6]
+        w = np.sqrt(_rho(sq / a2, code)[1])
+        for r in range(E.shape[1]):
+            for c in range(E.shape[2]):
+                E[k, r, c] *= w
+
+
+def robust_cost(residuals: FloatArray, loss: str, scale: float) -> float:
+    """Return loss.robust_cost of residuals (K, d), inf if one is not finite."""
+    return float(_robust_cost(residuals, LOSS_CODES[loss], scale))
+
+
+def robust_scale_rows(E: FloatArray, loss: str, scale: float) -> None:
+    """Scale Jacobian rows E (K, d, w) in place by loss.robust_weights of their residuals."""
+    _robust_scale_rows(E, LOSS_CODES[loss], scale)

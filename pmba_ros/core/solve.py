@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from pmba_ros._typing import FloatArray
-from pmba_ros.core import conversions, dogleg, so3
+from pmba_ros.core import conversions, dogleg, kernels, so3
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
@@ -261,7 +261,9 @@ class _Linearized:
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
         lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
-        if loss is not Loss.NONE:
+        if loss is not Loss.NONE and kernels.ENABLED:
+            kernels.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
+        elif loss is not Loss.NONE:
             lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
         eqs = ne.assemble(structure, lin)
         d_pose, d_feat = ne.diagonal(structure, eqs)
@@ -374,6 +376,9 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
 
     def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
         ev = model.evaluate(R, P, feats)
+        if kernels.ENABLED:
+            return _State(R, P, feats, kernels.robust_cost(ev.residuals, options.loss.value,
+                                                           loss_scale), ev)
         if not np.all(np.isfinite(ev.residuals)):
             return _State(R, P, feats, math.inf, ev)
         return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale), ev)
