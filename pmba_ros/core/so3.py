@@ -139,21 +139,16 @@ def from_quat_xyzw(quat_xyzw: FloatArray) -> FloatArray:
 def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
     """Unit quaternions (..., 4) in (x, y, z, w) order with w >= 0, from rotation matrices."""
     R = np.asarray(rotation, dtype=float)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    # Shepperd's method: pick the largest of 4 candidate denominators for stability.
-    cands = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22,
-                      1 - m00 + m11 - m22, 1 - m00 - m11 + m22], axis=-1)
-    k = np.argmax(cands, axis=-1)
-    s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cands, k[..., None], -1)[..., 0], 1e-300))
-    w_branch = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
-                         (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], -1)
-    x_branch = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s,
-                         (R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 2, 1] - R[..., 1, 2]) / s], -1)
-    y_branch = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s,
-                         (R[..., 1, 2] + R[..., 2, 1]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s], -1)
-    z_branch = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s,
-                         0.25 * s, (R[..., 1, 0] - R[..., 0, 1]) / s], -1)
-    branches = np.stack([w_branch, x_branch, y_branch, z_branch], axis=-2)
-    q = np.take_along_axis(branches, k[..., None, None].repeat(4, -1), -2)[..., 0, :]
+    m = R.reshape(*R.shape[:-2], 9)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = np.moveaxis(m, -1, 0)
+    # Shepperd's method: row k of this symmetric matrix is 4 q_k q (order x, y, z, w); the
+    # row with the largest diagonal 4 q_k^2 divides best.
+    K = np.stack([1 + m00 - m11 - m22, m01 + m10, m02 + m20, m21 - m12,
+                  m01 + m10, 1 - m00 + m11 - m22, m12 + m21, m02 - m20,
+                  m02 + m20, m12 + m21, 1 - m00 - m11 + m22, m10 - m01,
+                  m21 - m12, m02 - m20, m10 - m01, 1 + m00 + m11 + m22], axis=-1)
+    K = K.reshape(*R.shape[:-2], 4, 4)
+    k = np.argmax(np.diagonal(K, axis1=-2, axis2=-1), axis=-1)
+    q = np.take_along_axis(K, k[..., None, None], axis=-2)[..., 0, :]
     q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)

@@ -43,6 +43,14 @@ def test_quaternion_round_trip(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(so3.from_quat_xyzw(so3.to_quat_xyzw(R)), R, atol=1e-12)
     q = so3.to_quat_xyzw(so3.exp(np.array([0.0, 0.0, np.pi / 2])))
     np.testing.assert_allclose(q, [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)
+    # Half turns about each axis and near them: every branch of Shepperd's method.
+    near_pi = np.concatenate([np.eye(3) * np.pi, np.eye(3) * (np.pi - 1e-9),
+                              rng.normal(size=(30, 3))])
+    R = so3.exp(near_pi)
+    q = so3.to_quat_xyzw(R)
+    np.testing.assert_allclose(so3.from_quat_xyzw(q), R, atol=1e-12)
+    assert np.all(q[:, 3] >= 0) and np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    np.testing.assert_allclose(np.abs(q[:3, :3]), np.eye(3), atol=1e-12)
 
 
 def test_project_returns_nearest_rotation(rng: np.random.Generator) -> None:
