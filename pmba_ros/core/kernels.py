@@ -56,10 +56,11 @@ def _add_block(U: Any, pair_index: Any, a: int, b: int, src: Any, i0: int, k0: i
     Pairs a > b go to the transposed upper block. On a diagonal block (a = b) the transpose
     is added too, unless the block is a ``symmetric`` product of one slot with itself.
     """
+    # Transposed adds loop over the target's rows first: contiguous stores.
     if a > b:
         p = pair_index[b, a]
-        for i in range(n_r):
-            for k in range(n_c):
+        for k in range(n_c):
+            for i in range(n_r):
                 U[p, c0 + k, r0 + i] += src[i0 + i, k0 + k]
         return
     p = pair_index[a, b]
@@ -67,8 +68,8 @@ def _add_block(U: Any, pair_index: Any, a: int, b: int, src: Any, i0: int, k0: i
         for k in range(n_c):
             U[p, r0 + i, c0 + k] += src[i0 + i, k0 + k]
     if a == b and not symmetric:
-        for i in range(n_r):
-            for k in range(n_c):
+        for k in range(n_c):
+            for i in range(n_r):
                 U[p, c0 + k, r0 + i] += src[i0 + i, k0 + k]
 
 
@@ -154,16 +155,18 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
 def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: Any,
            sign: float) -> None:
     """Add sign W_a V^-1 W_b^T of every feature's observation pairs (a <= b) to ``out``."""
-    M = np.empty((6, 6))
+    longest = 0
+    for f in range(starts.shape[0] - 1):
+        longest = max(longest, starts[f + 1] - starts[f])
+    Y = np.empty((longest, 3, 6))                      # V^-1 W^T of each observation
     for f in range(starts.shape[0] - 1):
         lo, hi = starts[f], starts[f + 1]
-        Y = np.empty((hi - lo, 3, 6))                  # V^-1 W^T of each observation
         for a in range(hi - lo):
             for r in range(3):
                 for k in range(6):
-                    Y[a, r, k] = (V_inv[f, r, 0] * W[lo + a, k, 0]
-                                  + V_inv[f, r, 1] * W[lo + a, k, 1]
-                                  + V_inv[f, r, 2] * W[lo + a, k, 2])
+                    Y[a, r, k] = sign * (V_inv[f, r, 0] * W[lo + a, k, 0]
+                                         + V_inv[f, r, 1] * W[lo + a, k, 1]
+                                         + V_inv[f, r, 2] * W[lo + a, k, 2])
         for a in range(hi - lo):
             ba = w_block[lo + a]
             if ba < 0:
@@ -172,11 +175,26 @@ def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: 
                 bb = w_block[lo + b]
                 if bb < 0:
                     continue
-                for i in range(6):
-                    w0, w1, w2 = W[lo + a, i, 0], W[lo + a, i, 1], W[lo + a, i, 2]
-                    for k in range(6):
-                        M[i, k] = sign * (w0 * Y[b, 0, k] + w1 * Y[b, 1, k] + w2 * Y[b, 2, k])
-                _add_block(out, pair_index, ba, bb, M, 0, 0, 6, 6, 0, 0, a == b)
+                y0, y1, y2 = Y[b, 0], Y[b, 1], Y[b, 2]
+                if ba <= bb:
+                    # Observations run in camera order, so this is the usual case: written
+                    # out per column, the products stay in registers.
+                    p = pair_index[ba, bb]
+                    for i in range(6):
+                        w0, w1, w2 = W[lo + a, i, 0], W[lo + a, i, 1], W[lo + a, i, 2]
+                        o = out[p, i]
+                        o[0] += w0 * y0[0] + w1 * y1[0] + w2 * y2[0]
+                        o[1] += w0 * y0[1] + w1 * y1[1] + w2 * y2[1]
+                        o[2] += w0 * y0[2] + w1 * y1[2] + w2 * y2[2]
+                        o[3] += w0 * y0[3] + w1 * y1[3] + w2 * y2[3]
+                        o[4] += w0 * y0[4] + w1 * y1[4] + w2 * y2[4]
+                        o[5] += w0 * y0[5] + w1 * y1[5] + w2 * y2[5]
+                if ba > bb or (ba == bb and a != b):
+                    p = pair_index[min(ba, bb), max(ba, bb)]
+                    for i in range(6):
+                        w0, w1, w2 = W[lo + a, i, 0], W[lo + a, i, 1], W[lo + a, i, 2]
+                        for k in range(6):
+                            out[p, k, i] += w0 * y0[k] + w1 * y1[k] + w2 * y2[k]
 
 
 def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block: IntArray,
