@@ -308,10 +308,14 @@ class Estimator:
         return UpdateInfo('dead_reckoned', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
 
-    def _slide(self) -> None:
-        """Fix keyframes that left the window; retire features and old observations."""
+    def _slide(self) -> IntArray | None:
+        """Fix keyframes that left the window; retire features and old observations.
+
+        Returns:
+            The ids of the features the window's keyframes observe (sliding mode), or None.
+        """
         if self.config.mode != 'sliding':
-            return
+            return None
         active = self.kf.indices(KeyframeStatus.ACTIVE)
         K = self.config.window_size
         if active.shape[0] > K:
@@ -321,13 +325,13 @@ class Estimator:
         _, points = self.features.pop_except(window_ids)
         self.landmarks.add(points)
         self.kf.forget_observations_before(int(active[0]) - self.config.fixed_lookback)
+        return window_ids
 
     def _refine(self) -> UpdateInfo:
         cfg = self.config
-        self._slide()
+        window_ids = self._slide()
         active = self.kf.indices(KeyframeStatus.ACTIVE)
-        if cfg.mode == 'sliding':
-            window_ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active]))
+        if window_ids is not None:
             older = np.array(sorted(i for i in self.kf.obs if i < active[0]), dtype=np.int64)
             fixed_kf = select_fixed(self.kf, older, window_ids, cfg.max_fixed_keyframes)
             cams = np.concatenate([fixed_kf, active])
