@@ -12,7 +12,7 @@ import logging
 import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, sphere
+from pmba_ros.core import kernels, so3, sphere
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -205,7 +205,7 @@ def parallax_homogeneous(R_wc: FloatArray, centers_w: FloatArray,
     u = np.einsum('nij,nj->ni', R_wc[feats.main_idx], feats.n)
     P_m = centers_w[feats.main_idx]
     t = P_m - centers_w[feats.assoc_idx]
-    s = np.linalg.norm(np.cross(t, u), axis=1)
+    s = np.linalg.norm(so3.cross(t, u), axis=1)
     c = np.sum(t * u, axis=1)
     sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     g = s * cos_t - c * sin_t

@@ -77,7 +77,7 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     P_m = centers_w[feats.main_idx]
     u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
     t = P_m - centers_w[feats.assoc_idx]
-    s = np.linalg.norm(np.cross(t, u), axis=1)
+    s = np.linalg.norm(so3.cross(t, u), axis=1)
     c = np.sum(t * u, axis=1)
     sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     g = s * cos_t - c * sin_t

@@ -31,6 +31,15 @@ def hat(omega: FloatArray) -> FloatArray:
     return out
 
 
+def cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Return a x b along the last axis; np.cross costs ~0.1 ms per call on short rows."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def times_hat(matrix: FloatArray, omega: FloatArray) -> FloatArray:
     """Return M [w]x for matrices M (..., r, 3) and vectors w (..., 3), without forming [w]x.
 

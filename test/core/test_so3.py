@@ -62,3 +62,10 @@ def test_project_returns_nearest_rotation(rng: np.random.Generator) -> None:
                                atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(P), 1.0)
     assert np.max(so3.angle(P, R)) < 5e-3
+
+
+def test_cross_equals_numpy(rng: np.random.Generator) -> None:
+    """so3.cross equals np.cross, broadcast shapes included."""
+    a, b = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    np.testing.assert_allclose(so3.cross(a, b), np.cross(a, b), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(so3.cross(a, b[0]), np.cross(a, b[0]), rtol=0, atol=1e-15)
