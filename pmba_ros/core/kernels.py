@@ -1,11 +1,20 @@
-"""Compiled loops (numba) for the normal equations: assembly and the Schur complement.
+"""Compiled loops (numba) for the solver's per-observation work.
 
-The numpy code of :mod:`pmba_ros.core.normal_equations` builds J^T J from batched products
-and 0/1 scatter matrices, which costs a few dozen numpy calls per iteration whatever the
-size; on a sliding window (a few thousand observations) those calls, not the arithmetic, take
-the time. These loops visit each observation once and add its blocks in place. They are used
-when numba is installed (the ``fast`` extra, or rosdep's python3-numba) and give the same
-results to rounding (the tests compare both); ``PMBA_NUMBA=0`` turns them off.
+The numpy engine forms rays, Jacobian rows, J^T J and the Schur complement from batched
+products and 0/1 scatter matrices: a few dozen numpy calls per step whatever the size, which
+on a sliding window (a few thousand observations) take more time than the arithmetic. These
+loops visit each observation, feature or observation pair once and write in place:
+
+- PMBA rays, camera rays and errors (eqs. 6-8), Jacobian rows (pmba.md §1.6), pixel errors,
+  the pixel weights' projection Jacobians and the sphere retraction (eq. 4);
+- the robust cost and row weights (loss.py);
+- J^T J (U, W, V, g), its Jacobi scaling, V^-1 with the Schur complement and right-hand side,
+  the back-substitution and x^T H x (normal_equations.py), and the covisible pose pairs;
+- the widest-pair anchor search (conversions.select_anchors).
+
+They are used when numba is installed (the ``fast`` extra) and give the numpy code's results
+to rounding: the tests run both. ``PMBA_NUMBA=0`` turns them off. Each jitted loop has a typed
+wrapper without the underscore; the numpy functions they replace stay the reference.
 
 Block addressing: ``pair_index[a, b]`` (a <= b) is the row of the upper pair block (a, b) in
 ``U``; a pair (a, b) with a > b is stored transposed at ``pair_index[b, a]``.
@@ -218,15 +227,6 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
     _assemble(np.ascontiguousarray(E), starts, obs_block, anchor_block, anchor_obs,
               anchor_lo, anchor_w, pair_index, U, W, V, g_pose, g_feat)
     return U, W, V, g_pose, g_feat
-
-
-def schur_blocks(W: FloatArray, V_inv: FloatArray, starts: IntArray, w_block: IntArray,
-                 pair_index: IntArray, n_pairs: int) -> FloatArray:
-    """Return sum_f W_f V_f^-1 W_f^T as upper pair blocks (n_pairs, 6, 6)."""
-    out = np.zeros((n_pairs, 6, 6))
-    _schur(np.ascontiguousarray(W), np.ascontiguousarray(V_inv), starts, w_block,
-           pair_index, out, 1.0)
-    return out
 
 
 @_jit

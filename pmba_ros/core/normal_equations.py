@@ -25,6 +25,11 @@ final fold. Small problems (few poses) instead take one dense product over all p
 whichever needs fewer multiply-adds. Every index array that depends only on the structure is
 built once in :class:`SchurStructure`; each iteration fills values, with no Python loop over
 observations (scatter-adds are sparse products with 0/1 matrices).
+
+Where numba is installed (and up to :data:`kernels.MAX_BLOCKS` free poses) the structure is
+only the covisible pose pairs, and assembly, scaling, reduction, back-substitution and x^T H x
+run as the compiled loops of :mod:`pmba_ros.core.kernels`; both paths give the same numbers
+to rounding (``test_normal_equations.py`` runs every one).
 """
 
 from __future__ import annotations
@@ -539,9 +544,6 @@ def _schur_blocks(structure: SchurStructure, W: FloatArray, V_inv: FloatArray) -
     """
     st = structure
     nb = st.n_blocks
-    if st._pair_index is not None:
-        return kernels.schur_blocks(W, V_inv, st._starts, st._obs_block, st._pair_index,
-                                    st.pair_rows.shape[0])
     if st._dense_schur:
         own = ~st._obs_fixed
         Wd = np.zeros((st.n_feats, 3, nb, 6))        # W^T of every feature, all pose columns
