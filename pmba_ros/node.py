@@ -23,6 +23,7 @@ from typing import Any
 
 from pmba_ros._heap import keep_freed_memory
 from pmba_ros.backend.config import NODE_NAME, BackendConfig
+from pmba_ros.backend.estimator import compile_kernels
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.outputs import RclpyBackend
 
@@ -260,6 +261,10 @@ def main(args: list[str] | None = None) -> None:
     keep_freed_memory()
     rclpy.init(args=args)
     node = rclpy.create_node(NODE_NAME)
+    seconds = compile_kernels()  # before subscribing: the first start compiles for ~12 s
+    if seconds > 1.0:
+        node.get_logger().info(f'solver loops compiled in {seconds:.1f} s (cached for later '
+                               'starts)')
     try:
         wrapper = PmbaNode(node)
     except ValueError as err:

@@ -514,3 +514,18 @@ def test_global_mode_short_street(street: SimSequence) -> None:
     gt = street.gt_trajectory().take(np.arange(45))
     fe = ate(street.odom_trajectory().take(np.arange(45)), gt, 'sim3').rmse
     assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 0.5 * fe
+
+
+def test_compile_kernels_runs_every_solver_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The node's warm-up compiles the loops a window solve uses; without numba it is a no-op."""
+    from pmba_ros.backend.estimator import compile_kernels
+    from pmba_ros.core import kernels
+
+    monkeypatch.setattr(kernels, 'ENABLED', False)
+    assert compile_kernels() == 0.0
+    pytest.importorskip('numba')
+    monkeypatch.setattr(kernels, 'ENABLED', True)
+    assert compile_kernels() > 0.0
+    for name in ('_pmba_rays', '_pmba_rows', '_assemble', '_reduce', '_widest_pairs',
+                 '_robust_cost', '_sphere_retract', '_projection_jacobian'):
+        assert getattr(kernels, name).signatures, name
