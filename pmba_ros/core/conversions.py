@@ -159,8 +159,10 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
     """
     km = anchor_observations(problem, main_idx)
     ka = anchor_observations(problem, assoc_idx)
-    rays = world_rays(problem, R_wc)
-    theta = np.arccos(np.clip(np.sum(rays[km] * rays[ka], axis=1), -1.0, 1.0))
+    v = problem.obs.bearings_c
+    ray_m = np.einsum('nij,nj->ni', R_wc[main_idx], v[km])
+    ray_a = np.einsum('nij,nj->ni', R_wc[assoc_idx], v[ka])
+    theta = np.arccos(np.clip(np.sum(ray_m * ray_a, axis=1), -1.0, 1.0))
     return ParallaxFeatures(theta, problem.obs.bearings_c[km].copy(), main_idx.copy(),
                             assoc_idx.copy())
 
