@@ -46,8 +46,8 @@ ENABLED = _NUMBA is not None and os.environ.get('PMBA_NUMBA', '1') != '0'
 #: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
 TINY = 1e-300
 #: Largest number of free pose blocks for the compiled loops: their (n, n) pair index
-#: stays under 200 MB.
-MAX_BLOCKS = 5000
+#: stays under 75 MB; larger problems take the numpy path.
+MAX_BLOCKS = 3000
 
 
 def _jit(fn: Any) -> Any:
