@@ -197,3 +197,25 @@ def test_singular_feature_block_is_a_clear_error(engine_path: str) -> None:
     with pytest.raises(ne.ReducedSystemError, match='singular feature block'):
         ne.solve_schur(st, eqs, np.full((st.n_blocks, 6), 1e-3),
                        np.zeros((problem.n_feats, 3)), np.ones((st.n_blocks, 6), dtype=bool))
+
+
+def test_problems_over_the_pair_index_limit_take_the_numpy_path(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above kernels.MAX_BLOCKS free poses the structure is numpy's, and still solves."""
+    pytest.importorskip('numba')
+    monkeypatch.setattr(kernels, 'ENABLED', True)
+    problem = forward_problem(2, n_cams=5, n_points=20)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba', weighted=True)
+    args = (problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats), problem.n_feats,
+            np.arange(problem.n_cams), model.anchor_cols)
+    assert ne.SchurStructure.build(*args)._pair_index is not None
+    monkeypatch.setattr(kernels, 'MAX_BLOCKS', problem.n_cams - 1)
+    st = ne.SchurStructure.build(*args)
+    assert st._pair_index is None
+    eqs = ne.assemble(st, model.linearize(problem.R_wc, problem.centers_w, feats))
+    x_p, x_f = ne.solve_schur(st, eqs, np.full((st.n_blocks, 6), 1e-3),
+                              np.full((problem.n_feats, 3), 1e-3),
+                              np.ones((st.n_blocks, 6), dtype=bool))
+    assert np.all(np.isfinite(x_p)) and np.all(np.isfinite(x_f))
