@@ -352,12 +352,16 @@ def permute_features(problem: BAProblem, order: IntArray) -> BAProblem:
         problem: The problem.
         order: A permutation of the N features: new index -> old index.
     """
-    new_index = np.empty(problem.n_feats, dtype=np.int64)
-    new_index[order] = np.arange(problem.n_feats)
-    feat = new_index[problem.obs.feat_idx]
-    by_feature = np.lexsort((problem.obs.cam_idx, feat))
+    # Observations are sorted by feature then camera, so each feature's run moves as a block.
+    counts = np.bincount(problem.obs.feat_idx, minlength=problem.n_feats)
+    old_start = np.cumsum(counts) - counts
+    new_counts = counts[order]
+    new_start = np.cumsum(new_counts) - new_counts
+    by_feature = (np.repeat(old_start[order] - new_start, new_counts)
+                  + np.arange(problem.obs.feat_idx.shape[0]))
     obs = problem.obs.take(by_feature)
-    obs = Observations(_readonly(obs.cam_idx), _readonly(feat[by_feature]),
+    obs = Observations(_readonly(obs.cam_idx),
+                       _readonly(np.repeat(np.arange(problem.n_feats), new_counts)),
                        _readonly(obs.bearings_c), _readonly(obs.pixels))
     pts = None if problem.points_w is None else _readonly(problem.points_w[order])
     return replace(problem, obs=obs, points_w=pts,

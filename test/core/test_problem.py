@@ -69,3 +69,30 @@ def test_duplicate_observation_is_dropped() -> None:
     pix = np.vstack([pix, [1.0, 1.0]])
     p = make_problem(R, P, intr, cam, feat, pix)
     assert p.dropped['duplicate_observations'] == 1
+
+
+def test_permute_features_renumbers_and_keeps_camera_order() -> None:
+    """Feature order[j] becomes j; observations stay sorted by feature, then camera."""
+    from pmba_ros.core.problem import permute_features
+
+    from .helpers import forward_problem
+
+    base = forward_problem(5, n_cams=6, n_points=25)
+    keep = np.random.default_rng(5).random(base.n_obs) < 0.7
+    problem = make_problem(base.R_wc, base.centers_w, base.intrinsics, base.obs.cam_idx[keep],
+                           base.obs.feat_idx[keep], base.obs.pixels[keep],
+                           points_w=base.points_w)
+    order = np.random.default_rng(6).permutation(problem.n_feats)
+    out = permute_features(problem, order)
+    obs = out.obs
+    assert np.all(np.diff(obs.feat_idx) >= 0)
+    same = np.diff(obs.feat_idx) == 0
+    assert np.all(np.diff(obs.cam_idx)[same] > 0)
+    np.testing.assert_array_equal(out.feature_ids, problem.feature_ids[order])
+    np.testing.assert_array_equal(out.points_w, problem.points_w[order])
+
+    def triples(p):
+        return {(int(p.feature_ids[f]), int(c), tuple(px))
+                for f, c, px in zip(p.obs.feat_idx, p.obs.cam_idx, p.obs.pixels, strict=True)}
+
+    assert triples(out) == triples(problem)
