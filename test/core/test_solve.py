@@ -271,3 +271,23 @@ def test_compiled_normal_equations_take_the_same_steps(param: str,
     np.testing.assert_allclose(results[True].problem.centers_w,
                                results[False].problem.centers_w, atol=1e-6)
     assert results[True].final_cost < 0.2 * results[True].initial_cost
+
+
+def test_solves_without_numba_installed() -> None:
+    """Without numba (the optional `fast` extra) the numpy engine runs and converges."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['numba'] = None\n"   # import numba now raises ImportError
+        "from pmba_ros.core import kernels\n"
+        "assert not kernels.ENABLED\n"
+        "from pmba_ros.core.solve import SolveOptions, solve\n"
+        "from pmba_ros.sim.scenes import street_scene\n"
+        "r = solve(street_scene(seed=3, n_cams=8, n_points=150).start,"
+        " SolveOptions(max_iterations=50))\n"
+        "assert r.final_rms_px < 1.0, r.final_rms_px\n"
+        "assert 'numba' not in {m.split('.')[0] for m in sys.modules if sys.modules[m]}\n")
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
