@@ -14,7 +14,8 @@ with the replay's CPU time (process time) as a load-independent figure. A warm-u
 30 keyframes runs first, so that every row measures steady-state throughput. ``--max-iterations``
 adds a row per Dogleg budget per keyframe solve (the node's ``max_iterations``; default 2).
 ``--check`` exits non-zero unless the street's optimized ATE is at most 30 % of the
-front-end's and the replay runs at least 10x faster than real time.
+front-end's and the replay runs at least 10x faster than real time. The solver's compiled
+loops are used when numba is installed; ``PMBA_NUMBA=0`` measures the numpy engine.
 """
 
 from __future__ import annotations
