@@ -33,3 +33,13 @@ def engine_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
         pytest.importorskip('numba')
     monkeypatch.setattr(kernels, 'ENABLED', request.param == 'compiled')
     return str(request.param)
+
+
+def run_python(code: str, timeout_s: float = 600.0) -> None:
+    """Run ``code`` in a fresh interpreter (no module imported yet); fail with its stderr."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=timeout_s, check=False)
+    assert proc.returncode == 0, proc.stderr

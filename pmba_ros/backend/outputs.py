@@ -385,7 +385,7 @@ def pose_stamped_msgs(stamps_ns: ArrayLike, frame_id: str, positions: ArrayLike,
     quats = _unit_quats(quats_xyzw)
     stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
     if not pos.shape[0] == quats.shape[0] == stamps.shape[0]:
-        msg = (f'make_path: {pos.shape[0]} positions, {quats.shape[0]} quaternions, '
+        msg = (f'poses: {pos.shape[0]} positions, {quats.shape[0]} quaternions, '
                f'{stamps.shape[0]} stamps')
         raise MessageError(msg)
     stamped_t = backend.msg_class('geometry_msgs/msg/PoseStamped')

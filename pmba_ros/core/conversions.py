@@ -12,7 +12,7 @@ import logging
 import numpy as np
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, so3, sphere
+from pmba_ros.core import kernels, residuals, sphere
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -204,14 +204,8 @@ def parallax_homogeneous(R_wc: FloatArray, centers_w: FloatArray,
     Returns:
         X~ = g u + sin(theta) P_m, shape (N, 3), and w = sin(theta), shape (N,).
     """
-    u = np.einsum('nij,nj->ni', R_wc[feats.main_idx], feats.n)
-    P_m = centers_w[feats.main_idx]
-    t = P_m - centers_w[feats.assoc_idx]
-    s = np.linalg.norm(so3.cross(t, u), axis=1)
-    c = np.sum(t * u, axis=1)
-    sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
-    g = s * cos_t - c * sin_t
-    return g[:, None] * u + sin_t[:, None] * P_m, sin_t
+    u, _, _, _, sin_t, _, g = residuals.anchor_terms(R_wc, centers_w, feats)
+    return g[:, None] * u + sin_t[:, None] * centers_w[feats.main_idx], sin_t
 
 
 def parallax_to_xyz(R_wc: FloatArray, centers_w: FloatArray,

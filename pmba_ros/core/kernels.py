@@ -231,11 +231,11 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
 
 @_jit
 def _cross_into(out: Any, a0: float, a1: float, a2: float, b0: float, b1: float,
-                b2: float, scale: float) -> None:
-    """out[:] = scale (a x b), for a row or column view of length 3."""
-    out[0] = scale * (a1 * b2 - a2 * b1)
-    out[1] = scale * (a2 * b0 - a0 * b2)
-    out[2] = scale * (a0 * b1 - a1 * b0)
+                b2: float) -> None:
+    """Write a x b to ``out``, a row or column view of length 3."""
+    out[0] = a1 * b2 - a2 * b1
+    out[1] = a2 * b0 - a0 * b2
+    out[2] = a0 * b1 - a1 * b0
 
 
 @_jit
@@ -251,7 +251,6 @@ def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: A
     Lu = np.empty(d)
     LdN = np.empty((d, 3))
     nA = np.empty((3, 2))
-    row = np.empty(3)
     for k in range(K):
         j = feat_idx[k]
         R = R_wc[cam_idx[k]]
@@ -266,26 +265,24 @@ def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: A
                 e[r, 6] = (weights[k, r, 0] * (rays_c[k, 0] - v[k, 0])
                            + weights[k, r, 1] * (rays_c[k, 1] - v[k, 1])
                            + weights[k, r, 2] * (rays_c[k, 2] - v[k, 2]))
-                _cross_into(row, weights[k, r, 0], weights[k, r, 1], weights[k, r, 2],
-                            rays_c[k, 0], rays_c[k, 1], rays_c[k, 2], 1.0)
+                _cross_into(e[r], weights[k, r, 0], weights[k, r, 1], weights[k, r, 2],
+                            rays_c[k, 0], rays_c[k, 1], rays_c[k, 2])   # d e / d phi_i
             else:
                 for c in range(3):
                     B[r, c] = 1.0 if r == c else 0.0
                 e[r, 6] = N_hat[k, r] - (R[r, 0] * v[k, 0] + R[r, 1] * v[k, 1]
                                          + R[r, 2] * v[k, 2])
-                _cross_into(row, R[r, 0], R[r, 1], R[r, 2], v[k, 0], v[k, 1], v[k, 2], 1.0)
+                _cross_into(e[r], R[r, 0], R[r, 1], R[r, 2], v[k, 0], v[k, 1], v[k, 2])
             bn = B[r, 0] * nh0 + B[r, 1] * nh1 + B[r, 2] * nh2
             L[r, 0] = (B[r, 0] - bn * nh0) * inv
             L[r, 1] = (B[r, 1] - bn * nh1) * inv
             L[r, 2] = (B[r, 2] - bn * nh2) * inv
-            for c in range(3):
-                e[r, c] = row[c]
         if is_main[k]:
             # The main anchor's own observation: closed forms of pmba.md §1.6.
             sgn = 1.0 if g[j] >= 0.0 else -1.0
             for q in range(2):
                 _cross_into(nA[:, q], n[j, 0], n[j, 1], n[j, 2], A_f[j, 0, q], A_f[j, 1, q],
-                            A_f[j, 2, q], 1.0)
+                            A_f[j, 2, q])
             Rm = R_wc[main_idx[j]]
             for r in range(d):
                 for c in range(width):
@@ -354,7 +351,7 @@ def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: A
         R = R_wc[main_idx[j]]
         n0, n1, n2 = n[j, 0], n[j, 1], n[j, 2]
         for r in range(3):
-            _cross_into(Rm_hat_n[j, r], R[r, 0], R[r, 1], R[r, 2], n0, n1, n2, 1.0)
+            _cross_into(Rm_hat_n[j, r], R[r, 0], R[r, 1], R[r, 2], n0, n1, n2)
         _tangent_basis_into(n0, n1, n2, A_f[j])
         cos_over_s = cos_t[j] / max(s[j], TINY)
         D_sq = t[j, 0] * t[j, 0] + t[j, 1] * t[j, 1] + t[j, 2] * t[j, 2]

@@ -296,7 +296,7 @@ class SchurStructure:
         anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
 
         if kernels.ENABLED and n_blocks <= kernels.MAX_BLOCKS:
-            return cls._build_compiled(cam_idx, feat_idx, n_feats, obs_block, anchor_cols,
+            return cls._build_compiled(feat_idx, n_feats, obs_block, anchor_cols,
                                        anchor_block, anchor_obs, starts)
 
         # Directed block pairs: observer-anchor, anchor-anchor and Schur (a, a + delta).
@@ -383,7 +383,7 @@ class SchurStructure:
                    obs_block, None)
 
     @classmethod
-    def _build_compiled(cls, cam_idx: IntArray, feat_idx: IntArray, n_feats: int,
+    def _build_compiled(cls, feat_idx: IntArray, n_feats: int,
                         obs_block: IntArray, anchor_cols: tuple[tuple[int, int], ...],
                         anchor_block: IntArray, anchor_obs: IntArray, starts: IntArray,
                         ) -> SchurStructure:

@@ -37,7 +37,7 @@ from pmba_ros.core.problem import Observations, ParallaxFeatures
 #: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
 #: anchor's centre (its rotation does not enter eq. 6).
 ANCHOR_COLS = ((0, 6), (3, 6))
-
+#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (shared with kernels).
 _TINY = kernels.TINY
 
 
@@ -65,6 +65,20 @@ class RayGeometry:
     main: BoolArray
 
 
+def anchor_terms(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+                 ) -> tuple[FloatArray, ...]:
+    """Return the per-feature terms of eq. (6): u, t, s, c, sin(theta), cos(theta), g.
+
+    See the module table; each has one row per feature.
+    """
+    u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
+    t = centers_w[feats.main_idx] - centers_w[feats.assoc_idx]
+    s = np.linalg.norm(so3.cross(t, u), axis=1)
+    c = np.sum(t * u, axis=1)
+    sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
+    return u, t, s, c, sin_t, cos_t, s * cos_t - c * sin_t
+
+
 def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                      obs: Observations) -> RayGeometry:
     """Compute N_ji = g u + sin(theta)(P_m - P_i) for all observations (PMBA eq. 6).
@@ -74,15 +88,9 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     """
     if kernels.ENABLED:
         return rays_and_residuals(R_wc, centers_w, feats, obs)[0]
-    P_m = centers_w[feats.main_idx]
-    u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
-    t = P_m - centers_w[feats.assoc_idx]
-    s = np.linalg.norm(so3.cross(t, u), axis=1)
-    c = np.sum(t * u, axis=1)
-    sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
-    g = s * cos_t - c * sin_t
+    u, t, s, c, sin_t, cos_t, g = anchor_terms(R_wc, centers_w, feats)
     j = obs.feat_idx
-    d = P_m[j] - centers_w[obs.cam_idx]
+    d = centers_w[feats.main_idx[j]] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
     norm = np.maximum(np.linalg.norm(N, axis=1), _TINY)
     N_hat = N / norm[:, None]
@@ -172,9 +180,11 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     K = obs.cam_idx.shape[0]
     if weights is not None and rays_c is None:
         rays_c = camera_rays_from(geo, R_wc, obs)
+    # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
+    lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
+    E = lin.rows
     if kernels.ENABLED:  # the same rows from compiled loops
-        lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
-        kernels.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, lin.rows)
+        kernels.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, E)
         return lin
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
@@ -198,16 +208,16 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
     # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
     # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
-    h_hat = rays_c
-    if weights is None or h_hat is None:
+    if weights is None or rays_c is None:     # rays_c is set whenever weights are
         L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
-        res = residuals_from(geo, R_wc, obs)
+        E[:, :, 6] = residuals_from(geo, R_wc, obs)
+        E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
     else:
         B = weights @ np.swapaxes(R_i, 1, 2)
         L = (B - np.einsum('kij,kj->ki', B, N_hat)[:, :, None] * N_hat[:, None, :]
              ) / norm[:, None, None]
-        res = pixel_weighted_residuals(weights, h_hat, obs)
-    d = L.shape[1]
+        E[:, :, 6] = pixel_weighted_residuals(weights, rays_c, obs)
+        E[:, :, 0:3] = so3.times_hat(weights, rays_c)
     u_j = u[j]
     Lu = np.einsum('kij,kj->ki', L, u_j)
     # L dN/du = L (g I + u dg/du^T) and L u dg/dt^T, as outer products of small vectors.
@@ -215,14 +225,6 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     L_u_dgdt = Lu[:, :, None] * dg_dt[:, None, :]
     dN_dtheta = dth_u[j] + cos_t[j, None] * geo.P_m_minus_P_i
 
-    # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
-    lin = Linearization.empty(K, d, ANCHOR_COLS)
-    E = lin.rows
-    E[:, :, 6] = res
-    if weights is None or h_hat is None:
-        E[:, :, 0:3] = so3.times_hat(R_i, v)                     # d e / d phi_i
-    else:
-        E[:, :, 0:3] = so3.times_hat(weights, h_hat)
     L_sin = sin_t[j, None, None] * L
     np.negative(L_sin, out=E[:, :, 3:6])                         # d e / d P_i
     np.einsum('kij,kj->ki', L, dN_dtheta, out=E[:, :, 7])        # d e / d theta

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from pmba_ros._typing import FloatArray
+from pmba_ros.core import so3
 
 
 def normalize(x: FloatArray) -> FloatArray:
@@ -33,12 +34,7 @@ def tangent_basis(n: FloatArray) -> FloatArray:
                    np.choose(k, [y, -x, zero])], axis=-1)
     norm = np.linalg.norm(a1, axis=-1, keepdims=True)
     a1 /= np.where(norm > 0.0, norm, 1.0)  # n = 0 (a zero baseline's direction) gives A = 0
-    out = np.empty((*n.shape, 2))
-    out[..., 0] = a1
-    out[..., 0, 1] = y * a1[..., 2] - z * a1[..., 1]
-    out[..., 1, 1] = z * a1[..., 0] - x * a1[..., 2]
-    out[..., 2, 1] = x * a1[..., 1] - y * a1[..., 0]
-    return out
+    return np.stack([a1, so3.cross(n, a1)], axis=-1)
 
 
 def retract(n: FloatArray, delta: FloatArray, basis: FloatArray | None = None) -> FloatArray:

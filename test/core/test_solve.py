@@ -18,7 +18,7 @@ from pmba_ros.core.solve import SolveOptions, solve
 from pmba_ros.errors import ProblemError, SolverError
 from pmba_ros.sim.scenes import street_scene, table3_scene
 
-from ..conftest import shared_file
+from ..conftest import run_python, shared_file
 
 
 class SolverMixin:
@@ -275,10 +275,7 @@ def test_compiled_normal_equations_take_the_same_steps(param: str,
 
 def test_solves_without_numba_installed() -> None:
     """Without numba (the optional `fast` extra) the numpy engine runs and converges."""
-    import subprocess
-    import sys
-
-    code = (
+    run_python(
         "import sys; sys.modules['numba'] = None\n"   # import numba now raises ImportError
         "from pmba_ros.core import kernels\n"
         "assert not kernels.ENABLED\n"
@@ -288,6 +285,3 @@ def test_solves_without_numba_installed() -> None:
         " SolveOptions(max_iterations=50))\n"
         "assert r.final_rms_px < 1.0, r.final_rms_px\n"
         "assert 'numba' not in {m.split('.')[0] for m in sys.modules if sys.modules[m]}\n")
-    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=300, check=False)
-    assert proc.returncode == 0, proc.stderr
