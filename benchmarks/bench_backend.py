@@ -2,9 +2,9 @@
 
 Usage::
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py ate --mode sliding
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py latency --keyframes 200
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py memory --keyframes 2000
+    python benchmarks/bench_backend.py ate --mode sliding
+    python benchmarks/bench_backend.py latency --keyframes 200
+    python benchmarks/bench_backend.py memory --keyframes 2000
 
 ``ate``: ATE (Sim(3) alignment) of the optimized keyframes and of the front-end on the
 simulated street, deterministic config. ``latency``: wall and CPU time of each ``step()``
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
@@ -110,7 +110,16 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
             'zero_iteration_refines': int(np.sum(iterations == 0)),
             'step_wall': stats(wall), 'step_cpu': stats(cpu), 'solve_wall': stats(solve),
             'load_average': os.getloadavg()[0],
-            'openblas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default')}
+            'blas_threads': _blas_threads()}
+
+
+def _blas_threads() -> list[int]:
+    """Return the thread count of each BLAS pool (empty without threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_info
+    except ImportError:
+        return []
+    return [int(p['num_threads']) for p in threadpool_info() if p.get('user_api') == 'blas']
 
 
 def _rss_mb() -> float:
@@ -148,7 +157,7 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     """Main."""
-    keep_freed_memory()
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bench', choices=('ate', 'latency', 'memory'))
     parser.add_argument('--mode', choices=('sliding', 'global'), default='sliding')

@@ -55,7 +55,7 @@ import scipy
 import scipy.optimize
 import scipy.sparse
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import project
 from pmba_ros.core.models import XyzModel
@@ -523,7 +523,7 @@ def main(argv: list[str] | None = None) -> int:
     Returns:
         0, or 1 if a sanity check failed.
     """
-    keep_freed_memory()
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--datasets', default=','.join(DATASETS),
                         help='comma-separated subset of: ' + ', '.join(DATASETS))

@@ -21,7 +21,7 @@ import queue
 import threading
 from typing import Any
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.backend.config import NODE_NAME, BackendConfig
 from pmba_ros.backend.estimator import compile_kernels
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
@@ -258,7 +258,7 @@ def main(args: list[str] | None = None) -> None:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    keep_freed_memory()
+    tune_process()
     rclpy.init(args=args)
     node = rclpy.create_node(NODE_NAME)
     seconds = compile_kernels()  # before subscribing: the first start compiles for ~12 s

@@ -13,7 +13,7 @@ import logging
 import sys
 
 from pmba_ros import __version__
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.errors import PmbaError
 
 VERBS: dict[str, tuple[str, str]] = {
@@ -42,7 +42,7 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``pmba`` command line and return its exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    keep_freed_memory()
+    tune_process()
     verb = next((a for a in argv if not a.startswith('-')), None)
     parser = build_parser([verb] if verb in VERBS else None)
     args = parser.parse_args(argv)
