@@ -20,7 +20,7 @@ RANKS = {
 
 #: Within the engine, the order of style.md §6.1: geometry -> problem -> residuals -> solver.
 CORE_RANKS = {
-    'so3': 0, 'sphere': 0, 'camera': 0,
+    'so3': 0, 'sphere': 0, 'camera': 0, 'jit': 0,
     'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1, 'jacobian': 1,
     'conversions': 2, 'residuals': 2, 'baselines': 2, 'kernels': 2,
     'models': 3, 'normal_equations': 3,
