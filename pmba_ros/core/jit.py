@@ -105,6 +105,19 @@ NUMBA = _import_numba()
 CACHING = choose_cache(NUMBA) if NUMBA is not None else False
 
 
+def cache_folder() -> Path | None:
+    """Return the folder numba caches the loops in (None: not cached, or no numba)."""
+    if NUMBA is None or not CACHING:
+        return None
+    chosen = NUMBA.config.CACHE_DIR
+    return Path(chosen) if chosen else SOURCE_DIR / '__pycache__'
+
+
+def numba_version() -> str:
+    """Return the version of the numba in use ('' without numba)."""
+    return str(getattr(NUMBA, '__version__', ''))
+
+
 def jit(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` lazily (cached on disk where possible) when numba is there, else keep it."""
     if NUMBA is None:

@@ -30,8 +30,6 @@ from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
-from ..conftest import run_python
-
 BACKEND = out.RosbagsBackend()
 OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
                  DIAGNOSTICS_TOPIC)
@@ -516,28 +514,3 @@ def test_global_mode_short_street(street: SimSequence) -> None:
     gt = street.gt_trajectory().take(np.arange(45))
     fe = ate(street.odom_trajectory().take(np.arange(45)), gt, 'sim3').rmse
     assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 0.5 * fe
-
-
-def test_compile_kernels_runs_every_solver_loop(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The node's warm-up compiles the loops a window solve uses; without numba it is a no-op.
-
-    In a fresh process, where no loop has run yet (a dispatcher lists a signature once it
-    compiled or loaded that loop).
-    """
-    from pmba_ros.backend.estimator import compile_kernels
-    from pmba_ros.core import kernels
-
-    monkeypatch.setattr(kernels, 'ENABLED', False)
-    assert compile_kernels() == 0.0
-    pytest.importorskip('numba')
-    names = ('_pmba_rays', '_pmba_rows', '_assemble', '_reduce', '_widest_pairs',
-             '_robust_cost', '_sphere_retract', '_projection_jacobian')
-    code = (
-        'from pmba_ros.backend.estimator import compile_kernels\n'
-        'from pmba_ros.core import kernels\n'
-        f'names = {names!r}\n'
-        'assert not any(getattr(kernels, n).signatures for n in names)\n'
-        'assert compile_kernels() > 0.0\n'
-        'missing = [n for n in names if not getattr(kernels, n).signatures]\n'
-        'assert not missing, missing\n')
-    run_python(code)
