@@ -46,9 +46,10 @@ def available_cores() -> int:
 
 
 def limit_blas_threads() -> bool:
-    """Run numpy's and scipy's BLAS on one thread from now on; return whether it was applied.
+    """Run BLAS on one thread from now on; return whether it was applied.
 
-    Loads scipy.linalg first, so that its own OpenBLAS copy is among the pools.
+    Loads scipy.linalg first, so that its own OpenBLAS copy is among the pools; libraries
+    loaded later get one thread through ``OPENBLAS_NUM_THREADS`` unless the user set it.
     """
     try:
         import scipy.linalg  # noqa: F401  (its BLAS must be loaded to be limited)
@@ -56,6 +57,8 @@ def limit_blas_threads() -> bool:
     except ImportError:
         logger.debug('threadpoolctl is not installed: BLAS thread pools left as they are')
         return False
+    # Pools loaded later (OpenCV bundles its own OpenBLAS) read the variable when they load.
+    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
     controller = ThreadpoolController()
     controller.limit(limits=1, user_api='blas')
     _POOLS.controller = controller
