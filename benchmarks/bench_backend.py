@@ -40,10 +40,12 @@ logger = logging.getLogger('bench_backend')
 
 
 def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i: int,
-          serialize: bool = False) -> tuple[float, float, list[tuple[str, Any]]]:
+          encoders: dict[str, cdr.Encoder] | None = None,
+          ) -> tuple[float, float, list[tuple[str, Any]]]:
     """Feed keyframe i; return wall and CPU seconds of the processing step and its outputs.
 
-    With ``serialize`` the outputs are serialized to CDR too, as the replay writes them.
+    With ``encoders`` (one per topic) the outputs are serialized to CDR too, as the replay's
+    writer does.
     """
     logic.on_tracks(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
     logic.step()
@@ -52,9 +54,9 @@ def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i:
                                         np.eye(6) * 1e-3, backend))
     t0, c0 = time.perf_counter(), time.process_time()
     outputs = logic.step()
-    if serialize:
-        for _, msg in outputs:
-            if cdr.encode(msg, msg.__msgtype__) is None:
+    if encoders is not None:
+        for topic, msg in outputs:
+            if encoders.setdefault(topic, cdr.Encoder()).encode(msg, msg.__msgtype__) is None:
                 backend.serialize(msg)
     return time.perf_counter() - t0, time.process_time() - c0, outputs
 
@@ -100,8 +102,9 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     logic, backend = _start(cfg, seq)
     wall, cpu = [], []
     steps = np.full(len(seq), np.nan)
+    encoders: dict[str, cdr.Encoder] | None = {} if args.serialize else None
     for i in range(len(seq)):
-        w, c, _ = _feed(logic, seq, backend, i, args.serialize)
+        w, c, _ = _feed(logic, seq, backend, i, encoders)
         if logic.estimator.state == 'tracking' and i >= cfg.init_batch_size:
             wall.append(1e3 * w)
             cpu.append(1e3 * c)

@@ -247,6 +247,35 @@ def test_output_contents_frames_and_stamps(
     assert 'solve_ms' not in values  # deterministic config: no wall-clock values
 
 
+def test_path_follows_the_keyframes_and_reuses_final_poses(street: SimSequence) -> None:
+    """Every Path equals the keyframes' current map poses; final keyframes keep their objects.
+
+    Checked at every step of a sliding run, so a pose reused after it moved would show.
+    """
+    logic = BackendLogic(config(window_size=8), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    previous: list[Any] = []
+    reused = 0
+    for outputs in feed(logic, street, range(60)):
+        paths = [m for t, m in outputs if t == 'pmba/path']
+        if not paths:
+            continue
+        poses = paths[-1].poses
+        kf = logic.estimator.kf
+        idx = logic.estimator.estimated()
+        assert [stamp_ns(p.header) for p in poses] == kf.stamps_ns[idx].tolist()
+        got = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                        for p in poses])
+        np.testing.assert_array_equal(got, kf.C_map[idx])
+        quats = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
+                           p.pose.orientation.w] for p in poses])
+        np.testing.assert_allclose(np.abs(np.sum(quats * so3.to_quat_xyzw(kf.R_map[idx]),
+                                                 axis=1)), 1.0, atol=1e-12)
+        reused += sum(a is b for a, b in zip(previous, poses, strict=False))
+        previous = list(poses)
+    assert reused > 100, 'final keyframes were rebuilt at every step'
+
+
 def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence) -> None:
     """Test: solve timing in diagnostics when not deterministic."""
     logic = BackendLogic(BackendConfig(init_batch_size=10), BACKEND)
