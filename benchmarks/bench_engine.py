@@ -66,7 +66,10 @@ from pmba_ros.sim.scenes import synthetic_large, table3_scene
 
 SHARED = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
 LADYBUG = SHARED / 'bal' / 'problem-49-7776-pre.txt'
+TRAFALGAR = SHARED / 'bal' / 'problem-21-11315-pre.txt'
 DATASETS = ('ladybug', 'synthetic')
+#: Also selectable with --datasets: BAL Trafalgar-21 and a ring of 400 cameras, ~964k observations.
+MORE_DATASETS = ('trafalgar', 'large')
 METHODS = ('pmba', 'xyz', 'scipy', 'ceres')
 RMS_TOLERANCE = 0.02
 """Largest relative difference of the final RMS of Ceres and XYZ-LM the sanity check allows."""
@@ -514,6 +517,13 @@ def load(name: str) -> tuple[BAProblem | None, str]:
         if not LADYBUG.exists():
             return None, f'skipped ladybug: {LADYBUG} not found'
         return read_bal(LADYBUG), f'BAL Ladybug-49 ({LADYBUG.name})'
+    if name == 'trafalgar':
+        if not TRAFALGAR.exists():
+            return None, f'skipped trafalgar: {TRAFALGAR} not found'
+        return read_bal(TRAFALGAR), f'BAL Trafalgar-21 ({TRAFALGAR.name})'
+    if name == 'large':
+        return (synthetic_large(seed=0, n_cams=400, n_points=21300).start,
+                'synthetic_large(seed=0, 400 cams, 21300 points)')
     return synthetic_large(seed=0).start, 'synthetic_large(seed=0, 100 cams, 20000 points)'
 
 
@@ -526,7 +536,8 @@ def main(argv: list[str] | None = None) -> int:
     tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--datasets', default=','.join(DATASETS),
-                        help='comma-separated subset of: ' + ', '.join(DATASETS))
+                        help='comma-separated subset of: '
+                        + ', '.join(DATASETS + MORE_DATASETS))
     parser.add_argument('--methods', default=','.join(METHODS),
                         help='comma-separated subset of: ' + ', '.join(METHODS))
     parser.add_argument('--threads', type=int, default=1,
@@ -537,7 +548,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     datasets = [d for d in args.datasets.split(',') if d]
     methods = [m for m in args.methods.split(',') if m]
-    bad = sorted(set(datasets) - set(DATASETS)) + sorted(set(methods) - set(METHODS))
+    bad = (sorted(set(datasets) - set(DATASETS + MORE_DATASETS))
+           + sorted(set(methods) - set(METHODS)))
     if bad or args.threads < 1:
         parser.error(f'unknown datasets/methods {bad}' if bad else '--threads must be >= 1')
     have_ceres = ceres_versions() is not None
