@@ -91,9 +91,8 @@ def test_pmba_numba_0_never_imports_numba(tmp_path: Path) -> None:
     assert 'Warning' not in err, err
 
 
-def test_no_writable_folder_anywhere_compiles_in_memory(tmp_path: Path,
-                                                         monkeypatch: pytest.MonkeyPatch,
-                                                         ) -> None:
+def test_no_writable_folder_anywhere_compiles_in_memory(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Nowhere to write: caching off (numba would refuse to decorate), said in a warning."""
     from types import SimpleNamespace
 

@@ -58,9 +58,8 @@ def test_warm_up_leaves_nothing_to_compile_for_solves_and_a_replay() -> None:
         'assert not grown, grown\n')
 
 
-def test_is_warm_follows_the_marker_in_the_cache_folder(tmp_path: Path,
-                                                         monkeypatch: pytest.MonkeyPatch,
-                                                         ) -> None:
+def test_is_warm_follows_the_marker_in_the_cache_folder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Cold until a warm-up wrote its marker; no cache folder means never warm."""
     pytest.importorskip('numba')
     monkeypatch.setattr(jit, 'cache_folder', lambda: tmp_path)
