@@ -430,8 +430,8 @@ def warm_up() -> None:
         solve(scene.start, SolveOptions(param=param, solver=solver, max_iterations=3))
 
 
-def print_environment() -> None:
-    """Print the command line, versions, BLAS and thread settings."""
+def print_environment(user_env: dict[str, str]) -> None:
+    """Print the command line, versions, BLAS and thread settings (``user_env``: as started)."""
     print('command:', shlex.join([sys.executable, *sys.argv]))
     print(f'python {platform.python_version()} on {platform.machine()}, '
           f'{os.cpu_count()} CPUs; numpy {np.__version__}, scipy {scipy.__version__}')
@@ -440,9 +440,7 @@ def print_environment() -> None:
         print(f'numpy BLAS: {blas.get("name")} {blas.get("version", "")}')
     except (KeyError, TypeError, ValueError) as err:
         print(f'numpy BLAS: unknown ({err})')
-    env = {k: os.environ[k] for k in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
-                                      'MKL_NUM_THREADS') if k in os.environ}
-    print('thread variables:', env or 'none set')
+    print('thread variables set by the user:', user_env or 'none')
     try:
         from threadpoolctl import threadpool_info
     except ImportError:
@@ -533,6 +531,8 @@ def main(argv: list[str] | None = None) -> int:
     Returns:
         0, or 1 if a sanity check failed.
     """
+    user_env = {k: os.environ[k] for k in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
+                                           'MKL_NUM_THREADS') if k in os.environ}
     tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--datasets', default=','.join(DATASETS),
@@ -558,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.quiet:
             print(msg, flush=True)
 
-    print_environment()
+    print_environment(user_env)
     warm_up()
     ok = True
     for name in datasets:
