@@ -473,8 +473,8 @@ def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
     assert fake_ros.created[0].logger.lines[-1][0] == 'fatal'
 
 
-def test_main_compiles_before_subscribing_and_says_so(fake_ros: FakeRclpy,
-                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_main_compiles_before_subscribing_and_says_so(
+        fake_ros: FakeRclpy, monkeypatch: pytest.MonkeyPatch) -> None:
     """A cold cache: one log line with the expected time, the loops ready before subscribing."""
     from pmba_ros.core import warmup
     from pmba_ros.node import main
