@@ -25,7 +25,8 @@ One table per dataset, one row per method, all from the same start:
 Columns: iterations (accepted and rejected steps), linear solves (factorizations of the
 reduced camera system; LSMR solves for scipy), wall seconds of the solve (problem set-up of
 scipy and Ceres excluded, the engine's own set-up included), seconds per iteration, pixel
-RMS before and after, and the wall time relative to the Ceres row. The RMS is computed the
+RMS before and after, the wall time relative to the Ceres row, and the process's peak
+resident memory while the method ran (problem data and libraries included). The RMS is computed the
 same way for every method: sqrt of the mean squared 2-D error over all observations of
 ``project(R_wc^T (X - C))``. PMBA's start is its parallax features converted back to points
 (the conversion moves points seen behind a camera, so its initial RMS can differ).
@@ -40,7 +41,9 @@ in front of their cameras.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 import math
 import os
 from pathlib import Path
@@ -90,6 +93,8 @@ class Row:
         final_rms: Pixel RMS at the end.
         note: Termination reason or other remarks.
         solution: Final (R_wc, centers_w, points_w), for the sanity checks.
+        peak_rss_mb: The process's peak resident memory during the solve (MB; NaN where
+            Linux' peak counter cannot be reset).
     """
 
     method: str
@@ -100,6 +105,25 @@ class Row:
     final_rms: float
     note: str = ''
     solution: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    peak_rss_mb: float = math.nan
+
+
+def measured(run: Callable[[], Row]) -> Row:
+    """Run one method and record the process's peak resident memory while it ran.
+
+    Linux only: writing 5 to /proc/self/clear_refs resets the peak (VmHWM) first.
+    """
+    try:
+        with open('/proc/self/clear_refs', 'w', encoding='ascii') as fh:
+            fh.write('5')
+    except OSError:
+        return run()
+    row = run()
+    with open('/proc/self/status', encoding='ascii') as fh:
+        for line in fh:
+            if line.startswith('VmHWM:'):
+                row.peak_rss_mb = int(line.split()[1]) / 1024
+    return row
 
 
 def reprojection_errors(problem: BAProblem, R_wc: np.ndarray, centers_w: np.ndarray,
@@ -465,7 +489,7 @@ def print_table(name: str, problem: BAProblem, rows: list[Row], ref: Row | None)
     print(f'== {name}: {problem.n_cams} cameras, {problem.n_feats} points, '
           f'{problem.n_obs} observations ==')
     header = (f'{"method":<32}{"iters":>6}{"solves":>7}{"seconds":>10}{"s/iter":>9}'
-              f'{"rms0 px":>10}{"rms px":>9}{"x Ceres":>9}  note')
+              f'{"rms0 px":>10}{"rms px":>9}{"x Ceres":>9}{"peak MB":>9}  note')
     print(header)
     print('-' * len(header))
     for r in rows:
@@ -473,7 +497,7 @@ def print_table(name: str, problem: BAProblem, rows: list[Row], ref: Row | None)
         ratio = r.seconds / ref.seconds if ref is not None and ref.seconds > 0 else math.nan
         print(f'{r.method:<32}{r.iterations:>6}{r.linear_solves:>7}{r.seconds:>10.3f}'
               f'{per_iter:>9.4f}{r.initial_rms:>10.4f}{r.final_rms:>9.4f}{ratio:>9.2f}'
-              f'  {r.note}')
+              f'{r.peak_rss_mb:>9.0f}  {r.note}')
 
 
 def sanity_check(problem: BAProblem, ceres: Row | None, xyz: Row | None) -> bool:
@@ -571,20 +595,21 @@ def main(argv: list[str] | None = None) -> int:
         xyz_row = ceres_row = None
         if 'pmba' in methods:
             log(f'[{name}] PMBA-Dogleg ...')
-            rows.append(run_engine(problem, 'PMBA-Dogleg (engine)', SolveOptions()))
+            rows.append(measured(partial(run_engine, problem, 'PMBA-Dogleg (engine)',
+                                         SolveOptions())))
         if 'xyz' in methods:
             log(f'[{name}] XYZ-LM ...')
-            xyz_row = run_engine(problem, 'XYZ-LM (engine)',
-                                 SolveOptions(param='xyz', solver='lm'))
+            xyz_row = measured(partial(run_engine, problem, 'XYZ-LM (engine)',
+                                       SolveOptions(param='xyz', solver='lm')))
             rows.append(xyz_row)
         if 'scipy' in methods:
             log(f'[{name}] scipy least_squares trf ...')
-            rows.append(run_scipy(problem, args.scipy_budget_s))
+            rows.append(measured(partial(run_scipy, problem, args.scipy_budget_s)))
         notes = []
         if 'ceres' in methods and have_ceres:
             for threads in sorted({args.threads, 2}):
                 log(f'[{name}] Ceres ({threads} threads) ...')
-                row = run_ceres(problem, threads)
+                row = measured(partial(run_ceres, problem, threads))
                 rows.append(row)
                 if threads == args.threads:
                     ceres_row = row
