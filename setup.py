@@ -29,6 +29,7 @@ setup(
         'mcap>=1.1',
         'mcap-ros2-support>=0.5',
         'PyYAML',
+        'threadpoolctl>=3.1',
     ],
     extras_require={
         'opencv': ['opencv-python-headless>=4.5'],

@@ -2,9 +2,10 @@
 
 Usage::
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py ate --mode sliding
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py latency --keyframes 200
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_backend.py memory --keyframes 2000
+    python benchmarks/bench_backend.py ate --mode sliding
+    python benchmarks/bench_backend.py latency --keyframes 200
+    python benchmarks/bench_backend.py latency --keyframes 1500 --serialize --deterministic
+    python benchmarks/bench_backend.py memory --keyframes 2000
 
 ``ate``: ATE (Sim(3) alignment) of the optimized keyframes and of the front-end on the
 simulated street, deterministic config. ``latency``: wall and CPU time of each ``step()``
@@ -26,20 +27,26 @@ from typing import Any
 
 import numpy as np
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
+from pmba_ros.io import cdr
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
 logger = logging.getLogger('bench_backend')
 
 
-def _feed(logic: BackendLogic, seq: SimSequence, backend: out.MsgBackend, i: int,
+def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i: int,
+          encoders: dict[str, cdr.Encoder] | None = None,
           ) -> tuple[float, float, list[tuple[str, Any]]]:
-    """Feed keyframe i; return wall and CPU seconds of the processing step and its outputs."""
+    """Feed keyframe i; return wall and CPU seconds of the processing step and its outputs.
+
+    With ``encoders`` (one per topic) the outputs are serialized to CDR too, as the replay's
+    writer does.
+    """
     logic.on_tracks(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
     logic.step()
     logic.on_keyframe(out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera',
@@ -47,10 +54,14 @@ def _feed(logic: BackendLogic, seq: SimSequence, backend: out.MsgBackend, i: int
                                         np.eye(6) * 1e-3, backend))
     t0, c0 = time.perf_counter(), time.process_time()
     outputs = logic.step()
+    if encoders is not None:
+        for topic, msg in outputs:
+            if encoders.setdefault(topic, cdr.Encoder()).encode(msg, msg.__msgtype__) is None:
+                backend.serialize(msg)
     return time.perf_counter() - t0, time.process_time() - c0, outputs
 
 
-def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.MsgBackend]:
+def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.RosbagsBackend]:
     """Start."""
     backend = out.RosbagsBackend()
     logic = BackendLogic(config, backend)
@@ -90,11 +101,14 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     cfg = BackendConfig(**kwargs)
     logic, backend = _start(cfg, seq)
     wall, cpu = [], []
+    steps = np.full(len(seq), np.nan)
+    encoders: dict[str, cdr.Encoder] | None = {} if args.serialize else None
     for i in range(len(seq)):
-        w, c, _ = _feed(logic, seq, backend, i)
+        w, c, _ = _feed(logic, seq, backend, i, encoders)
         if logic.estimator.state == 'tracking' and i >= cfg.init_batch_size:
             wall.append(1e3 * w)
             cpu.append(1e3 * c)
+            steps[i] = 1e3 * c
     solve = np.asarray(logic.stats.solve_ms[1:])
 
     def stats(v: list[float] | np.ndarray) -> dict[str, float]:
@@ -109,8 +123,28 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
             'iterations_mean': float(iterations.mean()),
             'zero_iteration_refines': int(np.sum(iterations == 0)),
             'step_wall': stats(wall), 'step_cpu': stats(cpu), 'solve_wall': stats(solve),
+            'flatness': _flatness(steps),
             'load_average': os.getloadavg()[0],
-            'openblas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default')}
+            'blas_threads': _blas_threads()}
+
+
+def _flatness(step_cpu_ms: np.ndarray) -> dict[str, float] | None:
+    """Median step CPU time of keyframes 100-300 and of the last 200, and their ratio."""
+    n = step_cpu_ms.shape[0]
+    if n < 500:
+        return None
+    early = float(np.nanmedian(step_cpu_ms[100:300]))
+    late = float(np.nanmedian(step_cpu_ms[n - 200:]))
+    return {'kf_100_300_ms': early, 'last_200_ms': late, 'ratio': late / early}
+
+
+def _blas_threads() -> list[int]:
+    """Return the thread count of each BLAS pool (empty without threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_info
+    except ImportError:
+        return []
+    return [int(p['num_threads']) for p in threadpool_info() if p.get('user_api') == 'blas']
 
 
 def _rss_mb() -> float:
@@ -148,7 +182,7 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     """Main."""
-    keep_freed_memory()
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bench', choices=('ate', 'latency', 'memory'))
     parser.add_argument('--mode', choices=('sliding', 'global'), default='sliding')
@@ -161,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='latency: no time budget (fixed iterations; CPU time is then the '
                         'unloaded-machine estimate)')
     parser.add_argument('--max-time', type=float, default=None, help='latency: max_time_s')
+    parser.add_argument('--serialize', action='store_true',
+                        help='latency: serialize the outputs to CDR in the timed step, as the '
+                        'replay does')
     args = parser.parse_args(argv)
     if args.keyframes is None:
         args.keyframes = 2000 if args.bench == 'memory' else 200

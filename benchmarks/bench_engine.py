@@ -25,7 +25,8 @@ One table per dataset, one row per method, all from the same start:
 Columns: iterations (accepted and rejected steps), linear solves (factorizations of the
 reduced camera system; LSMR solves for scipy), wall seconds of the solve (problem set-up of
 scipy and Ceres excluded, the engine's own set-up included), seconds per iteration, pixel
-RMS before and after, and the wall time relative to the Ceres row. The RMS is computed the
+RMS before and after, the wall time relative to the Ceres row, and the process's peak
+resident memory while the method ran (problem data and libraries included). The RMS is computed the
 same way for every method: sqrt of the mean squared 2-D error over all observations of
 ``project(R_wc^T (X - C))``. PMBA's start is its parallax features converted back to points
 (the conversion moves points seen behind a camera, so its initial RMS can differ).
@@ -40,7 +41,9 @@ in front of their cameras.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 import math
 import os
 from pathlib import Path
@@ -55,7 +58,7 @@ import scipy
 import scipy.optimize
 import scipy.sparse
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import project
 from pmba_ros.core.models import XyzModel
@@ -66,7 +69,10 @@ from pmba_ros.sim.scenes import synthetic_large, table3_scene
 
 SHARED = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
 LADYBUG = SHARED / 'bal' / 'problem-49-7776-pre.txt'
+TRAFALGAR = SHARED / 'bal' / 'problem-21-11315-pre.txt'
 DATASETS = ('ladybug', 'synthetic')
+#: Also selectable with --datasets: BAL Trafalgar-21 and a ring of 400 cameras, ~964k observations.
+MORE_DATASETS = ('trafalgar', 'large')
 METHODS = ('pmba', 'xyz', 'scipy', 'ceres')
 RMS_TOLERANCE = 0.02
 """Largest relative difference of the final RMS of Ceres and XYZ-LM the sanity check allows."""
@@ -87,6 +93,8 @@ class Row:
         final_rms: Pixel RMS at the end.
         note: Termination reason or other remarks.
         solution: Final (R_wc, centers_w, points_w), for the sanity checks.
+        peak_rss_mb: The process's peak resident memory during the solve (MB; NaN where
+            Linux' peak counter cannot be reset).
     """
 
     method: str
@@ -97,6 +105,25 @@ class Row:
     final_rms: float
     note: str = ''
     solution: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    peak_rss_mb: float = math.nan
+
+
+def measured(run: Callable[[], Row]) -> Row:
+    """Run one method and record the process's peak resident memory while it ran.
+
+    Linux only: writing 5 to /proc/self/clear_refs resets the peak (VmHWM) first.
+    """
+    try:
+        with open('/proc/self/clear_refs', 'w', encoding='ascii') as fh:
+            fh.write('5')
+    except OSError:
+        return run()
+    row = run()
+    with open('/proc/self/status', encoding='ascii') as fh:
+        for line in fh:
+            if line.startswith('VmHWM:'):
+                row.peak_rss_mb = int(line.split()[1]) / 1024
+    return row
 
 
 def reprojection_errors(problem: BAProblem, R_wc: np.ndarray, centers_w: np.ndarray,
@@ -427,8 +454,8 @@ def warm_up() -> None:
         solve(scene.start, SolveOptions(param=param, solver=solver, max_iterations=3))
 
 
-def print_environment() -> None:
-    """Print the command line, versions, BLAS and thread settings."""
+def print_environment(user_env: dict[str, str]) -> None:
+    """Print the command line, versions, BLAS and thread settings (``user_env``: as started)."""
     print('command:', shlex.join([sys.executable, *sys.argv]))
     print(f'python {platform.python_version()} on {platform.machine()}, '
           f'{os.cpu_count()} CPUs; numpy {np.__version__}, scipy {scipy.__version__}')
@@ -437,9 +464,7 @@ def print_environment() -> None:
         print(f'numpy BLAS: {blas.get("name")} {blas.get("version", "")}')
     except (KeyError, TypeError, ValueError) as err:
         print(f'numpy BLAS: unknown ({err})')
-    env = {k: os.environ[k] for k in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
-                                      'MKL_NUM_THREADS') if k in os.environ}
-    print('thread variables:', env or 'none set')
+    print('thread variables set by the user:', user_env or 'none')
     try:
         from threadpoolctl import threadpool_info
     except ImportError:
@@ -464,7 +489,7 @@ def print_table(name: str, problem: BAProblem, rows: list[Row], ref: Row | None)
     print(f'== {name}: {problem.n_cams} cameras, {problem.n_feats} points, '
           f'{problem.n_obs} observations ==')
     header = (f'{"method":<32}{"iters":>6}{"solves":>7}{"seconds":>10}{"s/iter":>9}'
-              f'{"rms0 px":>10}{"rms px":>9}{"x Ceres":>9}  note')
+              f'{"rms0 px":>10}{"rms px":>9}{"x Ceres":>9}{"peak MB":>9}  note')
     print(header)
     print('-' * len(header))
     for r in rows:
@@ -472,7 +497,7 @@ def print_table(name: str, problem: BAProblem, rows: list[Row], ref: Row | None)
         ratio = r.seconds / ref.seconds if ref is not None and ref.seconds > 0 else math.nan
         print(f'{r.method:<32}{r.iterations:>6}{r.linear_solves:>7}{r.seconds:>10.3f}'
               f'{per_iter:>9.4f}{r.initial_rms:>10.4f}{r.final_rms:>9.4f}{ratio:>9.2f}'
-              f'  {r.note}')
+              f'{r.peak_rss_mb:>9.0f}  {r.note}')
 
 
 def sanity_check(problem: BAProblem, ceres: Row | None, xyz: Row | None) -> bool:
@@ -514,6 +539,13 @@ def load(name: str) -> tuple[BAProblem | None, str]:
         if not LADYBUG.exists():
             return None, f'skipped ladybug: {LADYBUG} not found'
         return read_bal(LADYBUG), f'BAL Ladybug-49 ({LADYBUG.name})'
+    if name == 'trafalgar':
+        if not TRAFALGAR.exists():
+            return None, f'skipped trafalgar: {TRAFALGAR} not found'
+        return read_bal(TRAFALGAR), f'BAL Trafalgar-21 ({TRAFALGAR.name})'
+    if name == 'large':
+        return (synthetic_large(seed=0, n_cams=400, n_points=21300).start,
+                'synthetic_large(seed=0, 400 cams, 21300 points)')
     return synthetic_large(seed=0).start, 'synthetic_large(seed=0, 100 cams, 20000 points)'
 
 
@@ -523,10 +555,13 @@ def main(argv: list[str] | None = None) -> int:
     Returns:
         0, or 1 if a sanity check failed.
     """
-    keep_freed_memory()
+    user_env = {k: os.environ[k] for k in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS',
+                                           'MKL_NUM_THREADS') if k in os.environ}
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--datasets', default=','.join(DATASETS),
-                        help='comma-separated subset of: ' + ', '.join(DATASETS))
+                        help='comma-separated subset of: '
+                        + ', '.join(DATASETS + MORE_DATASETS))
     parser.add_argument('--methods', default=','.join(METHODS),
                         help='comma-separated subset of: ' + ', '.join(METHODS))
     parser.add_argument('--threads', type=int, default=1,
@@ -537,7 +572,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     datasets = [d for d in args.datasets.split(',') if d]
     methods = [m for m in args.methods.split(',') if m]
-    bad = sorted(set(datasets) - set(DATASETS)) + sorted(set(methods) - set(METHODS))
+    bad = (sorted(set(datasets) - set(DATASETS + MORE_DATASETS))
+           + sorted(set(methods) - set(METHODS)))
     if bad or args.threads < 1:
         parser.error(f'unknown datasets/methods {bad}' if bad else '--threads must be >= 1')
     have_ceres = ceres_versions() is not None
@@ -546,7 +582,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.quiet:
             print(msg, flush=True)
 
-    print_environment()
+    print_environment(user_env)
     warm_up()
     ok = True
     for name in datasets:
@@ -559,20 +595,21 @@ def main(argv: list[str] | None = None) -> int:
         xyz_row = ceres_row = None
         if 'pmba' in methods:
             log(f'[{name}] PMBA-Dogleg ...')
-            rows.append(run_engine(problem, 'PMBA-Dogleg (engine)', SolveOptions()))
+            rows.append(measured(partial(run_engine, problem, 'PMBA-Dogleg (engine)',
+                                         SolveOptions())))
         if 'xyz' in methods:
             log(f'[{name}] XYZ-LM ...')
-            xyz_row = run_engine(problem, 'XYZ-LM (engine)',
-                                 SolveOptions(param='xyz', solver='lm'))
+            xyz_row = measured(partial(run_engine, problem, 'XYZ-LM (engine)',
+                                       SolveOptions(param='xyz', solver='lm')))
             rows.append(xyz_row)
         if 'scipy' in methods:
             log(f'[{name}] scipy least_squares trf ...')
-            rows.append(run_scipy(problem, args.scipy_budget_s))
+            rows.append(measured(partial(run_scipy, problem, args.scipy_budget_s)))
         notes = []
         if 'ceres' in methods and have_ceres:
             for threads in sorted({args.threads, 2}):
                 log(f'[{name}] Ceres ({threads} threads) ...')
-                row = run_ceres(problem, threads)
+                row = measured(partial(run_ceres, problem, threads))
                 rows.append(row)
                 if threads == args.threads:
                     ceres_row = row

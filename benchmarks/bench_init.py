@@ -5,9 +5,8 @@ Usage::
     python benchmarks/bench_init.py                 # Ladybug-49 and a 200-camera street
     python benchmarks/bench_init.py --only ladybug --repeat 3 --json out.json
 
-OpenBLAS' thread pool is limited to one thread unless OPENBLAS_NUM_THREADS is already set:
-on a loaded 2-core machine its spinning threads made small dense factorizations over 100
-times slower (measured: 143x143 Cholesky 39 ms vs 0.26 ms). The setting is printed.
+BLAS thread pools are set as ``pmba`` sets them (:func:`pmba_ros._process.tune_process`):
+one thread, more only for large dense factorizations.
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from pathlib import Path
 import time
 from typing import TYPE_CHECKING, Any
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 
 if TYPE_CHECKING:
     from pmba_ros.core.problem import BAProblem
@@ -73,17 +72,15 @@ def run_case(name: str, repeat: int) -> dict[str, Any] | None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print one table per case."""
-    keep_freed_memory()
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--only', choices=sorted(CASES), action='append')
     parser.add_argument('--repeat', type=int, default=1)
     parser.add_argument('--json', type=Path)
     args = parser.parse_args(argv)
-    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # before numpy is first imported
     from pmba_ros.init.pipeline import STAGES
     logging.basicConfig(level=logging.WARNING)
-    print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
-          f'cpu_count={os.cpu_count()}, load={os.getloadavg()[0]:.2f}')
+    print(f'cpu_count={os.cpu_count()}, load={os.getloadavg()[0]:.2f}')
     results = []
     for name in args.only or sorted(CASES):
         out = run_case(name, args.repeat)

@@ -26,7 +26,7 @@ import sys
 import tempfile
 import time
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.replay import ReplayReport, replay
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
@@ -49,7 +49,7 @@ def _row(name: str, mode: str, report: ReplayReport, cpu_s: float) -> str:
 
 def main() -> int:
     """Run the benchmark and print the table."""
-    keep_freed_memory()
+    tune_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--keyframes', type=int, default=200)
     parser.add_argument('--seed', type=int, default=0)

@@ -21,11 +21,11 @@ import queue
 import threading
 from typing import Any
 
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.backend.config import NODE_NAME, BackendConfig
-from pmba_ros.backend.estimator import compile_kernels
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
 from pmba_ros.backend.outputs import RclpyBackend
+from pmba_ros.core import warmup
 
 logger = logging.getLogger(__name__)
 
@@ -258,13 +258,16 @@ def main(args: list[str] | None = None) -> None:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    keep_freed_memory()
+    tune_process()
     rclpy.init(args=args)
     node = rclpy.create_node(NODE_NAME)
-    seconds = compile_kernels()  # before subscribing: the first start compiles for ~12 s
+    # Before subscribing, so that no message queues behind a first compilation.
+    if not warmup.is_warm():
+        node.get_logger().info('compiling the solver loops before subscribing (once per '
+                               f'install; expected {warmup.expected_compile_text()})')
+    seconds = warmup.warm_up()
     if seconds > 1.0:
-        node.get_logger().info(f'solver loops compiled in {seconds:.1f} s (cached for later '
-                               'starts)')
+        node.get_logger().info(f'solver loops ready in {seconds:.1f} s')
     try:
         wrapper = PmbaNode(node)
     except ValueError as err:

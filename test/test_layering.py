@@ -11,20 +11,24 @@ PACKAGE = Path(__file__).resolve().parents[1] / 'pmba_ros'
 
 #: Rank of each top-level part of the package: a module may import ranks <= its own.
 RANKS = {
-    'errors': 0, '_typing': 0, '_json': 0, '_heap': 0, '': 0,
+    'errors': 0, '_typing': 0, '_json': 0, '_heap': 0, '_threads': 0, '_process': 0, '': 0,
     'core': 1,
     'init': 2, 'eval': 2,
-    'backend': 3, 'io': 3, 'sim': 3,
-    'node': 4, 'replay': 4, 'plot': 4, 'cli': 4, '__main__': 4,
+    'backend': 3,
+    'io': 4,
+    'sim': 5,
+    'node': 6, 'replay': 6, 'plot': 6,
+    'cli': 7, '__main__': 7,
 }
 
 #: Within the engine, the order of style.md §6.1: geometry -> problem -> residuals -> solver.
 CORE_RANKS = {
-    'so3': 0, 'sphere': 0, 'camera': 0,
+    'so3': 0, 'sphere': 0, 'camera': 0, 'jit': 0,
     'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1, 'jacobian': 1,
     'conversions': 2, 'residuals': 2, 'baselines': 2, 'kernels': 2,
     'models': 3, 'normal_equations': 3,
     'solve': 4,
+    'warmup': 5,
 }
 
 #: Third-party modules allowed only in some places (top-level or lazy imports alike).

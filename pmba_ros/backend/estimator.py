@@ -26,11 +26,10 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import logging
 import math
 import time
-from typing import cast
 
 import numpy as np
 
@@ -50,7 +49,7 @@ from pmba_ros.backend.window import (
     select_fixed,
     thin_tracks,
 )
-from pmba_ros.core import kernels, so3
+from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
@@ -400,29 +399,3 @@ class Estimator:
         """Return retired landmarks and the current features' finite points, shape (L, 3)."""
         active = self.features.points[finite_rows(self.features.points)]
         return np.concatenate([self.landmarks.points(), active])
-
-
-def compile_kernels() -> float:
-    """Solve a tiny window so that numba compiles (or loads) the solver's loops now.
-
-    The first start after installing compiles them, about 12 s on a 2-core machine: a node
-    should pay that before it subscribes, not in its first keyframe while messages queue up.
-    Later starts load them from numba's cache in well under a second.
-
-    Returns:
-        The seconds it took (0.0 without numba or with ``PMBA_NUMBA=0``).
-    """
-    from pmba_ros.sim.scenes import street_scene
-
-    if not kernels.ENABLED:
-        return 0.0
-    t0 = time.perf_counter()
-    scene = street_scene(seed=0, n_cams=6, n_points=40)
-    fixed = np.zeros(scene.start.n_cams, dtype=bool)
-    fixed[:2] = True
-    problem = replace(scene.start, fixed=fixed)
-    points = cast(FloatArray, problem.points_w)   # simulated scenes come with points
-    feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, points)
-    solve(problem, SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
-                                loss=Loss.CAUCHY, max_iterations=2), feats)
-    return time.perf_counter() - t0

@@ -74,6 +74,16 @@ class _Keyframe:
     pose: KeyframePose | None
 
 
+@dataclass
+class _PublishedPoses:
+    """The keyframes of the last Path / PoseArray and their messages."""
+
+    idx: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    final: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    stamped: list[Any] = field(default_factory=list)
+    plain: list[Any] = field(default_factory=list)
+
+
 class BackendLogic:
     """Online PMBA back-end driven by messages of any backend (rclpy, rosbags, mcap_ros2).
 
@@ -101,7 +111,7 @@ class BackendLogic:
         self._newest_input_ns = -1
         self._odom_frame = self.config.odom_frame or 'odom'
         self._base_frame = self.config.base_frame or 'base_link'
-        self._pose_cache: dict[int, tuple[Any, Any]] = {}
+        self._published = _PublishedPoses()
         self._last_info = UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
@@ -318,25 +328,32 @@ class BackendLogic:
     # --- outputs --------------------------------------------------------------------------
 
     def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
-        """Return PoseStamped and Pose messages of keyframes ``idx`` (final ones cached)."""
+        """Return PoseStamped and Pose messages of keyframes ``idx``.
+
+        Keyframes that were final (fixed or dead-reckoned) when last published keep their
+        messages; when ``idx`` extends the last published keyframes, only the others and the
+        new ones are built, so the cost follows the window, not the trajectory.
+        """
         kf = self.estimator.kf
-        frame = self.config.map_frame
-        final = (kf.status[idx] == KeyframeStatus.FIXED) | (
-            kf.status[idx] == KeyframeStatus.DEAD_RECKONED)
-        sel = idx[np.array([i not in self._pose_cache for i in idx.tolist()], dtype=bool)]
-        fresh = iter(out.pose_stamped_msgs(kf.stamps_ns[sel], frame, kf.C_map[sel],
-                                           so3.to_quat_xyzw(kf.R_map[sel]), self.backend))
-        stamped, plain = [], []
-        for i, is_final in zip(idx.tolist(), final.tolist(), strict=True):
-            cached = self._pose_cache.get(i)
-            if cached is None:
-                ps = next(fresh)
-                cached = (ps, ps.pose)
-                if is_final:
-                    self._pose_cache[i] = cached
-            stamped.append(cached[0])
-            plain.append(cached[1])
-        return stamped, plain
+        status = kf.status[idx]
+        final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
+        last = self._published
+        n_last, n = last.idx.shape[0], idx.shape[0]
+        if n_last <= n and np.array_equal(idx[:n_last], last.idx):
+            redo = np.concatenate([np.flatnonzero(~last.final), np.arange(n_last, n)])
+            stamped = last.stamped + [None] * (n - n_last)
+            plain = last.plain + [None] * (n - n_last)
+        else:
+            redo = np.arange(n)
+            stamped, plain = [None] * n, [None] * n
+        sel = idx[redo]
+        fresh = out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, kf.C_map[sel],
+                                      so3.to_quat_xyzw(kf.R_map[sel]), self.backend)
+        for k, ps in zip(redo.tolist(), fresh, strict=True):
+            stamped[k] = ps
+            plain[k] = ps.pose
+        self._published = _PublishedPoses(idx.copy(), final, stamped, plain)
+        return list(stamped), list(plain)
 
     def _outputs(self) -> list[tuple[str, Any]]:
         cfg = self.config

@@ -13,7 +13,7 @@ import logging
 import sys
 
 from pmba_ros import __version__
-from pmba_ros._heap import keep_freed_memory
+from pmba_ros._process import tune_process
 from pmba_ros.errors import PmbaError
 
 VERBS: dict[str, tuple[str, str]] = {
@@ -22,7 +22,10 @@ VERBS: dict[str, tuple[str, str]] = {
     'replay': ('pmba_ros.cli.replay', 'run the back-end over recorded bags and evaluate'),
     'evaluate': ('pmba_ros.cli.evaluate', 'ATE / RPE of a trajectory against ground truth'),
     'import-tracks': ('pmba_ros.cli.import_tracks', 'turn KITTI-00 stereo tracks into a bag'),
+    'warmup': ('pmba_ros.cli.warmup', 'compile the solver loops now (after installing)'),
 }
+#: Verbs that solve: the compiled loops are made ready (with a message) before they start.
+SOLVING_VERBS = frozenset({'solve', 'replay'})
 
 
 def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -42,7 +45,7 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``pmba`` command line and return its exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    keep_freed_memory()
+    tune_process()
     verb = next((a for a in argv if not a.startswith('-')), None)
     parser = build_parser([verb] if verb in VERBS else None)
     args = parser.parse_args(argv)
@@ -50,6 +53,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format='%(levelname)s %(name)s: %(message)s')
     module = importlib.import_module(VERBS[args.verb][0])
     try:
+        if args.verb in SOLVING_VERBS:
+            from pmba_ros.cli.warmup import ensure_compiled
+            ensure_compiled(sys.stderr)
         return int(module.run(args))
     except (PmbaError, FileNotFoundError, IsADirectoryError) as err:
         print(f'error: {err}', file=sys.stderr)

@@ -234,6 +234,8 @@ def _default_street(out: Path, gt: Path | None, *, quiet: bool) -> tuple[list[Pa
     from pmba_ros.sim.sequence import simulate_sequence
 
     bag = out / 'street_bag'
+    if not quiet:   # simulating takes seconds: say what happens before, not after
+        print('no BAG given: simulating the default street ...', flush=True)
     info = write_sequence_bag(simulate_sequence('street', n_keyframes=200, seed=0), bag,
                               overwrite=True)
     if not quiet:

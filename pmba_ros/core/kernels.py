@@ -13,8 +13,9 @@ loops visit each observation, feature or observation pair once and write in plac
 - the widest-pair anchor search (conversions.select_anchors).
 
 They are used when numba is installed (the ``fast`` extra) and give the numpy code's results
-to rounding: the tests run both. ``PMBA_NUMBA=0`` turns them off. Each jitted loop has a typed
-wrapper without the underscore; the numpy functions they replace stay the reference.
+to rounding: the tests run both. ``PMBA_NUMBA=0`` turns them off (:mod:`jit`). Each jitted
+loop has a typed wrapper without the underscore; the numpy functions they replace stay the
+reference.
 
 Block addressing: ``pair_index[a, b]`` (a <= b) is the row of the upper pair block (a, b) in
 ``U``; a pair (a, b) with a > b is stored transposed at ``pair_index[b, a]``.
@@ -22,39 +23,22 @@ Block addressing: ``pair_index[a, b]`` (a <= b) is the row of the upper pair blo
 
 from __future__ import annotations
 
-import importlib
-import os
 from typing import Any
 
 import numpy as np
 
 from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.core import jit
 from pmba_ros.core.jacobian import ANCHOR_START
 
-
-def _import_numba() -> Any:
-    """Return the numba module, or None where it is not installed (an optional extra)."""
-    try:
-        return importlib.import_module('numba')
-    except ImportError:
-        return None
-
-
-_NUMBA = _import_numba()
 #: Whether the compiled loops are used (numba importable and not turned off).
-ENABLED = _NUMBA is not None and os.environ.get('PMBA_NUMBA', '1') != '0'
+ENABLED = jit.NUMBA is not None
 #: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
 TINY = 1e-300
 #: Largest number of free pose blocks for the compiled loops: their (n, n) pair index
 #: stays under 75 MB; larger problems take the numpy path.
 MAX_BLOCKS = 3000
-
-
-def _jit(fn: Any) -> Any:
-    """Compile ``fn`` lazily (cached on disk) when numba is there, else keep it as is."""
-    if _NUMBA is None:
-        return fn
-    return _NUMBA.njit(cache=True, nogil=True, inline='always')(fn)
+_jit = jit.jit
 
 
 @_jit

@@ -42,6 +42,7 @@ import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
 
+from pmba_ros._threads import blas_threads_for
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import kernels
 from pmba_ros.core.jacobian import ANCHOR_START, Linearization
@@ -619,8 +620,10 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         S = np.zeros((dim, dim))
         S[rows[:, :, None], cols[:, None, :]] = S_blocks
         S[d_idx[:, None] * 6 + np.arange(6), d_idx[:, None] * 6 + np.arange(6)] += damp_pose
-        factor, info = scipy.linalg.lapack.dpotrf(S if free.all() else S[np.ix_(free, free)],
-                                                  lower=False, clean=False, overwrite_a=True)
+        with blas_threads_for(dim):
+            factor, info = scipy.linalg.lapack.dpotrf(
+                S if free.all() else S[np.ix_(free, free)], lower=False, clean=False,
+                overwrite_a=True)
         if info != 0:
             msg = 'reduced camera system is not positive definite'
             raise ReducedSystemError(msg)

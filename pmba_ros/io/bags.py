@@ -299,6 +299,7 @@ class BagWriter:
         self._writer = writer
         self._typestore = typestore
         self._connections: dict[str, Any] = {}
+        self._encoders: dict[str, cdr.Encoder] = {}
         self.count = 0
 
     def write(self, topic: str, msg: Any, log_time_ns: int, *, msgtype: str | None = None,
@@ -327,7 +328,7 @@ class BagWriter:
             msg_ = f'topic {topic!r} has type {conn.msgtype}, cannot write a {msgtype}'
             raise BagError(msg_)
         try:
-            raw = cdr.encode(msg, msgtype)
+            raw = self._encoders.setdefault(topic, cdr.Encoder()).encode(msg, msgtype)
             if raw is None:
                 raw = self._typestore.serialize_cdr(msg, msgtype)
         except Exception as err:

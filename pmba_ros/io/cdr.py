@@ -6,10 +6,17 @@ each pose in Python (about 3 us); here the poses become one numpy structured arr
 exact little-endian CDR layout (XCDR1, the layout rosbags and ROS 2 write), which the tests
 compare byte for byte with ``serialize_cdr`` of the Jazzy typestore. Messages outside that
 shape (a Path whose poses carry different frames) return None and take rosbags' path.
+
+Successive messages of one topic repeat most of their poses: the back-end keeps the message
+objects of keyframes that no longer move. An :class:`Encoder` (one per topic, as the replay's
+writer keeps them) reads only the poses that are not the same object at the same place as in
+the previous message, so a keyframe's output costs the same early and late in a long run.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+import operator
 import struct
 from typing import Any, cast
 
@@ -37,14 +44,48 @@ def _pad(body: bytearray, to: int) -> None:
     body += b'\x00' * (_align(len(body), to) - len(body))
 
 
-def _pose_values(poses: list[Any]) -> np.ndarray:
-    """Return the (n, 7) position and orientation (x, y, z, w) of geometry_msgs/Pose."""
-    return np.array([(p.position.x, p.position.y, p.position.z, p.orientation.x,
-                      p.orientation.y, p.orientation.z, p.orientation.w) for p in poses],
-                    dtype='<f8').reshape(-1, 7)
+def _pose_row(p: Any) -> tuple[float, ...]:
+    """Return the position and orientation (x, y, z, w) of a geometry_msgs/Pose."""
+    return (p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
+            p.orientation.z, p.orientation.w)
 
 
-def encode_pose_array(msg: Any) -> bytes:
+def _stamped_row(p: Any) -> tuple[float, ...]:
+    """Return a PoseStamped's stamp (sec, nanosec; exact as float64) and pose values."""
+    return (p.header.stamp.sec, p.header.stamp.nanosec, *_pose_row(p.pose))
+
+
+class _Rows:
+    """Rows read from a list of messages, kept for the objects seen at the same place again."""
+
+    def __init__(self, read: Callable[[Any], tuple[float, ...]], width: int,
+                 label: Callable[[Any], str] | None = None) -> None:
+        """Read rows of ``width`` values with ``read``, and a string with ``label``."""
+        self._read = read
+        self._label = label
+        self._objs: list[Any] = []
+        self._rows = np.zeros((0, width))
+        self.labels: list[str] = []
+
+    def __call__(self, objs: list[Any]) -> np.ndarray:
+        """Return the rows of ``objs``, shape (n, width)."""
+        n, m = len(objs), min(len(objs), len(self._objs))
+        same = np.fromiter(map(operator.is_, self._objs[:m], objs[:m]), dtype=bool, count=m)
+        rows = np.empty((n, self._rows.shape[1]))
+        kept = np.flatnonzero(same)
+        rows[kept] = self._rows[kept]
+        fresh = np.concatenate([np.flatnonzero(~same), np.arange(m, n)]).tolist()
+        labels = self.labels[:m] + [''] * (n - m)
+        if fresh:
+            rows[fresh] = np.array([self._read(objs[i]) for i in fresh], dtype=np.float64)
+            if self._label is not None:
+                for i in fresh:
+                    labels[i] = self._label(objs[i])
+        self._objs, self._rows, self.labels = list(objs), rows, labels
+        return rows
+
+
+def _encode_pose_array(msg: Any, rows: _Rows) -> bytes:
     """Return the CDR bytes of a geometry_msgs/msg/PoseArray."""
     body = bytearray()
     _header(body, msg.header)
@@ -52,7 +93,7 @@ def encode_pose_array(msg: Any) -> bytes:
     body += struct.pack('<I', len(msg.poses))
     if msg.poses:
         _pad(body, 8)
-        body += _pose_values(msg.poses).tobytes()
+        body += rows(msg.poses).astype('<f8', copy=False).tobytes()
     return _CDR_LE + bytes(body)
 
 
@@ -69,7 +110,7 @@ def _stamped_layout(name_size: int, pose_at: int) -> np.dtype[Any]:
     return np.dtype(cast(Any, spec))  # numpy's stubs type no dict specs
 
 
-def encode_path(msg: Any) -> bytes | None:
+def _encode_path(msg: Any, rows: _Rows) -> bytes | None:
     """Return the CDR bytes of a nav_msgs/msg/Path, or None if its poses' frames differ."""
     poses = msg.poses
     body = bytearray()
@@ -78,13 +119,11 @@ def encode_path(msg: Any) -> bytes | None:
     body += struct.pack('<I', len(poses))
     if not poses:
         return _CDR_LE + bytes(body)
-    frame = poses[0].header.frame_id
-    if any(p.header.frame_id != frame for p in poses):
+    values = rows(poses)
+    frame = rows.labels[0]
+    if rows.labels.count(frame) != len(poses):
         return None
     name = frame.encode() + b'\x00'
-    stamps = np.array([(p.header.stamp.sec, p.header.stamp.nanosec) for p in poses],
-                      dtype=np.int64)
-    values = _pose_values([p.pose for p in poses])
     # Every element but the first starts 8-aligned (each ends with a float64), so they share
     # one layout; the first starts where the sequence length left off.
     start = len(body)
@@ -92,18 +131,31 @@ def encode_path(msg: Any) -> bytes | None:
                                               - start))
     rest = np.zeros(len(poses) - 1, dtype=_stamped_layout(len(name), _align(12 + len(name), 8)))
     for arr, sel in ((first, slice(0, 1)), (rest, slice(1, None))):
-        arr['sec'] = stamps[sel, 0]
-        arr['nanosec'] = stamps[sel, 1]
+        arr['sec'] = values[sel, 0]
+        arr['nanosec'] = values[sel, 1]
         arr['length'] = len(name)
         arr['frame'] = name
-        arr['pose'] = values[sel]
+        arr['pose'] = values[sel, 2:]
     return _CDR_LE + bytes(body) + first.tobytes() + rest.tobytes()
 
 
+class Encoder:
+    """Encodes the Paths and PoseArrays of one topic, reading only the poses that changed."""
+
+    def __init__(self) -> None:
+        """Start with nothing remembered."""
+        self._path = _Rows(_stamped_row, 9, lambda p: str(p.header.frame_id))
+        self._array = _Rows(_pose_row, 7)
+
+    def encode(self, msg: Any, msgtype: str) -> bytes | None:
+        """Return the CDR bytes of a Path or PoseArray, or None for other messages."""
+        if msgtype == 'nav_msgs/msg/Path':
+            return _encode_path(msg, self._path)
+        if msgtype == 'geometry_msgs/msg/PoseArray':
+            return _encode_pose_array(msg, self._array)
+        return None
+
+
 def encode(msg: Any, msgtype: str) -> bytes | None:
-    """Return the CDR bytes of a Path or PoseArray, or None for other messages."""
-    if msgtype == 'nav_msgs/msg/Path':
-        return encode_path(msg)
-    if msgtype == 'geometry_msgs/msg/PoseArray':
-        return encode_pose_array(msg)
-    return None
+    """Return the CDR bytes of a Path or PoseArray, or None for other messages (no memory)."""
+    return Encoder().encode(msg, msgtype)

@@ -30,8 +30,6 @@ from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
-from ..conftest import run_python
-
 BACKEND = out.RosbagsBackend()
 OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
                  DIAGNOSTICS_TOPIC)
@@ -247,6 +245,35 @@ def test_output_contents_frames_and_stamps(
                 'problem_observations', 'input_lag_ms', 'dropped_total'):
         assert key in values
     assert 'solve_ms' not in values  # deterministic config: no wall-clock values
+
+
+def test_path_follows_the_keyframes_and_reuses_final_poses(street: SimSequence) -> None:
+    """Every Path equals the keyframes' current map poses; final keyframes keep their objects.
+
+    Checked at every step of a sliding run, so a pose reused after it moved would show.
+    """
+    logic = BackendLogic(config(window_size=8), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    previous: list[Any] = []
+    reused = 0
+    for outputs in feed(logic, street, range(60)):
+        paths = [m for t, m in outputs if t == 'pmba/path']
+        if not paths:
+            continue
+        poses = paths[-1].poses
+        kf = logic.estimator.kf
+        idx = logic.estimator.estimated()
+        assert [stamp_ns(p.header) for p in poses] == kf.stamps_ns[idx].tolist()
+        got = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                        for p in poses])
+        np.testing.assert_array_equal(got, kf.C_map[idx])
+        quats = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
+                           p.pose.orientation.w] for p in poses])
+        np.testing.assert_allclose(np.abs(np.sum(quats * so3.to_quat_xyzw(kf.R_map[idx]),
+                                                 axis=1)), 1.0, atol=1e-12)
+        reused += sum(a is b for a, b in zip(previous, poses, strict=False))
+        previous = list(poses)
+    assert reused > 100, 'final keyframes were rebuilt at every step'
 
 
 def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence) -> None:
@@ -516,28 +543,3 @@ def test_global_mode_short_street(street: SimSequence) -> None:
     gt = street.gt_trajectory().take(np.arange(45))
     fe = ate(street.odom_trajectory().take(np.arange(45)), gt, 'sim3').rmse
     assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 0.5 * fe
-
-
-def test_compile_kernels_runs_every_solver_loop(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The node's warm-up compiles the loops a window solve uses; without numba it is a no-op.
-
-    In a fresh process, where no loop has run yet (a dispatcher lists a signature once it
-    compiled or loaded that loop).
-    """
-    from pmba_ros.backend.estimator import compile_kernels
-    from pmba_ros.core import kernels
-
-    monkeypatch.setattr(kernels, 'ENABLED', False)
-    assert compile_kernels() == 0.0
-    pytest.importorskip('numba')
-    names = ('_pmba_rays', '_pmba_rows', '_assemble', '_reduce', '_widest_pairs',
-             '_robust_cost', '_sphere_retract', '_projection_jacobian')
-    code = (
-        'from pmba_ros.backend.estimator import compile_kernels\n'
-        'from pmba_ros.core import kernels\n'
-        f'names = {names!r}\n'
-        'assert not any(getattr(kernels, n).signatures for n in names)\n'
-        'assert compile_kernels() > 0.0\n'
-        'missing = [n for n in names if not getattr(kernels, n).signatures]\n'
-        'assert not missing, missing\n')
-    run_python(code)

@@ -471,3 +471,26 @@ def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
         node_mod.main([])
     assert fake_ros.created[0].destroyed and fake_ros.shutdowns == [True]
     assert fake_ros.created[0].logger.lines[-1][0] == 'fatal'
+
+
+def test_main_compiles_before_subscribing_and_says_so(
+        fake_ros: FakeRclpy, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cold cache: one log line with the expected time, the loops ready before subscribing."""
+    from pmba_ros.core import warmup
+    from pmba_ros.node import main
+
+    subscribed_at_warm_up: list[int] = []
+
+    def fake_warm_up() -> float:
+        subscribed_at_warm_up.append(len(fake_ros.created[0].subscriptions))
+        return 20.0
+
+    monkeypatch.setattr(warmup, 'is_warm', lambda: False)
+    monkeypatch.setattr(warmup, 'warm_up', fake_warm_up)
+    fake_ros.spin.append(lambda node: (_ for _ in ()).throw(KeyboardInterrupt))
+    main([])
+    assert subscribed_at_warm_up == [0]
+    lines = [text for _, text in fake_ros.created[0].logger.lines]
+    assert any(f'expected {warmup.expected_compile_text()}' in t for t in lines), lines
+    assert any('ready in 20.0 s' in t for t in lines), lines
+    assert fake_ros.created[0].subscriptions, 'the node never subscribed'

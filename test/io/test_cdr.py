@@ -44,3 +44,29 @@ def test_path_with_mixed_frames_falls_back() -> None:
     path = backend.new('nav_msgs/msg/Path', header=header_msg(0, 'map', backend), poses=poses)
     assert cdr.encode(path, 'nav_msgs/msg/Path') is None
     assert cdr.encode(path.header, 'std_msgs/msg/Header') is None
+
+
+def test_encoder_reuses_unchanged_poses_and_reads_the_rest() -> None:
+    """A growing trajectory whose tail moves: each message's bytes equal rosbags' bytes."""
+    store = jazzy_typestore()
+    backend = RosbagsBackend(store)
+    encoder = cdr.Encoder()
+    stamped = _poses(5, 'map', backend, seed=0)
+    for step in range(6):
+        # Two new keyframes, and the last three poses replaced by new objects (they moved).
+        stamped = stamped[:-3] + _poses(5, 'map', backend, seed=100 + step)
+        if step == 3:
+            stamped = stamped[::-1]   # objects at other places are read again
+        header = header_msg(step * 10**8, 'map', backend)
+        path = backend.new('nav_msgs/msg/Path', header=header, poses=stamped)
+        array = backend.new('geometry_msgs/msg/PoseArray', header=header,
+                            poses=[p.pose for p in stamped])
+        for msg, msgtype in ((path, 'nav_msgs/msg/Path'),
+                             (array, 'geometry_msgs/msg/PoseArray')):
+            assert encoder.encode(msg, msgtype) == bytes(store.serialize_cdr(msg, msgtype))
+    shorter = backend.new('nav_msgs/msg/Path', header=header, poses=stamped[:4])
+    assert encoder.encode(shorter, 'nav_msgs/msg/Path') == bytes(
+        store.serialize_cdr(shorter, 'nav_msgs/msg/Path'))
+    odd = stamped[:4] + _poses(1, 'odom', backend, seed=7)
+    mixed = backend.new('nav_msgs/msg/Path', header=header, poses=odd)
+    assert encoder.encode(mixed, 'nav_msgs/msg/Path') is None

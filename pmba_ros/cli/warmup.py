@@ -1,0 +1,49 @@
+"""``pmba warmup``: compile the solver's loops now (after an install or an upgrade).
+
+``scripts/setup_venv`` runs it after installing; a ROS install can run it once after
+``colcon build``. Without it, the first command that solves compiles them, after saying so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TextIO
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the verb's options (none)."""
+    del parser
+
+
+def ensure_compiled(stream: TextIO, *, always: bool = False) -> None:
+    """Compile or load the loops, saying so on ``stream`` when it will take a while.
+
+    Args:
+        stream: Where the messages go (stderr for commands whose output is data).
+        always: Load the loops even when they are already compiled (the ``warmup`` verb).
+    """
+    from pmba_ros.core import warmup
+
+    if warmup.is_warm() and not always:
+        return
+    if not warmup.is_warm():
+        print('compiling the solver loops (once per install; expected '
+              f'{warmup.expected_compile_text()}) ...', file=stream, flush=True)
+        seconds = warmup.warm_up()
+        print(f'compiled in {seconds:.1f} s', file=stream, flush=True)
+        return
+    seconds = warmup.warm_up()
+    print(f'solver loops ready ({seconds:.1f} s)', file=stream, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compile the loops (or check they load) and report how long it took."""
+    del args
+    from pmba_ros.core import kernels
+
+    if not kernels.ENABLED:
+        print('compiled loops off (numba not installed, or PMBA_NUMBA=0): nothing to compile')
+        return 0
+    ensure_compiled(sys.stdout, always=True)
+    return 0

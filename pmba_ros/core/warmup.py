@@ -1,0 +1,105 @@
+"""Compile (or load) the solver's compiled loops ahead of the work that needs them.
+
+numba compiles each loop of :mod:`pmba_ros.core.kernels` at its first call and keeps the
+machine code in its cache (:mod:`pmba_ros.core.jit`). The first call after an install or an
+upgrade therefore compiles them all, which takes tens of seconds; later processes load them
+in about a second. :func:`warm_up` solves a tiny problem that reaches every loop with the
+argument types the solver, the back-end and the initialization use, so that this happens in
+``pmba warmup`` (run by ``scripts/setup_venv``), at the node's start-up before it subscribes,
+or before a CLI command that solves, with a message, rather than inside the first keyframe.
+A marker next to numba's cache records that the current loops were compiled, so the callers
+can tell beforehand whether the wait will be long (:func:`is_warm`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+import platform
+import sys
+import time
+
+import numpy as np
+
+from pmba_ros.core import conversions, jit, kernels, so3
+from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.loss import Loss
+from pmba_ros.core.problem import BAProblem, Parameterization, make_problem
+from pmba_ros.core.solve import SolveOptions, SolverKind, solve
+
+#: What a first compilation takes, for the message shown before it (wall time on a
+#: 2-core machine, from idle to loaded).
+EXPECTED_COMPILE_S = (15, 60)
+
+
+def expected_compile_text() -> str:
+    """Return the expected compile time as users are told it ('15-60 s')."""
+    lo, hi = EXPECTED_COMPILE_S
+    return f'{lo}-{hi} s'
+
+
+def _marker() -> Path | None:
+    """Return the file that says the current loops are in the cache (None: nothing cached)."""
+    folder = jit.cache_folder()
+    if folder is None:
+        return None
+    source = Path(kernels.__file__)
+    info = source.stat()
+    key = '|'.join([str(info.st_mtime_ns), str(info.st_size), jit.numba_version(),
+                    platform.python_version(), platform.machine(), sys.platform])
+    digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+    return folder / f'pmba_warmup-{digest}.ok'
+
+
+def is_warm() -> bool:
+    """Return whether the loops load from the cache (True when they are off)."""
+    if not kernels.ENABLED:
+        return True
+    marker = _marker()
+    return marker is not None and marker.exists()
+
+
+def _tiny_problem() -> BAProblem:
+    """Return six cameras moving forward past 40 points, with a perturbed start."""
+    rng = np.random.default_rng(0)
+    n_cams, n_points = 6, 40
+    # Cameras look along +x (camera z = world x), 1 m apart, as on a street.
+    R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]).T
+    R_wc = np.repeat(R[None], n_cams, axis=0)
+    centers = np.stack([np.arange(n_cams, dtype=float), np.zeros(n_cams), np.zeros(n_cams)],
+                       axis=1)
+    points = np.column_stack([rng.uniform(10.0, 30.0, n_points),
+                              rng.uniform(-3.0, 3.0, (n_points, 2))])
+    intr = Intrinsics.uniform(n_cams, 500.0, 500.0, 320.0, 240.0)
+    cam_idx = np.tile(np.arange(n_cams), n_points)
+    feat_idx = np.repeat(np.arange(n_points), n_cams)
+    h_c = np.einsum('kji,kj->ki', R_wc[cam_idx], points[feat_idx] - centers[cam_idx])
+    pixels = project(h_c, intr, cam_idx) + rng.normal(0.0, 0.5, (cam_idx.size, 2))
+    fixed = np.zeros(n_cams, dtype=bool)
+    fixed[:2] = True
+    dR = so3.exp(rng.normal(0.0, 0.01, (n_cams, 3)))
+    dR[:2] = np.eye(3)
+    return make_problem(R_wc @ dR, centers, intr, cam_idx, feat_idx, pixels,
+                        points_w=points + rng.normal(0.0, 0.3, points.shape), fixed=fixed)
+
+
+def warm_up() -> float:
+    """Compile or load every compiled loop now; return the seconds it took.
+
+    Returns 0.0 without numba or with ``PMBA_NUMBA=0``. Writes the :func:`is_warm` marker.
+    """
+    if not kernels.ENABLED:
+        return 0.0
+    t0 = time.perf_counter()
+    problem = _tiny_problem()
+    feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                           np.asarray(problem.points_w))
+    solve(problem, SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
+                                loss=Loss.CAUCHY, max_iterations=2), feats)
+    marker = _marker()
+    if marker is not None:
+        try:
+            marker.touch()
+        except OSError:
+            pass   # the cache folder went away: the next start compiles or says so again
+    return time.perf_counter() - t0

@@ -1,0 +1,48 @@
+"""``pmba warmup`` and the message a command that solves shows before compiling."""
+
+from __future__ import annotations
+
+import pytest
+
+from pmba_ros.cli.main import main
+from pmba_ros.core import kernels, warmup
+
+
+def test_warmup_verb_reports_the_loops_ready(capsys: pytest.CaptureFixture[str]) -> None:
+    """The verb compiles or loads the loops and says how long it took."""
+    pytest.importorskip('numba')
+    assert main(['warmup']) == 0
+    out = capsys.readouterr().out
+    assert 'solver loops ready' in out or 'compiled in' in out, out
+    assert warmup.is_warm()
+
+
+def test_warmup_verb_without_compiled_loops(monkeypatch: pytest.MonkeyPatch,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """With the loops off, it says there is nothing to compile."""
+    monkeypatch.setattr(kernels, 'ENABLED', False)
+    assert main(['warmup']) == 0
+    assert 'nothing to compile' in capsys.readouterr().out
+
+
+def test_solve_announces_a_first_compilation_with_its_expected_time(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A cold cache: one line with the expected time before the solve, then the time taken."""
+    pytest.importorskip('numba')
+    calls = []
+    monkeypatch.setattr(warmup, 'is_warm', lambda: False)
+    monkeypatch.setattr(warmup, 'warm_up', lambda: calls.append(1) or 12.5)
+    assert main(['solve', 'sim:street:0', '--quiet']) == 0
+    err = capsys.readouterr().err
+    assert f'expected {warmup.expected_compile_text()}' in err, err
+    assert 'compiled in 12.5 s' in err
+    assert calls == [1]
+
+
+def test_solve_with_a_warm_cache_says_nothing_about_compiling(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Warm cache: no message, no separate warm-up."""
+    monkeypatch.setattr(warmup, 'is_warm', lambda: True)
+    monkeypatch.setattr(warmup, 'warm_up', lambda: pytest.fail('warm-up ran'))
+    assert main(['solve', 'sim:street:0', '--quiet']) == 0
+    assert 'compil' not in capsys.readouterr().err
