@@ -124,6 +124,8 @@ def build_config(args: argparse.Namespace) -> Any:
     Raises:
         PmbaError: If the parameter file cannot be read or a value is invalid.
     """
+    import yaml
+
     from pmba_ros.backend.config import BackendConfig
 
     try:
@@ -135,6 +137,10 @@ def build_config(args: argparse.Namespace) -> Any:
     except (OSError, ValueError) as err:
         where = f'--params {params}: ' if params is not None else ''
         msg = f'{where}{err}'
+        raise PmbaError(msg) from err
+    except yaml.YAMLError as err:
+        problem = ' '.join(str(err).split())
+        msg = f'--params {params}: not valid YAML: {problem}'
         raise PmbaError(msg) from err
 
 
