@@ -163,9 +163,11 @@ class KeyframePose:
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
             msg = f'keyframe pose at {self.stamp_ns} ns has non-finite values'
             raise MessageError(msg)
-        norm = float(np.linalg.norm(quat))
-        if norm < 1e-9:
-            msg = f'keyframe pose at {self.stamp_ns} ns has a zero-norm quaternion'
+        with np.errstate(over='ignore'):
+            norm = float(np.linalg.norm(quat))
+        if not 1e-9 <= norm < np.inf:
+            msg = (f'keyframe pose at {self.stamp_ns} ns has a zero-norm or overflowing '
+                   f'quaternion (norm {norm:g})')
             raise MessageError(msg)
         quat /= norm
         pos.flags.writeable = False

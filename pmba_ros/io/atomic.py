@@ -11,12 +11,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 import os
 from pathlib import Path
-from typing import IO
+import signal
+from typing import IO, Any
 
 
 def temp_path(path: Path) -> Path:
-    """Return the hidden temporary name used while writing ``path``."""
-    return path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    """Return the hidden temporary name used while writing ``path`` (same suffix)."""
+    return path.with_name(f'.{path.stem}.{os.getpid()}.tmp{path.suffix}')
 
 
 @contextmanager
@@ -72,3 +73,31 @@ def write_atomic(path: Path | str, writer: Callable[[Path], object]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back until the block ends, then deliver the first one.
+
+    For writing that must not be cut short (finalizing a bag, the output files). If the
+    block itself raises, a held-back signal is dropped: the block's error is already on its
+    way out. Outside the main thread (no signal handlers there) this does nothing.
+    """
+    received: list[int] = []
+
+    def hold(signum: int, frame: object) -> None:
+        received.append(signum)
+
+    previous: dict[int, Any] = {}
+    try:
+        for sig in (int(signal.SIGINT), int(signal.SIGTERM)):
+            previous[sig] = signal.signal(sig, hold)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if received:
+        signal.raise_signal(received[0])

@@ -32,6 +32,7 @@ from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
 from pmba_ros.io import cdr
+from pmba_ros.io.atomic import deferred_interrupts
 
 logger = logging.getLogger(__name__)
 
@@ -75,6 +76,21 @@ class TopicInfo:
     topic: str
     msgtype: str
     count: int
+
+
+@dataclass
+class ReadStats:
+    """Damage met while reading, when the reader is asked to read past it.
+
+    Attributes:
+        undecodable: Messages skipped because they do not deserialize.
+        first_undecodable: Description of the first of them.
+        stopped: Why reading stopped before the end (a corrupt or truncated storage file).
+    """
+
+    undecodable: int = 0
+    first_undecodable: str | None = None
+    stopped: str | None = None
 
 
 def _reader_errors() -> tuple[type[BaseException], ...]:
@@ -225,8 +241,8 @@ def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]
             raise BagError(msg)
 
 
-def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
-                  ) -> Iterator[BagMessage]:
+def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None, *,
+                  damage: ReadStats | None = None) -> Iterator[BagMessage]:
     """Yield the messages of one or more recordings in log-time order, deserialized.
 
     A rosbag2 folder that reports messages on the selected topics but yields none (the
@@ -236,17 +252,21 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     Args:
         paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
         topics: Topics to read; None reads all.
+        damage: If given, read past damage: a message that does not deserialize is skipped
+            and counted here, and a corrupt part of the storage ends the iteration with the
+            reason recorded here, instead of raising.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.
 
     Raises:
-        BagError: If a bag is missing, cannot be opened, or is corrupt or truncated (raised
-            when the damaged part is reached; the messages before it have been yielded).
+        BagError: If a bag is missing or cannot be opened; without ``damage`` also if it is
+            corrupt or truncated (raised when the damaged part is reached; the messages
+            before it have been yielded).
     """
     checked = _check_paths([Path(p) for p in paths])
     expected, produced = 0, 0
-    for message in _iter_once(checked, topics):
+    for message in _iter_once(checked, topics, damage):
         produced += 1
         yield message
     if produced:
@@ -260,10 +280,13 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
                    'QoS differs from the storage file); reading %s directly', _describe(checked),
                    expected, _describe(files))
-    yield from _iter_once(files, topics)
+    if damage is not None:
+        damage.stopped = None
+    yield from _iter_once(files, topics, damage)
 
 
-def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None) -> Iterator[BagMessage]:
+def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
+               damage: ReadStats | None) -> Iterator[BagMessage]:
     """Yield the messages of ``paths`` once (see :func:`iter_messages`)."""
     errors = _reader_errors()
     with _any_reader(paths) as reader:
@@ -278,13 +301,22 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None) -> Iterator[
                 return
             except errors as err:
                 msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
-                raise BagError(msg) from err
+                if damage is None:
+                    raise BagError(msg) from err
+                logger.warning('%s; stopped reading', msg)
+                damage.stopped = msg
+                return
             try:
                 msg_obj = reader.deserialize(raw, conn.msgtype)
             except errors as err:
                 msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message on '
                        f'{conn.topic} at {t_ns} ns: {_error_text(err)}')
-                raise BagError(msg) from err
+                if damage is None:
+                    raise BagError(msg) from err
+                logger.debug('%s; skipped', msg)
+                damage.undecodable += 1
+                damage.first_undecodable = damage.first_undecodable or msg
+                continue
             yield BagMessage(conn.topic, conn.msgtype, int(t_ns), msg_obj)
 
 
@@ -381,9 +413,23 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
         raise BagError(msg) from err
     try:
         yield BagWriter(writer, jazzy_typestore())
-    finally:
-        writer.close()
-        _move_into_place(tmp, path, bare)
+    except BaseException:
+        # The block's error is the cause to report; a failing close (a full disk fails
+        # both) must not replace it.
+        with deferred_interrupts():
+            try:
+                _finalize(writer, tmp, path, bare)
+            except Exception as err:
+                logger.warning('%s: cannot finalize the bag after an error: %s', path, err)
+        raise
+    with deferred_interrupts():
+        _finalize(writer, tmp, path, bare)
+
+
+def _finalize(writer: Any, tmp: Path, path: Path, bare: bool) -> None:
+    """Close the writer (MCAP summary) and move the recording into place."""
+    writer.close()
+    _move_into_place(tmp, path, bare)
 
 
 def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
@@ -405,5 +451,5 @@ def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
     tmp.replace(path)
 
 
-__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'TopicInfo', 'iter_messages',
-           'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'ReadStats', 'TopicInfo',
+           'iter_messages', 'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
