@@ -80,8 +80,22 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
-                                'keyframe_stamp_not_increasing', 'stale_tracks'})
+                                'keyframe_stamp_not_increasing', 'stale_tracks',
+                                'keyframe_pose_jumps'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
+
+SUSPECT_COUNTERS = {
+    'feature_ids_inexact': 'observations dropped: feature ids that cannot be exact in the '
+                           "message's number type (>= 2^24 in float32: tracks would merge)",
+    'duplicate_observations': 'repeated feature ids in one message, resolved by the copy '
+                              "nearest to the track's previous observation",
+    'ambiguous_duplicate_observations': 'repeated feature ids without a previous observation '
+                                        '(every copy dropped)',
+    'keyframe_pose_jumps': 'keyframe poses rejected: they jump far beyond the recent motion',
+    'cost_explosions': 'solves whose cost per observation exploded relative to their '
+                       'history (inconsistent tracks?)',
+}
+"""Back-end counters of suspect input, each worth a warning in the report."""
 
 _KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
 
@@ -721,6 +735,9 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     report.costs_before = [float(v) for v in getattr(stats, 'cost_before', [])]
     report.update_ms = [float(v) for v in getattr(stats, 'update_ms', [])]
     report.counters = dict(sorted(dict(getattr(stats, 'counters', {}) or {}).items()))
+    for name, text in SUSPECT_COUNTERS.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {text}')
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
 

@@ -72,6 +72,8 @@ class TrackFrame:
             None if the message had none (OpenVINS ``loop_feats``): then normalize
             ``pixels`` with :meth:`CameraModel.normalize`.
         dropped: Observations the parser discarded (non-finite values, duplicates).
+        drop_reasons: Of ``dropped``, the counts of suspect inputs by reason (ids that
+            cannot be exact, duplicate ids); the back-end counts them as warnings.
     """
 
     stamp_ns: int
@@ -81,6 +83,7 @@ class TrackFrame:
     pixels: FloatArray | None
     normalized: FloatArray | None
     dropped: int = 0
+    drop_reasons: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Copy, freeze and validate the arrays.
