@@ -72,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
     from pmba_ros.eval.metrics import evaluate
     from pmba_ros.eval.trajectory import read_trajectory
 
+    if args.report is not None:
+        _prepare_report(args.report)
     est = read_trajectory(args.est, args.est_format)
     gt = read_trajectory(args.gt, args.gt_format)
     warnings = _length_warnings(args, len(est), len(gt))
@@ -95,6 +97,22 @@ def run(args: argparse.Namespace) -> int:
             raise PmbaError(msg) from err
         print(f'report written to {args.report}')
     return 0
+
+
+def _prepare_report(path: Path) -> None:
+    """Create the report's folder before the evaluation, so its result cannot be lost.
+
+    Raises:
+        PmbaError: If ``path`` is a folder or its folder cannot be created.
+    """
+    if path.is_dir():
+        msg = f'--report {path}: is a folder; give a file name'
+        raise PmbaError(msg)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f'--report {path}: cannot create its folder: {err}'
+        raise PmbaError(msg) from err
 
 
 def _length_warnings(args: argparse.Namespace, n_est: int, n_gt: int) -> list[str]:

@@ -8,6 +8,7 @@ target keeps its earlier content and the real cause is what the caller sees.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+import contextlib
 from contextlib import contextmanager
 import os
 from pathlib import Path
@@ -43,9 +44,17 @@ def atomic_open(path: Path | str, mode: str = 'w') -> Iterator[IO]:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as err:
+        _cleanup(tmp, path, err)
         raise
+
+
+def _cleanup(tmp: Path, path: Path, err: BaseException) -> None:
+    """Remove the temporary file; make an OSError name the target, not the temporary."""
+    with contextlib.suppress(OSError):
+        tmp.unlink(missing_ok=True)
+    if isinstance(err, OSError) and err.filename == str(tmp):
+        err.filename = str(path)
 
 
 def write_text_atomic(path: Path | str, text: str) -> None:
@@ -70,8 +79,8 @@ def write_atomic(path: Path | str, writer: Callable[[Path], object]) -> None:
         with open(tmp, 'rb+') as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as err:
+        _cleanup(tmp, path, err)
         raise
 
 

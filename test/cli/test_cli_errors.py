@@ -227,3 +227,25 @@ def test_kitti_files_of_different_lengths_warn(tmp_path: Path,
     assert err.startswith('warning: EST has 20 poses and GT 30')
     assert 'only the first 20 are compared' in err
     assert json.loads(report.read_text())['warnings'][0].startswith('EST has 20 poses')
+
+
+def test_evaluate_report_in_a_missing_folder_is_written(tmp_path: Path) -> None:
+    """`evaluate --report` into a folder that does not exist yet creates it."""
+    traj = tmp_path / 'traj.tum'
+    rows = np.column_stack([np.arange(10.0), np.random.default_rng(0).normal(size=(10, 3)),
+                            np.tile([0.0, 0.0, 0.0, 1.0], (10, 1))])
+    np.savetxt(traj, rows)
+    report = tmp_path / 'a' / 'b' / 'r.json'
+    assert main(['evaluate', str(traj), str(traj), '--report', str(report)]) == 0
+    assert json.loads(report.read_text())['ate']['rmse'] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_atomic_write_errors_name_the_target(tmp_path: Path) -> None:
+    """An OSError while writing names the file asked for, not the temporary file."""
+    from pmba_ros.io.atomic import write_text_atomic
+
+    target = tmp_path / 'missing' / 'r.json'
+    with pytest.raises(OSError) as exc:
+        write_text_atomic(target, '{}')
+    assert exc.value.filename == str(target)
+    assert not list(tmp_path.iterdir())
