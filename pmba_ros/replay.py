@@ -508,10 +508,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         raise BagError(msg) from err
     with output_lock(out):
         _remove_outputs(out)
-        logic = _make_logic(config)
-        if intrinsics is not None:
-            logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
-        _run_and_write(logic, report, bag_paths, kinds, inputs, out,
+        _run_and_write(config, intrinsics, report, bag_paths, kinds, inputs, out,
                        _Outputs(gt_traj, plot, align, t_start), progress)
     return report
 
@@ -526,14 +523,18 @@ class _Outputs:
     t_start: float
 
 
-def _run_and_write(logic: Any, report: ReplayReport, bag_paths: list[Path],
-                   kinds: dict[str, str], inputs: _Input, out: Path, outputs: _Outputs,
-                   progress: ProgressCallback | None) -> None:
-    """Feed the bags to the logic into the result bag, then write the other outputs."""
+def _run_and_write(config: Any, intrinsics: Sequence[float] | None, report: ReplayReport,
+                   bag_paths: list[Path], kinds: dict[str, str], inputs: _Input, out: Path,
+                   outputs: _Outputs, progress: ProgressCallback | None) -> None:
+    """Feed the bags to a new back-end into the result bag, then write the other outputs."""
     report.files['result_bag'] = out / RESULT_BAG
     run: _Run | None = None
+    logic: Any = None
     finished = False
     try:
+        logic = _make_logic(config)
+        if intrinsics is not None:
+            logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
             run = _Run(logic, writer, report, progress, report.messages_announced,
@@ -674,6 +675,9 @@ def _write_outputs(logic: Any, report: ReplayReport, out: Path, outputs: _Output
     from pmba_ros.eval.trajectory import write_tum
     from pmba_ros.io.ply import write_ply
 
+    if logic is None:  # stopped before the back-end existed: only the report
+        _dump_report(report, out, outputs.t_start)
+        return
     _collect_stats(logic, report)
     try:
         frontend = logic.frontend_trajectory()
