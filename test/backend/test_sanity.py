@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -13,7 +14,9 @@ import pytest
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, BackendLogic
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.types import TrackFrame
-from pmba_ros.replay import ReplayReport, _collect_stats
+from pmba_ros.io.bags import iter_messages
+from pmba_ros.replay import ReplayReport, _collect_stats, replay
+from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
 from .test_logic import BACKEND, camera_info_msg, config, diag_values, keyframe_msg, tracks_msg
@@ -150,3 +153,26 @@ def test_suspect_counters_become_report_warnings() -> None:
     cost = ('7 solves whose cost per observation exploded relative to their history '
             '(inconsistent tracks?)')
     assert report.warnings == [inexact, cost]
+
+
+def test_replay_of_random_tracks_warns_in_report_and_diagnostics(street: SimSequence,
+                                                                 tmp_path: Path) -> None:
+    """Garbage tracks in a bag: report.json has the warning, result.mcap WARN diagnostics."""
+    rng = np.random.default_rng(2)
+    frames = list(street.frames)
+    for i in range(20, len(frames)):
+        f = frames[i]
+        xy = rng.uniform(-0.6, 0.6, size=(len(f), 2))
+        frames[i] = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids,
+                               street.camera.fx * xy + [street.camera.cx, street.camera.cy],
+                               xy)
+    bag = tmp_path / 'random.mcap'
+    write_sequence_bag(dataclasses.replace(street, frames=frames), bag)
+    out = tmp_path / 'o'
+    replay([bag], out)
+    data = json.loads((out / 'report.json').read_text())
+    assert data['counters']['cost_explosions'] >= 5
+    assert any('solves whose cost per observation exploded' in w for w in data['warnings'])
+    levels = [m.msg.status[0].level for m in iter_messages([out / 'result.mcap'],
+                                                          topics=[DIAGNOSTICS_TOPIC])]
+    assert 1 in levels[-10:]
