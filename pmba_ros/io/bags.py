@@ -370,7 +370,8 @@ class BagWriter:
 
 
 @contextmanager
-def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWriter]:
+def open_writer(path: Path | str, *, overwrite: bool = False,
+                keep_on_error: bool = True) -> Iterator[BagWriter]:
     """Open a rosbag2 MCAP recording for writing (rosbag2 metadata version 9).
 
     Chunks are zstd-compressed, as ``ros2 bag record``'s ``zstd_fast`` preset does: the
@@ -381,11 +382,13 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
     ``ros2 bag``); any other path gives a rosbag2 folder ``path/`` with ``metadata.yaml``
     and ``path/<name>.mcap``. The recording is written into a temporary folder beside
     ``path`` and moved into place when the block ends, normally or by an exception, so the
-    MCAP summary is always written.
+    MCAP summary is always written; with ``keep_on_error=False`` an exception discards it
+    instead (a partly written input recording must not pass for a whole one).
 
     Args:
         path: Output file (``*.mcap``) or folder.
         overwrite: Replace an existing output; otherwise an existing path is an error.
+        keep_on_error: Whether to keep what was written when the block raises.
 
     Yields:
         The :class:`BagWriter`.
@@ -418,7 +421,10 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
         # both) must not replace it.
         with deferred_interrupts():
             try:
-                _finalize(writer, tmp, path, bare)
+                if keep_on_error:
+                    _finalize(writer, tmp, path, bare)
+                else:
+                    _discard(writer, tmp)
             except Exception as err:
                 logger.warning('%s: cannot finalize the bag after an error: %s', path, err)
         raise
@@ -430,6 +436,14 @@ def _finalize(writer: Any, tmp: Path, path: Path, bare: bool) -> None:
     """Close the writer (MCAP summary) and move the recording into place."""
     writer.close()
     _move_into_place(tmp, path, bare)
+
+
+def _discard(writer: Any, tmp: Path) -> None:
+    """Close the writer and remove the temporary recording."""
+    try:
+        writer.close()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
 from pathlib import Path
 import subprocess
 import sys
@@ -249,3 +251,22 @@ def test_atomic_write_errors_name_the_target(tmp_path: Path) -> None:
         write_text_atomic(target, '{}')
     assert exc.value.filename == str(target)
     assert not list(tmp_path.iterdir())
+
+
+def test_failed_bag_writing_leaves_no_bag_behind(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Disk full while `simulate` writes: one error line, no bag and no `.partial` left."""
+    from pmba_ros.io.bags import BagWriter
+
+    real = BagWriter.write
+
+    def filling(self: BagWriter, *args: object, **kwargs: object) -> None:
+        if self.count >= 10:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(BagWriter, 'write', filling)
+    assert main(['simulate', '--keyframes', '20', '--out', str(tmp_path / 'bag')]) == 1
+    _one_error(capsys, 'No space left on device')
+    assert not [p.name for p in tmp_path.iterdir() if 'bag' in p.name]
