@@ -270,3 +270,27 @@ def test_failed_bag_writing_leaves_no_bag_behind(tmp_path: Path,
     assert main(['simulate', '--keyframes', '20', '--out', str(tmp_path / 'bag')]) == 1
     _one_error(capsys, 'No space left on device')
     assert not [p.name for p in tmp_path.iterdir() if 'bag' in p.name]
+
+
+def test_non_finite_solve_is_not_reported_converged(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """A solve ending with a non-finite cost: warning, `converged: false`, null in the JSON."""
+    import dataclasses
+
+    from pmba_ros.cli import solve as solve_cli
+
+    real = solve_cli.solve
+
+    def diverging(*args: object, **kwargs: object) -> object:
+        result = real(*args, **kwargs)  # type: ignore[arg-type]
+        return dataclasses.replace(result, final_cost=math.inf, final_rms_px=math.inf)
+
+    monkeypatch.setattr(solve_cli, 'solve', diverging)
+    report = tmp_path / 'r.json'
+    assert main(['solve', 'sim:table3', '--quiet', '--max-iters', '1',
+                 '--report', str(report)]) == 0
+    assert 'warning: pmba-dogleg: the final cost is not finite' in capsys.readouterr().err
+    data = json.loads(report.read_text(), parse_constant=lambda c: pytest.fail(c))
+    assert data['converged'] is False and data['final_cost'] is None
+    assert any('final_cost' in w for w in data['warnings'])
