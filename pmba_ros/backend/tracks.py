@@ -303,7 +303,7 @@ def _read_named(msg: Any) -> _Columns | None:
         code = POINTFIELD_DTYPES.get(int(field.datatype))
         size = np.dtype(code).itemsize if code else 0
         if code is None or int(field.offset) < 0 or int(field.offset) + size > point_step:
-            msg_ = (f"PointCloud2 field {name!r}: datatype {int(field.datatype)} at offset "
+            msg_ = (f'PointCloud2 field {name!r}: datatype {int(field.datatype)} at offset '
                     f'{int(field.offset)} does not fit point_step {point_step}')
             raise MessageError(msg_)
         formats.append(order + code)

@@ -173,6 +173,6 @@ def test_replay_of_random_tracks_warns_in_report_and_diagnostics(street: SimSequ
     data = json.loads((out / 'report.json').read_text())
     assert data['counters']['cost_explosions'] >= 5
     assert any('solves whose cost per observation exploded' in w for w in data['warnings'])
-    levels = [m.msg.status[0].level for m in iter_messages([out / 'result.mcap'],
-                                                          topics=[DIAGNOSTICS_TOPIC])]
+    diagnostics = iter_messages([out / 'result.mcap'], topics=[DIAGNOSTICS_TOPIC])
+    levels = [m.msg.status[0].level for m in diagnostics]
     assert 1 in levels[-10:]

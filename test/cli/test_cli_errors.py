@@ -253,9 +253,9 @@ def test_atomic_write_errors_name_the_target(tmp_path: Path) -> None:
     assert not list(tmp_path.iterdir())
 
 
-def test_failed_bag_writing_leaves_no_bag_behind(tmp_path: Path,
-                                                monkeypatch: pytest.MonkeyPatch,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_failed_bag_writing_leaves_no_bag_behind(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
     """Disk full while `simulate` writes: one error line, no bag and no `.partial` left."""
     from pmba_ros.io.bags import BagWriter
 
