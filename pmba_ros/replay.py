@@ -476,6 +476,9 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         FormatError: If the ground-truth file cannot be read.
         EvaluationError: If the ground truth has no stamps overlapping the keyframes.
         PmbaError: If plotting was asked for without matplotlib.
+        BagError: Also if another replay is writing into ``out_dir``, or the bag is damaged
+            before its first readable message (later damage is a warning in the report).
+        OSError: If an output cannot be written (a full disk); the report names the cause.
     """
     from pmba_ros.backend.config import BackendConfig
 
