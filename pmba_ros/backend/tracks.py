@@ -36,6 +36,7 @@ dropped (``ambiguous_duplicate_observations``). A message that does not fit the 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 import logging
 from operator import attrgetter
@@ -154,56 +155,54 @@ class _Columns:
 
 
 class TrackMemory:
-    """The latest observation of each track over the last few frames (for duplicate ids).
+    """The observations of the last few frames (to resolve repeated ids by).
 
-    Lookups and updates are vectorized over sorted ``feature_id * num_cams + camera_id``
-    keys; entries not seen for :attr:`max_age` frames are forgotten, so the memory stays as
-    small as a few frames.
+    Each frame is kept as its sorted ``feature_id * num_cams + camera_id`` keys and their
+    coordinates; remembering sorts only the new frame, and lookups (needed only for repeated
+    ids) search the frames newest first.
     """
 
     max_age = 10
 
     def __init__(self) -> None:
         """Start empty."""
-        self._clear(normalized=True)
-
-    def _clear(self, *, normalized: bool) -> None:
-        self._keys = np.zeros(0, dtype=np.int64)
-        self._coords = np.zeros((0, 2))
-        self._age = np.zeros(0, dtype=np.int64)
-        self._normalized = normalized
+        self._frames: deque[tuple[np.ndarray, FloatArray]] = deque(maxlen=self.max_age)
+        self._normalized = True
 
     def lookup(self, keys: np.ndarray, normalized: bool) -> tuple[BoolArray, FloatArray]:
-        """Return ``(found, coords)`` of the previous observations of ``keys``.
+        """Return ``(found, coords)`` of the latest earlier observations of ``keys``.
 
         Args:
             keys: Track keys, shape (K,).
             normalized: Whether the coordinates asked for are normalized (else pixels).
         """
+        found = np.zeros(keys.shape[0], dtype=bool)
         coords = np.full((keys.shape[0], 2), np.nan)
-        if normalized != self._normalized or not self._keys.size:
-            return np.zeros(keys.shape[0], dtype=bool), coords
-        pos = np.minimum(np.searchsorted(self._keys, keys), self._keys.size - 1)
-        found = self._keys[pos] == keys
-        coords[found] = self._coords[pos[found]]
+        if normalized != self._normalized:
+            return found, coords
+        for frame_keys, frame_coords in reversed(self._frames):
+            if found.all():
+                break
+            if not frame_keys.size:
+                continue
+            pos = np.minimum(np.searchsorted(frame_keys, keys), frame_keys.size - 1)
+            hit = ~found & (frame_keys[pos] == keys)
+            coords[hit] = frame_coords[pos[hit]]
+            found |= hit
         return found, coords
 
     def remember(self, frame: TrackFrame, num_cams: int) -> None:
-        """Store the observations of an accepted frame (newest wins)."""
+        """Store the observations of a parsed frame."""
         normalized = frame.normalized is not None
         coords = frame.normalized if frame.normalized is not None else frame.pixels
         if coords is None:
             return
         if normalized != self._normalized:
-            self._clear(normalized=normalized)
+            self._frames.clear()
+            self._normalized = normalized
         keys = frame.feature_ids * num_cams + frame.camera_ids
-        old = ~np.isin(self._keys, keys) & (self._age + 1 < self.max_age)
-        all_keys = np.concatenate([self._keys[old], keys])
-        order = np.argsort(all_keys, kind='stable')
-        self._keys = all_keys[order]
-        self._coords = np.concatenate([self._coords[old], coords])[order]
-        self._age = np.concatenate([self._age[old] + 1,
-                                    np.zeros(keys.shape[0], dtype=np.int64)])[order]
+        order = np.argsort(keys)
+        self._frames.append((keys[order], coords[order]))
 
 
 def _read_point_cloud(msg: Any, layout: str, num_cams: int) -> _Columns | None:
