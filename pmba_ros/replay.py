@@ -20,14 +20,14 @@ files of whatever was processed are still written (``report.json`` then has ``"c
 false`` and the error). With ``config.deterministic`` (forced here) two replays of the same
 bag give byte-identical TUM and PLY files.
 
-Integrity: a damaged recording is read past (undecodable messages are skipped and counted, a
-corrupt part ends the reading), and the messages read are compared with the counts the bag
-announces; any shortfall is a warning and makes the report ``"complete": false`` with
-``"input_complete": false`` (``pmba replay`` then exits with 3). Every file is written to a
-temporary name and renamed into place, ``report.json`` last; the outputs of an earlier run in
-the same folder are removed first, so they never mix with this run's. A lock file
-(``.pmba_replay.lock``) refuses a second replay into a folder in use, and SIGINT / SIGTERM
-wait while the outputs are written.
+Integrity: a damaged recording is read past (undecodable messages are skipped and counted,
+reading resumes after a corrupt part of the storage), and the messages read are compared
+with the counts the bag announces; any shortfall is a warning and makes the report
+``"complete": false`` with ``"input_complete": false`` (``pmba replay`` then exits with 3).
+Every file is written to a temporary name and renamed into place, ``report.json`` last; the
+outputs of an earlier run in the same folder are removed first, so they never mix with this
+run's. A lock file (``.pmba_replay.lock``) refuses a second replay into a folder in use, and
+SIGINT / SIGTERM wait while the outputs are written.
 """
 
 from __future__ import annotations
@@ -129,7 +129,8 @@ class ReplayReport:
         messages_announced: Messages the bags' metadata announces on the topics read.
         messages_read: Messages read from the bags (decoded).
         messages_undecodable: Messages skipped because they do not deserialize.
-        read_error: Why reading stopped before the end of a bag, if it did.
+        damaged_parts: Corrupt parts of the storage skipped (reading resumed after them).
+        read_error: The first of them, if any.
     """
 
     bags: list[Path]
@@ -156,12 +157,13 @@ class ReplayReport:
     messages_announced: int = 0
     messages_read: int = 0
     messages_undecodable: int = 0
+    damaged_parts: int = 0
     read_error: str | None = None
 
     @property
     def input_complete(self) -> bool:
         """Return True if every announced message was read and decoded."""
-        return (self.read_error is None and not self.messages_undecodable
+        return (not self.damaged_parts and not self.messages_undecodable
                 and self.messages_read >= self.messages_announced)
 
     @property
@@ -182,6 +184,7 @@ class ReplayReport:
             'messages_announced': self.messages_announced,
             'messages_read': self.messages_read,
             'messages_undecodable': self.messages_undecodable,
+            'damaged_parts': self.damaged_parts,
             'read_error': self.read_error,
             'keyframes_in': self.keyframes_in,
             'keyframes_out': self.keyframes_out,
@@ -587,15 +590,17 @@ def _check_input(report: ReplayReport, damage: ReadStats) -> None:
         BagError: If the bag is damaged before its first readable message.
     """
     report.messages_undecodable = damage.undecodable
-    report.read_error = damage.stopped
-    if damage.stopped is not None and not report.messages_read:
-        raise BagError(damage.stopped)
+    report.damaged_parts = damage.damaged_parts
+    report.read_error = damage.first_damage
+    if damage.first_damage is not None and not report.messages_read:
+        raise BagError(damage.first_damage)
     found = []
     if damage.undecodable:
         found.append(f'{damage.undecodable} messages skipped (they do not deserialize); '
                      f'first: {damage.first_undecodable}')
-    if damage.stopped is not None:
-        found.append(f'reading stopped early: {damage.stopped}')
+    if damage.damaged_parts:
+        found.append(f'{damage.damaged_parts} corrupt part(s) of the bag skipped, reading '
+                     f'resumed after each; first: {damage.first_damage}')
     missing = report.messages_announced - report.messages_read - damage.undecodable
     if missing > 0:
         found.append(f'the bags announce {report.messages_announced} messages on the topics '

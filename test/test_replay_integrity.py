@@ -139,7 +139,8 @@ def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
         for i, message in enumerate(real(paths, topics)):
             if i == 45:
                 assert damage is not None
-                damage.stopped = 'street.mcap: bag is corrupt or truncated: test'
+                damage.damaged_parts = 1
+                damage.first_damage = 'street.mcap: bag is corrupt or truncated: test'
                 return
             yield message
 
@@ -148,7 +149,8 @@ def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
     assert report.messages_in == 45 == report.messages_read
     assert report.keyframes_in == 15
     assert report.read_error is not None and not report.complete
-    assert any(w.startswith('reading stopped early: street.mcap') for w in report.warnings)
+    assert any(w.startswith('1 corrupt part(s) of the bag skipped, reading resumed after '
+                            'each; first: street.mcap') for w in report.warnings)
 
 
 def test_bag_broken_before_any_message_is_an_error(bag: Path, tmp_path: Path,
@@ -157,7 +159,8 @@ def test_bag_broken_before_any_message_is_an_error(bag: Path, tmp_path: Path,
     def broken(paths: Any, topics: Any = None, *,
                damage: ReadStats | None = None) -> Iterator[Any]:
         assert damage is not None
-        damage.stopped = 'street.mcap: bag is corrupt or truncated: zstd'
+        damage.damaged_parts = 1
+        damage.first_damage = 'street.mcap: bag is corrupt or truncated: zstd'
         yield from ()
 
     monkeypatch.setattr(replay_mod, 'iter_messages', broken)

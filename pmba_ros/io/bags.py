@@ -19,9 +19,9 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Generator, Iterator, Sequence
+from contextlib import closing, contextmanager
+from dataclasses import dataclass, field
 from functools import lru_cache
 import importlib
 import logging
@@ -78,6 +78,10 @@ class TopicInfo:
     count: int
 
 
+RESUME_STEP_NS = 1_000_000
+"""First step past a corrupt part of a recording when looking for readable data again."""
+
+
 @dataclass
 class ReadStats:
     """Damage met while reading, when the reader is asked to read past it.
@@ -85,12 +89,16 @@ class ReadStats:
     Attributes:
         undecodable: Messages skipped because they do not deserialize.
         first_undecodable: Description of the first of them.
-        stopped: Why reading stopped before the end (a corrupt or truncated storage file).
+        damaged_parts: Corrupt stretches of storage (e.g. MCAP chunks) skipped.
+        first_damage: Description of the first of them.
     """
 
     undecodable: int = 0
     first_undecodable: str | None = None
-    stopped: str | None = None
+    damaged_parts: int = 0
+    first_damage: str | None = None
+    _pending: str | None = field(default=None, init=False, repr=False)
+    _span: tuple[int, int] = field(default=(0, 0), init=False, repr=False)
 
 
 def _reader_errors() -> tuple[type[BaseException], ...]:
@@ -252,9 +260,10 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     Args:
         paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
         topics: Topics to read; None reads all.
-        damage: If given, read past damage: a message that does not deserialize is skipped
-            and counted here, and a corrupt part of the storage ends the iteration with the
-            reason recorded here, instead of raising.
+        damage: If given, read past damage instead of raising: a message that does not
+            deserialize is skipped, and after a corrupt part of the storage reading resumes
+            at the next readable data (found by stepping forward in time from the last good
+            message, 1 ms at first and doubling); both are counted here.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.
@@ -266,10 +275,10 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     """
     checked = _check_paths([Path(p) for p in paths])
     expected, produced = 0, 0
-    for message in _iter_once(checked, topics, damage):
+    for message in _iter_all(checked, topics, damage):
         produced += 1
         yield message
-    if produced:
+    if produced or (damage is not None and damage.damaged_parts):
         return
     expected = sum(info.count for name, info in list_topics(checked).items()
                    if topics is None or name in topics)
@@ -280,20 +289,78 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
                    'QoS differs from the storage file); reading %s directly', _describe(checked),
                    expected, _describe(files))
-    if damage is not None:
-        damage.stopped = None
-    yield from _iter_once(files, topics, damage)
+    yield from _iter_all(files, topics, damage)
+
+
+def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
+              damage: ReadStats | None) -> Iterator[BagMessage]:
+    """Yield the messages of ``paths``, resuming after corrupt parts if ``damage`` is given."""
+    if damage is None:
+        yield from _iter_once(paths, topics, None)
+        return
+    start: int | None = None
+    while True:
+        last: int | None = None
+        for message in _iter_once(paths, topics, damage, start):
+            last = message.log_time_ns
+            yield message
+        error, damage._pending = damage._pending, None
+        if error is None:
+            return
+        if last is not None or start is None:
+            damage.damaged_parts += 1
+            damage.first_damage = damage.first_damage or error
+            logger.warning('%s; looking for readable data after it', error)
+        failed = last + 1 if last is not None else (damage._span[0] if start is None else start)
+        start = _next_readable(paths, topics, failed, damage._span[1])
+        if start is None:
+            return
+
+
+def _next_readable(paths: Sequence[Path], topics: Sequence[str] | None, failed: int,
+                   end: int) -> int | None:
+    """Return the earliest start time after ``failed`` (ns) that reads without an error.
+
+    Steps forward from ``failed`` by 1 ms, doubling, then bisects back to 1 ms; None if
+    nothing up to ``end`` is readable.
+    """
+    lo, step = failed, RESUME_STEP_NS
+    while True:
+        hi = min(lo + step, end)
+        if _readable_from(paths, topics, hi):
+            break
+        if hi >= end:
+            return None
+        lo, step = hi, 2 * step
+    while hi - lo > RESUME_STEP_NS:
+        mid = (lo + hi) // 2
+        if _readable_from(paths, topics, mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _readable_from(paths: Sequence[Path], topics: Sequence[str] | None, start: int) -> bool:
+    """Return True if reading from ``start`` (ns) gets a message, or the end, without error."""
+    probe = ReadStats()
+    with closing(_iter_once(paths, topics, probe, start)) as stream:
+        next(stream, None)
+    return probe._pending is None
 
 
 def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
-               damage: ReadStats | None) -> Iterator[BagMessage]:
-    """Yield the messages of ``paths`` once (see :func:`iter_messages`)."""
+               damage: ReadStats | None, start: int | None = None,
+               ) -> Generator[BagMessage, None, None]:
+    """Yield the messages of ``paths`` from ``start`` (ns) once (see :func:`iter_messages`)."""
     errors = _reader_errors()
     with _any_reader(paths) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
-        stream = reader.messages(connections=conns)
+        if damage is not None:
+            damage._span = (int(reader.start_time), int(reader.end_time))
+        stream = reader.messages(connections=conns, start=start)
         while True:
             try:
                 conn, t_ns, raw = next(stream)
@@ -303,8 +370,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
                 msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
                 if damage is None:
                     raise BagError(msg) from err
-                logger.warning('%s; stopped reading', msg)
-                damage.stopped = msg
+                damage._pending = msg
                 return
             try:
                 msg_obj = reader.deserialize(raw, conn.msgtype)
