@@ -55,6 +55,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _program(argv: list[str], *, as_program: bool) -> int:
     """Run ``argv``; ``as_program``: this is the process's command, not a library call."""
+    if as_program:
+        with contextlib.suppress(ValueError):  # not the main thread
+            signal.signal(signal.SIGINT, _interrupt_once)
     try:
         return _run(argv)
     except KeyboardInterrupt:
@@ -95,6 +98,16 @@ def _one_line(err: BaseException) -> str:
     else:
         text = str(err) or type(err).__name__
     return ' '.join(text.split())
+
+
+def _interrupt_once(signum: int, frame: object) -> None:
+    """Raise KeyboardInterrupt for the first SIGINT and ignore the ones that follow.
+
+    Repeated Ctrl-C would otherwise interrupt the clean-up of the first one (finalizing
+    outputs, finalizers of compiled code) and print tracebacks from there.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
 
 
 def _ignore_sigint(as_program: bool) -> None:
