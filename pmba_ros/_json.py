@@ -1,7 +1,9 @@
-"""Turn reports holding numpy values into plain Python for ``json.dumps``."""
+"""Reports as strict JSON: numpy values made plain, non-finite numbers made ``null``."""
 
 from __future__ import annotations
 
+import json
+import math
 from typing import Any
 
 import numpy as np
@@ -18,3 +20,46 @@ def to_jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def finite_or_null(value: Any, where: str = '', nulled: list[str] | None = None) -> Any:
+    """Return ``value`` (made plain) with every non-finite float replaced by None.
+
+    Args:
+        value: A report (dicts, lists, numbers, numpy values).
+        where: Key path of ``value`` (for ``nulled``).
+        nulled: Receives the key path of every replaced number.
+    """
+    value = to_jsonable(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        if nulled is not None:
+            nulled.append(where or '.')
+        return None
+    if isinstance(value, dict):
+        return {k: finite_or_null(v, f'{where}.{k}' if where else k, nulled)
+                for k, v in value.items()}
+    if isinstance(value, list):
+        # One entry per list: a cost history of many inf values is one finding.
+        found: list[str] = []
+        items = [finite_or_null(v, f'{where}[]', found) for v in value]
+        if found and nulled is not None:
+            nulled.append(f'{where}[]')
+        return items
+    return value
+
+
+def dumps_report(report: dict[str, Any], warnings_key: str | None = 'warnings', *,
+                 sort_keys: bool = True) -> str:
+    """Return ``report`` as strict JSON (indented, newline-terminated).
+
+    Non-finite numbers (JSON has no NaN or Infinity) become ``null``; their key paths are
+    appended as one warning to ``report[warnings_key]`` (created if missing) unless
+    ``warnings_key`` is None.
+    """
+    nulled: list[str] = []
+    clean = finite_or_null(report, nulled=nulled)
+    if nulled and warnings_key is not None:
+        warnings = list(clean.get(warnings_key) or [])
+        warnings.append(f'non-finite values written as null: {", ".join(nulled)}')
+        clean[warnings_key] = warnings
+    return json.dumps(clean, indent=2, sort_keys=sort_keys, allow_nan=False) + '\n'

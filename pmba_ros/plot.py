@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pmba_ros.errors import PmbaError
+from pmba_ros.io.atomic import write_atomic
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -138,7 +139,7 @@ def _save(fig: Any, plt: Any, path: Path) -> Path:
     """Save and close a figure."""
     try:
         fig.tight_layout()
-        fig.savefig(path, dpi=_DPI)
+        write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=_DPI))
     except OSError as err:
         msg = f'{path}: cannot write plot: {err}'
         raise PmbaError(msg) from err

@@ -19,25 +19,37 @@ The result bag is finalized even when the replay stops with an error or an inter
 files of whatever was processed are still written (``report.json`` then has ``"complete":
 false`` and the error). With ``config.deterministic`` (forced here) two replays of the same
 bag give byte-identical TUM and PLY files.
+
+Integrity: a damaged recording is read past (undecodable messages are skipped and counted,
+reading resumes after a corrupt part of the storage), and the messages read are compared
+with the counts the bag announces; any shortfall is a warning and makes the report
+``"complete": false`` with ``"input_complete": false`` (``pmba replay`` then exits with 3).
+Every file is written to a temporary name and renamed into place, ``report.json`` last; the
+outputs of an earlier run in the same folder are removed first, so they never mix with this
+run's. A lock file (``.pmba_replay.lock``) refuses a second replay into a folder in use, and
+SIGINT / SIGTERM wait while the outputs are written.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 import heapq
-import json
 import logging
 import math
+import os
 from pathlib import Path
+import shutil
 import time
 from typing import Any
 
 import numpy as np
 
-from pmba_ros._json import to_jsonable
-from pmba_ros.errors import BagError, EvaluationError, MessageError, PmbaError
-from pmba_ros.io.bags import BagMessage, iter_messages, list_topics, open_writer
+from pmba_ros._json import dumps_report, to_jsonable
+from pmba_ros.errors import BagError, EvaluationError, MessageError
+from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
+from pmba_ros.io.bags import BagMessage, ReadStats, iter_messages, list_topics, open_writer
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +61,12 @@ FRONTEND_TUM = 'keyframes_frontend.tum'
 OPTIMIZED_TUM = 'keyframes_optimized.tum'
 LANDMARKS_PLY = 'landmarks.ply'
 REPORT_JSON = 'report.json'
+LOCK_FILE = '.pmba_replay.lock'
+PLOT_FILES = ('trajectories_top.png', 'ate_per_keyframe.png', 'cost_per_solve.png',
+              'solve_time.png')
+OUTPUT_FILES = (REPORT_JSON, RESULT_BAG, FRONTEND_TUM, OPTIMIZED_TUM, LANDMARKS_PLY,
+                *PLOT_FILES)
+"""Every file a replay writes; report.json first, so it goes first when they are removed."""
 
 TRACKS_TYPES = {'named': ('sensor_msgs/msg/PointCloud2',)}
 """Accepted message types of the tracks topic per layout (default: PointCloud)."""
@@ -62,8 +80,22 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
-                                'keyframe_stamp_not_increasing', 'stale_tracks'})
+                                'keyframe_stamp_not_increasing', 'stale_tracks',
+                                'keyframe_pose_jumps'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
+
+SUSPECT_COUNTERS = {
+    'feature_ids_inexact': 'observations dropped: feature ids that cannot be exact in the '
+                           "message's number type (>= 2^24 in float32: tracks would merge)",
+    'duplicate_observations': 'repeated feature ids in one message, resolved by the copy '
+                              "nearest to the track's previous observation",
+    'ambiguous_duplicate_observations': 'repeated feature ids without a previous observation '
+                                        '(every copy dropped)',
+    'keyframe_pose_jumps': 'keyframe poses rejected: they jump far beyond the recent motion',
+    'cost_explosions': 'solves whose cost per observation exploded relative to their '
+                       'history (inconsistent tracks?)',
+}
+"""Back-end counters of suspect input, each worth a warning in the report."""
 
 _KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
 
@@ -91,9 +123,14 @@ class ReplayReport:
         bag_duration_s: Header-stamp span of the inputs, s.
         wall_s: Wall time of the replay, s.
         accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
-        complete: False if the replay stopped early.
+        complete: False if the replay stopped early or the input was incomplete.
         error: The error that stopped it, if any.
         warnings: Non-fatal problems.
+        messages_announced: Messages the bags' metadata announces on the topics read.
+        messages_read: Messages read from the bags (decoded).
+        messages_undecodable: Messages skipped because they do not deserialize.
+        damaged_parts: Corrupt parts of the storage skipped (reading resumed after them).
+        read_error: The first of them, if any.
     """
 
     bags: list[Path]
@@ -117,6 +154,17 @@ class ReplayReport:
     complete: bool = False
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
+    messages_announced: int = 0
+    messages_read: int = 0
+    messages_undecodable: int = 0
+    damaged_parts: int = 0
+    read_error: str | None = None
+
+    @property
+    def input_complete(self) -> bool:
+        """Return True if every announced message was read and decoded."""
+        return (not self.damaged_parts and not self.messages_undecodable
+                and self.messages_read >= self.messages_announced)
 
     @property
     def realtime_factor(self) -> float:
@@ -132,6 +180,12 @@ class ReplayReport:
             'files': {k: str(v) for k, v in sorted(self.files.items())},
             'topics': dict(self.topics),
             'complete': self.complete,
+            'input_complete': self.input_complete,
+            'messages_announced': self.messages_announced,
+            'messages_read': self.messages_read,
+            'messages_undecodable': self.messages_undecodable,
+            'damaged_parts': self.damaged_parts,
+            'read_error': self.read_error,
             'keyframes_in': self.keyframes_in,
             'keyframes_out': self.keyframes_out,
             'messages_in': self.messages_in,
@@ -425,6 +479,9 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         FormatError: If the ground-truth file cannot be read.
         EvaluationError: If the ground truth has no stamps overlapping the keyframes.
         PmbaError: If plotting was asked for without matplotlib.
+        BagError: Also if another replay is writing into ``out_dir``, or the bag is damaged
+            before its first readable message (later damage is a warning in the report).
+        OSError: If an output cannot be written (a full disk); the report names the cause.
     """
     from pmba_ros.backend.config import BackendConfig
 
@@ -449,27 +506,55 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         kinds[inputs.keyframes] = 'keyframe'
     if inputs.camera_info:
         kinds[inputs.camera_info] = 'camera_info'
+    report.messages_announced = sum(counts.values())
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         msg = f'{out}: cannot create output folder: {err}'
         raise BagError(msg) from err
-    logic = _make_logic(config)
-    if intrinsics is not None:
-        logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
+    with output_lock(out):
+        _remove_outputs(out)
+        _run_and_write(config, intrinsics, report, bag_paths, kinds, inputs, out,
+                       _Outputs(gt_traj, plot, align, t_start), progress)
+    return report
+
+
+@dataclass(frozen=True)
+class _Outputs:
+    """What to write after the replay."""
+
+    gt: Any
+    plot: bool
+    align: str
+    t_start: float
+
+
+def _run_and_write(config: Any, intrinsics: Sequence[float] | None, report: ReplayReport,
+                   bag_paths: list[Path], kinds: dict[str, str], inputs: _Input, out: Path,
+                   outputs: _Outputs, progress: ProgressCallback | None) -> None:
+    """Feed the bags to a new back-end into the result bag, then write the other outputs."""
     report.files['result_bag'] = out / RESULT_BAG
     run: _Run | None = None
+    logic: Any = None
+    finished = False
     try:
+        logic = _make_logic(config)
+        if intrinsics is not None:
+            logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
-            run = _Run(logic, writer, report, progress, sum(counts.values()), keyframe_kind)
-            stream = iter_messages(bag_paths, topics=list(kinds))
-            for stamp, kind, message in stamp_ordered(stream, kinds):
+            run = _Run(logic, writer, report, progress, report.messages_announced,
+                       keyframe_kind)
+            damage = ReadStats()
+            stream = iter_messages(bag_paths, topics=list(kinds), damage=damage)
+            for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
                 run.feed(stamp, kind, message)
+            _check_input(report, damage)
             run.finish()
-        report.complete = True
-    except (PmbaError, KeyboardInterrupt) as err:
-        report.error = str(err) or type(err).__name__
+        finished = True
+        report.complete = report.input_complete
+    except BaseException as err:
+        report.error = _describe_error(err)
         raise
     finally:
         if run is not None and run.first_stamp is not None:
@@ -477,8 +562,108 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         if run is not None and run.first_error and report.messages_rejected:
             report.warnings.append(f'{report.messages_rejected} messages rejected; first: '
                                    f'{run.first_error}')
-        _write_outputs(logic, report, out, gt_traj, plot, align, t_start)
-    return report
+        with deferred_interrupts():
+            _write_outputs(logic, report, out, outputs, finished)
+
+
+def _describe_error(err: BaseException) -> str:
+    """Return the text of an error for the report (OSErrors with their file)."""
+    if isinstance(err, KeyboardInterrupt):
+        return 'interrupted'
+    if isinstance(err, OSError) and err.strerror:
+        where = f'{err.filename}: ' if err.filename else ''
+        return f'{where}{err.strerror}'
+    return str(err) or type(err).__name__
+
+
+def _counted(stream: Iterable[BagMessage], report: ReplayReport) -> Iterator[BagMessage]:
+    """Pass the messages on, counting them in ``report.messages_read``."""
+    for message in stream:
+        report.messages_read += 1
+        yield message
+
+
+def _check_input(report: ReplayReport, damage: ReadStats) -> None:
+    """Compare what was read with what the bags announce; warn about any shortfall.
+
+    Raises:
+        BagError: If the bag is damaged before its first readable message.
+    """
+    report.messages_undecodable = damage.undecodable
+    report.damaged_parts = damage.damaged_parts
+    report.read_error = damage.first_damage
+    if damage.first_damage is not None and not report.messages_read:
+        raise BagError(damage.first_damage)
+    found = []
+    if damage.undecodable:
+        found.append(f'{damage.undecodable} messages skipped (they do not deserialize); '
+                     f'first: {damage.first_undecodable}')
+    if damage.damaged_parts:
+        found.append(f'{damage.damaged_parts} corrupt part(s) of the bag skipped, reading '
+                     f'resumed after each; first: {damage.first_damage}')
+    missing = report.messages_announced - report.messages_read - damage.undecodable
+    if missing > 0:
+        found.append(f'the bags announce {report.messages_announced} messages on the topics '
+                     f'read, but only {report.messages_read} were read ({damage.undecodable} '
+                     f'undecodable, {missing} missing): the recording is damaged or truncated')
+    for text in found:
+        logger.warning('%s', text)
+    report.warnings.extend(found)
+
+
+@contextmanager
+def output_lock(out: Path) -> Iterator[None]:
+    """Hold ``out/.pmba_replay.lock`` while replaying into ``out``.
+
+    Raises:
+        BagError: If another process holds it (a replay into the same folder).
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - no advisory locks on this platform
+        yield
+        return
+    path = out / LOCK_FILE
+    try:
+        fh = open(path, 'a+', encoding='utf-8')
+    except OSError as err:
+        msg = f'{out}: cannot create the lock file: {err}'
+        raise BagError(msg) from err
+    with fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as err:
+            fh.seek(0)
+            owner = fh.read().strip() or 'unknown'
+            msg = (f'{out}: another replay (process {owner}) is writing into this folder; '
+                   'wait for it to finish or choose another --out')
+            raise BagError(msg) from err
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f'{os.getpid()}\n')
+        fh.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def _remove_outputs(out: Path) -> None:
+    """Remove an earlier run's outputs (report.json first) so none survives this run.
+
+    Raises:
+        BagError: If one cannot be removed.
+    """
+    for name in OUTPUT_FILES:
+        path = out / name
+        try:
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink(missing_ok=True)
+        except OSError as err:
+            msg = f'{path}: cannot replace the earlier output: {err}'
+            raise BagError(msg) from err
 
 
 def _read_gt(path: Path | str) -> Any:
@@ -487,48 +672,58 @@ def _read_gt(path: Path | str) -> Any:
     return read_trajectory(path)
 
 
-def _write_outputs(logic: Any, report: ReplayReport, out: Path, gt_traj: Any, plot: bool,
-                   align: str, t_start: float) -> None:
-    """Write TUM, PLY, accuracy, plots and report.json (also after an error)."""
+def _write_outputs(logic: Any, report: ReplayReport, out: Path, outputs: _Outputs,
+                   finished: bool) -> None:
+    """Write TUM, PLY, accuracy, plots and report.json last (also after an error).
+
+    Raises:
+        PmbaError, OSError: If writing fails after a replay that finished (after an error,
+            the first error stays the one raised; later ones become warnings).
+    """
     from pmba_ros.eval.trajectory import write_tum
     from pmba_ros.io.ply import write_ply
 
+    if logic is None:  # stopped before the back-end existed: only the report
+        _dump_report(report, out, outputs.t_start)
+        return
     _collect_stats(logic, report)
-    frontend = optimized = None
     try:
         frontend = logic.frontend_trajectory()
         optimized = logic.optimized_trajectory()
-        write_tum(out / FRONTEND_TUM, frontend)
-        write_tum(out / OPTIMIZED_TUM, optimized)
+        write_atomic(out / FRONTEND_TUM, lambda tmp: write_tum(tmp, frontend))
         report.files['frontend_tum'] = out / FRONTEND_TUM
+        write_atomic(out / OPTIMIZED_TUM, lambda tmp: write_tum(tmp, optimized))
         report.files['optimized_tum'] = out / OPTIMIZED_TUM
         report.keyframes_out = len(optimized)
         ids, points = _landmarks(logic)
-        write_ply(out / LANDMARKS_PLY, points, ids)
+        write_atomic(out / LANDMARKS_PLY, lambda tmp: write_ply(tmp, points, ids))
         report.files['landmarks_ply'] = out / LANDMARKS_PLY
-        if gt_traj is not None and report.complete:
-            report.accuracy = accuracy(frontend, optimized, gt_traj, align=align)
-        if plot and report.complete:
-            for name, path in write_plots(out, frontend, optimized, gt_traj, report,
-                                          align).items():
+        if outputs.gt is not None and finished:
+            report.accuracy = accuracy(frontend, optimized, outputs.gt, align=outputs.align)
+        if outputs.plot and finished:
+            for name, path in write_plots(out, frontend, optimized, outputs.gt, report,
+                                          outputs.align).items():
                 report.files[name] = path
     except Exception as err:
         if report.error is None:
-            report.error = str(err)
+            report.error = _describe_error(err)
+            report.complete = False
             raise
+        report.warnings.append(f'writing outputs after the error failed: {err}')
         logger.warning('writing outputs after an error failed: %s', err)
     finally:
-        _dump_report(report, out, t_start)
+        _dump_report(report, out, outputs.t_start)
 
 
 def _dump_report(report: ReplayReport, out: Path, t_start: float) -> None:
-    """Write report.json (best effort after an error)."""
+    """Write report.json atomically (best effort after an error)."""
     report.wall_s = time.perf_counter() - t_start
     report.files['report'] = out / REPORT_JSON
     try:
-        (out / REPORT_JSON).write_text(json.dumps(report.to_dict(), indent=2) + '\n',
-                                       encoding='utf-8')
+        write_text_atomic(out / REPORT_JSON, dumps_report(report.to_dict(), sort_keys=False))
     except OSError as err:
+        if report.error is None:
+            raise
         logger.warning('%s: cannot write report: %s', out / REPORT_JSON, err)
 
 
@@ -552,6 +747,9 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     report.costs_before = [float(v) for v in getattr(stats, 'cost_before', [])]
     report.update_ms = [float(v) for v in getattr(stats, 'update_ms', [])]
     report.counters = dict(sorted(dict(getattr(stats, 'counters', {}) or {}).items()))
+    for name, text in SUSPECT_COUNTERS.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {text}')
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
 

@@ -29,7 +29,8 @@ from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
-from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
+from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.tracks import TrackMemory, parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
 from pmba_ros.core import so3
@@ -115,6 +116,9 @@ class BackendLogic:
         self._last_info = UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
+        self._track_memory = TrackMemory()
+        self._pose_check = PoseJumpCheck()
+        self._cost_monitor = CostMonitor()
 
     # --- inputs ---------------------------------------------------------------------------
 
@@ -148,11 +152,14 @@ class BackendLogic:
             self.count('dropped_while_paused')
             return
         try:
-            frame = parse_tracks(msg, self.config.feature_layout, self.config.num_cams)
+            frame = parse_tracks(msg, self.config.feature_layout, self.config.num_cams,
+                                 self._track_memory)
         except Exception as err:
             self._reject('bad_tracks', err)
             return
         self.count('dropped_observations', frame.dropped)
+        for reason, n in frame.drop_reasons.items():
+            self.count(reason, n)
         if frame.stamp_ns <= self._last_kf_stamp:
             self.count('stale_tracks')
             return
@@ -176,6 +183,10 @@ class BackendLogic:
             pose = parse_keyframe(msg, self.config.keyframe_type)
         except Exception as err:
             self._reject('bad_keyframes', err)
+            return
+        jump = self._pose_check.check(pose.stamp_ns, pose.position)
+        if jump is not None:
+            self._reject('keyframe_pose_jumps', jump)
             return
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
         self._push_keyframe(_Keyframe(pose.stamp_ns, pose))
@@ -304,6 +315,9 @@ class BackendLogic:
             self._stats.iterations.append(info.iterations)
             self._stats.cost_before.append(info.cost_before)
             self._stats.cost_after.append(info.cost_after)
+            explosion = self._cost_monitor.check(info.cost_after, info.n_obs)
+            if explosion is not None:
+                self._reject('cost_explosions', explosion)
         self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))
         self._last_info = info
 

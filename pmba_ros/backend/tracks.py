@@ -22,14 +22,22 @@ Feature layouts (``ros2_notes.md`` §3.1):
     ``sensor_msgs/PointCloud2`` with fields ``id``, optional ``cam`` (default 0), ``u, v``
     and/or ``x_n, y_n``; any PointField datatype, either byte order, padded rows.
 
-Ids travel as float32 in PointCloud channels and are rounded with ``floor(v + 0.5)`` (exact
-up to 2^24). Observations with non-finite ids or coordinates are dropped, and so are
-repeated ``(feature_id, camera_id)`` pairs after the first; :attr:`TrackFrame.dropped`
-counts both. A message that does not fit the layout raises :class:`MessageError`.
+Ids travel as float32 in PointCloud channels and are rounded with ``floor(v + 0.5)``.
+Observations are dropped, and counted in :attr:`TrackFrame.dropped`, when their ids or
+coordinates are not finite, or their ids cannot be exact in the message's number type
+(>= 2^24 in float32, >= 2^53 in float64: neighbouring tracks would merge; counted as
+``feature_ids_inexact``). A ``(feature_id, camera_id)`` pair repeated in one message is
+resolved by consistency, not by order: with a :class:`TrackMemory` of the recent frames the
+copy nearest to the track's previous observation is kept (``duplicate_observations`` counts
+the others); a repeated pair without a previous observation is ambiguous and every copy is
+dropped (``ambiguous_duplicate_observations``). A message that does not fit the layout raises
+:class:`MessageError`.
 """
 
 from __future__ import annotations
 
+from collections import deque
+from dataclasses import dataclass
 import logging
 from operator import attrgetter
 from typing import Any
@@ -52,6 +60,9 @@ POINTFIELD_DTYPES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f
 """``sensor_msgs/PointField`` datatype constant -> numpy type code (without byte order)."""
 
 _ID_TOL = 1e-3
+FLOAT32_EXACT_IDS = float(2 ** 24)
+"""Integers from 2^24 on are not all representable in float32: ids there may merge."""
+FLOAT64_EXACT_IDS = float(2 ** 53)
 _Z_TOL = 1e-3
 _XYZ = attrgetter('x', 'y', 'z')
 
@@ -90,7 +101,8 @@ def _header(msg: Any) -> tuple[int, str]:
         raise MessageError(msg_) from err
 
 
-def parse_tracks(msg: Any, layout: str, num_cams: int = 1) -> TrackFrame:
+def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
+                 memory: TrackMemory | None = None) -> TrackFrame:
     """Parse a front-end feature message into a :class:`TrackFrame`.
 
     Args:
@@ -99,10 +111,12 @@ def parse_tracks(msg: Any, layout: str, num_cams: int = 1) -> TrackFrame:
         layout: One of :data:`LAYOUTS`.
         num_cams: Number of cameras of the front-end (VINS ``NUM_OF_CAM``); vins_mono
             decodes ids with it, every layout rejects camera ids outside ``[0, num_cams)``.
+        memory: Recent observations (updated with this frame) to resolve repeated ids by;
+            without it every copy of a repeated ``(feature_id, camera_id)`` is dropped.
 
     Returns:
-        The observations, in message order, without non-finite rows and duplicates.
-        An empty cloud gives an empty frame.
+        The observations, in message order, without non-finite rows, inexact ids and
+        duplicates. An empty cloud gives an empty frame.
 
     Raises:
         MessageError: If the layout is unknown, ``num_cams < 1``, or the message does not
@@ -122,11 +136,73 @@ def parse_tracks(msg: Any, layout: str, num_cams: int = 1) -> TrackFrame:
         cols = _read_point_cloud(msg, layout, int(num_cams))
     if cols is None:
         return TrackFrame.empty(stamp_ns, frame_id)
-    ids, cams, pixels, normalized = cols
-    return _finish(stamp_ns, frame_id, layout, int(num_cams), ids, cams, pixels, normalized)
+    frame = _finish(stamp_ns, frame_id, layout, int(num_cams), cols, memory)
+    if memory is not None:
+        memory.remember(frame, int(num_cams))
+    return frame
 
 
-_Columns = tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]
+@dataclass(frozen=True)
+class _Columns:
+    """Observation columns read from a message (float64, before validation)."""
+
+    ids: FloatArray
+    cams: FloatArray
+    pixels: FloatArray | None
+    normalized: FloatArray | None
+    inexact: BoolArray
+    """Ids that cannot be exact in the message's number type."""
+
+
+class TrackMemory:
+    """The observations of the last few frames (to resolve repeated ids by).
+
+    Each frame is kept as its sorted ``feature_id * num_cams + camera_id`` keys and their
+    coordinates; remembering sorts only the new frame, and lookups (needed only for repeated
+    ids) search the frames newest first.
+    """
+
+    max_age = 10
+
+    def __init__(self) -> None:
+        """Start empty."""
+        self._frames: deque[tuple[np.ndarray, FloatArray]] = deque(maxlen=self.max_age)
+        self._normalized = True
+
+    def lookup(self, keys: np.ndarray, normalized: bool) -> tuple[BoolArray, FloatArray]:
+        """Return ``(found, coords)`` of the latest earlier observations of ``keys``.
+
+        Args:
+            keys: Track keys, shape (K,).
+            normalized: Whether the coordinates asked for are normalized (else pixels).
+        """
+        found = np.zeros(keys.shape[0], dtype=bool)
+        coords = np.full((keys.shape[0], 2), np.nan)
+        if normalized != self._normalized:
+            return found, coords
+        for frame_keys, frame_coords in reversed(self._frames):
+            if found.all():
+                break
+            if not frame_keys.size:
+                continue
+            pos = np.minimum(np.searchsorted(frame_keys, keys), frame_keys.size - 1)
+            hit = ~found & (frame_keys[pos] == keys)
+            coords[hit] = frame_coords[pos[hit]]
+            found |= hit
+        return found, coords
+
+    def remember(self, frame: TrackFrame, num_cams: int) -> None:
+        """Store the observations of a parsed frame."""
+        normalized = frame.normalized is not None
+        coords = frame.normalized if frame.normalized is not None else frame.pixels
+        if coords is None:
+            return
+        if normalized != self._normalized:
+            self._frames.clear()
+            self._normalized = normalized
+        keys = frame.feature_ids * num_cams + frame.camera_ids
+        order = np.argsort(keys)
+        self._frames.append((keys[order], coords[order]))
 
 
 def _read_point_cloud(msg: Any, layout: str, num_cams: int) -> _Columns | None:
@@ -167,11 +243,13 @@ def _read_point_cloud(msg: Any, layout: str, num_cams: int) -> _Columns | None:
                 f'of {n_pts} points have z != 1 (e.g. {z[bad_z][0]:g}); wrong layout?')
         raise MessageError(msg_)
     normalized = xyz[:, :2]
+    inexact = np.abs(ch[0]) >= FLOAT32_EXACT_IDS
     if layout == 'vins_mono':
-        code = np.floor(ch[0] + 0.5)
-        _check_ids(code, ch[0], layout, 'channel 0 (id*num_cams+cam)')
-        return np.floor_divide(code, num_cams), np.mod(code, num_cams), ch[1:3].T, normalized
-    return ch[0], ch[1], ch[2:4].T, normalized
+        code = np.where(inexact, 0.0, np.floor(ch[0] + 0.5))
+        _check_ids(code, np.where(inexact, 0.0, ch[0]), layout, 'channel 0 (id*num_cams+cam)')
+        return _Columns(np.floor_divide(code, num_cams), np.mod(code, num_cams), ch[1:3].T,
+                        normalized, inexact)
+    return _Columns(ch[0], ch[1], ch[2:4].T, normalized, inexact)
 
 
 def _per_point_columns(rows: list[FloatArray], lengths: np.ndarray, n_pts: int) -> _Columns:
@@ -192,7 +270,8 @@ def _per_point_columns(rows: list[FloatArray], lengths: np.ndarray, n_pts: int) 
     finite = np.isfinite(mat).all(axis=1)
     if not np.any(mat[finite, 0:2]):
         normalized = None  # OpenVINS leaves x_n = y_n = 0: normalize from pixels
-    return mat[:, 4], np.zeros(n_pts), mat[:, 2:4], normalized
+    return _Columns(mat[:, 4], np.zeros(n_pts), mat[:, 2:4], normalized,
+                    np.abs(mat[:, 4]) >= FLOAT32_EXACT_IDS)
 
 
 def _read_named(msg: Any) -> _Columns | None:
@@ -223,7 +302,7 @@ def _read_named(msg: Any) -> _Columns | None:
         code = POINTFIELD_DTYPES.get(int(field.datatype))
         size = np.dtype(code).itemsize if code else 0
         if code is None or int(field.offset) < 0 or int(field.offset) + size > point_step:
-            msg_ = (f"PointCloud2 field {name!r}: datatype {int(field.datatype)} at offset "
+            msg_ = (f'PointCloud2 field {name!r}: datatype {int(field.datatype)} at offset '
                     f'{int(field.offset)} does not fit point_step {point_step}')
             raise MessageError(msg_)
         formats.append(order + code)
@@ -246,7 +325,10 @@ def _read_named(msg: Any) -> _Columns | None:
     cams = col('cam') if 'cam' in fields else np.zeros(n_pts)
     pixels = np.stack([col('u'), col('v')], axis=1) if has_uv else None
     normalized = np.stack([col('x_n'), col('y_n')], axis=1) if has_xy else None
-    return col('id'), cams, pixels, normalized
+    ids = col('id')
+    id_code = POINTFIELD_DTYPES[int(fields['id'].datatype)]
+    limit = {'f4': FLOAT32_EXACT_IDS, 'f8': FLOAT64_EXACT_IDS}.get(id_code, np.inf)
+    return _Columns(ids, cams, pixels, normalized, np.abs(ids) >= limit)
 
 
 def _check_ids(rounded: FloatArray, raw: FloatArray, layout: str, what: str) -> None:
@@ -259,38 +341,85 @@ def _check_ids(rounded: FloatArray, raw: FloatArray, layout: str, what: str) -> 
         raise MessageError(msg_)
 
 
-def _finish(stamp_ns: int, frame_id: str, layout: str, num_cams: int, ids_raw: FloatArray,
-            cams_raw: FloatArray, pixels: FloatArray | None, normalized: FloatArray | None,
-            ) -> TrackFrame:
-    """Validate ids, drop non-finite rows and duplicates, and build the frame."""
-    finite: BoolArray = np.isfinite(ids_raw) & np.isfinite(cams_raw)
+def _finish(stamp_ns: int, frame_id: str, layout: str, num_cams: int, cols: _Columns,
+            memory: TrackMemory | None) -> TrackFrame:
+    """Validate ids, drop unusable rows, resolve duplicates, and build the frame."""
+    ids_raw, pixels, normalized = cols.ids, cols.pixels, cols.normalized
+    finite: BoolArray = np.isfinite(ids_raw) & np.isfinite(cols.cams)
     for coords in (pixels, normalized):
         if coords is not None:
             finite &= np.isfinite(coords).all(axis=1)
-    ids = np.floor(ids_raw + 0.5)
-    cams = np.floor(cams_raw + 0.5)
-    _check_ids(ids[finite], ids_raw[finite], layout, 'feature ids')
-    _check_ids(cams[finite], cams_raw[finite], layout, 'camera ids')
-    out_of_range = finite & (cams >= num_cams)
+    inexact = finite & cols.inexact
+    usable = finite & ~cols.inexact
+    ids = np.floor(np.where(usable, ids_raw, 0.0) + 0.5)
+    cams = np.floor(np.where(usable, cols.cams, 0.0) + 0.5)
+    _check_ids(ids[usable], ids_raw[usable], layout, 'feature ids')
+    _check_ids(cams[usable], cols.cams[usable], layout, 'camera ids')
+    out_of_range = usable & (cams >= num_cams)
     if np.any(out_of_range):
         msg_ = (f'layout {layout!r}: camera id {int(cams[out_of_range][0])} >= num_cams '
                 f'{num_cams}; set num_cams or check the layout')
         raise MessageError(msg_)
-    keep = np.flatnonzero(finite)
-    ids_i = ids[keep].astype(np.int64)
-    cams_i = cams[keep].astype(np.int64)
-    _, first = np.unique(ids_i * num_cams + cams_i, return_index=True)
-    keep = keep[np.sort(first)]
+    keep = np.flatnonzero(usable)
+    keys = ids[keep].astype(np.int64) * num_cams + cams[keep].astype(np.int64)
+    coords = normalized if normalized is not None else pixels
+    assert coords is not None  # the readers give one kind at least
+    keep, reasons = _resolve_duplicates(keep, keys, coords[keep], normalized is not None,
+                                        memory)
+    if np.any(inexact):
+        reasons['feature_ids_inexact'] = int(np.count_nonzero(inexact))
     dropped = int(ids_raw.shape[0] - keep.shape[0])
     if dropped:
-        logger.debug('tracks at %d ns: dropped %d of %d observations (non-finite/duplicate)',
-                     stamp_ns, dropped, ids_raw.shape[0])
+        logger.debug('tracks at %d ns: dropped %d of %d observations (%s)', stamp_ns, dropped,
+                     ids_raw.shape[0], reasons or 'non-finite')
     return TrackFrame(
         stamp_ns=stamp_ns, frame_id=frame_id,
         feature_ids=ids[keep].astype(np.int64), camera_ids=cams[keep].astype(np.int64),
         pixels=None if pixels is None else pixels[keep],
         normalized=None if normalized is None else normalized[keep],
-        dropped=dropped)
+        dropped=dropped, drop_reasons=reasons)
+
+
+def _resolve_duplicates(rows: np.ndarray, keys: np.ndarray, coords: FloatArray,
+                        normalized: bool, memory: TrackMemory | None,
+                        ) -> tuple[np.ndarray, dict[str, int]]:
+    """Keep one observation per key: the one nearest to the track's previous observation.
+
+    Args:
+        rows: Message rows of the candidates, shape (K,).
+        keys: Their track keys, shape (K,).
+        coords: Their coordinates, shape (K, 2).
+        normalized: Whether ``coords`` are normalized (else pixels).
+        memory: Previous observations; None: every repeated key is ambiguous.
+
+    Returns:
+        The rows kept (in message order) and the counts of dropped copies by reason.
+    """
+    order = np.argsort(keys, kind='stable')
+    sorted_keys = keys[order]
+    starts = np.r_[True, sorted_keys[1:] != sorted_keys[:-1]]
+    if np.all(starts):
+        return rows, {}
+    group = np.cumsum(starts) - 1
+    repeated = np.bincount(group)[group] > 1
+    found, previous = (memory.lookup(sorted_keys, normalized) if memory is not None
+                       else (np.zeros(keys.shape[0], dtype=bool), None))
+    dist = np.full(keys.shape[0], np.inf)
+    if previous is not None:
+        dist[found] = np.linalg.norm(coords[order][found] - previous[found], axis=1)
+    by_distance = np.lexsort((dist, group))
+    best = by_distance[np.r_[True, group[by_distance][1:] != group[by_distance][:-1]]]
+    keep_sorted = np.zeros(keys.shape[0], dtype=bool)
+    keep_sorted[best] = True
+    ambiguous = repeated & ~found
+    keep_sorted &= ~ambiguous
+    reasons = {}
+    resolved = int(np.count_nonzero(repeated & found & ~keep_sorted))
+    if resolved:
+        reasons['duplicate_observations'] = resolved
+    if np.any(ambiguous):
+        reasons['ambiguous_duplicate_observations'] = int(np.count_nonzero(ambiguous))
+    return rows[np.sort(order[keep_sorted])], reasons
 
 
 def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:

@@ -72,6 +72,8 @@ class TrackFrame:
             None if the message had none (OpenVINS ``loop_feats``): then normalize
             ``pixels`` with :meth:`CameraModel.normalize`.
         dropped: Observations the parser discarded (non-finite values, duplicates).
+        drop_reasons: Of ``dropped``, the counts of suspect inputs by reason (ids that
+            cannot be exact, duplicate ids); the back-end counts them as warnings.
     """
 
     stamp_ns: int
@@ -81,6 +83,7 @@ class TrackFrame:
     pixels: FloatArray | None
     normalized: FloatArray | None
     dropped: int = 0
+    drop_reasons: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Copy, freeze and validate the arrays.
@@ -163,9 +166,11 @@ class KeyframePose:
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
             msg = f'keyframe pose at {self.stamp_ns} ns has non-finite values'
             raise MessageError(msg)
-        norm = float(np.linalg.norm(quat))
-        if norm < 1e-9:
-            msg = f'keyframe pose at {self.stamp_ns} ns has a zero-norm quaternion'
+        with np.errstate(over='ignore'):
+            norm = float(np.linalg.norm(quat))
+        if not 1e-9 <= norm < np.inf:
+            msg = (f'keyframe pose at {self.stamp_ns} ns has a zero-norm or overflowing '
+                   f'quaternion (norm {norm:g})')
             raise MessageError(msg)
         quat /= norm
         pos.flags.writeable = False

@@ -12,11 +12,14 @@ The numbers equal ``evo_ape`` / ``evo_rpe`` with the default translation-part me
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+import sys
 from typing import TYPE_CHECKING
 
+from pmba_ros._json import dumps_report
+from pmba_ros.cli.argtypes import finite_float, non_negative_float, positive_int
 from pmba_ros.errors import PmbaError
+from pmba_ros.io.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     import argparse
@@ -42,11 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='format of GT')
     parser.add_argument('--align', choices=_ALIGN_MODES, default='sim3',
                         help='alignment of EST onto GT before the errors')
-    parser.add_argument('--max-diff', type=float, default=0.01, metavar='S',
+    parser.add_argument('--max-diff', type=non_negative_float, default=0.01, metavar='S',
                         help='largest timestamp difference for association, s')
-    parser.add_argument('--t-offset', type=float, default=0.0, metavar='S',
+    parser.add_argument('--t-offset', type=finite_float, default=0.0, metavar='S',
                         help='offset added to the EST stamps for association, s')
-    parser.add_argument('--delta', type=int, default=1, metavar='N',
+    parser.add_argument('--delta', type=positive_int, default=1, metavar='N',
                         help='RPE pose distance in frames, all pairs')
     parser.add_argument('--report', type=Path, default=None, metavar='FILE.json',
                         help='also write the results as JSON')
@@ -69,8 +72,13 @@ def run(args: argparse.Namespace) -> int:
     from pmba_ros.eval.metrics import evaluate
     from pmba_ros.eval.trajectory import read_trajectory
 
+    if args.report is not None:
+        _prepare_report(args.report)
     est = read_trajectory(args.est, args.est_format)
     gt = read_trajectory(args.gt, args.gt_format)
+    warnings = _length_warnings(args, len(est), len(gt))
+    for text in warnings:
+        print(f'warning: {text}', file=sys.stderr)
     results = evaluate(est, gt, align=args.align, max_diff_s=args.max_diff, delta=args.delta,
                        offset_s=args.t_offset)
     print(format_table(results, n_est=len(est), n_gt=len(gt)))
@@ -80,15 +88,45 @@ def run(args: argparse.Namespace) -> int:
             'max_diff_s': args.max_diff, 't_offset_s': args.t_offset, 'delta_frames': args.delta,
             'n_est': len(est), 'n_gt': len(gt),
             'ate': results['ate'].to_dict(), 'rpe': results['rpe'].to_dict(),
+            'warnings': warnings,
         }
         try:
-            args.report.write_text(json.dumps(report, indent=2, sort_keys=True) + '\n',
-                                   encoding='utf-8')
+            write_text_atomic(args.report, dumps_report(report))
         except OSError as err:
             msg = f'{args.report}: cannot write report: {err}'
             raise PmbaError(msg) from err
         print(f'report written to {args.report}')
     return 0
+
+
+def _prepare_report(path: Path) -> None:
+    """Create the report's folder before the evaluation, so its result cannot be lost.
+
+    Raises:
+        PmbaError: If ``path`` is a folder or its folder cannot be created.
+    """
+    if path.is_dir():
+        msg = f'--report {path}: is a folder; give a file name'
+        raise PmbaError(msg)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f'--report {path}: cannot create its folder: {err}'
+        raise PmbaError(msg) from err
+
+
+def _length_warnings(args: argparse.Namespace, n_est: int, n_gt: int) -> list[str]:
+    """Warn when KITTI files (matched line by line: no stamps) differ in length."""
+    from pmba_ros.eval.trajectory import detect_format
+
+    formats = [fmt if fmt != 'auto' else detect_format(path)
+               for fmt, path in ((args.est_format, args.est), (args.gt_format, args.gt))]
+    if formats != ['kitti', 'kitti'] or n_est == n_gt:
+        return []
+    text = (f'EST has {n_est} poses and GT {n_gt}: KITTI files have no stamps, so poses are '
+            f'matched by line number and only the first {min(n_est, n_gt)} are compared; '
+            'check that both start at the same frame')
+    return [text]
 
 
 def format_table(results: Mapping[str, EvalResult], n_est: int, n_gt: int) -> str:

@@ -18,6 +18,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pmba_ros.cli.argtypes import non_negative_int, positive_int
 from pmba_ros.errors import PmbaError
 
 if TYPE_CHECKING:
@@ -49,9 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--times', type=Path,
                         default=data / 'trajectories/evo/KITTI_00_gt_times.txt',
                         metavar='FILE', help='KITTI 00 times.txt (stamps); "none": 10 Hz')
-    parser.add_argument('--first-frame', type=int, default=None, metavar='N',
+    parser.add_argument('--first-frame', type=non_negative_int, default=None, metavar='N',
                         help='KITTI frame of the first VO pose (default: found from the GT)')
-    parser.add_argument('--stride', type=int, default=None, metavar='S',
+    parser.add_argument('--stride', type=positive_int, default=None, metavar='S',
                         help='KITTI frames between VO poses (default: found from the GT)')
     parser.add_argument('--layout', choices=('vins_mono', 'vins_fusion', 'per_point', 'named'),
                         default='vins_fusion', help='track layout')

@@ -1,16 +1,19 @@
 """The ``pmba`` command: one verb per module, imported lazily (evo's entry-point pattern).
 
 Each verb module has ``add_arguments(parser)`` and ``run(args) -> int``. Library errors
-(:class:`~pmba_ros.errors.PmbaError`, missing files) become one ``error:`` line and exit 1.
+(:class:`~pmba_ros.errors.PmbaError`, ``OSError``) become one ``error:`` line and exit 1.
 """
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+import contextlib
 import importlib
 import logging
+import signal
 import sys
+import traceback
 
 from pmba_ros import __version__
 from pmba_ros._process import tune_process
@@ -43,8 +46,34 @@ def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``pmba`` command line and return its exit code."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Run the ``pmba`` command line and return its exit code.
+
+    Expected failures (bad input files, unwritable outputs, invalid parameter files, the
+    package's :class:`~pmba_ros.errors.PmbaError`) print one ``error:`` line and return 1;
+    usage errors exit 2 (argparse); an interrupt returns 130. Anything else is a bug: its
+    traceback is printed with a line asking to report it, and 1 is returned.
+    """
+    return _program(list(sys.argv[1:] if argv is None else argv), as_program=argv is None)
+
+
+def _program(argv: list[str], *, as_program: bool) -> int:
+    """Run ``argv``; ``as_program``: this is the process's command, not a library call."""
+    if as_program:
+        with contextlib.suppress(ValueError):  # not the main thread
+            signal.signal(signal.SIGINT, _interrupt_once)
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:
+        _ignore_sigint(as_program)
+        print('error: interrupted', file=sys.stderr)
+        return 130
+    finally:
+        # A further Ctrl-C during interpreter shutdown would print an atexit traceback.
+        _ignore_sigint(as_program)
+
+
+def _run(argv: list[str]) -> int:
+    """Parse ``argv`` and run the verb, turning expected errors into one line."""
     tune_process()
     verb = next((a for a in argv if not a.startswith('-')), None)
     parser = build_parser([verb] if verb in VERBS else None)
@@ -57,14 +86,43 @@ def main(argv: Sequence[str] | None = None) -> int:
             from pmba_ros.cli.warmup import ensure_compiled
             ensure_compiled(sys.stderr)
         return int(module.run(args))
-    except (PmbaError, FileNotFoundError, IsADirectoryError) as err:
-        print(f'error: {err}', file=sys.stderr)
+    except (PmbaError, OSError) as err:
+        print(f'error: {_one_line(err)}', file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print('error: interrupted', file=sys.stderr)
-        return 130
+    except Exception:  # anything else is a bug: show it and ask for a report
+        traceback.print_exc()
+        print(f'error: internal error in pmba_ros {__version__} (a bug); please report it '
+              f'with the command line and the traceback above: pmba {" ".join(argv)}',
+              file=sys.stderr)
+        return 1
+
+
+def _one_line(err: BaseException) -> str:
+    """Return the error text on one line (OSErrors name their file)."""
+    if isinstance(err, OSError) and err.filename is not None and err.strerror:
+        text = f'{err.filename}: {err.strerror}'
+    else:
+        text = str(err) or type(err).__name__
+    return ' '.join(text.split())
+
+
+def _interrupt_once(signum: int, frame: object) -> None:
+    """Raise KeyboardInterrupt for the first SIGINT and ignore the ones that follow.
+
+    Repeated Ctrl-C would otherwise interrupt the clean-up of the first one (finalizing
+    outputs, finalizers of compiled code) and print tracebacks from there.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+def _ignore_sigint(as_program: bool) -> None:
+    """Ignore SIGINT from now on when running as the program (never inside a caller)."""
+    if as_program:
+        with contextlib.suppress(ValueError):  # not the main thread
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def replay_main() -> int:
     """Entry point of the ``pmba_bag_replay`` script (``pmba replay``)."""
-    return main(['replay', *sys.argv[1:]])
+    return _program(['replay', *sys.argv[1:]], as_program=True)

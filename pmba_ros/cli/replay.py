@@ -14,6 +14,11 @@ Options left unset take their values from ``--params FILE.yaml`` (a ROS 2 parame
 the node), or else the node's defaults. Writes ``DIR/result.mcap``,
 ``DIR/keyframes_frontend.tum``, ``DIR/keyframes_optimized.tum``, ``DIR/landmarks.ply`` and
 ``DIR/report.json`` (plus PNGs with ``--plot``).
+
+Exit codes: 0 success; 1 error (one ``error:`` line; ``report.json`` says ``"complete":
+false``); 2 usage error; 3 the replay ran to the end but the recording was damaged (messages
+the bag announces were missing or undecodable; see the report's ``warnings``); 130
+interrupted.
 """
 
 from __future__ import annotations
@@ -35,6 +40,9 @@ if TYPE_CHECKING:
 _LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
 _KEYFRAME_TYPES = ('odometry', 'pose_stamped')
 _MODES = ('global', 'sliding')
+
+INCOMPLETE_INPUT = 3
+"""Exit code of a replay that ran to the end over a damaged recording."""
 
 _OVERRIDES = {'tracks_topic': 'features_topic', 'tracks_layout': 'feature_layout',
               'keyframes_topic': 'keyframe_topic', 'keyframes_type': 'keyframe_type',
@@ -124,6 +132,8 @@ def build_config(args: argparse.Namespace) -> Any:
     Raises:
         PmbaError: If the parameter file cannot be read or a value is invalid.
     """
+    import yaml
+
     from pmba_ros.backend.config import BackendConfig
 
     try:
@@ -135,6 +145,10 @@ def build_config(args: argparse.Namespace) -> Any:
     except (OSError, ValueError) as err:
         where = f'--params {params}: ' if params is not None else ''
         msg = f'{where}{err}'
+        raise PmbaError(msg) from err
+    except yaml.YAMLError as err:
+        problem = ' '.join(str(err).split())
+        msg = f'--params {params}: not valid YAML: {problem}'
         raise PmbaError(msg) from err
 
 
@@ -174,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         args: Parsed arguments (see :func:`add_arguments`).
 
     Returns:
-        0 on success.
+        0 on success, 3 if the recording was damaged (incomplete input).
 
     Raises:
         PmbaError: BagError / MessageError / FormatError / EvaluationError from the replay.
@@ -203,6 +217,12 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     if not quiet:
         print(format_summary(report))
+    if not report.input_complete:
+        print(f'warning: the recording is damaged: read {report.messages_read} of '
+              f'{report.messages_announced} announced messages '
+              f'({report.messages_undecodable} undecodable); see {args.out / "report.json"}',
+              file=sys.stderr)
+        return INCOMPLETE_INPUT
     return 0
 
 
@@ -273,6 +293,7 @@ def format_summary(report: ReplayReport) -> str:
                   f'{"":<22}{"front-end":>12}{"optimized":>12}{"ratio":>9}',
                   f'{"ATE rmse (m)":<22}{ate}', f'{"RPE rmse d=1 (m)":<22}{rpe}',
                   f'{"matched poses":<22}{matched}']
+    lines += [f'warning: {text}' for text in report.warnings]
     lines += ['', f'outputs in {report.out_dir}:']
     lines += [f'  {path.name}' for _, path in sorted(report.files.items())]
     return '\n'.join(lines)

@@ -18,6 +18,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pmba_ros.cli.argtypes import (
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 from pmba_ros.errors import PmbaError
 
 if TYPE_CHECKING:
@@ -39,18 +45,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scenario', default='street',
                         choices=sorted(set(_BAG_SCENARIOS) | set(_BAL_SCENARIOS)),
                         help='bag: street|aerial|loop|rotation; bal: street|table3')
-    parser.add_argument('--keyframes', type=int, default=200, metavar='N',
+    parser.add_argument('--keyframes', type=positive_int, default=200, metavar='N',
                         help='keyframes (bag) or cameras (bal street)')
-    parser.add_argument('--seed', type=int, default=0, metavar='S', help='random seed')
+    parser.add_argument('--seed', type=non_negative_int, default=0, metavar='S',
+                        help='random seed')
     parser.add_argument('--out', required=True, type=Path, metavar='BAG|FILE',
                         help='bag folder or .mcap file (bag), or problem file (bal)')
     parser.add_argument('--layout', choices=_LAYOUTS, default='vins_fusion',
                         help='track layout (named = PointCloud2 with named fields)')
-    parser.add_argument('--noise-px', type=float, default=0.5, metavar='PX',
+    parser.add_argument('--noise-px', type=non_negative_float, default=0.5, metavar='PX',
                         help='pixel noise standard deviation')
-    parser.add_argument('--drift', type=float, default=0.02,
+    parser.add_argument('--drift', type=non_negative_float, default=0.02,
                         help='front-end drift (about this fraction of the distance)')
-    parser.add_argument('--rate-hz', type=float, default=10.0, metavar='HZ',
+    parser.add_argument('--rate-hz', type=positive_float, default=10.0, metavar='HZ',
                         help='keyframe rate')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 

@@ -12,18 +12,22 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-import json
+import math
 from pathlib import Path
 import sys
 from typing import Any
 
 import numpy as np
 
+from pmba_ros._json import dumps_report
+from pmba_ros.cli.argtypes import non_negative_int, positive_float
 from pmba_ros.core import so3
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, SolverKind, solve
 from pmba_ros.errors import FormatError
+from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
+from pmba_ros.io.text import detect_problem_format
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
 COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
@@ -37,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba')
     parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg')
     parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none')
-    parser.add_argument('--loss-scale', type=float, default=2.0, help='loss scale in pixels')
-    parser.add_argument('--max-iters', type=int, default=100)
+    parser.add_argument('--loss-scale', type=positive_float, default=2.0,
+                        help='loss scale in pixels')
+    parser.add_argument('--max-iters', type=non_negative_int, default=100)
     parser.add_argument('--init', choices=['file', 'global'], default='file',
                         help="start from the file's poses and points, or run PMBA's global "
                         'initialization from the tracks alone')
@@ -62,7 +67,7 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
     if spec.startswith('sim:'):
         from pmba_ros.sim import scenes
         name, _, seed_text = spec[4:].partition(':')
-        seed = int(seed_text) if seed_text else 0
+        seed = _seed(spec, seed_text)
         makers: dict[str, Callable[..., scenes.SimScene]] = {
             'street': scenes.street_scene, 'table3': scenes.table3_scene,
             'large': scenes.synthetic_large}
@@ -75,8 +80,7 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
         msg = f'{path}: no such file or directory'
         raise FormatError(msg)
     if fmt == 'auto':
-        fmt = 'parallaxba' if path.is_dir() or path.suffix == '.pmba' or \
-            path.name.lower().startswith('cam') else 'bal'
+        fmt = detect_problem_format(path)
     if fmt == 'bal':
         from pmba_ros.io.bal import read_bal
         return read_bal(path)
@@ -85,6 +89,78 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
     if problem.points_w is None:
         problem = problem.with_points(triangulate_points(problem))
     return problem
+
+
+def _seed(spec: str, text: str) -> int:
+    """Return the seed of a ``sim:NAME:SEED`` spec (0 if absent).
+
+    Raises:
+        FormatError: If the seed is not a non-negative integer.
+    """
+    if not text:
+        return 0
+    if not text.isdigit():
+        msg = f'{spec!r}: the seed after the scene name must be an integer >= 0, got {text!r}'
+        raise FormatError(msg)
+    return int(text)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Fail before the solve if ``--out`` or ``--report`` cannot be written.
+
+    A missing ``--report`` folder is created, so the result of a long solve is not lost.
+
+    Raises:
+        FormatError: If ``--out`` is an existing file, ``--report`` a folder, or
+            ``--plot`` lacks ``--out`` or matplotlib.
+        OSError: If a folder cannot be created.
+    """
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        msg = f'--out {args.out}: exists and is not a folder'
+        raise FormatError(msg)
+    if args.report is not None:
+        if args.report.is_dir():
+            msg = f'--report {args.report}: is a folder; give a file name'
+            raise FormatError(msg)
+        args.report.parent.mkdir(parents=True, exist_ok=True)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+    if args.plot:
+        if args.out is None:
+            msg = '--plot writes convergence.png into --out; give --out'
+            raise FormatError(msg)
+        _pyplot()
+
+
+def _options(param: str, solver: str, args: argparse.Namespace) -> SolveOptions:
+    """Return the solve options of one run.
+
+    Raises:
+        FormatError: If an option value is invalid.
+    """
+    try:
+        return SolveOptions(param=Parameterization(param), solver=SolverKind(solver),
+                            loss=Loss(args.loss), loss_scale_px=args.loss_scale,
+                            max_iterations=args.max_iters, pixel_weighted=not args.paper_error)
+    except ValueError as err:
+        msg = f'invalid solver options: {err}'
+        raise FormatError(msg) from err
+
+
+def _pyplot() -> Any:
+    """Return matplotlib.pyplot (Agg backend).
+
+    Raises:
+        FormatError: If matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError as err:
+        msg = 'plotting needs matplotlib: pip install "pmba_ros[plot]"'
+        raise FormatError(msg) from err
+    return plt
 
 
 def _progress(label: str) -> Any:
@@ -98,6 +174,7 @@ def _progress(label: str) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
+    _check_outputs(args)
     problem = load_problem(args.problem, args.format)
     print(f'{args.problem}: {problem.n_cams} cameras, {problem.n_feats} features, '
           f'{problem.n_obs} observations' + (f', dropped {problem.dropped}' if problem.dropped
@@ -106,10 +183,7 @@ def run(args: argparse.Namespace) -> int:
     results: list[SolveResult] = []
     report: dict[str, Any] = {}
     for param, solver in runs:
-        options = SolveOptions(param=Parameterization(param), solver=SolverKind(solver),
-                               loss=Loss(args.loss),
-                               loss_scale_px=args.loss_scale, max_iterations=args.max_iters,
-                               pixel_weighted=not args.paper_error)
+        options = _options(param, solver, args)
         callback = None if args.quiet else _progress(f'{param}-{solver}')
         if args.init == 'global':
             from pmba_ros.init.pipeline import InitOptions, global_init
@@ -127,8 +201,9 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         print(_table(results))
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))
+    _warn_non_finite(results, out_report)
     if args.report:
-        args.report.write_text(json.dumps(out_report, indent=2, sort_keys=True) + '\n')
+        write_text_atomic(args.report, dumps_report(out_report))
     if args.out:
         _write_outputs(args.out, results, out_report, args.plot)
     return 0
@@ -150,23 +225,18 @@ def _table(results: list[SolveResult]) -> str:
 def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any],
                    plot: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'report.json').write_text(json.dumps(report, indent=2, sort_keys=True) + '\n')
     for r in results:
         stem = f'{r.options.param.value}_{r.options.solver.value}'
         q = so3.to_quat_xyzw(r.R_wc)
         rows = np.column_stack([np.arange(r.R_wc.shape[0], dtype=float), r.centers_w, q])
         # TUM files need stamps: a problem file has none, so the camera index stands in.
-        np.savetxt(out / f'poses_{stem}.tum', rows, fmt='%.9g')
         finite = np.all(np.isfinite(r.points_w), axis=1)
-        np.savetxt(out / f'points_{stem}.xyz', r.points_w[finite], fmt='%.9g')
+        with atomic_open(out / f'poses_{stem}.tum') as fh:
+            np.savetxt(fh, rows, fmt='%.9g')
+        with atomic_open(out / f'points_{stem}.xyz') as fh:
+            np.savetxt(fh, r.points_w[finite], fmt='%.9g')
     if plot:
-        try:
-            import matplotlib
-            matplotlib.use('Agg')
-            import matplotlib.pyplot as plt
-        except ImportError as err:
-            msg = 'plotting needs matplotlib: pip install "pmba_ros[plot]"'
-            raise FormatError(msg) from err
+        plt = _pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))
         for r in results:
             ax.semilogy([h.time_s for h in r.history], [h.rms_px for h in r.history], 'o-',
@@ -176,5 +246,21 @@ def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any]
         ax.legend()
         ax.grid(True, which='both', alpha=0.3)
         fig.tight_layout()
-        fig.savefig(out / 'convergence.png', dpi=100)
+        write_atomic(out / 'convergence.png', lambda tmp: fig.savefig(tmp, dpi=100,
+                                                                      format='png'))
         plt.close(fig)
+    # The report goes last: its presence says the other outputs are complete.
+    write_text_atomic(out / 'report.json', dumps_report(report))
+
+
+def _warn_non_finite(results: list[SolveResult], report: dict[str, Any]) -> None:
+    """Mark a solve whose cost is not finite as not converged, with a warning."""
+    entries = [report] if len(results) == 1 and 'param' in report else list(report.values())
+    for result, entry in zip(results, entries, strict=True):
+        if math.isfinite(result.final_cost):
+            continue
+        text = (f'{result.options.param.value}-{result.options.solver.value}: the final cost '
+                'is not finite; the result is not usable')
+        print(f'warning: {text}', file=sys.stderr)
+        entry['converged'] = False
+        entry.setdefault('warnings', []).append(text)

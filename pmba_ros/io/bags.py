@@ -19,9 +19,9 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Generator, Iterator, Sequence
+from contextlib import closing, contextmanager
+from dataclasses import dataclass, field
 from functools import lru_cache
 import importlib
 import logging
@@ -32,6 +32,7 @@ from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
 from pmba_ros.io import cdr
+from pmba_ros.io.atomic import deferred_interrupts
 
 logger = logging.getLogger(__name__)
 
@@ -75,6 +76,29 @@ class TopicInfo:
     topic: str
     msgtype: str
     count: int
+
+
+RESUME_STEP_NS = 1_000_000
+"""First step past a corrupt part of a recording when looking for readable data again."""
+
+
+@dataclass
+class ReadStats:
+    """Damage met while reading, when the reader is asked to read past it.
+
+    Attributes:
+        undecodable: Messages skipped because they do not deserialize.
+        first_undecodable: Description of the first of them.
+        damaged_parts: Corrupt stretches of storage (e.g. MCAP chunks) skipped.
+        first_damage: Description of the first of them.
+    """
+
+    undecodable: int = 0
+    first_undecodable: str | None = None
+    damaged_parts: int = 0
+    first_damage: str | None = None
+    _pending: str | None = field(default=None, init=False, repr=False)
+    _span: tuple[int, int] = field(default=(0, 0), init=False, repr=False)
 
 
 def _reader_errors() -> tuple[type[BaseException], ...]:
@@ -225,8 +249,8 @@ def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]
             raise BagError(msg)
 
 
-def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
-                  ) -> Iterator[BagMessage]:
+def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None, *,
+                  damage: ReadStats | None = None) -> Iterator[BagMessage]:
     """Yield the messages of one or more recordings in log-time order, deserialized.
 
     A rosbag2 folder that reports messages on the selected topics but yields none (the
@@ -236,20 +260,25 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     Args:
         paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
         topics: Topics to read; None reads all.
+        damage: If given, read past damage instead of raising: a message that does not
+            deserialize is skipped, and after a corrupt part of the storage reading resumes
+            at the next readable data (found by stepping forward in time from the last good
+            message, 1 ms at first and doubling); both are counted here.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.
 
     Raises:
-        BagError: If a bag is missing, cannot be opened, or is corrupt or truncated (raised
-            when the damaged part is reached; the messages before it have been yielded).
+        BagError: If a bag is missing or cannot be opened; without ``damage`` also if it is
+            corrupt or truncated (raised when the damaged part is reached; the messages
+            before it have been yielded).
     """
     checked = _check_paths([Path(p) for p in paths])
     expected, produced = 0, 0
-    for message in _iter_once(checked, topics):
+    for message in _iter_all(checked, topics, damage):
         produced += 1
         yield message
-    if produced:
+    if produced or (damage is not None and damage.damaged_parts):
         return
     expected = sum(info.count for name, info in list_topics(checked).items()
                    if topics is None or name in topics)
@@ -260,17 +289,78 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
                    'QoS differs from the storage file); reading %s directly', _describe(checked),
                    expected, _describe(files))
-    yield from _iter_once(files, topics)
+    yield from _iter_all(files, topics, damage)
 
 
-def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None) -> Iterator[BagMessage]:
-    """Yield the messages of ``paths`` once (see :func:`iter_messages`)."""
+def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
+              damage: ReadStats | None) -> Iterator[BagMessage]:
+    """Yield the messages of ``paths``, resuming after corrupt parts if ``damage`` is given."""
+    if damage is None:
+        yield from _iter_once(paths, topics, None)
+        return
+    start: int | None = None
+    while True:
+        last: int | None = None
+        for message in _iter_once(paths, topics, damage, start):
+            last = message.log_time_ns
+            yield message
+        error, damage._pending = damage._pending, None
+        if error is None:
+            return
+        if last is not None or start is None:
+            damage.damaged_parts += 1
+            damage.first_damage = damage.first_damage or error
+            logger.warning('%s; looking for readable data after it', error)
+        failed = last + 1 if last is not None else (damage._span[0] if start is None else start)
+        start = _next_readable(paths, topics, failed, damage._span[1])
+        if start is None:
+            return
+
+
+def _next_readable(paths: Sequence[Path], topics: Sequence[str] | None, failed: int,
+                   end: int) -> int | None:
+    """Return the earliest start time after ``failed`` (ns) that reads without an error.
+
+    Steps forward from ``failed`` by 1 ms, doubling, then bisects back to 1 ms; None if
+    nothing up to ``end`` is readable.
+    """
+    lo, step = failed, RESUME_STEP_NS
+    while True:
+        hi = min(lo + step, end)
+        if _readable_from(paths, topics, hi):
+            break
+        if hi >= end:
+            return None
+        lo, step = hi, 2 * step
+    while hi - lo > RESUME_STEP_NS:
+        mid = (lo + hi) // 2
+        if _readable_from(paths, topics, mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _readable_from(paths: Sequence[Path], topics: Sequence[str] | None, start: int) -> bool:
+    """Return True if reading from ``start`` (ns) gets a message, or the end, without error."""
+    probe = ReadStats()
+    with closing(_iter_once(paths, topics, probe, start)) as stream:
+        next(stream, None)
+    return probe._pending is None
+
+
+def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
+               damage: ReadStats | None, start: int | None = None,
+               ) -> Generator[BagMessage, None, None]:
+    """Yield the messages of ``paths`` from ``start`` (ns) once (see :func:`iter_messages`)."""
     errors = _reader_errors()
     with _any_reader(paths) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
-        stream = reader.messages(connections=conns)
+        if damage is not None:
+            damage._span = (int(reader.start_time), int(reader.end_time))
+        stream = reader.messages(connections=conns, start=start)
         while True:
             try:
                 conn, t_ns, raw = next(stream)
@@ -278,13 +368,21 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None) -> Iterator[
                 return
             except errors as err:
                 msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
-                raise BagError(msg) from err
+                if damage is None:
+                    raise BagError(msg) from err
+                damage._pending = msg
+                return
             try:
                 msg_obj = reader.deserialize(raw, conn.msgtype)
             except errors as err:
                 msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message on '
                        f'{conn.topic} at {t_ns} ns: {_error_text(err)}')
-                raise BagError(msg) from err
+                if damage is None:
+                    raise BagError(msg) from err
+                logger.debug('%s; skipped', msg)
+                damage.undecodable += 1
+                damage.first_undecodable = damage.first_undecodable or msg
+                continue
             yield BagMessage(conn.topic, conn.msgtype, int(t_ns), msg_obj)
 
 
@@ -339,7 +437,8 @@ class BagWriter:
 
 
 @contextmanager
-def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWriter]:
+def open_writer(path: Path | str, *, overwrite: bool = False,
+                keep_on_error: bool = True) -> Iterator[BagWriter]:
     """Open a rosbag2 MCAP recording for writing (rosbag2 metadata version 9).
 
     Chunks are zstd-compressed, as ``ros2 bag record``'s ``zstd_fast`` preset does: the
@@ -350,11 +449,13 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
     ``ros2 bag``); any other path gives a rosbag2 folder ``path/`` with ``metadata.yaml``
     and ``path/<name>.mcap``. The recording is written into a temporary folder beside
     ``path`` and moved into place when the block ends, normally or by an exception, so the
-    MCAP summary is always written.
+    MCAP summary is always written; with ``keep_on_error=False`` an exception discards it
+    instead (a partly written input recording must not pass for a whole one).
 
     Args:
         path: Output file (``*.mcap``) or folder.
         overwrite: Replace an existing output; otherwise an existing path is an error.
+        keep_on_error: Whether to keep what was written when the block raises.
 
     Yields:
         The :class:`BagWriter`.
@@ -382,9 +483,34 @@ def open_writer(path: Path | str, *, overwrite: bool = False) -> Iterator[BagWri
         raise BagError(msg) from err
     try:
         yield BagWriter(writer, jazzy_typestore())
-    finally:
+    except BaseException:
+        # The block's error is the cause to report; a failing close (a full disk fails
+        # both) must not replace it.
+        with deferred_interrupts():
+            try:
+                if keep_on_error:
+                    _finalize(writer, tmp, path, bare)
+                else:
+                    _discard(writer, tmp)
+            except Exception as err:
+                logger.warning('%s: cannot finalize the bag after an error: %s', path, err)
+        raise
+    with deferred_interrupts():
+        _finalize(writer, tmp, path, bare)
+
+
+def _finalize(writer: Any, tmp: Path, path: Path, bare: bool) -> None:
+    """Close the writer (MCAP summary) and move the recording into place."""
+    writer.close()
+    _move_into_place(tmp, path, bare)
+
+
+def _discard(writer: Any, tmp: Path) -> None:
+    """Close the writer and remove the temporary recording."""
+    try:
         writer.close()
-        _move_into_place(tmp, path, bare)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
@@ -406,5 +532,5 @@ def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
     tmp.replace(path)
 
 
-__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'TopicInfo', 'iter_messages',
-           'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'ReadStats', 'TopicInfo',
+           'iter_messages', 'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']

@@ -33,7 +33,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import check_numeric, integer_indices, nonblank_lines
+from pmba_ros.io.text import check_numeric, check_pixels, integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -81,10 +81,7 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
     obs_lines = line_no[1:1 + n_obs]
     cam_idx = integer_indices(path, obs[:, 0], n_cams, 'camera', obs_lines)
     pt_idx = integer_indices(path, obs[:, 1], n_points, 'point', obs_lines)
-    if not np.all(np.isfinite(obs[:, 2:])):
-        k = int(np.flatnonzero(~np.all(np.isfinite(obs[:, 2:]), axis=1))[0])
-        msg = f'{path}:{obs_lines[k]}: non-finite pixel coordinate'
-        raise FormatError(msg)
+    check_pixels(path, obs[:, 2:], obs_lines)
 
     n_params = 9 * n_cams + 3 * n_points
     params = _parse_parameters(path, lines[1 + n_obs:], line_no[1 + n_obs:], n_params,

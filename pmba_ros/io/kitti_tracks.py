@@ -235,9 +235,14 @@ def kitti_sequence(tracks: KittiTracks, times_s: FloatArray | None = None,
         The stamped sequence; stamps are the KITTI times in ns.
 
     Raises:
-        FormatError: If the times or ground truth do not cover the keyframes.
+        FormatError: If the times or ground truth do not cover the keyframes, or
+            ``first_frame < 0`` or ``stride < 1``.
     """
     n = len(tracks.frames)
+    if (first_frame is not None and first_frame < 0) or (stride is not None and stride < 1):
+        msg = (f'first_frame must be >= 0 and stride >= 1, got first_frame={first_frame}, '
+               f'stride={stride}')
+        raise FormatError(msg)
     if first_frame is None or stride is None:
         if gt is not None:
             found_first, found_stride, _, _ = find_frame_offset(tracks.R_wc, tracks.centers, gt)

@@ -32,7 +32,7 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import check_numeric, integer_indices, nonblank_lines
+from pmba_ros.io.text import check_numeric, check_pixels, integer_indices, nonblank_lines
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -343,9 +343,5 @@ def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatAr
     line_of = np.repeat(np.arange(len(lines)), n_per)
     cam_idx = integer_indices(path, triples[:, 0], n_cams, 'camera',
                               np.asarray(numbers)[line_of].tolist())
-    bad = ~np.all(np.isfinite(triples[:, 1:]), axis=1)
-    if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
-        msg = f'{path}:{numbers[line_of[k]]}: non-finite pixel coordinate'
-        raise FormatError(msg)
+    check_pixels(path, triples[:, 1:], np.asarray(numbers)[line_of].tolist())
     return cam_idx, line_of.astype(np.int64), triples[:, 1:].copy(), len(lines)

@@ -56,6 +56,50 @@ def integer_indices(path: Path, values: FloatArray, n: int, what: str,
     return idx
 
 
+MAX_PIXEL = 1e9
+"""Largest pixel coordinate magnitude accepted: far beyond any sensor, and small enough that
+squared residuals of a whole problem stay finite."""
+
+
+def check_pixels(path: Path, pixels: FloatArray, line_numbers: Sequence[int]) -> None:
+    """Raise FormatError naming the first observation with a non-finite or absurd pixel.
+
+    Args:
+        path: The file (for the message).
+        pixels: Pixel coordinates, shape (K, 2).
+        line_numbers: 1-based line of each observation, shape (K,).
+    """
+    finite = np.all(np.isfinite(pixels), axis=1)
+    bad = ~finite | np.any(np.abs(np.where(np.isfinite(pixels), pixels, 0.0)) > MAX_PIXEL,
+                           axis=1)
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        what = ('non-finite pixel coordinate' if not finite[k] else
+                f'pixel coordinate {np.max(np.abs(pixels[k])):g} beyond {MAX_PIXEL:g}')
+        msg = f'{path}:{line_numbers[k]}: {what}'
+        raise FormatError(msg)
+
+
+def detect_problem_format(path: Path) -> str:
+    """Tell a BAL file from a ParallaxBA Cam file by its first line, not by its name.
+
+    A ParallaxBA Cam file's rows hold six or eight numbers; anything else is read as BAL
+    (whose reader then names what is wrong). Folders are ParallaxBA datasets.
+
+    Returns:
+        'bal' or 'parallaxba'.
+
+    Raises:
+        OSError: If the file cannot be read.
+    """
+    if path.is_dir():
+        return 'parallaxba'
+    with path.open('rb') as fh:
+        head = fh.read(4096).decode('utf-8', errors='replace')
+    first = next((line for line in head.splitlines() if line.strip()), '')
+    return 'parallaxba' if len(first.split()) in (6, 8) else 'bal'
+
+
 def check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
     """Raise FormatError naming the first token that is not a number."""
     for tok in tokens:

@@ -198,7 +198,7 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
     points_w = np.asarray(seq.points_w, dtype=np.float64)
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     n_obs = 0
-    with open_writer(out, overwrite=overwrite) as writer:
+    with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
         for i in range(n_kf):
             stamp = int(stamps[i])
             frame = seq.frames[i]

@@ -14,7 +14,7 @@ import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from pmba_ros.backend import outputs
-from pmba_ros.backend.tracks import LAYOUTS, parse_keyframe, parse_tracks, stamp_to_ns
+from pmba_ros.backend.tracks import LAYOUTS, TrackMemory, parse_keyframe, parse_tracks, stamp_to_ns
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
 
@@ -193,17 +193,51 @@ def test_nonfinite_id_is_dropped(ts: Any) -> None:
     assert frame.dropped == 1
 
 
-def test_duplicate_ids_keep_first_and_stereo_pairs_survive(ts: Any) -> None:
-    """Duplicate ids keep first and stereo pairs survive."""
+def test_duplicate_ids_without_history_are_dropped_and_stereo_pairs_survive(ts: Any) -> None:
+    """A repeated (id, cam) with no previous observation is ambiguous: every copy goes."""
     ids = [5, 6, 5, 5, 6]
     cams = [0, 0, 0, 1, 0]
     us = [1.0, 2.0, 3.0, 4.0, 5.0]
     msg = point_cloud(ts, [[0.0, 0.0, 1.0]] * 5, [ids, cams, us, us, [0] * 5, [0] * 5])
     frame = parse_tracks(msg, 'vins_fusion', num_cams=2)
-    np.testing.assert_array_equal(frame.feature_ids, [5, 6, 5])
-    np.testing.assert_array_equal(frame.camera_ids, [0, 0, 1])
-    np.testing.assert_array_equal(frame.pixels[:, 0], [1.0, 2.0, 4.0])  # type: ignore[index]
-    assert frame.dropped == 2
+    np.testing.assert_array_equal(frame.feature_ids, [5])
+    np.testing.assert_array_equal(frame.camera_ids, [1])
+    assert frame.dropped == 4
+    assert frame.drop_reasons == {'ambiguous_duplicate_observations': 4}
+
+
+def test_duplicate_ids_keep_the_copy_consistent_with_the_track(ts: Any) -> None:
+    """With the previous frame remembered, the copy nearest to the track wins, first or not."""
+    memory = TrackMemory()
+    before = point_cloud(ts, [[0.10, 0.20, 1.0], [0.30, 0.40, 1.0]],
+                         [[5, 6], [0, 0], [1, 2], [1, 2], [0, 0], [0, 0]])
+    parse_tracks(before, 'vins_fusion', memory=memory)
+    garbage_first = point_cloud(
+        ts, [[-0.9, 0.8, 1.0], [0.11, 0.21, 1.0], [0.31, 0.41, 1.0], [0.5, -0.7, 1.0]],
+        [[5, 5, 6, 6], [0] * 4, [9, 1, 2, 8], [9, 1, 2, 8], [0] * 4, [0] * 4])
+    frame = parse_tracks(garbage_first, 'vins_fusion', memory=memory)
+    np.testing.assert_array_equal(frame.feature_ids, [5, 6])
+    np.testing.assert_allclose(frame.normalized, [[0.11, 0.21], [0.31, 0.41]], atol=1e-6)
+    assert frame.drop_reasons == {'duplicate_observations': 2}
+
+
+@pytest.mark.parametrize(('layout', 'bad_id', 'reason'), [
+    ('vins_fusion', 2.0 ** 24 + 2, 'feature_ids_inexact'),
+    ('vins_fusion', 1e19, 'feature_ids_inexact'),
+    ('vins_mono', 2.0 ** 24, 'feature_ids_inexact'),
+])
+def test_ids_that_cannot_be_exact_in_float32_are_dropped(ts: Any, layout: str, bad_id: float,
+                                                         reason: str) -> None:
+    """Ids >= 2^24 in float32 channels (neighbours merge; 1e19 overflows int64) are counted."""
+    ids = [3.0, bad_id, 4.0]
+    if layout == 'vins_mono':
+        channels = [ids, [1, 2, 3], [1, 2, 3], [0] * 3, [0] * 3]
+    else:
+        channels = [ids, [0] * 3, [1, 2, 3], [1, 2, 3], [0] * 3, [0] * 3]
+    frame = parse_tracks(point_cloud(ts, [[0.0, 0.0, 1.0]] * 3, channels), layout)
+    np.testing.assert_array_equal(frame.feature_ids, [3, 4])
+    assert frame.feature_ids.min() >= 0
+    assert frame.drop_reasons == {reason: 1} and frame.dropped == 1
 
 
 @pytest.mark.parametrize('n_pts', [3, 5, 6, 8])

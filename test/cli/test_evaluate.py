@@ -114,10 +114,12 @@ def test_disjoint_stamps_raise_evaluation_error(tum_pair: tuple[Path, Path]) -> 
 
 def test_unwritable_report_raises_pmba_error(tum_pair: tuple[Path, Path],
                                              tmp_path: Path) -> None:
-    """A report in a missing directory is a PmbaError, not a traceback."""
+    """A report below a file (its folder cannot exist) is a PmbaError before evaluating."""
     est, gt = tum_pair
-    with pytest.raises(PmbaError, match='cannot write report'):
-        cli.run(parse([str(est), str(gt), '--report', str(tmp_path / 'no' / 'r.json')]))
+    blocker = tmp_path / 'no'
+    blocker.write_text('')
+    with pytest.raises(PmbaError, match='cannot create its folder'):
+        cli.run(parse([str(est), str(gt), '--report', str(blocker / 'r.json')]))
 
 
 @needs_data

@@ -203,3 +203,30 @@ def test_folder_without_metadata(tmp_path: Path) -> None:
     loose.mkdir()
     _write_poses(loose / 'x.mcap', 3)
     assert sum(1 for _ in iter_messages([loose])) == 3
+
+
+def test_reading_resumes_after_a_corrupt_chunk(tmp_path: Path) -> None:
+    """With `damage`, a corrupt first chunk is skipped and the next chunk is still read."""
+    from pmba_ros.backend.outputs import make_point_cloud2_xyz
+    from pmba_ros.io.bags import ReadStats
+
+    backend = RosbagsBackend(jazzy_typestore())
+    good = tmp_path / 'chunks.mcap'
+    rng = np.random.default_rng(0)
+    with open_writer(good) as writer:  # 40 x 36 kB of random points: two 1 MB chunks
+        for i in range(40):
+            cloud = make_point_cloud2_xyz(i * 10**8, 'map', rng.normal(size=(3000, 3)), backend)
+            writer.write('/cloud', cloud, i * 10**8)
+    data = bytearray(good.read_bytes())
+    lo, _ = _first_chunk_payload(bytes(data))
+    data[lo:lo + 16] = b'\xff' * 16  # the zstd frame header of chunk 1
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(bytes(data))
+    with pytest.raises(BagError, match='corrupt or truncated'):
+        list(iter_messages([bad]))
+    damage = ReadStats()
+    stamps = [m.log_time_ns for m in iter_messages([bad], damage=damage)]
+    assert 0 < len(stamps) < 40
+    assert stamps == sorted(stamps) and stamps[-1] == 39 * 10**8
+    assert damage.damaged_parts == 1
+    assert 'bad.mcap: bag is corrupt or truncated' in str(damage.first_damage)

@@ -74,3 +74,12 @@ def test_missing_folder_raises_format_error(tmp_path: Path) -> None:
     """A folder without the files gives a FormatError naming the file."""
     with pytest.raises(FormatError, match=r'VO_calibration00s\.txt'):
         read_kitti_tracks(tmp_path)
+
+
+@pytest.mark.parametrize(('first_frame', 'stride'), [(-5, 1), (0, 0), (3, -2)])
+def test_negative_first_frame_or_stride_is_a_format_error(kitti_dir: Path, first_frame: int,
+                                                          stride: int) -> None:
+    """A negative first frame (which would wrap the times array) or stride < 1 is refused."""
+    tracks = read_kitti_tracks(kitti_dir)
+    with pytest.raises(FormatError, match='first_frame must be >= 0 and stride >= 1'):
+        kitti_sequence(tracks, None, None, first_frame=first_frame, stride=stride)

@@ -1,0 +1,117 @@
+"""Plausibility checks of the front-end's inputs and of the solves, across messages.
+
+Two monitors with a little memory, used by :class:`~pmba_ros.backend.logic.BackendLogic`:
+
+* :class:`PoseJumpCheck` rejects a keyframe pose that jumps far beyond the recent motion (a
+  front-end glitch of 1e6 m for a few keyframes must not be followed). A jump that persists
+  for :attr:`PoseJumpCheck.max_rejections` keyframes is taken as the front-end's new truth
+  (a relocalization) and accepted.
+* :class:`CostMonitor` flags a solve whose cost per observation rises far above the lowest
+  of its recent history (garbage tracks: random, thinned or merged ids).
+
+Both only judge; the caller counts and reports (diagnostics level WARN, replay warnings).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from pmba_ros._typing import FloatArray
+
+
+@dataclass
+class PoseJumpCheck:
+    """Reject keyframe positions that jump far beyond the recent speed.
+
+    Attributes:
+        factor: A step is a jump when its speed exceeds ``factor`` times the reference speed.
+        min_speed: Floor of the reference speed (odom units per second), so a front-end that
+            starts from rest is not judged against a speed near zero.
+        min_steps: Accepted steps needed before judging.
+        max_rejections: Consecutive rejections after which the new position is accepted.
+        history: Recent step speeds kept for the reference (their median).
+    """
+
+    factor: float = 20.0
+    min_speed: float = 0.5
+    min_steps: int = 3
+    max_rejections: int = 5
+    history: int = 10
+    _last: tuple[int, FloatArray] | None = field(default=None, init=False, repr=False)
+    _speeds: deque[float] = field(default_factory=deque, init=False, repr=False)
+    _rejected: int = field(default=0, init=False, repr=False)
+
+    def check(self, stamp_ns: int, position: FloatArray) -> str | None:
+        """Return why the keyframe position is a jump, or None if it is accepted.
+
+        Args:
+            stamp_ns: Keyframe stamp, ns (increasing; others are accepted unjudged).
+            position: Front-end position, shape (3,).
+        """
+        position = np.asarray(position, dtype=np.float64)
+        if self._last is None:
+            self._accept(stamp_ns, position, None)
+            return None
+        last_ns, last_pos = self._last
+        dt = (stamp_ns - last_ns) * 1e-9
+        if dt <= 0:
+            return None
+        step = float(np.linalg.norm(position - last_pos))
+        speed = step / dt
+        if len(self._speeds) >= self.min_steps:
+            reference = max(float(np.median(self._speeds)), self.min_speed)
+            if speed > self.factor * reference and self._rejected < self.max_rejections:
+                self._rejected += 1
+                return (f'keyframe pose at {stamp_ns} ns jumps {step:.3g} in {dt:.3g} s '
+                        f'({speed:.3g}/s, {speed / reference:.0f}x the recent '
+                        f'{reference:.3g}/s); rejected as an outlier')
+        if self._rejected:
+            # A jump that persists is the front-end's new reference, not an outlier.
+            self._speeds.clear()
+            self._accept(stamp_ns, position, None)
+            return None
+        self._accept(stamp_ns, position, speed)
+        return None
+
+    def _accept(self, stamp_ns: int, position: FloatArray, speed: float | None) -> None:
+        self._last = (stamp_ns, position)
+        self._rejected = 0
+        if speed is not None:
+            self._speeds.append(speed)
+            while len(self._speeds) > self.history:
+                self._speeds.popleft()
+
+
+@dataclass
+class CostMonitor:
+    """Flag solves whose cost per observation explodes relative to their history.
+
+    Attributes:
+        factor: A solve is flagged when its cost per observation exceeds ``factor`` times
+            the lowest of the last ``history`` solves.
+        history: Solves remembered.
+    """
+
+    factor: float = 10.0
+    history: int = 50
+    _costs: deque[float] = field(default_factory=deque, init=False, repr=False)
+
+    def check(self, cost: float, n_obs: int) -> str | None:
+        """Record a solve; return a description if its cost exploded, else None."""
+        if n_obs <= 0:
+            return None
+        per_obs = cost / n_obs
+        if not math.isfinite(per_obs):
+            return f'solve cost {cost:g} over {n_obs} observations is not finite'
+        best = min(self._costs) if self._costs else None
+        self._costs.append(per_obs)
+        while len(self._costs) > self.history:
+            self._costs.popleft()
+        if best is not None and best > 0 and per_obs > self.factor * best:
+            return (f'cost per observation {per_obs:.4g} is {per_obs / best:.0f}x the lowest '
+                    f'of the recent solves ({best:.4g}): inconsistent tracks?')
+        return None

@@ -1,0 +1,178 @@
+"""Input sanity across messages: pose jumps, exploding costs, inexact ids (issue #13)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, BackendLogic
+from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.types import TrackFrame
+from pmba_ros.io.bags import iter_messages
+from pmba_ros.replay import ReplayReport, _collect_stats, replay
+from pmba_ros.sim.bag import write_sequence_bag
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+
+from .test_logic import BACKEND, camera_info_msg, config, diag_values, keyframe_msg, tracks_msg
+
+STEP_NS = 100_000_000
+
+
+def _walk(n: int) -> list[tuple[int, np.ndarray]]:
+    """Keyframes 0.1 s apart moving 1 m each."""
+    return [(i * STEP_NS, np.array([float(i), 0.0, 0.0])) for i in range(n)]
+
+
+def test_pose_spike_of_three_keyframes_is_rejected_then_followed_again() -> None:
+    """A 1e6 m spike for three keyframes is rejected; the return to the path is accepted."""
+    check = PoseJumpCheck()
+    poses = _walk(20)
+    for k in (10, 11, 12):
+        poses[k] = (poses[k][0], poses[k][1] + np.array([1e6, 0.0, 0.0]))
+    verdicts = [check.check(stamp, pos) for stamp, pos in poses]
+    rejected = [k for k, v in enumerate(verdicts) if v is not None]
+    assert rejected == [10, 11, 12]
+    assert 'jumps 1e+06 in 0.1 s' in str(verdicts[10])
+    assert 'rejected as an outlier' in str(verdicts[10])
+
+
+def test_persistent_pose_jump_is_accepted_after_max_rejections() -> None:
+    """A jump that stays (a relocalization) becomes the new reference."""
+    check = PoseJumpCheck(max_rejections=5)
+    poses = _walk(20)
+    poses = [*poses[:10], *[(s, p + np.array([500.0, 0, 0])) for s, p in poses[10:]]]
+    verdicts = [check.check(stamp, pos) for stamp, pos in poses]
+    assert [k for k, v in enumerate(verdicts) if v is not None] == [10, 11, 12, 13, 14]
+
+
+def test_start_from_rest_is_not_a_jump() -> None:
+    """Standing still and then driving at 10 m/s stays below the floor times the factor."""
+    check = PoseJumpCheck()
+    still = [(i * STEP_NS, np.zeros(3)) for i in range(10)]
+    moving = [((10 + i) * STEP_NS, np.array([1.0 * (i + 1), 0.0, 0.0])) for i in range(10)]
+    assert all(check.check(s, p) is None for s, p in still + moving)
+
+
+def test_cost_monitor_flags_explosion_and_non_finite() -> None:
+    """Cost per observation 20x the recent lowest is flagged; steady costs are not."""
+    monitor = CostMonitor()
+    rng = np.random.default_rng(0)
+    assert all(monitor.check(1000.0 * (1 + 0.1 * rng.random()), 1000) is None
+               for _ in range(10))
+    text = monitor.check(20_000.0, 1000)
+    assert text is not None and 'cost per observation 20' in text
+    assert 'inconsistent tracks' in text
+    assert 'not finite' in str(monitor.check(float('inf'), 1000))
+
+
+@pytest.fixture(scope='module')
+def street() -> SimSequence:
+    """Simulate a 40-keyframe street."""
+    return simulate_sequence('street', n_keyframes=40, seed=0)
+
+
+def _run(seq: SimSequence, frames: list[TrackFrame] | None = None,
+         ) -> tuple[BackendLogic, list[tuple[str, Any]]]:
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(seq))
+    outputs: list[tuple[str, Any]] = []
+    for i in range(len(seq)):
+        frame = frames[i] if frames is not None else None
+        logic.on_tracks(tracks_msg(seq, i, frame=frame))
+        outputs += logic.step()
+        logic.on_keyframe(keyframe_msg(seq, i))
+        outputs += logic.step()
+    return logic, outputs
+
+
+def _warned(outputs: list[tuple[str, Any]], counter: str) -> list[dict[str, str]]:
+    """Return the diagnostics values of WARN messages that show ``counter``."""
+    return [diag_values(m) for t, m in outputs if t == DIAGNOSTICS_TOPIC
+            and m.status[0].level == 1 and f'count.{counter}' in diag_values(m)]
+
+
+def test_front_end_pose_jump_is_not_followed(street: SimSequence) -> None:
+    """Three keyframe poses 1e6 m off are rejected (WARN); the optimized path stays put."""
+    centers = street.centers_odom.copy()
+    centers[25:28] += 1e6
+    logic, outputs = _run(dataclasses.replace(street, centers_odom=centers))
+    assert logic.stats.counters['keyframe_pose_jumps'] == 3
+    assert np.abs(logic.optimized_trajectory().positions_xyz).max() < 1e3
+    assert _warned(outputs, 'keyframe_pose_jumps')
+
+
+def test_random_tracks_after_keyframe_20_are_flagged(street: SimSequence) -> None:
+    """Tracks replaced by random pixels: the exploding cost is a counted WARN."""
+    rng = np.random.default_rng(1)
+    frames = list(street.frames)
+    for i in range(20, len(frames)):
+        f = frames[i]
+        xy = rng.uniform(-0.6, 0.6, size=(len(f), 2))
+        frames[i] = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids,
+                               street.camera.fx * xy + [street.camera.cx, street.camera.cy],
+                               xy)
+    logic, outputs = _run(street, frames)
+    assert logic.stats.counters['cost_explosions'] >= 5
+    warned = _warned(outputs, 'cost_explosions')
+    assert warned and 'cost per observation' in warned[-1]['last_error']
+
+
+def test_ids_beyond_float32_are_counted_not_merged(street: SimSequence) -> None:
+    """Ids >= 2^24 in float32 channels are dropped and counted with a WARN, not merged."""
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    outputs: list[tuple[str, Any]] = []
+    for i in range(len(street)):
+        msg = tracks_msg(street, i)
+        ids = np.array(msg.channels[0].values, dtype=np.float32)
+        ids[:4] += np.float32(2 ** 24)  # 2^24 + id: odd ids round onto their neighbours
+        msg.channels[0].values = ids
+        logic.on_tracks(msg)
+        outputs += logic.step()
+        logic.on_keyframe(keyframe_msg(street, i))
+        outputs += logic.step()
+    assert logic.stats.counters['feature_ids_inexact'] == 4 * len(street)
+    assert _warned(outputs, 'feature_ids_inexact')
+    assert logic.state == 'tracking'
+
+
+def test_suspect_counters_become_report_warnings() -> None:
+    """The replay report lists a warning per suspect-input counter."""
+    report = ReplayReport(bags=[], out_dir=Path())
+    logic = SimpleNamespace(stats=SimpleNamespace(
+        counters={'cost_explosions': 7, 'feature_ids_inexact': 12, 'resets': 1}))
+    _collect_stats(logic, report)
+    inexact = ("12 observations dropped: feature ids that cannot be exact in the message's "
+               'number type (>= 2^24 in float32: tracks would merge)')
+    cost = ('7 solves whose cost per observation exploded relative to their history '
+            '(inconsistent tracks?)')
+    assert report.warnings == [inexact, cost]
+
+
+def test_replay_of_random_tracks_warns_in_report_and_diagnostics(street: SimSequence,
+                                                                 tmp_path: Path) -> None:
+    """Garbage tracks in a bag: report.json has the warning, result.mcap WARN diagnostics."""
+    rng = np.random.default_rng(2)
+    frames = list(street.frames)
+    for i in range(20, len(frames)):
+        f = frames[i]
+        xy = rng.uniform(-0.6, 0.6, size=(len(f), 2))
+        frames[i] = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids,
+                               street.camera.fx * xy + [street.camera.cx, street.camera.cy],
+                               xy)
+    bag = tmp_path / 'random.mcap'
+    write_sequence_bag(dataclasses.replace(street, frames=frames), bag)
+    out = tmp_path / 'o'
+    replay([bag], out)
+    data = json.loads((out / 'report.json').read_text())
+    assert data['counters']['cost_explosions'] >= 5
+    assert any('solves whose cost per observation exploded' in w for w in data['warnings'])
+    diagnostics = iter_messages([out / 'result.mcap'], topics=[DIAGNOSTICS_TOPIC])
+    levels = [m.msg.status[0].level for m in diagnostics]
+    assert 1 in levels[-10:]

@@ -1,0 +1,279 @@
+"""Replay integrity on damaged recordings, full disks, interrupts and shared folders (#13)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import errno
+import json
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+import pytest
+
+from pmba_ros import replay as replay_mod
+from pmba_ros.cli.main import main
+from pmba_ros.errors import BagError
+from pmba_ros.eval.trajectory import read_tum
+from pmba_ros.io import ply
+from pmba_ros.io.atomic import deferred_interrupts
+from pmba_ros.io.bags import BagWriter, ReadStats, iter_messages, list_topics, open_writer
+from pmba_ros.replay import output_lock, replay
+from pmba_ros.sim.bag import write_sequence_bag
+from pmba_ros.sim.sequence import simulate_sequence
+
+from .test_replay import StubLogic, _backend
+
+N_KF = 20
+N_MSGS = 3 * N_KF  # tracks, keyframe pose and camera info per keyframe
+
+
+@pytest.fixture(autouse=True)
+def stub(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Use the replay tests' stand-in back-end (integrity does not depend on the solver)."""
+    monkeypatch.setattr(replay_mod, '_make_logic',
+                        lambda config: StubLogic(config, _backend()))
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Write a 20-keyframe simulated street as a bare MCAP file."""
+    path = tmp_path_factory.mktemp('integrity') / 'street.mcap'
+    write_sequence_bag(simulate_sequence('street', n_keyframes=N_KF, seed=0), path)
+    return path
+
+
+def _flipped(data: bytes, seed: int) -> bytes:
+    """Return ``data`` with four bytes in its middle half inverted."""
+    rng = random.Random(seed)
+    out = bytearray(data)
+    for _ in range(4):
+        i = rng.randrange(len(out) // 4, 3 * len(out) // 4)
+        out[i] ^= 0xFF
+    return bytes(out)
+
+
+def _read_count(path: Path) -> int | None:
+    """Return how many messages a bag yields, or None if reading raises."""
+    try:
+        return sum(1 for _ in iter_messages([path]))
+    except BagError:
+        return None
+
+
+@pytest.fixture(scope='module')
+def silently_short_bag(bag: Path) -> Path:
+    """Find flipped bytes that make the reader stop early without an error."""
+    data = bag.read_bytes()
+    damaged = bag.with_name('short.mcap')
+    announced = sum(info.count for info in list_topics([bag]).values())
+    for seed in range(300):
+        damaged.write_bytes(_flipped(data, seed))
+        try:
+            ok = list_topics([damaged]) and (_read_count(damaged) or announced) < announced
+        except BagError:
+            ok = False
+        if ok:
+            return damaged
+    pytest.fail('no flip pattern gave a silently short read')
+
+
+def test_silently_short_bag_is_reported_incomplete(
+        silently_short_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Flipped bytes that end the reading early: exit 3, warning, `complete: false`."""
+    out = tmp_path / 'o'
+    rc = main(['replay', str(silently_short_bag), '--out', str(out), '--quiet'])
+    assert rc == 3
+    data = json.loads((out / 'report.json').read_text())
+    read = data['messages_read']
+    assert data['complete'] is False and data['input_complete'] is False
+    assert data['messages_announced'] == N_MSGS and read < N_MSGS
+    assert any(f'only {read} were read' in w for w in data['warnings'])
+    assert f'read {read} of {N_MSGS} announced messages' in capsys.readouterr().err
+
+
+def _bag_with_garbage_message(bag: Path, out: Path, garbage_index: int) -> None:
+    """Copy ``bag`` with the raw bytes of the ``garbage_index``-th tracks message damaged."""
+    n_tracks = 0
+    with open_writer(out) as writer:
+        for message in iter_messages([bag]):
+            if message.topic == '/features':
+                n_tracks += 1
+                if n_tracks == garbage_index + 1:
+                    # Raw bytes that are no CDR PointCloud, written past the serializer.
+                    conn = writer._connections[message.topic]
+                    writer._writer.write(conn, message.log_time_ns, b'\x00\x01\x00\x00\xff')
+                    continue
+            writer.write(message.topic, message.msg, message.log_time_ns)
+
+
+def test_undecodable_message_is_skipped_and_counted(bag: Path, tmp_path: Path) -> None:
+    """One undecodable message no longer ends the replay: the rest is processed."""
+    damaged = tmp_path / 'garbage.mcap'
+    _bag_with_garbage_message(bag, damaged, garbage_index=5)
+    out = tmp_path / 'o'
+    report = replay([damaged], out)
+    assert report.messages_undecodable == 1
+    assert report.messages_read == N_MSGS - 1
+    assert report.keyframes_in == N_KF
+    assert not report.complete and not report.input_complete
+    assert len(read_tum(out / 'keyframes_optimized.tum')) == N_KF
+    data = json.loads((out / 'report.json').read_text())
+    assert data['warnings'][0].startswith('1 messages skipped (they do not deserialize); '
+                                          'first:')
+    assert 'sensor_msgs/msg/PointCloud message on /features' in data['warnings'][0]
+
+
+def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bag that breaks after 45 messages: all 45 are processed (the buffer holds 256)."""
+    real = replay_mod.iter_messages
+
+    def breaking(paths: Any, topics: Any = None, *,
+                 damage: ReadStats | None = None) -> Iterator[Any]:
+        for i, message in enumerate(real(paths, topics)):
+            if i == 45:
+                assert damage is not None
+                damage.damaged_parts = 1
+                damage.first_damage = 'street.mcap: bag is corrupt or truncated: test'
+                return
+            yield message
+
+    monkeypatch.setattr(replay_mod, 'iter_messages', breaking)
+    report = replay([bag], tmp_path / 'o')
+    assert report.messages_in == 45 == report.messages_read
+    assert report.keyframes_in == 15
+    assert report.read_error is not None and not report.complete
+    assert any(w.startswith('1 corrupt part(s) of the bag skipped, reading resumed after '
+                            'each; first: street.mcap') for w in report.warnings)
+
+
+def test_bag_broken_before_any_message_is_an_error(bag: Path, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Nothing readable at all stays an error (exit 1), with `complete: false`."""
+    def broken(paths: Any, topics: Any = None, *,
+               damage: ReadStats | None = None) -> Iterator[Any]:
+        assert damage is not None
+        damage.damaged_parts = 1
+        damage.first_damage = 'street.mcap: bag is corrupt or truncated: zstd'
+        yield from ()
+
+    monkeypatch.setattr(replay_mod, 'iter_messages', broken)
+    out = tmp_path / 'o'
+    with pytest.raises(BagError, match='corrupt or truncated: zstd'):
+        replay([bag], out)
+    assert json.loads((out / 'report.json').read_text())['complete'] is False
+
+
+def _disk_full(*args: Any, **kwargs: Any) -> None:
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'landmarks.ply')
+
+
+def test_failed_replay_replaces_an_earlier_runs_outputs(bag: Path, tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str],
+                                                        ) -> None:
+    """Disk full on the PLY: the real cause is reported and no old output survives."""
+    out = tmp_path / 'o'
+    assert replay([bag], out).complete
+    assert (out / 'landmarks.ply').exists()
+    monkeypatch.setattr(ply, 'write_ply', _disk_full)
+    rc = main(['replay', str(bag), '--out', str(out), '--quiet'])
+    assert rc == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['error: landmarks.ply: No space left on device']
+    data = json.loads((out / 'report.json').read_text())
+    assert data['complete'] is False
+    assert data['error'] == 'landmarks.ply: No space left on device'
+    assert not (out / 'landmarks.ply').exists()
+    assert len(read_tum(out / 'keyframes_frontend.tum')) == N_KF
+    assert not [p for p in out.iterdir() if '.tmp' in p.name]
+
+
+def test_disk_full_in_the_result_bag_is_the_reported_cause(bag: Path, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch,
+                                                           ) -> None:
+    """ENOSPC while writing result.mcap is what the caller sees, not a later error."""
+    def full(self: BagWriter, *args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(BagWriter, 'write', full)
+    out = tmp_path / 'o'
+    with pytest.raises(OSError, match='No space left on device') as exc:
+        replay([bag], out)
+    assert exc.value.errno == errno.ENOSPC
+    data = json.loads((out / 'report.json').read_text())
+    assert data['complete'] is False and data['error'] == 'No space left on device'
+
+
+def test_second_replay_into_a_folder_in_use_is_refused(bag: Path, tmp_path: Path) -> None:
+    """The lock file makes a concurrent replay into the same folder a clear error."""
+    out = tmp_path / 'o'
+    out.mkdir()
+    with output_lock(out), pytest.raises(BagError, match=r'another replay \(process \d+\)'):
+        replay([bag], out)
+    assert not (out / 'report.json').exists()
+    assert replay([bag], out).complete  # released afterwards
+
+
+def test_interrupts_wait_for_the_block() -> None:
+    """SIGINT inside deferred_interrupts is delivered when the block ends."""
+    done = []
+    with pytest.raises(KeyboardInterrupt), deferred_interrupts():
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+        done.append(True)
+    assert done == [True]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_interrupt_while_writing_outputs_lets_them_finish(bag: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          ) -> None:
+    """Ctrl-C during the output writing: every output and the report are still written."""
+    real = ply.write_ply
+
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        real(*args, **kwargs)
+
+    monkeypatch.setattr(ply, 'write_ply', interrupted)
+    out = tmp_path / 'o'
+    with pytest.raises(KeyboardInterrupt):
+        replay([bag], out)
+    assert (out / 'landmarks.ply').exists()
+    data = json.loads((out / 'report.json').read_text())
+    assert data['complete'] is True  # the replay itself had finished
+
+
+@pytest.mark.parametrize('delay_s', [1.5, 3.0])
+def test_sigint_storm_leaves_a_consistent_folder(bag: Path, tmp_path: Path,
+                                                 delay_s: float) -> None:
+    """SIGINT every 20 ms into a replay: no traceback, nothing half written, a valid report."""
+    out = tmp_path / 'o'
+    proc = subprocess.Popen([sys.executable, '-m', 'pmba_ros', 'replay', str(bag), '--out',
+                             str(out), '--quiet'], stderr=subprocess.PIPE, text=True)
+    time.sleep(delay_s)
+    while proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.02)
+    _, err = proc.communicate(timeout=60)
+    # -2: ended by the signal itself, which a shell also reports as 130.
+    assert proc.returncode in (0, 130, -signal.SIGINT), err
+    assert 'Traceback' not in err and 'KeyboardInterrupt' not in err
+    names = {p.name for p in out.iterdir()} if out.exists() else set()
+    assert not [n for n in names if n.endswith(('.partial', '.tmp')) or '.tmp.' in n]
+    if 'report.json' in names:
+        data = json.loads((out / 'report.json').read_text())
+        # Interrupted while writing, the finished replay's report is still complete.
+        assert data['complete'] or (proc.returncode != 0 and data['error'] == 'interrupted')
+        for key in ('frontend_tum', 'optimized_tum', 'landmarks_ply', 'result_bag'):
+            if key in data['files'] and key != 'result_bag':
+                assert Path(data['files'][key]).exists()
+    if 'result.mcap' in names:
+        list_topics([out / 'result.mcap'])  # finalized: readable
