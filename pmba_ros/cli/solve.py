@@ -126,6 +126,12 @@ def run(args: argparse.Namespace) -> int:
             print(result.summary())
     if args.compare:
         print(_table(results))
+    for r in results:
+        if not r.converged:
+            print(f'warning: {r.options.param.value}-{r.options.solver.value} stopped at '
+                  f'{r.termination.value} after {r.iterations} iterations, not converged '
+                  f'(final rms {r.final_rms_px:.4f} px): the result is not a minimum',
+                  file=sys.stderr)
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))
     if args.report:
         args.report.write_text(json.dumps(out_report, indent=2, sort_keys=True) + '\n')

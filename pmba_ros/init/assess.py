@@ -120,7 +120,7 @@ def assess(problem: BAProblem, points_w: FloatArray, options: InitOptions | None
         n_cams=problem.n_cams, cams_used=res.problem.n_cams, n_feats=problem.n_feats,
         features_used_pct=100.0 * np.sum(kept & ~outlier) / max(int(np.sum(~outlier)), 1),
         outliers_kept=int(np.sum(kept & outlier)),
-        features_recovered=int(rep['features'].get('features_recovered', 0)),
+        features_recovered=int(rep['tracks']['features_recovered']),
         rot_median_deg=float(rot['median']), rot_max_deg=float(rot['max']),
         nls_iterations=int(rep['nls']['iterations']),
         nls_converged=bool(rep['nls']['converged']),

@@ -46,6 +46,15 @@ def test_solve_shows_progress_unless_quiet(capsys: pytest.CaptureFixture[str]) -
     assert err.count(' it ') >= 2
 
 
+def test_solve_warns_when_an_iteration_cap_stops_it(capsys: pytest.CaptureFixture[str]) -> None:
+    """A run stopped by --max-iters says so on stderr; a converged run prints no warning."""
+    assert main(['solve', 'sim:table3', '--max-iters', '1', '--quiet']) == 0
+    err = capsys.readouterr().err
+    assert 'warning: pmba-dogleg stopped at max_iterations after 1 iterations' in err
+    assert main(['solve', 'sim:table3', '--quiet']) == 0
+    assert 'warning' not in capsys.readouterr().err
+
+
 def test_solve_global_init_reports_stages(tmp_path: Path) -> None:
     """`--init global` ignores the file's start and reports the stages and one BA."""
     report = tmp_path / 'r.json'
