@@ -5,7 +5,8 @@ The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
 1. ``pairs``: epipolar-geometry pairs, 5-point RANSAC + cheirality (OpenCV).
 2. ``view_graph``: largest connected component, maximum spanning tree, tree-inconsistent
    pairs rejected.
-3. ``rotations``: chordal rotation averaging, pruning of disagreeing pairs, re-averaging,
+3. ``rotations``: chordal rotation averaging, iteratively reweighted (Cauchy kernel, pair
+   weights from inlier counts), pruning of disagreeing pairs, re-averaging,
    translation directions re-estimated with the rotations known.
 4. ``features``: anchors restricted to EG pairs, theta-bar and n-bar from rotations only
    (Remark 5), alpha-bar and Q_j from the EG directions (eq. 11).
@@ -95,6 +96,9 @@ class InitOptions:
             chained along the maximum spanning tree by more than this.
         max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
             averaged rotations by more than this, then average again.
+        rotation_cauchy_deg: Cauchy scale (deg) of the iteratively reweighted rotation
+            averaging: pairs disagreeing with the consensus by several times this lose
+            their weight.
         cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
         nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
         nls_max_iterations: LM iteration limit of the NLS (a safeguard: the NLS stops on its
@@ -118,6 +122,7 @@ class InitOptions:
     min_pair_parallax_px: float = 2.0
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0
+    rotation_cauchy_deg: float = 1.0
     cls_max_penalty_iterations: int = 10
     nls_cauchy_px: float = 3.0
     nls_max_iterations: int = 500
@@ -142,6 +147,7 @@ class InitOptions:
             raise ValueError(msg)
         for name in ('ransac_threshold_px', 'max_tree_disagreement_deg',
                      'max_pair_disagreement_deg', 'nls_cauchy_px', 'track_min_px',
+                     'rotation_cauchy_deg',
                      'track_relative'):
             if not getattr(self, name) > 0.0:
                 msg = f'`{name}` must be positive'
@@ -311,16 +317,35 @@ def _view_graph(n_cams: int, pairs: two_view.EGPairs, options: InitOptions,
     return pairs_comp.subset(keep), comp, entries
 
 
-def _average(n_cams: int, pairs: two_view.EGPairs, cameras: BoolArray) -> tuple[FloatArray, int]:
-    """Chordal averaging on the cameras of ``cameras`` (renumbered); identity elsewhere."""
+def _average(n_cams: int, pairs: two_view.EGPairs, cameras: BoolArray, options: InitOptions,
+             ) -> tuple[FloatArray, int]:
+    """Robust chordal averaging on the cameras of ``cameras`` (renumbered); identity elsewhere.
+
+    Pairs are weighted by their inlier counts; IRLS with a Cauchy kernel of
+    ``options.rotation_cauchy_deg`` down-weights the pairs that disagree with the consensus.
+    """
     new = _compact(cameras)
     w = pairs.n_inliers.astype(float)
     root = view_graph.choose_root(n_cams, pairs.cam_a, pairs.cam_b, w, cameras)
-    R_sub = rotation_averaging.chordal_rotation_averaging(
-        int(cameras.sum()), int(new[root]), new[pairs.cam_a], new[pairs.cam_b], pairs.R_rel, w)
+    R_sub, _, rounds = rotation_averaging.robust_rotation_averaging(
+        int(cameras.sum()), int(new[root]), new[pairs.cam_a], new[pairs.cam_b], pairs.R_rel, w,
+        cauchy_deg=options.rotation_cauchy_deg)
     R = np.broadcast_to(np.eye(3), (n_cams, 3, 3)).copy()
     R[cameras] = R_sub
-    return R, root
+    return R, rounds
+
+
+def _per_camera_residual_deg(n_cams: int, cameras: BoolArray, pairs: two_view.EGPairs,
+                             dis: FloatArray) -> list[float | None]:
+    """Return the median disagreement (deg) of each camera's pairs (None if it has none)."""
+    cam = np.concatenate([pairs.cam_a, pairs.cam_b])
+    val = np.concatenate([dis, dis])
+    order = np.lexsort((val, cam))
+    cam, val = cam[order], val[order]
+    starts = np.searchsorted(cam, np.arange(n_cams))
+    ends = np.searchsorted(cam, np.arange(n_cams), side='right')
+    return [float(np.median(val[a:b])) if cameras[k] and b > a else None
+            for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
 
 
 def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
@@ -328,7 +353,7 @@ def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
                ) -> tuple[FloatArray, two_view.EGPairs, FloatArray, BoolArray, int,
                           dict[str, Any]]:
     M = problem.n_cams
-    R, _ = _average(M, pairs, comp)
+    R, rounds = _average(M, pairs, comp, options)
     dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b, pairs.R_rel)
     first = _angle_stats(dis)
     prune = dis > options.max_pair_disagreement_deg
@@ -340,13 +365,15 @@ def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
             msg = ('global init: pruning pairs that disagree with the averaged rotations '
                    f'leaves {int(comp.sum())} connected cameras')
             raise InitError(msg)
-        R, _ = _average(M, pairs, comp)
+        R, rounds = _average(M, pairs, comp, options)
         dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b,
                                                         pairs.R_rel)
+    per_camera = _per_camera_residual_deg(M, comp, pairs, dis)
     pairs, d_ab = two_view.refine_translations(pairs, problem.obs.bearings_c, R)
     root = view_graph.choose_root(M, pairs.cam_a, pairs.cam_b, pairs.n_inliers.astype(float),
                                   comp)
     entries = {'rotation_residual_deg': _angle_stats(dis),
+               'rotation_residual_per_camera_deg': per_camera, 'irls_rounds': rounds,
                'rotation_residual_before_pruning_deg': first,
                'pairs_pruned': n_pruned, 'pairs_kept': pairs.n_pairs,
                'cameras_dropped_by_pruning': np.flatnonzero(comp_before & ~comp).tolist()}

@@ -33,6 +33,26 @@ class TrackCheck:
     inconsistent: BoolArray
 
 
+def midpoints(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray) -> FloatArray:
+    """Return each feature's point closest to all its rays (least squares), shape (N, 3).
+
+    Solves sum_k (I - r_k r_k^T)(X - C_k) = 0 per feature; nearly parallel rays give a far
+    (possibly behind-the-camera) point, not a failure.
+    """
+    obs = problem.obs
+    j = obs.feat_idx
+    N = problem.n_feats
+    rays = np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    proj = np.eye(3)[None] - rays[:, :, None] * rays[:, None, :]
+    A = np.zeros((N, 3, 3))
+    b = np.zeros((N, 3))
+    np.add.at(A, j, proj)
+    np.add.at(b, j, np.einsum('kij,kj->ki', proj, centers_w[obs.cam_idx]))
+    scale = np.trace(A, axis1=1, axis2=2)
+    A += (1e-12 * np.maximum(scale, 1e-300))[:, None, None] * np.eye(3)[None]
+    return np.asarray(np.linalg.solve(A, b[..., None])[..., 0], dtype=np.float64)
+
+
 def track_residuals_px(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
                        ) -> FloatArray:
     """Return each feature's RMS angular residual (px) to its best point, shape (N,).
@@ -47,15 +67,7 @@ def track_residuals_px(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArr
     N = problem.n_feats
     rays = np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
     C = centers_w[obs.cam_idx]
-    # Midpoint: sum_k (I - r r^T) (X - C_k) = 0.
-    proj = np.eye(3)[None] - rays[:, :, None] * rays[:, None, :]
-    A = np.zeros((N, 3, 3))
-    b = np.zeros((N, 3))
-    np.add.at(A, j, proj)
-    np.add.at(b, j, np.einsum('kij,kj->ki', proj, C))
-    scale = np.trace(A, axis1=1, axis2=2)
-    A += (1e-12 * np.maximum(scale, 1e-300))[:, None, None] * np.eye(3)[None]
-    X = np.linalg.solve(A, b[..., None])[..., 0]
+    X = midpoints(problem, R_wc, centers_w)
     d = X[j] - C
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
     ang_point = np.arccos(np.clip(np.sum(d * rays, axis=1), -1.0, 1.0))

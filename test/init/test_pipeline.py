@@ -103,6 +103,9 @@ def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(STAGES) | {'total'} <= set(report['time_s'])
     assert summary['cameras_left_out'] == []
     assert report['ba']['converged']
+    per_camera = report['rotations']['rotation_residual_per_camera_deg']
+    assert len(per_camera) == 8 and all(0.0 <= r < 0.5 for r in per_camera)
+    assert max(per_camera) <= report['rotations']['rotation_residual_deg']['max']
 
 
 def _drop_camera_tracks(problem: BAProblem, cam: int, keep: int) -> BAProblem:
