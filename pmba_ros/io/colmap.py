@@ -550,17 +550,14 @@ def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
     cameras = {}
     for k in range(problem.n_cams):
         w, h = image_size or (round(2 * intr.cx[k]), round(2 * intr.cy[k]))
-        distorted = intr.k1[k] != 0.0 or intr.k2[k] != 0.0
-        if not distorted:
-            cam = ColmapCamera('PINHOLE', w, h, np.array([intr.fx[k], intr.fy[k], intr.cx[k],
-                                                           intr.cy[k]]))
-        elif intr.fx[k] == intr.fy[k]:
-            cam = ColmapCamera('RADIAL', w, h, np.array([intr.fx[k], intr.cx[k], intr.cy[k],
-                                                          intr.k1[k], intr.k2[k]]))
+        fx, fy, cx, cy, k1, k2 = (float(getattr(intr, f)[k])
+                                  for f in ('fx', 'fy', 'cx', 'cy', 'k1', 'k2'))
+        if k1 == 0.0 and k2 == 0.0:
+            cam = ColmapCamera('PINHOLE', w, h, np.array([fx, fy, cx, cy]))
+        elif fx == fy:
+            cam = ColmapCamera('RADIAL', w, h, np.array([fx, cx, cy, k1, k2]))
         else:
-            cam = ColmapCamera('OPENCV', w, h, np.array([
-                intr.fx[k], intr.fy[k], intr.cx[k], intr.cy[k], intr.k1[k], intr.k2[k], 0.0,
-                0.0]))
+            cam = ColmapCamera('OPENCV', w, h, np.array([fx, fy, cx, cy, k1, k2, 0.0, 0.0]))
         cameras[k + 1] = cam
     R_cw = np.swapaxes(problem.R_wc, 1, 2)
     q = _R_to_quat(R_cw)

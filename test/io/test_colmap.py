@@ -139,7 +139,7 @@ def test_truncated_binary_file_is_reported(tmp_path: Path, scene_problem: BAProb
 
 def test_missing_files_are_named(tmp_path: Path) -> None:
     """A directory without a model says which files are missing."""
-    with pytest.raises(FormatError, match='missing .*cameras.txt'):
+    with pytest.raises(FormatError, match=r'missing .*cameras\.txt'):
         colmap.read_colmap(tmp_path)
 
 
