@@ -6,6 +6,7 @@ Usage examples::
     pmba solve sim:street --compare               # PMBA-DL vs XYZ-LM vs IDP-LM, one table
     pmba solve problem-49-7776-pre.txt --param xyz --solver lm --report r.json
     pmba solve fake-pile/ --format parallaxba --init global --out result/
+    pmba solve colmap/sparse/0 --init global --out refined/   # writes a COLMAP model too
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, SolverKind, solve
-from pmba_ros.errors import FormatError
+from pmba_ros.errors import DegenerateGeometryError, FormatError
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
 COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
@@ -33,7 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``solve`` options."""
     parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, or '
                         'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]')
-    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba'], default='auto')
+    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap'],
+                        default='auto', help='auto: a directory with cameras.txt/.bin is a '
+                        'COLMAP model; with --out its refined model is written there too')
     parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba')
     parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg')
     parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none')
@@ -75,8 +78,10 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
         msg = f'{path}: no such file or directory'
         raise FormatError(msg)
     if fmt == 'auto':
-        fmt = 'parallaxba' if path.is_dir() or path.suffix == '.pmba' or \
-            path.name.lower().startswith('cam') else 'bal'
+        fmt = _detect_format(path)
+    if fmt == 'colmap':
+        from pmba_ros.io.colmap import read_colmap, to_problem
+        return to_problem(read_colmap(path))[0]
     if fmt == 'bal':
         from pmba_ros.io.bal import read_bal
         return read_bal(path)
@@ -85,6 +90,52 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
     if problem.points_w is None:
         problem = problem.with_points(triangulate_points(problem))
     return problem
+
+
+def _detect_format(path: Path) -> str:
+    from pmba_ros.io.colmap import is_colmap_model
+    if is_colmap_model(path):
+        return 'colmap'
+    return 'parallaxba' if path.is_dir() or path.suffix == '.pmba' or \
+        path.name.lower().startswith('cam') else 'bal'
+
+
+def _write_colmap(out: Path, source: Path, problem: BAProblem, result: SolveResult,
+                  init: Any | None) -> None:
+    """Write the refined COLMAP model (same text / binary form as ``source``) into ``out``.
+
+    The solution's frame is a free gauge (and arbitrary after a global initialization): it is
+    brought onto the model's frame by the similarity that best maps its camera centres (and
+    points, if the centres are collinear) onto the model's, so the model is refined in place
+    and the images and points that were not solved stay consistent with the refined ones.
+    """
+    from pmba_ros.eval.align import umeyama_alignment
+    from pmba_ros.io import colmap
+    model = colmap.read_colmap(source)
+    _, image_ids = colmap.to_problem(model)
+    if init is None:
+        cams = np.arange(problem.n_cams)
+        rows = np.argsort(problem.feature_ids)[np.searchsorted(
+            np.sort(problem.feature_ids), result.problem.feature_ids)]
+    else:
+        cams = init.camera_index
+        rows = init.feature_index
+    point_ids = problem.feature_ids[rows]
+    points = result.points_w
+    finite = np.all(np.isfinite(points), axis=1)
+    assert problem.points_w is not None  # a COLMAP model always has its points
+    try:
+        sim = umeyama_alignment(result.centers_w, problem.centers_w[cams], with_scale=True)
+    except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
+        sim = umeyama_alignment(np.concatenate([result.centers_w, points[finite]]),
+                                np.concatenate([problem.centers_w[cams],
+                                                problem.points_w[rows][finite]]),
+                                with_scale=True)
+    R_wc = sim.rotation @ result.R_wc
+    centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
+    points = sim.scale * points @ sim.rotation.T + sim.translation
+    refined = colmap.updated(model, image_ids[cams], R_wc, centers, point_ids, points)
+    colmap.write_colmap(out, refined, binary=(source / 'cameras.bin').is_file())
 
 
 def _progress(label: str) -> Any:
@@ -104,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
                                              else ''))
     runs: tuple[tuple[str, str], ...] = COMPARE if args.compare else ((args.param, args.solver),)
     results: list[SolveResult] = []
+    inits: list[Any] = []
     report: dict[str, Any] = {}
     for param, solver in runs:
         options = SolveOptions(param=Parameterization(param), solver=SolverKind(solver),
@@ -117,9 +169,11 @@ def run(args: argparse.Namespace) -> int:
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),
                      'ba_invocations': init.ba_invocations}
+            inits.append(init)
         else:
             result = solve(problem, options, callback=callback)
             entry = {**result.to_report(), 'ba_invocations': 1}
+            inits.append(None)
         results.append(result)
         report[f'{param}-{solver}'] = entry
         if not args.compare:
@@ -137,6 +191,11 @@ def run(args: argparse.Namespace) -> int:
         args.report.write_text(json.dumps(out_report, indent=2, sort_keys=True) + '\n')
     if args.out:
         _write_outputs(args.out, results, out_report, args.plot)
+        source = Path(args.problem)
+        if not args.compare and (args.format == 'colmap' or (
+                args.format == 'auto' and not args.problem.startswith('sim:')
+                and _detect_format(source) == 'colmap')):
+            _write_colmap(args.out, source, problem, results[0], inits[0])
     return 0
 
 

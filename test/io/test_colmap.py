@@ -23,7 +23,7 @@ def scene_problem() -> BAProblem:
 
 
 def _distorted(problem: BAProblem) -> BAProblem:
-    """The same problem with radial distortion (pixels re-made from the bearings)."""
+    """Return the same problem with radial distortion (pixels re-made from the bearings)."""
     intr = problem.intrinsics
     M = problem.n_cams
     d = Intrinsics(intr.fx, intr.fx, intr.cx, intr.cy, np.full(M, -0.05), np.full(M, 0.01))
@@ -172,7 +172,7 @@ def test_read_solve_write_read_updates_poses_and_points(tmp_path: Path,
 @pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
 def test_pycolmap_reads_what_we_write_and_we_read_what_it_writes(
         tmp_path: Path, scene_problem: BAProblem, binary: bool) -> None:
-    """COLMAP's own reader and writer (pycolmap, if installed) as the format oracle."""
+    """Check against COLMAP's own reader and writer (pycolmap, if installed)."""
     pycolmap = pytest.importorskip('pycolmap')
     problem = _distorted(scene_problem)
     colmap.write_colmap(tmp_path / 'ours', colmap.from_problem(problem), binary=binary)
