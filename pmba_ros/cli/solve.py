@@ -7,6 +7,7 @@ Usage examples::
     pmba solve problem-49-7776-pre.txt --param xyz --solver lm --report r.json
     pmba solve fake-pile/ --format parallaxba --init global --out result/
     pmba solve colmap/sparse/0 --init global --out refined/   # writes a COLMAP model too
+    pmba solve bundle/bundle.out --out refined/                # writes refined/bundle.out
 """
 
 from __future__ import annotations
@@ -34,9 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``solve`` options."""
     parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, or '
                         'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]')
-    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap'],
+    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap', 'bundler'],
                         default='auto', help='auto: a directory with cameras.txt/.bin is a '
-                        'COLMAP model; with --out its refined model is written there too')
+                        'COLMAP model, a .out file a Bundler file; with --out their refined '
+                        'model is written there too, in the same format')
     parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba')
     parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg')
     parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none')
@@ -82,6 +84,9 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
     if fmt == 'colmap':
         from pmba_ros.io.colmap import read_colmap, to_problem
         return to_problem(read_colmap(path))[0]
+    if fmt == 'bundler':
+        from pmba_ros.io import bundler
+        return bundler.to_problem(bundler.read_bundler(path))[0]
     if fmt == 'bal':
         from pmba_ros.io.bal import read_bal
         return read_bal(path)
@@ -96,13 +101,15 @@ def _detect_format(path: Path) -> str:
     from pmba_ros.io.colmap import is_colmap_model
     if is_colmap_model(path):
         return 'colmap'
+    if path.suffix == '.out':
+        return 'bundler'
     return 'parallaxba' if path.is_dir() or path.suffix == '.pmba' or \
         path.name.lower().startswith('cam') else 'bal'
 
 
-def _write_colmap(out: Path, source: Path, problem: BAProblem, result: SolveResult,
-                  init: Any | None) -> None:
-    """Write the refined COLMAP model (same text / binary form as ``source``) into ``out``.
+def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: SolveResult,
+                 init: Any | None) -> None:
+    """Write the refined model in its input format (COLMAP text / binary, Bundler) to ``out``.
 
     The solution's frame is a free gauge (and arbitrary after a global initialization): it is
     brought onto the model's frame by the similarity that best maps its camera centres (and
@@ -110,9 +117,7 @@ def _write_colmap(out: Path, source: Path, problem: BAProblem, result: SolveResu
     and the images and points that were not solved stay consistent with the refined ones.
     """
     from pmba_ros.eval.align import umeyama_alignment
-    from pmba_ros.io import colmap
-    model = colmap.read_colmap(source)
-    _, image_ids = colmap.to_problem(model)
+    from pmba_ros.io import bundler, colmap
     if init is None:
         cams = np.arange(problem.n_cams)
         rows = np.argsort(problem.feature_ids)[np.searchsorted(
@@ -123,7 +128,7 @@ def _write_colmap(out: Path, source: Path, problem: BAProblem, result: SolveResu
     point_ids = problem.feature_ids[rows]
     points = result.points_w
     finite = np.all(np.isfinite(points), axis=1)
-    assert problem.points_w is not None  # a COLMAP model always has its points
+    assert problem.points_w is not None  # both formats store their points
     try:
         sim = umeyama_alignment(result.centers_w, problem.centers_w[cams], with_scale=True)
     except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
@@ -134,8 +139,16 @@ def _write_colmap(out: Path, source: Path, problem: BAProblem, result: SolveResu
     R_wc = sim.rotation @ result.R_wc
     centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
     points = sim.scale * points @ sim.rotation.T + sim.translation
-    refined = colmap.updated(model, image_ids[cams], R_wc, centers, point_ids, points)
-    colmap.write_colmap(out, refined, binary=(source / 'cameras.bin').is_file())
+    if fmt == 'colmap':
+        model = colmap.read_colmap(source)
+        _, image_ids = colmap.to_problem(model)
+        refined = colmap.updated(model, image_ids[cams], R_wc, centers, point_ids, points)
+        colmap.write_colmap(out, refined, binary=(source / 'cameras.bin').is_file())
+    else:
+        b_model = bundler.read_bundler(source)
+        _, file_cams = bundler.to_problem(b_model)
+        b_refined = bundler.updated(b_model, file_cams[cams], R_wc, centers, point_ids, points)
+        bundler.write_bundler(out / source.name, b_refined)
 
 
 def _progress(label: str) -> Any:
@@ -192,10 +205,11 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         _write_outputs(args.out, results, out_report, args.plot)
         source = Path(args.problem)
-        if not args.compare and (args.format == 'colmap' or (
-                args.format == 'auto' and not args.problem.startswith('sim:')
-                and _detect_format(source) == 'colmap')):
-            _write_colmap(args.out, source, problem, results[0], inits[0])
+        fmt = args.format
+        if fmt == 'auto' and not args.problem.startswith('sim:'):
+            fmt = _detect_format(source)
+        if not args.compare and fmt in ('colmap', 'bundler'):
+            _write_model(args.out, source, fmt, problem, results[0], inits[0])
     return 0
 
 

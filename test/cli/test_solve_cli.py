@@ -123,3 +123,32 @@ def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: st
     assert np.linalg.norm(refined.centers_w - scene.start.centers_w, axis=1).mean() < 0.2
     data = json.loads((tmp_path / 'r.json').read_text())
     assert data['converged']
+
+
+@pytest.mark.parametrize('init', ['file', 'global'])
+def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str) -> None:
+    """`pmba solve bundle.out --out DIR` writes DIR/bundle.out with the refined cameras."""
+    import numpy as np
+
+    from pmba_ros.core.camera import Intrinsics, project
+    from pmba_ros.core.problem import make_problem
+    from pmba_ros.io import bundler
+    from pmba_ros.sim.scenes import street_scene
+    from test.io.test_bundler import _bundle_text
+
+    scene = street_scene(2, n_cams=8, n_points=300, far_fraction=0.0, jitter_m=0.3)
+    p = scene.start
+    M = p.n_cams
+    intr = Intrinsics(p.intrinsics.fx, p.intrinsics.fx, np.zeros(M), np.zeros(M),
+                      np.zeros(M), np.zeros(M))
+    centred = make_problem(p.R_wc, p.centers_w, intr, p.obs.cam_idx, p.obs.feat_idx,
+                           project(p.obs.bearings_c, intr, p.obs.cam_idx),
+                           points_w=p.points_w, n_feats=p.n_feats)
+    (tmp_path / 'bundle.out').write_text(_bundle_text(centred))
+    out = tmp_path / 'refined'
+    assert main(['solve', str(tmp_path / 'bundle.out'), '--init', init, '--quiet',
+                 '--out', str(out)]) == 0
+    refined, _ = bundler.to_problem(bundler.read_bundler(out / 'bundle.out'))
+    gt = scene.gt
+    start_err = np.linalg.norm(p.centers_w - gt.centers_w, axis=1).mean()
+    assert np.linalg.norm(refined.centers_w - gt.centers_w, axis=1).mean() < 0.5 * start_err
