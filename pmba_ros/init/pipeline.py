@@ -13,7 +13,8 @@ The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
 5. ``cls``: positions from the convex problem (eq. 14) with cheirality and a scale constraint.
 6. ``nls``: positions from the nonlinear problem (eq. 13) with a Cauchy loss.
 7. ``tracks``: with positions known, tracks inconsistent with them (wrong matches) dropped
-   (the NLS re-run without them if any was EG-anchored); features without an EG anchor pair
+   (the NLS re-run without them if any was EG-anchored); cameras whose rays miss the
+   triangulated points re-placed by resection; features without an EG anchor pair
    anchored on their widest pair of cameras with a baseline (instead of being dropped).
 8. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`), the only BA invocation.
 
@@ -107,6 +108,10 @@ class InitOptions:
             max(track_min_px, track_relative x the median over all tracks) once positions
             are known are dropped as wrong matches before the BA.
         track_relative: See ``track_min_px``.
+        camera_min_px: Cameras whose median residual to the triangulated points (px) exceeds
+            max(camera_min_px, camera_relative x the median over cameras) after the NLS are
+            placed again by resection from the other cameras' points before the BA.
+        camera_relative: See ``camera_min_px``.
         theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
             divided by the main anchor's focal length) start the BA at infinity (theta = 0).
         solve_options: Options of the final (and only) BA: PMBA with Dogleg, no loss, the
@@ -128,6 +133,8 @@ class InitOptions:
     nls_max_iterations: int = 500
     track_min_px: float = 10.0
     track_relative: float = 30.0
+    camera_min_px: float = 10.0
+    camera_relative: float = 5.0
     theta_floor_px: float = 3.0
     solve_options: SolveOptions = field(default_factory=_default_solve_options)
 
@@ -147,7 +154,7 @@ class InitOptions:
             raise ValueError(msg)
         for name in ('ransac_threshold_px', 'max_tree_disagreement_deg',
                      'max_pair_disagreement_deg', 'nls_cauchy_px', 'track_min_px',
-                     'rotation_cauchy_deg',
+                     'rotation_cauchy_deg', 'camera_min_px', 'camera_relative',
                      'track_relative'):
             if not getattr(self, name) > 0.0:
                 msg = f'`{name}` must be positive'
@@ -485,6 +492,35 @@ def _complete_tracks(full: BAProblem, eg: BAProblem, eg_feats: ParallaxFeatures,
     return done, feats, entries
 
 
+def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options: InitOptions,
+                             ) -> tuple[FloatArray, IntArray, FloatArray]:
+    """Re-place the cameras whose rays miss the triangulated points, before the BA.
+
+    A camera whose median residual (px) exceeds max(camera_min_px, camera_relative x the
+    median over cameras) is placed again by resection (rotation known) from the points
+    triangulated without it and the other outlying cameras. Up to half the cameras are
+    treated so; beyond that the positions are left to the BA.
+
+    Returns:
+        The centres, the resected cameras (indices of ``problem``) and every camera's residual
+        before resection (px).
+    """
+    R_wc = problem.R_wc
+    X = tracks.midpoints(problem, R_wc, centers_w)
+    cam_px = tracks.camera_residuals_px(problem, R_wc, centers_w, X)
+    limit = max(options.camera_min_px, options.camera_relative * float(np.median(cam_px)))
+    bad = np.flatnonzero(cam_px > limit)
+    if bad.size == 0 or 2 * bad.size > problem.n_cams:
+        return centers_w, np.zeros(0, dtype=np.int64), cam_px
+    good_obs = ~np.isin(problem.obs.cam_idx, bad)
+    X_good = tracks.midpoints(problem, R_wc, centers_w, obs_mask=good_obs)
+    centers = centers_w.copy()
+    centers[bad] = tracks.resect_centers(problem, R_wc, X_good, bad)
+    logger.info('global_init: resected cameras %s (residuals %s px, limit %.1f px)',
+                bad.tolist(), np.round(cam_px[bad], 1).tolist(), limit)
+    return centers, bad, cam_px
+
+
 def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
             ) -> tuple[ParallaxFeatures, BoolArray]:
     """Swap anchors of features whose triangle is only valid the other way round."""
@@ -572,10 +608,13 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                     'rerun_without_inconsistent_tracks': bool(np.any(bad_eg))})
 
     full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
-    init_problem, feats, entries = _complete_tracks(full, sub, feats, res_nls.centers_w)
+    centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
+    init_problem, feats, entries = _complete_tracks(full, sub, feats, centers)
     st.done('tracks', {'inconsistent_tracks': int(np.sum(check.inconsistent)),
                        'track_threshold_px': check.threshold_px,
-                       'track_residual_median_px': float(np.median(check.rms_px)), **entries})
+                       'track_residual_median_px': float(np.median(check.rms_px)),
+                       'camera_residual_px': _angle_stats(cam_px),
+                       'cameras_resected': cam_index[resected].tolist(), **entries})
     # With positions known, alpha is recomputed by the BA: re-check the anchor order.
     P = res_nls.centers_w
     d_ma = P[feats.main_idx] - P[feats.assoc_idx]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pmba_ros._typing import BoolArray, FloatArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.problem import BAProblem
 
 
@@ -33,24 +33,30 @@ class TrackCheck:
     inconsistent: BoolArray
 
 
-def midpoints(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray) -> FloatArray:
+def midpoints(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+              obs_mask: BoolArray | None = None) -> FloatArray:
     """Return each feature's point closest to all its rays (least squares), shape (N, 3).
 
     Solves sum_k (I - r_k r_k^T)(X - C_k) = 0 per feature; nearly parallel rays give a far
-    (possibly behind-the-camera) point, not a failure.
+    (possibly behind-the-camera) point, not a failure. With ``obs_mask`` only those
+    observations are used, and features left with fewer than two get NaN.
     """
     obs = problem.obs
-    j = obs.feat_idx
+    use = np.ones(problem.n_obs, dtype=bool) if obs_mask is None else obs_mask
+    j = obs.feat_idx[use]
+    cam = obs.cam_idx[use]
     N = problem.n_feats
-    rays = np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    rays = np.einsum('kij,kj->ki', R_wc[cam], obs.bearings_c[use])
     proj = np.eye(3)[None] - rays[:, :, None] * rays[:, None, :]
     A = np.zeros((N, 3, 3))
     b = np.zeros((N, 3))
     np.add.at(A, j, proj)
-    np.add.at(b, j, np.einsum('kij,kj->ki', proj, centers_w[obs.cam_idx]))
+    np.add.at(b, j, np.einsum('kij,kj->ki', proj, centers_w[cam]))
     scale = np.trace(A, axis1=1, axis2=2)
     A += (1e-12 * np.maximum(scale, 1e-300))[:, None, None] * np.eye(3)[None]
-    return np.asarray(np.linalg.solve(A, b[..., None])[..., 0], dtype=np.float64)
+    X = np.asarray(np.linalg.solve(A, b[..., None])[..., 0], dtype=np.float64)
+    X[np.bincount(j, minlength=N) < 2] = np.nan
+    return X
 
 
 def track_residuals_px(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
@@ -93,3 +99,45 @@ def check_tracks(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray, *,
     rms = track_residuals_px(problem, R_wc, centers_w)
     threshold = max(min_px, relative * float(np.median(rms))) if rms.size else min_px
     return TrackCheck(rms, threshold, rms > threshold)
+
+
+def camera_residuals_px(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+                        points_w: FloatArray) -> FloatArray:
+    """Return each camera's median angle (px) between its rays and the points, shape (M,).
+
+    Also counts observations behind the camera (negative depth) as half a turn, so that a
+    camera placed on the wrong side of its points stands out.
+    """
+    obs = problem.obs
+    rays = np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    d = points_w[obs.feat_idx] - centers_w[obs.cam_idx]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    ang = np.arccos(np.clip(np.sum(d * rays, axis=1), -1.0, 1.0))
+    px = ang * np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
+    out = np.zeros(problem.n_cams)
+    order = np.argsort(obs.cam_idx, kind='stable')
+    bounds = np.searchsorted(obs.cam_idx[order], np.arange(problem.n_cams + 1))
+    for k in range(problem.n_cams):  # one median per camera, not per observation
+        sel = px[order[bounds[k]:bounds[k + 1]]]
+        out[k] = float(np.median(sel)) if sel.size else 0.0
+    return out
+
+
+def resect_centers(problem: BAProblem, R_wc: FloatArray, points_w: FloatArray,
+                   cameras: IntArray) -> FloatArray:
+    """Return the centres (len(cameras), 3) that best fit the points with rotations known.
+
+    Each observation asks the centre to lie on the line through its point along its ray:
+    sum_k (I - r_k r_k^T)(C - X_k) = 0 is linear in C (one 3x3 solve per camera). Points
+    that are not finite are skipped.
+    """
+    obs = problem.obs
+    ok = np.isin(obs.cam_idx, cameras) & np.all(np.isfinite(points_w[obs.feat_idx]), axis=1)
+    cam = np.searchsorted(cameras, obs.cam_idx[ok])
+    rays = np.einsum('kij,kj->ki', R_wc[obs.cam_idx[ok]], obs.bearings_c[ok])
+    proj = np.eye(3)[None] - rays[:, :, None] * rays[:, None, :]
+    A = np.zeros((cameras.shape[0], 3, 3))
+    b = np.zeros((cameras.shape[0], 3))
+    np.add.at(A, cam, proj)
+    np.add.at(b, cam, np.einsum('kij,kj->ki', proj, points_w[obs.feat_idx[ok]]))
+    return np.asarray(np.linalg.solve(A, b[..., None])[..., 0], dtype=np.float64)

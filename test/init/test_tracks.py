@@ -51,3 +51,33 @@ def test_global_init_drops_wrong_tracks_before_its_one_ba() -> None:
     assert v.problem.points_w is not None
     ref = solve(start.with_points(v.problem.points_w[res.feature_index]), res.solve.options)
     assert res.solve.final_rms_px <= 1.01 * ref.final_rms_px
+
+
+def test_a_misplaced_camera_is_flagged_and_resected_back() -> None:
+    """One camera moved by 2 m: its residual stands out and resection puts it back."""
+    from pmba_ros.init import pipeline
+    from pmba_ros.init.tracks import camera_residuals_px, midpoints, resect_centers
+
+    gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.0, far_fraction=0.0).gt
+    assert gt.points_w is not None
+    np.testing.assert_allclose(resect_centers(gt, gt.R_wc, gt.points_w, np.array([2, 7])),
+                               gt.centers_w[[2, 7]], atol=1e-8)
+    moved = gt.centers_w.copy()
+    moved[4] += [0.5, 2.0, -1.0]
+    px = camera_residuals_px(gt, gt.R_wc, moved, midpoints(gt, gt.R_wc, moved))
+    assert np.argmax(px) == 4 and px[4] > 5 * np.median(px)
+    centers, resected, _ = pipeline._resect_outlying_cameras(gt, moved, pipeline.InitOptions())
+    assert resected.tolist() == [4]
+    np.testing.assert_allclose(centers[4], gt.centers_w[4], atol=0.05)
+    np.testing.assert_array_equal(np.delete(centers, 4, 0), np.delete(moved, 4, 0))
+
+
+def test_well_placed_cameras_are_left_alone() -> None:
+    """Noisy but right positions: no camera is resected."""
+    from pmba_ros.init import pipeline
+
+    gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.5).gt
+    centers, resected, _ = pipeline._resect_outlying_cameras(gt, gt.centers_w,
+                                                             pipeline.InitOptions())
+    assert resected.size == 0
+    np.testing.assert_array_equal(centers, gt.centers_w)
