@@ -46,7 +46,7 @@ def test_simulated_street_variants_meet_the_criterion(name: str) -> None:
 
 @pytest.mark.slow
 def test_ladybug_1800_variants_meet_the_criterion() -> None:
-    """RootBA's Ladybug subsample and every variant of it."""
+    """Sweep RootBA's Ladybug subsample and every variant of it."""
     from pmba_ros.io.bal import read_bal
 
     _sweep(read_bal(shared_file('bal', 'bal-ladybug-problem-49-7776-pre-shrink-1800.txt')),
