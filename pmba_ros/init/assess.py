@@ -83,9 +83,9 @@ class InitAssessment:
         The feature share is judged against the reachable features (a co-visibility graph in
         pieces cannot be registered in one frame by any pairwise method).
         """
-        return (self.ba_converged and self.rms_ratio <= 1.0 + rms_tolerance
-                and self.features_used_pct >= min_features_pct / 100.0
-                * self.reachable_feats_pct)
+        return bool(self.ba_converged and self.rms_ratio <= 1.0 + rms_tolerance
+                    and self.features_used_pct >= min_features_pct / 100.0
+                    * self.reachable_feats_pct)
 
     def to_dict(self) -> dict[str, Any]:
         """Return the row as a plain dict."""
@@ -143,9 +143,9 @@ def assess(problem: BAProblem, points_w: FloatArray, options: InitOptions | None
     reach_cams, reach_feats = _reachable(problem, options.min_pair_matches)
     row = InitAssessment(
         n_cams=problem.n_cams, cams_used=res.problem.n_cams, n_feats=problem.n_feats,
-        features_used_pct=100.0 * np.sum(kept & ~outlier) / max(int(np.sum(~outlier)), 1),
+        features_used_pct=100.0 * int(np.sum(kept & ~outlier)) / max(int(np.sum(~outlier)), 1),
         outliers_kept=int(np.sum(kept & outlier)), reachable_cams=int(reach_cams.sum()),
-        reachable_feats_pct=100.0 * np.sum(reach_feats & ~outlier)
+        reachable_feats_pct=100.0 * int(np.sum(reach_feats & ~outlier))
         / max(int(np.sum(~outlier)), 1),
         features_recovered=int(rep['tracks']['features_recovered']),
         rot_median_deg=float(rot['median']), rot_max_deg=float(rot['max']),
@@ -156,5 +156,5 @@ def assess(problem: BAProblem, points_w: FloatArray, options: InitOptions | None
         ba_termination=res.solve.termination.value, ba_converged=res.solve.converged,
         rms_px=res.solve.final_rms_px, ref_rms_px=ref.final_rms_px,
         ref_converged=ref.converged,
-        rms_ratio=res.solve.final_rms_px / max(ref.final_rms_px, 1e-300), init_s=init_s)
+        rms_ratio=float(res.solve.final_rms_px / max(ref.final_rms_px, 1e-300)), init_s=init_s)
     return row, res
