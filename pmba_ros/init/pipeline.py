@@ -646,7 +646,12 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         'cameras_left_out': np.flatnonzero(~cameras_used).tolist(),
         'rotation_residual_deg': report['rotations']['rotation_residual_deg']['mean'],
         'cls_residual': res_cls.residual, 'nls_residual': res_nls.residual,
-        'final_rms_px': result.final_rms_px, 'ba_invocations': 1}
+        'features_used': init_problem.n_feats,
+        'features_recovered': report['tracks']['features_recovered'],
+        'inconsistent_tracks': report['tracks']['inconsistent_tracks'],
+        'cameras_resected': report['tracks']['cameras_resected'],
+        'final_rms_px': result.final_rms_px, 'ba_converged': result.converged,
+        'ba_termination': result.termination.value, 'ba_invocations': 1}
     return InitResult(init_problem, feats, result, cam_index,
                       np.asarray(init_problem.feature_ids, dtype=np.int64), cameras_used, report,
                       1)

@@ -98,7 +98,9 @@ def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
     report = json.loads(json.dumps(res.to_report()))
     summary = report['summary']
     for key in ('pairs_found', 'pairs_kept', 'cameras_in_component', 'cameras_left_out',
-                'rotation_residual_deg', 'cls_residual', 'nls_residual'):
+                'rotation_residual_deg', 'cls_residual', 'nls_residual', 'features_used',
+                'features_recovered', 'inconsistent_tracks', 'cameras_resected',
+                'ba_converged', 'ba_termination'):
         assert key in summary
     assert set(STAGES) | {'total'} <= set(report['time_s'])
     assert summary['cameras_left_out'] == []
