@@ -6,6 +6,8 @@ Usage examples::
     pmba solve sim:street --compare               # PMBA-DL vs XYZ-LM vs IDP-LM, one table
     pmba solve problem-49-7776-pre.txt --param xyz --solver lm --report r.json
     pmba solve fake-pile/ --format parallaxba --init global --out result/
+    pmba solve colmap/sparse/0 --init global --out refined/   # writes a COLMAP model too
+    pmba solve bundle/bundle.out --out refined/                # writes refined/bundle.out
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, SolverKind, solve
-from pmba_ros.errors import FormatError
+from pmba_ros.errors import DegenerateGeometryError, FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
 
@@ -37,7 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``solve`` options."""
     parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, or '
                         'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]')
-    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba'], default='auto')
+    parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap', 'bundler'],
+                        default='auto', help='auto: a directory with cameras.txt/.bin is a '
+                        'COLMAP model, a .out file a Bundler file; with --out their refined '
+                        'model is written there too, in the same format')
     parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba')
     parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg')
     parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none')
@@ -80,7 +85,13 @@ def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
         msg = f'{path}: no such file or directory'
         raise FormatError(msg)
     if fmt == 'auto':
-        fmt = detect_problem_format(path)
+        fmt = _detect_format(path)
+    if fmt == 'colmap':
+        from pmba_ros.io.colmap import read_colmap, to_problem
+        return to_problem(read_colmap(path))[0]
+    if fmt == 'bundler':
+        from pmba_ros.io import bundler
+        return bundler.to_problem(bundler.read_bundler(path))[0]
     if fmt == 'bal':
         from pmba_ros.io.bal import read_bal
         return read_bal(path)
@@ -163,6 +174,63 @@ def _pyplot() -> Any:
     return plt
 
 
+def _detect_format(path: Path) -> str:
+    """Tell a COLMAP model, a Bundler file, a BAL file and a ParallaxBA set by their content."""
+    from pmba_ros.io.colmap import is_colmap_model
+    if is_colmap_model(path):
+        return 'colmap'
+    if path.is_file():
+        with path.open('rb') as fh:
+            if fh.read(64).lstrip().startswith(b'# Bundle file'):
+                return 'bundler'
+    # Bundler's header line is optional; without it only the name tells it from BAL.
+    return 'bundler' if path.suffix == '.out' else detect_problem_format(path)
+
+
+def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: SolveResult,
+                 init: Any | None) -> None:
+    """Write the refined model in its input format (COLMAP text / binary, Bundler) to ``out``.
+
+    The solution's frame is a free gauge (and arbitrary after a global initialization): it is
+    brought onto the model's frame by the similarity that best maps its camera centres (and
+    points, if the centres are collinear) onto the model's, so the model is refined in place
+    and the images and points that were not solved stay consistent with the refined ones.
+    """
+    from pmba_ros.eval.align import umeyama_alignment
+    from pmba_ros.io import bundler, colmap
+    if init is None:
+        cams = np.arange(problem.n_cams)
+        rows = np.argsort(problem.feature_ids)[np.searchsorted(
+            np.sort(problem.feature_ids), result.problem.feature_ids)]
+    else:
+        cams = init.camera_index
+        rows = init.feature_index
+    point_ids = problem.feature_ids[rows]
+    points = result.points_w
+    finite = np.all(np.isfinite(points), axis=1)
+    assert problem.points_w is not None  # both formats store their points
+    try:
+        sim = umeyama_alignment(result.centers_w, problem.centers_w[cams], with_scale=True)
+    except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
+        sim = umeyama_alignment(np.concatenate([result.centers_w, points[finite]]),
+                                np.concatenate([problem.centers_w[cams],
+                                                problem.points_w[rows][finite]]),
+                                with_scale=True)
+    R_wc = sim.rotation @ result.R_wc
+    centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
+    points = sim.scale * points @ sim.rotation.T + sim.translation
+    if fmt == 'colmap':
+        model = colmap.read_colmap(source)
+        _, image_ids = colmap.to_problem(model)
+        refined = colmap.updated(model, image_ids[cams], R_wc, centers, point_ids, points)
+        colmap.write_colmap(out, refined, binary=(source / 'cameras.bin').is_file())
+    else:
+        b_model = bundler.read_bundler(source)
+        _, file_cams = bundler.to_problem(b_model)
+        b_refined = bundler.updated(b_model, file_cams[cams], R_wc, centers, point_ids, points)
+        bundler.write_bundler(out / source.name, b_refined)
+
+
 def _progress(label: str) -> Any:
     def show(rec: IterationRecord) -> None:
         mark = ' ' if rec.accepted else 'x'
@@ -181,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
                                              else ''))
     runs: tuple[tuple[str, str], ...] = COMPARE if args.compare else ((args.param, args.solver),)
     results: list[SolveResult] = []
+    inits: list[Any] = []
     report: dict[str, Any] = {}
     for param, solver in runs:
         options = _options(param, solver, args)
@@ -191,21 +260,35 @@ def run(args: argparse.Namespace) -> int:
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),
                      'ba_invocations': init.ba_invocations}
+            inits.append(init)
         else:
             result = solve(problem, options, callback=callback)
             entry = {**result.to_report(), 'ba_invocations': 1}
+            inits.append(None)
         results.append(result)
         report[f'{param}-{solver}'] = entry
         if not args.compare:
             print(result.summary())
     if args.compare:
         print(_table(results))
+    for r in results:
+        if not r.converged:
+            print(f'warning: {r.options.param.value}-{r.options.solver.value} stopped at '
+                  f'{r.termination.value} after {r.iterations} iterations, not converged '
+                  f'(final rms {r.final_rms_px:.4f} px): the result is not a minimum',
+                  file=sys.stderr)
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))
     _warn_non_finite(results, out_report)
     if args.report:
         write_text_atomic(args.report, dumps_report(out_report))
     if args.out:
         _write_outputs(args.out, results, out_report, args.plot)
+        source = Path(args.problem)
+        fmt = args.format
+        if fmt == 'auto' and not args.problem.startswith('sim:'):
+            fmt = _detect_format(source)
+        if not args.compare and fmt in ('colmap', 'bundler'):
+            _write_model(args.out, source, fmt, problem, results[0], inits[0])
     return 0
 
 

@@ -5,18 +5,24 @@ The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
 1. ``pairs``: epipolar-geometry pairs, 5-point RANSAC + cheirality (OpenCV).
 2. ``view_graph``: largest connected component, maximum spanning tree, tree-inconsistent
    pairs rejected.
-3. ``rotations``: chordal rotation averaging, pruning of disagreeing pairs, re-averaging,
+3. ``rotations``: chordal rotation averaging, iteratively reweighted (Cauchy kernel, pair
+   weights from inlier counts), pruning of disagreeing pairs, re-averaging,
    translation directions re-estimated with the rotations known.
 4. ``features``: anchors restricted to EG pairs, theta-bar and n-bar from rotations only
    (Remark 5), alpha-bar and Q_j from the EG directions (eq. 11).
 5. ``cls``: positions from the convex problem (eq. 14) with cheirality and a scale constraint.
 6. ``nls``: positions from the nonlinear problem (eq. 13) with a Cauchy loss.
-7. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`), the only BA invocation.
+7. ``tracks``: with positions known, tracks inconsistent with them (wrong matches) dropped
+   (the NLS re-run without them if any was EG-anchored); cameras whose rays miss the
+   triangulated points re-placed by resection; features without an EG anchor pair
+   anchored on their widest pair of cameras with a baseline (instead of being dropped).
+8. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`), the only BA invocation.
 
 Only the input problem's observations and intrinsics are used; its poses and points are
 ignored. The result's problem holds only the cameras of the largest component of the view
-graph and the features anchored on EG pairs (``camera_index``/``feature_index`` map back to
-the input), because cameras without an EG pair have no rotation to start from.
+graph that see an EG-anchored feature, and the features seen by two of them
+(``camera_index``/``feature_index`` map back to the input), because cameras without an EG
+pair have no rotation to start from.
 
 Deviations from the paper (tagged ``DEVIATION`` in the code, pmba.md §8):
 
@@ -46,10 +52,16 @@ from pmba_ros._json import to_jsonable
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import conversions
 from pmba_ros.core.loss import Loss
-from pmba_ros.core.problem import BAProblem, ParallaxFeatures, Parameterization, make_problem
+from pmba_ros.core.problem import (
+    BAProblem,
+    ParallaxFeatures,
+    Parameterization,
+    make_problem,
+    subset_features,
+)
 from pmba_ros.core.solve import SolveOptions, SolveResult, SolverKind, solve
 from pmba_ros.errors import InitError
-from pmba_ros.init import anchors, cls, nls, rotation_averaging, two_view, view_graph
+from pmba_ros.init import anchors, cls, nls, rotation_averaging, tracks, two_view, view_graph
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +69,7 @@ ProgressCallback = Callable[[str, Mapping[str, Any]], None]
 """Called after every stage with the stage name and its report entries."""
 
 
-STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'ba')
+STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'tracks', 'ba')
 
 
 def _default_solve_options() -> SolveOptions:
@@ -85,9 +97,21 @@ class InitOptions:
             chained along the maximum spanning tree by more than this.
         max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
             averaged rotations by more than this, then average again.
+        rotation_cauchy_deg: Cauchy scale (deg) of the iteratively reweighted rotation
+            averaging: pairs disagreeing with the consensus by several times this lose
+            their weight.
         cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
         nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
-        nls_max_iterations: LM iteration limit of the NLS.
+        nls_max_iterations: LM iteration limit of the NLS (a safeguard: the NLS stops on its
+            tolerances well before it; the report says whether it converged).
+        track_min_px: Tracks whose RMS angle to their triangulated point (px) exceeds
+            max(track_min_px, track_relative x the median over all tracks) once positions
+            are known are dropped as wrong matches before the BA.
+        track_relative: See ``track_min_px``.
+        camera_min_px: Cameras whose median residual to the triangulated points (px) exceeds
+            max(camera_min_px, camera_relative x the median over cameras) after the NLS are
+            placed again by resection from the other cameras' points before the BA.
+        camera_relative: See ``camera_min_px``.
         theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
             divided by the main anchor's focal length) start the BA at infinity (theta = 0).
         solve_options: Options of the final (and only) BA: PMBA with Dogleg, no loss, the
@@ -103,9 +127,14 @@ class InitOptions:
     min_pair_parallax_px: float = 2.0
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0
+    rotation_cauchy_deg: float = 1.0
     cls_max_penalty_iterations: int = 10
     nls_cauchy_px: float = 3.0
-    nls_max_iterations: int = 50
+    nls_max_iterations: int = 500
+    track_min_px: float = 10.0
+    track_relative: float = 30.0
+    camera_min_px: float = 10.0
+    camera_relative: float = 5.0
     theta_floor_px: float = 3.0
     solve_options: SolveOptions = field(default_factory=_default_solve_options)
 
@@ -124,7 +153,9 @@ class InitOptions:
             msg = '`ransac_confidence` must be in (0, 1)'
             raise ValueError(msg)
         for name in ('ransac_threshold_px', 'max_tree_disagreement_deg',
-                     'max_pair_disagreement_deg', 'nls_cauchy_px'):
+                     'max_pair_disagreement_deg', 'nls_cauchy_px', 'track_min_px',
+                     'rotation_cauchy_deg', 'camera_min_px', 'camera_relative',
+                     'track_relative'):
             if not getattr(self, name) > 0.0:
                 msg = f'`{name}` must be positive'
                 raise ValueError(msg)
@@ -142,10 +173,11 @@ class InitResult:
 
     Attributes:
         problem: The problem handed to the final BA: cameras of the largest component of the
-            view graph (renumbered), features anchored on EG pairs, poses from the NLS.
+            view graph (renumbered), every feature they see twice, poses from the NLS.
         features: The PMBA features the BA started from: theta-bar and n-bar from the
-            averaged rotations (Remark 5), anchors on EG pairs oriented so that the triangle
-            is valid, theta = 0 (infinity) below ``InitOptions.theta_floor_px``.
+            averaged rotations (Remark 5), anchors on EG pairs (on the widest pair with a
+            baseline for the features recovered in the ``tracks`` stage) oriented so that
+            the triangle is valid, theta = 0 (infinity) below ``InitOptions.theta_floor_px``.
         solve: The final PMBA result (its R_wc, centers_w, features and points are the output).
         camera_index: Input camera index of each camera of ``problem``, shape (M',).
         feature_index: Input feature index of each feature of ``problem``, shape (N',).
@@ -292,16 +324,35 @@ def _view_graph(n_cams: int, pairs: two_view.EGPairs, options: InitOptions,
     return pairs_comp.subset(keep), comp, entries
 
 
-def _average(n_cams: int, pairs: two_view.EGPairs, cameras: BoolArray) -> tuple[FloatArray, int]:
-    """Chordal averaging on the cameras of ``cameras`` (renumbered); identity elsewhere."""
+def _average(n_cams: int, pairs: two_view.EGPairs, cameras: BoolArray, options: InitOptions,
+             ) -> tuple[FloatArray, int]:
+    """Robust chordal averaging on the cameras of ``cameras`` (renumbered); identity elsewhere.
+
+    Pairs are weighted by their inlier counts; IRLS with a Cauchy kernel of
+    ``options.rotation_cauchy_deg`` down-weights the pairs that disagree with the consensus.
+    """
     new = _compact(cameras)
     w = pairs.n_inliers.astype(float)
     root = view_graph.choose_root(n_cams, pairs.cam_a, pairs.cam_b, w, cameras)
-    R_sub = rotation_averaging.chordal_rotation_averaging(
-        int(cameras.sum()), int(new[root]), new[pairs.cam_a], new[pairs.cam_b], pairs.R_rel, w)
+    R_sub, _, rounds = rotation_averaging.robust_rotation_averaging(
+        int(cameras.sum()), int(new[root]), new[pairs.cam_a], new[pairs.cam_b], pairs.R_rel, w,
+        cauchy_deg=options.rotation_cauchy_deg)
     R = np.broadcast_to(np.eye(3), (n_cams, 3, 3)).copy()
     R[cameras] = R_sub
-    return R, root
+    return R, rounds
+
+
+def _per_camera_residual_deg(n_cams: int, cameras: BoolArray, pairs: two_view.EGPairs,
+                             dis: FloatArray) -> list[float | None]:
+    """Return the median disagreement (deg) of each camera's pairs (None if it has none)."""
+    cam = np.concatenate([pairs.cam_a, pairs.cam_b])
+    val = np.concatenate([dis, dis])
+    order = np.lexsort((val, cam))
+    cam, val = cam[order], val[order]
+    starts = np.searchsorted(cam, np.arange(n_cams))
+    ends = np.searchsorted(cam, np.arange(n_cams), side='right')
+    return [float(np.median(val[a:b])) if cameras[k] and b > a else None
+            for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
 
 
 def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
@@ -309,7 +360,7 @@ def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
                ) -> tuple[FloatArray, two_view.EGPairs, FloatArray, BoolArray, int,
                           dict[str, Any]]:
     M = problem.n_cams
-    R, _ = _average(M, pairs, comp)
+    R, rounds = _average(M, pairs, comp, options)
     dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b, pairs.R_rel)
     first = _angle_stats(dis)
     prune = dis > options.max_pair_disagreement_deg
@@ -321,13 +372,15 @@ def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
             msg = ('global init: pruning pairs that disagree with the averaged rotations '
                    f'leaves {int(comp.sum())} connected cameras')
             raise InitError(msg)
-        R, _ = _average(M, pairs, comp)
+        R, rounds = _average(M, pairs, comp, options)
         dis = view_graph.pair_rotation_disagreement_deg(R, pairs.cam_a, pairs.cam_b,
                                                         pairs.R_rel)
+    per_camera = _per_camera_residual_deg(M, comp, pairs, dis)
     pairs, d_ab = two_view.refine_translations(pairs, problem.obs.bearings_c, R)
     root = view_graph.choose_root(M, pairs.cam_a, pairs.cam_b, pairs.n_inliers.astype(float),
                                   comp)
     entries = {'rotation_residual_deg': _angle_stats(dis),
+               'rotation_residual_per_camera_deg': per_camera, 'irls_rounds': rounds,
                'rotation_residual_before_pruning_deg': first,
                'pairs_pruned': n_pruned, 'pairs_kept': pairs.n_pairs,
                'cameras_dropped_by_pruning': np.flatnonzero(comp_before & ~comp).tolist()}
@@ -353,8 +406,14 @@ def _subproblem(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
 
 def _features(problem: BAProblem, R_wc: FloatArray, pairs: two_view.EGPairs, d_ab: FloatArray,
               comp: BoolArray,
-              ) -> tuple[BAProblem, IntArray, ParallaxFeatures, anchors.LinearizationFrames,
-                         dict[str, Any]]:
+              ) -> tuple[BAProblem, BAProblem, IntArray, ParallaxFeatures,
+                         anchors.LinearizationFrames, dict[str, Any]]:
+    """Anchor features on EG pairs (eq. 11).
+
+    Returns the problem of the EG-anchored features (for the CLS / NLS), the problem of every
+    feature seen twice by the same cameras (for :func:`_complete_tracks`), the camera index,
+    the features, their frames and the report entries.
+    """
     cameras = comp.copy()
     sub, cam_index = _subproblem(problem, cameras, R_wc)
     new = _compact(cameras)
@@ -385,14 +444,81 @@ def _features(problem: BAProblem, R_wc: FloatArray, pairs: two_view.EGPairs, d_a
     feats, swapped = _orient(sub, feats, d_ma)
     d_ma = np.where(swapped[:, None], -d_ma, d_ma)
     frames = anchors.linearization_frames(sub.R_wc, feats, d_ma)
-    entries = {'features_used': sub.n_feats, 'observations_used': sub.n_obs,
+    full, _ = _subproblem(problem, cameras, R_wc)
+    entries = {'features_anchored_on_eg_pairs': sub.n_feats, 'observations_used': sub.n_obs,
                'features_without_eg_anchor_pair': n_no_anchor,
                'features_single_observation_in_component': int(n_single),
                'features_anchors_swapped': int(np.sum(swapped)),
                'features_inconsistent_triangle': int(np.sum(~frames.consistent)),
                'cameras_without_features': np.flatnonzero(comp & ~cameras).tolist(),
                'theta_deg': _angle_stats(np.rad2deg(feats.theta))}
-    return sub, cam_index, feats, frames, entries
+    return sub, full, cam_index, feats, frames, entries
+
+
+def _complete_tracks(full: BAProblem, eg: BAProblem, eg_feats: ParallaxFeatures,
+                     centers_w: FloatArray) -> tuple[BAProblem, ParallaxFeatures, dict[str, Any]]:
+    """Anchor the features without an EG anchor pair, now that positions are known.
+
+    The EG-anchored features (those of ``eg`` that are still in ``full``) keep their anchors.
+    Every other feature of ``full`` (seen by at least two of its cameras) gets the
+    widest-parallax pair of its observers among the pairs with a baseline, and theta-bar,
+    n-bar from the rotations (Remark 5), as the EG-anchored ones; the BA recomputes alpha from
+    the positions.
+
+    Returns:
+        The problem with every anchored feature (poses from the NLS), its features and the
+        report entries.
+    """
+    R_wc = full.R_wc
+    is_eg = np.isin(full.feature_ids, eg.feature_ids)
+    in_full = np.isin(eg.feature_ids, full.feature_ids)
+    main_idx = np.zeros(full.n_feats, dtype=np.int64)
+    assoc_idx = np.zeros(full.n_feats, dtype=np.int64)
+    # Both problems are sorted by feature id (subset_features keeps the order).
+    main_idx[is_eg] = eg_feats.main_idx[in_full]
+    assoc_idx[is_eg] = eg_feats.assoc_idx[in_full]
+    rest = subset_features(full, ~is_eg, 'features_with_eg_anchor_pair')
+    m, a, ok = conversions.select_anchors(rest, R_wc, centers_w=centers_w)
+    main_idx[~is_eg] = m
+    assoc_idx[~is_eg] = a
+    keep = is_eg.copy()
+    keep[~is_eg] = ok
+    done = subset_features(full.with_poses(R_wc, centers_w), keep,
+                           'features_without_anchor_baseline')
+    feats = conversions.features_from_rotations(done, R_wc, main_idx[keep], assoc_idx[keep])
+    entries = {'features_recovered': int(np.sum(ok)),
+               'features_without_anchor_baseline': int(np.sum(~ok)),
+               'features_used': done.n_feats, 'observations_used': done.n_obs}
+    return done, feats, entries
+
+
+def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options: InitOptions,
+                             ) -> tuple[FloatArray, IntArray, FloatArray]:
+    """Re-place the cameras whose rays miss the triangulated points, before the BA.
+
+    A camera whose median residual (px) exceeds max(camera_min_px, camera_relative x the
+    median over cameras) is placed again by resection (rotation known) from the points
+    triangulated without it and the other outlying cameras. Up to half the cameras are
+    treated so; beyond that the positions are left to the BA.
+
+    Returns:
+        The centres, the resected cameras (indices of ``problem``) and every camera's residual
+        before resection (px).
+    """
+    R_wc = problem.R_wc
+    X = tracks.midpoints(problem, R_wc, centers_w)
+    cam_px = tracks.camera_residuals_px(problem, R_wc, centers_w, X)
+    limit = max(options.camera_min_px, options.camera_relative * float(np.median(cam_px)))
+    bad = np.flatnonzero(cam_px > limit)
+    if bad.size == 0 or 2 * bad.size > problem.n_cams:
+        return centers_w, np.zeros(0, dtype=np.int64), cam_px
+    good_obs = ~np.isin(problem.obs.cam_idx, bad)
+    X_good = tracks.midpoints(problem, R_wc, centers_w, obs_mask=good_obs)
+    centers = centers_w.copy()
+    centers[bad] = tracks.resect_centers(problem, R_wc, X_good, bad)
+    logger.info('global_init: resected cameras %s (residuals %s px, limit %.1f px)',
+                bad.tolist(), np.round(cam_px[bad], 1).tolist(), limit)
+    return centers, bad, cam_px
 
 
 def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
@@ -436,7 +562,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     R_wc, pairs, d_ab, comp, _, entries = _rotations(problem, pairs, comp, options)
     st.done('rotations', entries)
 
-    sub, cam_index, feats, frames, entries = _features(problem, R_wc, pairs, d_ab, comp)
+    sub, full, cam_index, feats, frames, entries = _features(problem, R_wc, pairs, d_ab, comp)
     st.done('features', entries)
     cameras_used = np.zeros(M, dtype=bool)
     cameras_used[cam_index] = True
@@ -460,12 +586,35 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     res_nls = nls.solve_nls(lin, res_cls.centers_w, root,
                             f_scale=options.nls_cauchy_px / focal, weights=weights,
                             max_iterations=options.nls_max_iterations)
+    # Wrong tracks pull the positions; with positions known they stand out: drop them and
+    # refine the positions again without them.
+    check = tracks.check_tracks(full, sub.R_wc, res_nls.centers_w,
+                                min_px=options.track_min_px,
+                                relative=options.track_relative)
+    bad_ids = full.feature_ids[check.inconsistent]
+    bad_eg = np.isin(sub.feature_ids, bad_ids)
+    first_nls = res_nls
+    if np.any(bad_eg):
+        weights = weights * ~bad_eg[sub.obs.feat_idx]
+        res_nls = nls.solve_nls(lin, res_nls.centers_w, root,
+                                f_scale=options.nls_cauchy_px / focal, weights=weights,
+                                max_iterations=options.nls_max_iterations)
     st.done('nls', {'nls_residual': res_nls.residual,
                     'nls_residual_px': res_nls.residual * focal,
-                    'initial_cost': res_nls.initial_cost, 'final_cost': res_nls.final_cost,
-                    'iterations': res_nls.iterations, 'converged': res_nls.converged})
+                    'initial_cost': first_nls.initial_cost, 'final_cost': res_nls.final_cost,
+                    'iterations': first_nls.iterations + (res_nls.iterations
+                                                          if np.any(bad_eg) else 0),
+                    'converged': first_nls.converged and res_nls.converged,
+                    'rerun_without_inconsistent_tracks': bool(np.any(bad_eg))})
 
-    init_problem = sub.with_poses(sub.R_wc, res_nls.centers_w)
+    full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
+    centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
+    init_problem, feats, entries = _complete_tracks(full, sub, feats, centers)
+    st.done('tracks', {'inconsistent_tracks': int(np.sum(check.inconsistent)),
+                       'track_threshold_px': check.threshold_px,
+                       'track_residual_median_px': float(np.median(check.rms_px)),
+                       'camera_residual_px': _angle_stats(cam_px),
+                       'cameras_resected': cam_index[resected].tolist(), **entries})
     # With positions known, alpha is recomputed by the BA: re-check the anchor order.
     P = res_nls.centers_w
     d_ma = P[feats.main_idx] - P[feats.assoc_idx]
@@ -497,6 +646,12 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         'cameras_left_out': np.flatnonzero(~cameras_used).tolist(),
         'rotation_residual_deg': report['rotations']['rotation_residual_deg']['mean'],
         'cls_residual': res_cls.residual, 'nls_residual': res_nls.residual,
-        'final_rms_px': result.final_rms_px, 'ba_invocations': 1}
+        'features_used': init_problem.n_feats,
+        'features_recovered': report['tracks']['features_recovered'],
+        'inconsistent_tracks': report['tracks']['inconsistent_tracks'],
+        'cameras_resected': report['tracks']['cameras_resected'],
+        'final_rms_px': result.final_rms_px, 'ba_converged': result.converged,
+        'ba_termination': result.termination.value, 'ba_invocations': 1}
     return InitResult(init_problem, feats, result, cam_index,
-                      np.asarray(sub.feature_ids, dtype=np.int64), cameras_used, report, 1)
+                      np.asarray(init_problem.feature_ids, dtype=np.int64), cameras_used, report,
+                      1)

@@ -46,6 +46,15 @@ def test_solve_shows_progress_unless_quiet(capsys: pytest.CaptureFixture[str]) -
     assert err.count(' it ') >= 2
 
 
+def test_solve_warns_when_an_iteration_cap_stops_it(capsys: pytest.CaptureFixture[str]) -> None:
+    """A run stopped by --max-iters says so on stderr; a converged run prints no warning."""
+    assert main(['solve', 'sim:table3', '--max-iters', '1', '--quiet']) == 0
+    err = capsys.readouterr().err
+    assert 'warning: pmba-dogleg stopped at max_iterations after 1 iterations' in err
+    assert main(['solve', 'sim:table3', '--quiet']) == 0
+    assert 'warning' not in capsys.readouterr().err
+
+
 def test_solve_global_init_reports_stages(tmp_path: Path) -> None:
     """`--init global` ignores the file's start and reports the stages and one BA."""
     report = tmp_path / 'r.json'
@@ -84,3 +93,62 @@ def test_console_entry_point_runs() -> None:
                           capture_output=True, text=True, check=False, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert 'PMBA / dogleg' in proc.stdout
+
+
+@pytest.mark.parametrize('init', ['file', 'global'])
+def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: str) -> None:
+    """`pmba solve MODEL --out DIR` writes the refined COLMAP model (same frame) to DIR."""
+    import numpy as np
+
+    from pmba_ros.eval.align import umeyama_alignment
+    from pmba_ros.io import colmap
+    from pmba_ros.sim.scenes import street_scene
+
+    scene = street_scene(2, n_cams=8, n_points=300, far_fraction=0.0, jitter_m=0.3)
+    colmap.write_colmap(tmp_path / 'model', colmap.from_problem(scene.start), binary=True)
+    out = tmp_path / 'refined'
+    assert main(['solve', str(tmp_path / 'model'), '--init', init, '--quiet',
+                 '--out', str(out), '--report', str(tmp_path / 'r.json')]) == 0
+    assert (out / 'cameras.bin').is_file() and (out / 'report.json').is_file()
+    refined, _ = colmap.to_problem(colmap.read_colmap(out))
+    gt = scene.gt
+
+    def error(centers: np.ndarray) -> float:
+        sim = umeyama_alignment(centers, gt.centers_w, with_scale=True)
+        moved = sim.scale * centers @ sim.rotation.T + sim.translation
+        return float(np.linalg.norm(moved - gt.centers_w, axis=1).mean())
+
+    assert error(refined.centers_w) < 0.3 * error(scene.start.centers_w)
+    # Written in the model's frame: the refined cameras stay where the input put them.
+    assert np.linalg.norm(refined.centers_w - scene.start.centers_w, axis=1).mean() < 0.2
+    data = json.loads((tmp_path / 'r.json').read_text())
+    assert data['converged']
+
+
+@pytest.mark.parametrize('init', ['file', 'global'])
+def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str) -> None:
+    """`pmba solve bundle.out --out DIR` writes DIR/bundle.out with the refined cameras."""
+    import numpy as np
+
+    from pmba_ros.core.camera import Intrinsics, project
+    from pmba_ros.core.problem import make_problem
+    from pmba_ros.io import bundler
+    from pmba_ros.sim.scenes import street_scene
+    from test.io.test_bundler import _bundle_text
+
+    scene = street_scene(2, n_cams=8, n_points=300, far_fraction=0.0, jitter_m=0.3)
+    p = scene.start
+    M = p.n_cams
+    intr = Intrinsics(p.intrinsics.fx, p.intrinsics.fx, np.zeros(M), np.zeros(M),
+                      np.zeros(M), np.zeros(M))
+    centred = make_problem(p.R_wc, p.centers_w, intr, p.obs.cam_idx, p.obs.feat_idx,
+                           project(p.obs.bearings_c, intr, p.obs.cam_idx),
+                           points_w=p.points_w, n_feats=p.n_feats)
+    (tmp_path / 'bundle.out').write_text(_bundle_text(centred))
+    out = tmp_path / 'refined'
+    assert main(['solve', str(tmp_path / 'bundle.out'), '--init', init, '--quiet',
+                 '--out', str(out)]) == 0
+    refined, _ = bundler.to_problem(bundler.read_bundler(out / 'bundle.out'))
+    gt = scene.gt
+    start_err = np.linalg.norm(p.centers_w - gt.centers_w, axis=1).mean()
+    assert np.linalg.norm(refined.centers_w - gt.centers_w, axis=1).mean() < 0.5 * start_err

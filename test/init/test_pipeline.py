@@ -98,11 +98,16 @@ def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
     report = json.loads(json.dumps(res.to_report()))
     summary = report['summary']
     for key in ('pairs_found', 'pairs_kept', 'cameras_in_component', 'cameras_left_out',
-                'rotation_residual_deg', 'cls_residual', 'nls_residual'):
+                'rotation_residual_deg', 'cls_residual', 'nls_residual', 'features_used',
+                'features_recovered', 'inconsistent_tracks', 'cameras_resected',
+                'ba_converged', 'ba_termination'):
         assert key in summary
     assert set(STAGES) | {'total'} <= set(report['time_s'])
     assert summary['cameras_left_out'] == []
     assert report['ba']['converged']
+    per_camera = report['rotations']['rotation_residual_per_camera_deg']
+    assert len(per_camera) == 8 and all(0.0 <= r < 0.5 for r in per_camera)
+    assert max(per_camera) <= report['rotations']['rotation_residual_deg']['max']
 
 
 def _drop_camera_tracks(problem: BAProblem, cam: int, keep: int) -> BAProblem:
@@ -193,3 +198,44 @@ def test_init_options_are_validated(field: str, value: object) -> None:
     """Out-of-range options raise ValueError naming the option."""
     with pytest.raises(ValueError, match=field):
         InitOptions(**{field: value})
+
+
+def _only_pair_tracks(problem: BAProblem, a: int, b: int, n: int) -> tuple[BAProblem, np.ndarray]:
+    """Leave cameras a and b exactly n common tracks, each seen by a and b only.
+
+    Of the tracks seen by both, n keep only those two observations; the others lose their
+    observation in b. The pair (a, b) then shares fewer tracks than an EG pair needs.
+    """
+    obs = problem.obs
+    seen = np.zeros((problem.n_feats, problem.n_cams), dtype=bool)
+    seen[obs.feat_idx, obs.cam_idx] = True
+    both = np.flatnonzero(seen[:, a] & seen[:, b])
+    cut = both[:n]
+    in_cut = np.isin(obs.feat_idx, cut)
+    drop = (in_cut & (obs.cam_idx != a) & (obs.cam_idx != b)) | (
+        ~in_cut & (obs.cam_idx == b) & np.isin(obs.feat_idx, both))
+    sel = ~drop
+    out = make_problem(problem.R_wc, problem.centers_w, problem.intrinsics, obs.cam_idx[sel],
+                       obs.feat_idx[sel], obs.pixels[sel], bearings_c=obs.bearings_c[sel],
+                       points_w=problem.points_w, n_feats=problem.n_feats)
+    return out, cut
+
+
+def test_features_without_eg_anchor_pair_are_recovered_not_dropped() -> None:
+    """Tracks seen only by two cameras that form no EG pair are anchored once positions exist.
+
+    Cameras 0 and 11 share 25 tracks (below min_pair_matches = 30), seen by no other camera:
+    they have no EG anchor pair. They are anchored after the NLS on (0, 11), every feature
+    is used, and the one BA reaches the cost of PMBA started from the true values.
+    """
+    gt = sim_street(4, n_cams=12, n_points=400, noise_px=0.5).gt
+    problem, cut = _only_pair_tracks(gt, 0, 11, 25)
+    res = global_init(problem, _TIGHT)
+    report = res.report
+    assert report['features']['features_without_eg_anchor_pair'] >= 25
+    assert report['tracks']['features_recovered'] == report['features'][
+        'features_without_eg_anchor_pair']
+    assert res.problem.n_feats == problem.n_feats
+    assert np.isin(cut, res.feature_index).all()
+    assert res.solve.converged
+    assert res.solve.final_cost == pytest.approx(_gt_start_cost(problem, res), rel=1e-6)

@@ -110,3 +110,42 @@ def test_chordal_averaging_raises_on_disconnected_graph() -> None:
     R_rel = np.broadcast_to(np.eye(3), (2, 3, 3))
     with pytest.raises(InitError, match='connected'):
         rotation_averaging.chordal_rotation_averaging(4, 0, cam_a, cam_b, R_rel)
+
+
+def test_robust_averaging_shrugs_off_corrupted_pairs(rng: np.random.Generator) -> None:
+    """15 % of pairs wrong by 20-60 deg: IRLS stays near the noise level, plain L2 does not."""
+    M = 20
+    R_true = so3.exp(rng.normal(size=(M, 3)))
+    cam_a, cam_b = _random_graph(rng, M, 0.5)
+    P = cam_a.shape[0]
+    noise = so3.exp(rng.normal(scale=np.deg2rad(0.2), size=(P, 3)))
+    R_rel = _relative(R_true, cam_a, cam_b) @ noise
+    bad = rng.random(P) < 0.15
+    # Keep the chain edges clean so every camera stays connected by good pairs.
+    bad &= cam_b != cam_a + 1
+    axis = rng.normal(size=(int(bad.sum()), 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    R_rel[bad] = R_rel[bad] @ so3.exp(axis * np.deg2rad(rng.uniform(20, 60, (bad.sum(), 1))))
+    R_ref = R_true[0].T @ R_true
+    plain = rotation_averaging.chordal_rotation_averaging(M, 0, cam_a, cam_b, R_rel)
+    robust, factor, rounds = rotation_averaging.robust_rotation_averaging(
+        M, 0, cam_a, cam_b, R_rel, cauchy_deg=1.0)
+    err_plain = np.rad2deg(so3.angle(plain, R_ref)).max()
+    err_robust = np.rad2deg(so3.angle(robust, R_ref)).max()
+    assert err_plain > 2.0
+    assert err_robust < 0.5
+    assert 1 < rounds < 20
+    assert factor[bad].max() < 0.01 < factor[~bad].min()
+
+
+def test_robust_averaging_equals_plain_averaging_on_consistent_pairs(
+        rng: np.random.Generator) -> None:
+    """Without noise every factor is 1 and the result is the exact chordal solution."""
+    M = 8
+    R_true = so3.exp(rng.normal(size=(M, 3)))
+    cam_a, cam_b = _random_graph(rng, M, 0.5)
+    R, factor, rounds = rotation_averaging.robust_rotation_averaging(
+        M, 1, cam_a, cam_b, _relative(R_true, cam_a, cam_b))
+    np.testing.assert_allclose(R, R_true[1].T @ R_true, atol=1e-10)
+    np.testing.assert_allclose(factor, 1.0, atol=1e-12)
+    assert rounds == 1

@@ -1,0 +1,199 @@
+"""Read and write Bundler ``bundle.out`` files (v0.3).
+
+Layout: an optional ``# Bundle file v0.3`` line, ``num_cameras num_points``, then per camera
+``f k1 k2``, three rows of R and ``t``; then per point its position ``x y z``, colour
+``r g b`` and view list ``n  cam key x y  cam key x y ...``. Whitespace and line breaks are
+free. A camera with f = 0 was not registered by Bundler: it and its observations are left out
+of the problem and written back unchanged.
+
+Bundler's camera model is BAL's (:mod:`pmba_ros.io.bal`): ``P = R X + t``, ``p = -P / P_z``,
+``p' = f (1 + k1 |p|^2 + k2 |p|^4) p``, the camera looks down -z, image coordinates are
+relative to the image centre with +y up. The conversion is the same:
+
+=============  ======================================  ==================================
+Bundler        pmba_ros                                note
+=============  ======================================  ==================================
+R, t           R_wc = (diag(1,-1,-1) R)^T, C = -R^T t
+(x, y)         pixels = (x, -y)                        origin stays at the image centre
+f, k1, k2      fx = fy = f, cx = cy = 0, k1, k2        held fixed by the solvers
+=============  ======================================  ==================================
+
+Format reference: the Bundler v0.3 manual ("Output format").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import make_problem
+from pmba_ros.errors import FormatError, ProblemError
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from pmba_ros._typing import FloatArray, IntArray
+    from pmba_ros.core.problem import BAProblem
+
+logger = logging.getLogger(__name__)
+
+__all__ = ['BundlerModel', 'read_bundler', 'to_problem', 'updated', 'write_bundler']
+
+_FLIP = np.diag([1.0, -1.0, -1.0])
+_HEADER = '# Bundle file v0.3'
+
+
+@dataclass(frozen=True, eq=False)
+class BundlerModel:
+    """The contents of a bundle file.
+
+    Attributes:
+        cameras: Per camera ``f k1 k2``, R (row-major) and t: shape (C, 15).
+        xyz: Point positions (N, 3).
+        rgb: Point colours (N, 3) (integers as stored).
+        view_offsets: CSR offsets (N+1,) into the view arrays.
+        view_cam: Camera of each view (V,).
+        view_key: Feature (SIFT key) index of each view in its image (V,).
+        view_xy: Image coordinates of each view (V, 2), centred, +y up.
+    """
+
+    cameras: FloatArray
+    xyz: FloatArray
+    rgb: IntArray
+    view_offsets: IntArray
+    view_cam: IntArray
+    view_key: IntArray
+    view_xy: FloatArray
+
+
+def read_bundler(path: str | PathLike[str]) -> BundlerModel:
+    """Read a Bundler v0.3 file.
+
+    Raises:
+        FormatError: On a malformed file (the file, and what was expected where).
+    """
+    path = Path(path)
+    text = path.read_text(encoding='utf-8')
+    first, _, rest = text.partition('\n')
+    if not first.lstrip().startswith('#'):
+        rest = text
+    elif 'v0.3' not in first:
+        msg = f'{path}:1: unsupported header {first.strip()!r}, expected {_HEADER!r}'
+        raise FormatError(msg)
+    try:
+        values = np.array(rest.split(), dtype=float)
+    except ValueError as err:
+        msg = f'{path}: non-numeric value ({err})'
+        raise FormatError(msg) from err
+    if values.size < 2 or values[0] != int(values[0]) or values[1] != int(values[1]):
+        msg = f'{path}: expected "num_cameras num_points" after the header'
+        raise FormatError(msg)
+    n_cams, n_points = int(values[0]), int(values[1])
+    pos = 2 + 15 * n_cams
+    if values.size < pos:
+        msg = f'{path}: truncated file: {n_cams} cameras need {15 * n_cams} values'
+        raise FormatError(msg)
+    cameras = values[2:pos].reshape(n_cams, 15)
+    xyz = np.empty((n_points, 3))
+    rgb = np.empty((n_points, 3), dtype=np.int64)
+    counts = np.empty(n_points, dtype=np.int64)
+    views = []
+    for j in range(n_points):
+        if values.size < pos + 7:
+            msg = f'{path}: truncated file in point {j} of {n_points}'
+            raise FormatError(msg)
+        xyz[j] = values[pos:pos + 3]
+        rgb[j] = values[pos + 3:pos + 6]
+        n = int(values[pos + 6])
+        end = pos + 7 + 4 * n
+        if n < 0 or values.size < end:
+            msg = f'{path}: point {j}: view list of {n} views is truncated or invalid'
+            raise FormatError(msg)
+        views.append(values[pos + 7:end].reshape(n, 4))
+        counts[j] = n
+        pos = end
+    if values.size != pos:
+        msg = f'{path}: {values.size - pos} unexpected values after the last point'
+        raise FormatError(msg)
+    v = np.concatenate(views) if views else np.zeros((0, 4))
+    cam = v[:, 0].astype(np.int64)
+    if np.any((cam < 0) | (cam >= n_cams)) or np.any(v[:, 0] != cam):
+        msg = f'{path}: a view refers to a camera outside 0..{n_cams - 1}'
+        raise FormatError(msg)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return BundlerModel(cameras, xyz, rgb, offsets, cam, v[:, 1].astype(np.int64),
+                        v[:, 2:4].copy())
+
+
+def to_problem(model: BundlerModel) -> tuple[BAProblem, IntArray]:
+    """Return the BA problem of the registered cameras (f > 0) and their file indices.
+
+    ``feature_ids`` are the point indices in the file.
+
+    Raises:
+        FormatError: If no camera is registered or the data are inconsistent.
+    """
+    registered = np.flatnonzero(model.cameras[:, 0] > 0)
+    if registered.size == 0:
+        msg = 'Bundler file: no registered camera (every focal length is 0)'
+        raise FormatError(msg)
+    new = np.full(model.cameras.shape[0], -1, dtype=np.int64)
+    new[registered] = np.arange(registered.size)
+    cams = model.cameras[registered]
+    R = cams[:, 3:12].reshape(-1, 3, 3)
+    t = cams[:, 12:15]
+    R_wc = np.swapaxes(_FLIP @ R, 1, 2)
+    centers = -np.einsum('mji,mj->mi', R, t)
+    f = cams[:, 0]
+    zero = np.zeros(registered.size)
+    intr = Intrinsics(f.copy(), f.copy(), zero, zero.copy(), cams[:, 1].copy(),
+                      cams[:, 2].copy())
+    counts = np.diff(model.view_offsets)
+    feat = np.repeat(np.arange(counts.size), counts)
+    keep = new[model.view_cam] >= 0
+    pixels = np.stack([model.view_xy[:, 0], -model.view_xy[:, 1]], axis=1)
+    try:
+        problem = make_problem(R_wc, centers, intr, new[model.view_cam[keep]], feat[keep],
+                               pixels[keep], points_w=model.xyz, n_feats=counts.size)
+    except ProblemError as err:
+        msg = f'Bundler file: {err}'
+        raise FormatError(msg) from err
+    return problem, registered
+
+
+def updated(model: BundlerModel, cameras: IntArray, R_wc: FloatArray, centers_w: FloatArray,
+            point_ids: IntArray, points_w: FloatArray) -> BundlerModel:
+    """Return the model with new poses for file cameras ``cameras`` and new point positions.
+
+    Non-finite points (PMBA points at infinity) keep their stored position.
+    """
+    R = _FLIP @ np.swapaxes(np.asarray(R_wc, dtype=float), 1, 2)
+    t = -np.einsum('mij,mj->mi', R, centers_w)
+    cams = model.cameras.copy()
+    cams[cameras, 3:12] = R.reshape(-1, 9)
+    cams[cameras, 12:15] = t
+    xyz = model.xyz.copy()
+    finite = np.all(np.isfinite(points_w), axis=1)
+    xyz[np.asarray(point_ids)[finite]] = np.asarray(points_w)[finite]
+    return replace(model, cameras=cams, xyz=xyz)
+
+
+def write_bundler(path: str | PathLike[str], model: BundlerModel) -> None:
+    """Write a model as a Bundler v0.3 file."""
+    lines = [_HEADER, f'{model.cameras.shape[0]} {model.xyz.shape[0]}']
+    for c in model.cameras:
+        lines.append(' '.join(f'{v:.17g}' for v in c[0:3]))
+        lines += [' '.join(f'{v:.17g}' for v in c[3 + 3 * r:6 + 3 * r]) for r in range(4)]
+    for j in range(model.xyz.shape[0]):
+        a, b = model.view_offsets[j], model.view_offsets[j + 1]
+        lines.append(' '.join(f'{v:.17g}' for v in model.xyz[j]))
+        lines.append(' '.join(str(int(v)) for v in model.rgb[j]))
+        views = ' '.join(f'{int(c)} {int(k)} {x:.17g} {y:.17g}' for c, k, (x, y) in zip(
+            model.view_cam[a:b], model.view_key[a:b], model.view_xy[a:b], strict=True))
+        lines.append(f'{b - a} {views}'.rstrip())
+    Path(path).write_text('\n'.join(lines) + '\n', encoding='utf-8')

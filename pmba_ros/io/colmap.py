@@ -1,0 +1,578 @@
+"""Read and write COLMAP sparse models (``cameras``, ``images``, ``points3D``; text or binary).
+
+A COLMAP image is a pose of this package (one camera per image; intrinsics from its COLMAP
+camera), a 3-D point is a feature and every 2-D point with a 3-D point id is an observation.
+COLMAP's conventions match this package's (camera x right, y down, z forward; pixels
+``u = fx x_d + cx`` with the origin at the image's top-left corner), so only the pose is
+converted:
+
+==================  ================================  ======================================
+COLMAP              pmba_ros                          note
+==================  ================================  ======================================
+qvec (w,x,y,z), t   R_wc = R(q)^T, C = -R(q)^T t      world -> camera in the file
+SIMPLE_PINHOLE      fx = fy = f, cx, cy
+PINHOLE             fx, fy, cx, cy
+SIMPLE_RADIAL       fx = fy = f, cx, cy, k1 = k
+RADIAL              fx = fy = f, cx, cy, k1, k2
+OPENCV              fx, fy, cx, cy, k1, k2            only with p1 = p2 = 0 (no tangential)
+==================  ================================  ======================================
+
+Other camera models raise :class:`~pmba_ros.errors.FormatError` naming the model. Writing
+updates the poses of the solved images and the positions of the solved points and keeps
+everything else (cameras, names, colours, 2-D points, unsolved images and points) as read.
+Format reference: COLMAP's ``src/colmap/scene/reconstruction_io.cc`` (text and binary).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import logging
+from pathlib import Path
+import struct
+from typing import TYPE_CHECKING, Any, BinaryIO
+
+import numpy as np
+
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import make_problem
+from pmba_ros.errors import FormatError, ProblemError
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from pmba_ros._typing import FloatArray, IntArray
+    from pmba_ros.core.problem import BAProblem
+
+logger = logging.getLogger(__name__)
+
+__all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'from_problem', 'is_colmap_model',
+           'read_colmap', 'to_problem', 'updated', 'write_colmap']
+
+#: COLMAP model id -> (name, number of parameters).
+MODELS: dict[int, tuple[str, int]] = {
+    0: ('SIMPLE_PINHOLE', 3), 1: ('PINHOLE', 4), 2: ('SIMPLE_RADIAL', 4), 3: ('RADIAL', 5),
+    4: ('OPENCV', 8), 5: ('OPENCV_FISHEYE', 8), 6: ('FULL_OPENCV', 12), 7: ('FOV', 5),
+    8: ('SIMPLE_RADIAL_FISHEYE', 4), 9: ('RADIAL_FISHEYE', 5), 10: ('THIN_PRISM_FISHEYE', 12),
+}
+_MODEL_IDS = {name: (mid, n) for mid, (name, n) in MODELS.items()}
+SUPPORTED = ('SIMPLE_PINHOLE', 'PINHOLE', 'SIMPLE_RADIAL', 'RADIAL', 'OPENCV')
+_INVALID_POINT = -1
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapCamera:
+    """A COLMAP camera: model name, image size and parameters as in the file."""
+
+    model: str
+    width: int
+    height: int
+    params: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapImage:
+    """A COLMAP image: pose (world -> camera), camera id, name and 2-D points.
+
+    Attributes:
+        qvec: Unit quaternion (w, x, y, z) of R_cw.
+        tvec: Translation t (X_c = R_cw X + t).
+        camera_id: Its camera.
+        name: Image file name.
+        xys: 2-D points (P, 2) in pixels.
+        point3d_ids: 3-D point id of each 2-D point, -1 if none, shape (P,).
+    """
+
+    qvec: FloatArray
+    tvec: FloatArray
+    camera_id: int
+    name: str
+    xys: FloatArray
+    point3d_ids: IntArray
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapModel:
+    """A sparse model: cameras, images and 3-D points keyed by their COLMAP ids.
+
+    Attributes:
+        cameras: Camera id -> camera.
+        images: Image id -> image.
+        point_ids: 3-D point ids, shape (N,).
+        xyz: Positions (N, 3).
+        rgb: Colours (N, 3) uint8.
+        error: Reprojection errors (N,) as stored.
+        tracks: Per point, (image id, 2-D point index) pairs, each shape (L, 2).
+    """
+
+    cameras: dict[int, ColmapCamera]
+    images: dict[int, ColmapImage]
+    point_ids: IntArray
+    xyz: FloatArray
+    rgb: np.ndarray
+    error: FloatArray
+    tracks: list[IntArray]
+
+
+def is_colmap_model(path: str | PathLike[str]) -> bool:
+    """Return True if ``path`` is a directory holding a text or binary COLMAP model."""
+    p = Path(path)
+    return p.is_dir() and any((p / f'cameras{ext}').is_file() for ext in ('.txt', '.bin'))
+
+
+# ---- quaternions -------------------------------------------------------------------------
+
+def _quat_to_R(q: FloatArray) -> FloatArray:
+    """Return rotation matrices (M, 3, 3) of unit quaternions (M, 4) in (w, x, y, z)."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=1)
+
+
+def _R_to_quat(R: FloatArray) -> FloatArray:
+    """Return unit quaternions (M, 4) (w, x, y, z), w >= 0, of rotations (M, 3, 3)."""
+    # The largest of the four squared components is computed directly (stable everywhere).
+    tr = np.trace(R, axis1=1, axis2=2)
+    d = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
+    k = np.argmax(d, axis=1)
+    q = np.empty((R.shape[0], 4))
+    s = np.sqrt(np.maximum(1.0 + 2.0 * d[np.arange(R.shape[0]), k] - tr, 1e-300)) * 2.0
+    r = R
+    cases = [
+        (k == 0, [s / 4, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
+                  (r[:, 1, 0] - r[:, 0, 1]) / s]),
+        (k == 1, [(r[:, 2, 1] - r[:, 1, 2]) / s, s / 4, (r[:, 0, 1] + r[:, 1, 0]) / s,
+                  (r[:, 0, 2] + r[:, 2, 0]) / s]),
+        (k == 2, [(r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 0, 1] + r[:, 1, 0]) / s, s / 4,
+                  (r[:, 1, 2] + r[:, 2, 1]) / s]),
+        (k == 3, [(r[:, 1, 0] - r[:, 0, 1]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s,
+                  (r[:, 1, 2] + r[:, 2, 1]) / s, s / 4]),
+    ]
+    for mask, comps in cases:
+        q[mask] = np.stack(comps, axis=1)[mask]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return np.where(q[:, :1] < 0, -q, q)
+
+
+# ---- reading -----------------------------------------------------------------------------
+
+def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
+    """Read a COLMAP model from a directory (``.bin`` files preferred over ``.txt``).
+
+    Raises:
+        FormatError: If files are missing or malformed (file and line / record named).
+    """
+    d = Path(directory)
+    if (d / 'cameras.bin').is_file():
+        files = [d / f'{n}.bin' for n in ('cameras', 'images', 'points3D')]
+        readers = (_read_cameras_bin, _read_images_bin, _read_points_bin)
+    else:
+        files = [d / f'{n}.txt' for n in ('cameras', 'images', 'points3D')]
+        readers = (_read_cameras_txt, _read_images_txt, _read_points_txt)
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        msg = f'{d}: not a COLMAP model, missing {", ".join(missing)}'
+        raise FormatError(msg)
+    cameras = readers[0](files[0])
+    images = readers[1](files[1])
+    ids, xyz, rgb, err, tracks = readers[2](files[2])
+    for iid, img in images.items():
+        if img.camera_id not in cameras:
+            msg = f'{files[1]}: image {iid} refers to unknown camera {img.camera_id}'
+            raise FormatError(msg)
+    logger.info('read_colmap %s: %d cameras, %d images, %d points', d, len(cameras),
+                len(images), ids.shape[0])
+    return ColmapModel(cameras, images, ids, xyz, rgb, err, tracks)
+
+
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    out = []
+    with path.open(encoding='utf-8') as fh:
+        for n, line in enumerate(fh, 1):
+            s = line.strip()
+            if s and not s.startswith('#'):
+                out.append((n, s.split()))
+    return out
+
+
+def _numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
+    try:
+        return np.array(tokens, dtype=float)
+    except ValueError as err:
+        msg = f'{path}:{n}: non-numeric value in {what}: {err}'
+        raise FormatError(msg) from err
+
+
+def _camera(path: Path, where: str, model: str, width: int, height: int,
+            params: FloatArray) -> ColmapCamera:
+    if model not in _MODEL_IDS:
+        msg = f'{path}:{where}: unknown camera model {model!r}'
+        raise FormatError(msg)
+    n = _MODEL_IDS[model][1]
+    if params.shape[0] != n:
+        msg = f'{path}:{where}: {model} has {n} parameters, found {params.shape[0]}'
+        raise FormatError(msg)
+    return ColmapCamera(model, width, height, params)
+
+
+def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
+    cams = {}
+    for n, t in _data_lines(path):
+        if len(t) < 4:
+            msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
+            raise FormatError(msg)
+        head = _numbers(path, n, [t[0], t[2], t[3]], 'camera id / size')
+        cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
+                                     _numbers(path, n, t[4:], 'camera parameters'))
+    return cams
+
+
+def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
+    with path.open(encoding='utf-8') as fh:
+        lines = [(n, line.split()) for n, line in enumerate(fh, 1)
+                 if not line.lstrip().startswith('#')]
+    images = {}
+    k = 0
+    while k < len(lines):
+        n, head = lines[k]
+        if not head:  # blank lines between images
+            k += 1
+            continue
+        # The 2-D points line follows the header; it is empty (or missing at the end of
+        # the file) for an image without points.
+        n2, pts = lines[k + 1] if k + 1 < len(lines) else (n + 1, [])
+        k += 2
+        if len(head) < 10:
+            msg = f'{path}:{n}: expected "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"'
+            raise FormatError(msg)
+        v = _numbers(path, n, head[:9], 'image pose')
+        if len(pts) % 3:
+            msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
+            raise FormatError(msg)
+        p = _numbers(path, n2, pts, 'image points').reshape(-1, 3)
+        images[int(v[0])] = ColmapImage(v[1:5], v[5:8], int(v[8]), ' '.join(head[9:]),
+                                        p[:, :2].copy(), p[:, 2].astype(np.int64))
+    return images
+
+
+def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
+                                          list[IntArray]]:
+    ids, xyz, rgb, err, tracks = [], [], [], [], []
+    for n, t in _data_lines(path):
+        if len(t) < 8 or (len(t) - 8) % 2:
+            msg = (f'{path}:{n}: expected "POINT3D_ID X Y Z R G B ERROR" and (IMAGE_ID, '
+                   'POINT2D_IDX) pairs')
+            raise FormatError(msg)
+        v = _numbers(path, n, t, 'point')
+        ids.append(int(v[0]))
+        xyz.append(v[1:4])
+        rgb.append(v[4:7])
+        err.append(v[7])
+        tracks.append(v[8:].astype(np.int64).reshape(-1, 2))
+    return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
+            np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
+
+
+class _Reader:
+    """Little-endian binary reader that names the file and offset in its errors."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.data = path.read_bytes()
+        self.pos = 0
+
+    def take(self, fmt: str) -> tuple[Any, ...]:
+        size = struct.calcsize('<' + fmt)
+        if self.pos + size > len(self.data):
+            msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
+            raise FormatError(msg)
+        out = struct.unpack_from('<' + fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def array(self, dtype: str, count: int) -> np.ndarray:
+        size = np.dtype(dtype).itemsize * count
+        if self.pos + size > len(self.data):
+            msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
+            raise FormatError(msg)
+        out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos).copy()
+        self.pos += size
+        return out
+
+    def string(self) -> str:
+        end = self.data.find(b'\0', self.pos)
+        if end < 0:
+            msg = f'{self.path}: unterminated image name at byte {self.pos}'
+            raise FormatError(msg)
+        s = self.data[self.pos:end].decode('utf-8')
+        self.pos = end + 1
+        return s
+
+
+def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
+    r = _Reader(path)
+    (count,) = r.take('Q')
+    cams = {}
+    for _ in range(int(count)):
+        cid, mid, w, h = r.take('iiQQ')
+        if mid not in MODELS:
+            msg = f'{path}: camera {cid} has unknown model id {mid}'
+            raise FormatError(msg)
+        name, n = MODELS[int(mid)]
+        cams[int(cid)] = ColmapCamera(name, int(w), int(h),
+                                      r.array('<f8', n))
+    return cams
+
+
+def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
+    r = _Reader(path)
+    (count,) = r.take('Q')
+    images = {}
+    for _ in range(int(count)):
+        (iid,) = r.take('i')
+        pose = r.array('<f8', 7)
+        (cid,) = r.take('i')
+        name = r.string()
+        (n_pts,) = r.take('Q')
+        rec = r.array('<f8,<f8,<i8', int(n_pts))
+        xys = np.stack([rec['f0'], rec['f1']], axis=1)
+        images[int(iid)] = ColmapImage(pose[:4], pose[4:], int(cid),
+                                       name, xys, rec['f2'].astype(np.int64))
+    return images
+
+
+def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
+                                          list[IntArray]]:
+    r = _Reader(path)
+    (count,) = r.take('Q')
+    n = int(count)
+    ids = np.empty(n, dtype=np.int64)
+    xyz = np.empty((n, 3))
+    rgb = np.empty((n, 3), dtype=np.uint8)
+    err = np.empty(n)
+    tracks = []
+    for k in range(n):
+        (pid,) = r.take('Q')
+        ids[k] = pid
+        xyz[k] = r.array('<f8', 3)
+        rgb[k] = r.array('u1', 3)
+        (err[k], length) = r.take('dQ')
+        tracks.append(r.array('<i4', 2 * int(length)).astype(np.int64).reshape(-1, 2))
+    return ids, xyz, rgb, err, tracks
+
+
+# ---- conversion --------------------------------------------------------------------------
+
+def _intrinsics(model: ColmapModel, image_ids: list[int]) -> Intrinsics:
+    rows = []
+    for iid in image_ids:
+        cam = model.cameras[model.images[iid].camera_id]
+        p = cam.params
+        if cam.model == 'SIMPLE_PINHOLE':
+            rows.append((p[0], p[0], p[1], p[2], 0.0, 0.0))
+        elif cam.model == 'PINHOLE':
+            rows.append((p[0], p[1], p[2], p[3], 0.0, 0.0))
+        elif cam.model == 'SIMPLE_RADIAL':
+            rows.append((p[0], p[0], p[1], p[2], p[3], 0.0))
+        elif cam.model == 'RADIAL':
+            rows.append((p[0], p[0], p[1], p[2], p[3], p[4]))
+        elif cam.model == 'OPENCV' and p[6] == 0.0 and p[7] == 0.0:
+            rows.append((p[0], p[1], p[2], p[3], p[4], p[5]))
+        else:
+            why = ('tangential distortion p1, p2 != 0' if cam.model == 'OPENCV'
+                   else f'model {cam.model}')
+            msg = (f'COLMAP camera {model.images[iid].camera_id} (image {iid}): {why} is not '
+                   f'supported; supported models: {", ".join(SUPPORTED)} (OPENCV without '
+                   'tangential terms). Undistort the images (colmap image_undistorter) first')
+            raise FormatError(msg)
+    a = np.array(rows, dtype=float).reshape(-1, 6)
+    return Intrinsics(*(a[:, i].copy() for i in range(6)))
+
+
+def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
+    """Return the BA problem of a model and the COLMAP image id of each of its cameras.
+
+    Cameras are the model's images in ascending id order; ``feature_ids`` are the 3-D point
+    ids; points seen by fewer than two images are dropped (counted in ``dropped``).
+
+    Raises:
+        FormatError: On unsupported camera models or inconsistent tracks.
+    """
+    image_ids = sorted(model.images)
+    if not image_ids:
+        msg = 'COLMAP model has no images'
+        raise FormatError(msg)
+    cam_of = {iid: k for k, iid in enumerate(image_ids)}
+    intr = _intrinsics(model, image_ids)
+    q = np.array([model.images[i].qvec for i in image_ids])
+    t = np.array([model.images[i].tvec for i in image_ids])
+    R_cw = _quat_to_R(q)
+    R_wc = np.swapaxes(R_cw, 1, 2)
+    centers = -np.einsum('mij,mj->mi', R_wc, t)
+    feat_of = {int(pid): j for j, pid in enumerate(model.point_ids)}
+    cam_idx, feat_idx, pix = [], [], []
+    for iid in image_ids:
+        img = model.images[iid]
+        has = img.point3d_ids != _INVALID_POINT
+        pids = img.point3d_ids[has]
+        try:
+            feats = [feat_of[int(p)] for p in pids]
+        except KeyError as err:
+            msg = f'COLMAP image {iid} refers to unknown 3-D point {err.args[0]}'
+            raise FormatError(msg) from err
+        cam_idx.append(np.full(len(feats), cam_of[iid], dtype=np.int64))
+        feat_idx.append(np.array(feats, dtype=np.int64))
+        pix.append(img.xys[has])
+    try:
+        problem = make_problem(R_wc, centers, intr, np.concatenate(cam_idx),
+                               np.concatenate(feat_idx), np.concatenate(pix).reshape(-1, 2),
+                               points_w=model.xyz, n_feats=model.point_ids.shape[0],
+                               feature_ids=model.point_ids)
+    except ProblemError as err:
+        msg = f'COLMAP model: {err}'
+        raise FormatError(msg) from err
+    return problem, np.array(image_ids, dtype=np.int64)
+
+
+def updated(model: ColmapModel, image_ids: IntArray, R_wc: FloatArray, centers_w: FloatArray,
+            point_ids: IntArray, points_w: FloatArray) -> ColmapModel:
+    """Return the model with new poses for ``image_ids`` and positions for ``point_ids``.
+
+    Non-finite points (PMBA points at infinity, which COLMAP cannot store) keep their stored
+    position.
+    """
+    R_cw = np.swapaxes(np.asarray(R_wc, dtype=float), 1, 2)
+    q = _R_to_quat(R_cw)
+    t = -np.einsum('mij,mj->mi', R_cw, centers_w)
+    images = dict(model.images)
+    for k, iid in enumerate(np.asarray(image_ids).tolist()):
+        images[iid] = replace(images[iid], qvec=q[k], tvec=t[k])
+    xyz = model.xyz.copy()
+    index = {int(pid): j for j, pid in enumerate(model.point_ids)}
+    rows = np.array([index[int(p)] for p in point_ids], dtype=np.int64)
+    finite = np.all(np.isfinite(points_w), axis=1)
+    xyz[rows[finite]] = np.asarray(points_w)[finite]
+    return replace(model, images=images, xyz=xyz)
+
+
+# ---- writing -----------------------------------------------------------------------------
+
+def write_colmap(directory: str | PathLike[str], model: ColmapModel,
+                 binary: bool = False) -> None:
+    """Write a model as ``cameras``, ``images``, ``points3D`` (.txt or .bin) into a directory."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    if binary:
+        with (d / 'cameras.bin').open('wb') as fh:
+            _write_cameras_bin(fh, model)
+        with (d / 'images.bin').open('wb') as fh:
+            _write_images_bin(fh, model)
+        with (d / 'points3D.bin').open('wb') as fh:
+            _write_points_bin(fh, model)
+        return
+    lines = ['# Camera list with one line of data per camera:',
+             '#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]',
+             f'# Number of cameras: {len(model.cameras)}']
+    lines += [f'{cid} {c.model} {c.width} {c.height} ' + ' '.join(f'{v:.17g}' for v in c.params)
+              for cid, c in sorted(model.cameras.items())]
+    (d / 'cameras.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    lines = ['# Image list with two lines of data per image:',
+             '#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME',
+             '#   POINTS2D[] as (X, Y, POINT3D_ID)',
+             f'# Number of images: {len(model.images)}']
+    for iid, img in sorted(model.images.items()):
+        pose = ' '.join(f'{v:.17g}' for v in np.concatenate([img.qvec, img.tvec]))
+        lines.append(f'{iid} {pose} {img.camera_id} {img.name}')
+        lines.append(' '.join(f'{x:.17g} {y:.17g} {int(p)}'
+                              for (x, y), p in zip(img.xys, img.point3d_ids, strict=True)))
+    (d / 'images.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    lines = ['# 3D point list with one line of data per point:',
+             '#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)',
+             f'# Number of points: {model.point_ids.shape[0]}']
+    for k, pid in enumerate(model.point_ids.tolist()):
+        x, y, z = model.xyz[k]
+        r, g, b = model.rgb[k].tolist()
+        track = ' '.join(str(int(v)) for v in model.tracks[k].ravel())
+        lines.append(f'{pid} {x:.17g} {y:.17g} {z:.17g} {r} {g} {b} {model.error[k]:.17g} '
+                     f'{track}')
+    (d / 'points3D.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+
+
+def _write_cameras_bin(fh: BinaryIO, model: ColmapModel) -> None:
+    fh.write(struct.pack('<Q', len(model.cameras)))
+    for cid, c in sorted(model.cameras.items()):
+        fh.write(struct.pack('<iiQQ', cid, _MODEL_IDS[c.model][0], c.width, c.height))
+        fh.write(np.asarray(c.params, dtype='<f8').tobytes())
+
+
+def _write_images_bin(fh: BinaryIO, model: ColmapModel) -> None:
+    fh.write(struct.pack('<Q', len(model.images)))
+    for iid, img in sorted(model.images.items()):
+        fh.write(struct.pack('<i', iid))
+        fh.write(np.concatenate([img.qvec, img.tvec]).astype('<f8').tobytes())
+        fh.write(struct.pack('<i', img.camera_id))
+        fh.write(img.name.encode('utf-8') + b'\0')
+        fh.write(struct.pack('<Q', img.xys.shape[0]))
+        rec = np.empty(img.xys.shape[0], dtype='<f8,<f8,<i8')
+        rec['f0'], rec['f1'], rec['f2'] = img.xys[:, 0], img.xys[:, 1], img.point3d_ids
+        fh.write(rec.tobytes())
+
+
+def _write_points_bin(fh: BinaryIO, model: ColmapModel) -> None:
+    fh.write(struct.pack('<Q', model.point_ids.shape[0]))
+    for k, pid in enumerate(model.point_ids.tolist()):
+        fh.write(struct.pack('<Q', pid))
+        fh.write(model.xyz[k].astype('<f8').tobytes())
+        fh.write(model.rgb[k].astype('u1').tobytes())
+        fh.write(struct.pack('<dQ', model.error[k], model.tracks[k].shape[0]))
+        fh.write(model.tracks[k].astype('<i4').tobytes())
+
+
+def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
+                 image_size: tuple[int, int] | None = None) -> ColmapModel:
+    """Return a COLMAP model of a problem: one camera and one image per pose.
+
+    Cameras are PINHOLE, or RADIAL when the pose has distortion and fx = fy (OPENCV
+    otherwise); the image size defaults to twice the principal point. Images get ids 1..M
+    and names ``image_000001.png``...; points keep ``feature_ids`` as ids, colour grey.
+
+    Raises:
+        ProblemError: If the problem has no points and none are given.
+    """
+    pts = problem.points_w if points_w is None else np.asarray(points_w, dtype=float)
+    if pts is None:
+        msg = 'from_problem: the problem has no points; pass points_w'
+        raise ProblemError(msg)
+    intr = problem.intrinsics
+    cameras = {}
+    for k in range(problem.n_cams):
+        w, h = image_size or (round(2 * intr.cx[k]), round(2 * intr.cy[k]))
+        fx, fy, cx, cy, k1, k2 = (float(getattr(intr, f)[k])
+                                  for f in ('fx', 'fy', 'cx', 'cy', 'k1', 'k2'))
+        if k1 == 0.0 and k2 == 0.0:
+            cam = ColmapCamera('PINHOLE', w, h, np.array([fx, fy, cx, cy]))
+        elif fx == fy:
+            cam = ColmapCamera('RADIAL', w, h, np.array([fx, cx, cy, k1, k2]))
+        else:
+            cam = ColmapCamera('OPENCV', w, h, np.array([fx, fy, cx, cy, k1, k2, 0.0, 0.0]))
+        cameras[k + 1] = cam
+    R_cw = np.swapaxes(problem.R_wc, 1, 2)
+    q = _R_to_quat(R_cw)
+    t = -np.einsum('mij,mj->mi', R_cw, problem.centers_w)
+    obs = problem.obs
+    ids = np.asarray(problem.feature_ids, dtype=np.int64)
+    images = {}
+    tracks: list[list[tuple[int, int]]] = [[] for _ in range(problem.n_feats)]
+    for k in range(problem.n_cams):
+        mine = np.flatnonzero(obs.cam_idx == k)
+        for idx, j in enumerate(obs.feat_idx[mine].tolist()):
+            tracks[j].append((k + 1, idx))
+        images[k + 1] = ColmapImage(q[k], t[k], k + 1, f'image_{k + 1:06d}.png',
+                                    obs.pixels[mine].copy(), ids[obs.feat_idx[mine]])
+    return ColmapModel(cameras, images, ids, np.array(pts, dtype=float),
+                       np.full((problem.n_feats, 3), 128, dtype=np.uint8),
+                       np.zeros(problem.n_feats),
+                       [np.array(t_, dtype=np.int64).reshape(-1, 2) for t_ in tracks])

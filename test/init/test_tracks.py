@@ -1,0 +1,83 @@
+"""Tests of the track consistency check (pmba_ros.init.tracks) and of the sweep's variants."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmba_ros.init.tracks import check_tracks, track_residuals_px
+from pmba_ros.sim.scenes import street_scene
+from pmba_ros.sim.variants import outlier_tracks
+
+
+def test_true_poses_give_noise_level_residuals_and_flag_only_wrong_tracks() -> None:
+    """With the true poses, real tracks sit at the noise level and added wrong ones above."""
+    gt = street_scene(2, n_cams=10, n_points=300, noise_px=0.5, max_track_length=6).gt
+    v = outlier_tracks(gt, 0.1, seed=3)
+    p = v.problem
+    rms = track_residuals_px(p, p.R_wc, p.centers_w)
+    wrong = np.isin(p.feature_ids, v.outlier_ids)
+    assert np.median(rms[~wrong]) < 1.0
+    assert np.max(rms[~wrong]) < 3.0
+    assert np.median(rms[wrong]) > 20.0
+    check = check_tracks(p, p.R_wc, p.centers_w, min_px=5.0, relative=30.0)
+    assert check.threshold_px == max(5.0, 30.0 * float(np.median(rms)))
+    assert not np.any(check.inconsistent[~wrong])
+    assert np.mean(check.inconsistent[wrong]) > 0.9
+
+
+def test_far_tracks_are_measured_against_the_point_at_infinity() -> None:
+    """Nearly parallel rays of a far feature are consistent even if their midpoint is not."""
+    gt = street_scene(5, n_cams=8, n_points=200, noise_px=0.5, far_fraction=0.8,
+                      max_depth_baselines=1e6).gt
+    rms = track_residuals_px(gt, gt.R_wc, gt.centers_w)
+    assert np.percentile(rms, 99) < 3.0
+
+
+def test_global_init_drops_wrong_tracks_before_its_one_ba() -> None:
+    """5 % added wrong tracks: dropped before the BA, which ends at the true-start optimum."""
+    from pmba_ros.core.solve import solve
+    from pmba_ros.init.pipeline import global_init
+
+    gt = street_scene(6, n_cams=12, n_points=300, noise_px=0.5).gt
+    v = outlier_tracks(gt, 0.05, seed=1)
+    res = global_init(v.problem)
+    kept_ids = v.problem.feature_ids[res.feature_index]
+    wrong = np.isin(kept_ids, v.outlier_ids)
+    assert res.report['tracks']['inconsistent_tracks'] >= v.outlier_ids.shape[0] - 1
+    assert wrong.sum() <= 1
+    assert (~wrong).sum() >= 0.98 * gt.n_feats
+    assert res.solve.converged
+    start = res.problem.with_poses(gt.R_wc[res.camera_index], gt.centers_w[res.camera_index])
+    assert v.problem.points_w is not None
+    ref = solve(start.with_points(v.problem.points_w[res.feature_index]), res.solve.options)
+    assert res.solve.final_rms_px <= 1.01 * ref.final_rms_px
+
+
+def test_a_misplaced_camera_is_flagged_and_resected_back() -> None:
+    """One camera moved by 2 m: its residual stands out and resection puts it back."""
+    from pmba_ros.init import pipeline
+    from pmba_ros.init.tracks import camera_residuals_px, midpoints, resect_centers
+
+    gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.0, far_fraction=0.0).gt
+    assert gt.points_w is not None
+    np.testing.assert_allclose(resect_centers(gt, gt.R_wc, gt.points_w, np.array([2, 7])),
+                               gt.centers_w[[2, 7]], atol=1e-8)
+    moved = gt.centers_w.copy()
+    moved[4] += [0.5, 2.0, -1.0]
+    px = camera_residuals_px(gt, gt.R_wc, moved, midpoints(gt, gt.R_wc, moved))
+    assert np.argmax(px) == 4 and px[4] > 5 * np.median(px)
+    centers, resected, _ = pipeline._resect_outlying_cameras(gt, moved, pipeline.InitOptions())
+    assert resected.tolist() == [4]
+    np.testing.assert_allclose(centers[4], gt.centers_w[4], atol=0.05)
+    np.testing.assert_array_equal(np.delete(centers, 4, 0), np.delete(moved, 4, 0))
+
+
+def test_well_placed_cameras_are_left_alone() -> None:
+    """Noisy but right positions: no camera is resected."""
+    from pmba_ros.init import pipeline
+
+    gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.5).gt
+    centers, resected, _ = pipeline._resect_outlying_cameras(gt, gt.centers_w,
+                                                             pipeline.InitOptions())
+    assert resected.size == 0
+    np.testing.assert_array_equal(centers, gt.centers_w)

@@ -1,0 +1,129 @@
+"""Tests of the Bundler v0.3 reader and writer (pmba_ros.io.bundler)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import BAProblem, make_problem
+from pmba_ros.core.solve import solve
+from pmba_ros.errors import FormatError
+from pmba_ros.io import bundler
+from pmba_ros.io.bal import read_bal, write_bal
+from pmba_ros.sim.scenes import street_scene
+
+
+@pytest.fixture(scope='module')
+def centred() -> BAProblem:
+    """Return a small street with centred pixels and radial distortion (Bundler's model)."""
+    p = street_scene(1, n_cams=6, n_points=120, max_track_length=4, far_fraction=0.0).start
+    M = p.n_cams
+    f = p.intrinsics.fx
+    intr = Intrinsics(f, f, np.zeros(M), np.zeros(M), np.full(M, -0.02), np.full(M, 0.001))
+    from pmba_ros.core.camera import project
+    pix = project(p.obs.bearings_c, intr, p.obs.cam_idx)
+    return make_problem(p.R_wc, p.centers_w, intr, p.obs.cam_idx, p.obs.feat_idx, pix,
+                        points_w=p.points_w, n_feats=p.n_feats)
+
+
+def _bundle_text(problem: BAProblem, unregistered_after: int | None = None) -> str:
+    """Write a bundle file by hand (a camera of zeros inserted after camera ``k`` if given)."""
+    flip = np.diag([1.0, -1.0, -1.0])
+    cams = []
+    for k in range(problem.n_cams):
+        R = flip @ problem.R_wc[k].T
+        t = -R @ problem.centers_w[k]
+        i = problem.intrinsics
+        cams.append(f'{i.fx[k]:.17g} {i.k1[k]:.17g} {i.k2[k]:.17g}\n'
+                    + '\n'.join(' '.join(f'{v:.17g}' for v in row) for row in R)
+                    + '\n' + ' '.join(f'{v:.17g}' for v in t))
+    file_cam = np.arange(problem.n_cams)
+    if unregistered_after is not None:
+        cams.insert(unregistered_after + 1, '0 0 0\n0 0 0\n0 0 0\n0 0 0\n0 0 0')
+        file_cam[unregistered_after + 1:] += 1
+    lines = ['# Bundle file v0.3', f'{len(cams)} {problem.n_feats}', *cams]
+    assert problem.points_w is not None
+    off = problem.feature_offsets()
+    for j in range(problem.n_feats):
+        views = []
+        for k in range(off[j], off[j + 1]):
+            x, y = problem.obs.pixels[k]
+            views.append(f'{file_cam[problem.obs.cam_idx[k]]} {7 * k} {x:.17g} {-y:.17g}')
+        if unregistered_after is not None and j % 10 == 0:
+            views.append(f'{unregistered_after + 1} 3 1.5 -2.5')
+        lines += [' '.join(f'{v:.17g}' for v in problem.points_w[j]), '10 20 30',
+                  f'{len(views)} ' + ' '.join(views)]
+    return '\n'.join(lines) + '\n'
+
+
+def test_reads_the_hand_written_file_and_round_trips(tmp_path: Path, centred: BAProblem) -> None:
+    """Check read -> to_problem gives the problem and write -> read every stored value."""
+    src = tmp_path / 'bundle.out'
+    src.write_text(_bundle_text(centred))
+    model = bundler.read_bundler(src)
+    problem, registered = bundler.to_problem(model)
+    assert registered.tolist() == list(range(centred.n_cams))
+    np.testing.assert_allclose(problem.R_wc, centred.R_wc, atol=1e-12)
+    np.testing.assert_allclose(problem.centers_w, centred.centers_w, atol=1e-9)
+    np.testing.assert_allclose(problem.obs.pixels, centred.obs.pixels, atol=1e-12)
+    np.testing.assert_allclose(problem.obs.bearings_c, centred.obs.bearings_c, atol=1e-12)
+    bundler.write_bundler(tmp_path / 'again.out', model)
+    again = bundler.read_bundler(tmp_path / 'again.out')
+    for field in ('cameras', 'xyz', 'rgb', 'view_offsets', 'view_cam', 'view_key', 'view_xy'):
+        np.testing.assert_array_equal(getattr(again, field), getattr(model, field))
+
+
+def test_conventions_agree_with_the_bal_reader(tmp_path: Path, centred: BAProblem) -> None:
+    """The same cameras through a BAL file (Rodrigues vectors) give the same problem."""
+    write_bal(tmp_path / 'p.txt', centred)
+    via_bal = read_bal(tmp_path / 'p.txt')
+    (tmp_path / 'b.out').write_text(_bundle_text(via_bal))
+    via_bundler, _ = bundler.to_problem(bundler.read_bundler(tmp_path / 'b.out'))
+    np.testing.assert_allclose(via_bundler.R_wc, via_bal.R_wc, atol=1e-12)
+    np.testing.assert_allclose(via_bundler.centers_w, via_bal.centers_w, atol=1e-9)
+    np.testing.assert_allclose(via_bundler.obs.bearings_c, via_bal.obs.bearings_c, atol=1e-12)
+
+
+def test_unregistered_cameras_are_left_out_and_written_back(
+        tmp_path: Path, centred: BAProblem) -> None:
+    """A camera with f = 0 is not in the problem; its views survive a solve and a write."""
+    src = tmp_path / 'bundle.out'
+    src.write_text(_bundle_text(centred, unregistered_after=2))
+    model = bundler.read_bundler(src)
+    problem, registered = bundler.to_problem(model)
+    assert registered.tolist() == [0, 1, 2, 4, 5, 6]
+    assert problem.n_obs == centred.n_obs
+    res = solve(problem)
+    assert res.converged and res.final_rms_px < 0.5 * res.initial_rms_px
+    out = bundler.updated(model, registered, res.R_wc, res.centers_w, res.problem.feature_ids,
+                          res.points_w)
+    bundler.write_bundler(tmp_path / 'out.out', out)
+    back = bundler.read_bundler(tmp_path / 'out.out')
+    np.testing.assert_array_equal(back.cameras[3], 0.0)
+    np.testing.assert_array_equal(back.view_cam, model.view_cam)
+    refined, _ = bundler.to_problem(back)
+    np.testing.assert_allclose(refined.R_wc, res.R_wc, atol=1e-12)
+    np.testing.assert_allclose(refined.centers_w, res.centers_w, atol=1e-9)
+    # Starting from the written file is at least as good as the solve that wrote it.
+    assert solve(refined).final_rms_px <= res.final_rms_px * (1 + 1e-6)
+
+
+@pytest.mark.parametrize(('text', 'match'), [
+    ('# Bundle file v0.2\n1 0\n', 'unsupported header'),
+    ('# Bundle file v0.3\n2 0\n1 0 0\n', 'truncated file: 2 cameras'),
+    ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n2 0 0 1 1 5 0 2 2\n',
+     'outside 0..0'),
+    ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n3 0 0 1 1\n',
+     'point 0: view list'),
+    ('# Bundle file v0.3\n1 x\n', 'non-numeric'),
+])
+def test_malformed_files_are_reported(tmp_path: Path, text: str, match: str) -> None:
+    """Errors name the file and what is wrong."""
+    path = tmp_path / 'bad.out'
+    path.write_text(text)
+    with pytest.raises(FormatError, match=match) as info:
+        bundler.read_bundler(path)
+    assert 'bad.out' in str(info.value)

@@ -1,0 +1,195 @@
+"""Tests of the COLMAP model reader and writer (pmba_ros.io.colmap)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import BAProblem, make_problem
+from pmba_ros.core.solve import solve
+from pmba_ros.errors import FormatError
+from pmba_ros.io import colmap
+from pmba_ros.sim.scenes import street_scene
+
+
+@pytest.fixture(scope='module')
+def scene_problem() -> BAProblem:
+    """Return a small street with distortion-free cameras (the perturbed start)."""
+    return street_scene(1, n_cams=6, n_points=120, max_track_length=4).start
+
+
+def _distorted(problem: BAProblem) -> BAProblem:
+    """Return the same problem with radial distortion (pixels re-made from the bearings)."""
+    intr = problem.intrinsics
+    M = problem.n_cams
+    d = Intrinsics(intr.fx, intr.fx, intr.cx, intr.cy, np.full(M, -0.05), np.full(M, 0.01))
+    from pmba_ros.core.camera import project
+    pix = project(problem.obs.bearings_c, d, problem.obs.cam_idx)
+    return make_problem(problem.R_wc, problem.centers_w, d, problem.obs.cam_idx,
+                        problem.obs.feat_idx, pix, points_w=problem.points_w,
+                        n_feats=problem.n_feats, feature_ids=problem.feature_ids)
+
+
+def _same_problem(a: BAProblem, b: BAProblem) -> None:
+    np.testing.assert_allclose(b.R_wc, a.R_wc, atol=1e-12)
+    np.testing.assert_allclose(b.centers_w, a.centers_w, atol=1e-9)
+    for f in ('fx', 'fy', 'cx', 'cy', 'k1', 'k2'):
+        np.testing.assert_array_equal(getattr(b.intrinsics, f), getattr(a.intrinsics, f))
+    np.testing.assert_array_equal(b.obs.cam_idx, a.obs.cam_idx)
+    np.testing.assert_array_equal(b.feature_ids[b.obs.feat_idx], a.feature_ids[a.obs.feat_idx])
+    np.testing.assert_array_equal(b.obs.pixels, a.obs.pixels)
+    np.testing.assert_allclose(b.obs.bearings_c, a.obs.bearings_c, atol=1e-12)
+    assert a.points_w is not None and b.points_w is not None
+    np.testing.assert_array_equal(b.points_w, a.points_w)
+
+
+def test_quaternions_round_trip_every_branch(rng: np.random.Generator) -> None:
+    """R -> q -> R is exact, including rotations near pi about each axis (all four branches)."""
+    R = so3.exp(rng.normal(size=(200, 3)))
+    near_pi = so3.exp(np.eye(3) * (np.pi - 1e-3))
+    R = np.concatenate([R, near_pi, np.eye(3)[None]])
+    q = colmap._R_to_quat(R)
+    assert np.all(q[:, 0] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(colmap._quat_to_R(q), R, atol=1e-12)
+
+
+@pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
+@pytest.mark.parametrize('distorted', [False, True], ids=['pinhole', 'radial'])
+def test_model_round_trips(tmp_path: Path, scene_problem: BAProblem, binary: bool,
+                           distorted: bool) -> None:
+    """from_problem -> write -> read -> to_problem gives the same problem (text and binary)."""
+    problem = _distorted(scene_problem) if distorted else scene_problem
+    model = colmap.from_problem(problem)
+    colmap.write_colmap(tmp_path, model, binary=binary)
+    assert colmap.is_colmap_model(tmp_path)
+    again, image_ids = colmap.to_problem(colmap.read_colmap(tmp_path))
+    np.testing.assert_array_equal(image_ids, np.arange(1, problem.n_cams + 1))
+    _same_problem(problem, again)
+    names = {c.model for c in colmap.read_colmap(tmp_path).cameras.values()}
+    assert names == ({'RADIAL'} if distorted else {'PINHOLE'})
+
+
+def test_text_file_with_comments_and_unobserved_2d_points(tmp_path: Path) -> None:
+    """A hand-written model: SIMPLE_RADIAL and OPENCV cameras, 2-D points without 3-D ids."""
+    (tmp_path / 'cameras.txt').write_text(
+        '# comment\n1 SIMPLE_RADIAL 640 480 500 320 240 -0.1\n'
+        '2 OPENCV 640 480 510 505 321 239 0.02 -0.01 0 0\n')
+    (tmp_path / 'images.txt').write_text(
+        '# two lines per image\n'
+        '1 1 0 0 0 0 0 0 1 a.png\n10 20 5 30 40 -1 50 60 7\n'
+        '2 1 0 0 0 -1 0 0 2 b b.png\n11 21 5 31 41 7 99 99 -1\n'
+        '3 0.7071067811865476 0 0.7071067811865476 0 0 0 1 1 c.png\n12 22 5 32 42 7\n')
+    (tmp_path / 'points3D.txt').write_text(
+        '5 0 0 10 255 0 0 0.5 1 0 2 0 3 0\n7 1 1 12 0 255 0 0.3 1 2 2 1 3 1\n')
+    problem, image_ids = colmap.to_problem(colmap.read_colmap(tmp_path))
+    assert image_ids.tolist() == [1, 2, 3]
+    assert problem.n_obs == 6 and problem.feature_ids.tolist() == [5, 7]
+    np.testing.assert_array_equal(problem.intrinsics.k1, [-0.1, 0.02, -0.1])
+    np.testing.assert_array_equal(problem.intrinsics.fy, [500, 505, 500])
+    np.testing.assert_allclose(problem.centers_w[1], [1, 0, 0], atol=1e-12)
+    # 90 deg about y: the camera centre of image 3 is -R^T t.
+    np.testing.assert_allclose(problem.centers_w[2], [1, 0, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize(('line', 'match'), [
+    ('1 SIMPLE_RADIAL_FISHEYE 640 480 500 320 240 0.1', 'SIMPLE_RADIAL_FISHEYE is not supported'),
+    ('1 OPENCV 640 480 500 500 320 240 0.1 0 0.001 0', 'tangential distortion'),
+])
+def test_unsupported_camera_models_are_named(tmp_path: Path, line: str, match: str) -> None:
+    """Models core.camera cannot represent raise a FormatError that names them."""
+    (tmp_path / 'cameras.txt').write_text(line + '\n')
+    (tmp_path / 'images.txt').write_text('1 1 0 0 0 0 0 0 1 a.png\n\n')
+    (tmp_path / 'points3D.txt').write_text('')
+    with pytest.raises(FormatError, match=match):
+        colmap.to_problem(colmap.read_colmap(tmp_path))
+
+
+@pytest.mark.parametrize(('name', 'content', 'match'), [
+    ('cameras.txt', '1 PINHOLE 640 480 500 500 320\n', 'PINHOLE has 4 parameters, found 3'),
+    ('cameras.txt', '1 NOPE 640 480 1\n', "unknown camera model 'NOPE'"),
+    ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 2\n', 'triples'),
+    ('points3D.txt', '1 0 0 x 1 1 1 0\n', 'non-numeric'),
+])
+def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, content: str,
+                                                 match: str) -> None:
+    """Errors name the file, the line and what is wrong."""
+    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n',
+             'images.txt': '1 1 0 0 0 0 0 0 1 a.png\n\n', 'points3D.txt': ''}
+    files[name] = content
+    for f, c in files.items():
+        (tmp_path / f).write_text(c)
+    with pytest.raises(FormatError, match=match) as info:
+        colmap.read_colmap(tmp_path)
+    assert name in str(info.value)
+
+
+def test_truncated_binary_file_is_reported(tmp_path: Path, scene_problem: BAProblem) -> None:
+    """A cut-off points3D.bin raises a FormatError naming the file and byte offset."""
+    colmap.write_colmap(tmp_path, colmap.from_problem(scene_problem), binary=True)
+    data = (tmp_path / 'points3D.bin').read_bytes()
+    (tmp_path / 'points3D.bin').write_bytes(data[:len(data) // 2])
+    with pytest.raises(FormatError, match=r'points3D\.bin: truncated file at byte'):
+        colmap.read_colmap(tmp_path)
+
+
+def test_missing_files_are_named(tmp_path: Path) -> None:
+    """A directory without a model says which files are missing."""
+    with pytest.raises(FormatError, match=r'missing .*cameras\.txt'):
+        colmap.read_colmap(tmp_path)
+
+
+def test_read_solve_write_read_updates_poses_and_points(tmp_path: Path,
+                                                        scene_problem: BAProblem) -> None:
+    """Refining a model writes the solved poses and points; the rest is kept as read."""
+    src = tmp_path / 'in'
+    colmap.write_colmap(src, colmap.from_problem(scene_problem))
+    model = colmap.read_colmap(src)
+    problem, image_ids = colmap.to_problem(model)
+    res = solve(problem)
+    assert res.converged and res.final_rms_px < 0.5 * res.initial_rms_px
+    out = colmap.updated(model, image_ids, res.R_wc, res.centers_w, res.problem.feature_ids,
+                         res.points_w)
+    colmap.write_colmap(tmp_path / 'out', out, binary=True)
+    back = colmap.read_colmap(tmp_path / 'out')
+    again, _ = colmap.to_problem(back)
+    np.testing.assert_allclose(again.R_wc, res.R_wc, atol=1e-12)
+    np.testing.assert_allclose(again.centers_w, res.centers_w, atol=1e-9)
+    finite = np.all(np.isfinite(res.points_w), axis=1)
+    rows = np.searchsorted(again.feature_ids, res.problem.feature_ids)
+    assert again.points_w is not None
+    np.testing.assert_allclose(again.points_w[rows][finite], res.points_w[finite])
+    assert [i.name for i in back.images.values()] == [i.name for i in model.images.values()]
+    np.testing.assert_array_equal(again.obs.pixels, problem.obs.pixels)
+    # Starting again from the written model ends at the same minimum.
+    assert solve(again).final_rms_px == pytest.approx(res.final_rms_px, rel=1e-4)
+
+
+@pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
+def test_pycolmap_reads_what_we_write_and_we_read_what_it_writes(
+        tmp_path: Path, scene_problem: BAProblem, binary: bool) -> None:
+    """Check against COLMAP's own reader and writer (pycolmap, if installed)."""
+    pycolmap = pytest.importorskip('pycolmap')
+    problem = _distorted(scene_problem)
+    colmap.write_colmap(tmp_path / 'ours', colmap.from_problem(problem), binary=binary)
+    rec = pycolmap.Reconstruction(str(tmp_path / 'ours'))
+    assert rec.num_images() == problem.n_cams and rec.num_points3D() == problem.n_feats
+    for k in range(problem.n_cams):
+        img = rec.images[k + 1]
+        pose = img.cam_from_world() if callable(img.cam_from_world) else img.cam_from_world
+        np.testing.assert_allclose(pose.rotation.matrix(), problem.R_wc[k].T, atol=1e-12)
+        np.testing.assert_allclose(pose.translation, -problem.R_wc[k].T @ problem.centers_w[k],
+                                   atol=1e-9)
+        assert rec.cameras[img.camera_id].model.name == 'RADIAL'
+    assert problem.points_w is not None
+    for j, pid in enumerate(problem.feature_ids.tolist()):
+        np.testing.assert_array_equal(rec.points3D[pid].xyz, problem.points_w[j])
+    theirs = tmp_path / 'theirs'
+    theirs.mkdir()
+    (rec.write_binary if binary else rec.write_text)(str(theirs))
+    again, _ = colmap.to_problem(colmap.read_colmap(theirs))
+    _same_problem(problem, again)
