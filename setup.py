@@ -37,6 +37,10 @@ setup(
         'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
                  'ament-lint-flake8', 'ament-lint-pep257'],
         'plot': ['matplotlib'],
+        # rclpy and the message packages as PyPI wheels (Python 3.11), for pmba_node and
+        # `pmba play` without a ROS installation; on a ROS machine they come from rosdep.
+        'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces',
+                'ros-jazzy-std-srvs'],
     },
     zip_safe=False,
     maintainer='pmba_ros maintainers',
