@@ -22,6 +22,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'replay': ('pmba_ros.cli.replay', 'run the back-end over recorded bags and evaluate'),
     'evaluate': ('pmba_ros.cli.evaluate', 'ATE / RPE of a trajectory against ground truth'),
     'import-tracks': ('pmba_ros.cli.import_tracks', 'turn KITTI-00 stereo tracks into a bag'),
+    'play': ('pmba_ros.cli.play', 'publish a recording into a live ROS 2 graph (needs rclpy)'),
 }
 
 
