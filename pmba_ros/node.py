@@ -638,7 +638,8 @@ _CLOCK_BACKEND = out.RclpyBackend()
 
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
                   rate: float = 1.0, clock: bool = False, delay_s: float = 0.0,
-                  ros_args: list[str] | None = None) -> int:
+                  wait_for_subscribers_s: float = 0.0, ros_args: list[str] | None = None,
+                  ) -> int:
     """Publish serialized messages with their recorded timing (``pmba play``).
 
     Args:
@@ -648,6 +649,8 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         clock: Also publish ``/clock`` (rosgraph_msgs/Clock, every 25 ms and with each
             message) for nodes with ``use_sim_time``.
         delay_s: Wait this long after creating the publishers (discovery) before playing.
+        wait_for_subscribers_s: Then wait up to this long until every topic has a
+            subscriber (messages sent before a subscriber matched are lost to it).
         ros_args: rclpy arguments (``--ros-args -r FROM:=TO ...``).
 
     Returns:
@@ -687,6 +690,10 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
                                           10) if clock else None
         time.sleep(delay_s)
+        deadline = time.monotonic() + wait_for_subscribers_s
+        while time.monotonic() < deadline and not all(
+                p.get_subscription_count() for p in publishers.values()):
+            time.sleep(0.02)
         start: tuple[float, int] | None = None
         for topic, t_ns, raw in messages:
             if start is None:

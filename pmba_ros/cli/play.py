@@ -20,6 +20,7 @@ For users with rclpy from pip (``pip install .[ros]``) but no ``ros2 bag``::
     pmba play street_bag --rate 2 --topics /features /keyframe_pose /camera_info
     pmba play street_bag --clock                  # /clock for nodes with use_sim_time
     pmba play street_bag --remap /features:=/feature_tracker/feature
+    pmba play street_bag --topics /features /keyframe_pose --wait-for-subscribers 30
 
 Messages are published as stored (CDR), reliable and volatile (``/tf_static`` transient
 local). ROS 1 bags must be converted first (``rosbags-convert``).
@@ -65,6 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--delay', type=float, default=0.5, metavar='S',
                         help='seconds between creating the publishers and the first message '
                              '(lets subscribers discover them)')
+    parser.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
+                        help='then wait up to S seconds until every played topic has a '
+                             'subscriber')
     parser.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
                         help='remap a topic (repeatable)')
 
@@ -97,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
     ros_args = ['--ros-args', *[a for r in args.remap for a in ('-r', r)]]
     count = play_messages(iter_serialized([args.bag], wanted),
                           {t: topics[t].msgtype for t in wanted}, rate=args.rate,
-                          clock=args.clock, delay_s=max(0.0, args.delay), ros_args=ros_args)
+                          clock=args.clock, delay_s=max(0.0, args.delay),
+                          wait_for_subscribers_s=max(0.0, args.wait_for_subscribers),
+                          ros_args=ros_args)
     print(f'played {count} messages on {len(wanted)} topics')
     return 0
