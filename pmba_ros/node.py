@@ -326,6 +326,7 @@ class PmbaNode:
     def _route_logging(self) -> RosLogHandler:
         handler = RosLogHandler(self.node.get_logger())
         package_logger = logging.getLogger('pmba_ros')
+        self._saved_logging = (package_logger.level, package_logger.propagate)
         package_logger.addHandler(handler)
         package_logger.setLevel(int(self.node.get_logger().get_effective_level()))
         package_logger.propagate = False
@@ -380,6 +381,8 @@ class PmbaNode:
         self.config = replace(old, **changes)
         with self._counts_lock:
             self._staged = self.config
+        if self.config.publish_tf and self.tf_mode.startswith('disabled'):
+            self.tf_mode = self._make_tf()
         if (old.tf_rate_hz, old.publish_tf) != (self.config.tf_rate_hz, self.config.publish_tf):
             self._reset_tf_timer()
         logger.info('parameters set: %s', ', '.join(f'{k}={v!r}' for k, v in changes.items()))
@@ -625,7 +628,8 @@ class PmbaNode:
             self._worker.join(timeout=_JOIN_TIMEOUT_S)
         package_logger = logging.getLogger('pmba_ros')
         package_logger.removeHandler(self._log_handler)
-        package_logger.propagate = True
+        package_logger.setLevel(self._saved_logging[0])
+        package_logger.propagate = self._saved_logging[1]
         self.node.destroy_node()
 
 

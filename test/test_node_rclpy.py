@@ -263,10 +263,15 @@ def test_qos_per_input_and_overrides(ros: tuple[Context, SingleThreadedExecutor]
         driver.destroy_node()
 
 
-def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor]) -> None:
+def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor],
+                                        request: pytest.FixtureRequest) -> None:
     """Back-end ``logging`` records come out of the node's logger on /rosout."""
     from rcl_interfaces.msg import Log
 
+    # `pmba replay` (run in-process by the CLI tests) quiets pmba_ros.backend in its process.
+    backend_logger = logging.getLogger('pmba_ros.backend')
+    request.addfinalizer(lambda level=backend_logger.level: backend_logger.setLevel(level))
+    backend_logger.setLevel(logging.NOTSET)
     context, executor = ros
     wrapper, driver = start(context, executor)
     got: list[Any] = []
@@ -298,6 +303,9 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
             'no input received' in s.message for s in statuses(got, 'pmba_ros: node')), 5.0)
         status = statuses(got, 'pmba_ros: node')[-1]
         assert status.level == status.WARN and 'TF off' not in status.message
+        assert wrapper.tf_mode.startswith('disabled') and wrapper._tf_timer is None
+        assert wrapper.node.set_parameters([Parameter('publish_tf', value=True)])[0].successful
+        assert wrapper.tf_mode.startswith('off') and wrapper._tf_timer is not None
     finally:
         wrapper.close()
         driver.destroy_node()
