@@ -28,7 +28,9 @@ publishes its outputs, so solving never blocks the executor. Outputs never wait 
 solve: a keyframe pose is published on ``odometry_topic`` as it arrives (the front-end pose
 mapped through the newest map <- odom, identity before the first initialization) and again,
 corrected, when the worker has optimized it; map -> odom is re-sent at ``tf_rate_hz`` and
-the diagnostics at 1 Hz. Back-end ``logging`` goes to the node's logger (and /rosout).
+the diagnostics at 1 Hz. Back-end ``logging`` goes to the node's logger (and /rosout); the
+engine's per-solve INFO lines (``pmba_ros.core``, ``pmba_ros.init``) only at ``--log-level
+debug``.
 Run with ``ros2 run pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
 """
 
@@ -81,6 +83,7 @@ _JOIN_TIMEOUT_S = 1.0
 _DIAGNOSTICS_PERIOD_S = 1.0
 _PROVISIONAL_COVARIANCE_SCALE = 10.0
 _INT_MAX = 2**31 - 1
+_ENGINE_LOGGERS = ('pmba_ros.core', 'pmba_ros.init')
 
 
 def _msg_type(name: str) -> Any:
@@ -326,10 +329,16 @@ class PmbaNode:
     def _route_logging(self) -> RosLogHandler:
         handler = RosLogHandler(self.node.get_logger())
         package_logger = logging.getLogger('pmba_ros')
-        self._saved_logging = (package_logger.level, package_logger.propagate)
+        level = int(self.node.get_logger().get_effective_level())
+        self._saved_logging = {name: logging.getLogger(name).level
+                               for name in ('pmba_ros', *_ENGINE_LOGGERS)}
         package_logger.addHandler(handler)
-        package_logger.setLevel(int(self.node.get_logger().get_effective_level()))
+        package_logger.setLevel(level)
         package_logger.propagate = False
+        for name in _ENGINE_LOGGERS:
+            # Their INFO lines come with every solve: debug material for a running node.
+            logging.getLogger(name).setLevel(level if level <= logging.DEBUG
+                                             else max(level, logging.WARNING))
         return handler
 
     def _make_tf(self) -> str:
@@ -628,8 +637,9 @@ class PmbaNode:
             self._worker.join(timeout=_JOIN_TIMEOUT_S)
         package_logger = logging.getLogger('pmba_ros')
         package_logger.removeHandler(self._log_handler)
-        package_logger.setLevel(self._saved_logging[0])
-        package_logger.propagate = self._saved_logging[1]
+        package_logger.propagate = True
+        for name, level in self._saved_logging.items():
+            logging.getLogger(name).setLevel(level)
         self.node.destroy_node()
 
 
@@ -759,6 +769,11 @@ def main(args: list[str] | None = None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A shutdown signal between two executor iterations surfaces as an RCLError about
+        # the invalid context (an rclpy race), not as ExternalShutdownException.
+        if rclpy.ok():
+            raise
     finally:
         wrapper.close()
         rclpy.try_shutdown()

@@ -42,6 +42,19 @@ def isolated_env(domain: int) -> dict[str, str]:
     return env
 
 
+def isolate(monkeypatch: Any, domain: int) -> None:
+    """Put this process on ``domain`` with localhost discovery (as its child processes).
+
+    Discovery needs the variables, not only ``rclpy.init(domain_id=...)``: with localhost
+    discovery a participant announces itself on the ports of ``ROS_DOMAIN_ID``, and the
+    others drop it after its lease (20 s) when that is not its domain.
+    """
+    for name, value in isolated_env(domain).items():
+        if name.startswith('ROS_'):
+            monkeypatch.setenv(name, value)
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+
+
 def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float = 30.0) -> bool:
     """Spin ``executor`` until ``condition()`` holds; return whether it did in time."""
     deadline = time.monotonic() + timeout_s

@@ -44,7 +44,7 @@ from pmba_ros.cli.main import main as pmba
 from pmba_ros.core import so3
 from pmba_ros.sim.sequence import simulate_sequence
 
-from .ros_helpers import domain_id, isolated_env, spin_until
+from .ros_helpers import domain_id, isolate, isolated_env, spin_until
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'pmba.yaml'
@@ -57,13 +57,17 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def start_node(domain: int, *ros_args: str) -> subprocess.Popen[str]:
-    """Start pmba_node with the params file and ``ros_args`` on ``domain``."""
-    return subprocess.Popen(
-        [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file', str(PARAMS),
-         '-p', 'init_batch_size:=10', *ros_args],
-        env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=_default_sigint)
+def start_node(domain: int, log: Path, *ros_args: str) -> subprocess.Popen[str]:
+    """Start pmba_node with the params file and ``ros_args`` on ``domain``, logging to ``log``.
+
+    A file, not a pipe: a pipe nobody reads while the node runs blocks it once full.
+    """
+    with log.open('w', encoding='utf-8') as out_file:
+        return subprocess.Popen(
+            [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file',
+             str(PARAMS), '-p', 'init_batch_size:=10', *ros_args],
+            env=isolated_env(domain), stdout=out_file, stderr=subprocess.STDOUT, text=True,
+            preexec_fn=_default_sigint)
 
 
 @dataclass
@@ -95,9 +99,9 @@ def listener(monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
     from nav_msgs.msg import Odometry
     from nav_msgs.msg import Path as PathMsg
 
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    context = Context()
     domain = domain_id()
+    isolate(monkeypatch, domain)
+    context = Context()
     rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)
     node = rclpy.create_node('live_listener', context=context)
@@ -114,26 +118,27 @@ def listener(monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
     rclpy.shutdown(context=context)
 
 
-def stop(proc: subprocess.Popen[str], sig: int) -> tuple[float, str]:
-    """Send ``sig``; return the seconds until the process ended and its stderr."""
+def stop(proc: subprocess.Popen[str], sig: int, log: Path) -> tuple[float, str]:
+    """Send ``sig``; return the seconds until the process ended and its log."""
     t0 = time.monotonic()
     proc.send_signal(sig)
     try:
-        _, stderr = proc.communicate(timeout=10.0)
+        proc.wait(timeout=10.0)
     except subprocess.TimeoutExpired:
         proc.kill()
-        _, stderr = proc.communicate()
-        pytest.fail(f'pmba_node ignored signal {sig}: {stderr}')
-    return time.monotonic() - t0, stderr
+        proc.wait()
+        pytest.fail(f'pmba_node ignored signal {sig}: {log.read_text(encoding="utf-8")}')
+    return time.monotonic() - t0, log.read_text(encoding='utf-8')
 
 
-def wait_until_up(listener: Listener, proc: subprocess.Popen[str]) -> None:
+def wait_until_up(listener: Listener, proc: subprocess.Popen[str], log: Path) -> None:
     """Wait for the node's first diagnostics (it subscribed before creating its timers)."""
     up = spin_until(listener.executor, lambda: bool(listener.got['diag'])
                     or proc.poll() is not None, timeout_s=120.0)
     if proc.poll() is not None or not up:
         proc.kill()
-        pytest.fail(f'pmba_node did not come up: {proc.communicate()[1]}')
+        proc.wait()
+        pytest.fail(f'pmba_node did not come up: {log.read_text(encoding="utf-8")}')
 
 
 def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
@@ -156,12 +161,13 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
     assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '3', '--layout',
                  'vins_mono', '--out', str(bag)]) == 0
     domain = listener.domain  # type: ignore[attr-defined]
-    node = start_node(domain, '-p', 'feature_layout:=vins_mono', '-p', 'max_time_s:=1',
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, '-p', 'feature_layout:=vins_mono', '-p', 'max_time_s:=1',
                       '-r', 'features:=/feature_tracker/feature',
                       '-r', 'keyframe_pose:=/vins_estimator/keyframe_pose')
     player = None
     try:
-        wait_until_up(listener, node)
+        wait_until_up(listener, node, log)
         player = subprocess.Popen(
             [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--wait-for-subscribers',
              '30', '--topics', '/features', '/keyframe_pose', '/camera_info',
@@ -173,7 +179,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                            for m in iter_messages([bag], ['/keyframe_pose'])])
         check_outputs(listener, stamps)
         assert player.wait(timeout=30) == 0
-        seconds, stderr = stop(node, signal.SIGINT)
+        seconds, stderr = stop(node, signal.SIGINT, log)
         assert node.returncode == 0, stderr
         assert seconds < 2.0
         assert 'Traceback' not in stderr
@@ -181,7 +187,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
         for proc in (node, player):
             if proc is not None and proc.poll() is None:
                 proc.kill()
-                proc.communicate()
+                proc.wait()
 
 
 def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listener,
@@ -192,7 +198,8 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
     from std_srvs.srv import SetBool, Trigger
 
     domain = listener.domain  # type: ignore[attr-defined]
-    node = start_node(domain, '-p', 'keyframe_type:=pose_stamped',
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, '-p', 'keyframe_type:=pose_stamped',
                       '-p', f'save_directory:={tmp_path / "saved"}',
                       '-r', 'features:=/vins/feature', '-r', 'keyframe_pose:=/vins/pose')
     seq = simulate_sequence('street', n_keyframes=N_KEYFRAMES, seed=4)
@@ -202,7 +209,7 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
             driver.create_publisher(PoseStamped, '/vins/pose', RELIABLE),
             driver.create_publisher(CameraInfo, '/camera_info', RELIABLE))
     try:
-        wait_until_up(listener, node)
+        wait_until_up(listener, node, log)
         assert spin_until(listener.executor, lambda: min(
             p.get_subscription_count() for p in pubs) > 0, timeout_s=30.0)
         period = float(np.median(np.diff(seq.stamps_ns))) * 1e-9
@@ -222,20 +229,21 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         tum = (tmp_path / 'saved' / 'pmba_keyframes.tum').read_text().splitlines()
         assert len([line for line in tum if not line.startswith('#')]) == N_KEYFRAMES
         assert listener.call(Trigger, '/pmba_node/reset', Trigger.Request()).success
-        seconds, stderr = stop(node, signal.SIGTERM)
+        seconds, stderr = stop(node, signal.SIGTERM, log)
         assert node.returncode == 0, stderr
         assert seconds < 2.0
     finally:
         if node.poll() is None:
             node.kill()
-            node.communicate()
+            node.wait()
 
 
-def test_bad_parameter_is_one_fatal_line(listener: Listener) -> None:
+def test_bad_parameter_is_one_fatal_line(listener: Listener, tmp_path: Path) -> None:
     """A wrong parameter value: one [FATAL] line naming it, exit code 1, no traceback."""
-    node = start_node(listener.domain, '-p', 'loss:=squared')  # type: ignore[attr-defined]
-    _, stderr = node.communicate(timeout=120)
-    assert node.returncode == 1
+    log = tmp_path / 'node.log'
+    node = start_node(listener.domain, log, '-p', 'loss:=squared')  # type: ignore[attr-defined]
+    assert node.wait(timeout=120) == 1
+    stderr = log.read_text(encoding='utf-8')
     fatal = [line for line in stderr.splitlines() if '[FATAL]' in line]
     assert len(fatal) == 1 and 'loss' in fatal[0]
     assert 'Traceback' not in stderr

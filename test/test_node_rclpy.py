@@ -41,7 +41,7 @@ from pmba_ros.core import so3
 from pmba_ros.node import MAP_TO_ODOM_TOPIC, RUNTIME_PARAMETERS, PmbaNode
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
-from .ros_helpers import domain_id, spin_until
+from .ros_helpers import domain_id, isolate, spin_until
 
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -49,9 +49,10 @@ RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
 @pytest.fixture
 def ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Context, SingleThreadedExecutor]]:
     """Return an initialized context on its own localhost-only domain and an executor."""
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    domain = domain_id()
+    isolate(monkeypatch, domain)
     context = Context()
-    rclpy.init(context=context, domain_id=domain_id())
+    rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)
     yield context, executor
     executor.shutdown()

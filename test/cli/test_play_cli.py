@@ -33,7 +33,7 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import jazzy_typestore, open_writer
 
-from ..ros_helpers import domain_id, isolated_env, spin_until
+from ..ros_helpers import domain_id, isolate, isolated_env, spin_until
 
 RATE = 2.0
 KEYFRAME_PERIOD_S = 0.1     # pmba simulate's default --rate-hz 10
@@ -62,7 +62,7 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
     from sensor_msgs.msg import PointCloud
 
     domain = domain_id()
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    isolate(monkeypatch, domain)
     context = Context()
     rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)
@@ -76,7 +76,7 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
                              lambda m: got['tracks'].append((time.monotonic(), m)), qos)
     node.create_subscription(Clock, '/clock',
                              lambda m: got['clock'].append((time.monotonic(), m)), qos)
-    proc = play([str(sim_bag), '--rate', str(RATE), '--clock', '--delay', '1.5',
+    proc = play([str(sim_bag), '--rate', str(RATE), '--clock', '--wait-for-subscribers', '30',
                  '--topics', '/features', '/keyframe_pose', '--remap',
                  '/features:=/vins/feature'], domain)
     try:
