@@ -88,10 +88,7 @@ def main() -> int:
         seq = simulate_sequence('street', n_keyframes=args.keyframes, seed=args.seed)
         info = write_sequence_bag(seq, bag)
         env = _env(args.domain)
-        # The listener must discover like the processes do: with localhost discovery, a
-        # participant whose ROS_DOMAIN_ID variable differs from its domain announces itself
-        # on the wrong ports, and the others drop it when its lease (20 s) runs out.
-        os.environ.update(env)
+        os.environ.update(env)      # the listener discovers like the two processes
         context = Context()
         rclpy.init(context=context, domain_id=args.domain)
         executor = SingleThreadedExecutor(context=context)

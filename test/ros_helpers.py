@@ -43,12 +43,7 @@ def isolated_env(domain: int) -> dict[str, str]:
 
 
 def isolate(monkeypatch: Any, domain: int) -> None:
-    """Put this process on ``domain`` with localhost discovery (as its child processes).
-
-    Discovery needs the variables, not only ``rclpy.init(domain_id=...)``: with localhost
-    discovery a participant announces itself on the ports of ``ROS_DOMAIN_ID``, and the
-    others drop it after its lease (20 s) when that is not its domain.
-    """
+    """Set this process's ROS variables as :func:`isolated_env` sets its children's."""
     for name, value in isolated_env(domain).items():
         if name.startswith('ROS_'):
             monkeypatch.setenv(name, value)
