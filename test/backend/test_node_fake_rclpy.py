@@ -32,7 +32,8 @@ from typing import Any
 import pytest
 
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
-from test.backend.test_logic import BACKEND, camera_info_msg, keyframe_msg, tracks_msg
+
+from .test_logic import BACKEND, camera_info_msg, keyframe_msg, tracks_msg
 
 MSG_PACKAGES = ('builtin_interfaces', 'std_msgs', 'geometry_msgs', 'nav_msgs', 'sensor_msgs',
                 'diagnostic_msgs', 'tf2_msgs')
