@@ -123,7 +123,8 @@ def main() -> int:
                   f'domain {args.domain}')
             player = subprocess.Popen(
                 [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--topics', '/features',
-                 '/keyframe_pose', '/camera_info', '--wait-for-subscribers', '120'],
+                 '/keyframe_pose', '/camera_info', '--delay', '2', '--wait-for-subscribers',
+                 '120'],
                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
             def complete() -> bool:
