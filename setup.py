@@ -1,3 +1,16 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """Install pmba_ros as an ament_python package (colcon) or a plain pip package."""
 
 from glob import glob
@@ -16,6 +29,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
     # Console scripts that colcon generates check install_requires by distribution name at
@@ -38,6 +52,10 @@ setup(
         'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
                  'ament-lint-flake8', 'ament-lint-pep257'],
         'plot': ['matplotlib'],
+        # rclpy and the message packages as PyPI wheels (Python 3.11), for pmba_node and
+        # `pmba play` without a ROS installation; on a ROS machine they come from rosdep.
+        'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces',
+                'ros-jazzy-std-srvs'],
     },
     zip_safe=False,
     maintainer='pmba_ros maintainers',

@@ -1,37 +1,88 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
 """The ROS 2 node ``pmba_node``: the only module that imports rclpy (lazily, in functions).
 
-Wiring only: parameters -> :class:`~pmba_ros.backend.config.BackendConfig`, subscriptions
-(tracks, keyframe poses, CameraInfo), publishers (path, keyframes, landmarks with a
-transient-local QoS, odometry, ``/diagnostics``), the map -> odom broadcaster (tf2_ros, or a
-plain ``/tf`` publisher if tf2_ros is missing) and the services ``~/reset``
-(std_srvs/Trigger), ``~/pause`` (std_srvs/SetBool) and ``~/save`` (std_srvs/Trigger). The
-callbacks only enqueue messages into a bounded queue (drops are counted and reported in the
+Wiring only: parameters (with descriptors; the run-time ones applied by an on-set callback)
+-> :class:`~pmba_ros.backend.config.BackendConfig`, subscriptions (tracks, keyframe poses,
+CameraInfo; QoS per input, ``qos_overrides`` honoured), publishers (path, keyframes,
+landmarks with a transient-local QoS, odometry, ``pmba/map_to_odom``, ``/diagnostics``),
+map -> odom on TF (tf2_ros, else a plain ``/tf`` publisher, else off with a warning) and the
+services ``~/reset`` (std_srvs/Trigger), ``~/pause`` (std_srvs/SetBool) and ``~/save``
+(std_srvs/Trigger).
+
+The callbacks only enqueue messages into a bounded queue (drops are counted in the
 diagnostics); a worker thread feeds :class:`~pmba_ros.backend.logic.BackendLogic` and
-publishes its outputs, so solving never blocks the executor. Run with
-``ros2 run pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
+publishes its outputs, so solving never blocks the executor. Outputs never wait for a
+solve: a keyframe pose is published on ``odometry_topic`` as it arrives (the front-end pose
+mapped through the newest map <- odom, identity before the first initialization) and again,
+corrected, when the worker has optimized it; map -> odom is re-sent at ``tf_rate_hz`` and
+the diagnostics at 1 Hz. Back-end ``logging`` goes to the node's logger (and /rosout); the
+engine's per-solve INFO lines (``pmba_ros.core``, ``pmba_ros.init``) only at ``--log-level
+debug``.
+Run with ``ros2 run pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import fields
+from collections.abc import Iterable
+from dataclasses import dataclass, fields, replace
 import importlib
+import inspect
 import logging
 import queue
+import re
+import sys
 import threading
+import time
 from typing import Any
 
+import numpy as np
+
 from pmba_ros._process import tune_process
-from pmba_ros.backend.config import NODE_NAME, BackendConfig
+from pmba_ros._typing import FloatArray
+from pmba_ros.backend import config as settings
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
-from pmba_ros.backend.outputs import RclpyBackend
-from pmba_ros.core import warmup
+from pmba_ros.backend.tracks import parse_keyframe
+from pmba_ros.core import so3, warmup
+from pmba_ros.errors import MessageError, PmbaError
 
 logger = logging.getLogger(__name__)
 
+MAP_TO_ODOM_TOPIC = 'pmba/map_to_odom'
+"""geometry_msgs/TransformStamped copy of every map -> odom sent (for users without tf2)."""
+
+NODE_DIAGNOSTICS_NAME = 'pmba_ros: node'
+
+RUNTIME_PARAMETERS = frozenset({
+    'max_iterations', 'max_time_s', 'loss', 'loss_scale_px', 'transform_tolerance_s',
+    'covariance_position_m2', 'covariance_rotation_rad2', 'stamp_tolerance_s',
+    'association_timeout_s', 'init_min_parallax_px', 'init_retry_every', 'init_max_iterations',
+    'min_observations', 'max_observations_per_feature', 'max_fixed_keyframes', 'fixed_lookback',
+    'deterministic', 'save_directory', 'tf_rate_hz', 'stale_input_s', 'publish_tf'})
+"""Parameters ``ros2 param set`` may change while running; the others are read-only."""
+
 _STOP = object()
 _WORKER_POLL_S = 0.1
-_JOIN_TIMEOUT_S = 5.0
+_JOIN_TIMEOUT_S = 1.0
+_DIAGNOSTICS_PERIOD_S = 1.0
+_PROVISIONAL_COVARIANCE_SCALE = 10.0
+_INT_MAX = 2**31 - 1
+_ENGINE_LOGGERS = ('pmba_ros.core', 'pmba_ros.init')
 
 
 def _msg_type(name: str) -> Any:
@@ -40,17 +91,144 @@ def _msg_type(name: str) -> Any:
     return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
 
 
+# --- parameters ---------------------------------------------------------------------------
+
+
+def parameter_descriptions() -> dict[str, str]:
+    """Return each :class:`BackendConfig` field's description (its docstring's Attributes)."""
+    doc = inspect.cleandoc(BackendConfig.__doc__ or '').split('Attributes:', 1)[-1]
+    descriptions: dict[str, str] = {}
+    name = ''
+    for line in doc.splitlines():
+        match = re.match(r'    (\w+): (.*)', line)
+        if match:
+            name = match[1]
+            descriptions[name] = match[2]
+        elif name and line.strip():
+            descriptions[name] += ' ' + line.strip()
+    return descriptions
+
+
+def parameter_descriptor(name: str, description: str) -> Any:
+    """Return the ``rcl_interfaces/ParameterDescriptor`` of config field ``name``.
+
+    Types are dynamic so that an integer is accepted for a float (``max_time_s: 1``);
+    :class:`BackendConfig` checks every type and value and names the parameter.
+    """
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    desc = ParameterDescriptor(name=name, description=description, dynamic_typing=True,
+                               read_only=name not in RUNTIME_PARAMETERS)
+    if name in settings.CHOICES:
+        allowed = settings.CHOICES[name]
+        desc.additional_constraints = 'one of ' + ', '.join(repr(c) for c in allowed)
+    elif name in settings.INT_MINIMUMS:
+        desc.integer_range = [IntegerRange(from_value=settings.INT_MINIMUMS[name],
+                                           to_value=_INT_MAX, step=1)]
+    elif name in settings.POSITIVE_FLOATS or name in settings.NON_NEGATIVE_FLOATS:
+        desc.floating_point_range = [FloatingPointRange(from_value=0.0, to_value=float('inf'),
+                                                        step=0.0)]
+        desc.additional_constraints = '> 0' if name in settings.POSITIVE_FLOATS else '>= 0'
+    return desc
+
+
 def declare_config(node: Any) -> BackendConfig:
     """Declare every :class:`BackendConfig` field as a parameter and build the config.
 
     Raises:
-        ValueError: If a parameter value is invalid.
+        ValueError: If a parameter value is invalid (the message names the parameter).
+        rclpy.exceptions.InvalidParameterValueException: If a value is out of its range.
     """
     defaults = BackendConfig()
+    descriptions = parameter_descriptions()
     values = {}
     for f in fields(BackendConfig):
-        values[f.name] = node.declare_parameter(f.name, getattr(defaults, f.name)).value
+        values[f.name] = node.declare_parameter(
+            f.name, getattr(defaults, f.name),
+            parameter_descriptor(f.name, descriptions.get(f.name, ''))).value
     return BackendConfig.from_params(values)
+
+
+def input_qos(preset: str, config: BackendConfig) -> Any:
+    """Return the subscription QoS of a per-input preset (see :data:`INPUT_QOS`)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    if preset == 'sensor_data':
+        from rclpy.qos import qos_profile_sensor_data
+        return qos_profile_sensor_data
+    reliable = (preset in ('reliable', 'transient_local')
+                or (preset == '' and config.qos_reliability == 'reliable'))
+    durability = (DurabilityPolicy.TRANSIENT_LOCAL if preset == 'transient_local'
+                  else DurabilityPolicy.VOLATILE)
+    return QoSProfile(depth=config.qos_depth, history=HistoryPolicy.KEEP_LAST,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
+                      durability=durability)
+
+
+# --- logging ------------------------------------------------------------------------------
+
+
+class RosLogHandler(logging.Handler):
+    """Forward Python ``logging`` records to an rclpy logger (and so to /rosout)."""
+
+    def __init__(self, ros_logger: Any) -> None:
+        """Wrap ``ros_logger`` (``node.get_logger()``)."""
+        super().__init__()
+        self._ros = ros_logger
+        self.setFormatter(logging.Formatter('%(name)s: %(message)s'))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Log ``record`` at the matching rclpy severity."""
+        try:
+            text = self.format(record)
+            if record.levelno >= logging.CRITICAL:
+                self._ros.fatal(text)
+            elif record.levelno >= logging.ERROR:
+                self._ros.error(text)
+            elif record.levelno >= logging.WARNING:
+                self._ros.warning(text)
+            elif record.levelno >= logging.INFO:
+                self._ros.info(text)
+            else:
+                self._ros.debug(text)
+        except Exception:
+            self.handleError(record)
+
+
+# --- TF -----------------------------------------------------------------------------------
+
+
+@dataclass
+class _Transforms:
+    """Stand-in for tf2_msgs/TFMessage where tf2_msgs is missing (never published as such)."""
+
+    transforms: list[Any]
+
+
+class _NodeMsgBackend(out.RclpyBackend):
+    """rclpy messages; a TFMessage stand-in where tf2_msgs is not importable."""
+
+    def msg_class(self, type_name: str) -> Any:
+        """Return the rclpy class of ``type_name`` (or :class:`_Transforms` for TFMessage)."""
+        try:
+            return super().msg_class(type_name)
+        except MessageError:
+            if type_name == 'tf2_msgs/msg/TFMessage':
+                return _Transforms
+            raise
+
+
+@dataclass(frozen=True)
+class MapToOdom:
+    """The newest map <- odom transform (rotation, translation) and its frames."""
+
+    rotation: FloatArray
+    translation: FloatArray
+    transform: Any
+
+
+# --- the node -----------------------------------------------------------------------------
 
 
 class PmbaNode:
@@ -63,26 +241,31 @@ class PmbaNode:
 
     def __init__(self, node: Any, *, start_worker: bool = True) -> None:
         """Declare parameters, create the interfaces and start the worker."""
-        from rclpy.qos import (
-            DurabilityPolicy,
-            HistoryPolicy,
-            QoSProfile,
-            ReliabilityPolicy,
-        )
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.qos_overriding_options import QoSOverridingOptions
 
         self.node = node
         self.config = cfg = declare_config(node)
-        self.logic = BackendLogic(cfg, RclpyBackend())
+        self.backend = _NodeMsgBackend()
+        # The logic always emits map -> odom: the node needs it for the provisional poses
+        # and decides itself whether it goes to TF.
+        self.logic = BackendLogic(replace(cfg, publish_tf=True), self.backend)
+        self._log_handler = self._route_logging()
         self._lock = threading.Lock()
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=cfg.queue_size)
         self._drops: Counter[str] = Counter()
-        self._drops_lock = threading.Lock()
+        self._received: Counter[str] = Counter()
+        self._counts_lock = threading.Lock()
         self._stop = threading.Event()
+        self._staged: BackendConfig | None = None
+        self._started = time.monotonic()
+        self._last_input = -1.0
+        self._map_to_odom: MapToOdom | None = None
+        self._newest_provisional = -1
+        self._backend_status: list[Any] = []
+        self._sent = Counter[str]()
 
-        reliability = (ReliabilityPolicy.RELIABLE if cfg.qos_reliability == 'reliable'
-                       else ReliabilityPolicy.BEST_EFFORT)
-        sub_qos = QoSProfile(depth=cfg.qos_depth, reliability=reliability,
-                             history=HistoryPolicy.KEEP_LAST)
+        overrides = QoSOverridingOptions.with_default_policies()
         pub_qos = QoSProfile(depth=cfg.qos_depth, reliability=ReliabilityPolicy.RELIABLE,
                              history=HistoryPolicy.KEEP_LAST)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -94,14 +277,18 @@ class PmbaNode:
                    else 'geometry_msgs/msg/PoseStamped')
         self.subscriptions = [
             node.create_subscription(_msg_type(tracks_type), cfg.features_topic,
-                                     self._enqueuer('tracks'), sub_qos),
+                                     self._enqueuer('tracks'),
+                                     input_qos(cfg.features_qos, cfg),
+                                     qos_overriding_options=overrides),
             node.create_subscription(_msg_type('sensor_msgs/msg/CameraInfo'),
                                      cfg.camera_info_topic, self._enqueuer('camera_info'),
-                                     sub_qos),
+                                     input_qos(cfg.camera_info_qos, cfg),
+                                     qos_overriding_options=overrides),
         ]
         if cfg.keyframe_source == 'keyframe_topic':
             self.subscriptions.append(node.create_subscription(
-                _msg_type(kf_type), cfg.keyframe_topic, self._enqueuer('keyframe'), sub_qos))
+                _msg_type(kf_type), cfg.keyframe_topic, self._on_keyframe,
+                input_qos(cfg.keyframe_qos, cfg), qos_overriding_options=overrides))
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),
                                                   cfg.path_topic, pub_qos),
@@ -111,25 +298,24 @@ class PmbaNode:
                                                        cfg.landmarks_topic, latched),
             cfg.odometry_topic: node.create_publisher(_msg_type('nav_msgs/msg/Odometry'),
                                                       cfg.odometry_topic, pub_qos),
+            MAP_TO_ODOM_TOPIC: node.create_publisher(
+                _msg_type('geometry_msgs/msg/TransformStamped'), MAP_TO_ODOM_TOPIC, pub_qos),
             DIAGNOSTICS_TOPIC: node.create_publisher(
                 _msg_type('diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS_TOPIC, pub_qos),
         }
         self.tf_broadcaster: Any = None
-        if cfg.publish_tf:
-            try:
-                from tf2_ros import TransformBroadcaster
-
-                self.tf_broadcaster = TransformBroadcaster(node)
-            except ImportError:
-                node.get_logger().warning('tf2_ros not found: publishing map->odom on /tf')
-                self.publishers[TF_TOPIC] = node.create_publisher(
-                    _msg_type('tf2_msgs/msg/TFMessage'), TF_TOPIC, pub_qos)
+        self.tf_mode = self._make_tf()
         trigger = _msg_type('std_srvs/srv/Trigger')
         self.services = [
             node.create_service(trigger, '~/reset', self._on_reset),
             node.create_service(_msg_type('std_srvs/srv/SetBool'), '~/pause', self._on_pause),
             node.create_service(trigger, '~/save', self._on_save),
         ]
+        node.add_on_set_parameters_callback(self._check_parameters)
+        node.add_post_set_parameters_callback(self._apply_parameters)
+        self._tf_timer: Any = None
+        self._reset_tf_timer()
+        self._diag_timer = node.create_timer(_DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         self._worker: threading.Thread | None = None
         if start_worker:
             self._worker = threading.Thread(target=self._run, name='pmba_solver', daemon=True)
@@ -137,23 +323,142 @@ class PmbaNode:
         node.get_logger().info(
             f'pmba_node: mode {cfg.mode}, window {cfg.window_size}, layout '
             f'{cfg.feature_layout}, tracks on {cfg.features_topic!r}, keyframes on '
-            f'{cfg.keyframe_topic!r}')
+            f'{cfg.keyframe_topic!r}, TF: {self.tf_mode}')
+
+    def _route_logging(self) -> RosLogHandler:
+        handler = RosLogHandler(self.node.get_logger())
+        package_logger = logging.getLogger('pmba_ros')
+        level = int(self.node.get_logger().get_effective_level())
+        self._saved_logging = {name: logging.getLogger(name).level
+                               for name in ('pmba_ros', *_ENGINE_LOGGERS)}
+        package_logger.addHandler(handler)
+        package_logger.setLevel(level)
+        package_logger.propagate = False
+        for name in _ENGINE_LOGGERS:
+            # Their INFO lines come with every solve: debug material for a running node.
+            logging.getLogger(name).setLevel(level if level <= logging.DEBUG
+                                             else max(level, logging.WARNING))
+        return handler
+
+    def _make_tf(self) -> str:
+        """Create the TF output and return how map -> odom is sent."""
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        if not self.config.publish_tf:
+            return 'disabled (publish_tf false)'
+        try:
+            from tf2_ros import TransformBroadcaster
+        except ImportError:
+            pass
+        else:
+            self.tf_broadcaster = TransformBroadcaster(self.node)
+            return 'tf2_ros'
+        try:
+            tf_type = _msg_type('tf2_msgs/msg/TFMessage')
+        except ImportError:
+            self.node.get_logger().warning(
+                'neither tf2_ros nor tf2_msgs is importable: map -> odom is not sent on TF, '
+                f'only on {MAP_TO_ODOM_TOPIC!r} (geometry_msgs/TransformStamped)')
+            return 'off: neither tf2_ros nor tf2_msgs installed'
+        self.publishers[TF_TOPIC] = self.node.create_publisher(
+            tf_type, TF_TOPIC, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        return f'{TF_TOPIC} publisher (tf2_ros not installed)'
+
+    # --- parameters at run time -----------------------------------------------------------
+
+    def _changes(self, params: list[Any]) -> dict[str, Any]:
+        known = {f.name for f in fields(BackendConfig)}
+        return {p.name: p.value for p in params if p.name in known}
+
+    def _check_parameters(self, params: list[Any]) -> Any:
+        """Refuse (with the reason) parameter values the config does not accept."""
+        from rcl_interfaces.msg import SetParametersResult
+
+        try:
+            replace(self.config, **self._changes(params))
+        except (ValueError, TypeError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params: list[Any]) -> None:
+        """Apply accepted run-time parameters (the worker takes them at its next message)."""
+        changes = self._changes(params)
+        if not changes:
+            return
+        old = self.config
+        self.config = replace(old, **changes)
+        with self._counts_lock:
+            self._staged = self.config
+        if self.config.publish_tf and self.tf_mode.startswith('disabled'):
+            self.tf_mode = self._make_tf()
+        if (old.tf_rate_hz, old.publish_tf) != (self.config.tf_rate_hz, self.config.publish_tf):
+            self._reset_tf_timer()
+        logger.info('parameters set: %s', ', '.join(f'{k}={v!r}' for k, v in changes.items()))
+
+    def _reset_tf_timer(self) -> None:
+        if self._tf_timer is not None:
+            self.node.destroy_timer(self._tf_timer)
+            self._tf_timer = None
+        if self.config.tf_rate_hz > 0 and self.config.publish_tf:
+            self._tf_timer = self.node.create_timer(1.0 / self.config.tf_rate_hz,
+                                                    self._resend_map_to_odom)
 
     # --- callbacks (executor thread): enqueue only ------------------------------------------
 
+    def _enqueue(self, kind: str, msg: Any) -> None:
+        self._last_input = time.monotonic()
+        try:
+            self._queue.put_nowait((kind, msg))
+        except queue.Full:
+            with self._counts_lock:
+                self._drops[f'queue_full_{kind}'] += 1
+        with self._counts_lock:
+            self._received[kind] += 1
+
     def _enqueuer(self, kind: str) -> Any:
         def callback(msg: Any) -> None:
-            try:
-                self._queue.put_nowait((kind, msg))
-            except queue.Full:
-                with self._drops_lock:
-                    self._drops[f'queue_full_{kind}'] += 1
+            self._enqueue(kind, msg)
         return callback
+
+    def _on_keyframe(self, msg: Any) -> None:
+        self._enqueue('keyframe', msg)
+        if not self.logic.paused:
+            self._publish_provisional(msg)
+
+    def _publish_provisional(self, msg: Any) -> None:
+        """Publish the keyframe's front-end pose mapped through the newest map <- odom."""
+        cfg = self.config
+        try:
+            pose = parse_keyframe(msg, cfg.keyframe_type)
+        except Exception:  # the worker counts and reports it
+            return
+        if pose.stamp_ns <= self._newest_provisional:
+            return
+        self._newest_provisional = pose.stamp_ns
+        R_ok = so3.from_quat_xyzw(pose.quat_xyzw)
+        link = self._map_to_odom
+        if link is None:
+            R, C = R_ok, np.asarray(pose.position)
+        else:
+            R, C = link.rotation @ R_ok, link.rotation @ pose.position + link.translation
+        cov = _PROVISIONAL_COVARIANCE_SCALE * np.diag(
+            [cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        child = cfg.base_frame or pose.child_frame_id or 'base_link'
+        try:
+            odom = out.make_odometry(pose.stamp_ns, cfg.map_frame, child, C,
+                                     so3.to_quat_xyzw(R), cov, self.backend)
+            self.publishers[cfg.odometry_topic].publish(odom)
+        except Exception as err:
+            self.node.get_logger().error(f'publishing the provisional pose failed: {err}')
+            return
+        self._sent['provisional_odometry'] += 1
 
     def _on_reset(self, request: Any, response: Any) -> Any:
         del request
         with self._lock:
             self.logic.reset()
+        self._map_to_odom = None
+        self._newest_provisional = -1
         response.success = True
         response.message = 'back-end reset'
         return response
@@ -207,10 +512,13 @@ class PmbaNode:
             handled += 1
 
     def _handle(self, kind: str, msg: Any) -> None:
-        with self._drops_lock:
+        with self._counts_lock:
             drops = dict(self._drops)
             self._drops.clear()
+            staged, self._staged = self._staged, None
         with self._lock:
+            if staged is not None:
+                self.logic.apply_config(replace(staged, publish_tf=True))
             for reason, n in drops.items():
                 self.logic.count(reason, n)
             self._dispatch(kind, msg)
@@ -221,12 +529,87 @@ class PmbaNode:
         """Publish ``(topic, msg)`` outputs of the logic."""
         for topic, msg in outputs:
             try:
-                if topic == TF_TOPIC and self.tf_broadcaster is not None:
-                    self.tf_broadcaster.sendTransform(list(msg.transforms))
+                if topic == TF_TOPIC:
+                    for transform in msg.transforms:
+                        self._send_map_to_odom(transform)
+                elif topic == DIAGNOSTICS_TOPIC:
+                    self._backend_status = list(msg.status)
+                    self.publish_diagnostics()
                 elif topic in self.publishers:
                     self.publishers[topic].publish(msg)
             except Exception as err:
                 self.node.get_logger().error(f'publishing on {topic} failed: {err}')
+
+    def _send_map_to_odom(self, transform: Any) -> None:
+        """Remember map -> odom (for the provisional poses) and send it on TF and the topic."""
+        q = transform.transform.rotation
+        t = transform.transform.translation
+        self._map_to_odom = MapToOdom(so3.from_quat_xyzw(np.array([q.x, q.y, q.z, q.w])),
+                                      np.array([t.x, t.y, t.z]), transform)
+        if not self.config.publish_tf:
+            return
+        self.publishers[MAP_TO_ODOM_TOPIC].publish(transform)
+        if self.tf_broadcaster is not None:
+            self.tf_broadcaster.sendTransform(transform)
+        elif TF_TOPIC in self.publishers:
+            self.publishers[TF_TOPIC].publish(self.backend.new('tf2_msgs/msg/TFMessage',
+                                                               transforms=[transform]))
+        self._sent['map_to_odom'] += 1
+
+    def _resend_map_to_odom(self) -> None:
+        """Timer: re-send the newest map -> odom stamped now (+ the tolerance)."""
+        link = self._map_to_odom
+        now_ns = self.node.get_clock().now().nanoseconds
+        if link is None or now_ns <= 0:
+            return
+        old = link.transform
+        stamp = now_ns + round(self.config.transform_tolerance_s * 1e9)
+        try:
+            self._send_map_to_odom(self.backend.new(
+                'geometry_msgs/msg/TransformStamped',
+                header=out.header_msg(stamp, old.header.frame_id, self.backend),
+                child_frame_id=old.child_frame_id, transform=old.transform))
+        except Exception as err:
+            self.node.get_logger().error(f're-sending map -> odom failed: {err}')
+
+    def node_status(self) -> Any:
+        """Return the node's own DiagnosticStatus (TF mode, input age, queue, counts)."""
+        now = time.monotonic()
+        since = self._last_input if self._last_input >= 0 else self._started
+        age = now - since
+        with self._counts_lock:
+            received = dict(self._received)
+        level, message = 'ok', 'receiving input'
+        if age > self.config.stale_input_s:
+            level = 'warn'
+            what = 'no input for' if self._last_input >= 0 else 'no input received in'
+            message = f'{what} {age:.1f} s (check the topics, remaps and QoS)'
+        elif self._last_input < 0:
+            message = 'waiting for input'
+        if self.config.publish_tf and self.tf_mode.startswith('off'):
+            level = 'warn'
+            message = f'{message}; TF {self.tf_mode}, map -> odom on {MAP_TO_ODOM_TOPIC}'
+        values: dict[str, str | float] = {
+            'tf': self.tf_mode, 'input_age_s': round(age, 3),
+            'queue_length': self._queue.qsize(),
+            'provisional_odometry': self._sent['provisional_odometry'],
+            'map_to_odom_sent': self._sent['map_to_odom']}
+        for kind in ('tracks', 'keyframe', 'camera_info'):
+            values[f'received.{kind}'] = received.get(kind, 0)
+        array = out.make_diagnostics(self.node.get_clock().now().nanoseconds,
+                                     NODE_DIAGNOSTICS_NAME, level, message, values,
+                                     self.backend)
+        return array.status[0]
+
+    def publish_diagnostics(self) -> None:
+        """Publish the newest back-end status with the node's status (also a 1 Hz timer)."""
+        try:
+            status = [*self._backend_status, self.node_status()]
+            header = out.header_msg(self.node.get_clock().now().nanoseconds, '', self.backend)
+            self.publishers[DIAGNOSTICS_TOPIC].publish(self.backend.new(
+                'diagnostic_msgs/msg/DiagnosticArray', header=header, status=status))
+        except Exception as err:
+            self.node.get_logger().error(f'publishing diagnostics failed: {err}')
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -249,36 +632,150 @@ class PmbaNode:
         except queue.Full:
             pass
         if self._worker is not None:
+            # A solve in progress is not interrupted: the daemon thread ends with the process.
             self._worker.join(timeout=_JOIN_TIMEOUT_S)
+        package_logger = logging.getLogger('pmba_ros')
+        package_logger.removeHandler(self._log_handler)
+        package_logger.propagate = True
+        for name, level in self._saved_logging.items():
+            logging.getLogger(name).setLevel(level)
         self.node.destroy_node()
 
 
+# --- pmba play -----------------------------------------------------------------------------
+
+
+_CLOCK_PERIOD_S = 0.025
+_CLOCK_BACKEND = out.RclpyBackend()
+
+
+def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
+                  rate: float = 1.0, clock: bool = False, delay_s: float = 0.0,
+                  wait_for_subscribers_s: float = 0.0, ros_args: list[str] | None = None,
+                  ) -> int:
+    """Publish serialized messages with their recorded timing (``pmba play``).
+
+    Args:
+        messages: ``(topic, log_time_ns, CDR bytes)`` in log-time order.
+        types: Message type of every topic, e.g. ``{'/features': 'sensor_msgs/msg/PointCloud'}``.
+        rate: Playback speed factor (2.0: twice as fast).
+        clock: Also publish ``/clock`` (rosgraph_msgs/Clock, every 25 ms and with each
+            message) for nodes with ``use_sim_time``.
+        delay_s: Wait this long after creating the publishers (discovery) before playing.
+        wait_for_subscribers_s: Then wait up to this long until every topic has a
+            subscriber (messages sent before a subscriber matched are lost to it).
+        ros_args: rclpy arguments (``--ros-args -r FROM:=TO ...``).
+
+    Returns:
+        The number of messages published (playback stops early on Ctrl-C).
+
+    Raises:
+        MessageError: If a message type cannot be imported in this ROS environment.
+        PmbaError: If rclpy is not installed.
+    """
+    try:
+        import rclpy
+    except ImportError as err:
+        msg = ("this needs rclpy: pip install 'pmba_ros[ros]' (Python 3.11) or source a ROS 2 "
+               f'Jazzy installation ({err})')
+        raise PmbaError(msg) from err
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    classes: dict[str, Any] = {}
+    for topic, type_name in sorted(types.items()):
+        try:
+            classes[topic] = _msg_type(type_name)
+        except (ImportError, AttributeError, ValueError) as err:
+            msg = (f'topic {topic!r}: message type {type_name} is not available to rclpy here '
+                   f'({err}); install its package or leave the topic out with --topics')
+            raise MessageError(msg) from err
+    rclpy.init(args=ros_args)
+    node = rclpy.create_node('pmba_play')
+    count = 0
+    try:
+        publishers = {}
+        for topic, cls in classes.items():
+            latched = topic.endswith('/tf_static')
+            publishers[topic] = node.create_publisher(cls, topic, QoSProfile(
+                depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                            else DurabilityPolicy.VOLATILE)))
+        clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
+                                          10) if clock else None
+        time.sleep(delay_s)
+        deadline = time.monotonic() + wait_for_subscribers_s
+        while time.monotonic() < deadline and not all(
+                p.get_subscription_count() for p in publishers.values()):
+            time.sleep(0.02)
+        start: tuple[float, int] | None = None
+        for topic, t_ns, raw in messages:
+            if start is None:
+                start = (time.monotonic(), t_ns)
+            target = start[0] + (t_ns - start[1]) * 1e-9 / rate
+            while (wait := target - time.monotonic()) > 0:
+                if clock_pub is not None:
+                    bag_ns = start[1] + round((time.monotonic() - start[0]) * rate * 1e9)
+                    _publish_clock(clock_pub, min(bag_ns, t_ns))
+                time.sleep(min(wait, _CLOCK_PERIOD_S) if clock_pub is not None else wait)
+            if clock_pub is not None:
+                _publish_clock(clock_pub, t_ns)
+            publishers[topic].publish(raw)
+            count += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return count
+
+
+def _publish_clock(publisher: Any, stamp_ns: int) -> None:
+    publisher.publish(publisher.msg_type(clock=out.time_msg(stamp_ns, _CLOCK_BACKEND)))
+
+
 def main(args: list[str] | None = None) -> None:
-    """Entry point ``pmba_node`` (Jazzy idiom: init, spin, destroy, try_shutdown)."""
+    """Entry point ``pmba_node`` (Jazzy idiom: init, spin, destroy, try_shutdown).
+
+    Invalid parameters end the process with one ``[FATAL]`` line and exit code 1.
+    """
     import rclpy
+    from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
 
     tune_process()
-    rclpy.init(args=args)
-    node = rclpy.create_node(NODE_NAME)
-    # Before subscribing, so that no message queues behind a first compilation.
-    if not warmup.is_warm():
-        node.get_logger().info('compiling the solver loops before subscribing (once per '
-                               f'install; expected {warmup.expected_compile_text()})')
-    seconds = warmup.warm_up()
-    if seconds > 1.0:
-        node.get_logger().info(f'solver loops ready in {seconds:.1f} s')
     try:
+        rclpy.init(args=args)
+    except Exception as err:
+        print(f'[FATAL] [{settings.NODE_NAME}]: cannot initialize rclpy: {err}', file=sys.stderr)
+        raise SystemExit(1) from None
+    node = rclpy.create_node(settings.NODE_NAME)
+    try:
+        # Before subscribing, so that no message queues behind a first compilation.
+        if not warmup.is_warm():
+            node.get_logger().info('compiling the solver loops before subscribing (once per '
+                                   f'install; expected {warmup.expected_compile_text()})')
+        seconds = warmup.warm_up()
+        if seconds > 1.0:
+            node.get_logger().info(f'solver loops ready in {seconds:.1f} s')
         wrapper = PmbaNode(node)
-    except ValueError as err:
-        node.get_logger().fatal(f'invalid parameters: {err}')
+    except KeyboardInterrupt:
         node.destroy_node()
         rclpy.try_shutdown()
-        raise SystemExit(1) from err
+        return
+    except (ValueError, ParameterException) as err:
+        node.get_logger().fatal(f'invalid parameter: {err}')
+        node.destroy_node()
+        rclpy.try_shutdown()
+        raise SystemExit(1) from None
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A shutdown signal between two executor iterations surfaces as an RCLError about
+        # the invalid context (an rclpy race), not as ExternalShutdownException.
+        if rclpy.ok():
+            raise
     finally:
         wrapper.close()
         rclpy.try_shutdown()

@@ -1,111 +1,323 @@
-"""pmba_node with real rclpy (isolated context, executor, spin until a condition).
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 
-Runs under ``colcon test`` on a ROS 2 Jazzy machine; skips where rclpy is missing (our CI:
-see ros2_notes.md §2 and §7, this module has not been run there).
+"""pmba_node in-process with real rclpy (the ``ros`` extra): own context and DDS domain each.
+
+The rclpy wheels of PyPI run here, so these tests run in CI; tf2_ros and tf2_msgs are not on
+PyPI, so the TF-less path is the real one here and tf2_ros is a recording stand-in.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+import logging
+import sys
 import time
+import types
 from typing import Any
 
 import numpy as np
 import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-rclpy = pytest.importorskip('rclpy')
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.core import so3
+from pmba_ros.node import MAP_TO_ODOM_TOPIC, RUNTIME_PARAMETERS, PmbaNode
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from .ros_helpers import domain_id, isolate, spin_until
 
-from pmba_ros.backend import outputs as out  # noqa: E402
-from pmba_ros.core import so3  # noqa: E402
-from pmba_ros.node import PmbaNode  # noqa: E402
-from pmba_ros.sim.sequence import simulate_sequence  # noqa: E402
+RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
 
 
 @pytest.fixture
-def ros() -> Iterator[tuple[Context, SingleThreadedExecutor]]:
-    """Ros."""
+def ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Context, SingleThreadedExecutor]]:
+    """Return an initialized context on its own localhost-only domain and an executor."""
+    domain = domain_id()
+    isolate(monkeypatch, domain)
     context = Context()
-    rclpy.init(context=context)
+    rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)
     yield context, executor
     executor.shutdown()
     rclpy.shutdown(context=context)
 
 
-def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool],
-               timeout_s: float = 30.0) -> bool:
-    """Spin until."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-        if condition():
-            return True
-    return False
+@pytest.fixture(scope='module')
+def seq() -> SimSequence:
+    """Return a short simulated street."""
+    return simulate_sequence('street', n_keyframes=16, seed=1)
 
 
-def test_node_publishes_path_tf_and_diagnostics(
-        ros: tuple[Context, SingleThreadedExecutor]) -> None:
-    """Test: node publishes path tf and diagnostics."""
-    context, executor = ros
-    seq = simulate_sequence('street', n_keyframes=16, seed=1)
+def start(context: Context, executor: SingleThreadedExecutor,
+          **params: Any) -> tuple[PmbaNode, Any]:
+    """Start a PmbaNode with parameter overrides and a driver node on one executor."""
     node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
-        Parameter('init_batch_size', value=10), Parameter('deterministic', value=True)])
+        Parameter(k, value=v) for k, v in params.items()])
     wrapper = PmbaNode(node)
     driver = rclpy.create_node('pmba_test_driver', context=context)
     executor.add_node(node)
     executor.add_node(driver)
-    backend = out.RclpyBackend()
-    from nav_msgs.msg import Odometry, Path
-    from sensor_msgs.msg import CameraInfo, PointCloud, PointCloud2
-    from tf2_msgs.msg import TFMessage
+    return wrapper, driver
 
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    pub_tracks = driver.create_publisher(PointCloud, 'features', qos)
-    pub_kf = driver.create_publisher(Odometry, 'keyframe_pose', qos)
-    pub_info = driver.create_publisher(CameraInfo, 'camera_info', qos)
-    got: dict[str, list[Any]] = {'path': [], 'tf': [], 'landmarks': []}
-    driver.create_subscription(Path, 'pmba/path', got['path'].append, qos)
-    driver.create_subscription(TFMessage, '/tf', got['tf'].append, qos)
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    driver.create_subscription(PointCloud2, 'pmba/landmarks', got['landmarks'].append, latched)
+
+def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence) -> None:
+    """Publish the sequence's CameraInfo, tracks and keyframe poses from ``driver``."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, PointCloud
+
+    backend = out.RclpyBackend()
+    pub_tracks = driver.create_publisher(PointCloud, 'features', RELIABLE)
+    pub_kf = driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE)
+    pub_info = driver.create_publisher(CameraInfo, 'camera_info', RELIABLE)
+    assert spin_until(executor, lambda: min(p.get_subscription_count() for p in
+                                            (pub_tracks, pub_kf, pub_info)) > 0)
+    pub_info.publish(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+    for i in range(len(seq)):
+        pub_tracks.publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+        pub_kf.publish(out.make_odometry(
+            int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
+            so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
+        executor.spin_once(timeout_sec=0.005)
+
+
+def statuses(arrays: list[Any], name: str) -> list[Any]:
+    """Return the DiagnosticStatus entries called ``name`` of DiagnosticArrays."""
+    return [s for a in arrays for s in a.status if s.name == name]
+
+
+def test_outputs_without_tf2(ros: tuple[Context, SingleThreadedExecutor],
+                             seq: SimSequence) -> None:
+    """Every keyframe in the path, odometry at once, map -> odom re-sent, TF-off diagnostics."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import TransformStamped
+    from nav_msgs.msg import Odometry, Path
+    from sensor_msgs.msg import PointCloud2
+
+    context, executor = ros
+    wrapper, driver = start(context, executor, init_batch_size=10, deterministic=True,
+                            tf_rate_hz=20)
+    assert wrapper.tf_mode.startswith('off')
+    got: dict[str, list[Any]] = {'path': [], 'odom': [], 'm2o': [], 'diag': [], 'lm': []}
+    driver.create_subscription(Path, 'pmba/path', got['path'].append, RELIABLE)
+    driver.create_subscription(Odometry, 'pmba/odometry', got['odom'].append, RELIABLE)
+    driver.create_subscription(TransformStamped, MAP_TO_ODOM_TOPIC, got['m2o'].append, RELIABLE)
+    driver.create_subscription(DiagnosticArray, '/diagnostics', got['diag'].append, RELIABLE)
+    driver.create_subscription(PointCloud2, 'pmba/landmarks', got['lm'].append, QoSProfile(
+        depth=1, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
     try:
-        assert spin_until(executor, lambda: pub_tracks.get_subscription_count() > 0
-                          and pub_kf.get_subscription_count() > 0)
-        pub_info.publish(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera,
-                                              backend))
-        for i in range(len(seq)):
-            pub_tracks.publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
-            pub_kf.publish(out.make_odometry(
-                int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
-                so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
-            executor.spin_once(timeout_sec=0.01)
+        feed(executor, driver, seq)
         assert spin_until(executor, lambda: bool(got['path'])
                           and len(got['path'][-1].poses) == len(seq), timeout_s=60.0)
         assert got['path'][-1].header.frame_id == 'map'
-        assert spin_until(executor, lambda: bool(got['tf']) and bool(got['landmarks']))
-        tf = got['tf'][-1].transforms[0]
-        assert (tf.header.frame_id, tf.child_frame_id) == ('map', 'odom')
+        stamps = {(o.header.stamp.sec, o.header.stamp.nanosec) for o in got['odom']}
+        assert len(stamps) == len(seq)          # provisional and corrected poses
+        assert len(got['odom']) > len(seq)
+        assert spin_until(executor, lambda: len(got['m2o']) >= 5 and bool(got['lm']))
+        m2o = got['m2o'][-1]
+        assert (m2o.header.frame_id, m2o.child_frame_id) == ('map', 'odom')
+        sent = len(got['m2o'])
+        assert spin_until(executor, lambda: len(got['m2o']) >= sent + 4, timeout_s=5.0)
+        node_diag = statuses(got['diag'], 'pmba_ros: node')
+        assert node_diag and 'TF off' in node_diag[-1].message
+        assert node_diag[-1].level == node_diag[-1].WARN
+        backend_diag = statuses(got['diag'], 'pmba_ros: back-end')
+        assert {kv.key: kv.value for kv in backend_diag[-1].values}['state'] == 'tracking'
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_provisional_odometry_before_the_solve(ros: tuple[Context, SingleThreadedExecutor],
+                                               seq: SimSequence) -> None:
+    """A keyframe's odometry is out before the worker has handled it (front-end pose)."""
+    from nav_msgs.msg import Odometry
+
+    context, executor = ros
+    node = rclpy.create_node('pmba_node', context=context)
+    wrapper = PmbaNode(node, start_worker=False)
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    executor.add_node(node)
+    executor.add_node(driver)
+    got: list[Any] = []
+    driver.create_subscription(Odometry, 'pmba/odometry', got.append, RELIABLE)
+    try:
+        feed(executor, driver, seq)
+        assert spin_until(executor, lambda: len(got) == len(seq))
+        first = got[0].pose.pose.position
+        np.testing.assert_allclose([first.x, first.y, first.z], seq.centers_odom[0], atol=1e-9)
+        assert got[0].header.frame_id == 'map' and got[0].child_frame_id == 'camera'
+        assert wrapper.process_pending() > 0     # the worker had not run before
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_tf2_ros_broadcaster_when_importable(ros: tuple[Context, SingleThreadedExecutor],
+                                             seq: SimSequence,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """With tf2_ros importable, map -> odom goes through its TransformBroadcaster."""
+    sent: list[Any] = []
+
+    class TransformBroadcaster:
+        """Record what is sent."""
+
+        def __init__(self, node: Any) -> None:
+            """Take the node like tf2_ros does."""
+            assert node.get_name() == 'pmba_node'
+
+        def sendTransform(self, transform: Any) -> None:
+            """Record."""
+            sent.append(transform)
+
+    monkeypatch.setitem(sys.modules, 'tf2_ros', types.SimpleNamespace(
+        TransformBroadcaster=TransformBroadcaster))
+    context, executor = ros
+    wrapper, driver = start(context, executor, init_batch_size=10, deterministic=True,
+                            tf_rate_hz=0)
+    try:
+        assert wrapper.tf_mode == 'tf2_ros'
+        feed(executor, driver, seq)
+        assert spin_until(executor, lambda: wrapper.logic.stats.keyframes == len(seq),
+                          timeout_s=60.0)
+        assert sent and sent[-1].child_frame_id == 'odom'
+        assert sent[-1].header.frame_id == 'map'
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_parameters_descriptors_and_runtime_changes(
+        ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """Ints for floats, read-only descriptors, refusals with a reason, applied changes."""
+    context, executor = ros
+    wrapper, driver = start(context, executor, max_time_s=1, covariance_position_m2=2)
+    node = wrapper.node
+    try:
+        assert wrapper.config.max_time_s == 1.0 and isinstance(wrapper.config.max_time_s, float)
+        window = node.describe_parameter('window_size')
+        assert window.read_only and window.integer_range[0].from_value == 2
+        assert 'Free keyframes' in window.description
+        assert 'one of' in node.describe_parameter('loss').additional_constraints
+        assert not node.describe_parameter('max_iterations').read_only
+        refused = node.set_parameters([Parameter('window_size', value=30)])[0]
+        assert not refused.successful and 'read-only' in refused.reason
+        refused = node.set_parameters([Parameter('loss', value='squared')])[0]
+        assert not refused.successful and 'loss' in refused.reason
+        refused = node.set_parameters([Parameter('max_iterations', value='three')])[0]
+        assert not refused.successful and 'max_iterations' in refused.reason
+        assert wrapper.config.loss == 'cauchy'
+        ok = node.set_parameters([Parameter('max_iterations', value=5),
+                                  Parameter('loss_scale_px', value=3)])
+        assert all(r.successful for r in ok)
+        assert wrapper.config.max_iterations == 5 and wrapper.config.loss_scale_px == 3.0
+        wrapper._enqueue('tracks', object())     # the worker applies it at its next message
+        assert spin_until(executor, lambda: wrapper.logic.config.max_iterations == 5, 5.0)
+        assert wrapper.logic.estimator.config.loss_scale_px == 3.0
+        assert RUNTIME_PARAMETERS <= set(BackendConfig().to_params())
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_invalid_parameter_raises_naming_it(ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """A wrong type or value raises with the parameter's name (main() makes it [FATAL])."""
+    context, _ = ros
+    for name, value in (('window_size', 1), ('max_time_s', 'fast'), ('mode', 'batch')):
+        node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
+            Parameter(name, value=value)])
+        with pytest.raises(Exception, match=name):
+            PmbaNode(node)
+        node.destroy_node()
+
+
+def test_qos_per_input_and_overrides(ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """camera_info best effort by default, presets per input, qos_overrides win."""
+    context, executor = ros
+    wrapper, driver = start(context, executor, keyframe_qos='transient_local', **{
+        'qos_overrides./features.subscription.reliability': 'best_effort'})
+    try:
+        subs = {s.topic_name: s.qos_profile for s in wrapper.subscriptions}
+        assert subs['/camera_info'].reliability == ReliabilityPolicy.BEST_EFFORT
+        assert subs['/keyframe_pose'].durability == DurabilityPolicy.TRANSIENT_LOCAL
+        assert subs['/keyframe_pose'].reliability == ReliabilityPolicy.RELIABLE
+        assert subs['/features'].reliability == ReliabilityPolicy.BEST_EFFORT
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor],
+                                        request: pytest.FixtureRequest) -> None:
+    """Back-end ``logging`` records come out of the node's logger on /rosout."""
+    from rcl_interfaces.msg import Log
+
+    # `pmba replay` (run in-process by the CLI tests) quiets pmba_ros.backend in its process.
+    backend_logger = logging.getLogger('pmba_ros.backend')
+    request.addfinalizer(lambda level=backend_logger.level: backend_logger.setLevel(level))
+    backend_logger.setLevel(logging.NOTSET)
+    context, executor = ros
+    wrapper, driver = start(context, executor)
+    got: list[Any] = []
+    driver.create_subscription(Log, '/rosout', got.append, QoSProfile(
+        depth=100, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    try:
+        time.sleep(0.2)
+        logging.getLogger('pmba_ros.backend.logic').warning('solver note %d', 42)
+        assert spin_until(executor, lambda: any('solver note 42' in m.msg for m in got), 10.0)
+        line = next(m for m in got if 'solver note 42' in m.msg)
+        assert line.name == 'pmba_node' and line.level == Log.WARN
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+    assert logging.getLogger('pmba_ros').propagate
+
+
+def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """The 1 Hz diagnostics warn when no input arrives."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    context, executor = ros
+    wrapper, driver = start(context, executor, stale_input_s=0.5, publish_tf=False)
+    got: list[Any] = []
+    driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
+    try:
+        assert spin_until(executor, lambda: any(
+            'no input received' in s.message for s in statuses(got, 'pmba_ros: node')), 5.0)
+        status = statuses(got, 'pmba_ros: node')[-1]
+        assert status.level == status.WARN and 'TF off' not in status.message
+        assert wrapper.tf_mode.startswith('disabled') and wrapper._tf_timer is None
+        assert wrapper.node.set_parameters([Parameter('publish_tf', value=True)])[0].successful
+        assert wrapper.tf_mode.startswith('off') and wrapper._tf_timer is not None
     finally:
         wrapper.close()
         driver.destroy_node()
 
 
 def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path: Any) -> None:
-    """Test: services respond."""
-    context, executor = ros
-    node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
-        Parameter('save_directory', value=str(tmp_path))])
-    wrapper = PmbaNode(node)
-    client_node = rclpy.create_node('pmba_test_client', context=context)
-    executor.add_node(node)
-    executor.add_node(client_node)
+    """~/pause, ~/reset and ~/save through real service clients."""
     from std_srvs.srv import SetBool, Trigger
+
+    context, executor = ros
+    wrapper, client_node = start(context, executor, save_directory=str(tmp_path))
     try:
         for srv_type, name, request in ((SetBool, '/pmba_node/pause', SetBool.Request(data=True)),
                                         (Trigger, '/pmba_node/reset', Trigger.Request()),
@@ -115,6 +327,7 @@ def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path:
             future = client.call_async(request)
             assert spin_until(executor, future.done)
             assert future.result().success, future.result().message
+        assert wrapper.logic.paused
         assert (tmp_path / 'pmba_keyframes.tum').exists()
     finally:
         wrapper.close()

@@ -24,6 +24,29 @@ KEYFRAME_SOURCES = ('keyframe_topic', 'tracks')
 QOS_RELIABILITIES = ('reliable', 'best_effort')
 LOSSES = ('none', 'huber', 'cauchy')
 
+INPUT_QOS = ('', 'reliable', 'best_effort', 'transient_local', 'sensor_data')
+"""Per-input QoS presets; '' takes ``qos_reliability`` and ``qos_depth``."""
+
+CHOICES: dict[str, tuple[str, ...]] = {
+    'mode': MODES, 'feature_layout': LAYOUTS, 'keyframe_type': KEYFRAME_KINDS,
+    'keyframe_source': KEYFRAME_SOURCES, 'qos_reliability': QOS_RELIABILITIES, 'loss': LOSSES,
+    'features_qos': INPUT_QOS, 'keyframe_qos': INPUT_QOS, 'camera_info_qos': INPUT_QOS}
+"""Parameters that take one of a fixed set of strings."""
+
+INT_MINIMUMS: dict[str, int] = {
+    'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0, 'init_batch_size': 3,
+    'init_retry_every': 1, 'init_max_iterations': 1, 'min_observations': 5, 'num_cams': 1,
+    'camera_id': 0, 'qos_depth': 1, 'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
+    'max_landmarks': 0, 'max_observations_per_feature': 0}
+"""Integer parameters and their smallest accepted value."""
+
+POSITIVE_FLOATS = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
+                   'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s',
+                   'stale_input_s')
+NON_NEGATIVE_FLOATS = ('init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s',
+                       'tf_rate_hz')
+"""Float parameters (an integer is accepted and converted) that must be > 0 / >= 0."""
+
 NODE_NAME = 'pmba_node'
 """Node name; ``config/pmba.yaml`` nests its parameters under it."""
 
@@ -89,6 +112,14 @@ class BackendConfig:
         deterministic: No time budgets and no wall-clock values in the outputs (replay).
         seed: Seed of the initialization's RANSAC.
         save_directory: Where the node's ~/save service writes (TUM trajectories, PLY map).
+        features_qos: QoS of the tracks subscription, one of :data:`INPUT_QOS` ('' takes
+            ``qos_reliability`` and ``qos_depth``).
+        keyframe_qos: QoS of the keyframe pose subscription (as ``features_qos``).
+        camera_info_qos: QoS of the CameraInfo subscription (as ``features_qos``; best effort
+            receives from reliable and best-effort publishers alike).
+        tf_rate_hz: Rate at which the node re-sends the newest map -> odom, Hz (0: only on
+            keyframes).
+        stale_input_s: The node's diagnostics warn when no input arrived for this long, s.
     """
 
     mode: str = 'sliding'
@@ -136,6 +167,11 @@ class BackendConfig:
     deterministic: bool = False
     seed: int = 0
     save_directory: str = 'pmba_output'
+    features_qos: str = ''
+    keyframe_qos: str = ''
+    camera_info_qos: str = 'best_effort'
+    tf_rate_hz: float = 10.0
+    stale_input_s: float = 5.0
 
     def __post_init__(self) -> None:
         """Validate every field.
@@ -143,19 +179,11 @@ class BackendConfig:
         Raises:
             ValueError: With the parameter name and the accepted values.
         """
-        choices = {'mode': MODES, 'feature_layout': LAYOUTS, 'keyframe_type': KEYFRAME_KINDS,
-                   'keyframe_source': KEYFRAME_SOURCES, 'qos_reliability': QOS_RELIABILITIES,
-                   'loss': LOSSES}
-        for name, allowed in choices.items():
+        for name, allowed in CHOICES.items():
             if getattr(self, name) not in allowed:
                 msg = f'parameter {name}={getattr(self, name)!r}: expected one of {allowed}'
                 raise ValueError(msg)
-        minimum = {'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0,
-                   'init_batch_size': 3, 'init_retry_every': 1, 'init_max_iterations': 1,
-                   'min_observations': 5, 'num_cams': 1, 'camera_id': 0, 'qos_depth': 1,
-                   'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
-                   'max_landmarks': 0, 'max_observations_per_feature': 0}
-        for name, low in minimum.items():
+        for name, low in INT_MINIMUMS.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 msg = f'parameter {name}={value!r}: expected an integer >= {low}'
@@ -171,9 +199,7 @@ class BackendConfig:
         if self.camera_id >= self.num_cams:
             msg = f'parameter camera_id={self.camera_id} must be < num_cams={self.num_cams}'
             raise ValueError(msg)
-        positive = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
-                    'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s')
-        non_negative = ('init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s')
+        positive, non_negative = POSITIVE_FLOATS, NON_NEGATIVE_FLOATS
         for name in positive + non_negative:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or \

@@ -211,6 +211,15 @@ class BackendLogic:
         self.count('resets')
         logger.info('back-end reset')
 
+    def apply_config(self, config: BackendConfig) -> None:
+        """Use ``config`` from the next keyframe on (the node's run-time parameter changes).
+
+        Only fields read at use time take effect (solver budgets, loss, tolerances,
+        covariances); the node declares the others read-only.
+        """
+        self.config = config
+        self.estimator.config = config
+
     def set_paused(self, paused: bool) -> None:
         """Pause (drop and count inputs) or resume."""
         if bool(paused) != self._paused:

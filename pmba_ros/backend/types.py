@@ -256,7 +256,7 @@ class CameraModel:
 
         Args:
             msg: CameraInfo from rclpy, rosbags or mcap_ros2 (fields ``k``, ``d``,
-                ``distortion_model``, ``width``, ``height``).
+                ``distortion_model``, ``width``, ``height``; ROS 1's ``K``, ``D`` too).
 
         Returns:
             The camera model.
@@ -265,8 +265,8 @@ class CameraModel:
             MessageError: If ``k`` does not have 9 values, or the model is unsupported.
         """
         try:
-            k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
-            d = np.asarray(msg.d, dtype=np.float64).reshape(-1)
+            k = np.asarray(_camera_info_field(msg, 'k'), dtype=np.float64).reshape(-1)
+            d = np.asarray(_camera_info_field(msg, 'd'), dtype=np.float64).reshape(-1)
             model = str(msg.distortion_model)
             width, height = int(msg.width), int(msg.height)
         except (AttributeError, TypeError, ValueError) as err:
@@ -396,3 +396,11 @@ def _undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     xy = xy_d * scale[:, None]
     xy[~ok] = np.nan
     return xy
+
+
+def _camera_info_field(msg: Any, name: str) -> Any:
+    """Return CameraInfo field ``name`` in ROS 2 spelling, else ROS 1's (``K``, ``D``, ...)."""
+    try:
+        return getattr(msg, name)
+    except AttributeError:
+        return getattr(msg, name.upper())

@@ -25,6 +25,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'replay': ('pmba_ros.cli.replay', 'run the back-end over recorded bags and evaluate'),
     'evaluate': ('pmba_ros.cli.evaluate', 'ATE / RPE of a trajectory against ground truth'),
     'import-tracks': ('pmba_ros.cli.import_tracks', 'turn KITTI-00 stereo tracks into a bag'),
+    'play': ('pmba_ros.cli.play', 'publish a recording into a live ROS 2 graph (needs rclpy)'),
     'warmup': ('pmba_ros.cli.warmup', 'compile the solver loops now (after installing)'),
 }
 #: Verbs that solve: the compiled loops are made ready (with a message) before they start.

@@ -534,3 +534,40 @@ def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
 
 __all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'ReadStats', 'TopicInfo',
            'iter_messages', 'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
+
+
+def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
+                    ) -> Iterator[tuple[str, int, bytes]]:
+    """Yield ``(topic, log_time_ns, CDR bytes)`` of rosbag2 recordings in log-time order.
+
+    The bytes are the stored serialization, ready for an rclpy publisher (``pmba play``).
+
+    Args:
+        paths: rosbag2 folders or storage files.
+        topics: Topics to read; None reads all.
+
+    Raises:
+        BagError: If a bag is missing, cannot be opened or is corrupt, or is a ROS 1 bag
+            (whose serialization ROS 2 publishers cannot send).
+    """
+    checked = _check_paths([Path(p) for p in paths])
+    ros1 = [p for p in checked if p.suffix == '.bag']
+    if ros1:
+        msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; convert '
+               'it first: rosbags-convert --src BAG --dst FOLDER')
+        raise BagError(msg)
+    errors = _reader_errors()
+    with _any_reader(checked) as reader:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            return
+        stream = reader.messages(connections=conns)
+        while True:
+            try:
+                conn, t_ns, raw = next(stream)
+            except StopIteration:
+                return
+            except errors as err:
+                msg = f'{_describe(checked)}: bag is corrupt or truncated: {_error_text(err)}'
+                raise BagError(msg) from err
+            yield conn.topic, int(t_ns), bytes(raw)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import array
 from collections.abc import Callable
 from pathlib import Path
-import sys
 from types import SimpleNamespace
 from typing import Any
 
@@ -20,6 +19,8 @@ from pmba_ros.backend import outputs
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+
+from ..conftest import run_python
 
 T_NS = 42_000_000_007
 QUATS = np.array([[0.0, 0.0, 0.0, 2.0], [0.1, 0.2, -0.3, 0.9], [0.5, 0.5, 0.5, 0.5]])
@@ -314,7 +315,18 @@ def test_rclpy_backend_containers_and_lazy_loading(ts: Any) -> None:
         backend.msg_class('no_such_msgs/msg/X')
     with pytest.raises(MessageError, match='bad message type name'):
         backend.msg_class('Path')
-    assert 'rclpy' not in sys.modules
+
+
+def test_rclpy_backend_builds_real_messages_without_importing_rclpy() -> None:
+    """The real rosidl classes (the ``ros`` extra) serve the node's messages; no rclpy import."""
+    run_python(
+        'import sys\n'
+        'from pmba_ros.backend import outputs\n'
+        'path = outputs.make_path(5, "map", [[0.0, 0.0, 1.0]], [[0.0, 0.0, 0.0, 1.0]], [5],\n'
+        '                         outputs.RclpyBackend())\n'
+        'assert type(path).__module__ == "nav_msgs.msg._path", type(path)\n'
+        'assert path.poses[0].pose.position.z == 1.0\n'
+        'assert "rclpy" not in sys.modules\n', timeout_s=120.0)
 
 
 def test_rosbags_backend_errors(backend: Any) -> None:

@@ -1,0 +1,249 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""pmba_node as a process, launch-free, fed a simulated recording live over DDS.
+
+Each test runs the node with ``--ros-args --params-file config/pmba.yaml`` plus remaps on
+its own ``ROS_DOMAIN_ID`` (localhost discovery only), publishes a recording at its recorded
+rate (``pmba play`` as a second process, or a driver node here), and checks what comes
+back: every keyframe in the path, odometry for every keyframe, diagnostics, the services
+through real clients, and the exit on SIGINT / SIGTERM.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from pmba_ros.backend import outputs as out
+from pmba_ros.cli.main import main as pmba
+from pmba_ros.core import so3
+from pmba_ros.sim.sequence import simulate_sequence
+
+from .ros_helpers import domain_id, isolate, isolated_env, spin_until
+
+ROOT = Path(__file__).resolve().parents[1]
+PARAMS = ROOT / 'config' / 'pmba.yaml'
+N_KEYFRAMES = 24
+RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _default_sigint() -> None:
+    # A background shell starts children with SIGINT ignored; the node must see it.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def start_node(domain: int, log: Path, *ros_args: str) -> subprocess.Popen[str]:
+    """Start pmba_node with the params file and ``ros_args`` on ``domain``, logging to ``log``.
+
+    A file, not a pipe: a pipe nobody reads while the node runs blocks it once full.
+    """
+    with log.open('w', encoding='utf-8') as out_file:
+        return subprocess.Popen(
+            [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file',
+             str(PARAMS), '-p', 'init_batch_size:=10', *ros_args],
+            env=isolated_env(domain), stdout=out_file, stderr=subprocess.STDOUT, text=True,
+            preexec_fn=_default_sigint)
+
+
+@dataclass
+class Listener:
+    """A node on the test's side: subscriptions to the outputs and service clients."""
+
+    context: Context
+    executor: SingleThreadedExecutor
+    node: Any
+    got: dict[str, list[Any]] = field(default_factory=dict)
+
+    def stamps(self, key: str) -> set[int]:
+        """Return the header stamps, in ns, of the messages received under ``key``."""
+        return {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in self.got[key]}
+
+    def call(self, srv_type: Any, name: str, request: Any) -> Any:
+        """Call a service and return its response."""
+        client = self.node.create_client(srv_type, name)
+        assert spin_until(self.executor, client.service_is_ready, 10.0), name
+        future = client.call_async(request)
+        assert spin_until(self.executor, future.done, 20.0), name
+        return future.result()
+
+
+@pytest.fixture
+def listener(monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
+    """Return a listener on a fresh domain, subscribed to the node's outputs."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from nav_msgs.msg import Path as PathMsg
+
+    domain = domain_id()
+    isolate(monkeypatch, domain)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    executor = SingleThreadedExecutor(context=context)
+    node = rclpy.create_node('live_listener', context=context)
+    executor.add_node(node)
+    result = Listener(context, executor, node, {'path': [], 'odom': [], 'diag': []})
+    result.domain = domain  # type: ignore[attr-defined]
+    node.create_subscription(PathMsg, '/pmba/path', result.got['path'].append, RELIABLE)
+    node.create_subscription(Odometry, '/pmba/odometry', result.got['odom'].append, RELIABLE)
+    node.create_subscription(DiagnosticArray, '/diagnostics', result.got['diag'].append,
+                             RELIABLE)
+    yield result
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def stop(proc: subprocess.Popen[str], sig: int, log: Path) -> tuple[float, str]:
+    """Send ``sig``; return the seconds until the process ended and its log."""
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        pytest.fail(f'pmba_node ignored signal {sig}: {log.read_text(encoding="utf-8")}')
+    return time.monotonic() - t0, log.read_text(encoding='utf-8')
+
+
+def wait_until_up(listener: Listener, proc: subprocess.Popen[str], log: Path) -> None:
+    """Wait for the node's first diagnostics (it subscribed before creating its timers)."""
+    up = spin_until(listener.executor, lambda: bool(listener.got['diag'])
+                    or proc.poll() is not None, timeout_s=120.0)
+    if proc.poll() is not None or not up:
+        proc.kill()
+        proc.wait()
+        pytest.fail(f'pmba_node did not come up: {log.read_text(encoding="utf-8")}')
+
+
+def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
+    """Every keyframe in the last path, odometry for each, both diagnostics statuses."""
+    n = len(stamps_ns)
+    assert spin_until(listener.executor, lambda: bool(listener.got['path'])
+                      and len(listener.got['path'][-1].poses) == n, timeout_s=60.0)
+    path = listener.got['path'][-1]
+    assert [p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in path.poses] == \
+        [int(s) for s in stamps_ns]
+    assert {int(s) for s in stamps_ns} <= listener.stamps('odom')
+    names = {s.name for a in listener.got['diag'] for s in a.status}
+    assert {'pmba_ros: node', 'pmba_ros: back-end'} <= names
+
+
+def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
+                                                       tmp_path: Path) -> None:
+    """VINS-Mono topics and layout, recording played by ``pmba play``; SIGINT exits 0 fast."""
+    bag = tmp_path / 'mono'
+    assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '3', '--layout',
+                 'vins_mono', '--out', str(bag)]) == 0
+    domain = listener.domain  # type: ignore[attr-defined]
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, '-p', 'feature_layout:=vins_mono', '-p', 'max_time_s:=1',
+                      '-r', 'features:=/feature_tracker/feature',
+                      '-r', 'keyframe_pose:=/vins_estimator/keyframe_pose')
+    player = None
+    try:
+        wait_until_up(listener, node, log)
+        player = subprocess.Popen(
+            [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--wait-for-subscribers',
+             '30', '--topics', '/features', '/keyframe_pose', '/camera_info',
+             '--remap', '/features:=/feature_tracker/feature',
+             '--remap', '/keyframe_pose:=/vins_estimator/keyframe_pose'],
+            env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        from pmba_ros.io.bags import iter_messages
+        stamps = np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
+                           for m in iter_messages([bag], ['/keyframe_pose'])])
+        check_outputs(listener, stamps)
+        assert player.wait(timeout=30) == 0
+        seconds, stderr = stop(node, signal.SIGINT, log)
+        assert node.returncode == 0, stderr
+        assert seconds < 2.0
+        assert 'Traceback' not in stderr
+    finally:
+        for proc in (node, player):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listener,
+                                                               tmp_path: Path) -> None:
+    """VINS-Fusion layout with PoseStamped keyframes from a driver node at 10 Hz."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import CameraInfo, PointCloud
+    from std_srvs.srv import SetBool, Trigger
+
+    domain = listener.domain  # type: ignore[attr-defined]
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, '-p', 'keyframe_type:=pose_stamped',
+                      '-p', f'save_directory:={tmp_path / "saved"}',
+                      '-r', 'features:=/vins/feature', '-r', 'keyframe_pose:=/vins/pose')
+    seq = simulate_sequence('street', n_keyframes=N_KEYFRAMES, seed=4)
+    backend = out.RclpyBackend()
+    driver = listener.node
+    pubs = (driver.create_publisher(PointCloud, '/vins/feature', RELIABLE),
+            driver.create_publisher(PoseStamped, '/vins/pose', RELIABLE),
+            driver.create_publisher(CameraInfo, '/camera_info', RELIABLE))
+    try:
+        wait_until_up(listener, node, log)
+        assert spin_until(listener.executor, lambda: min(
+            p.get_subscription_count() for p in pubs) > 0, timeout_s=30.0)
+        period = float(np.median(np.diff(seq.stamps_ns))) * 1e-9
+        t0 = time.monotonic()
+        for i in range(len(seq)):
+            stamp = int(seq.stamps_ns[i])
+            pubs[2].publish(out.make_camera_info(stamp, 'camera', seq.camera, backend))
+            pubs[0].publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+            pubs[1].publish(out.make_pose_stamped(stamp, 'odom', seq.centers_odom[i],
+                                                  so3.to_quat_xyzw(seq.R_wc_odom[i]), backend))
+            spin_until(listener.executor, lambda: False,
+                       timeout_s=max(0.0, t0 + (i + 1) * period - time.monotonic()))
+        check_outputs(listener, seq.stamps_ns)
+        assert listener.call(SetBool, '/pmba_node/pause', SetBool.Request(data=True)).success
+        saved = listener.call(Trigger, '/pmba_node/save', Trigger.Request())
+        assert saved.success, saved.message
+        tum = (tmp_path / 'saved' / 'pmba_keyframes.tum').read_text().splitlines()
+        assert len([line for line in tum if not line.startswith('#')]) == N_KEYFRAMES
+        assert listener.call(Trigger, '/pmba_node/reset', Trigger.Request()).success
+        seconds, stderr = stop(node, signal.SIGTERM, log)
+        assert node.returncode == 0, stderr
+        assert seconds < 2.0
+    finally:
+        if node.poll() is None:
+            node.kill()
+            node.wait()
+
+
+def test_bad_parameter_is_one_fatal_line(listener: Listener, tmp_path: Path) -> None:
+    """A wrong parameter value: one [FATAL] line naming it, exit code 1, no traceback."""
+    log = tmp_path / 'node.log'
+    node = start_node(listener.domain, log, '-p', 'loss:=squared')  # type: ignore[attr-defined]
+    assert node.wait(timeout=120) == 1
+    stderr = log.read_text(encoding='utf-8')
+    fatal = [line for line in stderr.splitlines() if '[FATAL]' in line]
+    assert len(fatal) == 1 and 'loss' in fatal[0]
+    assert 'Traceback' not in stderr
