@@ -81,7 +81,9 @@ class ReplayReport:
         messages_rejected: Input messages the back-end rejected (parse errors).
         messages_out: Output messages written to the result bag.
         keyframes_in: Keyframe messages read.
-        keyframes_out: Keyframes in the optimized trajectory.
+        keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
+        keyframes_not_optimized: Of those, keyframes at their front-end pose through
+            map <- odom (before the initialization, too few observations).
         solve_ms: Solve time per keyframe solve, ms.
         iterations: Solver iterations per solve.
         costs: Cost after each solve.
@@ -105,6 +107,7 @@ class ReplayReport:
     messages_out: int = 0
     keyframes_in: int = 0
     keyframes_out: int = 0
+    keyframes_not_optimized: int = 0
     solve_ms: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
@@ -134,6 +137,7 @@ class ReplayReport:
             'complete': self.complete,
             'keyframes_in': self.keyframes_in,
             'keyframes_out': self.keyframes_out,
+            'keyframes_not_optimized': self.keyframes_not_optimized,
             'messages_in': self.messages_in,
             'messages_rejected': self.messages_rejected,
             'messages_out': self.messages_out,
@@ -554,6 +558,7 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     report.counters = dict(sorted(dict(getattr(stats, 'counters', {}) or {}).items()))
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
+    report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',

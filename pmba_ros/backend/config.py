@@ -13,6 +13,7 @@ import math
 import os
 from typing import Any
 
+from pmba_ros.backend.extrinsics import extrinsics_from_params
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
 
 MODES = ('sliding', 'global')
@@ -42,8 +43,10 @@ class BackendConfig:
             co-observe most window features; >= 2 of them fix the gauge).
         fixed_lookback: Keyframes before the window whose observations are kept for that.
         init_batch_size: Keyframes collected before the global initialization (>= 3).
-        init_min_parallax_px: Rotation-compensated median parallax (px) between the first and
-            a later keyframe of the batch required to try the initialization.
+        init_min_parallax_px: Rotation-compensated parallax (px) that makes a feature
+            well conditioned for the initialization (between two keyframes of the batch).
+        init_min_features: Well-conditioned features (between one pair of the batch's
+            keyframes) required to try the initialization.
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
@@ -55,6 +58,9 @@ class BackendConfig:
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
         num_cams: Front-end camera count (VINS ``NUM_OF_CAM``).
         camera_id: Camera whose observations are used (monocular back-end).
+        camera_extrinsics: Body -> camera transforms, 7 values per camera id (x, y, z, qx,
+            qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
+            (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else identity.
         keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
         keyframe_source: 'keyframe_topic' or 'tracks' (every tracks message is a keyframe
             without front-end pose).
@@ -97,6 +103,7 @@ class BackendConfig:
     fixed_lookback: int = 20
     init_batch_size: int = 20
     init_min_parallax_px: float = 3.0
+    init_min_features: int = 30
     init_retry_every: int = 5
     init_max_batch: int = 60
     init_max_iterations: int = 100
@@ -105,6 +112,7 @@ class BackendConfig:
     feature_layout: str = 'vins_fusion'
     num_cams: int = 1
     camera_id: int = 0
+    camera_extrinsics: tuple[float, ...] = ()
     keyframe_type: str = 'odometry'
     keyframe_source: str = 'keyframe_topic'
     features_topic: str = 'features'
@@ -151,7 +159,8 @@ class BackendConfig:
                 msg = f'parameter {name}={getattr(self, name)!r}: expected one of {allowed}'
                 raise ValueError(msg)
         minimum = {'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0,
-                   'init_batch_size': 3, 'init_retry_every': 1, 'init_max_iterations': 1,
+                   'init_batch_size': 3, 'init_retry_every': 1, 'init_min_features': 1,
+                   'init_max_iterations': 1,
                    'min_observations': 5, 'num_cams': 1, 'camera_id': 0, 'qos_depth': 1,
                    'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
                    'max_landmarks': 0, 'max_observations_per_feature': 0}
@@ -196,6 +205,13 @@ class BackendConfig:
             if not isinstance(getattr(self, name), str):
                 msg = f'parameter {name}: expected a string'
                 raise ValueError(msg)
+        try:
+            flat = tuple(float(v) for v in self.camera_extrinsics)
+        except (TypeError, ValueError) as err:
+            msg = f'parameter camera_extrinsics: expected a list of numbers ({err})'
+            raise ValueError(msg) from err
+        object.__setattr__(self, 'camera_extrinsics', flat)
+        extrinsics_from_params(flat, self.num_cams)
         for name in ('publish_tf', 'deterministic'):
             if not isinstance(getattr(self, name), bool):
                 msg = f'parameter {name}={getattr(self, name)!r}: expected a bool'
@@ -242,8 +258,8 @@ class BackendConfig:
         return cls.from_params(data)
 
     def to_params(self) -> dict[str, Any]:
-        """Return the flat parameter dict (the node declares these)."""
-        return asdict(self)
+        """Return the flat parameter dict (the node declares these; sequences as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 def _unnest(params: dict[str, Any]) -> dict[str, Any]:

@@ -3,12 +3,15 @@
 State machine:
 
 ``collecting``
-    Keyframes are stored until ``init_batch_size`` have arrived and the batch has parallax
-    (:func:`~pmba_ros.backend.window.rotation_compensated_parallax` between its first keyframe
-    and the latest one sharing >= 20 tracks, at least ``init_min_parallax_px``). Then
-    :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure (pure rotation, too
-    few pairs) moves to ``waiting_for_parallax`` and is retried every ``init_retry_every``
-    keyframes; the batch keeps at most ``init_max_batch`` keyframes (oldest dropped).
+    Keyframes are stored until ``init_batch_size`` have arrived and the batch has enough
+    well-conditioned features: at least ``init_min_features`` whose rotation-compensated
+    parallax between two of its keyframes is ``init_min_parallax_px`` or more
+    (:meth:`Estimator._well_conditioned_features`; PMBA needs some near features, not a
+    high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure
+    (pure rotation, too few pairs) moves to ``waiting_for_parallax`` and is retried every
+    ``init_retry_every`` keyframes; the batch keeps at most ``init_max_batch`` keyframes (older
+    ones keep their front-end pose). Until then every keyframe with a front-end pose is
+    published at that pose (map = odom), flagged as not optimized (:meth:`Estimator.optimized`).
 ``tracking``
     The map is expressed in the front-end's odom frame at initialization (similarity fit of
     the batch, so map -> odom starts at identity). Each new keyframe starts from the previous
@@ -34,7 +37,7 @@ from typing import cast
 
 import numpy as np
 
-from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import (
     FeatureMap,
@@ -43,10 +46,10 @@ from pmba_ros.backend.window import (
     KeyframeStore,
     LandmarkStore,
     Similarity,
+    compensated_parallax_angles,
     estimate_similarity,
     finite_rows,
     gather_observations,
-    rotation_compensated_parallax,
     select_fixed,
     thin_tracks,
 )
@@ -115,6 +118,7 @@ class Estimator:
         self.map_from_odom = Similarity.identity()
         self.last_message = 'collecting keyframes for the global initialization'
         self._next_init_attempt = self.config.init_batch_size
+        self.init_attempts = 0
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -125,6 +129,10 @@ class Estimator:
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
                      obs: KeyframeObs | None) -> UpdateInfo:
         """Add a keyframe and update the estimate.
+
+        Every keyframe with a front-end pose gets a map pose: before the first initialization
+        and for keyframes without enough observations it is the front-end pose through the
+        current map <- odom similarity (flagged as not optimized, see :meth:`optimized`).
 
         Args:
             stamp_ns: Keyframe stamp, ns (strictly increasing; the caller checks).
@@ -138,9 +146,10 @@ class Estimator:
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
             if not usable:
-                return UpdateInfo('dropped', message='keyframe without enough observations '
-                                  'before initialization')
+                return self._pass_through(stamp_ns, odom)
             i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED)
+            if odom is not None:
+                self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
@@ -153,47 +162,79 @@ class Estimator:
 
     # --- initialization ------------------------------------------------------------------
 
+    def _through_map_from_odom(self, i: int) -> tuple[FloatArray, FloatArray]:
+        """Return keyframe i's front-end pose mapped through the current map <- odom."""
+        R, C = self.map_from_odom.apply_poses(self.kf.R_odom[i][None], self.kf.C_odom[i][None])
+        return R[0], C[0]
+
+    def _pass_through(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
+                      ) -> UpdateInfo:
+        """Keep a keyframe that cannot join the initialization batch at its front-end pose."""
+        if odom is None:
+            return UpdateInfo('dropped', message='keyframe without enough observations or '
+                              'front-end pose before initialization')
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH)
+        self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
+        return UpdateInfo('passed_through', keyframe=i,
+                          message='keyframe with too few observations: front-end pose')
+
     def _collected(self) -> IntArray:
         return self.kf.indices(KeyframeStatus.COLLECTED)
 
     def _maybe_initialize(self, i: int) -> UpdateInfo:
         cfg = self.config
         batch = self._collected()
+        info_drop: dict[str, int] = {}
         if batch.shape[0] > cfg.init_max_batch:
             dropped = batch[:batch.shape[0] - cfg.init_max_batch]
-            self.kf.status[dropped] = KeyframeStatus.DISCARDED
+            keep_pose = self.kf.has_odom[dropped]
+            self.kf.status[dropped[keep_pose]] = KeyframeStatus.PASSED_THROUGH
+            self.kf.status[dropped[~keep_pose]] = KeyframeStatus.DISCARDED
             for j in dropped:
                 self.kf.obs.pop(int(j), None)
             batch = self._collected()
-            info_drop = {'keyframes_dropped_before_init': int(dropped.shape[0])}
-        else:
-            info_drop = {}
+            if np.any(~keep_pose):
+                info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message,
                               dropped=info_drop)
-        parallax_px = self._batch_parallax_px(batch)
-        if parallax_px < cfg.init_min_parallax_px:
+        count = self._well_conditioned_features(batch)
+        if count < cfg.init_min_features:
             self.state = 'waiting_for_parallax'
-            self.last_message = (f'waiting for parallax: {parallax_px:.2f} px < '
-                                 f'{cfg.init_min_parallax_px:g} px over {batch.shape[0]} '
-                                 'keyframes')
+            self.last_message = (f'waiting for parallax: {count} features with >= '
+                                 f'{cfg.init_min_parallax_px:g} px of parallax, need '
+                                 f'{cfg.init_min_features}, over {batch.shape[0]} keyframes')
             self._next_init_attempt = self.kf.n + cfg.init_retry_every
-            return UpdateInfo('init_failed', keyframe=i, message=self.last_message,
+            return UpdateInfo('collect', keyframe=i, message=self.last_message,
                               dropped=info_drop)
         info = self._initialize(batch)
         info.keyframe = i
         info.dropped = info_drop
         return info
 
-    def _batch_parallax_px(self, batch: IntArray) -> float:
-        first = self.kf.obs[int(batch[0])]
-        for j in batch[:0:-1]:
-            other = self.kf.obs[int(j)]
-            shared, a, b = np.intersect1d(first.ids, other.ids, return_indices=True)
-            if shared.shape[0] >= _MIN_SHARED_FOR_PARALLAX:
-                angle = rotation_compensated_parallax(first.bearings[a], other.bearings[b])
-                return angle * math.sqrt(self.fx * self.fy)
-        return 0.0
+    def _well_conditioned_features(self, batch: IntArray) -> int:
+        """Return the most features with enough parallax between two keyframes of the batch.
+
+        A feature counts when its rotation-compensated parallax (the angle left after the
+        best rotation between the two keyframes' bearings) is at least
+        ``init_min_parallax_px``. PMBA does not need most features to have parallax (far
+        ones constrain the rotations), only enough near ones to fix the structure; the median
+        of a street's mostly far features can stay below any threshold for hundreds of
+        keyframes. The pairs are the batch's first keyframe with every later one and every
+        keyframe with the last, so features born inside the batch count too.
+        """
+        threshold = self.config.init_min_parallax_px / math.sqrt(self.fx * self.fy)
+        first, newest = int(batch[0]), int(batch[-1])
+        pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
+        best = 0
+        for a, b in pairs:
+            obs_a, obs_b = self.kf.obs[a], self.kf.obs[b]
+            shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
+            if shared.shape[0] < max(_MIN_SHARED_FOR_PARALLAX, best):
+                continue
+            angles = compensated_parallax_angles(obs_a.bearings[ia], obs_b.bearings[ib])
+            best = max(best, int(np.count_nonzero(angles >= threshold)))
+        return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
                        R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
@@ -222,6 +263,7 @@ class Estimator:
             max_iterations=cfg.init_max_iterations,
             function_tolerance=1e-10))
         t0 = time.perf_counter()
+        self.init_attempts += 1
         try:
             import cv2
 
@@ -251,6 +293,10 @@ class Estimator:
         self.kf.status[batch] = KeyframeStatus.ACTIVE
         self.state = 'tracking'
         self._update_similarity()
+        passed = self.kf.indices(KeyframeStatus.PASSED_THROUGH)
+        if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
+            self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
+                self.kf.R_odom[passed], self.kf.C_odom[passed])
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
@@ -391,10 +437,21 @@ class Estimator:
     # --- accessors ------------------------------------------------------------------------
 
     def estimated(self) -> IntArray:
-        """Return the keyframes that have a map pose (all but the collected ones)."""
-        status = self.kf.status[:self.kf.n]
-        return np.flatnonzero((status != KeyframeStatus.COLLECTED)
-                              & (status != KeyframeStatus.DISCARDED)).astype(np.int64)
+        """Return the keyframes that have a map pose, ascending.
+
+        That is every keyframe with a front-end pose, and the initialized ones without;
+        :meth:`optimized` tells which of them the solver estimated.
+        """
+        n = self.kf.n
+        status = self.kf.status[:n]
+        has_pose = (status != KeyframeStatus.DISCARDED) & (
+            (status != KeyframeStatus.COLLECTED) | self.kf.has_odom[:n])
+        return np.flatnonzero(has_pose).astype(np.int64)
+
+    def optimized(self, idx: IntArray) -> BoolArray:
+        """Return which of keyframes ``idx`` the solver estimated (others: front-end poses)."""
+        status = self.kf.status[idx]
+        return (status == KeyframeStatus.ACTIVE) | (status == KeyframeStatus.FIXED)
 
     def landmark_points(self) -> FloatArray:
         """Return retired landmarks and the current features' finite points, shape (L, 3)."""
