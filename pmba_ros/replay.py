@@ -55,17 +55,20 @@ TRACKS_TYPES = {'named': ('sensor_msgs/msg/PointCloud2',)}
 KEYFRAME_TYPES = {'odometry': ('nav_msgs/msg/Odometry',),
                   'pose_stamped': ('geometry_msgs/msg/PoseStamped',)}
 CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
+TF_TOPICS = ('/tf_static', '/tf')
+"""Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
+TF_TYPES = ('tf2_msgs/msg/TFMessage',)
 
 REORDER_BUFFER = 256
 """Messages held back to sort the log-time stream into header-stamp order."""
 MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
-REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
+REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info', 'bad_tf',
                                 'keyframe_stamp_not_increasing', 'stale_tracks'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
-_KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
+_KIND_ORDER = {'tf': 0, 'camera_info': 1, 'tracks': 2, 'keyframe': 3}
 
 
 @dataclass
@@ -93,6 +96,8 @@ class ReplayReport:
         bag_duration_s: Header-stamp span of the inputs, s.
         wall_s: Wall time of the replay, s.
         accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
+        extrinsic: The body -> camera transform used (``source``: 'parameters', 'tf',
+            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw).
         complete: False if the replay stopped early.
         error: The error that stopped it, if any.
         warnings: Non-fatal problems.
@@ -117,6 +122,7 @@ class ReplayReport:
     bag_duration_s: float = 0.0
     wall_s: float = 0.0
     accuracy: dict[str, Any] | None = None
+    extrinsic: dict[str, Any] | None = None
     complete: bool = False
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
@@ -156,6 +162,8 @@ class ReplayReport:
                                 else None),
             'warnings': list(self.warnings),
         }
+        if self.extrinsic is not None:
+            out['extrinsic'] = self.extrinsic
         if self.accuracy is not None:
             out['accuracy'] = self.accuracy
         if self.error is not None:
@@ -200,6 +208,7 @@ class _Input:
     tracks: str
     keyframes: str | None
     camera_info: str | None
+    tf: tuple[str, ...] = ()
 
 
 def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
@@ -250,8 +259,11 @@ def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
                 f'bag and no intrinsics were given; using normalized coordinates from the tracks')
         logger.warning(text)
         warnings.append(text)
-    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info) if t is not None}
-    return _Input(tracks, keyframes, camera_info), counts
+    tf = tuple(t for t in (_find_topic(name, topics) for name in TF_TOPICS)
+               if t is not None and topics[t].msgtype in TF_TYPES)
+    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info, *tf)
+              if t is not None}
+    return _Input(tracks, keyframes, camera_info, tf), counts
 
 
 def _stamp_ns(msg: Any, fallback: int) -> int:
@@ -267,13 +279,13 @@ def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],
                   window: int = REORDER_BUFFER) -> Iterator[tuple[int, str, BagMessage]]:
     """Reorder a log-time message stream into header-stamp order with a bounded buffer.
 
-    At equal stamps camera info comes before tracks, and tracks before keyframe poses (a
-    keyframe then finds its tracks). Messages more than ``window`` positions out of order are
-    passed on late rather than held indefinitely.
+    At equal stamps transforms come first, then camera info, tracks and keyframe poses (a
+    keyframe then finds its tracks and extrinsic). Messages more than ``window`` positions
+    out of order are passed on late rather than held indefinitely.
 
     Args:
         messages: Messages in log-time order.
-        kinds: Topic -> 'camera_info' | 'tracks' | 'keyframe'.
+        kinds: Topic -> 'tf' | 'camera_info' | 'tracks' | 'keyframe'.
         window: Messages held back.
 
     Yields:
@@ -336,8 +348,8 @@ class _Run:
         self.last_stamp = max(self.last_stamp, stamp)
         if kind == self.keyframe_kind:
             report.keyframes_in += 1
-        handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
-                   'keyframe': self.logic.on_keyframe}[kind]
+        handler = getattr(self.logic, {'camera_info': 'on_camera_info', 'tracks': 'on_tracks',
+                                       'keyframe': 'on_keyframe', 'tf': 'on_tf'}[kind])
         before = self._rejections()
         try:
             handler(message.msg)
@@ -453,6 +465,10 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         kinds[inputs.keyframes] = 'keyframe'
     if inputs.camera_info:
         kinds[inputs.camera_info] = 'camera_info'
+    for topic in inputs.tf:
+        kinds[topic] = 'tf'
+    if inputs.tf:
+        report.topics['tf'] = ', '.join(inputs.tf)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -559,6 +575,10 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
     report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
+    extrinsic = getattr(logic, 'extrinsic', None)
+    if extrinsic is not None:
+        report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),
+                            'body_to_camera': [round(v, 9) for v in extrinsic.to_flat()]}
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
