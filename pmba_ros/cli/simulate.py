@@ -54,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='keyframe rate')
     parser.add_argument('--extrinsic', choices=('none', 'euroc'), default='none',
                         help='bag: keyframe poses and ground truth of a body with this body -> '
-                        "camera transform on /tf_static ('euroc': EuRoC's cam0; default: the "
-                        'poses are the camera\'s)')
+                        'camera transform on /tf_static (euroc: the cam0 of EuRoC; default: '
+                        'the poses are the camera poses)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 
 

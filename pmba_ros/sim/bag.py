@@ -62,10 +62,11 @@ GT_FILENAME = 'groundtruth.tum'
 """Name of the ground-truth TUM file inside a bag folder."""
 TF_STATIC_TOPIC = '/tf_static'
 
-EUROC_CAM0 = Rigid(so3.project(np.array([[0.0148655429818, -0.999880929698, 0.00414029679422],
-                             [0.999557249008, 0.0149672133247, 0.025715529948],
-                             [-0.0257744366974, 0.00375618835797, 0.999660727178]])),
-                   np.array([-0.0216401454975, -0.064676986768, 0.00981073058949]))
+EUROC_CAM0 = Rigid(
+    so3.project(np.array([[0.0148655429818, -0.999880929698, 0.00414029679422],
+                          [0.999557249008, 0.0149672133247, 0.025715529948],
+                          [-0.0257744366974, 0.00375618835797, 0.999660727178]])),
+    np.array([-0.0216401454975, -0.064676986768, 0.00981073058949]))
 """EuRoC MAV cam0 extrinsic T_BS (body = IMU -> camera), from the dataset's sensor.yaml."""
 
 

@@ -116,7 +116,7 @@ def _max_rotation_deg(a: Trajectory, b: Trajectory) -> float:
 
 @pytest.fixture(scope='module')
 def street() -> SimSequence:
-    """A 60-keyframe street."""
+    """Return a 60-keyframe street."""
     return simulate_sequence('street', n_keyframes=60, seed=0)
 
 
