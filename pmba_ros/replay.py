@@ -575,6 +575,11 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
     report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
+    fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
+                 'reinitializations': 'window re-initializations from the front-end'}
+    for name, what in fallbacks.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {what}')
     extrinsic = getattr(logic, 'extrinsic', None)
     if extrinsic is not None:
         report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),

@@ -50,6 +50,13 @@ class BackendConfig:
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
+        fallback_max_scale_jump: A window solve that changes the map <- odom scale by more than
+            this fraction is rolled back (counted as ``solve_rollbacks``).
+        fallback_max_motion_error: A window solve whose keyframe-to-keyframe translations
+            differ from the front-end's by more than this fraction (median, after the map
+            scale) is rolled back, unless they already did before it.
+        fallback_reinit_after: Rolled-back solves in a row after which the window restarts
+            from the front-end's relative motion (counted as ``reinitializations``).
         max_observations_per_feature: Sliding problems keep at most this many observations
             of a feature, evenly spread over its track (0: all; the Schur complement's cost
             grows with the square of it).
@@ -108,6 +115,9 @@ class BackendConfig:
     init_max_batch: int = 60
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
+    fallback_max_scale_jump: float = 0.1
+    fallback_max_motion_error: float = 0.5
+    fallback_reinit_after: int = 3
     min_observations: int = 15
     feature_layout: str = 'vins_fusion'
     num_cams: int = 1
@@ -160,7 +170,7 @@ class BackendConfig:
                 raise ValueError(msg)
         minimum = {'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0,
                    'init_batch_size': 3, 'init_retry_every': 1, 'init_min_features': 1,
-                   'init_max_iterations': 1,
+                   'init_max_iterations': 1, 'fallback_reinit_after': 1,
                    'min_observations': 5, 'num_cams': 1, 'camera_id': 0, 'qos_depth': 1,
                    'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
                    'max_landmarks': 0, 'max_observations_per_feature': 0}
@@ -182,7 +192,8 @@ class BackendConfig:
             raise ValueError(msg)
         positive = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
                     'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s')
-        non_negative = ('init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s')
+        non_negative = ('fallback_max_scale_jump', 'fallback_max_motion_error',
+                        'init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s')
         for name in positive + non_negative:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or \

@@ -119,6 +119,7 @@ class Estimator:
         self.last_message = 'collecting keyframes for the global initialization'
         self._next_init_attempt = self.config.init_batch_size
         self.init_attempts = 0
+        self._failures = 0
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -324,10 +325,14 @@ class Estimator:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _predict(self, odom: tuple[FloatArray, FloatArray] | None,
+    def _predict(self, odom: tuple[FloatArray, FloatArray] | None, n: int | None = None,
                  ) -> tuple[FloatArray, FloatArray]:
-        """Initial pose of a new keyframe (front-end relative motion through map <- odom)."""
-        n = self.kf.n
+        """Return the pose of keyframe n (default: a new one) from its predecessor's.
+
+        The front-end's relative motion, its translation scaled by map <- odom; constant
+        velocity without front-end poses.
+        """
+        n = self.kf.n if n is None else n
         prev = n - 1
         if odom is not None and self.kf.has_odom[prev]:
             R_po, C_po = self.kf.R_odom[prev], self.kf.C_odom[prev]
@@ -411,16 +416,98 @@ class Estimator:
             logger.warning('%s', info.message)
             return info
         free = ~res.problem.fixed
-        self.kf.R_map[cams[free]] = res.R_wc[free]
-        self.kf.C_map[cams[free]] = res.centers_w[free]
-        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
-        self.features.upsert(res.problem.feature_ids, pts)
+        moved = cams[free]
+        before = (self.kf.R_map[moved].copy(), self.kf.C_map[moved].copy(), self.map_from_odom)
+        error_before = self._motion_error(moved)
+        self.kf.R_map[moved] = res.R_wc[free]
+        self.kf.C_map[moved] = res.centers_w[free]
         self._update_similarity()
+        failure = self._inconsistency(res.initial_cost, res.final_cost, before[2].scale,
+                                      moved, error_before)
         info.solve_ms = 1e3 * res.time_s
         info.iterations = res.iterations
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost
+        if failure:
+            self.kf.R_map[moved], self.kf.C_map[moved], self.map_from_odom = before
+            return self._fall_back(info, failure)
+        self._failures = 0
+        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
+        self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
+        return info
+
+    def _motion_error(self, idx: IntArray) -> float:
+        """Median relative error of the map's keyframe-to-keyframe translations vs odom's.
+
+        Over the keyframes ``idx`` (each with its predecessor), the map's relative translation
+        in the earlier keyframe's frame, divided by the map <- odom scale, is compared with
+        the front-end's; the error is relative to the front-end's step length.
+        """
+        kf = self.kf
+        b = idx[(idx > 0)]
+        a = b - 1
+        ok = kf.has_odom[a] & kf.has_odom[b] & (kf.status[a] != KeyframeStatus.COLLECTED)
+        a, b = a[ok], b[ok]
+        if a.shape[0] == 0:
+            return 0.0
+        t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
+        t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+        step = np.linalg.norm(t_odom, axis=1)
+        moving = step > 1e-6
+        if not np.any(moving):
+            return 0.0
+        err = np.linalg.norm(t_map / self.map_from_odom.scale - t_odom, axis=1)
+        return float(np.median(err[moving] / step[moving]))
+
+    def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
+                       moved: IntArray, error_before: float) -> str:
+        """Return why an applied window solve is not trusted ('' if it is).
+
+        Checks: the cost did not increase, the poses are finite, the map <- odom scale did
+        not jump by more than ``fallback_max_scale_jump``, and the window's motion does not
+        disagree with the front-end's by more than ``fallback_max_motion_error`` (relative,
+        median) unless it already did before the solve.
+        """
+        cfg = self.config
+        if not (math.isfinite(cost_after) and cost_after <= cost_before * (1.0 + 1e-9)):
+            return f'cost increased ({cost_before:.6g} -> {cost_after:.6g})'
+        if not (np.all(np.isfinite(self.kf.C_map[moved]))
+                and np.all(np.isfinite(self.kf.R_map[moved]))):
+            return 'non-finite poses'
+        jump = abs(math.log(self.map_from_odom.scale / scale_before))
+        if jump > math.log1p(cfg.fallback_max_scale_jump):
+            return (f'map <- odom scale jumped {scale_before:.4g} -> '
+                    f'{self.map_from_odom.scale:.4g}')
+        error = self._motion_error(moved)
+        if error > cfg.fallback_max_motion_error and error > error_before:
+            return (f'motion differs from the front-end by {100 * error:.0f} % '
+                    f'(before the solve {100 * error_before:.0f} %)')
+        return ''
+
+    def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
+        """Keep the window's poses from before a rejected solve; re-seed it after repeats.
+
+        After ``fallback_reinit_after`` rejected solves in a row the window is re-initialized
+        from the front-end: each free keyframe is re-predicted from its predecessor with the
+        front-end's relative motion, and its features restart from rotations (PMBA Remark 5).
+        """
+        self._failures += 1
+        info.dropped = {'solve_rollbacks': 1}
+        info.message = f'solve rejected ({reason}): kept the previous poses'
+        if self._failures >= self.config.fallback_reinit_after:
+            active = self.kf.indices(KeyframeStatus.ACTIVE)
+            for i in active[active > 0]:
+                odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None
+                self.kf.R_map[i], self.kf.C_map[i] = self._predict(odom, int(i))
+            ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active
+                                            if int(i) in self.kf.obs]))
+            self.features.upsert(ids, np.full((ids.shape[0], 3), np.nan))
+            self._update_similarity()
+            self._failures = 0
+            info.dropped['reinitializations'] = 1
+            info.message += '; window re-initialized from the front-end'
+        logger.warning('%s', info.message)
         return info
 
     def _update_similarity(self) -> None:

@@ -534,6 +534,25 @@ def test_initialization_gate_counts_features_not_the_median() -> None:
     assert len(logic.optimized_trajectory()) == 60 and logic.stats.not_optimized == 0
 
 
+def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None:
+    """Every solve fails the scale check: counted, WARN, front-end motion, no keyframe lost."""
+    logic = BackendLogic(config(fallback_max_scale_jump=0.0, fallback_reinit_after=2), BACKEND)
+    outputs = run(logic, street, 60)
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    rollbacks = int(values['count.solve_rollbacks'])
+    assert rollbacks >= 30 and int(values['count.reinitializations']) == rollbacks // 2
+    levels = [m.status[0].level for t, m in outputs if t == DIAGNOSTICS_TOPIC]
+    assert levels.count(1) >= rollbacks  # WARN with each rollback
+    assert len(logic.optimized_trajectory()) == 60
+    gt = street.gt_trajectory().take(np.arange(60))
+    fe = ate(street.odom_trajectory().take(np.arange(60)), gt, 'sim3').rmse
+    assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 1.2 * fe
+    # The default thresholds accept the solves of a good street.
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, street, 60)
+    assert 'solve_rollbacks' not in logic.stats.counters
+
+
 # --- control --------------------------------------------------------------------------------
 
 
