@@ -85,6 +85,7 @@ class ReplayReport:
         messages_out: Output messages written to the result bag.
         keyframes_in: Keyframe messages read.
         keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
+        map_scale: Scale of map <- odom after each keyframe since the initialization.
         keyframes_not_optimized: Of those, keyframes at their front-end pose through
             map <- odom (before the initialization, too few observations).
         solve_ms: Solve time per keyframe solve, ms.
@@ -113,6 +114,7 @@ class ReplayReport:
     keyframes_in: int = 0
     keyframes_out: int = 0
     keyframes_not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
     solve_ms: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
@@ -144,6 +146,7 @@ class ReplayReport:
             'keyframes_in': self.keyframes_in,
             'keyframes_out': self.keyframes_out,
             'keyframes_not_optimized': self.keyframes_not_optimized,
+            'map_from_odom_scale': [round(float(v), 6) for v in self.map_scale],
             'messages_in': self.messages_in,
             'messages_rejected': self.messages_rejected,
             'messages_out': self.messages_out,
@@ -575,6 +578,7 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
     report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
+    report.map_scale = [float(v) for v in getattr(stats, 'map_scale', [])]
     fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
                  'reinitializations': 'window re-initializations from the front-end'}
     for name, what in fallbacks.items():
@@ -631,6 +635,7 @@ def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
         'rpe_optimized': opt['rpe'].rmse if opt is not None else None,
         'matched_frontend': results['frontend']['ate'].n_matched,
         'matched_optimized': opt['ate'].n_matched if opt is not None else 0,
+        'notes': sorted({r.note for res in results.values() for r in res.values() if r.note}),
         'frontend': {k: v.to_dict() for k, v in results['frontend'].items()},
         'optimized': {k: v.to_dict() for k, v in opt.items()} if opt is not None else None,
     }

@@ -50,6 +50,12 @@ class BackendConfig:
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
+        motion_prior_translation_rel: Sigma of the front-end's keyframe-to-keyframe translation
+            as a fraction of the step (the relative-motion prior of each window solve; one
+            sigma weighs as one pixel of reprojection error; 0: no translation prior).
+        motion_prior_direction_rel: Sigma of that translation across the step (its direction),
+            as a fraction of the step.
+        motion_prior_rotation_rad: Sigma of its relative rotation, rad (0: none).
         fallback_max_scale_jump: A window solve that changes the map <- odom scale by more than
             this fraction is rolled back (counted as ``solve_rollbacks``).
         fallback_max_motion_error: A window solve whose keyframe-to-keyframe translations
@@ -115,6 +121,9 @@ class BackendConfig:
     init_max_batch: int = 60
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
+    motion_prior_translation_rel: float = 0.1
+    motion_prior_direction_rel: float = 0.01
+    motion_prior_rotation_rad: float = 0.005
     fallback_max_scale_jump: float = 0.1
     fallback_max_motion_error: float = 0.5
     fallback_reinit_after: int = 3
@@ -190,9 +199,11 @@ class BackendConfig:
         if self.camera_id >= self.num_cams:
             msg = f'parameter camera_id={self.camera_id} must be < num_cams={self.num_cams}'
             raise ValueError(msg)
-        positive = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
-                    'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s')
-        non_negative = ('fallback_max_scale_jump', 'fallback_max_motion_error',
+        positive = ('motion_prior_direction_rel', 'max_time_s', 'loss_scale_px',
+                    'covariance_position_m2', 'covariance_rotation_rad2', 'fallback_focal_px',
+                    'association_timeout_s')
+        non_negative = ('motion_prior_translation_rel', 'motion_prior_rotation_rad',
+                        'fallback_max_scale_jump', 'fallback_max_motion_error',
                         'init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s')
         for name in positive + non_negative:
             value = getattr(self, name)

@@ -57,6 +57,7 @@ from pmba_ros.core import kernels, so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
+from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import BAProblem, Parameterization, make_problem, subset_features
 from pmba_ros.core.solve import SolveOptions, SolverKind, solve
 from pmba_ros.errors import InitError, PmbaError
@@ -120,6 +121,7 @@ class Estimator:
         self._next_init_attempt = self.config.init_batch_size
         self.init_attempts = 0
         self._failures = 0
+        self._metric_scale = 1.0
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -294,6 +296,7 @@ class Estimator:
         self.kf.status[batch] = KeyframeStatus.ACTIVE
         self.state = 'tracking'
         self._update_similarity()
+        self._metric_scale = self.map_from_odom.scale
         passed = self.kf.indices(KeyframeStatus.PASSED_THROUGH)
         if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
             self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
@@ -410,7 +413,7 @@ class Estimator:
                                    loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
-            res = solve(problem, options, feats)
+            res = solve(problem, options, feats, pose_prior=self._motion_prior(cams, fixed))
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)
@@ -436,6 +439,43 @@ class Estimator:
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         return info
+
+    def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
+        """Return the front-end's motion between consecutive problem keyframes as a prior.
+
+        Factors join each keyframe of the (ascending) problem with the next one when both
+        have front-end poses and one is free. The measured translation is the front-end's
+        times the map <- odom scale of the initialization, so the map keeps the front-end's
+        scale instead of drifting. Weights: one sigma (of the step length
+        ``motion_prior_translation_rel``, across it ``motion_prior_direction_rel``, both of
+        the step plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one
+        pixel of reprojection error.
+        """
+        cfg = self.config
+        if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
+            return None
+        kf = self.kf
+        a_loc = np.arange(cams.shape[0] - 1)
+        a, b = cams[:-1], cams[1:]
+        ok = kf.has_odom[a] & kf.has_odom[b] & ~(fixed[:-1] & fixed[1:])
+        a_loc, a, b = a_loc[ok], a[ok], b[ok]
+        R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
+        t_ab = self._metric_scale * np.einsum('mji,mj->mi', kf.R_odom[a],
+                                              kf.C_odom[b] - kf.C_odom[a])
+        step = np.linalg.norm(t_ab, axis=1)
+        # Square-root information: 1 / sigma along the step (its length: the scale) and
+        # 1 / sigma across it (its direction, which a front-end measures much better).
+        along = t_ab / np.maximum(step, 1e-12)[:, None]
+        P_along = np.einsum('mi,mj->mij', along, along)
+        W_trans = np.zeros((a.shape[0], 3, 3))
+        if cfg.motion_prior_translation_rel > 0:
+            w_len = 1.0 / (cfg.motion_prior_translation_rel * step + 1e-3)
+            w_dir = 1.0 / (cfg.motion_prior_direction_rel * step + 1e-3)
+            W_trans = (w_len[:, None, None] * P_along
+                       + w_dir[:, None, None] * (np.eye(3) - P_along))
+        w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
+                        if cfg.motion_prior_rotation_rad > 0 else 0.0)
+        return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
 
     def _motion_error(self, idx: IntArray) -> float:
         """Median relative error of the map's keyframe-to-keyframe translations vs odom's.

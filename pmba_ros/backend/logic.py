@@ -60,6 +60,8 @@ class BackendStats:
         counters: Event counts by reason (rejected inputs, drops, errors, ...).
         keyframes: Keyframes handed to the estimator.
         not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
+        map_scale: Scale of the map <- odom similarity after each keyframe since the
+            initialization (a monocular map drifting in scale against odom shows here).
     """
 
     solve_ms: list[float] = field(default_factory=list)
@@ -70,6 +72,7 @@ class BackendStats:
     counters: Counter[str] = field(default_factory=Counter)
     keyframes: int = 0
     not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -319,6 +322,8 @@ class BackendLogic:
             self.count('init_failures', int(info.kind == 'init_failed'))
         idx = self.estimator.estimated()
         self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
+        if self.estimator.state == 'tracking':
+            self._stats.map_scale.append(self.estimator.map_from_odom.scale)
         if info.kind in ('refine', 'init'):
             self._stats.solve_ms.append(info.solve_ms)
             self._stats.iterations.append(info.iterations)

@@ -553,6 +553,30 @@ def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None
     assert 'solve_rollbacks' not in logic.stats.counters
 
 
+def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
+    """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down; the map's
+    scale against odom is reported for every keyframe and stays near the initial one."""
+    from pmba_ros.eval.metrics import rpe
+
+    seq = simulate_sequence('aerial', n_keyframes=60, seed=0)
+    gt = seq.gt_trajectory()
+    result = {}
+    for name, kwargs in (('prior', {}), ('none', {'motion_prior_translation_rel': 0.0,
+                                                  'motion_prior_rotation_rad': 0.0})):
+        logic = BackendLogic(config(**kwargs), BACKEND)
+        outputs = run(logic, seq)
+        traj = logic.optimized_trajectory()
+        result[name] = (ate(traj, gt, 'sim3').rmse, rpe(traj, gt, align='sim3').rmse)
+        if name == 'prior':
+            scales = np.array(logic.stats.map_scale)
+            assert scales.shape[0] == 60 - 19  # from the initialization on
+            assert np.all(np.abs(scales - 1.0) < 0.03)
+            scale = float(diag_values(last(outputs, DIAGNOSTICS_TOPIC))['map_from_odom_scale'])
+            assert scale == pytest.approx(scales[-1], rel=1e-4)
+    assert result['prior'][0] < 0.7 * result['none'][0]
+    assert result['prior'][1] < 0.5 * result['none'][1]
+
+
 # --- control --------------------------------------------------------------------------------
 
 
