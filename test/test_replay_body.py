@@ -39,3 +39,17 @@ def test_body_pose_bag_replays_to_body_poses(tmp_path: Path) -> None:
     result = ate(optimized, gt, 'sim3')
     rel = np.einsum('nji,njk->nik', result.rotation @ optimized.R_wc, gt.R_wc)
     assert np.rad2deg(np.linalg.norm(so3.log(rel), axis=1).max()) < 2.0
+
+
+def test_pure_rotation_replay_passes_the_front_end_through(tmp_path: Path) -> None:
+    """No baseline: no initialization, every keyframe at its front-end pose, and the
+    evaluation falls back to a first-pose alignment with a note instead of failing."""
+    seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
+    bag = tmp_path / 'bag'
+    write_sequence_bag(seq, bag)
+    report = replay([bag], tmp_path / 'out', gt=groundtruth_path(bag))
+    assert report.complete and report.keyframes_out == 40
+    assert report.keyframes_not_optimized == 40
+    assert report.accuracy is not None
+    assert any('aligned by the first pose' in note for note in report.accuracy['notes'])
+    assert report.accuracy['ate_optimized_m'] == report.accuracy['ate_frontend_m']

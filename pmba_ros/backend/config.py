@@ -121,7 +121,7 @@ class BackendConfig:
     init_max_batch: int = 60
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
-    motion_prior_translation_rel: float = 0.1
+    motion_prior_translation_rel: float = 0.2
     motion_prior_direction_rel: float = 0.01
     motion_prior_rotation_rad: float = 0.005
     fallback_max_scale_jump: float = 0.1
