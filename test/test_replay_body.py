@@ -42,8 +42,10 @@ def test_body_pose_bag_replays_to_body_poses(tmp_path: Path) -> None:
 
 
 def test_pure_rotation_replay_passes_the_front_end_through(tmp_path: Path) -> None:
-    """No baseline: no initialization, every keyframe at its front-end pose, and the
-    evaluation falls back to a first-pose alignment with a note instead of failing."""
+    """No baseline: no initialization, every keyframe at its front-end pose.
+
+    The evaluation falls back to a first-pose alignment with a note instead of failing.
+    """
     seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
     bag = tmp_path / 'bag'
     write_sequence_bag(seq, bag)

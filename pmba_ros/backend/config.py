@@ -123,7 +123,7 @@ class BackendConfig:
     max_observations_per_feature: int = 14
     motion_prior_translation_rel: float = 0.2
     motion_prior_direction_rel: float = 0.01
-    motion_prior_rotation_rad: float = 0.005
+    motion_prior_rotation_rad: float = 0.001
     fallback_max_scale_jump: float = 0.1
     fallback_max_motion_error: float = 0.5
     fallback_reinit_after: int = 3

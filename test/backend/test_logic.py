@@ -477,8 +477,8 @@ def test_immediate_pose_is_the_front_end_pose_through_the_last_map_to_odom(
     np.testing.assert_allclose(first.position, street.centers_odom[0], atol=1e-12)
     outputs = run(logic, street, 25)
     tf = last(outputs, TF_TOPIC).transforms[0].transform
-    R_mo = so3.from_quat_xyzw(np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z,
-                                         tf.rotation.w]))
+    quat = np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w])
+    R_mo = so3.from_quat_xyzw(quat)
     t_mo = np.array([tf.translation.x, tf.translation.y, tf.translation.z])
     n_kf, counters = logic.stats.keyframes, dict(logic.stats.counters)
     pose = logic.immediate_pose(keyframe_msg(street, 25))
@@ -554,8 +554,10 @@ def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None
 
 
 def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
-    """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down; the map's
-    scale against odom is reported for every keyframe and stays near the initial one."""
+    """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down.
+
+    The map's scale against odom is reported for every keyframe and stays near the first one.
+    """
     from pmba_ros.eval.metrics import rpe
 
     seq = simulate_sequence('aerial', n_keyframes=60, seed=0)
