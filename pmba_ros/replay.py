@@ -73,6 +73,9 @@ TRACKS_TYPES = {'named': ('sensor_msgs/msg/PointCloud2',)}
 KEYFRAME_TYPES = {'odometry': ('nav_msgs/msg/Odometry',),
                   'pose_stamped': ('geometry_msgs/msg/PoseStamped',)}
 CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
+TF_TOPICS = ('/tf_static', '/tf')
+"""Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
+TF_TYPES = ('tf2_msgs/msg/TFMessage',)
 
 REORDER_BUFFER = 256
 """Messages held back to sort the log-time stream into header-stamp order."""
@@ -80,7 +83,7 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
-                                'keyframe_stamp_not_increasing', 'stale_tracks',
+                                'bad_tf', 'keyframe_stamp_not_increasing', 'stale_tracks',
                                 'keyframe_pose_jumps'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
@@ -97,7 +100,7 @@ SUSPECT_COUNTERS = {
 }
 """Back-end counters of suspect input, each worth a warning in the report."""
 
-_KIND_ORDER = {'camera_info': 0, 'tracks': 1, 'keyframe': 2}
+_KIND_ORDER = {'tf': 0, 'camera_info': 1, 'tracks': 2, 'keyframe': 3}
 
 
 @dataclass
@@ -113,7 +116,10 @@ class ReplayReport:
         messages_rejected: Input messages the back-end rejected (parse errors).
         messages_out: Output messages written to the result bag.
         keyframes_in: Keyframe messages read.
-        keyframes_out: Keyframes in the optimized trajectory.
+        keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
+        map_scale: Scale of map <- odom after each keyframe since the initialization.
+        keyframes_not_optimized: Of those, keyframes at their front-end pose through
+            map <- odom (before the initialization, too few observations).
         solve_ms: Solve time per keyframe solve, ms.
         iterations: Solver iterations per solve.
         costs: Cost after each solve.
@@ -123,6 +129,8 @@ class ReplayReport:
         bag_duration_s: Header-stamp span of the inputs, s.
         wall_s: Wall time of the replay, s.
         accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
+        extrinsic: The body -> camera transform used (``source``: 'parameters', 'tf',
+            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw).
         complete: False if the replay stopped early or the input was incomplete.
         error: The error that stopped it, if any.
         warnings: Non-fatal problems.
@@ -142,6 +150,8 @@ class ReplayReport:
     messages_out: int = 0
     keyframes_in: int = 0
     keyframes_out: int = 0
+    keyframes_not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
     solve_ms: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
@@ -151,6 +161,7 @@ class ReplayReport:
     bag_duration_s: float = 0.0
     wall_s: float = 0.0
     accuracy: dict[str, Any] | None = None
+    extrinsic: dict[str, Any] | None = None
     complete: bool = False
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
@@ -188,6 +199,8 @@ class ReplayReport:
             'read_error': self.read_error,
             'keyframes_in': self.keyframes_in,
             'keyframes_out': self.keyframes_out,
+            'keyframes_not_optimized': self.keyframes_not_optimized,
+            'map_from_odom_scale': [round(float(v), 6) for v in self.map_scale],
             'messages_in': self.messages_in,
             'messages_rejected': self.messages_rejected,
             'messages_out': self.messages_out,
@@ -206,6 +219,8 @@ class ReplayReport:
                                 else None),
             'warnings': list(self.warnings),
         }
+        if self.extrinsic is not None:
+            out['extrinsic'] = self.extrinsic
         if self.accuracy is not None:
             out['accuracy'] = self.accuracy
         if self.error is not None:
@@ -250,6 +265,7 @@ class _Input:
     tracks: str
     keyframes: str | None
     camera_info: str | None
+    tf: tuple[str, ...] = ()
 
 
 def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
@@ -300,8 +316,11 @@ def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
                 f'bag and no intrinsics were given; using normalized coordinates from the tracks')
         logger.warning(text)
         warnings.append(text)
-    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info) if t is not None}
-    return _Input(tracks, keyframes, camera_info), counts
+    tf = tuple(t for t in (_find_topic(name, topics) for name in TF_TOPICS)
+               if t is not None and topics[t].msgtype in TF_TYPES)
+    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info, *tf)
+              if t is not None}
+    return _Input(tracks, keyframes, camera_info, tf), counts
 
 
 def _stamp_ns(msg: Any, fallback: int) -> int:
@@ -317,13 +336,13 @@ def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],
                   window: int = REORDER_BUFFER) -> Iterator[tuple[int, str, BagMessage]]:
     """Reorder a log-time message stream into header-stamp order with a bounded buffer.
 
-    At equal stamps camera info comes before tracks, and tracks before keyframe poses (a
-    keyframe then finds its tracks). Messages more than ``window`` positions out of order are
-    passed on late rather than held indefinitely.
+    At equal stamps transforms come first, then camera info, tracks and keyframe poses (a
+    keyframe then finds its tracks and extrinsic). Messages more than ``window`` positions
+    out of order are passed on late rather than held indefinitely.
 
     Args:
         messages: Messages in log-time order.
-        kinds: Topic -> 'camera_info' | 'tracks' | 'keyframe'.
+        kinds: Topic -> 'tf' | 'camera_info' | 'tracks' | 'keyframe'.
         window: Messages held back.
 
     Yields:
@@ -386,8 +405,8 @@ class _Run:
         self.last_stamp = max(self.last_stamp, stamp)
         if kind == self.keyframe_kind:
             report.keyframes_in += 1
-        handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
-                   'keyframe': self.logic.on_keyframe}[kind]
+        handler = getattr(self.logic, {'camera_info': 'on_camera_info', 'tracks': 'on_tracks',
+                                       'keyframe': 'on_keyframe', 'tf': 'on_tf'}[kind])
         before = self._rejections()
         try:
             handler(message.msg)
@@ -506,6 +525,10 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         kinds[inputs.keyframes] = 'keyframe'
     if inputs.camera_info:
         kinds[inputs.camera_info] = 'camera_info'
+    for topic in inputs.tf:
+        kinds[topic] = 'tf'
+    if inputs.tf:
+        report.topics['tf'] = ', '.join(inputs.tf)
     report.messages_announced = sum(counts.values())
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -752,6 +775,17 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
             report.warnings.append(f'{report.counters[name]} {text}')
     if hasattr(stats, 'keyframes'):
         report.counters['keyframes_processed'] = int(stats.keyframes)
+    report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
+    report.map_scale = [float(v) for v in getattr(stats, 'map_scale', [])]
+    fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
+                 'reinitializations': 'window re-initializations from the front-end'}
+    for name, what in fallbacks.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {what}')
+    extrinsic = getattr(logic, 'extrinsic', None)
+    if extrinsic is not None:
+        report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),
+                            'body_to_camera': [round(v, 9) for v in extrinsic.to_flat()]}
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
@@ -799,6 +833,7 @@ def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
         'rpe_optimized': opt['rpe'].rmse if opt is not None else None,
         'matched_frontend': results['frontend']['ate'].n_matched,
         'matched_optimized': opt['ate'].n_matched if opt is not None else 0,
+        'notes': sorted({r.note for res in results.values() for r in res.values() if r.note}),
         'frontend': {k: v.to_dict() for k, v in results['frontend'].items()},
         'optimized': {k: v.to_dict() for k, v in opt.items()} if opt is not None else None,
     }

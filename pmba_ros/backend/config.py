@@ -13,6 +13,7 @@ import math
 import os
 from typing import Any
 
+from pmba_ros.backend.extrinsics import extrinsics_from_params
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
 
 MODES = ('sliding', 'global')
@@ -35,15 +36,18 @@ CHOICES: dict[str, tuple[str, ...]] = {
 
 INT_MINIMUMS: dict[str, int] = {
     'window_size': 2, 'max_fixed_keyframes': 0, 'fixed_lookback': 0, 'init_batch_size': 3,
-    'init_retry_every': 1, 'init_max_iterations': 1, 'min_observations': 5, 'num_cams': 1,
+    'init_retry_every': 1, 'init_min_features': 1, 'init_max_iterations': 1,
+    'fallback_reinit_after': 1, 'min_observations': 5, 'num_cams': 1,
     'camera_id': 0, 'qos_depth': 1, 'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
     'max_landmarks': 0, 'max_observations_per_feature': 0}
 """Integer parameters and their smallest accepted value."""
 
-POSITIVE_FLOATS = ('max_time_s', 'loss_scale_px', 'covariance_position_m2',
-                   'covariance_rotation_rad2', 'fallback_focal_px', 'association_timeout_s',
-                   'stale_input_s')
-NON_NEGATIVE_FLOATS = ('init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s',
+POSITIVE_FLOATS = ('motion_prior_direction_rel', 'max_time_s', 'loss_scale_px',
+                   'covariance_position_m2', 'covariance_rotation_rad2', 'fallback_focal_px',
+                   'association_timeout_s', 'stale_input_s')
+NON_NEGATIVE_FLOATS = ('motion_prior_translation_rel', 'motion_prior_rotation_rad',
+                       'fallback_max_scale_jump', 'fallback_max_motion_error',
+                       'init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s',
                        'tf_rate_hz')
 """Float parameters (an integer is accepted and converted) that must be > 0 / >= 0."""
 
@@ -65,11 +69,26 @@ class BackendConfig:
             co-observe most window features; >= 2 of them fix the gauge).
         fixed_lookback: Keyframes before the window whose observations are kept for that.
         init_batch_size: Keyframes collected before the global initialization (>= 3).
-        init_min_parallax_px: Rotation-compensated median parallax (px) between the first and
-            a later keyframe of the batch required to try the initialization.
+        init_min_parallax_px: Rotation-compensated parallax (px) that makes a feature
+            well conditioned for the initialization (between two keyframes of the batch).
+        init_min_features: Well-conditioned features (between one pair of the batch's
+            keyframes) required to try the initialization.
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
+        motion_prior_translation_rel: Sigma of the front-end's keyframe-to-keyframe translation
+            as a fraction of the step (the relative-motion prior of each window solve; one
+            sigma weighs as one pixel of reprojection error; 0: no translation prior).
+        motion_prior_direction_rel: Sigma of that translation across the step (its direction),
+            as a fraction of the step.
+        motion_prior_rotation_rad: Sigma of its relative rotation, rad (0: none).
+        fallback_max_scale_jump: A window solve that changes the map <- odom scale by more than
+            this fraction is rolled back (counted as ``solve_rollbacks``).
+        fallback_max_motion_error: A window solve whose keyframe-to-keyframe translations
+            differ from the front-end's by more than this fraction (median, after the map
+            scale) is rolled back, unless they already did before it.
+        fallback_reinit_after: Rolled-back solves in a row after which the window restarts
+            from the front-end's relative motion (counted as ``reinitializations``).
         max_observations_per_feature: Sliding problems keep at most this many observations
             of a feature, evenly spread over its track (0: all; the Schur complement's cost
             grows with the square of it).
@@ -78,6 +97,9 @@ class BackendConfig:
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
         num_cams: Front-end camera count (VINS ``NUM_OF_CAM``).
         camera_id: Camera whose observations are used (monocular back-end).
+        camera_extrinsics: Body -> camera transforms, 7 values per camera id (x, y, z, qx,
+            qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
+            (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else identity.
         keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
         keyframe_source: 'keyframe_topic' or 'tracks' (every tracks message is a keyframe
             without front-end pose).
@@ -128,14 +150,22 @@ class BackendConfig:
     fixed_lookback: int = 20
     init_batch_size: int = 20
     init_min_parallax_px: float = 3.0
+    init_min_features: int = 30
     init_retry_every: int = 5
     init_max_batch: int = 60
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
+    motion_prior_translation_rel: float = 0.2
+    motion_prior_direction_rel: float = 0.01
+    motion_prior_rotation_rad: float = 0.001
+    fallback_max_scale_jump: float = 0.1
+    fallback_max_motion_error: float = 0.5
+    fallback_reinit_after: int = 3
     min_observations: int = 15
     feature_layout: str = 'vins_fusion'
     num_cams: int = 1
     camera_id: int = 0
+    camera_extrinsics: tuple[float, ...] = ()
     keyframe_type: str = 'odometry'
     keyframe_source: str = 'keyframe_topic'
     features_topic: str = 'features'
@@ -222,6 +252,13 @@ class BackendConfig:
             if not isinstance(getattr(self, name), str):
                 msg = f'parameter {name}: expected a string'
                 raise ValueError(msg)
+        try:
+            flat = tuple(float(v) for v in self.camera_extrinsics)
+        except (TypeError, ValueError) as err:
+            msg = f'parameter camera_extrinsics: expected a list of numbers ({err})'
+            raise ValueError(msg) from err
+        object.__setattr__(self, 'camera_extrinsics', flat)
+        extrinsics_from_params(flat, self.num_cams)
         for name in ('publish_tf', 'deterministic'):
             if not isinstance(getattr(self, name), bool):
                 msg = f'parameter {name}={getattr(self, name)!r}: expected a bool'
@@ -268,8 +305,8 @@ class BackendConfig:
         return cls.from_params(data)
 
     def to_params(self) -> dict[str, Any]:
-        """Return the flat parameter dict (the node declares these)."""
-        return asdict(self)
+        """Return the flat parameter dict (the node declares these; sequences as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 def _unnest(params: dict[str, Any]) -> dict[str, Any]:

@@ -3,12 +3,15 @@
 State machine:
 
 ``collecting``
-    Keyframes are stored until ``init_batch_size`` have arrived and the batch has parallax
-    (:func:`~pmba_ros.backend.window.rotation_compensated_parallax` between its first keyframe
-    and the latest one sharing >= 20 tracks, at least ``init_min_parallax_px``). Then
-    :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure (pure rotation, too
-    few pairs) moves to ``waiting_for_parallax`` and is retried every ``init_retry_every``
-    keyframes; the batch keeps at most ``init_max_batch`` keyframes (oldest dropped).
+    Keyframes are stored until ``init_batch_size`` have arrived and the batch has enough
+    well-conditioned features: at least ``init_min_features`` whose rotation-compensated
+    parallax between two of its keyframes is ``init_min_parallax_px`` or more
+    (:meth:`Estimator._well_conditioned_features`; PMBA needs some near features, not a
+    high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure
+    (pure rotation, too few pairs) moves to ``waiting_for_parallax`` and is retried every
+    ``init_retry_every`` keyframes; the batch keeps at most ``init_max_batch`` keyframes (older
+    ones keep their front-end pose). Until then every keyframe with a front-end pose is
+    published at that pose (map = odom), flagged as not optimized (:meth:`Estimator.optimized`).
 ``tracking``
     The map is expressed in the front-end's odom frame at initialization (similarity fit of
     the batch, so map -> odom starts at identity). Each new keyframe starts from the previous
@@ -33,7 +36,7 @@ import time
 
 import numpy as np
 
-from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import (
     FeatureMap,
@@ -42,10 +45,10 @@ from pmba_ros.backend.window import (
     KeyframeStore,
     LandmarkStore,
     Similarity,
+    compensated_parallax_angles,
     estimate_similarity,
     finite_rows,
     gather_observations,
-    rotation_compensated_parallax,
     select_fixed,
     thin_tracks,
 )
@@ -53,6 +56,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
+from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import BAProblem, Parameterization, make_problem, subset_features
 from pmba_ros.core.solve import SolveOptions, SolverKind, solve
 from pmba_ros.errors import InitError, PmbaError
@@ -114,6 +118,9 @@ class Estimator:
         self.map_from_odom = Similarity.identity()
         self.last_message = 'collecting keyframes for the global initialization'
         self._next_init_attempt = self.config.init_batch_size
+        self.init_attempts = 0
+        self._failures = 0
+        self._metric_scale = 1.0
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -124,6 +131,10 @@ class Estimator:
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
                      obs: KeyframeObs | None) -> UpdateInfo:
         """Add a keyframe and update the estimate.
+
+        Every keyframe with a front-end pose gets a map pose: before the first initialization
+        and for keyframes without enough observations it is the front-end pose through the
+        current map <- odom similarity (flagged as not optimized, see :meth:`optimized`).
 
         Args:
             stamp_ns: Keyframe stamp, ns (strictly increasing; the caller checks).
@@ -137,9 +148,10 @@ class Estimator:
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
             if not usable:
-                return UpdateInfo('dropped', message='keyframe without enough observations '
-                                  'before initialization')
+                return self._pass_through(stamp_ns, odom)
             i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED)
+            if odom is not None:
+                self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
@@ -152,47 +164,79 @@ class Estimator:
 
     # --- initialization ------------------------------------------------------------------
 
+    def _through_map_from_odom(self, i: int) -> tuple[FloatArray, FloatArray]:
+        """Return keyframe i's front-end pose mapped through the current map <- odom."""
+        R, C = self.map_from_odom.apply_poses(self.kf.R_odom[i][None], self.kf.C_odom[i][None])
+        return R[0], C[0]
+
+    def _pass_through(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
+                      ) -> UpdateInfo:
+        """Keep a keyframe that cannot join the initialization batch at its front-end pose."""
+        if odom is None:
+            return UpdateInfo('dropped', message='keyframe without enough observations or '
+                              'front-end pose before initialization')
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH)
+        self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
+        return UpdateInfo('passed_through', keyframe=i,
+                          message='keyframe with too few observations: front-end pose')
+
     def _collected(self) -> IntArray:
         return self.kf.indices(KeyframeStatus.COLLECTED)
 
     def _maybe_initialize(self, i: int) -> UpdateInfo:
         cfg = self.config
         batch = self._collected()
+        info_drop: dict[str, int] = {}
         if batch.shape[0] > cfg.init_max_batch:
             dropped = batch[:batch.shape[0] - cfg.init_max_batch]
-            self.kf.status[dropped] = KeyframeStatus.DISCARDED
+            keep_pose = self.kf.has_odom[dropped]
+            self.kf.status[dropped[keep_pose]] = KeyframeStatus.PASSED_THROUGH
+            self.kf.status[dropped[~keep_pose]] = KeyframeStatus.DISCARDED
             for j in dropped:
                 self.kf.obs.pop(int(j), None)
             batch = self._collected()
-            info_drop = {'keyframes_dropped_before_init': int(dropped.shape[0])}
-        else:
-            info_drop = {}
+            if np.any(~keep_pose):
+                info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message,
                               dropped=info_drop)
-        parallax_px = self._batch_parallax_px(batch)
-        if parallax_px < cfg.init_min_parallax_px:
+        count = self._well_conditioned_features(batch)
+        if count < cfg.init_min_features:
             self.state = 'waiting_for_parallax'
-            self.last_message = (f'waiting for parallax: {parallax_px:.2f} px < '
-                                 f'{cfg.init_min_parallax_px:g} px over {batch.shape[0]} '
-                                 'keyframes')
+            self.last_message = (f'waiting for parallax: {count} features with >= '
+                                 f'{cfg.init_min_parallax_px:g} px of parallax, need '
+                                 f'{cfg.init_min_features}, over {batch.shape[0]} keyframes')
             self._next_init_attempt = self.kf.n + cfg.init_retry_every
-            return UpdateInfo('init_failed', keyframe=i, message=self.last_message,
+            return UpdateInfo('collect', keyframe=i, message=self.last_message,
                               dropped=info_drop)
         info = self._initialize(batch)
         info.keyframe = i
         info.dropped = info_drop
         return info
 
-    def _batch_parallax_px(self, batch: IntArray) -> float:
-        first = self.kf.obs[int(batch[0])]
-        for j in batch[:0:-1]:
-            other = self.kf.obs[int(j)]
-            shared, a, b = np.intersect1d(first.ids, other.ids, return_indices=True)
-            if shared.shape[0] >= _MIN_SHARED_FOR_PARALLAX:
-                angle = rotation_compensated_parallax(first.bearings[a], other.bearings[b])
-                return angle * math.sqrt(self.fx * self.fy)
-        return 0.0
+    def _well_conditioned_features(self, batch: IntArray) -> int:
+        """Return the most features with enough parallax between two keyframes of the batch.
+
+        A feature counts when its rotation-compensated parallax (the angle left after the
+        best rotation between the two keyframes' bearings) is at least
+        ``init_min_parallax_px``. PMBA does not need most features to have parallax (far
+        ones constrain the rotations), only enough near ones to fix the structure; the median
+        of a street's mostly far features can stay below any threshold for hundreds of
+        keyframes. The pairs are the batch's first keyframe with every later one and every
+        keyframe with the last, so features born inside the batch count too.
+        """
+        threshold = self.config.init_min_parallax_px / math.sqrt(self.fx * self.fy)
+        first, newest = int(batch[0]), int(batch[-1])
+        pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
+        best = 0
+        for a, b in pairs:
+            obs_a, obs_b = self.kf.obs[a], self.kf.obs[b]
+            shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
+            if shared.shape[0] < max(_MIN_SHARED_FOR_PARALLAX, best):
+                continue
+            angles = compensated_parallax_angles(obs_a.bearings[ia], obs_b.bearings[ib])
+            best = max(best, int(np.count_nonzero(angles >= threshold)))
+        return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
                        R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
@@ -221,6 +265,7 @@ class Estimator:
             max_iterations=cfg.init_max_iterations,
             function_tolerance=1e-10))
         t0 = time.perf_counter()
+        self.init_attempts += 1
         try:
             import cv2
 
@@ -250,6 +295,11 @@ class Estimator:
         self.kf.status[batch] = KeyframeStatus.ACTIVE
         self.state = 'tracking'
         self._update_similarity()
+        self._metric_scale = self.map_from_odom.scale
+        passed = self.kf.indices(KeyframeStatus.PASSED_THROUGH)
+        if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
+            self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
+                self.kf.R_odom[passed], self.kf.C_odom[passed])
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
@@ -277,10 +327,14 @@ class Estimator:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _predict(self, odom: tuple[FloatArray, FloatArray] | None,
+    def _predict(self, odom: tuple[FloatArray, FloatArray] | None, n: int | None = None,
                  ) -> tuple[FloatArray, FloatArray]:
-        """Initial pose of a new keyframe (front-end relative motion through map <- odom)."""
-        n = self.kf.n
+        """Return the pose of keyframe n (default: a new one) from its predecessor's.
+
+        The front-end's relative motion, its translation scaled by map <- odom; constant
+        velocity without front-end poses.
+        """
+        n = self.kf.n if n is None else n
         prev = n - 1
         if odom is not None and self.kf.has_odom[prev]:
             R_po, C_po = self.kf.R_odom[prev], self.kf.C_odom[prev]
@@ -358,22 +412,141 @@ class Estimator:
                                    loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
-            res = solve(problem, options, feats)
+            res = solve(problem, options, feats, pose_prior=self._motion_prior(cams, fixed))
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)
             return info
         free = ~res.problem.fixed
-        self.kf.R_map[cams[free]] = res.R_wc[free]
-        self.kf.C_map[cams[free]] = res.centers_w[free]
-        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
-        self.features.upsert(res.problem.feature_ids, pts)
+        moved = cams[free]
+        before = (self.kf.R_map[moved].copy(), self.kf.C_map[moved].copy(), self.map_from_odom)
+        error_before = self._motion_error(moved)
+        self.kf.R_map[moved] = res.R_wc[free]
+        self.kf.C_map[moved] = res.centers_w[free]
         self._update_similarity()
+        failure = self._inconsistency(res.initial_cost, res.final_cost, before[2].scale,
+                                      moved, error_before)
         info.solve_ms = 1e3 * res.time_s
         info.iterations = res.iterations
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost
+        if failure:
+            self.kf.R_map[moved], self.kf.C_map[moved], self.map_from_odom = before
+            return self._fall_back(info, failure)
+        self._failures = 0
+        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
+        self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
+        return info
+
+    def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
+        """Return the front-end's motion between consecutive problem keyframes as a prior.
+
+        Factors join each keyframe of the (ascending) problem with the next one when both
+        have front-end poses and one is free. The measured translation is the front-end's
+        times the map <- odom scale of the initialization, so the map keeps the front-end's
+        scale instead of drifting. Weights: one sigma (of the step length
+        ``motion_prior_translation_rel``, across it ``motion_prior_direction_rel``, both of
+        the step plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one
+        pixel of reprojection error.
+        """
+        cfg = self.config
+        if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
+            return None
+        kf = self.kf
+        a_loc = np.arange(cams.shape[0] - 1)
+        a, b = cams[:-1], cams[1:]
+        ok = kf.has_odom[a] & kf.has_odom[b] & ~(fixed[:-1] & fixed[1:])
+        a_loc, a, b = a_loc[ok], a[ok], b[ok]
+        R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
+        t_ab = self._metric_scale * np.einsum('mji,mj->mi', kf.R_odom[a],
+                                              kf.C_odom[b] - kf.C_odom[a])
+        step = np.linalg.norm(t_ab, axis=1)
+        # Square-root information: 1 / sigma along the step (its length: the scale) and
+        # 1 / sigma across it (its direction, which a front-end measures much better).
+        along = t_ab / np.maximum(step, 1e-12)[:, None]
+        P_along = np.einsum('mi,mj->mij', along, along)
+        W_trans = np.zeros((a.shape[0], 3, 3))
+        if cfg.motion_prior_translation_rel > 0:
+            w_len = 1.0 / (cfg.motion_prior_translation_rel * step + 1e-3)
+            w_dir = 1.0 / (cfg.motion_prior_direction_rel * step + 1e-3)
+            W_trans = (w_len[:, None, None] * P_along
+                       + w_dir[:, None, None] * (np.eye(3) - P_along))
+        w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
+                        if cfg.motion_prior_rotation_rad > 0 else 0.0)
+        return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
+
+    def _motion_error(self, idx: IntArray) -> float:
+        """Median relative error of the map's keyframe-to-keyframe translations vs odom's.
+
+        Over the keyframes ``idx`` (each with its predecessor), the map's relative translation
+        in the earlier keyframe's frame, divided by the map <- odom scale, is compared with
+        the front-end's; the error is relative to the front-end's step length.
+        """
+        kf = self.kf
+        b = idx[(idx > 0)]
+        a = b - 1
+        ok = kf.has_odom[a] & kf.has_odom[b] & (kf.status[a] != KeyframeStatus.COLLECTED)
+        a, b = a[ok], b[ok]
+        if a.shape[0] == 0:
+            return 0.0
+        t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
+        t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+        step = np.linalg.norm(t_odom, axis=1)
+        moving = step > 1e-6
+        if not np.any(moving):
+            return 0.0
+        err = np.linalg.norm(t_map / self.map_from_odom.scale - t_odom, axis=1)
+        return float(np.median(err[moving] / step[moving]))
+
+    def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
+                       moved: IntArray, error_before: float) -> str:
+        """Return why an applied window solve is not trusted ('' if it is).
+
+        Checks: the cost did not increase, the poses are finite, the map <- odom scale did
+        not jump by more than ``fallback_max_scale_jump``, and the window's motion does not
+        disagree with the front-end's by more than ``fallback_max_motion_error`` (relative,
+        median) unless it already did before the solve.
+        """
+        cfg = self.config
+        if not (math.isfinite(cost_after) and cost_after <= cost_before * (1.0 + 1e-9)):
+            return f'cost increased ({cost_before:.6g} -> {cost_after:.6g})'
+        if not (np.all(np.isfinite(self.kf.C_map[moved]))
+                and np.all(np.isfinite(self.kf.R_map[moved]))):
+            return 'non-finite poses'
+        jump = abs(math.log(self.map_from_odom.scale / scale_before))
+        if jump > math.log1p(cfg.fallback_max_scale_jump):
+            return (f'map <- odom scale jumped {scale_before:.4g} -> '
+                    f'{self.map_from_odom.scale:.4g}')
+        error = self._motion_error(moved)
+        if error > cfg.fallback_max_motion_error and error > error_before:
+            return (f'motion differs from the front-end by {100 * error:.0f} % '
+                    f'(before the solve {100 * error_before:.0f} %)')
+        return ''
+
+    def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
+        """Keep the window's poses from before a rejected solve; re-seed it after repeats.
+
+        After ``fallback_reinit_after`` rejected solves in a row the window is re-initialized
+        from the front-end: each free keyframe is re-predicted from its predecessor with the
+        front-end's relative motion, and its features restart from rotations (PMBA Remark 5).
+        """
+        self._failures += 1
+        info.dropped = {'solve_rollbacks': 1}
+        info.message = f'solve rejected ({reason}): kept the previous poses'
+        if self._failures >= self.config.fallback_reinit_after:
+            active = self.kf.indices(KeyframeStatus.ACTIVE)
+            for i in active[active > 0]:
+                odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None
+                self.kf.R_map[i], self.kf.C_map[i] = self._predict(odom, int(i))
+            ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active
+                                            if int(i) in self.kf.obs]))
+            self.features.upsert(ids, np.full((ids.shape[0], 3), np.nan))
+            self._update_similarity()
+            self._failures = 0
+            info.dropped['reinitializations'] = 1
+            info.message += '; window re-initialized from the front-end'
+        logger.warning('%s', info.message)
         return info
 
     def _update_similarity(self) -> None:
@@ -390,10 +563,21 @@ class Estimator:
     # --- accessors ------------------------------------------------------------------------
 
     def estimated(self) -> IntArray:
-        """Return the keyframes that have a map pose (all but the collected ones)."""
-        status = self.kf.status[:self.kf.n]
-        return np.flatnonzero((status != KeyframeStatus.COLLECTED)
-                              & (status != KeyframeStatus.DISCARDED)).astype(np.int64)
+        """Return the keyframes that have a map pose, ascending.
+
+        That is every keyframe with a front-end pose, and the initialized ones without;
+        :meth:`optimized` tells which of them the solver estimated.
+        """
+        n = self.kf.n
+        status = self.kf.status[:n]
+        has_pose = (status != KeyframeStatus.DISCARDED) & (
+            (status != KeyframeStatus.COLLECTED) | self.kf.has_odom[:n])
+        return np.flatnonzero(has_pose).astype(np.int64)
+
+    def optimized(self, idx: IntArray) -> BoolArray:
+        """Return which of keyframes ``idx`` the solver estimated (others: front-end poses)."""
+        status = self.kf.status[idx]
+        return (status == KeyframeStatus.ACTIVE) | (status == KeyframeStatus.FIXED)
 
     def landmark_points(self) -> FloatArray:
         """Return retired landmarks and the current features' finite points, shape (L, 3)."""

@@ -29,6 +29,7 @@ from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
+from pmba_ros.backend.extrinsics import Rigid, TransformTree, extrinsics_from_params
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.tracks import TrackMemory, parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
@@ -42,7 +43,8 @@ logger = logging.getLogger(__name__)
 TF_TOPIC = '/tf'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
-INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets'})
+INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
+                           'init_failures', 'keyframes_passed_through'})
 """Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
 
 
@@ -58,6 +60,9 @@ class BackendStats:
         cost_after: Cost after each solve.
         counters: Event counts by reason (rejected inputs, drops, errors, ...).
         keyframes: Keyframes handed to the estimator.
+        not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
+        map_scale: Scale of the map <- odom similarity after each keyframe since the
+            initialization (a monocular map drifting in scale against odom shows here).
     """
 
     solve_ms: list[float] = field(default_factory=list)
@@ -67,6 +72,8 @@ class BackendStats:
     cost_after: list[float] = field(default_factory=list)
     counters: Counter[str] = field(default_factory=Counter)
     keyframes: int = 0
+    not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,10 @@ class BackendLogic:
         self._stats = BackendStats()
         self._paused = False
         self.last_error = ''
+        self.tf_tree = TransformTree()
+        self._camera_frame = ''
+        self._param_extrinsics = extrinsics_from_params(config.camera_extrinsics,
+                                                        config.num_cams)
         self._init_buffers()
 
     def _init_buffers(self) -> None:
@@ -119,6 +130,8 @@ class BackendLogic:
         self._track_memory = TrackMemory()
         self._pose_check = PoseJumpCheck()
         self._cost_monitor = CostMonitor()
+        self.extrinsic: Rigid | None = None
+        self.extrinsic_source = ''
 
     # --- inputs ---------------------------------------------------------------------------
 
@@ -144,7 +157,20 @@ class BackendLogic:
                         camera.fy)
             self._diag_dirty = True
         self.camera = camera
+        self._camera_frame = str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
         self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
+
+    def on_tf(self, msg: Any) -> None:
+        """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).
+
+        They give the body -> camera extrinsic (keyframe ``child_frame_id`` -> CameraInfo
+        ``frame_id``) when ``camera_extrinsics`` is not set; it is fixed at the first
+        keyframe with a front-end pose.
+        """
+        try:
+            self.tf_tree.add_message(msg)
+        except Exception as err:
+            self._reject('bad_tf', err)
 
     def on_tracks(self, msg: Any) -> None:
         """Parse and buffer a feature-track message (bad ones are counted)."""
@@ -304,7 +330,9 @@ class BackendLogic:
         self._last_kf_stamp = kf.stamp_ns
         odom = None
         if kf.pose is not None:
-            odom = (so3.from_quat_xyzw(kf.pose.quat_xyzw), np.asarray(kf.pose.position))
+            T_bc = self._resolve_extrinsic(kf.pose, frame)
+            odom = T_bc.apply_to_poses(so3.from_quat_xyzw(kf.pose.quat_xyzw),
+                                       np.asarray(kf.pose.position))
             self._odom_frame = self.config.odom_frame or kf.pose.frame_id or 'odom'
             self._base_frame = self.config.base_frame or kf.pose.child_frame_id or 'base_link'
         try:
@@ -317,8 +345,15 @@ class BackendLogic:
         self._stats.keyframes += 1
         for reason, n in info.dropped.items():
             self.count(reason, n)
-        if info.kind in ('dropped', 'dead_reckoned'):
+        if info.kind in ('dropped', 'dead_reckoned', 'passed_through'):
             self.count(f'keyframes_{info.kind}')
+        if info.kind in ('init', 'init_failed'):
+            self.count('init_attempts')
+            self.count('init_failures', int(info.kind == 'init_failed'))
+        idx = self.estimator.estimated()
+        self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
+        if self.estimator.state == 'tracking':
+            self._stats.map_scale.append(self.estimator.map_from_odom.scale)
         if info.kind in ('refine', 'init'):
             self._stats.solve_ms.append(info.solve_ms)
             self._stats.iterations.append(info.iterations)
@@ -329,6 +364,37 @@ class BackendLogic:
                 self._reject('cost_explosions', explosion)
         self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))
         self._last_info = info
+
+    def _resolve_extrinsic(self, pose: KeyframePose, frame: TrackFrame | None) -> Rigid:
+        """Return the body -> camera extrinsic, fixing it at the first keyframe pose.
+
+        In order: ``camera_extrinsics``; identity when the keyframe pose already describes the
+        camera frame; the TF chain from the pose's ``child_frame_id`` to the CameraInfo's (or
+        else the tracks') ``frame_id``; identity with a warning (counted as
+        ``extrinsic_unknown``).
+        """
+        if self.extrinsic is not None:
+            return self.extrinsic
+        camera_frame = self._camera_frame or (frame.frame_id if frame is not None else '')
+        body = pose.child_frame_id
+        found: Rigid | None = None
+        if self._param_extrinsics is not None:
+            found, source = self._param_extrinsics[self.config.camera_id], 'parameters'
+        elif body and body == camera_frame:
+            found, source = Rigid.identity(), 'frames_agree'
+        elif body and camera_frame:
+            found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
+        if found is None:
+            found, source = Rigid.identity(), 'identity'
+            self._reject('extrinsic_unknown',
+                         f'no body -> camera transform from {body or "(no child_frame_id)"!r} '
+                         f'to {camera_frame or "(no camera frame)"!r} (parameter '
+                         'camera_extrinsics or TF); taking the keyframe poses as camera poses')
+        else:
+            logger.info('body -> camera extrinsic from %s: %s', source,
+                        [round(v, 6) for v in found.to_flat()])
+        self.extrinsic, self.extrinsic_source = found, source
+        return found
 
     def _observations(self, frame: TrackFrame) -> KeyframeObs:
         """Return the unit bearings of the configured camera's finite observations."""
@@ -350,6 +416,20 @@ class BackendLogic:
 
     # --- outputs --------------------------------------------------------------------------
 
+    def _camera_to_body(self) -> Rigid:
+        """Return T_cb (identity until an extrinsic is known)."""
+        return Rigid.identity() if self.extrinsic is None else self.extrinsic.inverse()
+
+    def body_poses(self, idx: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """Return the map-frame body poses (R (n, 3, 3), positions (n, 3)) of keyframes idx."""
+        kf = self.estimator.kf
+        return self._camera_to_body().apply_to_poses(kf.R_map[idx], kf.C_map[idx])
+
+    def frontend_body_poses(self, idx: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """Return the front-end (odom-frame) body poses of keyframes idx, as received."""
+        kf = self.estimator.kf
+        return self._camera_to_body().apply_to_poses(kf.R_odom[idx], kf.C_odom[idx])
+
     def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
         """Return PoseStamped and Pose messages of keyframes ``idx``.
 
@@ -360,6 +440,8 @@ class BackendLogic:
         kf = self.estimator.kf
         status = kf.status[idx]
         final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
+        if self.estimator.state == 'tracking':  # passed through before the initialization
+            final |= status == KeyframeStatus.PASSED_THROUGH
         last = self._published
         n_last, n = last.idx.shape[0], idx.shape[0]
         if n_last <= n and np.array_equal(idx[:n_last], last.idx):
@@ -370,8 +452,9 @@ class BackendLogic:
             redo = np.arange(n)
             stamped, plain = [None] * n, [None] * n
         sel = idx[redo]
-        fresh = out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, kf.C_map[sel],
-                                      so3.to_quat_xyzw(kf.R_map[sel]), self.backend)
+        R, C = self.body_poses(sel)
+        fresh = out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, C,
+                                      so3.to_quat_xyzw(R), self.backend)
         for k, ps in zip(redo.tolist(), fresh, strict=True):
             stamped[k] = ps
             plain[k] = ps.pose
@@ -404,20 +487,59 @@ class BackendLogic:
     def _odometry(self, i: int) -> Any:
         kf = self.estimator.kf
         cfg = self.config
-        inflate = 10.0 if kf.status[i] == KeyframeStatus.DEAD_RECKONED else 1.0
+        optimized = bool(self.estimator.optimized(np.array([i]))[0])
+        inflate = 1.0 if optimized else 10.0
         cov = np.diag([cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        R, C = self.body_poses(np.array([i]))
         return out.make_odometry(int(kf.stamps_ns[i]), cfg.map_frame, self._base_frame,
-                                 kf.C_map[i], so3.to_quat_xyzw(kf.R_map[i]), inflate * cov,
-                                 self.backend)
+                                 C[0], so3.to_quat_xyzw(R[0]), inflate * cov, self.backend)
+
+    def map_from_odom_at(self, i: int) -> Rigid:
+        """REP-105: T_map_odom = T_map_body (back-end) * T_odom_body (front-end)^-1 at i."""
+        idx = np.array([i])
+        R_m, C_m = self.body_poses(idx)
+        R_o, C_o = self.frontend_body_poses(idx)
+        R = so3.project(R_m[0] @ R_o[0].T)
+        return Rigid(R, C_m[0] - R @ C_o[0])
+
+    def _newest_with_odom(self) -> int | None:
+        """Return the newest keyframe with a map pose and a front-end pose, or None."""
+        idx = self.estimator.estimated()
+        idx = idx[self.estimator.kf.has_odom[idx]]
+        return int(idx[-1]) if idx.shape[0] else None
+
+    def immediate_pose(self, msg: Any) -> KeyframePose:
+        """Return the map-frame body pose to publish for a keyframe pose that just arrived.
+
+        The node can publish this at once, before the keyframe's tracks arrive and its solve
+        runs: the front-end pose through the newest ``map -> odom`` (the transform the node
+        last published, so the result agrees with TF), identity before any keyframe. Pure:
+        nothing is buffered or counted.
+
+        Args:
+            msg: The keyframe message (``keyframe_type``: nav_msgs/Odometry or
+                geometry_msgs/PoseStamped) of any backend.
+
+        Returns:
+            The pose in ``map_frame`` (same stamp and child frame id).
+
+        Raises:
+            MessageError: If the message cannot be parsed.
+        """
+        pose = parse_keyframe(msg, self.config.keyframe_type)
+        newest = self._newest_with_odom()
+        T = Rigid.identity() if newest is None else self.map_from_odom_at(newest)
+        R = T.rotation @ so3.from_quat_xyzw(pose.quat_xyzw)
+        return KeyframePose(pose.stamp_ns, self.config.map_frame, pose.child_frame_id,
+                            T.rotation @ pose.position + T.translation, so3.to_quat_xyzw(R))
 
     def _map_to_odom(self, i: int) -> Any:
-        """REP-105: T_map_odom = T_map_kf (optimized) * T_odom_kf (front-end)^-1."""
-        kf = self.estimator.kf
-        R = kf.R_map[i] @ kf.R_odom[i].T
-        t = kf.C_map[i] - R @ kf.C_odom[i]
-        stamp = int(kf.stamps_ns[i]) + round(self.config.transform_tolerance_s * 1e9)
-        return out.make_tf(stamp, self.config.map_frame, self._odom_frame, t,
-                           so3.to_quat_xyzw(so3.project(R)), self.backend)
+        """Return the map -> odom TF at keyframe i (see :meth:`map_from_odom_at`)."""
+        T = self.map_from_odom_at(i)
+        stamp = int(self.estimator.kf.stamps_ns[i]) + round(
+            self.config.transform_tolerance_s * 1e9)
+        return out.make_tf(stamp, self.config.map_frame, self._odom_frame, T.translation,
+                           so3.to_quat_xyzw(T.rotation), self.backend)
 
     def _diagnostics(self, stamp: int) -> tuple[str, Any]:
         cfg = self.config
@@ -451,6 +573,9 @@ class BackendLogic:
             'landmarks': int(len(self.estimator.landmarks) + len(self.estimator.features)),
             'camera_info_received': self.camera is not None,
             'map_from_odom_scale': self.estimator.map_from_odom.scale,
+            'not_optimized_keyframes': self._stats.not_optimized,
+            'init_attempts': self.estimator.init_attempts,
+            'extrinsic_source': self.extrinsic_source or 'none',
         }
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms
@@ -469,18 +594,22 @@ class BackendLogic:
     # --- accessors ------------------------------------------------------------------------
 
     def optimized_trajectory(self) -> Trajectory:
-        """Return the optimized keyframe poses in map_frame (stamps in seconds)."""
+        """Return the keyframes' body poses in map_frame (stamps in seconds).
+
+        Every keyframe with a pose is included; the ones never optimized (before the
+        initialization, too few observations) are at their front-end pose through map <- odom.
+        """
         kf = self.estimator.kf
         idx = self.estimator.estimated()
-        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, kf.C_map[idx],
-                          kf.R_map[idx])
+        R, C = self.body_poses(idx)
+        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def frontend_trajectory(self) -> Trajectory:
-        """Return the front-end poses of the keyframes received (odom frame)."""
+        """Return the front-end body poses of the keyframes received (odom frame)."""
         kf = self.estimator.kf
         idx = np.flatnonzero(kf.has_odom[:kf.n])
-        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, kf.C_odom[idx],
-                          kf.R_odom[idx])
+        R, C = self.frontend_body_poses(idx)
+        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def landmarks(self) -> FloatArray:
         """Return the map's landmarks in map_frame, shape (N, 3)."""

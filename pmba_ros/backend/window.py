@@ -21,11 +21,12 @@ from pmba_ros.core import so3
 class KeyframeStatus(IntEnum):
     """Life cycle of a keyframe."""
 
-    COLLECTED = 0  #: waiting for the global initialization
+    COLLECTED = 0  #: waiting for the global initialization (front-end pose until then)
     ACTIVE = 1  #: free in the problem
     FIXED = 2  #: left the window (sliding mode), pose final
     DEAD_RECKONED = 3  #: too few observations: pose from the front-end, never optimized
     DISCARDED = 4  #: dropped from the initialization batch, no pose
+    PASSED_THROUGH = 5  #: front-end pose through map <- odom, never optimized
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,25 +221,33 @@ def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: 
     return Similarity(scale, rotation, mean_a - scale * rotation @ mean_b)
 
 
-def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
-    """Median angle (rad) between matched bearings after the best rotation b1 -> b2.
+def compensated_parallax_angles(b1: FloatArray, b2: FloatArray) -> FloatArray:
+    """Angles (rad) between matched bearings after the best rotation b1 -> b2.
 
-    Pure rotation gives the noise level; translation gives parallax (Procrustes on bearings).
+    Pure rotation leaves the noise level; translation leaves each feature's parallax
+    (Procrustes on bearings, so far features, which carry the rotation, dominate the fit).
 
     Args:
         b1: Unit bearings in the first camera, shape (K, 3).
         b2: The matching bearings in the second camera, shape (K, 3).
 
     Returns:
-        The median residual angle, radians (0 for K < 3).
+        Residual angle of each feature, radians, shape (K,) (zeros for K < 3).
     """
     if b1.shape[0] < 3:
-        return 0.0
+        return np.zeros(b1.shape[0])
     U, _, Vt = np.linalg.svd(b2.T @ b1)
     D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)) or 1.0)])
     R = U @ D @ Vt
     cos = np.clip(np.sum(b2 * (b1 @ R.T), axis=1), -1.0, 1.0)
-    return float(np.median(np.arccos(cos)))
+    return np.asarray(np.arccos(cos), dtype=np.float64)
+
+
+def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
+    """Median of :func:`compensated_parallax_angles` (rad; 0 for K < 3)."""
+    if b1.shape[0] < 3:
+        return 0.0
+    return float(np.median(compensated_parallax_angles(b1, b2)))
 
 
 def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,

@@ -146,7 +146,7 @@ def format_table(results: Mapping[str, EvalResult], n_est: int, n_gt: int) -> st
         f'{name:>11}' for name in ('rmse', 'mean', 'median', 'std', 'min', 'max')) + f'{"n":>8}'
     summary = (f'matched {ate.n_matched} of {n_est} estimated / {n_gt} ground-truth poses; '
                f'alignment {ate.align}, scale {ate.scale:.6g}')
-    lines = [summary, header, '-' * len(header)]
+    lines = [summary] + ([f'note: {ate.note}'] if ate.note else []) + [header, '-' * len(header)]
     for label, res in (('ATE (m)', ate), (f'RPE d={rpe.delta_frames} (m)', rpe)):
         stats = (res.rmse, res.mean, res.median, res.std, res.min, res.max)
         lines.append(f'{label:<14}' + ''.join(f'{v:>11.6f}' for v in stats)

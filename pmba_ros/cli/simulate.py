@@ -59,6 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='front-end drift (about this fraction of the distance)')
     parser.add_argument('--rate-hz', type=positive_float, default=10.0, metavar='HZ',
                         help='keyframe rate')
+    parser.add_argument('--extrinsic', choices=('none', 'euroc'), default='none',
+                        help='bag: keyframe poses and ground truth of a body with this body -> '
+                        'camera transform on /tf_static (euroc: the cam0 of EuRoC; default: '
+                        'the poses are the camera poses)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 
 
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario not in _BAG_SCENARIOS:
         msg = f'--scenario {args.scenario} is for --format bal; bags: {", ".join(_BAG_SCENARIOS)}'
         raise PmbaError(msg)
-    from pmba_ros.sim.bag import write_sequence_bag
+    from pmba_ros.sim.bag import EUROC_CAM0, write_sequence_bag
     from pmba_ros.sim.sequence import simulate_sequence
 
     try:
@@ -87,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
                                 noise_px=args.noise_px, drift=args.drift, rate_hz=args.rate_hz)
     except ValueError as err:
         raise PmbaError(str(err)) from err
-    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite)
+    extrinsic = EUROC_CAM0 if args.extrinsic == 'euroc' else None
+    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite,
+                              extrinsic=extrinsic)
     print(f'wrote {info.bag}: {args.scenario}, {info.n_keyframes} keyframes '
           f'({info.duration_s:.1f} s), {info.n_observations} observations, '
           f'{info.n_messages} messages')

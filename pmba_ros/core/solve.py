@@ -26,6 +26,7 @@ from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
 from pmba_ros.core.models import Evaluation, Model, make_model
+from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
@@ -259,13 +260,16 @@ class _Linearized:
     """Scaled normal equations at one state, and what dogleg retries reuse."""
 
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
-                 loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray) -> None:
+                 loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray,
+                 prior: tuple[RelativePosePrior, np.ndarray] | None = None) -> None:
         lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
         if loss is not Loss.NONE and kernels.ENABLED:
             kernels.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
         elif loss is not Loss.NONE:
             lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
         eqs = ne.assemble(structure, lin)
+        if prior is not None:
+            eqs = prior[0].add_to(structure, eqs, state.R_wc, state.centers_w, prior[1])
         d_pose, d_feat = ne.diagonal(structure, eqs)
         if jacobi:
             self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
@@ -330,7 +334,8 @@ def _retract(model: Model[Any], state: _State, free_block: np.ndarray, d_pose: F
 
 def solve(problem: BAProblem, options: SolveOptions | None = None,
           features: Features | None = None, *,
-          callback: Callable[[IterationRecord], None] | None = None) -> SolveResult:
+          callback: Callable[[IterationRecord], None] | None = None,
+          pose_prior: RelativePosePrior | None = None) -> SolveResult:
     """Solve a bundle-adjustment problem.
 
     Args:
@@ -338,6 +343,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         options: Solver options (defaults: PMBA, Dogleg, no loss).
         features: Initial features of ``options.param`` (default: from ``problem.points_w``).
         callback: Called with each :class:`IterationRecord` (progress, plots).
+        pose_prior: Relative-motion factors between the problem's poses, added to the cost
+            and the reduced camera system (the costs reported include them).
 
     Returns:
         The result; ``result.problem`` is the problem actually solved (unusable features
@@ -374,14 +381,18 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
     loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
 
+    prior_cost = pose_prior.cost if pose_prior is not None else (lambda R, P: 0.0)
+    prior = (pose_prior, free_block) if pose_prior is not None and len(pose_prior) else None
+
     def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
         ev = model.evaluate(R, P, feats)
         if kernels.ENABLED:
             return _State(R, P, feats, kernels.robust_cost(ev.residuals, options.loss.value,
-                                                           loss_scale), ev)
+                                                           loss_scale) + prior_cost(R, P), ev)
         if not np.all(np.isfinite(ev.residuals)):
             return _State(R, P, feats, math.inf, ev)
-        return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale), ev)
+        return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale)
+                      + prior_cost(R, P), ev)
 
     def norm_of(state: _State) -> float:
         """|x| of the parameters (rotations count 1 each), for the parameter tolerance."""
@@ -423,7 +434,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             break
         if lin is None:
             lin = _Linearized(model, structure, state, options.loss, loss_scale,
-                              options.jacobi_scaling, col_mask)
+                              options.jacobi_scaling, col_mask, prior)
             if lin.gradient_max <= options.gradient_tolerance:
                 termination = TerminationReason.GRADIENT_TOLERANCE
                 break

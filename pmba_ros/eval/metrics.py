@@ -35,7 +35,7 @@ import numpy as np
 
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.errors import DegenerateGeometryError, EvaluationError
-from pmba_ros.eval.align import UmeyamaResult, align_se3, align_sim3
+from pmba_ros.eval.align import UmeyamaResult, align_se3, align_sim3, apply_alignment
 from pmba_ros.eval.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -79,6 +79,7 @@ class EvalResult:
         scale: Alignment scale (1.0 unless ``align == 'sim3'``).
         errors: Per-pose (ATE) or per-pair (RPE) errors (m), shape (n_pairs,).
         delta_frames: RPE pose distance in frames; None for ATE.
+        note: Why the alignment differs from the one asked for ('' if it does not).
     """
 
     metric: str
@@ -97,6 +98,7 @@ class EvalResult:
     scale: float
     errors: FloatArray
     delta_frames: int | None = None
+    note: str = ''
 
     def __post_init__(self) -> None:
         """Freeze copies of the array fields."""
@@ -123,6 +125,8 @@ class EvalResult:
         }
         if self.delta_frames is not None:
             out['delta_frames'] = self.delta_frames
+        if self.note:
+            out['note'] = self.note
         if include_errors:
             out['errors'] = self.errors.tolist()
         return out
@@ -233,23 +237,42 @@ def _check_align(align: str) -> None:
 
 
 def _align_pairs(est: Trajectory, ref: Trajectory,
-                 align: str) -> tuple[Trajectory, UmeyamaResult]:
-    """Align associated ``est`` onto ``ref`` with the given mode (no-op for ``'none'``)."""
+                 align: str) -> tuple[Trajectory, UmeyamaResult, str, str]:
+    """Align associated ``est`` onto ``ref`` with the given mode (no-op for ``'none'``).
+
+    Positions that cannot fix the asked alignment (collinear: no Sim(3) or SE(3) rotation
+    about their line; coincident: pure rotation) fall back to SE(3), and then to the
+    rigid transform that maps the first estimated pose onto the first reference pose
+    ('first_pose'), with a note instead of an error.
+
+    Returns:
+        The aligned estimate, the alignment, the mode used and the note ('' if none).
+    """
     if len(est) < MIN_MATCHES:
         msg = (f'only {len(est)} associated poses; at least {MIN_MATCHES} are needed '
                f'(check the stamps, --max-diff and the time offset)')
         raise EvaluationError(msg)
     if align == 'none':
-        return est, UmeyamaResult(np.eye(3), np.zeros(3), 1.0)
-    try:
-        return (align_sim3 if align == 'sim3' else align_se3)(est, ref)
-    except DegenerateGeometryError as err:
-        msg = f'cannot align the estimate to the reference ({align}): {err}'
-        raise EvaluationError(msg) from err
+        return est, UmeyamaResult(np.eye(3), np.zeros(3), 1.0), align, ''
+    notes = []
+    for mode in dict.fromkeys((align, 'se3')):
+        try:
+            aligned, fit = (align_sim3 if mode == 'sim3' else align_se3)(est, ref)
+        except DegenerateGeometryError as err:
+            notes.append(f'cannot align with {mode} ({err})')
+            continue
+        note = '; '.join([*notes, f'aligned with {mode}']) if notes else ''
+        return aligned, fit, mode, note
+    rotation = ref.R_wc[0] @ est.R_wc[0].T
+    fit = UmeyamaResult(rotation, ref.positions_xyz[0] - rotation @ est.positions_xyz[0], 1.0)
+    note = '; '.join([*notes, 'aligned by the first pose'])
+    logger.warning('%s', note)
+    return apply_alignment(est, fit), fit, 'first_pose', note
 
 
 def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
-            alignment: UmeyamaResult, delta_frames: int | None = None) -> EvalResult:
+            alignment: UmeyamaResult, delta_frames: int | None = None,
+            note: str = '') -> EvalResult:
     """Build an EvalResult with evo's statistics of ``errors``."""
     squared = errors * errors
     return EvalResult(
@@ -259,16 +282,16 @@ def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
         min=float(np.min(errors)), max=float(np.max(errors)), sse=float(np.sum(squared)),
         n_pairs=int(errors.size), n_matched=n_matched,
         rotation=alignment.rotation, translation=alignment.translation,
-        scale=float(alignment.scale), errors=errors, delta_frames=delta_frames)
+        scale=float(alignment.scale), errors=errors, delta_frames=delta_frames, note=note)
 
 
 def _ate_associated(est: Trajectory, ref: Trajectory, align: str) -> EvalResult:
     """ATE of already associated trajectories."""
-    aligned, alignment = _align_pairs(est, ref, align)
+    aligned, alignment, used, note = _align_pairs(est, ref, align)
     # |trans(Q_i^-1 S P_i)| = |R_q,i^T (p_i - q_i)| = |p_i - q_i|, eq. (3); evo's APE also
     # uses the position difference directly.
     errors = np.linalg.norm(aligned.positions_xyz - ref.positions_xyz, axis=1)
-    return _result('ate', align, errors, len(est), alignment)
+    return _result('ate', used, errors, len(est), alignment, note=note)
 
 
 def _pair_indices(n: int, delta: int, all_pairs: bool) -> tuple[IntArray, IntArray]:
@@ -283,7 +306,7 @@ def _pair_indices(n: int, delta: int, all_pairs: bool) -> tuple[IntArray, IntArr
 def _rpe_associated(est: Trajectory, ref: Trajectory, align: str, delta: int,
                     all_pairs: bool) -> EvalResult:
     """RPE (translation part) of already associated trajectories."""
-    aligned, alignment = _align_pairs(est, ref, align)
+    aligned, alignment, used, note = _align_pairs(est, ref, align)
     i, j = _pair_indices(len(est), delta, all_pairs)
     if i.size == 0:
         msg = f'no pose pairs {delta} frames apart among {len(est)} associated poses'
@@ -295,7 +318,7 @@ def _rpe_associated(est: Trajectory, ref: Trajectory, align: str, delta: int,
     # trans(E_i) = R_rel^T (t_P - t_Q) with R_rel = R_q,i^T R_q,j, eq. (1)
     R_rel = np.einsum('nki,nkj->nij', ref.R_wc[i], ref.R_wc[j])
     errors = np.linalg.norm(np.einsum('nji,nj->ni', R_rel, t_p - t_q), axis=1)
-    return _result('rpe', align, errors, len(est), alignment, delta_frames=delta)
+    return _result('rpe', used, errors, len(est), alignment, delta_frames=delta, note=note)
 
 
 def _check_delta(delta: int, delta_unit: str) -> int:

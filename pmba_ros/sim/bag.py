@@ -9,7 +9,10 @@ namespace, so ``pmba replay`` reads the bag without topic options.
   (default ``vins_fusion``, the node's default) or ``sensor_msgs/PointCloud2`` with named
   fields (``named``);
 * the drifting front-end keyframe pose on :attr:`SimTopics.keyframes` as
-  ``nav_msgs/Odometry`` (frame ``world``, child ``body``; the body is the camera);
+  ``nav_msgs/Odometry`` (frame ``world``, child ``body``). Without ``extrinsic`` the body is
+  the camera; with it (:data:`EUROC_CAM0` for EuRoC's cam0) the keyframe poses and the ground
+  truth are body poses and ``/tf_static`` carries body -> camera, as VINS-style front-ends
+  publish them;
 * ``sensor_msgs/CameraInfo`` on :attr:`SimTopics.camera_info`;
 * the ground truth as ``geometry_msgs/PoseStamped`` on :attr:`SimTopics.groundtruth`.
 
@@ -28,11 +31,13 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.outputs import (
     RosbagsBackend,
     make_camera_info,
     make_odometry,
     make_pose_stamped,
+    make_tf,
     make_tracks,
 )
 from pmba_ros.backend.tracks import LAYOUTS
@@ -55,6 +60,14 @@ KEYFRAME_LATENCY_NS = 30_000_000
 """Log time minus header stamp of a keyframe pose, ns."""
 GT_FILENAME = 'groundtruth.tum'
 """Name of the ground-truth TUM file inside a bag folder."""
+TF_STATIC_TOPIC = '/tf_static'
+
+EUROC_CAM0 = Rigid(
+    so3.project(np.array([[0.0148655429818, -0.999880929698, 0.00414029679422],
+                          [0.999557249008, 0.0149672133247, 0.025715529948],
+                          [-0.0257744366974, 0.00375618835797, 0.999660727178]])),
+    np.array([-0.0216401454975, -0.064676986768, 0.00981073058949]))
+"""EuRoC MAV cam0 extrinsic T_BS (body = IMU -> camera), from the dataset's sensor.yaml."""
 
 
 class SequenceLike(Protocol):
@@ -161,7 +174,7 @@ def sequence_trajectory(stamps_ns: IntArray, R_wc: FloatArray, centers: FloatArr
 
 def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vins_fusion',
                        topics: SimTopics | None = None, overwrite: bool = False,
-                       ) -> SimBagInfo:
+                       extrinsic: Rigid | None = None) -> SimBagInfo:
     """Write a simulated sequence as a front-end-like rosbag2 MCAP recording plus GT TUM.
 
     Args:
@@ -173,6 +186,9 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
             (PointCloud) or ``named`` (PointCloud2).
         topics: Topic and frame names; default :class:`SimTopics`.
         overwrite: Replace an existing output.
+        extrinsic: Body -> camera transform T_bc: keyframe poses and ground truth become body
+            poses ``T_wb = T_wc T_bc^-1`` and ``/tf_static`` carries body -> camera. None:
+            the poses are the camera's.
 
     Returns:
         A summary of what was written.
@@ -192,13 +208,24 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
         msg = f'sequence has {n_kf} stamps but {len(seq.frames)} track frames'
         raise BagError(msg)
     backend = RosbagsBackend(jazzy_typestore())
-    q_odom = so3.to_quat_xyzw(np.asarray(seq.R_wc_odom))
+    to_body = (extrinsic or Rigid.identity()).inverse()
+    R_odom, c_odom = to_body.apply_to_poses(np.asarray(seq.R_wc_odom),
+                                            np.asarray(seq.centers_odom))
+    q_odom = so3.to_quat_xyzw(R_odom)
     has_gt = seq.R_wc_gt is not None and seq.centers_gt is not None
-    q_gt = so3.to_quat_xyzw(np.asarray(seq.R_wc_gt)) if has_gt else None
+    R_gt = c_gt = q_gt = None
+    if has_gt:
+        R_gt, c_gt = to_body.apply_to_poses(np.asarray(seq.R_wc_gt), np.asarray(seq.centers_gt))
+        q_gt = so3.to_quat_xyzw(R_gt)
     points_w = np.asarray(seq.points_w, dtype=np.float64)
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     n_obs = 0
     with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
+        if extrinsic is not None and n_kf:
+            writer.write(TF_STATIC_TOPIC, make_tf(int(stamps[0]), topics.body_frame,
+                                                  topics.camera_frame, extrinsic.translation,
+                                                  so3.to_quat_xyzw(extrinsic.rotation),
+                                                  backend), int(stamps[0]))
         for i in range(n_kf):
             stamp = int(stamps[i])
             frame = seq.frames[i]
@@ -206,10 +233,10 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
             writer.write(topics.camera_info,
                          make_camera_info(stamp, topics.camera_frame, seq.camera, backend),
                          stamp)
-            if q_gt is not None and seq.centers_gt is not None:
+            if q_gt is not None and c_gt is not None:
                 writer.write(topics.groundtruth,
-                             make_pose_stamped(stamp, topics.world_frame, seq.centers_gt[i],
-                                               q_gt[i], backend), stamp)
+                             make_pose_stamped(stamp, topics.world_frame, c_gt[i], q_gt[i],
+                                               backend), stamp)
             landmarks = None
             if layout in ('per_point', 'named') and len(frame) and len(points_w):
                 ids = np.asarray(frame.feature_ids)
@@ -220,12 +247,12 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
             writer.write(topics.tracks, tracks, stamp + TRACKS_LATENCY_NS)
             writer.write(topics.keyframes,
                          make_odometry(stamp, topics.world_frame, topics.body_frame,
-                                       seq.centers_odom[i], q_odom[i], odom_cov, backend),
+                                       c_odom[i], q_odom[i], odom_cov, backend),
                          stamp + KEYFRAME_LATENCY_NS)
         n_messages = writer.count
     gt_path = groundtruth_path(out) if has_gt else None
-    if gt_path is not None and seq.R_wc_gt is not None and seq.centers_gt is not None:
-        write_tum(gt_path, sequence_trajectory(stamps, seq.R_wc_gt, seq.centers_gt))
+    if gt_path is not None and R_gt is not None and c_gt is not None:
+        write_tum(gt_path, sequence_trajectory(stamps, R_gt, c_gt))
     duration = float(stamps[-1] - stamps[0]) * 1e-9 if n_kf else 0.0
     logger.info('wrote %s: %d keyframes, %d messages, %d observations', out, n_kf, n_messages,
                 n_obs)
@@ -240,5 +267,5 @@ def _with_frame(frame: TrackFrame, stamp_ns: int, frame_id: str) -> TrackFrame:
                        frame.normalized, frame.dropped)
 
 
-__all__ = ['GT_FILENAME', 'KEYFRAME_LATENCY_NS', 'TRACKS_LATENCY_NS', 'SimBagInfo', 'SimTopics',
-           'groundtruth_path', 'sequence_trajectory', 'write_sequence_bag']
+__all__ = ['EUROC_CAM0', 'GT_FILENAME', 'KEYFRAME_LATENCY_NS', 'TRACKS_LATENCY_NS', 'SimBagInfo',
+           'SimTopics', 'groundtruth_path', 'sequence_trajectory', 'write_sequence_bag']

@@ -26,6 +26,7 @@ from pmba_ros.backend.window import (
     thin_tracks,
 )
 from pmba_ros.core import so3
+from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
@@ -190,7 +191,8 @@ def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) 
     assert logic.state == 'tracking'
     assert len(logic.optimized_trajectory()) == 24
     assert {t for t, _ in outputs} == set(OUTPUT_TOPICS)
-    assert not {k: v for k, v in logic.stats.counters.items() if k != 'dropped_observations'}
+    counters = {k: v for k, v in logic.stats.counters.items() if k != 'dropped_observations'}
+    assert counters == {'init_attempts': 1}
     gt = street.gt_trajectory().take(np.arange(24))
     assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse < 0.05
 
@@ -447,7 +449,7 @@ def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
 
 
 def test_pure_rotation_waits_for_parallax() -> None:
-    """Test: pure rotation waits for parallax."""
+    """Pure rotation: no initialization attempt, every keyframe passed through (front-end)."""
     seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, seq)
@@ -455,8 +457,158 @@ def test_pure_rotation_waits_for_parallax() -> None:
     diag = last(outputs, DIAGNOSTICS_TOPIC)
     assert 'waiting for parallax' in diag.status[0].message
     assert diag.status[0].level == 1
-    assert 'pmba/path' not in {t for t, _ in outputs}
-    assert len(logic.optimized_trajectory()) == 0
+    values = diag_values(diag)
+    assert values['not_optimized_keyframes'] == '40' and values['init_attempts'] == '0'
+    path = last(outputs, 'pmba/path')
+    assert [stamp_ns(p.header) for p in path.poses] == seq.stamps_ns.tolist()
+    traj = logic.optimized_trajectory()  # map = odom until the initialization
+    np.testing.assert_allclose(traj.positions_xyz, seq.centers_odom, atol=1e-12)
+    np.testing.assert_allclose(traj.R_wc, seq.R_wc_odom, atol=1e-12)
+    tf = last(outputs, TF_TOPIC).transforms[0].transform
+    assert tf.rotation.w == pytest.approx(1.0) and tf.translation.x == pytest.approx(0.0)
+
+
+def test_every_keyframe_is_in_the_outputs_from_the_start(street: SimSequence) -> None:
+    """Before and across the initialization every keyframe with a pose is published."""
+    logic = BackendLogic(config(), BACKEND)
+    outputs = run(logic, street, 7)
+    assert logic.state == 'collecting'
+    assert len(last(outputs, 'pmba/path').poses) == 7
+    assert len(last(outputs, 'pmba/keyframes').poses) == 7
+    empty = TrackFrame.empty(int(street.stamps_ns[7]), 'odom')
+    logic.on_tracks(tracks_msg(street, 7, frame=empty))  # too few observations: passed through
+    logic.on_keyframe(keyframe_msg(street, 7))
+    outputs = logic.step()
+    assert len(last(outputs, 'pmba/path').poses) == 8
+    for outs in feed(logic, street, range(8, 30)):
+        outputs += outs
+    assert logic.state == 'tracking'
+    path = last(outputs, 'pmba/path')
+    assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns[:30].tolist()
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    assert values['count.keyframes_passed_through'] == '1'
+    assert values['not_optimized_keyframes'] == '1'  # keyframe 7 only
+    assert values['init_attempts'] == '1' and values['count.init_attempts'] == '1'
+    # Keyframe 7 is at its front-end pose through map <- odom, the batch is optimized.
+    est = logic.estimator
+    idx = est.estimated()
+    assert not est.optimized(idx)[7] and est.optimized(idx)[np.arange(30) != 7].all()
+    before = logic.optimized_trajectory().positions_xyz[7]
+    assert np.linalg.norm(before - street.centers_odom[7]) < 0.2  # map ~ odom at the start
+    for _ in feed(logic, street, range(30, 33)):
+        pass
+    np.testing.assert_array_equal(logic.optimized_trajectory().positions_xyz[7], before)
+
+
+def test_immediate_pose_is_the_front_end_pose_through_the_last_map_to_odom(
+        street: SimSequence) -> None:
+    """The pose a node can publish on arrival: front-end pose through the newest map -> odom."""
+    logic = BackendLogic(config(), BACKEND)
+    first = logic.immediate_pose(keyframe_msg(street, 0))  # nothing yet: map = odom
+    assert first.frame_id == 'map' and first.stamp_ns == street.stamps_ns[0]
+    np.testing.assert_allclose(first.position, street.centers_odom[0], atol=1e-12)
+    outputs = run(logic, street, 25)
+    tf = last(outputs, TF_TOPIC).transforms[0].transform
+    quat = np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w])
+    R_mo = so3.from_quat_xyzw(quat)
+    t_mo = np.array([tf.translation.x, tf.translation.y, tf.translation.z])
+    n_kf, counters = logic.stats.keyframes, dict(logic.stats.counters)
+    pose = logic.immediate_pose(keyframe_msg(street, 25))
+    assert logic.stats.keyframes == n_kf and dict(logic.stats.counters) == counters  # pure
+    assert logic.step() == []  # nothing was buffered
+    np.testing.assert_allclose(pose.position, R_mo @ street.centers_odom[25] + t_mo, atol=1e-9)
+    R = so3.from_quat_xyzw(pose.quat_xyzw)
+    np.testing.assert_allclose(R, R_mo @ street.R_wc_odom[25], atol=1e-9)
+    gt_step = np.linalg.norm(street.centers_gt[25] - street.centers_gt[24])
+    est = logic.optimized_trajectory().positions_xyz[24]
+    assert np.linalg.norm(pose.position - est) < 2 * gt_step  # one keyframe ahead of the map
+    with pytest.raises(MessageError):
+        logic.immediate_pose(tracks_msg(street, 25))
+
+
+def _far_heavy(seq: SimSequence, near_kept: float) -> SimSequence:
+    """Return seq with every far feature and a fraction ``near_kept`` of the near ones."""
+    birth = np.full(seq.points_w.shape[0], 0)
+    for i, f in reversed(list(enumerate(seq.frames))):
+        birth[f.feature_ids] = i
+    depth = np.linalg.norm(seq.points_w - seq.centers_gt[birth], axis=1)
+    near = np.flatnonzero(depth <= 45.0)
+    drop = near[np.random.default_rng(1).random(near.shape[0]) > near_kept]
+    frames = []
+    for f in seq.frames:
+        keep = ~np.isin(f.feature_ids, drop)
+        assert f.pixels is not None and f.normalized is not None
+        frames.append(TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids[keep], f.camera_ids[keep],
+                                 f.pixels[keep], f.normalized[keep]))
+    return SimSequence(seq.scenario, seq.stamps_ns, seq.R_wc_gt, seq.centers_gt, seq.R_wc_odom,
+                       seq.centers_odom, frames, seq.camera, seq.points_w, seq.noise_px,
+                       seq.drift)
+
+
+def test_initialization_gate_counts_features_not_the_median() -> None:
+    """Mostly far features: the median parallax stays low, enough near ones initialize."""
+    from pmba_ros.backend.window import rotation_compensated_parallax
+
+    seq = _far_heavy(simulate_sequence('street', n_keyframes=60, seed=3, speed_mps=2.0), 0.1)
+    a = seq.frames[0]
+    assert a.normalized is not None
+    b = next(f for f in seq.frames[59:0:-1]  # the old gate's pair: the latest with 20 shared
+             if np.intersect1d(a.feature_ids, f.feature_ids).shape[0] >= 20)
+    _, ia, ib = np.intersect1d(a.feature_ids, b.feature_ids, return_indices=True)
+    assert b.normalized is not None
+    pairs = (a.normalized[ia], b.normalized[ib])
+    rays = [np.column_stack([xy, np.ones(xy.shape[0])]) for xy in pairs]
+    rays = [r / np.linalg.norm(r, axis=1, keepdims=True) for r in rays]
+    assert rotation_compensated_parallax(*rays) * seq.camera.fx < 3.0  # the median would wait
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, seq)
+    assert logic.state == 'tracking' and logic.estimator.init_attempts == 1
+    assert len(logic.optimized_trajectory()) == 60 and logic.stats.not_optimized == 0
+
+
+def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None:
+    """Every solve fails the scale check: counted, WARN, front-end motion, no keyframe lost."""
+    logic = BackendLogic(config(fallback_max_scale_jump=0.0, fallback_reinit_after=2), BACKEND)
+    outputs = run(logic, street, 60)
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    rollbacks = int(values['count.solve_rollbacks'])
+    assert rollbacks >= 30 and int(values['count.reinitializations']) == rollbacks // 2
+    levels = [m.status[0].level for t, m in outputs if t == DIAGNOSTICS_TOPIC]
+    assert levels.count(1) >= rollbacks  # WARN with each rollback
+    assert len(logic.optimized_trajectory()) == 60
+    gt = street.gt_trajectory().take(np.arange(60))
+    fe = ate(street.odom_trajectory().take(np.arange(60)), gt, 'sim3').rmse
+    assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 1.2 * fe
+    # The default thresholds accept the solves of a good street.
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, street, 60)
+    assert 'solve_rollbacks' not in logic.stats.counters
+
+
+def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
+    """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down.
+
+    The map's scale against odom is reported for every keyframe and stays near the first one.
+    """
+    from pmba_ros.eval.metrics import rpe
+
+    seq = simulate_sequence('aerial', n_keyframes=60, seed=0)
+    gt = seq.gt_trajectory()
+    result = {}
+    for name, kwargs in (('prior', {}), ('none', {'motion_prior_translation_rel': 0.0,
+                                                  'motion_prior_rotation_rad': 0.0})):
+        logic = BackendLogic(config(**kwargs), BACKEND)
+        outputs = run(logic, seq)
+        traj = logic.optimized_trajectory()
+        result[name] = (ate(traj, gt, 'sim3').rmse, rpe(traj, gt, align='sim3').rmse)
+        if name == 'prior':
+            scales = np.array(logic.stats.map_scale)
+            assert scales.shape[0] == 60 - 19  # from the initialization on
+            assert np.all(np.abs(scales - 1.0) < 0.03)
+            scale = float(diag_values(last(outputs, DIAGNOSTICS_TOPIC))['map_from_odom_scale'])
+            assert scale == pytest.approx(scales[-1], rel=1e-4)
+    assert result['prior'][0] < 0.7 * result['none'][0]
+    assert result['prior'][1] < 0.5 * result['none'][1]
 
 
 # --- control --------------------------------------------------------------------------------

@@ -195,14 +195,31 @@ def test_rpe_raises_on_invalid_options(rng: np.random.Generator, kwargs: dict[st
         rpe(traj, traj, **kwargs)
 
 
-def test_ate_raises_on_collinear_positions() -> None:
-    """Positions on a line cannot be aligned; the geometry error is re-wrapped."""
+def test_degenerate_positions_fall_back_with_a_note() -> None:
+    """Collinear or coincident positions: aligned by the first pose, with a note, no error."""
     n = 10
-    traj = Trajectory(np.arange(n, dtype=float), np.outer(np.arange(n, dtype=float), [1, 0, 0]),
+    line = Trajectory(np.arange(n, dtype=float), np.outer(np.arange(n, dtype=float), [1, 0, 0]),
                       np.broadcast_to(np.eye(3), (n, 3, 3)))
-    with pytest.raises(EvaluationError, match=r'cannot align .*\(se3\).*covariance rank'):
-        ate(traj, traj, align='se3')
-    assert ate(traj, traj, align='none').rmse == 0.0
+    result = ate(line, line, align='se3')
+    assert result.align == 'first_pose' and result.rmse == pytest.approx(0.0, abs=1e-12)
+    assert 'cannot align with se3' in result.note and 'covariance rank' in result.note
+    assert result.to_dict()['note'] == result.note
+    # Pure rotation about a point, with a moved and rotated copy as the estimate.
+    R = np.stack([_rot_z(0.1 * k) for k in range(n)])
+    ref = Trajectory(np.arange(n, dtype=float), np.zeros((n, 3)), R)
+    T = _rot_z(0.7)
+    est = Trajectory(ref.stamps_s, ref.positions_xyz + np.array([1.0, 2.0, 3.0]),
+                     np.einsum('ij,njk->nik', T, R))
+    results = evaluate(est, ref, align='sim3')
+    for res in results.values():
+        assert res.align == 'first_pose' and 'cannot align with sim3' in res.note
+        assert res.rmse == pytest.approx(0.0, abs=1e-9)
+    assert ate(line, line, align='none').note == ''
+
+
+def _rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_evaluate_returns_ate_and_rpe_with_json_ready_dicts(rng: np.random.Generator) -> None:

@@ -1,0 +1,173 @@
+"""Body -> camera extrinsics: transforms, parameters, the TF tree, and body-pose outputs."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.extrinsics import Rigid, TransformTree, extrinsics_from_params
+from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
+from pmba_ros.core import so3
+from pmba_ros.errors import MessageError
+from pmba_ros.eval.metrics import ate
+from pmba_ros.eval.trajectory import Trajectory
+from pmba_ros.sim.bag import EUROC_CAM0
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+
+from .test_logic import BACKEND, camera_info_msg, config, diag_values, last, tracks_msg
+
+
+def _random_rigid(rng: np.random.Generator) -> Rigid:
+    return Rigid(so3.exp(rng.normal(0.0, 1.0, 3)), rng.normal(0.0, 1.0, 3))
+
+
+def _assert_same(a: Rigid, b: Rigid, tol: float = 1e-12) -> None:
+    np.testing.assert_allclose(a.rotation, b.rotation, atol=tol)
+    np.testing.assert_allclose(a.translation, b.translation, atol=tol)
+
+
+def test_rigid_composition_inverse_and_poses() -> None:
+    """T_ab T_bc maps points like applying T_bc then T_ab; poses compose the same way."""
+    rng = np.random.default_rng(0)
+    T_ab, T_bc = _random_rigid(rng), _random_rigid(rng)
+    x = rng.normal(size=3)
+    T_ac = T_ab @ T_bc
+    np.testing.assert_allclose(T_ac.rotation @ x + T_ac.translation,
+                               T_ab.rotation @ (T_bc.rotation @ x + T_bc.translation)
+                               + T_ab.translation, atol=1e-12)
+    _assert_same(T_ac @ T_ac.inverse(), Rigid.identity())
+    R, C = T_bc.apply_to_poses(T_ab.rotation[None], T_ab.translation[None])
+    _assert_same(Rigid(R[0], C[0]), T_ac)
+    back = Rigid.from_xyz_quat(T_ac.to_flat()[:3], T_ac.to_flat()[3:])
+    _assert_same(back, T_ac, 1e-12)
+    with pytest.raises(MessageError, match='zero-norm'):
+        Rigid.from_xyz_quat([0, 0, 0], [0, 0, 0, 0])
+
+
+def test_extrinsics_from_params() -> None:
+    """Seven values per camera; a wrong count names the parameter."""
+    assert extrinsics_from_params([], 2) is None
+    flat = EUROC_CAM0.to_flat() + Rigid.identity().to_flat()
+    cams = extrinsics_from_params(flat, 2)
+    assert cams is not None and cams[1].is_identity
+    _assert_same(cams[0], EUROC_CAM0, 1e-12)
+    with pytest.raises(ValueError, match='camera_extrinsics: expected 7 values'):
+        extrinsics_from_params(flat, 1)
+    with pytest.raises(ValueError, match=r'camera_extrinsics\[0\]'):
+        extrinsics_from_params([0.0] * 7, 1)
+    with pytest.raises(ValueError, match='camera_extrinsics'):
+        config(camera_extrinsics=[1.0, 2.0])
+
+
+def test_transform_tree_lookup_through_a_common_ancestor() -> None:
+    """A lookup composes the edges up to the common ancestor and back down."""
+    rng = np.random.default_rng(1)
+    T_wo, T_ob, T_bc, T_bl = (_random_rigid(rng) for _ in range(4))
+    tree = TransformTree()
+    tree.add('world', 'odom', T_wo)
+    tree.add('odom', 'body', T_ob)
+    msg = out.make_tf(0, 'body', 'cam0', T_bc.translation, so3.to_quat_xyzw(T_bc.rotation),
+                      BACKEND)
+    assert tree.add_message(msg) == 1
+    tree.add('/body', 'lidar', T_bl)
+    _assert_same(tree.lookup('body', 'cam0'), T_bc, 1e-12)  # type: ignore[arg-type]
+    _assert_same(tree.lookup('lidar', 'cam0'),  # type: ignore[arg-type]
+                 T_bl.inverse() @ T_bc, 1e-12)
+    _assert_same(tree.lookup('world', 'cam0'),  # type: ignore[arg-type]
+                 T_wo @ T_ob @ T_bc, 1e-12)
+    _assert_same(tree.lookup('cam0', 'odom'),  # type: ignore[arg-type]
+                 (T_ob @ T_bc).inverse(), 1e-12)
+    assert tree.lookup('body', 'imu') is None and tree.lookup('', 'body') is None
+    with pytest.raises(MessageError, match='TFMessage'):
+        tree.add_message(object())
+
+
+# --- body poses through the back-end ---------------------------------------------------------
+
+
+def _body(R_wc: np.ndarray, C_wc: np.ndarray, T_bc: Rigid) -> tuple[np.ndarray, np.ndarray]:
+    return T_bc.inverse().apply_to_poses(R_wc, C_wc)
+
+
+def _body_keyframe(seq: SimSequence, i: int, T_bc: Rigid) -> Any:
+    R, C = _body(seq.R_wc_odom[i], seq.centers_odom[i], T_bc)
+    return out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'imu', C, so3.to_quat_xyzw(R),
+                             np.eye(6) * 1e-3, BACKEND)
+
+
+def _run_body(logic: BackendLogic, seq: SimSequence, T_bc: Rigid, n: int) -> list[Any]:
+    info = out.make_camera_info(int(seq.stamps_ns[0]), 'cam0', seq.camera, BACKEND)
+    logic.on_camera_info(info)
+    outputs = []
+    for i in range(n):
+        logic.on_tracks(tracks_msg(seq, i))
+        logic.on_keyframe(_body_keyframe(seq, i, T_bc))
+        outputs += logic.step()
+    return outputs
+
+
+def _max_rotation_deg(a: Trajectory, b: Trajectory) -> float:
+    rel = np.einsum('nji,njk->nik', a.R_wc, b.R_wc)
+    return float(np.rad2deg(np.max(np.linalg.norm(so3.log(rel), axis=1))))
+
+
+@pytest.fixture(scope='module')
+def street() -> SimSequence:
+    """Return a 60-keyframe street."""
+    return simulate_sequence('street', n_keyframes=60, seed=0)
+
+
+@pytest.mark.parametrize('source', ['parameters', 'tf'])
+def test_body_poses_in_and_out(street: SimSequence, source: str) -> None:
+    """EuRoC-like body poses: outputs are body poses; map->odom o odom->body = optimized pose."""
+    params = {'camera_extrinsics': EUROC_CAM0.to_flat()} if source == 'parameters' else {}
+    logic = BackendLogic(config(**params), BACKEND)
+    if source == 'tf':
+        T = EUROC_CAM0
+        logic.on_tf(out.make_tf(0, 'imu', 'cam0', T.translation,
+                                so3.to_quat_xyzw(T.rotation), BACKEND))
+    outputs = _run_body(logic, street, EUROC_CAM0, 60)
+    assert logic.extrinsic_source == source
+    assert diag_values(last(outputs, DIAGNOSTICS_TOPIC))['extrinsic_source'] == source
+    R_gt, C_gt = _body(street.R_wc_gt, street.centers_gt, EUROC_CAM0)
+    gt = Trajectory(street.stamps_ns * 1e-9, C_gt, R_gt)
+    opt = logic.optimized_trajectory()
+    result = ate(opt, gt, 'sim3')
+    assert result.rmse <= 0.5 * ate(logic.frontend_trajectory(), gt, 'sim3').rmse
+    assert _max_rotation_deg(opt, gt) < 3.0  # body frame, not the camera's (~90 deg off)
+    R_fe, C_fe = _body(street.R_wc_odom, street.centers_odom, EUROC_CAM0)
+    np.testing.assert_allclose(logic.frontend_trajectory().positions_xyz, C_fe, atol=1e-9)
+    # REP-105: the published map -> odom composed with the front-end's odom -> body is the
+    # optimized body pose of the newest keyframe.
+    tf = last(outputs, TF_TOPIC).transforms[0].transform
+    R_mo = so3.from_quat_xyzw(np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z,
+                                        tf.rotation.w]))
+    t_mo = np.array([tf.translation.x, tf.translation.y, tf.translation.z])
+    np.testing.assert_allclose(R_mo @ C_fe[-1] + t_mo, opt.positions_xyz[-1], atol=1e-6)
+    angle = np.linalg.norm(so3.log((R_mo @ R_fe[-1]).T @ opt.R_wc[-1]))
+    assert np.rad2deg(angle) < 1e-6
+    odom = last(outputs, 'pmba/odometry')
+    assert odom.child_frame_id == 'imu'
+    p = odom.pose.pose.position
+    np.testing.assert_allclose([p.x, p.y, p.z], opt.positions_xyz[-1], atol=1e-9)
+
+
+def test_unknown_extrinsic_is_identity_with_a_warning(street: SimSequence) -> None:
+    """No parameter, no TF, different frames: identity, counted, WARN."""
+    logic = BackendLogic(config(), BACKEND)
+    outputs = _run_body(logic, street, Rigid.identity(), 3)
+    values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
+    assert values['extrinsic_source'] == 'identity'
+    assert values['count.extrinsic_unknown'] == '1'
+    assert "'imu' to 'cam0'" in values['last_error']
+    # Frames that agree need no transform and no warning.
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))  # frame 'camera', as the keyframe child
+    from .test_logic import keyframe_msg
+    logic.on_tracks(tracks_msg(street, 0))
+    logic.on_keyframe(keyframe_msg(street, 0))
+    values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
+    assert values['extrinsic_source'] == 'frames_agree' and 'count.extrinsic_unknown' not in values

@@ -1,0 +1,111 @@
+"""Relative-motion priors: Jacobians against central differences, and solves with them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pmba_ros.core import so3
+from pmba_ros.core.conversions import xyz_to_parallax
+from pmba_ros.core.loss import Loss
+from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse
+from pmba_ros.core.problem import BAProblem, Parameterization
+from pmba_ros.core.solve import SolveOptions, SolveResult, SolverKind, solve
+from pmba_ros.errors import ProblemError
+from pmba_ros.sim.scenes import street_scene
+
+
+def _prior(R: np.ndarray, P: np.ndarray, a: np.ndarray, b: np.ndarray, w_rot: float,
+           w_trans: float, noise: float = 0.0, seed: int = 0) -> RelativePosePrior:
+    """Return factors measuring the relative motions of (R, P), optionally perturbed."""
+    rng = np.random.default_rng(seed)
+    R_ab = np.einsum('mji,mjk->mik', R[a], R[b]) @ so3.exp(rng.normal(0, noise, (a.size, 3)))
+    t_ab = np.einsum('mji,mj->mi', R[a], P[b] - P[a]) + rng.normal(0, noise, (a.size, 3))
+    W = np.tile(np.diag([w_trans, 2.0 * w_trans, w_trans]), (a.size, 1, 1))  # anisotropic
+    return RelativePosePrior(a, b, R_ab, t_ab, np.full(a.size, w_rot), W)
+
+
+def test_right_jacobian_inverse_inverts_the_right_jacobian() -> None:
+    """log(Exp(w) Exp(d)) ~ w + J_r^-1(w) d (to second order in d), also at tiny angles."""
+    rng = np.random.default_rng(0)
+    w = np.concatenate([rng.normal(0, 1.0, (5, 3)), rng.normal(0, 1e-8, (2, 3))])
+    J = right_jacobian_inverse(w)
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        num = (so3.log(so3.exp(w) @ so3.exp(d)) - so3.log(so3.exp(w) @ so3.exp(-d))) / 2e-6
+        np.testing.assert_allclose(num, J[:, :, k], atol=1e-6)
+
+
+def test_jacobians_match_central_differences() -> None:
+    """Both 6x6 blocks of every factor against central differences of the residual."""
+    rng = np.random.default_rng(1)
+    n = 5
+    R = so3.exp(rng.normal(0, 1.0, (n, 3)))
+    P = rng.normal(0, 3.0, (n, 3))
+    a, b = np.array([0, 1, 3, 4]), np.array([1, 2, 0, 2])
+    prior = _prior(R, P, a, b, 7.0, 3.0, noise=0.2)
+    Ja, Jb = prior.jacobians(R, P)
+    h = 1e-6
+    for pose, J, sel in ((a, Ja, 'a'), (b, Jb, 'b')):
+        for col in range(6):
+            plus, minus = [], []
+            for sign, out in ((1.0, plus), (-1.0, minus)):
+                Rp, Pp = R.copy(), P.copy()
+                for m in range(len(prior)):
+                    d = np.zeros(6)
+                    d[col] = sign * h
+                    R_m, P_m = R.copy(), P.copy()
+                    R_m[pose[m]] = R[pose[m]] @ so3.exp(d[:3])
+                    P_m[pose[m]] = P[pose[m]] + d[3:]
+                    out.append(prior.residuals(R_m, P_m)[m])
+                del Rp, Pp
+            num = (np.array(plus) - np.array(minus)) / (2 * h)
+            np.testing.assert_allclose(J[:, :, col], num, atol=2e-6, err_msg=f'{sel} col {col}')
+
+
+def test_bad_factors_are_rejected() -> None:
+    """A factor of a pose with itself, or a negative weight, is a ProblemError."""
+    R, P = np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3))
+    with pytest.raises(ProblemError, match='itself'):
+        _prior(R, P, np.array([1]), np.array([1]), 1.0, 1.0)
+    with pytest.raises(ProblemError, match='weights'):
+        _prior(R, P, np.array([0]), np.array([1]), -1.0, 1.0)
+
+
+def _window() -> tuple[BAProblem, BAProblem]:
+    scene = street_scene(seed=3, n_cams=12, n_points=200, pos_noise_m=0.05)
+    fixed = np.zeros(scene.start.n_cams, dtype=bool)
+    fixed[:2] = True
+    start = replace(scene.start, fixed=fixed)
+    start = start.with_poses(np.where(fixed[:, None, None], scene.gt.R_wc, start.R_wc),
+                             np.where(fixed[:, None], scene.gt.centers_w, start.centers_w))
+    return start, scene.gt
+
+
+def _solve(problem: BAProblem, prior: RelativePosePrior | None) -> SolveResult:
+    feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                np.asarray(problem.points_w))
+    assert np.all(ok)
+    options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
+                           loss=Loss.CAUCHY, max_iterations=30)
+    return solve(problem, options, feats, pose_prior=prior)
+
+
+def test_solve_with_a_prior_follows_it_and_reports_its_cost() -> None:
+    """A strong exact prior pins the relative motions; a zero-weight prior changes nothing."""
+    start, gt = _window()
+    n = start.n_cams
+    a, b = np.arange(n - 1), np.arange(1, n)
+    plain = _solve(start, None)
+    zero = _solve(start, _prior(gt.R_wc, gt.centers_w, a, b, 0.0, 0.0))
+    np.testing.assert_allclose(zero.centers_w, plain.centers_w, atol=1e-9)
+    strong = _prior(gt.R_wc, gt.centers_w, a, b, 1e4, 1e4)
+    res = _solve(start, strong)
+    assert res.final_cost < res.initial_cost
+    err = np.linalg.norm(res.centers_w - gt.centers_w, axis=1).max()
+    err_plain = np.linalg.norm(plain.centers_w - gt.centers_w, axis=1).max()
+    assert err < 5e-3 and err < 0.2 * err_plain, (err, err_plain)
+    assert strong.cost(res.R_wc, res.centers_w) <= res.final_cost
