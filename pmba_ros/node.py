@@ -289,6 +289,7 @@ class PmbaNode:
             self.subscriptions.append(node.create_subscription(
                 _msg_type(kf_type), cfg.keyframe_topic, self._on_keyframe,
                 input_qos(cfg.keyframe_qos, cfg), qos_overriding_options=overrides))
+        self.subscriptions.extend(self._subscribe_tf())
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),
                                                   cfg.path_topic, pub_qos),
@@ -364,6 +365,27 @@ class PmbaNode:
             tf_type, TF_TOPIC, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         return f'{TF_TOPIC} publisher (tf2_ros not installed)'
 
+    def _subscribe_tf(self) -> list[Any]:
+        """Subscribe to /tf_static and /tf for the body -> camera extrinsic, where it can.
+
+        Not needed when ``camera_extrinsics`` is set; without tf2_msgs (a pip install) the
+        back-end resolves the extrinsic from the parameter or the frames alone.
+        """
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        if self.config.camera_extrinsics:
+            return []
+        try:
+            tf_type = _msg_type('tf2_msgs/msg/TFMessage')
+        except ImportError:
+            return []
+        static = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        dynamic = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        return [self.node.create_subscription(tf_type, '/tf_static', self._enqueuer('tf'),
+                                              static),
+                self.node.create_subscription(tf_type, '/tf', self._enqueuer('tf'), dynamic)]
+
     # --- parameters at run time -----------------------------------------------------------
 
     def _changes(self, params: list[Any]) -> dict[str, Any]:
@@ -406,7 +428,8 @@ class PmbaNode:
     # --- callbacks (executor thread): enqueue only ------------------------------------------
 
     def _enqueue(self, kind: str, msg: Any) -> None:
-        self._last_input = time.monotonic()
+        if kind != 'tf':  # TF keeps flowing when the front-end has stopped
+            self._last_input = time.monotonic()
         try:
             self._queue.put_nowait((kind, msg))
         except queue.Full:
@@ -490,6 +513,8 @@ class PmbaNode:
             self.logic.on_tracks(msg)
         elif kind == 'keyframe':
             self.logic.on_keyframe(msg)
+        elif kind == 'tf':
+            self.logic.on_tf(msg)
         else:
             self.logic.on_camera_info(msg)
 

@@ -504,3 +504,24 @@ def test_main_compiles_before_subscribing_and_says_so(
     assert any(f'expected {warmup.expected_compile_text()}' in t for t in lines), lines
     assert any('ready in 20.0 s' in t for t in lines), lines
     assert fake_ros.created[0].subscriptions, 'the node never subscribed'
+
+
+def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
+    """With tf2_msgs, /tf_static and /tf feed the extrinsic's transform tree, not the staleness."""
+    from pmba_ros.backend.outputs import make_tf
+
+    wrapper = make(fake_ros, deterministic=True)
+    subs = {s.topic: s.callback for s in fake_ros.created[0].subscriptions}
+    assert {'/tf_static', '/tf'} <= subs.keys()
+    last_input = wrapper._last_input
+    subs['/tf_static'](make_tf(0, 'base_link', 'camera', [0.1, 0.0, 0.0], [0, 0, 0, 1], BACKEND))
+    assert wrapper._last_input == last_input
+    assert wrapper.process_pending() == 1
+    assert len(wrapper.logic.tf_tree) == 1
+
+
+def test_no_tf_subscription_with_extrinsics_given(fake_ros: FakeRclpy) -> None:
+    """camera_extrinsics set: the node does not listen to TF for it."""
+    wrapper = make(fake_ros, camera_extrinsics=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    topics = {s.topic for s in fake_ros.created[0].subscriptions}
+    assert wrapper.config.camera_extrinsics and not topics & {'/tf_static', '/tf'}
