@@ -26,7 +26,6 @@ import tracemalloc
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._process import tune_process
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
@@ -181,7 +180,7 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Main."""
+    """Run the benchmark verb given on the command line."""
     tune_process()
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bench', choices=('ate', 'latency', 'memory'))

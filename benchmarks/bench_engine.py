@@ -54,18 +54,17 @@ import time
 from typing import Any
 
 import numpy as np
-import scipy
-import scipy.optimize
-import scipy.sparse
-
 from pmba_ros._process import tune_process
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import project
 from pmba_ros.core.models import XyzModel
 from pmba_ros.core.problem import BAProblem, XyzFeatures
-from pmba_ros.core.solve import SolveOptions, SolveResult, initial_features, solve
+from pmba_ros.core.solve import initial_features, solve, SolveOptions, SolveResult
 from pmba_ros.io.bal import read_bal
 from pmba_ros.sim.scenes import synthetic_large, table3_scene
+import scipy
+import scipy.optimize
+import scipy.sparse
 
 SHARED = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
 LADYBUG = SHARED / 'bal' / 'problem-49-7776-pre.txt'

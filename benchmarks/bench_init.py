@@ -20,7 +20,7 @@ import logging
 import os
 from pathlib import Path
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, TYPE_CHECKING
 
 from pmba_ros._process import tune_process
 

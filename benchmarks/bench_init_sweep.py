@@ -27,7 +27,7 @@ import logging
 import os
 from pathlib import Path
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import Any, TYPE_CHECKING
 
 from pmba_ros._heap import keep_freed_memory
 

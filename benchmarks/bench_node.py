@@ -75,13 +75,12 @@ def main() -> int:
 
     from nav_msgs.msg import Odometry
     from nav_msgs.msg import Path as PathMsg
+    from pmba_ros.sim.bag import write_sequence_bag
+    from pmba_ros.sim.sequence import simulate_sequence
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-    from pmba_ros.sim.bag import write_sequence_bag
-    from pmba_ros.sim.sequence import simulate_sequence
 
     with tempfile.TemporaryDirectory(prefix='pmba_bench_node_') as tmp:
         bag = Path(tmp) / 'street'

@@ -28,7 +28,7 @@ import time
 
 from pmba_ros._process import tune_process
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.replay import ReplayReport, replay
+from pmba_ros.replay import replay, ReplayReport
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
 

@@ -50,13 +50,12 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._process import tune_process
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
+from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.core import so3, warmup
 from pmba_ros.errors import MessageError, PmbaError

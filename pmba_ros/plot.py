@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.errors import PmbaError
 from pmba_ros.io.atomic import write_atomic
 
@@ -36,8 +35,8 @@ def _pyplot() -> Any:
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError as err:
-        msg = ("--plot needs matplotlib, which is not installed; install it with "
-               "\"pip install 'pmba_ros[plot]'\" or \"pip install matplotlib\"")
+        msg = ('--plot needs matplotlib, which is not installed; install it with '
+               '"pip install \'pmba_ros[plot]\'" or "pip install matplotlib"')
         raise PmbaError(msg) from err
     return plt
 

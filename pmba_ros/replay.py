@@ -45,11 +45,10 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._json import dumps_report, to_jsonable
 from pmba_ros.errors import BagError, EvaluationError, MessageError
 from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
-from pmba_ros.io.bags import BagMessage, ReadStats, iter_messages, list_topics, open_writer
+from pmba_ros.io.bags import BagMessage, iter_messages, list_topics, open_writer, ReadStats
 
 logger = logging.getLogger(__name__)
 
@@ -367,7 +366,7 @@ def camera_info_from_intrinsics(intrinsics: Sequence[float], stamp_ns: int = 0) 
     Raises:
         MessageError: If the intrinsics are not four positive, finite numbers.
     """
-    from pmba_ros.backend.outputs import RosbagsBackend, make_camera_info
+    from pmba_ros.backend.outputs import make_camera_info, RosbagsBackend
     from pmba_ros.backend.types import CameraModel
     from pmba_ros.io.bags import jazzy_typestore
 
@@ -886,7 +885,7 @@ def write_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report: Repla
 
 def _aligned(traj: Any, result: Any) -> Any:
     """Return ``traj`` moved by the alignment of an ATE result."""
-    from pmba_ros.eval.align import UmeyamaResult, apply_alignment
+    from pmba_ros.eval.align import apply_alignment, UmeyamaResult
     fit = UmeyamaResult(result.rotation, result.translation, result.scale)
     return apply_alignment(traj, fit)
 

@@ -6,9 +6,8 @@ import platform
 import subprocess
 import sys
 
-import pytest
-
 from pmba_ros import _heap
+import pytest
 
 _PROBE = """
 import resource, sys

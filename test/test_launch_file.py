@@ -24,9 +24,8 @@ import ast
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 from pmba_ros.backend.config import BackendConfig
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / 'launch' / 'pmba.launch.py'

@@ -33,16 +33,15 @@ import time
 from typing import Any
 
 import numpy as np
+from pmba_ros.backend import outputs as out
+from pmba_ros.cli.main import main as pmba
+from pmba_ros.core import so3
+from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-from pmba_ros.backend import outputs as out
-from pmba_ros.cli.main import main as pmba
-from pmba_ros.core import so3
-from pmba_ros.sim.sequence import simulate_sequence
 
 from .ros_helpers import domain_id, isolate, isolated_env, spin_until
 

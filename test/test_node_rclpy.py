@@ -28,18 +28,17 @@ import types
 from typing import Any
 
 import numpy as np
+from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.core import so3
+from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-from pmba_ros.backend import outputs as out
-from pmba_ros.backend.config import BackendConfig
-from pmba_ros.core import so3
-from pmba_ros.node import MAP_TO_ODOM_TOPIC, RUNTIME_PARAMETERS, PmbaNode
-from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
 from .ros_helpers import domain_id, isolate, spin_until
 

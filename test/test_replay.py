@@ -8,19 +8,18 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-import pytest
-
 from pmba_ros import replay as replay_mod
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.outputs import make_path, make_tf
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.errors import BagError, EvaluationError, MessageError
-from pmba_ros.eval.trajectory import Trajectory, read_tum, write_tum
+from pmba_ros.eval.trajectory import read_tum, Trajectory, write_tum
 from pmba_ros.io.bags import iter_messages, jazzy_typestore, list_topics
 from pmba_ros.io.ply import read_ply
 from pmba_ros.replay import replay, resolve_topic, stamp_ordered
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
+import pytest
 
 
 class StubLogic:
@@ -94,7 +93,7 @@ def _backend() -> Any:
 
 @pytest.fixture(scope='module')
 def street_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 60-keyframe simulated street bag (vins_fusion layout, the node's default)."""
+    """Write a 60-keyframe simulated street bag (vins_fusion layout, the node's default)."""
     out = tmp_path_factory.mktemp('bags') / 'street'
     write_sequence_bag(simulate_sequence('street', n_keyframes=60, seed=0), out)
     return out

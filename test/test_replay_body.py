@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum

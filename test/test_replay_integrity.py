@@ -14,20 +14,19 @@ import sys
 import time
 from typing import Any
 
-import pytest
-
 from pmba_ros import replay as replay_mod
 from pmba_ros.cli.main import main
 from pmba_ros.errors import BagError
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts
-from pmba_ros.io.bags import BagWriter, ReadStats, iter_messages, list_topics, open_writer
+from pmba_ros.io.bags import BagWriter, iter_messages, list_topics, open_writer, ReadStats
 from pmba_ros.replay import output_lock, replay
 from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
+import pytest
 
-from .test_replay import StubLogic, _backend
+from .test_replay import _backend, StubLogic
 
 N_KF = 20
 N_MSGS = 3 * N_KF  # tracks, keyframe pose and camera info per keyframe

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import pytest
-
 from pmba_ros import _threads
+import pytest
 
 from .conftest import run_python
 

@@ -35,21 +35,20 @@ import math
 import time
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import (
+    compensated_parallax_angles,
+    estimate_similarity,
     FeatureMap,
+    finite_rows,
+    gather_observations,
     KeyframeObs,
     KeyframeStatus,
     KeyframeStore,
     LandmarkStore,
-    Similarity,
-    compensated_parallax_angles,
-    estimate_similarity,
-    finite_rows,
-    gather_observations,
     select_fixed,
+    Similarity,
     thin_tracks,
 )
 from pmba_ros.core import so3
@@ -57,8 +56,8 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.pose_prior import RelativePosePrior
-from pmba_ros.core.problem import BAProblem, Parameterization, make_problem, subset_features
-from pmba_ros.core.solve import SolveOptions, SolverKind, solve
+from pmba_ros.core.problem import BAProblem, make_problem, Parameterization, subset_features
+from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
@@ -254,7 +253,7 @@ class Estimator:
         return problem, uniq
 
     def _initialize(self, batch: IntArray) -> UpdateInfo:
-        from pmba_ros.init.pipeline import InitOptions, global_init
+        from pmba_ros.init.pipeline import global_init, InitOptions
 
         cfg = self.config
         M = batch.shape[0]

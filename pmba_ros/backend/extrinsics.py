@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.errors import MessageError

@@ -24,14 +24,13 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
-from pmba_ros.backend.extrinsics import Rigid, TransformTree, extrinsics_from_params
+from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
-from pmba_ros.backend.tracks import TrackMemory, parse_camera_info, parse_keyframe, parse_tracks
+from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
 from pmba_ros.core import so3

@@ -24,10 +24,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend.tracks import LAYOUTS, POINTFIELD_DTYPES
-from pmba_ros.backend.types import CameraModel, TrackFrame, float_rows
+from pmba_ros.backend.types import CameraModel, float_rows, TrackFrame
 from pmba_ros.errors import MessageError
 
 DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
@@ -104,7 +103,7 @@ class RosbagsBackend(MsgBackend):
     def __init__(self, typestore: Any = None) -> None:
         """Store the typestore, loading the Jazzy one if none is given."""
         if typestore is None:
-            from rosbags.typesys import Stores, get_typestore
+            from rosbags.typesys import get_typestore, Stores
             typestore = get_typestore(Stores.ROS2_JAZZY)
         self.typestore = typestore
 

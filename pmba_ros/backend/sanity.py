@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 
 

@@ -43,7 +43,6 @@ from operator import attrgetter
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.errors import MessageError

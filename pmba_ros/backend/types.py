@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.errors import MessageError
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
 

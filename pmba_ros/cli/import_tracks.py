@@ -77,7 +77,6 @@ def run(args: argparse.Namespace) -> int:
         PmbaError: If an input is missing or malformed, or the bag cannot be written.
     """
     import numpy as np
-
     from pmba_ros.eval.trajectory import read_kitti
     from pmba_ros.io.kitti_tracks import kitti_sequence, read_kitti_tracks
     from pmba_ros.sim.bag import write_sequence_bag

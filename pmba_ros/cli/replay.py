@@ -30,7 +30,7 @@ from pathlib import Path
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import Any, TextIO, TYPE_CHECKING
 
 from pmba_ros.errors import PmbaError
 
@@ -132,9 +132,8 @@ def build_config(args: argparse.Namespace) -> Any:
     Raises:
         PmbaError: If the parameter file cannot be read or a value is invalid.
     """
-    import yaml
-
     from pmba_ros.backend.config import BackendConfig
+    import yaml
 
     try:
         params = getattr(args, 'params', None)

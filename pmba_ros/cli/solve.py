@@ -20,13 +20,12 @@ import sys
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import non_negative_int, positive_float
 from pmba_ros.core import so3
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
-from pmba_ros.core.solve import IterationRecord, SolveOptions, SolveResult, SolverKind, solve
+from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import DegenerateGeometryError, FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
@@ -255,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
         options = _options(param, solver, args)
         callback = None if args.quiet else _progress(f'{param}-{solver}')
         if args.init == 'global':
-            from pmba_ros.init.pipeline import InitOptions, global_init
+            from pmba_ros.init.pipeline import global_init, InitOptions
             init = global_init(problem, InitOptions(solve_options=options), progress=None)
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),

@@ -12,7 +12,6 @@ Jacobian layout: :mod:`pmba_ros.core.jacobian`, columns [d phi, d P] (R <- R Exp
 from __future__ import annotations
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project, projection_jacobian

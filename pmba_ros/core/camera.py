@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.errors import ProblemError
 

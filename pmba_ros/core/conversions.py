@@ -10,7 +10,6 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import kernels, residuals, sphere
 from pmba_ros.core.problem import (
@@ -152,7 +151,7 @@ def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
 
 def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,
                             assoc_idx: IntArray) -> ParallaxFeatures:
-    """Initial PMBA features from rotations only, no triangulation (PMBA Remark 5).
+    """Return initial PMBA features from rotations only, no triangulation (PMBA Remark 5).
 
     theta = arccos((R_m v_m) . (R_a v_a)) and n = v_m, so every main-anchor residual starts
     at zero (pmba.md §3.2).

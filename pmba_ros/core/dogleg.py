@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 
 #: Ceres defaults (include/ceres/solver.h).

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 
 #: First column of the anchors' blocks.

@@ -26,7 +26,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import jit
 from pmba_ros.core.jacobian import ANCHOR_START
@@ -575,7 +574,7 @@ def pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: Any, obs: Any,
 
 @_jit
 def _covisible(starts: Any, obs_block: Any, pair_index: Any) -> None:
-    """Number the covisible upper block pairs (and the diagonal) row by row in pair_index."""
+    """Write the numbers of the covisible upper block pairs and the diagonal into pair_index."""
     n = pair_index.shape[0]
     pair_index[:] = -1
     for f in range(starts.shape[0] - 1):

@@ -10,7 +10,6 @@ from __future__ import annotations
 from enum import Enum
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 
 

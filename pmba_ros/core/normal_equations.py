@@ -37,16 +37,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.linalg.lapack
-import scipy.sparse
-import scipy.sparse.linalg
-
 from pmba_ros._threads import blas_threads_for
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import kernels
 from pmba_ros.core.jacobian import ANCHOR_START, Linearization
 from pmba_ros.errors import SolverError
+import scipy.linalg
+import scipy.linalg.lapack
+import scipy.sparse
+import scipy.sparse.linalg
 
 #: Observations (or 6x6 blocks) per vectorized chunk; bounds temporary memory.
 _CHUNK = 100_000

@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.normal_equations import NormalEquations, SchurStructure

@@ -27,7 +27,6 @@ from enum import Enum
 import logging
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.camera import Intrinsics, pixels_to_bearings
 from pmba_ros.errors import ProblemError

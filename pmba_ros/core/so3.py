@@ -11,7 +11,6 @@ References:
 from __future__ import annotations
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 
 _EPS_SQ = 1e-10
@@ -146,7 +145,7 @@ def from_quat_xyzw(quat_xyzw: FloatArray) -> FloatArray:
 
 
 def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
-    """Unit quaternions (..., 4) in (x, y, z, w) order with w >= 0, from rotation matrices."""
+    """Return unit quaternions (..., 4), (x, y, z, w) with w >= 0, of rotation matrices."""
     R = np.asarray(rotation, dtype=float)
     m = R.reshape(*R.shape[:-2], 9)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = np.moveaxis(m, -1, 0)

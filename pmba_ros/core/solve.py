@@ -19,13 +19,12 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import conversions, dogleg, kernels, so3
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
-from pmba_ros.core.models import Evaluation, Model, make_model
+from pmba_ros.core.models import Evaluation, make_model, Model
 from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
@@ -33,10 +32,10 @@ from pmba_ros.core.problem import (
     IdpFeatures,
     ParallaxFeatures,
     Parameterization,
-    XyzFeatures,
     permute_features,
     subset_features,
     take_features,
+    XyzFeatures,
 )
 from pmba_ros.errors import ProblemError, SolverError
 

@@ -7,7 +7,6 @@ A feature's direction n is updated as ``n <- Exp(A_n dn) n``, where ``A_n = [a1 
 from __future__ import annotations
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 

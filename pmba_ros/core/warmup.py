@@ -20,12 +20,11 @@ import sys
 import time
 
 import numpy as np
-
 from pmba_ros.core import conversions, jit, kernels, so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.loss import Loss
-from pmba_ros.core.problem import BAProblem, Parameterization, make_problem
-from pmba_ros.core.solve import SolveOptions, SolverKind, solve
+from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
+from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 
 #: What a first compilation takes, for the message shown before it (wall time on a
 #: 2-core machine, from idle to loaded).

@@ -30,7 +30,6 @@ import logging
 from typing import NamedTuple
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.errors import DegenerateGeometryError, EvaluationError
 from pmba_ros.eval.trajectory import Trajectory

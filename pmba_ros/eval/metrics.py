@@ -29,13 +29,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import logging
-from typing import TYPE_CHECKING, Literal
+from typing import Literal, TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.errors import DegenerateGeometryError, EvaluationError
-from pmba_ros.eval.align import UmeyamaResult, align_se3, align_sim3, apply_alignment
+from pmba_ros.eval.align import align_se3, align_sim3, apply_alignment, UmeyamaResult
 from pmba_ros.eval.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -88,8 +87,8 @@ class EvalResult:
     mean: float
     median: float
     std: float
-    min: float
-    max: float
+    min: float  # noqa: A003 (evo's statistic names)
+    max: float  # noqa: A003
     sse: float
     n_pairs: int
     n_matched: int

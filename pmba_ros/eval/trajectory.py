@@ -22,10 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import NoReturn, TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError

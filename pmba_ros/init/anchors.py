@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3, sphere
 from pmba_ros.core.problem import ParallaxFeatures

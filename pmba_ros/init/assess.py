@@ -13,12 +13,11 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.problem import BAProblem
-from pmba_ros.core.solve import SolveResult, solve
+from pmba_ros.core.solve import solve, SolveResult
 from pmba_ros.init import two_view, view_graph
-from pmba_ros.init.pipeline import InitOptions, InitResult, global_init
+from pmba_ros.init.pipeline import global_init, InitOptions, InitResult
 
 
 @dataclass(frozen=True, slots=True)

@@ -25,13 +25,12 @@ from dataclasses import dataclass
 import logging
 
 import numpy as np
-import scipy.linalg
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.errors import InitError
 from pmba_ros.init.anchors import LinearizationFrames
+import scipy.linalg
 
 logger = logging.getLogger(__name__)
 

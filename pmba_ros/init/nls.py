@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import logging
 
 import numpy as np
-import scipy.linalg
-
 from pmba_ros._typing import BoolArray, FloatArray
-from pmba_ros.init.cls import LinearRays, accumulate_gradient, accumulate_normal_matrix
+from pmba_ros.init.cls import accumulate_gradient, accumulate_normal_matrix, LinearRays
+import scipy.linalg
 
 logger = logging.getLogger(__name__)
 
@@ -156,7 +155,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         if not accepted:
             converged = True
             break
-        logger.debug("NLS it %d cost %.6e lam %.1e", it, new_cost, lam)
+        logger.debug('NLS it %d cost %.6e lam %.1e', it, new_cost, lam)
         rel_dec = (cost - new_cost) / max(cost, 1e-300)
         rel_step = float(np.linalg.norm(step)) / max(float(np.linalg.norm(P[cams])), 1e-300)
         P, cost = P_new, new_cost

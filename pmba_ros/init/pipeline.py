@@ -47,19 +47,18 @@ import time
 from typing import Any
 
 import numpy as np
-
 from pmba_ros._json import to_jsonable
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import conversions
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import (
     BAProblem,
+    make_problem,
     ParallaxFeatures,
     Parameterization,
-    make_problem,
     subset_features,
 )
-from pmba_ros.core.solve import SolveOptions, SolveResult, SolverKind, solve
+from pmba_ros.core.solve import solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import InitError
 from pmba_ros.init import anchors, cls, nls, rotation_averaging, tracks, two_view, view_graph
 

@@ -20,12 +20,11 @@ side. The normal matrix A^T W A is factored once; each X_k is then projected ont
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.linalg import splu
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.errors import InitError
+from scipy.sparse import coo_matrix
+from scipy.sparse.linalg import splu
 
 
 def chordal_rotation_averaging(n_cams: int, root: int, cam_a: IntArray, cam_b: IntArray,

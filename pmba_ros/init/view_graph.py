@@ -8,11 +8,10 @@ test that discards EG pairs whose relative rotation disagrees with the tree.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
-
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 
 def largest_component(n_cams: int, cam_a: IntArray, cam_b: IntArray) -> BoolArray:

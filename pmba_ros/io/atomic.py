@@ -13,7 +13,7 @@ from contextlib import contextmanager
 import os
 from pathlib import Path
 import signal
-from typing import IO, Any
+from typing import Any, IO
 
 
 def temp_path(path: Path) -> Path:

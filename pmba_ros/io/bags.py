@@ -43,7 +43,7 @@ STORAGE_SUFFIXES = ('.mcap', '.db3')
 @lru_cache(maxsize=1)
 def jazzy_typestore() -> Any:
     """Return the pinned ROS 2 Jazzy rosbags typestore (``Stores.LATEST`` is Kilted)."""
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import get_typestore, Stores
     return get_typestore(Stores.ROS2_JAZZY)
 
 

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem

@@ -29,10 +29,9 @@ from dataclasses import dataclass, replace
 import logging
 from pathlib import Path
 import struct
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import Any, BinaryIO, TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.core import so3
 from pmba_ros.errors import FormatError

@@ -12,14 +12,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:
     from os import PathLike
 
     from numpy.typing import ArrayLike
-
     from pmba_ros._typing import FloatArray, IntArray
 
 logger = logging.getLogger(__name__)

@@ -6,7 +6,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:

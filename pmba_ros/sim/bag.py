@@ -27,18 +27,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.outputs import (
-    RosbagsBackend,
     make_camera_info,
     make_odometry,
     make_pose_stamped,
     make_tf,
     make_tracks,
+    RosbagsBackend,
 )
 from pmba_ros.backend.tracks import LAYOUTS
 from pmba_ros.core import so3

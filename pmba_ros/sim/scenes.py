@@ -25,7 +25,6 @@ import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
-
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.problem import BAProblem, make_problem

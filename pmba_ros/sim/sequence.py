@@ -37,7 +37,6 @@ from dataclasses import dataclass
 import logging
 
 import numpy as np
-
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.core import so3

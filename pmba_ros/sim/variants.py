@@ -26,7 +26,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
 from pmba_ros._typing import IntArray
 from pmba_ros.core.camera import Intrinsics, pixels_to_bearings
 from pmba_ros.core.problem import BAProblem, make_problem

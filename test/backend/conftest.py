@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import pytest
-from rosbags.typesys import Stores, get_typestore
-
 from pmba_ros.backend import outputs
+import pytest
+from rosbags.typesys import get_typestore, Stores
 
 
 @pytest.fixture(scope='module')

@@ -5,17 +5,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import pytest
-
 from pmba_ros.backend import outputs as out
-from pmba_ros.backend.extrinsics import Rigid, TransformTree, extrinsics_from_params
-from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
+from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.core import so3
 from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import Trajectory
 from pmba_ros.sim.bag import EUROC_CAM0
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
 
 from .test_logic import BACKEND, camera_info_msg, config, diag_values, last, tracks_msg
 

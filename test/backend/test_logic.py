@@ -12,11 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
-
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, TF_TOPIC, BackendLogic
+from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.backend.window import (
     KeyframeObs,
@@ -30,6 +28,7 @@ from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
 
 BACKEND = out.RosbagsBackend()
 OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
@@ -289,7 +288,7 @@ def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence)
 def test_deterministic_outputs_are_byte_identical(street: SimSequence) -> None:
     """Test: deterministic outputs are byte identical."""
     def serialized() -> list[bytes]:
-        """Serialized."""
+        """Return the serialized outputs of one run."""
         logic = BackendLogic(config(init_batch_size=10), BACKEND)
         return [BACKEND.serialize(m) for _, m in run(logic, street, 16)]
     assert serialized() == serialized()
@@ -312,7 +311,7 @@ def test_keyframes_as_tracks_without_frontend_poses(street: SimSequence) -> None
 
 
 def _counts(logic: BackendLogic, outputs: list[tuple[str, Any]]) -> dict[str, str]:
-    """Counts."""
+    """Return the count.* diagnostics values of the last diagnostics message."""
     return {k: v for k, v in diag_values(last(outputs, DIAGNOSTICS_TOPIC)).items()
             if k.startswith('count.')}
 
@@ -662,7 +661,7 @@ def test_sliding_memory_is_bounded(street: SimSequence) -> None:
 
 
 def _acceptance(street: SimSequence, **kwargs: Any) -> tuple[float, float, Any]:
-    """Acceptance."""
+    """Return the acceptance figures of a street run."""
     logic = BackendLogic(config(**kwargs), BACKEND)
     outputs = run(logic, street)
     path = last(outputs, 'pmba/path')

@@ -29,9 +29,8 @@ import sys
 import types
 from typing import Any
 
-import pytest
-
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
 
 from .test_logic import BACKEND, camera_info_msg, keyframe_msg, tracks_msg
 
@@ -412,9 +411,8 @@ def seq() -> SimSequence:
 
 def make(fake: FakeRclpy, **overrides: Any) -> Any:
     """Make."""
-    import rclpy as fake_rclpy
-
     from pmba_ros.node import PmbaNode
+    import rclpy as fake_rclpy
     node = fake_rclpy.create_node('pmba_node', parameter_overrides=overrides)
     return PmbaNode(node, start_worker=False)
 

@@ -12,13 +12,12 @@ import cv2
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
-import pytest
-from rosbags.rosbag2 import StoragePlugin, Writer
-
 from pmba_ros.backend import outputs
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 from ..conftest import run_python
 

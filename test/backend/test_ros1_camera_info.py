@@ -20,13 +20,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.rosbag1 import Writer
-from rosbags.typesys import Stores, get_typestore
-
 from pmba_ros.backend import outputs
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel
 from pmba_ros.io.bags import iter_messages
+from rosbags.rosbag1 import Writer
+from rosbags.typesys import get_typestore, Stores
 
 CAMERA = CameraModel(fx=458.654, fy=457.296, cx=367.215, cy=248.375,
                      distortion_model='plumb_bob',

@@ -9,15 +9,14 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-import pytest
-
-from pmba_ros.backend.logic import DIAGNOSTICS_TOPIC, BackendLogic
+from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.io.bags import iter_messages
-from pmba_ros.replay import ReplayReport, _collect_stats, replay
+from pmba_ros.replay import _collect_stats, replay, ReplayReport
 from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
 
 from .test_logic import BACKEND, camera_info_msg, config, diag_values, keyframe_msg, tracks_msg
 

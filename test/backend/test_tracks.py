@@ -10,13 +10,12 @@ from typing import Any
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
-import pytest
-from rosbags.rosbag2 import StoragePlugin, Writer
-
 from pmba_ros.backend import outputs
-from pmba_ros.backend.tracks import LAYOUTS, TrackMemory, parse_keyframe, parse_tracks, stamp_to_ns
+from pmba_ros.backend.tracks import LAYOUTS, parse_keyframe, parse_tracks, stamp_to_ns, TrackMemory
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 STAMP_NS = 1_700_000_123_456_789
 # (layout, num_cams) cases; per_point carries camera 0 only

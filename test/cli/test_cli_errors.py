@@ -11,11 +11,10 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
-
 from pmba_ros._json import dumps_report
 from pmba_ros.cli import main as cli_main
 from pmba_ros.cli.main import main
+import pytest
 
 
 def _one_error(capsys: pytest.CaptureFixture[str], *needles: str) -> str:

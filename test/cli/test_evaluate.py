@@ -7,13 +7,12 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 from pmba_ros.cli import evaluate as cli
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError, PmbaError
 from pmba_ros.eval.metrics import ALIGN_MODES, evaluate
-from pmba_ros.eval.trajectory import FORMATS, Trajectory, read_trajectory, write_tum
+from pmba_ros.eval.trajectory import FORMATS, read_trajectory, Trajectory, write_tum
+import pytest
 
 from ..conftest import SHARED_DATA as DATA
 

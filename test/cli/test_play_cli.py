@@ -23,15 +23,14 @@ import time
 from typing import Any
 
 import numpy as np
+from pmba_ros.backend import outputs as out
+from pmba_ros.cli.main import main
+from pmba_ros.io.bags import jazzy_typestore, open_writer
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-from pmba_ros.backend import outputs as out
-from pmba_ros.cli.main import main
-from pmba_ros.io.bags import jazzy_typestore, open_writer
 
 from ..ros_helpers import domain_id, isolate, isolated_env, spin_until
 

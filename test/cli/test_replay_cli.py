@@ -7,15 +7,14 @@ from pathlib import Path
 import subprocess
 import sys
 
-import pytest
-
 from pmba_ros import replay as replay_mod
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import list_topics
 from pmba_ros.io.bal import read_bal
+import pytest
 
 from ..conftest import shared_file
-from ..test_replay import StubLogic, _backend
+from ..test_replay import _backend, StubLogic
 
 
 @pytest.fixture
@@ -27,7 +26,7 @@ def stub(monkeypatch: pytest.MonkeyPatch) -> None:
 
 @pytest.fixture(scope='module')
 def sim_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 20-keyframe street written by the simulate verb."""
+    """Return a 20-keyframe street written by the simulate verb."""
     out = tmp_path_factory.mktemp('cli') / 'street'
     assert main(['simulate', '--scenario', 'street', '--keyframes', '20', '--seed', '1',
                  '--out', str(out)]) == 0

@@ -7,9 +7,8 @@ from pathlib import Path
 import subprocess
 import sys
 
-import pytest
-
 from pmba_ros.cli.main import main
+import pytest
 
 REPORT_KEYS = {'param', 'solver', 'converged', 'iterations', 'linear_solves', 'initial_cost',
                'final_cost', 'initial_rms_px', 'final_rms_px', 'time_s', 'history'}
@@ -99,7 +98,6 @@ def test_console_entry_point_runs() -> None:
 def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: str) -> None:
     """`pmba solve MODEL --out DIR` writes the refined COLMAP model (same frame) to DIR."""
     import numpy as np
-
     from pmba_ros.eval.align import umeyama_alignment
     from pmba_ros.io import colmap
     from pmba_ros.sim.scenes import street_scene
@@ -128,13 +126,13 @@ def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: st
 @pytest.mark.parametrize('init', ['file', 'global'])
 def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str) -> None:
     """`pmba solve bundle.out --out DIR` writes DIR/bundle.out with the refined cameras."""
-    import numpy as np
+    from test.io.test_bundler import _bundle_text
 
+    import numpy as np
     from pmba_ros.core.camera import Intrinsics, project
     from pmba_ros.core.problem import make_problem
     from pmba_ros.io import bundler
     from pmba_ros.sim.scenes import street_scene
-    from test.io.test_bundler import _bundle_text
 
     scene = street_scene(2, n_cams=8, n_points=300, far_fraction=0.0, jitter_m=0.3)
     p = scene.start

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import pytest
-
 from pmba_ros.cli.main import main
 from pmba_ros.core import kernels, warmup
+import pytest
 
 
 def test_warmup_verb_reports_the_loops_ready(capsys: pytest.CaptureFixture[str]) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.models import Model

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import Intrinsics, pixels_to_bearings, project
 from pmba_ros.core.models import IdpModel, XyzModel
 from pmba_ros.core.problem import XyzFeatures
+import pytest
 
 from .helpers import check_jacobians, forward_problem
 

@@ -5,10 +5,9 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import conversions
 from pmba_ros.core.problem import make_problem
+import pytest
 
 from .helpers import forward_problem
 

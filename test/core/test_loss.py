@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import kernels
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
+import pytest
 
 
 @pytest.mark.parametrize('loss', list(Loss))

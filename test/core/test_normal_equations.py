@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import conversions, kernels
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
-from pmba_ros.core.problem import XyzFeatures, make_problem, permute_features
+from pmba_ros.core.problem import make_problem, permute_features, XyzFeatures
 from pmba_ros.errors import SolverError
+import pytest
 
 from .helpers import forward_problem
 

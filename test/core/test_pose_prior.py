@@ -5,16 +5,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse
 from pmba_ros.core.problem import BAProblem, Parameterization
-from pmba_ros.core.solve import SolveOptions, SolveResult, SolverKind, solve
+from pmba_ros.core.solve import solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import ProblemError
 from pmba_ros.sim.scenes import street_scene
+import pytest
 
 
 def _prior(R: np.ndarray, P: np.ndarray, a: np.ndarray, b: np.ndarray, w_rot: float,

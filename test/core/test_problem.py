@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import ProblemError
+import pytest
 
 
 def _inputs(n_cams: int = 3):

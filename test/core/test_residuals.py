@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import conversions, kernels, so3, sphere
 from pmba_ros.core.models import ParallaxModel
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.core.residuals import observation_rays, pose_slots, ray_residuals
+import pytest
 
 from .helpers import check_jacobians, forward_problem
 

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
+import pytest
 
 BATCHES = [(), (1,), (3, 2)]
 

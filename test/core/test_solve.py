@@ -7,16 +7,15 @@ from typing import ClassVar
 from unittest import mock
 
 import numpy as np
-import pytest
-import scipy.optimize
-
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
-from pmba_ros.core.models import ParallaxModel, make_model
-from pmba_ros.core.problem import XyzFeatures, make_problem
-from pmba_ros.core.solve import SolveOptions, solve
+from pmba_ros.core.models import make_model, ParallaxModel
+from pmba_ros.core.problem import make_problem, XyzFeatures
+from pmba_ros.core.solve import solve, SolveOptions
 from pmba_ros.errors import ProblemError, SolverError
 from pmba_ros.sim.scenes import street_scene, table3_scene
+import pytest
+import scipy.optimize
 
 from ..conftest import run_python, shared_file
 
@@ -277,11 +276,11 @@ def test_solves_without_numba_installed() -> None:
     """Without numba (the optional `fast` extra) the numpy engine runs and converges."""
     run_python(
         "import sys; sys.modules['numba'] = None\n"   # import numba now raises ImportError
-        "from pmba_ros.core import kernels\n"
-        "assert not kernels.ENABLED\n"
-        "from pmba_ros.core.solve import SolveOptions, solve\n"
-        "from pmba_ros.sim.scenes import street_scene\n"
-        "r = solve(street_scene(seed=3, n_cams=8, n_points=150).start,"
-        " SolveOptions(max_iterations=50))\n"
-        "assert r.final_rms_px < 1.0, r.final_rms_px\n"
+        'from pmba_ros.core import kernels\n'
+        'assert not kernels.ENABLED\n'
+        'from pmba_ros.core.solve import SolveOptions, solve\n'
+        'from pmba_ros.sim.scenes import street_scene\n'
+        'r = solve(street_scene(seed=3, n_cams=8, n_points=150).start,'
+        ' SolveOptions(max_iterations=50))\n'
+        'assert r.final_rms_px < 1.0, r.final_rms_px\n'
         "assert 'numba' not in {m.split('.')[0] for m in sys.modules if sys.modules[m]}\n")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-
 from pmba_ros.core import so3, sphere
 
 

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from pmba_ros.core import jit, kernels, warmup
+import pytest
 
 from ..conftest import run_python
 

@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.errors import DegenerateGeometryError, EvaluationError
 from pmba_ros.eval.align import (
-    UmeyamaResult,
     align_se3,
     align_sim3,
     apply_alignment,
     umeyama_alignment,
+    UmeyamaResult,
 )
 from pmba_ros.eval.trajectory import Trajectory
+import pytest
 
 
 @pytest.fixture

@@ -8,20 +8,19 @@ import json
 from typing import Any
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError
-from pmba_ros.eval.align import UmeyamaResult, apply_alignment
+from pmba_ros.eval.align import apply_alignment, UmeyamaResult
 from pmba_ros.eval.metrics import (
-    EvalResult,
     associate,
     ate,
+    EvalResult,
     evaluate,
     match_stamps,
     rpe,
 )
-from pmba_ros.eval.trajectory import Trajectory, read_trajectory
+from pmba_ros.eval.trajectory import read_trajectory, Trajectory
+import pytest
 
 from ..conftest import SHARED_DATA as DATA
 

@@ -5,19 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError
 from pmba_ros.eval.trajectory import (
-    Trajectory,
     detect_format,
     read_euroc_csv,
     read_kitti,
     read_trajectory,
     read_tum,
+    Trajectory,
     write_tum,
 )
+import pytest
 
 from ..conftest import SHARED_DATA as DATA
 
@@ -192,7 +191,7 @@ def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
     ('1 2 3 4 5 6 7 8\n1 2 3\n', read_tum, r'bad\.txt:2: TUM lines need 8 values'),
     ('# c\n1 2 3 4 5 6 7 8 9\n', read_tum, r'bad\.txt:2: TUM lines need 8 values.*got 9'),
     ('1 2 3 4 abc 6 7 8\n', read_tum, r"bad\.txt:1: TUM column 5 is not a finite number: 'abc'"),
-    ('1 2 3 nan 0 0 0 1\n', read_tum, r"bad\.txt:1: TUM column 4 is not a finite number"),
+    ('1 2 3 nan 0 0 0 1\n', read_tum, r'bad\.txt:1: TUM column 4 is not a finite number'),
     ('1 2 3 4 0 0 0 0\n', read_tum, r'bad\.txt:1: TUM quaternion has zero norm'),
     ('# only a comment\n', read_tum, r'bad\.txt: no TUM poses found'),
     ('1,2,3,4,5,6,7\n', read_euroc_csv, r'bad\.txt:1: EuRoC CSV lines need at least 8'),

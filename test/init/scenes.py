@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import BAProblem, make_problem

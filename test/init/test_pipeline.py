@@ -4,19 +4,18 @@ from __future__ import annotations
 
 import json
 import logging
+from test.init.scenes import street_scene
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.core.problem import BAProblem, make_problem
-from pmba_ros.core.solve import SolveOptions, solve
+from pmba_ros.core.solve import solve, SolveOptions
 from pmba_ros.errors import InitError
 from pmba_ros.init import pipeline
-from pmba_ros.init.pipeline import STAGES, InitOptions, InitResult, global_init
+from pmba_ros.init.pipeline import global_init, InitOptions, InitResult, STAGES
 from pmba_ros.sim.scenes import shuffle_cameras
 from pmba_ros.sim.scenes import street_scene as sim_street
-from test.init.scenes import street_scene
+import pytest
 
 logger = logging.getLogger(__name__)
 
@@ -32,7 +31,7 @@ def _rotation_error_deg(R: np.ndarray, R_true: np.ndarray) -> np.ndarray:
 
 
 def _gt_start_cost(gt: BAProblem, res: InitResult) -> float:
-    """Final cost of PMBA started from the true poses and points, on the same sub-problem."""
+    """Return the final cost of PMBA from the true poses and points, same sub-problem."""
     ci, fi = res.camera_index, res.feature_index
     start = res.problem.with_poses(gt.R_wc[ci], gt.centers_w[ci]).with_points(gt.points_w[fi])
     return solve(start, res.solve.options).final_cost

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from test.init.scenes import street_scene
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import conversions, residuals
 from pmba_ros.core.problem import BAProblem, ParallaxFeatures
 from pmba_ros.init import anchors, cls, nls
-from test.init.scenes import street_scene
+import pytest
 
 
 @dataclass

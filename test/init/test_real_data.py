@@ -10,11 +10,10 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-import pytest
-
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import solve
-from pmba_ros.init.pipeline import InitResult, global_init
+from pmba_ros.init.pipeline import global_init, InitResult
+import pytest
 
 from ..conftest import shared_file
 
@@ -22,7 +21,7 @@ logger = logging.getLogger(__name__)
 
 
 def _rms_from_file(problem: BAProblem, res: InitResult, points_w: np.ndarray) -> float:
-    """Final RMS (px) of PMBA started from the file's poses and points, same sub-problem."""
+    """Return the final RMS (px) of PMBA from the file's poses and points, same sub-problem."""
     ci, fi = res.camera_index, res.feature_index
     start = res.problem.with_poses(problem.R_wc[ci], problem.centers_w[ci])
     start = start.with_points(points_w[fi])

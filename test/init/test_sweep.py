@@ -10,12 +10,11 @@ from __future__ import annotations
 import json
 import logging
 
-import pytest
-
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.init.assess import assess
 from pmba_ros.sim.scenes import street_scene
-from pmba_ros.sim.variants import VARIANTS, make_variants
+from pmba_ros.sim.variants import make_variants, VARIANTS
+import pytest
 
 from ..conftest import shared_file
 

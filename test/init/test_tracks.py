@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-
 from pmba_ros.init.tracks import check_tracks, track_residuals_px
 from pmba_ros.sim.scenes import street_scene
 from pmba_ros.sim.variants import outlier_tracks

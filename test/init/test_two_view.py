@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import itertools
+from test.init.scenes import street_scene
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.init import two_view
-from test.init.scenes import street_scene
+import pytest
 
 
 def _two_cameras(rng: np.random.Generator, n: int = 80, noise: float = 0.0,

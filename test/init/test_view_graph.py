@@ -5,11 +5,10 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.errors import InitError
 from pmba_ros.init import rotation_averaging, view_graph
+import pytest
 
 
 def _random_graph(rng: np.random.Generator, n_cams: int, p_edge: float,

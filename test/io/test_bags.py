@@ -6,9 +6,7 @@ from pathlib import Path
 import struct
 
 import numpy as np
-import pytest
-
-from pmba_ros.backend.outputs import RosbagsBackend, make_pose_stamped
+from pmba_ros.backend.outputs import make_pose_stamped, RosbagsBackend
 from pmba_ros.errors import BagError
 from pmba_ros.io.bags import (
     iter_messages,
@@ -17,6 +15,7 @@ from pmba_ros.io.bags import (
     open_writer,
     require_topics,
 )
+import pytest
 
 from ..conftest import shared_file
 

@@ -7,15 +7,14 @@ import re
 import time
 
 import numpy as np
-import pytest
-from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.bal import read_bal, write_bal
+import pytest
+from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
 from ..conftest import SHARED_DATA
 
@@ -154,7 +153,7 @@ def test_write_bal_without_points_raises(tmp_path: Path) -> None:
 
 
 def _valid_bal_lines() -> list[str]:
-    """A 2-camera, 2-point, 4-observation BAL file (lines 1-5 header + obs, 6-29 values)."""
+    """Return the lines of a 2-camera, 2-point, 4-observation BAL file (values from line 6)."""
     lines = ['2 2 4', '0 0 1.0 2.0', '1 0 -1.0 2.5', '0 1 3.0 -1.0', '1 1 2.0 0.5']
     cam = ['0.01', '0.02', '0.03', '0.1', '0.2', '-5.0', '500.0', '0.0', '0.0']
     lines += cam + cam

@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.core.solve import solve
@@ -14,6 +12,7 @@ from pmba_ros.errors import FormatError
 from pmba_ros.io import bundler
 from pmba_ros.io.bal import read_bal, write_bal
 from pmba_ros.sim.scenes import street_scene
+import pytest
 
 
 @pytest.fixture(scope='module')

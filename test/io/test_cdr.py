@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
-from pmba_ros.backend.outputs import RosbagsBackend, header_msg, pose_stamped_msgs
+from pmba_ros.backend.outputs import header_msg, pose_stamped_msgs, RosbagsBackend
 from pmba_ros.io import cdr
 from pmba_ros.io.bags import jazzy_typestore
+import pytest
 
 
 def _poses(n: int, frame: str, backend: RosbagsBackend, seed: int) -> list:

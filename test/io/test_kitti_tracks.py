@@ -5,23 +5,22 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.errors import FormatError
-from pmba_ros.eval.trajectory import Trajectory, read_kitti
+from pmba_ros.eval.trajectory import read_kitti, Trajectory
 from pmba_ros.io.kitti_tracks import (
     find_frame_offset,
     kitti_sequence,
     read_kitti_tracks,
 )
+import pytest
 
 from ..conftest import shared_file
 
 
 @pytest.fixture(scope='module')
 def kitti_dir() -> Path:
-    """The shared KITTI-00 track folder (skip when absent)."""
+    """Return the shared KITTI-00 track folder (skip when absent)."""
     return shared_file('kitti00_stereo_vo')
 
 

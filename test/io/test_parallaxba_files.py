@@ -7,8 +7,6 @@ import re
 import time
 
 import numpy as np
-import pytest
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project
@@ -20,6 +18,7 @@ from pmba_ros.io.parallaxba_files import (
     triangulate_points,
 )
 from pmba_ros.sim.scenes import street_scene, table3_scene
+import pytest
 
 from ..conftest import SHARED_DATA
 

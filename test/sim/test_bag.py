@@ -5,20 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 from pmba_ros.backend.tracks import parse_keyframe, parse_tracks
 from pmba_ros.backend.types import CameraModel
 from pmba_ros.errors import BagError
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.bags import iter_messages, list_topics
-from pmba_ros.sim.bag import SimTopics, groundtruth_path, write_sequence_bag
+from pmba_ros.sim.bag import groundtruth_path, SimTopics, write_sequence_bag
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
 
 
 @pytest.fixture(scope='module')
 def sequence() -> SimSequence:
-    """A short simulated street."""
+    """Return a short simulated street."""
     return simulate_sequence('street', n_keyframes=12, seed=3)
 
 

@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.core.camera import project
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.sim.scenes import (
-    SimScene,
     shuffle_cameras,
+    SimScene,
     street_scene,
     synthetic_large,
     table3_scene,
 )
+import pytest
 
 
 def reprojection_residuals_px(problem: BAProblem) -> FloatArray:

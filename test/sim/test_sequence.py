@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core import so3
 from pmba_ros.sim.sequence import (
+    observation_counts,
     SCENARIOS,
     SimSequence,
-    observation_counts,
     simulate_sequence,
     track_lengths,
 )
+import pytest
 
 
 @pytest.fixture(scope='module', params=SCENARIOS)

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 from pmba_ros.core.camera import pixels_to_bearings
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.errors import ProblemError
 from pmba_ros.sim import variants
 from pmba_ros.sim.scenes import street_scene
+import pytest
 
 
 @pytest.fixture(scope='module')
