@@ -26,3 +26,16 @@ def test_copyright():
     main = pytest.importorskip('ament_copyright.main').main
     rc = main(argv=['.', 'test'])
     assert rc == 0, 'Found errors'
+
+
+@pytest.mark.linter
+def test_every_source_has_the_license_header():
+    """Every Python source carries the Apache-2.0 header (our check where ament's is missing)."""
+    from pathlib import Path
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / 'scripts' / 'copyright_headers'
+    proc = subprocess.run([sys.executable, str(script), '--check'], capture_output=True,
+                          text=True, check=False)
+    assert proc.returncode == 0, 'files without the header:\n' + proc.stdout

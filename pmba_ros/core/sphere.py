@@ -1,3 +1,16 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """The unit sphere S^2 as the manifold of a feature's ray n (PMBA eqs. 3-4).
 
 A feature's direction n is updated as ``n <- Exp(A_n dn) n``, where ``A_n = [a1 a2]`` is a
