@@ -37,8 +37,8 @@ logger = logging.getLogger(__name__)
 _DPI = 120
 
 
-def _pyplot() -> Any:
-    """Import matplotlib's pyplot with the Agg backend.
+def pyplot() -> Any:
+    """Import matplotlib's pyplot with the Agg backend (a file back end, no display).
 
     Raises:
         PmbaError: If matplotlib is not installed.
@@ -69,7 +69,7 @@ def plot_top_view(path: Path, trajectories: Sequence[tuple[str, Trajectory]],
     Raises:
         PmbaError: If matplotlib is missing or the file cannot be written.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 6))
     styles = {'ground truth': ('k', '-', 2.0), 'front-end': ('tab:red', '--', 1.2),
               'optimized': ('tab:blue', '-', 1.2)}
@@ -127,7 +127,7 @@ def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabe
     Raises:
         PmbaError: If matplotlib is missing or the file cannot be written.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 3.5))
     colors = {'front-end': 'tab:red', 'optimized': 'tab:blue'}
     positive = False

@@ -524,8 +524,8 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
     report = ReplayReport(bags=bag_paths, out_dir=out)
     gt_traj = _read_gt(gt) if gt is not None else None
     if plot:
-        from pmba_ros.plot import _pyplot
-        _pyplot()  # fail before the replay if matplotlib is missing
+        from pmba_ros.plot import pyplot
+        pyplot()  # fail before the replay if matplotlib is missing
     inputs, counts = _select_inputs(bag_paths, config, intrinsics is not None, report.warnings)
     report.topics = {'tracks': inputs.tracks}
     if inputs.keyframes:

@@ -50,7 +50,7 @@ RESTRICTED = {
     'rosbags': {'io.bags', 'backend.outputs'},
     'mcap': {'io.bags'},
     'mcap_ros2': {'io.bags'},
-    'matplotlib': {'plot', 'cli.solve'},
+    'matplotlib': {'plot'},
 }
 
 

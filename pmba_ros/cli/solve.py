@@ -42,6 +42,7 @@ from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResul
 from pmba_ros.errors import DegenerateGeometryError, FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
+from pmba_ros.plot import pyplot
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
 COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
@@ -152,7 +153,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
         if args.out is None:
             msg = '--plot writes convergence.png into --out; give --out'
             raise FormatError(msg)
-        _pyplot()
+        pyplot()
 
 
 def _options(param: str, solver: str, args: argparse.Namespace) -> SolveOptions:
@@ -168,22 +169,6 @@ def _options(param: str, solver: str, args: argparse.Namespace) -> SolveOptions:
     except ValueError as err:
         msg = f'invalid solver options: {err}'
         raise FormatError(msg) from err
-
-
-def _pyplot() -> Any:
-    """Return matplotlib.pyplot (Agg backend).
-
-    Raises:
-        FormatError: If matplotlib is not installed.
-    """
-    try:
-        import matplotlib
-        matplotlib.use('Agg')
-        import matplotlib.pyplot as plt
-    except ImportError as err:
-        msg = 'plotting needs matplotlib: pip install "pmba_ros[plot]"'
-        raise FormatError(msg) from err
-    return plt
 
 
 def _detect_format(path: Path) -> str:
@@ -331,7 +316,7 @@ def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any]
         with atomic_open(out / f'points_{stem}.xyz') as fh:
             np.savetxt(fh, r.points_w[finite], fmt='%.9g')
     if plot:
-        plt = _pyplot()
+        plt = pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))
         for r in results:
             ax.semilogy([h.time_s for h in r.history], [h.rms_px for h in r.history], 'o-',

@@ -166,7 +166,7 @@ def test_plot_without_matplotlib_is_a_clear_error(monkeypatch: pytest.MonkeyPatc
 
     monkeypatch.setitem(sys.modules, 'matplotlib', None)
     with pytest.raises(PmbaError, match=r'--plot needs matplotlib.*pip install'):
-        plot._pyplot()
+        plot.pyplot()
 
 
 def test_import_tracks_writes_kitti_bag(tmp_path: Path) -> None:
