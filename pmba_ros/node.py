@@ -142,9 +142,11 @@ def declare_config(node: Any) -> BackendConfig:
     descriptions = parameter_descriptions()
     values = {}
     for f in fields(BackendConfig):
-        values[f.name] = node.declare_parameter(
+        value = node.declare_parameter(
             f.name, getattr(defaults, f.name),
             parameter_descriptor(f.name, descriptions.get(f.name, ''))).value
+        # An empty list in a parameter file has no type: rclpy leaves such a parameter unset.
+        values[f.name] = getattr(defaults, f.name) if value is None else value
     return BackendConfig.from_params(values)
 
 
