@@ -68,9 +68,8 @@ _SCHUR_BATCH = 4096
 #: than in one product per delta (Python calls).
 LOOP_MIN_FEATURES = 64
 #: Dense Schur products when they take fewer multiply-adds than this many times the per-pair
-#: ones. Measured on 20-pose sliding windows: the street's (ratio about 1,100, 7 observations
-#: per feature) solve faster dense, KITTI-00's (about 4,500, 3.4 observations per feature)
-#: 25 % faster per pair.
+#: ones: long tracks (many observations per feature) favour the dense products, short ones
+#: the per-pair path (chosen on the street's and KITTI-00's 20-pose windows).
 DENSE_SCHUR_RATIO = 2500
 #: Above this many free pose columns the reduced system is solved as a sparse matrix.
 DENSE_LIMIT = 6000
