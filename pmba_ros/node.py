@@ -675,6 +675,10 @@ _CLOCK_PERIOD_S = 0.025
 _CLOCK_BACKEND = out.RclpyBackend()
 
 
+#: Seconds between a publisher seeing its subscribers and the first message of ``pmba play``.
+_MATCH_SETTLE_S = 0.5
+
+
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
                   rate: float = 1.0, clock: bool = False, delay_s: float = 0.0,
                   wait_for_subscribers_s: float = 0.0, ros_args: list[str] | None = None,
@@ -733,6 +737,10 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         while time.monotonic() < deadline and not all(
                 p.get_subscription_count() for p in publishers.values()):
             time.sleep(0.02)
+        if wait_for_subscribers_s > 0:
+            # The writer sees the reader before the reader has matched the writer; a sample
+            # sent in between is dropped by a volatile reader, so give the other side time.
+            time.sleep(_MATCH_SETTLE_S)
         start: tuple[float, int] | None = None
         for topic, t_ns, raw in messages:
             if start is None:

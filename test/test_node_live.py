@@ -211,6 +211,8 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         wait_until_up(listener, node, log)
         assert spin_until(listener.executor, lambda: min(
             p.get_subscription_count() for p in pubs) > 0, timeout_s=30.0)
+        # The node's readers match these writers a little after the writers see them.
+        spin_until(listener.executor, lambda: False, timeout_s=0.5)
         period = float(np.median(np.diff(seq.stamps_ns))) * 1e-9
         t0 = time.monotonic()
         for i in range(len(seq)):
