@@ -16,7 +16,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+import contextlib
 import itertools
 import os
 import time
@@ -58,3 +59,25 @@ def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float = 
         if condition():
             return True
     return False
+
+
+@contextlib.contextmanager
+def isolated_node(monkeypatch: Any, name: str) -> Iterator[tuple[int, Any, Any]]:
+    """Yield ``(domain, executor, node)``: a node in its own context on a fresh domain."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    domain = domain_id()
+    isolate(monkeypatch, domain)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    executor = SingleThreadedExecutor(context=context)
+    node = rclpy.create_node(name, context=context)
+    executor.add_node(node)
+    try:
+        yield domain, executor, node
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)

@@ -38,12 +38,11 @@ from pmba_ros.cli.main import main as pmba
 from pmba_ros.core import so3
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
-import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from .ros_helpers import domain_id, isolate, isolated_env, spin_until
+from .ros_helpers import isolated_env, isolated_node, spin_until
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'pmba.yaml'
@@ -98,23 +97,15 @@ def listener(monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
     from nav_msgs.msg import Odometry
     from nav_msgs.msg import Path as PathMsg
 
-    domain = domain_id()
-    isolate(monkeypatch, domain)
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    executor = SingleThreadedExecutor(context=context)
-    node = rclpy.create_node('live_listener', context=context)
-    executor.add_node(node)
-    result = Listener(context, executor, node, {'path': [], 'odom': [], 'diag': []})
-    result.domain = domain  # type: ignore[attr-defined]
-    node.create_subscription(PathMsg, '/pmba/path', result.got['path'].append, RELIABLE)
-    node.create_subscription(Odometry, '/pmba/odometry', result.got['odom'].append, RELIABLE)
-    node.create_subscription(DiagnosticArray, '/diagnostics', result.got['diag'].append,
-                             RELIABLE)
-    yield result
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.shutdown(context=context)
+    with isolated_node(monkeypatch, 'live_listener') as (domain, executor, node):
+        result = Listener(node.context, executor, node, {'path': [], 'odom': [], 'diag': []})
+        result.domain = domain  # type: ignore[attr-defined]
+        node.create_subscription(PathMsg, '/pmba/path', result.got['path'].append, RELIABLE)
+        node.create_subscription(Odometry, '/pmba/odometry', result.got['odom'].append,
+                                 RELIABLE)
+        node.create_subscription(DiagnosticArray, '/diagnostics', result.got['diag'].append,
+                                 RELIABLE)
+        yield result
 
 
 def stop(proc: subprocess.Popen[str], sig: int, log: Path) -> tuple[float, str]:

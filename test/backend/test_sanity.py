@@ -119,16 +119,22 @@ def test_front_end_pose_jump_is_not_followed(street: SimSequence) -> None:
     assert _warned(outputs, 'keyframe_pose_jumps')
 
 
-def test_random_tracks_after_keyframe_20_are_flagged(street: SimSequence) -> None:
-    """Tracks replaced by random pixels: the exploding cost is a counted WARN."""
-    rng = np.random.default_rng(1)
+def _random_tracks_after(street: SimSequence, first: int, seed: int) -> list[TrackFrame]:
+    """Return the street's frames with random pixels from keyframe ``first`` on."""
+    rng = np.random.default_rng(seed)
     frames = list(street.frames)
-    for i in range(20, len(frames)):
+    for i in range(first, len(frames)):
         f = frames[i]
         xy = rng.uniform(-0.6, 0.6, size=(len(f), 2))
         frames[i] = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids,
                                street.camera.fx * xy + [street.camera.cx, street.camera.cy],
                                xy)
+    return frames
+
+
+def test_random_tracks_after_keyframe_20_are_flagged(street: SimSequence) -> None:
+    """Tracks replaced by random pixels: the exploding cost is a counted WARN."""
+    frames = _random_tracks_after(street, 20, seed=1)
     logic, outputs = _run(street, frames)
     assert logic.stats.counters['cost_explosions'] >= 5
     warned = _warned(outputs, 'cost_explosions')
@@ -170,14 +176,7 @@ def test_suspect_counters_become_report_warnings() -> None:
 def test_replay_of_random_tracks_warns_in_report_and_diagnostics(street: SimSequence,
                                                                  tmp_path: Path) -> None:
     """Garbage tracks in a bag: report.json has the warning, result.mcap WARN diagnostics."""
-    rng = np.random.default_rng(2)
-    frames = list(street.frames)
-    for i in range(20, len(frames)):
-        f = frames[i]
-        xy = rng.uniform(-0.6, 0.6, size=(len(f), 2))
-        frames[i] = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids,
-                               street.camera.fx * xy + [street.camera.cx, street.camera.cy],
-                               xy)
+    frames = _random_tracks_after(street, 20, seed=2)
     bag = tmp_path / 'random.mcap'
     write_sequence_bag(dataclasses.replace(street, frames=frames), bag)
     out = tmp_path / 'o'

@@ -27,12 +27,9 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import jazzy_typestore, open_writer
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from ..ros_helpers import domain_id, isolate, isolated_env, spin_until
+from ..ros_helpers import domain_id, isolated_env, isolated_node, spin_until
 
 RATE = 2.0
 KEYFRAME_PERIOD_S = 0.1     # pmba simulate's default --rate-hz 10
@@ -60,43 +57,34 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import PointCloud
 
-    domain = domain_id()
-    isolate(monkeypatch, domain)
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    executor = SingleThreadedExecutor(context=context)
-    node = rclpy.create_node('play_listener', context=context)
-    executor.add_node(node)
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    got: dict[str, list[tuple[float, Any]]] = {'kf': [], 'tracks': [], 'clock': []}
-    node.create_subscription(Odometry, '/keyframe_pose',
-                             lambda m: got['kf'].append((time.monotonic(), m)), qos)
-    node.create_subscription(PointCloud, '/vins/feature',
-                             lambda m: got['tracks'].append((time.monotonic(), m)), qos)
-    node.create_subscription(Clock, '/clock',
-                             lambda m: got['clock'].append((time.monotonic(), m)), qos)
-    proc = play([str(sim_bag), '--rate', str(RATE), '--clock', '--wait-for-subscribers', '30',
-                 '--topics', '/features', '/keyframe_pose', '--remap',
-                 '/features:=/vins/feature'], domain)
-    try:
-        assert spin_until(executor, lambda: proc.poll() is not None, timeout_s=60.0)
-        spin_until(executor, lambda: len(got['kf']) == 12, timeout_s=2.0)
-        stdout, stderr = proc.communicate()
-        assert proc.returncode == 0, stderr
-        assert 'played 24 messages on 2 topics' in stdout
-        assert len(got['kf']) == len(got['tracks']) == 12
-        gaps = np.diff([t for t, _ in got['kf']])
-        assert abs(float(np.median(gaps)) - KEYFRAME_PERIOD_S / RATE) < 0.02
-        stamps = [m.clock.sec + m.clock.nanosec * 1e-9 for _, m in got['clock']]
-        assert len(stamps) > 12 and np.all(np.diff(stamps) >= 0)
-        first_kf = got['kf'][0][1].header.stamp
-        assert abs(stamps[0] - (first_kf.sec + first_kf.nanosec * 1e-9)) < 0.1
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+    with isolated_node(monkeypatch, 'play_listener') as (domain, executor, node):
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        got: dict[str, list[tuple[float, Any]]] = {'kf': [], 'tracks': [], 'clock': []}
+        node.create_subscription(Odometry, '/keyframe_pose',
+                                 lambda m: got['kf'].append((time.monotonic(), m)), qos)
+        node.create_subscription(PointCloud, '/vins/feature',
+                                 lambda m: got['tracks'].append((time.monotonic(), m)), qos)
+        node.create_subscription(Clock, '/clock',
+                                 lambda m: got['clock'].append((time.monotonic(), m)), qos)
+        proc = play([str(sim_bag), '--rate', str(RATE), '--clock', '--wait-for-subscribers', '30',
+                     '--topics', '/features', '/keyframe_pose', '--remap',
+                     '/features:=/vins/feature'], domain)
+        try:
+            assert spin_until(executor, lambda: proc.poll() is not None, timeout_s=60.0)
+            spin_until(executor, lambda: len(got['kf']) == 12, timeout_s=2.0)
+            stdout, stderr = proc.communicate()
+            assert proc.returncode == 0, stderr
+            assert 'played 24 messages on 2 topics' in stdout
+            assert len(got['kf']) == len(got['tracks']) == 12
+            gaps = np.diff([t for t, _ in got['kf']])
+            assert abs(float(np.median(gaps)) - KEYFRAME_PERIOD_S / RATE) < 0.02
+            stamps = [m.clock.sec + m.clock.nanosec * 1e-9 for _, m in got['clock']]
+            assert len(stamps) > 12 and np.all(np.diff(stamps) >= 0)
+            first_kf = got['kf'][0][1].header.stamp
+            assert abs(stamps[0] - (first_kf.sec + first_kf.nanosec * 1e-9)) < 0.1
+        finally:
+            if proc.poll() is None:
+                proc.kill()
 
 
 def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
