@@ -373,30 +373,48 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             return
         if damage is not None:
             damage._span = (int(reader.start_time), int(reader.end_time))
-        stream = reader.messages(connections=conns, start=start)
-        while True:
-            try:
-                conn, t_ns, raw = next(stream)
-            except StopIteration:
-                return
-            except errors as err:
-                msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
-                if damage is None:
-                    raise BagError(msg) from err
-                damage._pending = msg
-                return
-            try:
-                msg_obj = reader.deserialize(raw, conn.msgtype)
-            except errors as err:
-                msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message on '
-                       f'{conn.topic} at {t_ns} ns: {_error_text(err)}')
-                if damage is None:
-                    raise BagError(msg) from err
-                logger.debug('%s; skipped', msg)
-                damage.undecodable += 1
-                damage.first_undecodable = damage.first_undecodable or msg
-                continue
-            yield BagMessage(conn.topic, conn.msgtype, int(t_ns), msg_obj)
+        try:
+            for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
+                try:
+                    msg_obj = reader.deserialize(raw, conn.msgtype)
+                except errors as err:
+                    msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message '
+                           f'on {conn.topic} at {t_ns} ns: {_error_text(err)}')
+                    if damage is None:
+                        raise BagError(msg) from err
+                    logger.debug('%s; skipped', msg)
+                    damage.undecodable += 1
+                    damage.first_undecodable = damage.first_undecodable or msg
+                    continue
+                yield BagMessage(conn.topic, conn.msgtype, t_ns, msg_obj)
+        except _CorruptStorage as err:
+            if damage is None:
+                raise
+            damage._pending = str(err)
+
+
+class _CorruptStorage(BagError):
+    """The storage itself could not be read on (as opposed to one undecodable message)."""
+
+
+def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
+                  start: int | None = None) -> Iterator[tuple[Any, int, bytes]]:
+    """Yield ``(connection, log_time_ns, raw bytes)`` of an open reader in log-time order.
+
+    Raises:
+        _CorruptStorage: If the storage is corrupt or truncated.
+    """
+    errors = _reader_errors()
+    stream = reader.messages(connections=conns, start=start)
+    while True:
+        try:
+            conn, t_ns, raw = next(stream)
+        except StopIteration:
+            return
+        except errors as err:
+            msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
+            raise _CorruptStorage(msg) from err
+        yield conn, int(t_ns), raw
 
 
 class BagWriter:
@@ -569,18 +587,9 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
         msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; convert '
                'it first: rosbags-convert --src BAG --dst FOLDER')
         raise BagError(msg)
-    errors = _reader_errors()
     with _any_reader(checked) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
-        stream = reader.messages(connections=conns)
-        while True:
-            try:
-                conn, t_ns, raw = next(stream)
-            except StopIteration:
-                return
-            except errors as err:
-                msg = f'{_describe(checked)}: bag is corrupt or truncated: {_error_text(err)}'
-                raise BagError(msg) from err
-            yield conn.topic, int(t_ns), bytes(raw)
+        for conn, t_ns, raw in _raw_messages(reader, conns, checked):
+            yield conn.topic, t_ns, bytes(raw)
