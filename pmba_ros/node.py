@@ -676,7 +676,7 @@ _CLOCK_BACKEND = out.RclpyBackend()
 
 
 #: Seconds between a publisher seeing its subscribers and the first message of ``pmba play``.
-_MATCH_SETTLE_S = 0.5
+MATCH_SETTLE_S = 2.0
 
 
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
@@ -739,8 +739,9 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
             time.sleep(0.02)
         if wait_for_subscribers_s > 0:
             # The writer sees the reader before the reader has matched the writer; a sample
-            # sent in between is dropped by a volatile reader, so give the other side time.
-            time.sleep(_MATCH_SETTLE_S)
+            # sent in between is dropped by a volatile reader. There is no API to see the
+            # reader's side, so give it time, generously: discovery is slow on a loaded machine.
+            time.sleep(MATCH_SETTLE_S)
         start: tuple[float, int] | None = None
         for topic, t_ns, raw in messages:
             if start is None:

@@ -36,6 +36,7 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.cli.main import main as pmba
 from pmba_ros.core import so3
+from pmba_ros.node import MATCH_SETTLE_S
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 from rclpy.context import Context
@@ -202,8 +203,9 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         wait_until_up(listener, node, log)
         assert spin_until(listener.executor, lambda: min(
             p.get_subscription_count() for p in pubs) > 0, timeout_s=30.0)
-        # The node's readers match these writers a little after the writers see them.
-        spin_until(listener.executor, lambda: False, timeout_s=0.5)
+        # The node's readers match these writers a little after the writers see them (as in
+        # ``pmba play``).
+        spin_until(listener.executor, lambda: False, timeout_s=MATCH_SETTLE_S)
         period = float(np.median(np.diff(seq.stamps_ns))) * 1e-9
         t0 = time.monotonic()
         for i in range(len(seq)):
