@@ -98,46 +98,47 @@ class RelativePosePrior:
         """Return the number of factors."""
         return int(self.a.shape[0])
 
+    def evaluate(self, R: FloatArray, P: FloatArray) -> PriorEvaluation:
+        """Return the factors' residuals and cost at poses (R, P), with what linearizing reuses."""
+        Ra = R[self.a]
+        RaT_Rb = np.swapaxes(Ra, 1, 2) @ R[self.b]
+        omega = so3.log(np.swapaxes(self.R_ab, 1, 2) @ RaT_Rb)   # log(R_ab^T R_a^T R_b)
+        rel_t = np.einsum('mji,mj->mi', Ra, P[self.b] - P[self.a])
+        r = np.empty((len(self), 6))
+        np.multiply(self.w_rot[:, None], omega, out=r[:, :3])
+        np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab, out=r[:, 3:])
+        return PriorEvaluation(r, 0.5 * float(np.sum(r * r)), Ra, RaT_Rb, omega, rel_t)
+
     def residuals(self, R: FloatArray, P: FloatArray) -> FloatArray:
         """Return the weighted residuals, shape (M, 6): rotation, then translation."""
-        Ra, Rb = R[self.a], R[self.b]
-        E = np.einsum('mji,mkj,mkl->mil', self.R_ab, Ra, Rb)  # R_ab^T R_a^T R_b
-        rel_t = np.einsum('mji,mj->mi', Ra, P[self.b] - P[self.a])
-        return np.concatenate([self.w_rot[:, None] * so3.log(E),
-                               np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab)],
-                              axis=1)
+        return self.evaluate(R, P).residuals
 
     def cost(self, R: FloatArray, P: FloatArray) -> float:
         """Return 1/2 |r|^2 (the solver's cost convention)."""
         if len(self) == 0:
             return 0.0
-        r = self.residuals(R, P)
-        return 0.5 * float(np.sum(r * r))
+        return self.evaluate(R, P).cost
+
+    def jacobian(self, ev: PriorEvaluation) -> FloatArray:
+        """Return d r / d [dphi_a, dP_a, dphi_b, dP_b] at an evaluation, shape (M, 6, 12)."""
+        M = len(self)
+        J = np.zeros((M, 6, 12))
+        rot = self.w_rot[:, None, None] * right_jacobian_inverse(ev.omega)
+        J[:, :3, :3] = -rot @ np.swapaxes(ev.RaT_Rb, 1, 2)
+        J[:, :3, 6:9] = rot
+        W_RaT = self.W_trans @ np.swapaxes(ev.Ra, 1, 2)
+        J[:, 3:, :3] = self.W_trans @ so3.hat(ev.rel_t)
+        J[:, 3:, 3:6] = -W_RaT
+        J[:, 3:, 9:] = W_RaT
+        return J
 
     def jacobians(self, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Return d r / d [dphi_a, dP_a] and d r / d [dphi_b, dP_b], each (M, 6, 6)."""
-        Ra, Rb = R[self.a], R[self.b]
-        E = np.einsum('mji,mkj,mkl->mil', self.R_ab, Ra, Rb)
-        Jinv = right_jacobian_inverse(so3.log(E))
-        rel_t = np.einsum('mji,mj->mi', Ra, P[self.b] - P[self.a])
-        RaT = np.swapaxes(Ra, 1, 2)
-        M = len(self)
-        Ja = np.zeros((M, 6, 6))
-        Jb = np.zeros((M, 6, 6))
-        Ja[:, :3, :3] = -Jinv @ np.swapaxes(Rb, 1, 2) @ Ra
-        Jb[:, :3, :3] = Jinv
-        Ja[:, 3:, :3] = so3.hat(rel_t)
-        Ja[:, 3:, 3:] = -RaT
-        Jb[:, 3:, 3:] = RaT
-        Ja[:, :3] *= self.w_rot[:, None, None]
-        Jb[:, :3] *= self.w_rot[:, None, None]
-        Ja[:, 3:] = self.W_trans @ Ja[:, 3:]
-        Jb[:, 3:] = self.W_trans @ Jb[:, 3:]
-        return Ja, Jb
+        J = self.jacobian(self.evaluate(R, P))
+        return J[:, :, :6], J[:, :, 6:]
 
-    def add_to(self, structure: SchurStructure, eqs: NormalEquations, R: FloatArray,
-               P: FloatArray, free_block: IntArray) -> NormalEquations:
-        """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r added.
+    def bind(self, structure: SchurStructure, free_block: IntArray) -> PriorAssembly:
+        """Return where the factors' J^T J and J^T r blocks go in a problem's equations.
 
         Fixed poses contribute no columns. A cross block H_ab is added where (a, b) is a
         covisible pair of the structure (consecutive keyframes of a window are); elsewhere
@@ -145,18 +146,8 @@ class RelativePosePrior:
 
         Args:
             structure: The problem's Schur structure.
-            eqs: Normal equations of the observations.
-            R: Rotations of the problem's poses, (n_cams, 3, 3).
-            P: Centres, (n_cams, 3).
             free_block: Pose -> block index (-1 for fixed poses).
         """
-        if len(self) == 0:
-            return eqs
-        r = self.residuals(R, P)
-        Ja, Jb = self.jacobians(R, P)
-        ba, bb = free_block[self.a], free_block[self.b]
-        U = eqs.U.copy()
-        g = eqs.g_pose.copy()
         nb = structure.n_blocks
         keys = structure.pair_rows.astype(np.int64) * nb + structure.pair_cols
         order = np.argsort(keys)
@@ -170,16 +161,94 @@ class RelativePosePrior:
             found = (len(sorted_keys) > 0) & (sorted_keys[pos] == want) & (lo >= 0)
             return np.where(found, order[pos], -1)
 
-        for blocks, J in ((ba, Ja), (bb, Jb)):
+        ba, bb = free_block[self.a], free_block[self.b]
+        factor = np.arange(len(self))
+        # Blocks [side_row, side_col] of each factor's 12x12 J^T J (side 0: pose a, 1: b),
+        # in the order the diagonal blocks of a, of b and the cross blocks are added.
+        parts: list[tuple[IntArray, IntArray, IntArray, IntArray]] = []
+        grads: list[tuple[IntArray, IntArray, IntArray]] = []
+        for side, blocks in ((0, ba), (1, bb)):
             free = blocks >= 0
-            diag = pair_of(blocks[free], blocks[free])
-            np.add.at(U, diag, np.swapaxes(J[free], 1, 2) @ J[free])
-            np.add.at(g, blocks[free], np.einsum('mji,mj->mi', J[free], r[free]))
+            f = factor[free]
+            parts.append((f, np.full(f.shape, side), np.full(f.shape, side),
+                          pair_of(blocks[free], blocks[free])))
+            grads.append((f, np.full(f.shape, side), blocks[free]))
         both = (ba >= 0) & (bb >= 0)
         cross = pair_of(ba[both], bb[both])
         has = cross >= 0
-        H_ab = np.swapaxes(Ja[both][has], 1, 2) @ Jb[both][has]   # rows a, columns b
-        upper = (ba[both] <= bb[both])[has]
-        np.add.at(U, cross[has], np.where(upper[:, None, None], H_ab,
-                                          np.swapaxes(H_ab, 1, 2)))
+        f = factor[both][has]
+        upper = (ba <= bb)[f]   # stored with the lower block index as the row block
+        parts.append((f, np.where(upper, 0, 1), np.where(upper, 1, 0), cross[has]))
+        f_h, row, col, target = (np.concatenate(x) for x in zip(*parts, strict=True))
+        f_g, side_g, block_g = (np.concatenate(x) for x in zip(*grads, strict=True))
+        return PriorAssembly(self, f_h, row, col, target, f_g, side_g, block_g)
+
+    def add_to(self, structure: SchurStructure, eqs: NormalEquations, R: FloatArray,
+               P: FloatArray, free_block: IntArray) -> NormalEquations:
+        """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r added (see :meth:`bind`).
+
+        Args:
+            structure: The problem's Schur structure.
+            eqs: Normal equations of the observations.
+            R: Rotations of the problem's poses, (n_cams, 3, 3).
+            P: Centres, (n_cams, 3).
+            free_block: Pose -> block index (-1 for fixed poses).
+        """
+        if len(self) == 0:
+            return eqs
+        return self.bind(structure, free_block).add_to(eqs, self.evaluate(R, P))
+
+
+@dataclass(frozen=True, eq=False)
+class PriorEvaluation:
+    """The factors at one pose estimate.
+
+    Attributes:
+        residuals: Weighted residuals (M, 6): rotation, then translation.
+        cost: 1/2 |residuals|^2.
+        Ra: Rotations of the poses a (M, 3, 3).
+        RaT_Rb: R_a^T R_b (M, 3, 3).
+        omega: log(R_ab^T R_a^T R_b) (M, 3).
+        rel_t: R_a^T (P_b - P_a) (M, 3).
+    """
+
+    residuals: FloatArray
+    cost: float
+    Ra: FloatArray
+    RaT_Rb: FloatArray
+    omega: FloatArray
+    rel_t: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class PriorAssembly:
+    """A prior bound to one problem's Schur structure (:meth:`RelativePosePrior.bind`).
+
+    Attributes:
+        prior: The factors.
+        h_factor, h_row, h_col, h_pair: Block (h_row, h_col) of factor h_factor's J^T J
+            (side 0: pose a, 1: pose b) is added to the upper pair block h_pair of U.
+        g_factor, g_side, g_block: Side g_side of factor g_factor's J^T r is added to the
+            gradient of pose block g_block.
+    """
+
+    prior: RelativePosePrior
+    h_factor: IntArray
+    h_row: IntArray
+    h_col: IntArray
+    h_pair: IntArray
+    g_factor: IntArray
+    g_side: IntArray
+    g_block: IntArray
+
+    def add_to(self, eqs: NormalEquations, ev: PriorEvaluation) -> NormalEquations:
+        """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
+        M = len(self.prior)
+        J = self.prior.jacobian(ev)
+        H = (np.swapaxes(J, 1, 2) @ J).reshape(M, 2, 6, 2, 6)
+        grad = np.einsum('mji,mj->mi', J, ev.residuals).reshape(M, 2, 6)
+        U = eqs.U.copy()
+        g = eqs.g_pose.copy()
+        np.add.at(U, self.h_pair, H[self.h_factor, self.h_row, :, self.h_col, :])
+        np.add.at(g, self.g_block, grad[self.g_factor, self.g_side])
         return NormalEquations(U, eqs.W, eqs.V, g, eqs.g_feat)

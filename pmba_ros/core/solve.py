@@ -38,7 +38,7 @@ from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
 from pmba_ros.core.models import Evaluation, make_model, Model
-from pmba_ros.core.pose_prior import RelativePosePrior
+from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
@@ -266,6 +266,7 @@ class _State:
     feats: Any
     cost: float
     evaluation: Evaluation
+    prior: PriorEvaluation | None = None
 
 
 class _Linearized:
@@ -273,15 +274,15 @@ class _Linearized:
 
     def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray,
-                 prior: tuple[RelativePosePrior, np.ndarray] | None = None) -> None:
+                 prior: PriorAssembly | None = None) -> None:
         lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
         if loss is not Loss.NONE and kernels.ENABLED:
             kernels.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
         elif loss is not Loss.NONE:
             lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
         eqs = ne.assemble(structure, lin)
-        if prior is not None:
-            eqs = prior[0].add_to(structure, eqs, state.R_wc, state.centers_w, prior[1])
+        if prior is not None and state.prior is not None:
+            eqs = prior.add_to(eqs, state.prior)
         d_pose, d_feat = ne.diagonal(structure, eqs)
         if jacobi:
             self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
@@ -393,18 +394,22 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
     loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
 
-    prior_cost = pose_prior.cost if pose_prior is not None else (lambda R, P: 0.0)
-    prior = (pose_prior, free_block) if pose_prior is not None and len(pose_prior) else None
+    # The prior's residuals at a state serve its cost and, once the state is accepted, its
+    # linearization; where its blocks go in the equations is found once per solve.
+    factors = pose_prior if pose_prior is not None and len(pose_prior) else None
+    prior = factors.bind(structure, free_block) if factors is not None else None
 
     def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
         ev = model.evaluate(R, P, feats)
+        pe = factors.evaluate(R, P) if factors is not None else None
+        prior_cost = pe.cost if pe is not None else 0.0
         if kernels.ENABLED:
             return _State(R, P, feats, kernels.robust_cost(ev.residuals, options.loss.value,
-                                                           loss_scale) + prior_cost(R, P), ev)
+                                                           loss_scale) + prior_cost, ev, pe)
         if not np.all(np.isfinite(ev.residuals)):
-            return _State(R, P, feats, math.inf, ev)
+            return _State(R, P, feats, math.inf, ev, pe)
         return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale)
-                      + prior_cost(R, P), ev)
+                      + prior_cost, ev, pe)
 
     def norm_of(state: _State) -> float:
         """|x| of the parameters (rotations count 1 each), for the parameter tolerance."""

@@ -21,6 +21,7 @@ import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
+from pmba_ros.core.normal_equations import NormalEquations, SchurStructure
 from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import solve, SolveOptions, SolveResult, SolverKind
@@ -76,6 +77,44 @@ def test_jacobians_match_central_differences() -> None:
                 del Rp, Pp
             num = (np.array(plus) - np.array(minus)) / (2 * h)
             np.testing.assert_allclose(J[:, :, col], num, atol=2e-6, err_msg=f'{sel} col {col}')
+
+
+def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks() -> None:
+    """add_to adds J^T J and J^T r of the stacked factors to the structure's blocks.
+
+    Pose 0 is fixed (no columns); the factor (1, 3) joins poses that share no feature, so its
+    cross block is left out and only its diagonal blocks are added.
+    """
+    rng = np.random.default_rng(2)
+    n = 5
+    R = so3.exp(rng.normal(0, 1.0, (n, 3)))
+    P = rng.normal(0, 3.0, (n, 3))
+    a, b = np.array([0, 1, 2, 3, 3]), np.array([1, 2, 3, 1, 4])
+    prior = _prior(R, P, a, b, 7.0, 3.0, noise=0.2)
+    cam = np.array([0, 1, 1, 2, 2, 3, 3, 4])
+    feat = np.repeat(np.arange(4), 2)
+    free_block = np.array([-1, 0, 1, 2, 3])
+    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 4, free_block)
+    n_pairs = st.pair_rows.shape[0]
+    zero = NormalEquations(np.zeros((n_pairs, 6, 6)), np.zeros((8, 6, 3)), np.zeros((4, 3, 3)),
+                           np.zeros((4, 6)), np.zeros((4, 3)))
+    eqs = prior.add_to(st, zero, R, P, free_block)
+
+    Ja, Jb = prior.jacobians(R, P)
+    J = np.zeros((len(prior), 6, 4, 6))           # dense Jacobian over the free blocks
+    for m in range(len(prior)):
+        for pose, Jm in ((a[m], Ja[m]), (b[m], Jb[m])):
+            if free_block[pose] >= 0:
+                J[m, :, free_block[pose]] = Jm
+    J_flat = J.reshape(6 * len(prior), 24)
+    H = (J_flat.T @ J_flat).reshape(4, 6, 4, 6)
+    np.testing.assert_allclose(eqs.g_pose.ravel(), J_flat.T @ prior.residuals(R, P).ravel(),
+                               rtol=1e-12, atol=1e-9)
+    pairs = set(zip(st.pair_rows.tolist(), st.pair_cols.tolist(), strict=True))
+    assert (0, 2) not in pairs and (0, 1) in pairs     # poses 1 and 3: blocks 0 and 2
+    for p, (r, c) in enumerate(zip(st.pair_rows, st.pair_cols, strict=True)):
+        np.testing.assert_allclose(eqs.U[p], H[r, :, c, :], rtol=1e-12, atol=1e-9,
+                                   err_msg=f'pair ({r}, {c})')
 
 
 def test_bad_factors_are_rejected() -> None:
