@@ -19,6 +19,7 @@ Run::
     python benchmarks/bench_replay.py --modes sliding global   # global mode too (slow)
     python benchmarks/bench_replay.py --keyframes 500 --no-kitti --check
     python benchmarks/bench_replay.py --max-iterations 2 1    # iteration budget per solve
+    python benchmarks/bench_replay.py --no-kitti --repeat 5   # 5 replays a row, medians
 
 For each case it writes the bag, replays it (global and/or sliding mode) and prints the
 front-end and optimized ATE (Sim(3)-aligned RMSE), their ratio, and the throughput as a
@@ -26,6 +27,8 @@ multiple of real time (bag duration / replay wall time; the street runs at 10 ke
 with the replay's CPU time (process time) as a load-independent figure. A warm-up replay of
 30 keyframes runs first, so that every row measures steady-state throughput. ``--max-iterations``
 adds a row per Dogleg budget per keyframe solve (the node's ``max_iterations``; default 2).
+``--repeat N`` replays each row N times and prints each run, then the median and range of
+wall time, CPU time and speed (on a shared machine the CPU time is the steadier figure).
 ``--check`` exits non-zero unless the street's optimized ATE is at most 30 % of the
 front-end's and the replay runs at least 10x faster than real time. The solver's compiled
 loops are used when numba is installed; ``PMBA_NUMBA=0`` measures the numpy engine.
@@ -39,6 +42,7 @@ import sys
 import tempfile
 import time
 
+import numpy as np
 from pmba_ros._process import tune_process
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.replay import replay, ReplayReport
@@ -60,6 +64,16 @@ def _row(name: str, mode: str, report: ReplayReport, cpu_s: float) -> str:
             f'{cpu_s:>8.2f}{report.realtime_factor:>8.2f}x')
 
 
+def _spread(runs: list[tuple[float, float, float]]) -> str:
+    """Return the median and range of wall s, CPU s and speed over repeated replays."""
+    cols = np.array(runs)
+    med = np.median(cols, axis=0)
+    lo, hi = cols.min(axis=0), cols.max(axis=0)
+    return (f'{"  median (range)":<30}wall {med[0]:.2f} ({lo[0]:.2f}-{hi[0]:.2f}) s, '
+            f'cpu {med[1]:.2f} ({lo[1]:.2f}-{hi[1]:.2f}) s, '
+            f'speed {med[2]:.2f}x ({lo[2]:.2f}-{hi[2]:.2f}x) over {len(runs)} replays')
+
+
 def main() -> int:
     """Run the benchmark and print the table."""
     tune_process()
@@ -71,6 +85,8 @@ def main() -> int:
     parser.add_argument('--max-iterations', nargs='+', type=int,
                         default=[BackendConfig().max_iterations])
     parser.add_argument('--no-kitti', action='store_true')
+    parser.add_argument('--repeat', type=int, default=1, metavar='N',
+                        help='replays per row (median and range printed)')
     parser.add_argument('--check', action='store_true')
     args = parser.parse_args()
     header = (f'{"case":<18}{"mode, its":<12}{"kf_in":>6}{"kf_out":>7}{"ATE fe":>11}'
@@ -96,9 +112,16 @@ def main() -> int:
         configs = [(f'{mode} {its}', BackendConfig(mode=mode, max_iterations=its))
                    for mode in args.modes for its in args.max_iterations]
         for label, config in configs:
-            cpu0 = time.process_time()
-            report = replay([street], root / 'street_out', config, gt=groundtruth_path(street))
-            print(_row(f'street {args.keyframes}', label, report, time.process_time() - cpu0))
+            runs = []
+            for _ in range(max(1, args.repeat)):
+                cpu0 = time.process_time()
+                report = replay([street], root / 'street_out', config,
+                                gt=groundtruth_path(street))
+                cpu = time.process_time() - cpu0
+                runs.append((report.wall_s, cpu, report.realtime_factor))
+                print(_row(f'street {args.keyframes}', label, report, cpu))
+            if len(runs) > 1:
+                print(_spread(runs))
             acc = report.accuracy or {}
             if (acc.get('ate_ratio') or 1.0) > 0.3 or report.realtime_factor < 10.0:
                 ok = False
