@@ -69,7 +69,13 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.pose_prior import RelativePosePrior
-from pmba_ros.core.problem import BAProblem, make_problem, Parameterization, subset_features
+from pmba_ros.core.problem import (
+    BAProblem,
+    make_problem,
+    Parameterization,
+    Rig,
+    subset_features,
+)
 from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 from pmba_ros.errors import InitError, PmbaError
 
@@ -133,6 +139,30 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
+        self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
+
+    def set_rig_camera(self, camera: int, rotation: FloatArray, translation: FloatArray) -> None:
+        """Use observations of front-end camera ``camera`` (other than ``camera_id``).
+
+        Args:
+            camera: Front-end camera id, in [0, num_cams).
+            rotation: Its rotation in the reference camera's frame, R_ref,cam (3, 3).
+            translation: Its centre in the reference camera's frame (3,), m.
+        """
+        self._rig_offsets[int(camera)] = (np.asarray(rotation, dtype=float),
+                                          np.asarray(translation, dtype=float))
+
+    def _rig(self) -> Rig | None:
+        """Return the rig of the reference and the configured cameras, or None (monocular)."""
+        ref = self.config.camera_id
+        if not any(c != ref for c in self._rig_offsets):
+            return None
+        R = np.tile(np.eye(3), (self.config.num_cams, 1, 1))
+        t = np.zeros((self.config.num_cams, 3))
+        for cam, (R_c, t_c) in self._rig_offsets.items():
+            if cam != ref:
+                R[cam], t[cam] = R_c, t_c
+        return Rig(R, t)
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -241,8 +271,9 @@ class Estimator:
         first, newest = int(batch[0]), int(batch[-1])
         pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
         best = 0
+        ref = self.config.camera_id
         for a, b in pairs:
-            obs_a, obs_b = self.kf.obs[a], self.kf.obs[b]
+            obs_a, obs_b = self.kf.obs[a].of_camera(ref), self.kf.obs[b].of_camera(ref)
             shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
             if shared.shape[0] < max(_MIN_SHARED_FOR_PARALLAX, best):
                 continue
@@ -251,18 +282,29 @@ class Estimator:
         return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
-                       R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
-        """Build a problem over keyframes ``cams``; returns it and its feature ids."""
-        local, ids, bearings, xy = gather_observations(self.kf, cams, feature_filter)
+                       R: FloatArray, C: FloatArray, all_cameras: bool = True,
+                       ) -> tuple[BAProblem, IntArray]:
+        """Build a problem over keyframes ``cams``; returns it and its feature ids.
+
+        With configured cameras besides the reference one (and ``all_cameras``) the problem
+        has a :class:`~pmba_ros.core.problem.Rig`: one pose per keyframe (the reference
+        camera's), every camera's observations through its offset. The pixels are nominal
+        (the reference camera's pinhole on each camera's normalized coordinates).
+        """
+        rig = self._rig() if all_cameras else None
+        local, ids, bearings, xy, camera = gather_observations(
+            self.kf, cams, feature_filter, self.config.camera_id, rig is not None)
         if self.config.max_observations_per_feature and feature_filter is not None:
             keep = thin_tracks(ids, local, self.config.max_observations_per_feature)
             local, ids, bearings, xy = local[keep], ids[keep], bearings[keep], xy[keep]
+            camera = camera[keep]
         uniq, feat_idx = np.unique(ids, return_inverse=True)
         pixels = np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
         intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)
         problem = make_problem(R, C, intr, local, feat_idx.astype(np.int64), pixels,
                                bearings_c=bearings, fixed=fixed, n_feats=uniq.shape[0],
-                               feature_ids=uniq)
+                               feature_ids=uniq, camera=None if rig is None else camera,
+                               rig=rig)
         return problem, uniq
 
     def _initialize(self, batch: IntArray) -> UpdateInfo:
@@ -271,7 +313,8 @@ class Estimator:
         cfg = self.config
         M = batch.shape[0]
         problem, _ = self._build_problem(batch, np.zeros(M, bool), None,
-                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)))
+                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)),
+                                         all_cameras=False)
         opts = InitOptions(solve_options=SolveOptions(
             param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
             max_iterations=cfg.init_max_iterations,

@@ -43,17 +43,28 @@ class KeyframeStatus(IntEnum):
 
 @dataclass(frozen=True, eq=False)
 class KeyframeObs:
-    """Observations of one keyframe (camera ``camera_id`` only).
+    """Observations of one keyframe.
 
     Attributes:
-        ids: Feature ids, shape (K,), unique.
-        bearings: Unit bearings in the camera frame, shape (K, 3).
+        ids: Feature ids, shape (K,), unique per camera.
+        bearings: Unit bearings in the observing camera's frame, shape (K, 3).
         normalized: Normalized undistorted coordinates (x/z, y/z), shape (K, 2).
+        camera: Front-end camera id of each observation, shape (K,), or None: all of the
+            reference camera (``camera_id``, whose frame the keyframe poses are in).
     """
 
     ids: IntArray
     bearings: FloatArray
     normalized: FloatArray
+    camera: IntArray | None = None
+
+    def of_camera(self, camera: int) -> KeyframeObs:
+        """Return the observations of one camera (all of them without camera ids)."""
+        if self.camera is None:
+            return self
+        sel = self.camera == camera
+        return KeyframeObs(self.ids[sel], self.bearings[sel], self.normalized[sel],
+                           self.camera[sel])
 
 
 class KeyframeStore:
@@ -263,21 +274,37 @@ def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
 
 
 def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,
-                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+                        reference: int = 0, all_cameras: bool = True,
+                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray, IntArray]:
     """Concatenate the observations of keyframes ``cams`` (optionally of some features only).
 
+    Args:
+        store: The keyframes.
+        cams: Keyframes to gather.
+        feature_filter: Feature ids to keep, or None for all.
+        reference: The reference camera (of observations without camera ids).
+        all_cameras: Every camera's observations (False: the reference camera's only).
+
     Returns:
-        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2).
+        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2) and
+        front-end camera id (K,).
     """
     parts = [store.obs[int(c)] for c in cams]
+    if not all_cameras:
+        parts = [p.of_camera(reference) for p in parts]
     local = np.repeat(np.arange(len(parts)), [p.ids.shape[0] for p in parts])
     ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
+    camera = np.concatenate(
+        [p.camera if p.camera is not None
+         else np.full(p.ids.shape[0], reference, dtype=np.int64) for p in parts]
+    ) if parts else np.zeros(0, np.int64)
     if feature_filter is not None:
         keep = np.isin(ids, feature_filter)
         local, ids, bearings, pixels = local[keep], ids[keep], bearings[keep], pixels[keep]
-    return local.astype(np.int64), ids, bearings, pixels
+        camera = camera[keep]
+    return local.astype(np.int64), ids, bearings, pixels, camera.astype(np.int64)
 
 
 def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntArray,
