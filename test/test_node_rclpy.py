@@ -30,8 +30,11 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.core import so3
 from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.sim.bag import EUROC_CAM0
+from pmba_ros.sim.rig import add_camera, EUROC_CAM1
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 import rclpy
@@ -337,10 +340,6 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
     """camera_info_topics: one subscription per camera id; camera 1's observations are used."""
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, PointCloud
-
-    from pmba_ros.backend.extrinsics import Rigid
-    from pmba_ros.sim.bag import EUROC_CAM0
-    from pmba_ros.sim.rig import add_camera, EUROC_CAM1
 
     T_c0c1 = EUROC_CAM0.inverse() @ EUROC_CAM1
     stereo = add_camera(seq, T_c0c1, camera_id=1)
