@@ -143,7 +143,9 @@ class ReplayReport:
         wall_s: Wall time of the replay, s.
         accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
         extrinsic: The body -> camera transform used (``source``: 'parameters', 'tf',
-            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw).
+            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw);
+            with a rig, ``rig_cameras``: each other camera's source and pose in the
+            reference camera's frame.
         complete: False if the replay stopped early or the input was incomplete.
         error: The error that stopped it, if any.
         warnings: Non-fatal problems.
@@ -834,6 +836,16 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     if extrinsic is not None:
         report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),
                             'body_to_camera': [round(v, 9) for v in extrinsic.to_flat()]}
+        report.extrinsic |= _rig_report(getattr(logic, 'rig_cameras', {}))
+
+
+def _rig_report(rig_cameras: dict[int, tuple[Any, str]]) -> dict[str, Any]:
+    """Return the report entry of the other cameras used: pose in the reference camera."""
+    if not rig_cameras:
+        return {}
+    return {'rig_cameras': {str(cam): {'source': source, 'in_reference_camera': [
+        round(v, 9) for v in offset.to_flat()]} for cam, (offset, source)
+        in sorted(rig_cameras.items())}}
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',

@@ -67,6 +67,10 @@ def test_stereo_replay_is_metric_and_beats_the_front_end(stereo_bag: Path,
     assert data['keyframes_not_optimized'] == 0
     assert 'other_camera_observations' not in data['counters']
     assert data['extrinsic']['source'] == 'tf'
+    rig = data['extrinsic']['rig_cameras']['1']
+    assert rig['source'] == 'tf'
+    np.testing.assert_allclose(rig['in_reference_camera'],
+                               (EUROC_CAM0.inverse() @ EUROC_CAM1).to_flat(), atol=1e-8)
 
     gt = read_tum(groundtruth_path(stereo_bag))
     optimized = read_tum(out / 'keyframes_optimized.tum')

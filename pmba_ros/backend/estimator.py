@@ -140,6 +140,7 @@ class Estimator:
         self._failures = 0
         self._metric_scale = 1.0
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
+        self._odom_cov: FloatArray | None = None
 
     def set_rig_camera(self, camera: int, rotation: FloatArray, translation: FloatArray) -> None:
         """Use observations of front-end camera ``camera`` (other than ``camera_id``).
@@ -171,7 +172,8 @@ class Estimator:
     # --- public update -------------------------------------------------------------------
 
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
-                     obs: KeyframeObs | None) -> UpdateInfo:
+                     obs: KeyframeObs | None, odom_covariance: FloatArray | None = None,
+                     ) -> UpdateInfo:
         """Add a keyframe and update the estimate.
 
         Every keyframe with a front-end pose gets a map pose: before the first initialization
@@ -182,23 +184,26 @@ class Estimator:
             stamp_ns: Keyframe stamp, ns (strictly increasing; the caller checks).
             odom: Front-end pose (R_wc (3, 3), centre (3,)) in the odom frame, or None.
             obs: Its observations, or None / too few for a keyframe without tracks.
+            odom_covariance: The front-end pose's covariance (6, 6: position, rotation; in
+                the odom frame), or None; weighs the motion prior (:meth:`_motion_prior`).
 
         Returns:
             What the update did.
         """
+        self._odom_cov = odom_covariance
         n_obs = 0 if obs is None else int(obs.ids.shape[0])
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
             if not usable:
                 return self._pass_through(stamp_ns, odom)
-            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED)
+            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED, self._odom_cov)
             if odom is not None:
                 self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
         R0, C0 = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE)
+        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = R0, C0
         info = self._refine()
         info.keyframe = i
@@ -217,7 +222,7 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without enough observations or '
                               'front-end pose before initialization')
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
         return UpdateInfo('passed_through', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -412,7 +417,7 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without tracks or front-end pose')
         R, C = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = R, C
         return UpdateInfo('dead_reckoned', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -529,7 +534,36 @@ class Estimator:
                        + w_dir[:, None, None] * (np.eye(3) - P_along))
         w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
                         if cfg.motion_prior_rotation_rad > 0 else 0.0)
+        self._covariance_weights(a, b, W_trans, w_rot)
         return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
+
+    def _covariance_weights(self, a: IntArray, b: IntArray, W_trans: FloatArray,
+                            w_rot: FloatArray) -> None:
+        """Weigh the factors a -> b by the front-end's pose covariances where they are usable.
+
+        The covariance a step adds is taken as ``Sigma_b - Sigma_a`` (a front-end's
+        covariance grows by what each step adds); where both keyframes have a covariance
+        and that difference is positive definite, it replaces the parameter sigmas:
+        translation ``W = Sigma_t^(-1/2)`` in the frame of a (times the map scale), rotation
+        ``1 / sqrt(trace(Sigma_r) / 3)``. Parts switched off by their parameter stay off;
+        other factors keep the parameter weights. In place.
+        """
+        kf = self.kf
+        both = np.flatnonzero(kf.has_cov[a] & kf.has_cov[b])
+        if both.shape[0] == 0:
+            return
+        Q = kf.cov_odom[b[both]] - kf.cov_odom[a[both]]
+        R_a = kf.R_odom[a[both]]
+        Q_t = np.einsum('nji,njk,nkl->nil', R_a, Q[:, :3, :3], R_a) * self._metric_scale ** 2
+        lam, V = np.linalg.eigh(0.5 * (Q_t + np.swapaxes(Q_t, 1, 2)))
+        q_rot = np.trace(Q[:, 3:, 3:], axis1=1, axis2=2) / 3.0
+        scale = np.max(np.abs(Q), axis=(1, 2))
+        pd = (lam[:, 0] > 1e-12 * scale) & (q_rot > 0)
+        if self.config.motion_prior_translation_rel > 0:
+            W = np.einsum('nij,nj,nkj->nik', V, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), V)
+            W_trans[both[pd]] = W[pd]
+        if self.config.motion_prior_rotation_rad > 0:
+            w_rot[both[pd]] = 1.0 / np.sqrt(q_rot[pd])
 
     def _motion_error(self, idx: IntArray) -> float:
         """Median relative error of the map's keyframe-to-keyframe translations vs odom's.

@@ -377,7 +377,8 @@ class BackendLogic:
             self._base_frame = self.config.base_frame or kf.pose.child_frame_id or 'base_link'
         try:
             obs = self._observations(frame) if frame is not None else None
-            info = self.estimator.add_keyframe(kf.stamp_ns, odom, obs)
+            info = self.estimator.add_keyframe(
+                kf.stamp_ns, odom, obs, None if kf.pose is None else kf.pose.covariance)
         except Exception as err:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)

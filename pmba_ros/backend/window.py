@@ -80,12 +80,15 @@ class KeyframeStore:
         self.R_odom = np.tile(np.eye(3), (cap, 1, 1))
         self.C_odom = np.zeros((cap, 3))
         self.has_odom = np.zeros(cap, dtype=bool)
+        self.cov_odom = np.zeros((cap, 6, 6))
+        self.has_cov = np.zeros(cap, dtype=bool)
         self.status = np.zeros(cap, dtype=np.int8)
         self.obs: dict[int, KeyframeObs] = {}
 
     def _grow(self) -> None:
         cap = 2 * self.stamps_ns.shape[0]
-        for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'status'):
+        for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'cov_odom',
+                     'has_cov', 'status'):
             old = getattr(self, name)
             new = np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
             new[:old.shape[0]] = old
@@ -94,8 +97,9 @@ class KeyframeStore:
             setattr(self, name, new)
 
     def add(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
-            obs: KeyframeObs | None, status: KeyframeStatus) -> int:
-        """Append a keyframe and return its index."""
+            obs: KeyframeObs | None, status: KeyframeStatus,
+            covariance: FloatArray | None = None) -> int:
+        """Append a keyframe and return its index (``covariance``: of its front-end pose)."""
         if self.n == self.stamps_ns.shape[0]:
             self._grow()
         i = self.n
@@ -103,6 +107,8 @@ class KeyframeStore:
         if odom is not None:
             self.R_odom[i], self.C_odom[i] = odom
             self.has_odom[i] = True
+            if covariance is not None:
+                self.cov_odom[i], self.has_cov[i] = covariance, True
         self.status[i] = status
         if obs is not None:
             self.obs[i] = obs
