@@ -15,11 +15,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 import json
 from pathlib import Path
 
 import numpy as np
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.types import TrackFrame
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
@@ -102,3 +104,20 @@ def test_camera_without_camera_info_is_counted_and_unused(stereo_bag: Path,
     assert report.keyframes_out == 60
     assert data['counters']['other_camera_observations'] > 1000
     assert any("'/missing/info' of camera 1" in w for w in data['warnings'])
+
+
+def test_pixel_only_tracks_use_each_cameras_camera_info(tmp_path: Path) -> None:
+    """PointCloud2 tracks with pixels only: each camera's pixels go through its CameraInfo."""
+    seq = simulate_sequence('street', n_keyframes=40, seed=3)
+    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
+    frames = [TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids, f.pixels, None)
+              for f in seq.frames]
+    bag = tmp_path / 'bag'
+    write_sequence_bag(replace(seq, frames=frames), bag, layout='named', extrinsic=EUROC_CAM0,
+                       rig_extrinsics=[EUROC_CAM1])
+    config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS, feature_layout='named')
+    report = replay([bag], tmp_path / 'out', config, gt=groundtruth_path(bag), align='se3')
+    data = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert 'other_camera_observations' not in data['counters']
+    assert '1' in data['extrinsic']['rig_cameras']
+    assert report.accuracy is not None and report.accuracy['ate_ratio'] < 0.3

@@ -454,15 +454,15 @@ class BackendLogic:
         sel = np.isin(frame.camera_ids, list(usable))
         self.count('other_camera_observations', int(np.count_nonzero(~sel)))
         cams = frame.camera_ids[sel]
+        models = {c: m for c, m in usable.items() if m is not None}
         if frame.normalized is not None:
             xy = frame.normalized[sel]
-        elif frame.pixels is not None and all(usable.get(int(c)) is not None
-                                              for c in np.unique(cams)):
+        elif frame.pixels is not None and all(c in models for c in np.unique(cams).tolist()):
             pixels = frame.pixels[sel]
             xy = np.empty_like(pixels)
             for cam in np.unique(cams).tolist():
                 on = cams == cam
-                xy[on] = usable[int(cam)].normalize(pixels[on])  # type: ignore[union-attr]
+                xy[on] = models[cam].normalize(pixels[on])
         else:
             msg = 'tracks without normalized coordinates need a CameraInfo'
             raise MessageError(msg)
