@@ -281,10 +281,7 @@ class PmbaNode:
                                      self._enqueuer('tracks'),
                                      input_qos(cfg.features_qos, cfg),
                                      qos_overriding_options=overrides),
-            node.create_subscription(_msg_type('sensor_msgs/msg/CameraInfo'),
-                                     cfg.camera_info_topic, self._enqueuer('camera_info'),
-                                     input_qos(cfg.camera_info_qos, cfg),
-                                     qos_overriding_options=overrides),
+            *self._subscribe_camera_infos(overrides),
         ]
         if cfg.keyframe_source == 'keyframe_topic':
             self.subscriptions.append(node.create_subscription(
@@ -439,6 +436,23 @@ class PmbaNode:
         with self._counts_lock:
             self._received[kind] += 1
 
+    def _subscribe_camera_infos(self, overrides: Any) -> list[Any]:
+        """Subscribe to ``camera_info_topic``, or to each of ``camera_info_topics`` (a rig).
+
+        The reference camera's messages are queued as ``camera_info``, camera c's as
+        ``camera_info.c``.
+        """
+        cfg = self.config
+        topics = cfg.camera_info_topics or (cfg.camera_info_topic,)
+        subs = []
+        for cam, topic in enumerate(topics):
+            kind = ('camera_info' if not cfg.camera_info_topics or cam == cfg.camera_id
+                    else f'camera_info.{cam}')
+            subs.append(self.node.create_subscription(
+                _msg_type('sensor_msgs/msg/CameraInfo'), topic, self._enqueuer(kind),
+                input_qos(cfg.camera_info_qos, cfg), qos_overriding_options=overrides))
+        return subs
+
     def _enqueuer(self, kind: str) -> Any:
         def callback(msg: Any) -> None:
             self._enqueue(kind, msg)
@@ -516,6 +530,8 @@ class PmbaNode:
             self.logic.on_keyframe(msg)
         elif kind == 'tf':
             self.logic.on_tf(msg)
+        elif kind.startswith('camera_info.'):
+            self.logic.on_camera_info(msg, int(kind.split('.', 1)[1]))
         else:
             self.logic.on_camera_info(msg)
 
@@ -622,6 +638,8 @@ class PmbaNode:
             'map_to_odom_sent': self._sent['map_to_odom']}
         for kind in ('tracks', 'keyframe', 'camera_info'):
             values[f'received.{kind}'] = received.get(kind, 0)
+        for kind in sorted(k for k in received if k.startswith('camera_info.')):
+            values[f'received.{kind}'] = received[kind]
         array = out.make_diagnostics(self.node.get_clock().now().nanoseconds,
                                      NODE_DIAGNOSTICS_NAME, level, message, values,
                                      self.backend)

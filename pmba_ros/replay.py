@@ -48,6 +48,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+import functools
 import heapq
 import logging
 import math
@@ -142,7 +143,9 @@ class ReplayReport:
         wall_s: Wall time of the replay, s.
         accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
         extrinsic: The body -> camera transform used (``source``: 'parameters', 'tf',
-            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw).
+            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw);
+            with a rig, ``rig_cameras``: each other camera's source and pose in the
+            reference camera's frame.
         complete: False if the replay stopped early or the input was incomplete.
         error: The error that stopped it, if any.
         warnings: Non-fatal problems.
@@ -335,6 +338,31 @@ def _select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
     return _Input(tracks, keyframes, camera_info, tf), counts
 
 
+def _rig_camera_infos(bags: Sequence[Path], config: Any, warnings: list[str],
+                      counts: dict[str, int]) -> dict[str, int]:
+    """Return the recorded ``camera_info_topics`` of a rig: topic -> camera id.
+
+    A missing topic leaves its camera unused (its observations are counted as
+    ``other_camera_observations``), with a warning. ``counts`` gets each topic's message
+    count.
+    """
+    if not config.camera_info_topics:
+        return {}
+    topics = list_topics(bags)
+    found: dict[str, int] = {}
+    for cam, name in enumerate(config.camera_info_topics):
+        topic = _find_topic(resolve_topic(name), topics)
+        if topic is not None and topics[topic].msgtype in CAMERA_INFO_TYPES:
+            found[topic] = cam
+            counts[topic] = topics[topic].count
+        else:
+            text = (f'camera info topic {resolve_topic(name)!r} of camera {cam} is not in the '
+                    'bag: that camera is not used')
+            logger.warning(text)
+            warnings.append(text)
+    return found
+
+
 def _stamp_ns(msg: Any, fallback: int) -> int:
     """Return a message's header stamp in ns (``fallback`` if it has no header)."""
     try:
@@ -404,6 +432,7 @@ class _Run:
         self.total = total
         self.first_stamp: int | None = None
         self.last_stamp = 0
+        self.camera_ids: dict[str, int] = {}   # CameraInfo topic of a rig -> camera id
         self.tracks_accepted = 0
         self.tracks_rejected = 0
         self.first_error: str | None = None
@@ -419,6 +448,8 @@ class _Run:
             report.keyframes_in += 1
         handler = getattr(self.logic, {'camera_info': 'on_camera_info', 'tracks': 'on_tracks',
                                        'keyframe': 'on_keyframe', 'tf': 'on_tf'}[kind])
+        if message.topic in self.camera_ids:
+            handler = functools.partial(handler, camera_id=self.camera_ids[message.topic])
         before = self._rejections()
         try:
             handler(message.msg)
@@ -539,6 +570,11 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
         kinds[inputs.camera_info] = 'camera_info'
     for topic in inputs.tf:
         kinds[topic] = 'tf'
+    camera_ids = _rig_camera_infos(bag_paths, config, report.warnings, counts)
+    for topic in camera_ids:
+        kinds[topic] = 'camera_info'
+    if camera_ids:
+        report.topics['camera_info'] = ', '.join(camera_ids)
     if inputs.tf:
         report.topics['tf'] = ', '.join(inputs.tf)
     report.messages_announced = sum(counts.values())
@@ -550,7 +586,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
     with output_lock(out):
         _remove_outputs(out)
         _run_and_write(config, intrinsics, report, bag_paths, kinds, inputs, out,
-                       _Outputs(gt_traj, plot, align, t_start), progress)
+                       _Outputs(gt_traj, plot, align, t_start, camera_ids), progress)
     return report
 
 
@@ -562,6 +598,7 @@ class _Outputs:
     plot: bool
     align: str
     t_start: float
+    camera_ids: dict[str, int] = field(default_factory=dict)
 
 
 def _run_and_write(config: Any, intrinsics: Sequence[float] | None, report: ReplayReport,
@@ -580,6 +617,7 @@ def _run_and_write(config: Any, intrinsics: Sequence[float] | None, report: Repl
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
             run = _Run(logic, writer, report, progress, report.messages_announced,
                        keyframe_kind)
+            run.camera_ids = outputs.camera_ids
             damage = ReadStats()
             stream = iter_messages(bag_paths, topics=list(kinds), damage=damage)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
@@ -798,6 +836,16 @@ def _collect_stats(logic: Any, report: ReplayReport) -> None:
     if extrinsic is not None:
         report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),
                             'body_to_camera': [round(v, 9) for v in extrinsic.to_flat()]}
+        report.extrinsic |= _rig_report(getattr(logic, 'rig_cameras', {}))
+
+
+def _rig_report(rig_cameras: dict[int, tuple[Any, str]]) -> dict[str, Any]:
+    """Return the report entry of the other cameras used: pose in the reference camera."""
+    if not rig_cameras:
+        return {}
+    return {'rig_cameras': {str(cam): {'source': source, 'in_reference_camera': [
+        round(v, 9) for v in offset.to_flat()]} for cam, (offset, source)
+        in sorted(rig_cameras.items())}}
 
 
 def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',

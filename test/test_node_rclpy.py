@@ -30,8 +30,11 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.core import so3
 from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.sim.bag import EUROC_CAM0
+from pmba_ros.sim.rig import add_camera, EUROC_CAM1
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 import rclpy
@@ -331,3 +334,53 @@ def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path:
     finally:
         wrapper.close()
         client_node.destroy_node()
+
+
+def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
+    """camera_info_topics: one subscription per camera id; camera 1's observations are used."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, PointCloud
+
+    T_c0c1 = EUROC_CAM0.inverse() @ EUROC_CAM1
+    stereo = add_camera(seq, T_c0c1, camera_id=1)
+    context, executor = ros
+    node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
+        Parameter('num_cams', value=2), Parameter('init_batch_size', value=10),
+        Parameter('camera_info_topics', value=['camera_info', 'cam1/camera_info']),
+        Parameter('camera_extrinsics', value=Rigid.identity().to_flat() + T_c0c1.to_flat())])
+    wrapper = PmbaNode(node, start_worker=False)
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    executor.add_node(node)
+    executor.add_node(driver)
+    assert wrapper.config.camera_info_topics == ('camera_info', 'cam1/camera_info')
+    backend = out.RclpyBackend()
+    pubs = [driver.create_publisher(PointCloud, 'features', RELIABLE),
+            driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE),
+            driver.create_publisher(CameraInfo, 'camera_info', RELIABLE),
+            driver.create_publisher(CameraInfo, 'cam1/camera_info', RELIABLE)]
+    try:
+        assert spin_until(executor, lambda: min(p.get_subscription_count() for p in pubs) > 0)
+        stamp = int(seq.stamps_ns[0])
+        pubs[2].publish(out.make_camera_info(stamp, 'camera', seq.camera, backend))
+        pubs[3].publish(out.make_camera_info(stamp, 'camera1', seq.camera, backend))
+        assert spin_until(executor, lambda: wrapper.process_pending() >= 0
+                          and 1 in wrapper.logic.other_cameras)
+        for i in range(len(stereo)):
+            pubs[0].publish(out.make_tracks(stereo.frames[i], 'vins_fusion', backend))
+            pubs[1].publish(out.make_odometry(
+                int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
+                so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
+            executor.spin_once(timeout_sec=0.005)
+        logic = wrapper.logic
+        assert spin_until(executor, lambda: wrapper.process_pending() >= 0
+                          and logic.stats.keyframes == len(seq), timeout_s=60.0)
+        assert logic.state == 'tracking'
+        assert 1 in logic.rig_cameras and logic.rig_cameras[1][1] == 'parameters'
+        assert logic.stats.counters['other_camera_observations'] == 0
+        status = wrapper.node_status()
+        values = {kv.key: kv.value for kv in status.values}
+        assert int(values['received.camera_info']) >= 1
+        assert int(values['received.camera_info.1']) >= 1
+    finally:
+        wrapper.close()
+        driver.destroy_node()

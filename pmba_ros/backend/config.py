@@ -109,7 +109,10 @@ class BackendConfig:
             comes from the front-end through the map <- odom similarity).
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
         num_cams: Front-end camera count (VINS ``NUM_OF_CAM``).
-        camera_id: Camera whose observations are used (monocular back-end).
+        camera_id: Reference camera: the keyframe poses are solved in its frame, and its
+            CameraInfo is ``camera_info_topic``. Other cameras' observations are used once
+            their CameraInfo (``camera_info_topics``) and extrinsic are known (a rig: the
+            baseline makes the map metric).
         camera_extrinsics: Body -> camera transforms, 7 values per camera id (x, y, z, qx,
             qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
             (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else identity.
@@ -118,7 +121,9 @@ class BackendConfig:
             without front-end pose).
         features_topic: Input tracks topic (relative, remappable).
         keyframe_topic: Input keyframe pose topic.
-        camera_info_topic: Input CameraInfo topic.
+        camera_info_topic: Input CameraInfo topic (of camera ``camera_id``).
+        camera_info_topics: One CameraInfo topic per camera id, in camera-id order (a
+            multi-camera rig); empty: ``camera_info_topic`` only.
         path_topic: Output nav_msgs/Path of optimized keyframes.
         keyframes_topic: Output geometry_msgs/PoseArray of optimized keyframes.
         landmarks_topic: Output sensor_msgs/PointCloud2 (xyz float32, transient local).
@@ -184,6 +189,7 @@ class BackendConfig:
     features_topic: str = 'features'
     keyframe_topic: str = 'keyframe_pose'
     camera_info_topic: str = 'camera_info'
+    camera_info_topics: tuple[str, ...] = ()
     path_topic: str = 'pmba/path'
     keyframes_topic: str = 'pmba/keyframes'
     landmarks_topic: str = 'pmba/landmarks'
@@ -265,6 +271,15 @@ class BackendConfig:
             if not isinstance(getattr(self, name), str):
                 msg = f'parameter {name}: expected a string'
                 raise ValueError(msg)
+        topics = self.camera_info_topics
+        if isinstance(topics, str) or not all(isinstance(t, str) and t for t in topics):
+            msg = f'parameter camera_info_topics={topics!r}: expected a list of topic names'
+            raise ValueError(msg)
+        object.__setattr__(self, 'camera_info_topics', tuple(topics))
+        if self.camera_info_topics and len(self.camera_info_topics) != self.num_cams:
+            msg = (f'parameter camera_info_topics: {len(self.camera_info_topics)} topics for '
+                   f'num_cams={self.num_cams} (one per camera id, or none)')
+            raise ValueError(msg)
         try:
             flat = tuple(float(v) for v in self.camera_extrinsics)
         except (TypeError, ValueError) as err:

@@ -69,7 +69,13 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.pose_prior import RelativePosePrior
-from pmba_ros.core.problem import BAProblem, make_problem, Parameterization, subset_features
+from pmba_ros.core.problem import (
+    BAProblem,
+    make_problem,
+    Parameterization,
+    Rig,
+    subset_features,
+)
 from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 from pmba_ros.errors import InitError, PmbaError
 
@@ -133,6 +139,31 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
+        self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
+        self._odom_cov: FloatArray | None = None
+
+    def set_rig_camera(self, camera: int, rotation: FloatArray, translation: FloatArray) -> None:
+        """Use observations of front-end camera ``camera`` (other than ``camera_id``).
+
+        Args:
+            camera: Front-end camera id, in [0, num_cams).
+            rotation: Its rotation in the reference camera's frame, R_ref,cam (3, 3).
+            translation: Its centre in the reference camera's frame (3,), m.
+        """
+        self._rig_offsets[int(camera)] = (np.asarray(rotation, dtype=float),
+                                          np.asarray(translation, dtype=float))
+
+    def _rig(self) -> Rig | None:
+        """Return the rig of the reference and the configured cameras, or None (monocular)."""
+        ref = self.config.camera_id
+        if not any(c != ref for c in self._rig_offsets):
+            return None
+        R = np.tile(np.eye(3), (self.config.num_cams, 1, 1))
+        t = np.zeros((self.config.num_cams, 3))
+        for cam, (R_c, t_c) in self._rig_offsets.items():
+            if cam != ref:
+                R[cam], t[cam] = R_c, t_c
+        return Rig(R, t)
 
     def set_pinhole(self, fx: float, fy: float, cx: float, cy: float) -> None:
         """Set the pinhole used to express observations in pixels (loss scale, rms)."""
@@ -141,7 +172,8 @@ class Estimator:
     # --- public update -------------------------------------------------------------------
 
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
-                     obs: KeyframeObs | None) -> UpdateInfo:
+                     obs: KeyframeObs | None, odom_covariance: FloatArray | None = None,
+                     ) -> UpdateInfo:
         """Add a keyframe and update the estimate.
 
         Every keyframe with a front-end pose gets a map pose: before the first initialization
@@ -152,23 +184,26 @@ class Estimator:
             stamp_ns: Keyframe stamp, ns (strictly increasing; the caller checks).
             odom: Front-end pose (R_wc (3, 3), centre (3,)) in the odom frame, or None.
             obs: Its observations, or None / too few for a keyframe without tracks.
+            odom_covariance: The front-end pose's covariance (6, 6: position, rotation; in
+                the odom frame), or None; weighs the motion prior (:meth:`_motion_prior`).
 
         Returns:
             What the update did.
         """
+        self._odom_cov = odom_covariance
         n_obs = 0 if obs is None else int(obs.ids.shape[0])
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
             if not usable:
                 return self._pass_through(stamp_ns, odom)
-            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED)
+            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED, self._odom_cov)
             if odom is not None:
                 self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
         R0, C0 = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE)
+        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = R0, C0
         info = self._refine()
         info.keyframe = i
@@ -187,7 +222,7 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without enough observations or '
                               'front-end pose before initialization')
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
         return UpdateInfo('passed_through', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -241,8 +276,9 @@ class Estimator:
         first, newest = int(batch[0]), int(batch[-1])
         pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
         best = 0
+        ref = self.config.camera_id
         for a, b in pairs:
-            obs_a, obs_b = self.kf.obs[a], self.kf.obs[b]
+            obs_a, obs_b = self.kf.obs[a].of_camera(ref), self.kf.obs[b].of_camera(ref)
             shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
             if shared.shape[0] < max(_MIN_SHARED_FOR_PARALLAX, best):
                 continue
@@ -251,18 +287,29 @@ class Estimator:
         return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
-                       R: FloatArray, C: FloatArray) -> tuple[BAProblem, IntArray]:
-        """Build a problem over keyframes ``cams``; returns it and its feature ids."""
-        local, ids, bearings, xy = gather_observations(self.kf, cams, feature_filter)
+                       R: FloatArray, C: FloatArray, all_cameras: bool = True,
+                       ) -> tuple[BAProblem, IntArray]:
+        """Build a problem over keyframes ``cams``; returns it and its feature ids.
+
+        With configured cameras besides the reference one (and ``all_cameras``) the problem
+        has a :class:`~pmba_ros.core.problem.Rig`: one pose per keyframe (the reference
+        camera's), every camera's observations through its offset. The pixels are nominal
+        (the reference camera's pinhole on each camera's normalized coordinates).
+        """
+        rig = self._rig() if all_cameras else None
+        local, ids, bearings, xy, camera = gather_observations(
+            self.kf, cams, feature_filter, self.config.camera_id, rig is not None)
         if self.config.max_observations_per_feature and feature_filter is not None:
             keep = thin_tracks(ids, local, self.config.max_observations_per_feature)
             local, ids, bearings, xy = local[keep], ids[keep], bearings[keep], xy[keep]
+            camera = camera[keep]
         uniq, feat_idx = np.unique(ids, return_inverse=True)
         pixels = np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
         intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)
         problem = make_problem(R, C, intr, local, feat_idx.astype(np.int64), pixels,
                                bearings_c=bearings, fixed=fixed, n_feats=uniq.shape[0],
-                               feature_ids=uniq)
+                               feature_ids=uniq, camera=None if rig is None else camera,
+                               rig=rig)
         return problem, uniq
 
     def _initialize(self, batch: IntArray) -> UpdateInfo:
@@ -271,7 +318,8 @@ class Estimator:
         cfg = self.config
         M = batch.shape[0]
         problem, _ = self._build_problem(batch, np.zeros(M, bool), None,
-                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)))
+                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)),
+                                         all_cameras=False)
         opts = InitOptions(solve_options=SolveOptions(
             param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
             max_iterations=cfg.init_max_iterations,
@@ -369,7 +417,7 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without tracks or front-end pose')
         R, C = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED, self._odom_cov)
         self.kf.R_map[i], self.kf.C_map[i] = R, C
         return UpdateInfo('dead_reckoned', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -486,7 +534,36 @@ class Estimator:
                        + w_dir[:, None, None] * (np.eye(3) - P_along))
         w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
                         if cfg.motion_prior_rotation_rad > 0 else 0.0)
+        self._covariance_weights(a, b, W_trans, w_rot)
         return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
+
+    def _covariance_weights(self, a: IntArray, b: IntArray, W_trans: FloatArray,
+                            w_rot: FloatArray) -> None:
+        """Weigh the factors a -> b by the front-end's pose covariances where they are usable.
+
+        The covariance a step adds is taken as ``Sigma_b - Sigma_a`` (a front-end's
+        covariance grows by what each step adds); where both keyframes have a covariance
+        and that difference is positive definite, it replaces the parameter sigmas:
+        translation ``W = Sigma_t^(-1/2)`` in the frame of a (times the map scale), rotation
+        ``1 / sqrt(trace(Sigma_r) / 3)``. Parts switched off by their parameter stay off;
+        other factors keep the parameter weights. In place.
+        """
+        kf = self.kf
+        both = np.flatnonzero(kf.has_cov[a] & kf.has_cov[b])
+        if both.shape[0] == 0:
+            return
+        Q = kf.cov_odom[b[both]] - kf.cov_odom[a[both]]
+        R_a = kf.R_odom[a[both]]
+        Q_t = np.einsum('nji,njk,nkl->nil', R_a, Q[:, :3, :3], R_a) * self._metric_scale ** 2
+        lam, V = np.linalg.eigh(0.5 * (Q_t + np.swapaxes(Q_t, 1, 2)))
+        q_rot = np.trace(Q[:, 3:, 3:], axis1=1, axis2=2) / 3.0
+        scale = np.max(np.abs(Q), axis=(1, 2))
+        pd = (lam[:, 0] > 1e-12 * scale) & (q_rot > 0)
+        if self.config.motion_prior_translation_rel > 0:
+            W = np.einsum('nij,nj,nkj->nik', V, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), V)
+            W_trans[both[pd]] = W[pd]
+        if self.config.motion_prior_rotation_rad > 0:
+            w_rot[both[pd]] = 1.0 / np.sqrt(q_rot[pd])
 
     def _motion_error(self, idx: IntArray) -> float:
         """Median relative error of the map's keyframe-to-keyframe translations vs odom's.

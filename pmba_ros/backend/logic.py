@@ -124,6 +124,8 @@ class BackendLogic:
         self.last_error = ''
         self.tf_tree = TransformTree()
         self._camera_frame = ''
+        self.other_cameras: dict[int, CameraModel] = {}
+        self._other_frames: dict[int, str] = {}
         self._param_extrinsics = extrinsics_from_params(config.camera_extrinsics,
                                                         config.num_cams)
         self._init_buffers()
@@ -144,6 +146,9 @@ class BackendLogic:
         self._cost_monitor = CostMonitor()
         self.extrinsic: Rigid | None = None
         self.extrinsic_source = ''
+        self._body_frame = ''
+        self.rig_cameras: dict[int, tuple[Rigid, str]] = {}
+        self._unconfigured_warned: set[int] = set()
 
     # --- inputs ---------------------------------------------------------------------------
 
@@ -157,12 +162,21 @@ class BackendLogic:
         self.last_error = f'{reason}: {err}'
         logger.warning('%s', self.last_error)
 
-    def on_camera_info(self, msg: Any) -> None:
-        """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted)."""
+    def on_camera_info(self, msg: Any, camera_id: int | None = None) -> None:
+        """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted).
+
+        Args:
+            msg: The message.
+            camera_id: Front-end camera id it describes (``camera_info_topics`` order);
+                None: the reference camera ``camera_id``.
+        """
         try:
             camera = parse_camera_info(msg)
         except Exception as err:
             self._reject('bad_camera_info', err)
+            return
+        if camera_id is not None and camera_id != self.config.camera_id:
+            self._set_other_camera_info(int(camera_id), camera, msg)
             return
         if self.camera is None:
             logger.info('camera info: %s fx=%.1f fy=%.1f', camera.distortion_model, camera.fx,
@@ -171,6 +185,20 @@ class BackendLogic:
         self.camera = camera
         self._camera_frame = str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
         self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
+
+    def _set_other_camera_info(self, camera_id: int, camera: CameraModel, msg: Any) -> None:
+        """Keep the intrinsics and frame of a camera other than the reference one."""
+        if not 0 <= camera_id < self.config.num_cams:
+            self._reject('bad_camera_info', f'camera id {camera_id} is not in [0, num_cams='
+                         f'{self.config.num_cams})')
+            return
+        if camera_id not in self.other_cameras:
+            logger.info('camera info of camera %d: fx=%.1f fy=%.1f', camera_id, camera.fx,
+                        camera.fy)
+            self._diag_dirty = True
+        self.other_cameras[camera_id] = camera
+        self._other_frames[camera_id] = str(
+            getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
 
     def on_tf(self, msg: Any) -> None:
         """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).
@@ -349,7 +377,8 @@ class BackendLogic:
             self._base_frame = self.config.base_frame or kf.pose.child_frame_id or 'base_link'
         try:
             obs = self._observations(frame) if frame is not None else None
-            info = self.estimator.add_keyframe(kf.stamp_ns, odom, obs)
+            info = self.estimator.add_keyframe(
+                kf.stamp_ns, odom, obs, None if kf.pose is None else kf.pose.covariance)
         except Exception as err:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)
@@ -389,6 +418,7 @@ class BackendLogic:
             return self.extrinsic
         camera_frame = self._camera_frame or (frame.frame_id if frame is not None else '')
         body = pose.child_frame_id
+        self._body_frame = body
         found: Rigid | None = None
         if self._param_extrinsics is not None:
             found, source = self._param_extrinsics[self.config.camera_id], 'parameters'
@@ -409,13 +439,30 @@ class BackendLogic:
         return found
 
     def _observations(self, frame: TrackFrame) -> KeyframeObs:
-        """Return the unit bearings of the configured camera's finite observations."""
-        sel = frame.camera_ids == self.config.camera_id
+        """Return the unit bearings of the finite observations of every configured camera.
+
+        The reference camera ``camera_id`` always counts; another camera once its offset
+        is known (:meth:`_rig_camera`) and its tracks can be normalized (normalized
+        coordinates in the message, or its CameraInfo). Observations of other cameras are
+        counted as ``other_camera_observations``, with a warning naming the camera.
+        """
+        ref = self.config.camera_id
+        usable = {ref: self.camera}
+        for cam in np.unique(frame.camera_ids).tolist():
+            if cam != ref and self._rig_camera(int(cam), frame) is not None:
+                usable[int(cam)] = self.other_cameras.get(int(cam))
+        sel = np.isin(frame.camera_ids, list(usable))
         self.count('other_camera_observations', int(np.count_nonzero(~sel)))
+        cams = frame.camera_ids[sel]
+        models = {c: m for c, m in usable.items() if m is not None}
         if frame.normalized is not None:
             xy = frame.normalized[sel]
-        elif self.camera is not None and frame.pixels is not None:
-            xy = self.camera.normalize(frame.pixels[sel])
+        elif frame.pixels is not None and all(c in models for c in np.unique(cams).tolist()):
+            pixels = frame.pixels[sel]
+            xy = np.empty_like(pixels)
+            for cam in np.unique(cams).tolist():
+                on = cams == cam
+                xy[on] = models[cam].normalize(pixels[on])
         else:
             msg = 'tracks without normalized coordinates need a CameraInfo'
             raise MessageError(msg)
@@ -424,7 +471,48 @@ class BackendLogic:
         xy = xy[finite]
         bearings = np.column_stack([xy, np.ones(xy.shape[0])])
         bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
-        return KeyframeObs(frame.feature_ids[sel][finite], bearings, xy)
+        return KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
+                           cams[finite] if len(usable) > 1 else None)
+
+    def _rig_camera(self, cam: int, frame: TrackFrame) -> Rigid | None:
+        """Return camera ``cam``'s pose in the reference camera's frame, or None (unusable).
+
+        Fixed once found, from the body -> camera extrinsics of both cameras:
+        ``camera_extrinsics``; the TF chain from the keyframe poses' body frame to the
+        camera's CameraInfo ``frame_id``; identity when those frames agree. It needs the
+        reference camera's extrinsic from parameters, TF or agreeing frames, and, for tracks
+        in pixels, the camera's CameraInfo (``camera_info_topics``).
+        """
+        if cam in self.rig_cameras:
+            return self.rig_cameras[cam][0]
+        why = ''
+        T_bc: Rigid | None = None
+        frame_id = self._other_frames.get(cam, '')
+        if frame.normalized is None and cam not in self.other_cameras:
+            why = 'no CameraInfo (parameter camera_info_topics, one topic per camera id)'
+        elif self.extrinsic is None or self.extrinsic_source == 'identity':
+            why = 'the reference camera has no known body -> camera extrinsic'
+        elif self._param_extrinsics is not None:
+            T_bc, source = self._param_extrinsics[cam], 'parameters'
+        elif self._body_frame and frame_id == self._body_frame:
+            T_bc, source = Rigid.identity(), 'frames_agree'
+        elif self._body_frame and frame_id:
+            T_bc, source = self.tf_tree.lookup(self._body_frame, frame_id), 'tf'
+        if T_bc is None:
+            why = why or (f'no body -> camera transform from {self._body_frame!r} to '
+                          f'{frame_id or "(no CameraInfo frame)"!r} (camera_extrinsics or TF)')
+            if cam not in self._unconfigured_warned:
+                self._unconfigured_warned.add(cam)
+                self.last_error = f'other_camera_observations: camera id {cam} unused: {why}'
+                logger.warning('%s', self.last_error)
+            return None
+        offset = self.extrinsic.inverse() @ T_bc  # type: ignore[union-attr]
+        self.rig_cameras[cam] = (offset, source)
+        self.estimator.set_rig_camera(cam, offset.rotation, offset.translation)
+        logger.info('camera %d in the reference camera frame (from %s): %s', cam, source,
+                    [round(v, 6) for v in offset.to_flat()])
+        self._diag_dirty = True
+        return offset
 
     # --- outputs --------------------------------------------------------------------------
 
@@ -588,6 +676,8 @@ class BackendLogic:
             'not_optimized_keyframes': self._stats.not_optimized,
             'init_attempts': self.estimator.init_attempts,
             'extrinsic_source': self.extrinsic_source or 'none',
+            'cameras_used': ','.join(str(c) for c in sorted(
+                [self.config.camera_id, *self.rig_cameras])),
         }
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms

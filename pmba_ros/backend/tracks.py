@@ -443,7 +443,8 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
         kind: One of :data:`KEYFRAME_KINDS`.
 
     Returns:
-        The pose with a unit quaternion; ``child_frame_id`` is '' for PoseStamped.
+        The pose with a unit quaternion; ``child_frame_id`` is '' for PoseStamped; the
+        Odometry's pose covariance when it is set (not all zeros) and finite.
 
     Raises:
         MessageError: If the kind is unknown, the message is of another type, or the pose
@@ -454,8 +455,10 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
         raise MessageError(msg_)
     stamp_ns, frame_id = _header(msg)
     try:
+        covariance = None
         if kind == 'odometry':
             pose, child = msg.pose.pose, str(msg.child_frame_id)
+            covariance = np.asarray(getattr(msg.pose, 'covariance', ()), dtype=np.float64)
         else:
             pose, child = msg.pose, ''
         position = _XYZ(pose.position)
@@ -466,7 +469,8 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
         raise MessageError(msg_) from err
     return KeyframePose(stamp_ns=stamp_ns, frame_id=frame_id, child_frame_id=child,
                         position=np.array(position, dtype=np.float64),
-                        quat_xyzw=np.array(quat_xyzw, dtype=np.float64))
+                        quat_xyzw=np.array(quat_xyzw, dtype=np.float64),
+                        covariance=covariance)
 
 
 def parse_camera_info(msg: Any) -> CameraModel:

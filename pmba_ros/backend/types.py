@@ -156,6 +156,8 @@ class KeyframePose:
         child_frame_id: Frame the pose describes ('' for PoseStamped input).
         position: Translation, shape (3,), m.
         quat_xyzw: Unit rotation quaternion, shape (4,), order x, y, z, w.
+        covariance: Pose covariance (x, y, z, rotation about x, y, z; in ``frame_id``),
+            shape (6, 6), or None when the message has none (all zeros) or it is unusable.
     """
 
     stamp_ns: int
@@ -163,6 +165,7 @@ class KeyframePose:
     child_frame_id: str
     position: FloatArray
     quat_xyzw: FloatArray
+    covariance: FloatArray | None = None
 
     def __post_init__(self) -> None:
         """Copy, freeze and validate the arrays.
@@ -187,6 +190,11 @@ class KeyframePose:
         quat /= norm
         pos.flags.writeable = False
         quat.flags.writeable = False
+        if self.covariance is not None:
+            cov = np.array(self.covariance, dtype=np.float64, copy=True)
+            usable = cov.size == 36 and np.all(np.isfinite(cov)) and np.any(cov != 0.0)
+            cov.flags.writeable = False
+            object.__setattr__(self, 'covariance', cov.reshape(6, 6) if usable else None)
         object.__setattr__(self, 'position', pos)
         object.__setattr__(self, 'quat_xyzw', quat)
         object.__setattr__(self, 'stamp_ns', int(self.stamp_ns))

@@ -43,17 +43,28 @@ class KeyframeStatus(IntEnum):
 
 @dataclass(frozen=True, eq=False)
 class KeyframeObs:
-    """Observations of one keyframe (camera ``camera_id`` only).
+    """Observations of one keyframe.
 
     Attributes:
-        ids: Feature ids, shape (K,), unique.
-        bearings: Unit bearings in the camera frame, shape (K, 3).
+        ids: Feature ids, shape (K,), unique per camera.
+        bearings: Unit bearings in the observing camera's frame, shape (K, 3).
         normalized: Normalized undistorted coordinates (x/z, y/z), shape (K, 2).
+        camera: Front-end camera id of each observation, shape (K,), or None: all of the
+            reference camera (``camera_id``, whose frame the keyframe poses are in).
     """
 
     ids: IntArray
     bearings: FloatArray
     normalized: FloatArray
+    camera: IntArray | None = None
+
+    def of_camera(self, camera: int) -> KeyframeObs:
+        """Return the observations of one camera (all of them without camera ids)."""
+        if self.camera is None:
+            return self
+        sel = self.camera == camera
+        return KeyframeObs(self.ids[sel], self.bearings[sel], self.normalized[sel],
+                           self.camera[sel])
 
 
 class KeyframeStore:
@@ -69,12 +80,15 @@ class KeyframeStore:
         self.R_odom = np.tile(np.eye(3), (cap, 1, 1))
         self.C_odom = np.zeros((cap, 3))
         self.has_odom = np.zeros(cap, dtype=bool)
+        self.cov_odom = np.zeros((cap, 6, 6))
+        self.has_cov = np.zeros(cap, dtype=bool)
         self.status = np.zeros(cap, dtype=np.int8)
         self.obs: dict[int, KeyframeObs] = {}
 
     def _grow(self) -> None:
         cap = 2 * self.stamps_ns.shape[0]
-        for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'status'):
+        for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'cov_odom',
+                     'has_cov', 'status'):
             old = getattr(self, name)
             new = np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
             new[:old.shape[0]] = old
@@ -83,8 +97,9 @@ class KeyframeStore:
             setattr(self, name, new)
 
     def add(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
-            obs: KeyframeObs | None, status: KeyframeStatus) -> int:
-        """Append a keyframe and return its index."""
+            obs: KeyframeObs | None, status: KeyframeStatus,
+            covariance: FloatArray | None = None) -> int:
+        """Append a keyframe and return its index (``covariance``: of its front-end pose)."""
         if self.n == self.stamps_ns.shape[0]:
             self._grow()
         i = self.n
@@ -92,6 +107,8 @@ class KeyframeStore:
         if odom is not None:
             self.R_odom[i], self.C_odom[i] = odom
             self.has_odom[i] = True
+            if covariance is not None:
+                self.cov_odom[i], self.has_cov[i] = covariance, True
         self.status[i] = status
         if obs is not None:
             self.obs[i] = obs
@@ -263,21 +280,37 @@ def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
 
 
 def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,
-                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+                        reference: int = 0, all_cameras: bool = True,
+                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray, IntArray]:
     """Concatenate the observations of keyframes ``cams`` (optionally of some features only).
 
+    Args:
+        store: The keyframes.
+        cams: Keyframes to gather.
+        feature_filter: Feature ids to keep, or None for all.
+        reference: The reference camera (of observations without camera ids).
+        all_cameras: Every camera's observations (False: the reference camera's only).
+
     Returns:
-        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2).
+        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2) and
+        front-end camera id (K,).
     """
     parts = [store.obs[int(c)] for c in cams]
+    if not all_cameras:
+        parts = [p.of_camera(reference) for p in parts]
     local = np.repeat(np.arange(len(parts)), [p.ids.shape[0] for p in parts])
     ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
+    camera = np.concatenate(
+        [p.camera if p.camera is not None
+         else np.full(p.ids.shape[0], reference, dtype=np.int64) for p in parts]
+    ) if parts else np.zeros(0, np.int64)
     if feature_filter is not None:
         keep = np.isin(ids, feature_filter)
         local, ids, bearings, pixels = local[keep], ids[keep], bearings[keep], pixels[keep]
-    return local.astype(np.int64), ids, bearings, pixels
+        camera = camera[keep]
+    return local.astype(np.int64), ids, bearings, pixels, camera.astype(np.int64)
 
 
 def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntArray,

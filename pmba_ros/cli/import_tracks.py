@@ -69,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='KITTI frames between VO poses (default: found from the GT)')
     parser.add_argument('--layout', choices=('vins_mono', 'vins_fusion', 'per_point', 'named'),
                         default='vins_fusion', help='track layout')
+    parser.add_argument('--stereo', action='store_true',
+                        help='also the right image observations (camera 1, a second CameraInfo '
+                        'on /camera1/camera_info; both cameras on /tf_static)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 
 
@@ -90,11 +93,13 @@ def run(args: argparse.Namespace) -> int:
         PmbaError: If an input is missing or malformed, or the bag cannot be written.
     """
     import numpy as np
+    from pmba_ros.backend.extrinsics import Rigid
     from pmba_ros.eval.trajectory import read_kitti
-    from pmba_ros.io.kitti_tracks import kitti_sequence, read_kitti_tracks
+    from pmba_ros.io.kitti_tracks import kitti_sequence, read_kitti_tracks, right_camera
     from pmba_ros.sim.bag import write_sequence_bag
 
-    tracks = read_kitti_tracks(args.tracks_dir)
+    stereo = bool(getattr(args, 'stereo', False))
+    tracks = read_kitti_tracks(args.tracks_dir, stereo=stereo)
     times_path, gt_path = _optional(args.times), _optional(args.gt)
     times = None
     if times_path is not None:
@@ -105,11 +110,17 @@ def run(args: argparse.Namespace) -> int:
             raise PmbaError(msg) from err
     gt = read_kitti(gt_path, times) if gt_path is not None else None
     seq = kitti_sequence(tracks, times, gt, first_frame=args.first_frame, stride=args.stride)
-    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite)
+    # Stereo: the keyframe poses are the left camera's, the body frame of a two-camera rig.
+    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite,
+                              extrinsic=Rigid.identity() if stereo else None,
+                              rig_extrinsics=[right_camera(tracks.baseline_m)] if stereo else [])
     last = seq.first_frame + seq.stride * (info.n_keyframes - 1)
     print(f'wrote {info.bag}: {info.n_keyframes} keyframes = KITTI 00 frames '
           f'{seq.first_frame}..{last} (stride {seq.stride}), {info.n_observations} '
           f'observations, {info.duration_s:.2f} s')
     if info.groundtruth_tum is not None:
         print(f'ground truth: {info.groundtruth_tum}')
+    if stereo:
+        print('replay it with: pmba replay BAG --camera-info-topic /camera_info '
+              '--camera-info-topic /camera1/camera_info --align se3')
     return 0

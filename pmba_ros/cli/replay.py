@@ -59,7 +59,7 @@ INCOMPLETE_INPUT = 3
 
 _OVERRIDES = {'tracks_topic': 'features_topic', 'tracks_layout': 'feature_layout',
               'keyframes_topic': 'keyframe_topic', 'keyframes_type': 'keyframe_type',
-              'camera_info_topic': 'camera_info_topic', 'mode': 'mode'}
+              'mode': 'mode'}
 """Command-line option (dest) -> BackendConfig field."""
 
 
@@ -104,7 +104,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f'keyframe pose message type ({node_default("keyframe_type")})')
     camera = group.add_mutually_exclusive_group()
     camera.add_argument('--camera-info-topic', default=argparse.SUPPRESS, metavar='TOPIC',
-                        help=f'CameraInfo topic ({node_default("camera_info_topic")})')
+                        action='append',
+                        help=f'CameraInfo topic ({node_default("camera_info_topic")}); '
+                        'repeat it for a multi-camera rig, in camera-id order')
     camera.add_argument('--intrinsics', default=argparse.SUPPRESS, metavar='FX,FY,CX,CY',
                         help='pinhole intrinsics (px) instead of a CameraInfo topic')
     algo = parser.add_argument_group('back-end')
@@ -153,6 +155,7 @@ def build_config(args: argparse.Namespace) -> Any:
         config = BackendConfig.from_yaml(params) if params is not None else BackendConfig()
         changes = {field: getattr(args, opt) for opt, field in _OVERRIDES.items()
                    if getattr(args, opt, None) is not None}
+        changes |= _camera_info_changes(config, getattr(args, 'camera_info_topic', None))
         return replace(config, **changes)
     except (OSError, ValueError) as err:
         where = f'--params {params}: ' if params is not None else ''
@@ -162,6 +165,25 @@ def build_config(args: argparse.Namespace) -> Any:
         problem = ' '.join(str(err).split())
         msg = f'--params {params}: not valid YAML: {problem}'
         raise PmbaError(msg) from err
+
+
+def _camera_info_changes(config: Any, topics: list[str] | None) -> dict[str, Any]:
+    """Return the config changes of the ``--camera-info-topic`` options (one per camera id).
+
+    One topic is the reference camera's (``camera_info_topic``); several are a rig's
+    ``camera_info_topics`` in camera-id order (``num_cams`` grows to their number).
+    """
+    if not topics:
+        return {}
+    if len(topics) == 1:
+        return {'camera_info_topic': topics[0]}
+    num_cams = max(config.num_cams, len(topics))
+    if config.camera_id >= len(topics):
+        msg = (f'--camera-info-topic: {len(topics)} topics, but camera_id={config.camera_id} '
+               'needs one for every camera id up to it')
+        raise ValueError(msg)
+    return {'camera_info_topics': tuple(topics), 'num_cams': num_cams,
+            'camera_info_topic': topics[config.camera_id]}
 
 
 class ProgressBar:

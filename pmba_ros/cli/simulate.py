@@ -76,6 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='bag: keyframe poses and ground truth of a body with this body -> '
                         'camera transform on /tf_static (euroc: the cam0 of EuRoC; default: '
                         'the poses are the camera poses)')
+    parser.add_argument('--cameras', type=int, choices=(1, 2), default=1,
+                        help='bag: 2 writes a stereo rig (EuRoC cam1 beside cam0, its '
+                        'observations as camera 1, a second CameraInfo topic '
+                        '/camera1/camera_info and its transform on /tf_static)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 
 
@@ -96,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario not in _BAG_SCENARIOS:
         msg = f'--scenario {args.scenario} is for --format bal; bags: {", ".join(_BAG_SCENARIOS)}'
         raise PmbaError(msg)
+    from pmba_ros.backend.extrinsics import Rigid
     from pmba_ros.sim.bag import EUROC_CAM0, write_sequence_bag
+    from pmba_ros.sim.rig import add_camera, EUROC_CAM1
     from pmba_ros.sim.sequence import simulate_sequence
 
     try:
@@ -105,12 +111,22 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise PmbaError(str(err)) from err
     extrinsic = EUROC_CAM0 if args.extrinsic == 'euroc' else None
+    rig: list[Rigid] = []
+    if args.cameras == 2:
+        # EuRoC's cam1 where it sits relative to cam0 (camera 0 is the body without --extrinsic).
+        T_c0c1 = EUROC_CAM0.inverse() @ EUROC_CAM1
+        seq = add_camera(seq, T_c0c1, camera_id=1, seed=args.seed + 1)
+        rig = [EUROC_CAM1 if extrinsic is not None else T_c0c1]
+        extrinsic = extrinsic or Rigid.identity()
     info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite,
-                              extrinsic=extrinsic)
+                              extrinsic=extrinsic, rig_extrinsics=rig)
     print(f'wrote {info.bag}: {args.scenario}, {info.n_keyframes} keyframes '
           f'({info.duration_s:.1f} s), {info.n_observations} observations, '
           f'{info.n_messages} messages')
     print(f'ground truth: {info.groundtruth_tum}')
+    if args.cameras == 2:
+        print('replay it with: pmba replay BAG --camera-info-topic /camera_info '
+              '--camera-info-topic /camera1/camera_info')
     return 0
 
 

@@ -24,7 +24,7 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, residuals, sphere
+from pmba_ros.core import kernels, residuals, rig, sphere
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -41,8 +41,11 @@ _SWAP_DEPTH_RATIO = 30.0
 
 
 def world_rays(problem: BAProblem, R_wc: FloatArray) -> FloatArray:
-    """Return the world-frame rays r_k = R_i v_k of all observations, shape (K, 3)."""
-    return np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], problem.obs.bearings_c)
+    """Return the world-frame rays r_k = R_i v_k of all observations, shape (K, 3).
+
+    With a rig, v_k is the bearing in the rig frame (:func:`rig.rig_frame_bearings`).
+    """
+    return np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], rig.rig_frame_bearings(problem))
 
 
 def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
@@ -80,6 +83,9 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     if centers_w is not None:
         close = _coincident_pairs(centers_w)
     counts = np.bincount(obs.feat_idx, minlength=N)
+    if problem.rig is not None:  # two cameras of one pose have no baseline between anchors
+        other = ~np.eye(M, dtype=bool)
+        allowed_pairs = other if allowed_pairs is None else allowed_pairs & other
     if kernels.ENABLED:
         main_idx, assoc_idx, ok = kernels.widest_pairs(
             rays, obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]), allowed_pairs, close,
@@ -167,16 +173,16 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
     """Return initial PMBA features from rotations only, no triangulation (PMBA Remark 5).
 
     theta = arccos((R_m v_m) . (R_a v_a)) and n = v_m, so every main-anchor residual starts
-    at zero (pmba.md §3.2).
+    at zero (pmba.md §3.2). With a rig, v are rig-frame bearings of the anchors' first
+    cameras.
     """
     km = anchor_observations(problem, main_idx)
     ka = anchor_observations(problem, assoc_idx)
-    v = problem.obs.bearings_c
+    v = rig.rig_frame_bearings(problem)
     ray_m = np.einsum('nij,nj->ni', R_wc[main_idx], v[km])
     ray_a = np.einsum('nij,nj->ni', R_wc[assoc_idx], v[ka])
     theta = np.arccos(np.clip(np.sum(ray_m * ray_a, axis=1), -1.0, 1.0))
-    return ParallaxFeatures(theta, problem.obs.bearings_c[km].copy(), main_idx.copy(),
-                            assoc_idx.copy())
+    return ParallaxFeatures(theta, v[km].copy(), main_idx.copy(), assoc_idx.copy())
 
 
 def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,

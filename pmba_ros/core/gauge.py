@@ -72,7 +72,7 @@ def free_gauge(n_cams: int, fixed: BoolArray, cam_idx: IntArray) -> Gauge:
 
 
 def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,
-                 feat_idx: IntArray, n_feats: int) -> Gauge:
+                 feat_idx: IntArray, n_feats: int, *, metric: bool = False) -> Gauge:
     """Choose the gauge: root pose plus one centre coordinate of its strongest partner.
 
     Args:
@@ -81,6 +81,7 @@ def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,
         cam_idx: Observing camera per observation, shape (K,).
         feat_idx: Feature per observation, shape (K,).
         n_feats: Number of features.
+        metric: The scale is observed (a multi-camera rig): hold the root pose only.
 
     Returns:
         The gauge. Poses without observations are held too (they carry no information).
@@ -94,6 +95,8 @@ def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,
     root = int(np.flatnonzero(fixed)[0]) if n_fixed == 1 else int(
         np.argmax(np.bincount(cam_idx, minlength=M)))
     fixed[root] = True
+    if metric:
+        return Gauge(fixed, -1, -1)
     # Strongest partner: the camera sharing most features with the root.
     seen_by_root = np.zeros(n_feats, dtype=bool)
     seen_by_root[feat_idx[cam_idx == root]] = True

@@ -21,7 +21,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, kernels, residuals
+from pmba_ros.core import baselines, kernels, residuals, rig
 from pmba_ros.core.camera import project, projection_jacobian
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
@@ -31,6 +31,7 @@ from pmba_ros.core.problem import (
     Parameterization,
     XyzFeatures,
 )
+from pmba_ros.errors import ProblemError
 
 F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
 
@@ -116,6 +117,9 @@ class ParallaxModel(Model[ParallaxFeatures]):
     against the pixel noise model and the pixel RMS of its optimum is a few percent above
     XYZ-BA's. The weighting keeps the parameterization, its bounded far-feature behaviour and
     the Schur structure; ``pixel_weighted=False`` gives the paper's exact objective.
+
+    A problem with a :class:`~pmba_ros.core.problem.Rig` is evaluated on the camera poses of
+    :mod:`pmba_ros.core.rig` and its observer Jacobians mapped back to the rig poses.
     """
 
     pixel_residuals = False
@@ -126,6 +130,9 @@ class ParallaxModel(Model[ParallaxFeatures]):
         super().__init__(problem)
         self.pixel_weighted = pixel_weighted
         self._weights: FloatArray | None = None
+        self._ray_obs = problem.obs
+        if problem.rig is not None:
+            self._ray_obs = rig.camera_observations(problem.obs, problem.rig, problem.n_cams)
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
@@ -138,12 +145,22 @@ class ParallaxModel(Model[ParallaxFeatures]):
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
-        return residuals.pose_slots(feats, self.obs)
+        slots = residuals.pose_slots(feats, self._ray_obs)
+        slots[:, 0] = self.obs.cam_idx     # a rig camera's observer block is its rig pose's
+        return slots
+
+    def _ray_poses(self, R_wc: FloatArray, centers_w: FloatArray,
+                   ) -> tuple[FloatArray, FloatArray]:
+        """Return the poses the rays are computed from (with the rig's camera poses)."""
+        if self.problem.rig is None:
+            return R_wc, centers_w
+        return rig.camera_poses(R_wc, centers_w, self.problem.rig)
 
     def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
                  feats: ParallaxFeatures) -> Evaluation:
         """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
-        geo, rays_c, res = residuals.rays_and_residuals(R_wc, centers_w, feats, self.obs,
+        R, P = self._ray_poses(R_wc, centers_w)
+        geo, rays_c, res = residuals.rays_and_residuals(R, P, feats, self._ray_obs,
                                                         self._weights)
         return Evaluation(res, rays_c, geo)
 
@@ -151,10 +168,14 @@ class ParallaxModel(Model[ParallaxFeatures]):
                   evaluation: Evaluation | None = None,
                   ) -> Linearization:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
-        if evaluation is None:
-            return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
-        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights,
-                                       evaluation.geometry, evaluation.rays_c)
+        R, P = self._ray_poses(R_wc, centers_w)
+        geo = rays_c = None
+        if evaluation is not None:
+            geo, rays_c = evaluation.geometry, evaluation.rays_c
+        lin = residuals.ray_jacobians(R, P, feats, self._ray_obs, self._weights, geo, rays_c)
+        if self.problem.rig is not None:
+            rig.observer_to_rig(lin.rows, R_wc, self.obs, self.problem.rig)
+        return lin
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""
@@ -246,9 +267,16 @@ class IdpModel(_PixelErrorModel[IdpFeatures]):
 
 def make_model(param: Parameterization, problem: BAProblem, *, pixel_weighted: bool = False,
                ) -> ParallaxModel | XyzModel | IdpModel:
-    """Return the model of a parameterization bound to a problem."""
+    """Return the model of a parameterization bound to a problem.
+
+    Raises:
+        ProblemError: For a multi-camera rig with a parameterization other than PMBA.
+    """
     if param is Parameterization.PMBA:
         return ParallaxModel(problem, pixel_weighted)
+    if problem.rig is not None:
+        msg = f'multi-camera rigs are solved with the pmba parameterization, not {param.value}'
+        raise ProblemError(msg)
     if param is Parameterization.XYZ:
         return XyzModel(problem)
     return IdpModel(problem)

@@ -70,12 +70,15 @@ class Observations:
         feat_idx: Feature index, shape (K,).
         bearings_c: Measured unit bearings in the camera frame, shape (K, 3).
         pixels: Measured pixels (distorted, as recorded), shape (K, 2).
+        camera: Rig camera of each observation, shape (K,), or None: every bearing is in
+            its pose's own frame (see :class:`Rig`).
     """
 
     cam_idx: IntArray
     feat_idx: IntArray
     bearings_c: FloatArray
     pixels: FloatArray
+    camera: IntArray | None = None
 
     def __len__(self) -> int:
         """Return the number of observations."""
@@ -84,7 +87,59 @@ class Observations:
     def take(self, index: np.ndarray) -> Observations:
         """Return the subset of observations selected by ``index``."""
         return Observations(self.cam_idx[index], self.feat_idx[index],
-                            self.bearings_c[index], self.pixels[index])
+                            self.bearings_c[index], self.pixels[index],
+                            None if self.camera is None else self.camera[index])
+
+    def reindexed(self, feat_idx: IntArray) -> Observations:
+        """Return the observations with other feature indices (read-only arrays)."""
+        return Observations(_readonly(self.cam_idx), _readonly(feat_idx),
+                            _readonly(self.bearings_c), _readonly(self.pixels),
+                            None if self.camera is None else _readonly(self.camera))
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """Cameras rigidly mounted on each pose (a stereo pair, a multi-camera rig).
+
+    A pose (R_wc, centers_w) is the pose of the rig frame; rig camera c sits at
+    ``x_rig = R_rc[c] x_c + t_rc[c]``, so its world pose is ``R_wc R_rc[c]`` with centre
+    ``centers_w + R_wc t_rc[c]``. Observations name their camera in
+    :attr:`Observations.camera`; the poses stay the only pose variables, so the baseline
+    between the cameras fixes the scale.
+
+    Attributes:
+        R_rc: Camera -> rig rotations, shape (C, 3, 3).
+        t_rc: Camera centres in the rig frame, shape (C, 3), m.
+    """
+
+    R_rc: FloatArray
+    t_rc: FloatArray
+
+    def __post_init__(self) -> None:
+        """Validate shapes and values (read-only copies)."""
+        R = np.array(self.R_rc, dtype=float)
+        t = np.array(self.t_rc, dtype=float)
+        C = R.shape[0] if R.ndim == 3 else -1
+        if C < 1 or R.shape != (C, 3, 3) or t.shape != (C, 3):
+            msg = f'rig: expected R_rc (C,3,3) and t_rc (C,3), got {R.shape}, {t.shape}'
+            raise ProblemError(msg)
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            msg = 'rig: non-finite camera offsets'
+            raise ProblemError(msg)
+        if not np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3), atol=1e-6):
+            msg = 'rig: R_rc are not rotations'
+            raise ProblemError(msg)
+        object.__setattr__(self, 'R_rc', _readonly(R))
+        object.__setattr__(self, 't_rc', _readonly(t))
+
+    def __len__(self) -> int:
+        """Return the number of cameras C."""
+        return int(self.R_rc.shape[0])
+
+    def in_rig_frame(self) -> BoolArray:
+        """Return which cameras are the rig frame itself (identity offset), shape (C,)."""
+        return (np.all(np.abs(self.R_rc - np.eye(3)) <= 1e-12, axis=(1, 2))
+                & np.all(np.abs(self.t_rc) <= 1e-12, axis=1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,6 +156,7 @@ class BAProblem:
         fixed: Poses held constant, shape (M,) bool.
         feature_ids: Caller's id of each feature, shape (N,).
         dropped: Counts of inputs dropped while building the problem, by reason.
+        rig: The cameras of each pose, or None (one camera: the pose is the camera).
     """
 
     R_wc: FloatArray
@@ -112,6 +168,7 @@ class BAProblem:
     fixed: BoolArray
     feature_ids: IntArray
     dropped: dict[str, int] = field(default_factory=dict)
+    rig: Rig | None = None
 
     @property
     def n_cams(self) -> int:
@@ -149,7 +206,8 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
                  cam_idx: np.ndarray, feat_idx: np.ndarray, pixels: FloatArray, *,
                  bearings_c: FloatArray | None = None, points_w: FloatArray | None = None,
                  fixed: np.ndarray | None = None, n_feats: int | None = None,
-                 feature_ids: np.ndarray | None = None) -> BAProblem:
+                 feature_ids: np.ndarray | None = None, camera: np.ndarray | None = None,
+                 rig: Rig | None = None) -> BAProblem:
     """Validate inputs and build a :class:`BAProblem`.
 
     Args:
@@ -164,10 +222,14 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         fixed: Optional fixed-pose flags, shape (M,).
         n_feats: Number of features N (default: max(feat_idx) + 1).
         feature_ids: Caller's ids of the N features (default: 0..N-1).
+        camera: Rig camera of each observation (K,), values in [0, len(rig)); with ``rig``.
+        rig: The cameras mounted on each pose (``bearings_c`` are then in each
+            observation's rig camera frame).
 
     Returns:
-        The problem; observations with non-finite values, duplicate (camera, feature) pairs and
-        features with fewer than two observing cameras are dropped and counted in ``dropped``.
+        The problem; observations with non-finite values, duplicate (pose, rig camera,
+        feature) triples and features with fewer than two observing poses are dropped and
+        counted in ``dropped``.
 
     Raises:
         ProblemError: On wrong shapes, non-finite poses or unknown camera / feature indices.
@@ -232,21 +294,25 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         norms = np.linalg.norm(bearings_c, axis=1, keepdims=True)
         bearings_c = bearings_c / np.where(norms > 0, norms, np.nan)
 
+    rig_cam = _rig_cameras(camera, rig, K)
     dropped: dict[str, int] = {}
     keep = np.all(np.isfinite(bearings_c), axis=1)
     _count(dropped, 'non_finite_observations', int(np.sum(~keep)))
 
-    # Duplicate (camera, feature) observations are inconsistent tracks: keep the first.
-    order = np.lexsort((np.arange(K), cam_idx, feat_idx))
+    # Duplicate (pose, rig camera, feature) observations are inconsistent tracks: keep the
+    # first.
+    order = np.lexsort((np.arange(K), rig_cam, cam_idx, feat_idx))
     order = order[keep[order]]
-    f_sorted, c_sorted = feat_idx[order], cam_idx[order]
-    dup = np.zeros(order.shape[0], dtype=bool)
-    dup[1:] = (f_sorted[1:] == f_sorted[:-1]) & (c_sorted[1:] == c_sorted[:-1])
+    f_sorted, c_sorted, r_sorted = feat_idx[order], cam_idx[order], rig_cam[order]
+    same_pose = np.zeros(order.shape[0], dtype=bool)
+    same_pose[1:] = (f_sorted[1:] == f_sorted[:-1]) & (c_sorted[1:] == c_sorted[:-1])
+    dup = same_pose.copy()
+    dup[1:] &= r_sorted[1:] == r_sorted[:-1]
     _count(dropped, 'duplicate_observations', int(np.sum(dup)))
-    order = order[~dup]
+    order, same_pose = order[~dup], same_pose[~dup]
 
-    # Features need two observing cameras (an associate anchor), pmba.md §3.3.
-    counts = np.bincount(feat_idx[order], minlength=N)
+    # Features need two observing poses (an associate anchor with a baseline), pmba.md §3.3.
+    counts = np.bincount(feat_idx[order[~same_pose]], minlength=N)
     feat_ok = counts >= 2
     _count(dropped, 'single_observation_features', int(np.sum(counts == 1)))
     _count(dropped, 'unobserved_features', int(np.sum(counts == 0)))
@@ -272,12 +338,34 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
             msg = f'fixed: expected shape ({M},), got {fixed_arr.shape}'
             raise ProblemError(msg)
     obs = Observations(_readonly(cam_idx[order]), _readonly(new_index[feat_idx[order]]),
-                       _readonly(bearings_c[order]), _readonly(pixels[order]))
+                       _readonly(bearings_c[order]), _readonly(pixels[order]),
+                       None if rig is None else _readonly(rig_cam[order]))
     pts = None if points_w is None else _readonly(points_w[feat_ok])
     return BAProblem(_readonly(R_wc.copy()), _readonly(centers_w.copy()), intrinsics, obs,
                      int(np.sum(feat_ok)), pts, _readonly(fixed_arr.copy()),
                      _readonly(ids[feat_ok].astype(np.int64)),
-                     {k: v for k, v in dropped.items() if v})
+                     {k: v for k, v in dropped.items() if v}, rig)
+
+
+def _rig_cameras(camera: np.ndarray | None, rig: Rig | None, K: int) -> IntArray:
+    """Return the validated rig camera of each observation (zeros without a rig)."""
+    if rig is None:
+        if camera is not None:
+            msg = 'observations name rig cameras but the problem has no rig'
+            raise ProblemError(msg)
+        return np.zeros(K, dtype=np.int64)
+    if camera is None:
+        return np.zeros(K, dtype=np.int64)
+    cam = np.asarray(camera)
+    if cam.shape != (K,) or (K and not np.issubdtype(cam.dtype, np.integer)):
+        msg = f'camera: expected an integer array of shape ({K},), got {cam.shape} {cam.dtype}'
+        raise ProblemError(msg)
+    bad = (cam < 0) | (cam >= len(rig))
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        msg = f'observation {k}: unknown rig camera {int(cam[k])} (rig has {len(rig)} cameras)'
+        raise ProblemError(msg)
+    return cam.astype(np.int64)
 
 
 def _count(dropped: dict[str, int], reason: str, count: int) -> None:
@@ -347,8 +435,7 @@ def subset_features(problem: BAProblem, keep: BoolArray, reason: str) -> BAProbl
     new_index = np.cumsum(keep) - 1
     obs_keep = keep[problem.obs.feat_idx]
     obs = problem.obs.take(obs_keep)
-    obs = Observations(_readonly(obs.cam_idx), _readonly(new_index[obs.feat_idx]),
-                       _readonly(obs.bearings_c), _readonly(obs.pixels))
+    obs = obs.reindexed(new_index[obs.feat_idx])
     dropped = dict(problem.dropped)
     _count(dropped, reason, int(np.sum(~keep)))
     logger.info('dropped %d features (%s)', int(np.sum(~keep)), reason)
@@ -371,10 +458,8 @@ def permute_features(problem: BAProblem, order: IntArray) -> BAProblem:
     new_start = np.cumsum(new_counts) - new_counts
     by_feature = (np.repeat(old_start[order] - new_start, new_counts)
                   + np.arange(problem.obs.feat_idx.shape[0]))
-    obs = problem.obs.take(by_feature)
-    obs = Observations(_readonly(obs.cam_idx),
-                       _readonly(np.repeat(np.arange(problem.n_feats), new_counts)),
-                       _readonly(obs.bearings_c), _readonly(obs.pixels))
+    obs = problem.obs.take(by_feature).reindexed(
+        np.repeat(np.arange(problem.n_feats), new_counts))
     pts = None if problem.points_w is None else _readonly(problem.points_w[order])
     return replace(problem, obs=obs, points_w=pts,
                    feature_ids=_readonly(problem.feature_ids[order]))

@@ -382,7 +382,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                                    pixel_weighted=options.pixel_weighted)
     if options.fix_gauge:
         gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
-                             problem.obs.feat_idx, problem.n_feats)
+                             problem.obs.feat_idx, problem.n_feats,
+                             metric=problem.rig is not None)
     else:
         gauge = free_gauge(problem.n_cams, problem.fixed, problem.obs.cam_idx)
     free_block = gauge.free_block()

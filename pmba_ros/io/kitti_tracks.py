@@ -22,9 +22,11 @@ Input files (``/work/shared/data/SOURCES.md`` §3):
 
 The left image is used as a monocular front-end: each keyframe's ``(uL, v)`` observations
 become one tracks message (rectified images, so no distortion) and its VO pose the keyframe
-pose. Which KITTI frames the keyframes are is not stated in the files; :func:`find_frame_offset`
-finds it by comparing relative motions with the ground truth (for these files: the 77 poses
-are frames 0-76, stride 1). Stamps come from KITTI's ``times.txt`` for those frames.
+pose. With ``stereo`` the right image's ``(uR, v)`` join them as camera 1, which sits
+``baseline`` metres along the left camera's x axis (:func:`right_camera`). Which KITTI
+frames the keyframes are is not stated in the files; :func:`find_frame_offset` finds it
+by comparing relative motions with the ground truth (for these files: the 77 poses are
+frames 0-76, stride 1). Stamps come from KITTI's ``times.txt`` for those frames.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.core import so3
 from pmba_ros.errors import FormatError
@@ -87,12 +90,13 @@ def _load(path: Path, min_cols: int) -> FloatArray:
     return table
 
 
-def read_kitti_tracks(directory: Path | str) -> KittiTracks:
+def read_kitti_tracks(directory: Path | str, stereo: bool = False) -> KittiTracks:
     """Read the three ``VO_*00s.txt`` files of a directory.
 
     Args:
         directory: Folder with :data:`CALIBRATION_FILE`, :data:`POSES_FILE` and
             :data:`FACTORS_FILE`.
+        stereo: Also the right image's observations ``(uR, v)``, as camera 1.
 
     Returns:
         The keyframe sequence (stamps are assigned by the caller).
@@ -114,22 +118,31 @@ def read_kitti_tracks(directory: Path | str) -> KittiTracks:
     cam = factors[:, 0].astype(np.int64)
     lmk = factors[:, 1].astype(np.int64)
     uv = factors[:, [2, 4]]
+    side = np.zeros(cam.shape[0], dtype=np.int64)
+    if stereo:
+        cam, lmk, side = np.tile(cam, 2), np.tile(lmk, 2), np.repeat([0, 1], cam.shape[0])
+        uv = np.concatenate([uv, factors[:, [3, 4]]])
     index = {int(k): i for i, k in enumerate(ids)}
     unknown = sorted(set(np.unique(cam).tolist()) - set(index))
     if unknown:
         msg = f'{directory / FACTORS_FILE}: observations of unknown keyframes {unknown[:5]}'
         raise FormatError(msg)
-    order = np.lexsort((lmk, cam))
-    cam, lmk, uv = cam[order], lmk[order], uv[order]
+    order = np.lexsort((side, lmk, cam))
+    cam, lmk, uv, side = cam[order], lmk[order], uv[order], side[order]
     normalized = np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
     bounds = np.searchsorted(cam, ids, side='left'), np.searchsorted(cam, ids, side='right')
     frames = []
     for k, (lo, hi) in enumerate(zip(*bounds, strict=True)):
         frames.append(TrackFrame(stamp_ns=0, frame_id='camera', feature_ids=lmk[lo:hi],
-                                 camera_ids=np.zeros(hi - lo, dtype=np.int64),
+                                 camera_ids=side[lo:hi],
                                  pixels=uv[lo:hi], normalized=normalized[lo:hi]))
         logger.debug('keyframe %d: %d observations', ids[k], hi - lo)
     return KittiTracks(ids, R_wc, centers, frames, camera, baseline)
+
+
+def right_camera(baseline_m: float) -> Rigid:
+    """Return the right camera's pose in the left camera's frame (rectified: no rotation)."""
+    return Rigid(np.eye(3), np.array([float(baseline_m), 0.0, 0.0]))
 
 
 def _relative(R_wc: FloatArray, centers: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -293,4 +306,5 @@ __all__ = [
     'find_frame_offset',
     'kitti_sequence',
     'read_kitti_tracks',
+    'right_camera',
 ]

@@ -26,7 +26,8 @@ namespace, so ``pmba replay`` reads the bag without topic options.
   the camera; with it (:data:`EUROC_CAM0` for EuRoC's cam0) the keyframe poses and the ground
   truth are body poses and ``/tf_static`` carries body -> camera, as VINS-style front-ends
   publish them;
-* ``sensor_msgs/CameraInfo`` on :attr:`SimTopics.camera_info`;
+* ``sensor_msgs/CameraInfo`` on :attr:`SimTopics.camera_info` (camera c > 0 of a rig on
+  :meth:`SimTopics.camera_info_of`, with its body -> camera transform on ``/tf_static``);
 * the ground truth as ``geometry_msgs/PoseStamped`` on :attr:`SimTopics.groundtruth`.
 
 Messages are logged with a small, fixed receive latency after their header stamp (tracks
@@ -140,6 +141,14 @@ class SimTopics:
     body_frame: str = 'body'
     camera_frame: str = 'camera'
 
+    def camera_info_of(self, camera: int) -> str:
+        """Return the CameraInfo topic of camera id ``camera`` (0: :attr:`camera_info`)."""
+        return self.camera_info if camera == 0 else f'/camera{camera}/camera_info'
+
+    def camera_frame_of(self, camera: int) -> str:
+        """Return the optical frame of camera id ``camera`` (0: :attr:`camera_frame`)."""
+        return self.camera_frame if camera == 0 else f'{self.camera_frame}{camera}'
+
 
 @dataclass(frozen=True)
 class SimBagInfo:
@@ -186,7 +195,8 @@ def sequence_trajectory(stamps_ns: IntArray, R_wc: FloatArray, centers: FloatArr
 
 def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vins_fusion',
                        topics: SimTopics | None = None, overwrite: bool = False,
-                       extrinsic: Rigid | None = None) -> SimBagInfo:
+                       extrinsic: Rigid | None = None,
+                       rig_extrinsics: Sequence[Rigid] = ()) -> SimBagInfo:
     """Write a simulated sequence as a front-end-like rosbag2 MCAP recording plus GT TUM.
 
     Args:
@@ -201,6 +211,9 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
         extrinsic: Body -> camera transform T_bc: keyframe poses and ground truth become body
             poses ``T_wb = T_wc T_bc^-1`` and ``/tf_static`` carries body -> camera. None:
             the poses are the camera's.
+        rig_extrinsics: Body -> camera transforms of cameras 1, 2, ... of a rig (their
+            observations are in the frames, see :func:`pmba_ros.sim.rig.add_camera`); each
+            gets a CameraInfo topic and a ``/tf_static`` transform. Needs ``extrinsic``.
 
     Returns:
         A summary of what was written.
@@ -213,6 +226,10 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
         msg = f'unknown track layout {layout!r} (expected one of {", ".join(LAYOUTS)})'
         raise BagError(msg)
     topics = topics or SimTopics()
+    if rig_extrinsics and extrinsic is None:
+        msg = 'write_sequence_bag: a rig needs the extrinsic of camera 0 too'
+        raise BagError(msg)
+    cameras = [extrinsic, *rig_extrinsics] if extrinsic is not None else []
     out = Path(out)
     stamps = np.asarray(seq.stamps_ns, dtype=np.int64)
     n_kf = int(stamps.shape[0])
@@ -233,18 +250,19 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     n_obs = 0
     with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
-        if extrinsic is not None and n_kf:
+        for c, T_bc in enumerate(cameras if n_kf else []):
             writer.write(TF_STATIC_TOPIC, make_tf(int(stamps[0]), topics.body_frame,
-                                                  topics.camera_frame, extrinsic.translation,
-                                                  so3.to_quat_xyzw(extrinsic.rotation),
+                                                  topics.camera_frame_of(c), T_bc.translation,
+                                                  so3.to_quat_xyzw(T_bc.rotation),
                                                   backend), int(stamps[0]))
         for i in range(n_kf):
             stamp = int(stamps[i])
             frame = seq.frames[i]
             n_obs += len(frame)
-            writer.write(topics.camera_info,
-                         make_camera_info(stamp, topics.camera_frame, seq.camera, backend),
-                         stamp)
+            for c in range(max(1, len(cameras))):
+                writer.write(topics.camera_info_of(c),
+                             make_camera_info(stamp, topics.camera_frame_of(c), seq.camera,
+                                              backend), stamp)
             if q_gt is not None and c_gt is not None:
                 writer.write(topics.groundtruth,
                              make_pose_stamped(stamp, topics.world_frame, c_gt[i], q_gt[i],
@@ -255,7 +273,7 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
                 if ids.max() < points_w.shape[0]:
                     landmarks = points_w[ids]
             tracks = make_tracks(_with_frame(frame, stamp, topics.camera_frame), layout,
-                                 backend, landmarks_xyz=landmarks)
+                                 backend, max(1, len(cameras)), landmarks_xyz=landmarks)
             writer.write(topics.tracks, tracks, stamp + TRACKS_LATENCY_NS)
             writer.write(topics.keyframes,
                          make_odometry(stamp, topics.world_frame, topics.body_frame,

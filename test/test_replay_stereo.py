@@ -1,0 +1,123 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Replay of a simulated stereo VIO recording (issue #12's done-when for rigs)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+import json
+from pathlib import Path
+
+import numpy as np
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.types import TrackFrame
+from pmba_ros.core import so3
+from pmba_ros.eval.metrics import ate, rpe
+from pmba_ros.eval.trajectory import read_tum
+from pmba_ros.io.bags import iter_messages, list_topics
+from pmba_ros.replay import replay, RESULT_BAG
+from pmba_ros.sim.bag import EUROC_CAM0, groundtruth_path, write_sequence_bag
+from pmba_ros.sim.rig import add_camera, EUROC_CAM1
+from pmba_ros.sim.sequence import simulate_sequence
+import pytest
+
+CAMERA_INFOS = ('/camera_info', '/camera1/camera_info')
+
+
+@pytest.fixture(scope='module')
+def stereo_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Return a 60-keyframe stereo street: EuRoC cam0 / cam1 on /tf_static, body poses."""
+    seq = simulate_sequence('street', n_keyframes=60, seed=2)
+    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=5)
+    bag = tmp_path_factory.mktemp('stereo') / 'bag'
+    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0, rig_extrinsics=[EUROC_CAM1])
+    return bag
+
+
+def _last_transform(bag: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    msg = None
+    for message in iter_messages([bag], topics=[topic]):
+        msg = message.msg
+    assert msg is not None
+    tf = msg.transforms[0].transform
+    R = so3.from_quat_xyzw(np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z,
+                                     tf.rotation.w]))
+    return R, np.array([tf.translation.x, tf.translation.y, tf.translation.z])
+
+
+def test_stereo_replay_is_metric_and_beats_the_front_end(stereo_bag: Path,
+                                                         tmp_path: Path) -> None:
+    """Every keyframe as a body pose; SE(3) ATE <= 0.3x and RPE <= 1x the front-end's."""
+    topics = list_topics([stereo_bag])
+    assert set(CAMERA_INFOS) <= set(topics)
+    config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS)
+    out = tmp_path / 'out'
+    report = replay([stereo_bag], out, config, gt=groundtruth_path(stereo_bag), align='se3')
+    data = json.loads((out / 'report.json').read_text())
+    assert report.complete and report.keyframes_out == 60
+    assert data['keyframes_not_optimized'] == 0
+    assert 'other_camera_observations' not in data['counters']
+    assert data['extrinsic']['source'] == 'tf'
+    rig = data['extrinsic']['rig_cameras']['1']
+    assert rig['source'] == 'tf'
+    np.testing.assert_allclose(rig['in_reference_camera'],
+                               (EUROC_CAM0.inverse() @ EUROC_CAM1).to_flat(), atol=1e-8)
+
+    gt = read_tum(groundtruth_path(stereo_bag))
+    optimized = read_tum(out / 'keyframes_optimized.tum')
+    frontend = read_tum(out / 'keyframes_frontend.tum')
+    assert optimized.positions_xyz.shape[0] == 60
+    ate_opt, ate_fe = ate(optimized, gt, 'se3').rmse, ate(frontend, gt, 'se3').rmse
+    assert ate_opt <= 0.3 * ate_fe, (ate_opt, ate_fe)
+    assert rpe(optimized, gt).rmse <= rpe(frontend, gt).rmse
+    # Body poses, not camera poses (EuRoC's camera frame is ~90 degrees off the body's).
+    rel = np.einsum('nji,njk->nik', optimized.R_wc, gt.R_wc)
+    assert np.rad2deg(np.linalg.norm(so3.log(rel), axis=1).max()) < 2.0
+
+    # REP-105: the last map -> odom composed with the front-end's newest body pose is the
+    # newest optimized pose.
+    R_mo, t_mo = _last_transform(out / RESULT_BAG, '/tf')
+    C = R_mo @ frontend.positions_xyz[-1] + t_mo
+    assert np.linalg.norm(C - optimized.positions_xyz[-1]) < 0.02
+    angle = np.linalg.norm(so3.log((R_mo @ frontend.R_wc[-1]).T @ optimized.R_wc[-1]))
+    assert np.rad2deg(angle) < 0.2
+
+
+def test_camera_without_camera_info_is_counted_and_unused(stereo_bag: Path,
+                                                          tmp_path: Path) -> None:
+    """A rig camera whose CameraInfo is not recorded: a warning and a count, monocular result."""
+    config = BackendConfig(num_cams=2, camera_info_topics=('/camera_info', '/missing/info'))
+    out = tmp_path / 'out'
+    report = replay([stereo_bag], out, config)
+    data = json.loads((out / 'report.json').read_text())
+    assert report.keyframes_out == 60
+    assert data['counters']['other_camera_observations'] > 1000
+    assert any("'/missing/info' of camera 1" in w for w in data['warnings'])
+
+
+def test_pixel_only_tracks_use_each_cameras_camera_info(tmp_path: Path) -> None:
+    """PointCloud2 tracks with pixels only: each camera's pixels go through its CameraInfo."""
+    seq = simulate_sequence('street', n_keyframes=40, seed=3)
+    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
+    frames = [TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids, f.pixels, None)
+              for f in seq.frames]
+    bag = tmp_path / 'bag'
+    write_sequence_bag(replace(seq, frames=frames), bag, layout='named', extrinsic=EUROC_CAM0,
+                       rig_extrinsics=[EUROC_CAM1])
+    config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS, feature_layout='named')
+    report = replay([bag], tmp_path / 'out', config, gt=groundtruth_path(bag), align='se3')
+    data = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert 'other_camera_observations' not in data['counters']
+    assert '1' in data['extrinsic']['rig_cameras']
+    assert report.accuracy is not None and report.accuracy['ate_ratio'] < 0.3
