@@ -30,7 +30,7 @@ RANKS = {
     'backend': 3,
     'io': 4,
     'sim': 5,
-    'node': 6, 'replay': 6, 'plot': 6,
+    'node': 6, 'replay': 6, 'replay_report': 6, 'plot': 6,
     'cli': 7, '__main__': 7,
 }
 

@@ -27,9 +27,10 @@ from pmba_ros.backend.outputs import make_path, make_tf
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.errors import BagError, EvaluationError, MessageError
 from pmba_ros.eval.trajectory import read_tum, Trajectory, write_tum
+from pmba_ros.io.bag_inputs import resolve_topic, stamp_ordered
 from pmba_ros.io.bags import iter_messages, jazzy_typestore, list_topics
 from pmba_ros.io.ply import read_ply
-from pmba_ros.replay import replay, resolve_topic, stamp_ordered
+from pmba_ros.replay import replay
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest

@@ -26,7 +26,8 @@ from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.io.bags import iter_messages
-from pmba_ros.replay import _collect_stats, replay, ReplayReport
+from pmba_ros.replay import replay
+from pmba_ros.replay_report import collect_stats, ReplayReport
 from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
@@ -165,7 +166,7 @@ def test_suspect_counters_become_report_warnings() -> None:
     report = ReplayReport(bags=[], out_dir=Path())
     logic = SimpleNamespace(stats=SimpleNamespace(
         counters={'cost_explosions': 7, 'feature_ids_inexact': 12, 'resets': 1}))
-    _collect_stats(logic, report)
+    collect_stats(logic, report)
     inexact = ("12 observations dropped: feature ids that cannot be exact in the message's "
                'number type (>= 2^24 in float32: tracks would merge)')
     cost = ('7 solves whose cost per observation exploded relative to their history '
