@@ -30,6 +30,8 @@ from pmba_ros.io.atomic import write_atomic
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from numpy.typing import ArrayLike
+    from pmba_ros.eval.metrics import EvalResult
     from pmba_ros.eval.trajectory import Trajectory
     from pmba_ros.replay_report import ReplayReport
 
@@ -110,7 +112,7 @@ def plot_series(path: Path, values: Sequence[float], ylabel: str, title: str, *,
                        xlabel=xlabel)
 
 
-def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabel: str,
+def plot_curves(path: Path, curves: Sequence[tuple[str, ArrayLike]], ylabel: str,
                 title: str, *, log_scale: bool = False, xlabel: str = 'keyframe') -> Path:
     """Plot several labelled series against their index.
 
@@ -162,7 +164,8 @@ def _save(fig: Any, plt: Any, path: Path) -> Path:
     return path
 
 
-def write_replay_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report: ReplayReport,
+def write_replay_plots(out: Path, frontend: Trajectory, optimized: Trajectory,
+                       gt: Trajectory | None, report: ReplayReport,
                        align: str = 'sim3') -> dict[str, Path]:
     """Write the replay PNGs: top view, cost per solve, solve time per keyframe.
 
@@ -174,8 +177,8 @@ def write_replay_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report
     Raises:
         PmbaError: If matplotlib is missing or a file cannot be written.
     """
-    curves: list[tuple[str, Any]] = []
-    errors: list[tuple[str, Any]] = []
+    curves: list[tuple[str, Trajectory]] = []
+    errors: list[tuple[str, ArrayLike]] = []
     if gt is not None:
         from pmba_ros.eval.metrics import ate
         curves.append(('ground truth', gt))
@@ -205,7 +208,7 @@ def write_replay_plots(out: Path, frontend: Any, optimized: Any, gt: Any, report
     return files
 
 
-def _aligned(traj: Any, result: Any) -> Any:
+def _aligned(traj: Trajectory, result: EvalResult) -> Trajectory:
     """Return ``traj`` moved by the alignment of an ATE result."""
     from pmba_ros.eval.align import apply_alignment, UmeyamaResult
     fit = UmeyamaResult(result.rotation, result.translation, result.scale)

@@ -50,22 +50,27 @@ from dataclasses import dataclass, replace
 import logging
 from pathlib import Path
 import time
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
-import numpy as np
 from pmba_ros._json import dumps_report
 from pmba_ros.errors import BagError, MessageError
 from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
 from pmba_ros.io.bag_inputs import (
+    header_stamp_ns,
     ReplayInputs,
     resolve_topic,
     select_inputs,
-    stamp_ns,
     stamp_ordered,
 )
 from pmba_ros.io.bags import BagMessage, iter_messages, open_writer, ReadStats
 from pmba_ros.io.output_dir import output_lock, remove_outputs
 from pmba_ros.replay_report import collect_stats, ReplayReport
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.config import BackendConfig
+    from pmba_ros.backend.logic import BackendLogic
+    from pmba_ros.eval.trajectory import Trajectory
+    from pmba_ros.io.bags import BagWriter
 
 logger = logging.getLogger(__name__)
 
@@ -113,7 +118,7 @@ def camera_info_from_intrinsics(intrinsics: Sequence[float], stamp_ns: int = 0) 
 class _Run:
     """State of one replay (feeds the logic, writes its outputs)."""
 
-    def __init__(self, logic: Any, writer: Any, report: ReplayReport,
+    def __init__(self, logic: BackendLogic, writer: BagWriter, report: ReplayReport,
                  progress: ProgressCallback | None, total: int, keyframe_kind: str) -> None:
         self.logic = logic
         self.keyframe_kind = keyframe_kind
@@ -136,8 +141,8 @@ class _Run:
         self.last_stamp = max(self.last_stamp, stamp)
         if kind == self.keyframe_kind:
             report.keyframes_in += 1
-        handler = getattr(self.logic, {'camera_info': 'on_camera_info', 'tracks': 'on_tracks',
-                                       'keyframe': 'on_keyframe', 'tf': 'on_tf'}[kind])
+        handler = {'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
+                   'keyframe': self.logic.on_keyframe, 'tf': self.logic.on_tf}[kind]
         before = self._rejections()
         try:
             handler(message.msg)
@@ -145,7 +150,7 @@ class _Run:
             self._rejected(kind, message, stamp, str(err))
         else:
             if self._rejections() > before:
-                self._rejected(kind, message, stamp, str(getattr(self.logic, 'last_error', '')))
+                self._rejected(kind, message, stamp, self.logic.last_error)
             elif kind == 'tracks':
                 self.tracks_accepted += 1
         self.step()
@@ -154,8 +159,8 @@ class _Run:
 
     def _rejections(self) -> int:
         """Return the logic's count of rejected input messages."""
-        counters = getattr(getattr(self.logic, 'stats', None), 'counters', None) or {}
-        return int(sum(v for k, v in counters.items() if k in REJECTION_COUNTERS))
+        counters = self.logic.stats.counters
+        return sum(counters[name] for name in REJECTION_COUNTERS)
 
     def _rejected(self, kind: str, message: BagMessage, stamp: int, error: str) -> None:
         """Count a rejected input; stop if no tracks message has been usable."""
@@ -180,22 +185,17 @@ class _Run:
         """Run the logic's pending work and write its outputs."""
         for topic, msg in self.logic.step():
             name = resolve_topic(topic)
-            self.writer.write(name, msg, stamp_ns(msg, self.last_stamp))
+            self.writer.write(name, msg, header_stamp_ns(msg, self.last_stamp))
             self.report.messages_out += 1
 
     def finish(self) -> None:
-        """Drain the logic and check that the tracks were usable."""
-        finish = getattr(self.logic, 'finish', None)
-        if callable(finish):
-            for topic, msg in finish() or []:
-                self.writer.write(resolve_topic(topic), msg, stamp_ns(msg, self.last_stamp))
-                self.report.messages_out += 1
+        """Run the logic's last pending work and check that the tracks were usable."""
         self.step()
         if self.tracks_rejected and not self.tracks_accepted:
             self._raise_all_rejected()
 
 
-def _make_logic(config: Any) -> Any:
+def _make_logic(config: BackendConfig) -> BackendLogic:
     """Create the back-end for a replay (deterministic, rosbags messages)."""
     from pmba_ros.backend.logic import BackendLogic
     from pmba_ros.backend.outputs import RosbagsBackend
@@ -203,7 +203,8 @@ def _make_logic(config: Any) -> Any:
     return BackendLogic(config, RosbagsBackend(jazzy_typestore()))
 
 
-def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, *,
+def replay(bags: Sequence[Path | str], out_dir: Path | str,
+           config: BackendConfig | None = None, *,
            gt: Path | str | None = None, plot: bool = False,
            progress: ProgressCallback | None = None,
            intrinsics: Sequence[float] | None = None, align: str = 'sim3') -> ReplayReport:
@@ -277,19 +278,19 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str, config: Any = None, 
 class _Outputs:
     """What to write after the replay."""
 
-    gt: Any
+    gt: Trajectory | None
     plot: bool
     align: str
     t_start: float
 
 
-def _run_and_write(config: Any, intrinsics: Sequence[float] | None, report: ReplayReport,
+def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, report: ReplayReport,
                    bag_paths: list[Path], kinds: dict[str, str], inputs: ReplayInputs, out: Path,
                    outputs: _Outputs, progress: ProgressCallback | None) -> None:
     """Feed the bags to a new back-end into the result bag, then write the other outputs."""
     report.files['result_bag'] = out / RESULT_BAG
     run: _Run | None = None
-    logic: Any = None
+    logic: BackendLogic | None = None
     finished = False
     try:
         logic = _make_logic(config)
@@ -365,13 +366,13 @@ def _check_input(report: ReplayReport, damage: ReadStats) -> None:
     report.warnings.extend(found)
 
 
-def _read_gt(path: Path | str) -> Any:
+def _read_gt(path: Path | str) -> Trajectory:
     """Read a ground-truth trajectory (format detected)."""
     from pmba_ros.eval.trajectory import read_trajectory
     return read_trajectory(path)
 
 
-def _write_outputs(logic: Any, report: ReplayReport, out: Path, outputs: _Outputs,
+def _write_outputs(logic: BackendLogic | None, report: ReplayReport, out: Path, outputs: _Outputs,
                    finished: bool) -> None:
     """Write TUM, PLY, accuracy, plots and report.json last (also after an error).
 
@@ -396,8 +397,8 @@ def _write_outputs(logic: Any, report: ReplayReport, out: Path, outputs: _Output
         write_atomic(out / OPTIMIZED_TUM, lambda tmp: write_tum(tmp, optimized))
         report.files['optimized_tum'] = out / OPTIMIZED_TUM
         report.keyframes_out = len(optimized)
-        ids, points = _landmarks(logic)
-        write_atomic(out / LANDMARKS_PLY, lambda tmp: write_ply(tmp, points, ids))
+        points = logic.landmarks()
+        write_atomic(out / LANDMARKS_PLY, lambda tmp: write_ply(tmp, points))
         report.files['landmarks_ply'] = out / LANDMARKS_PLY
         if outputs.gt is not None and finished:
             report.accuracy = accuracy(frontend, optimized, outputs.gt, align=outputs.align)
@@ -426,15 +427,6 @@ def _dump_report(report: ReplayReport, out: Path, t_start: float) -> None:
         if report.error is None:
             raise
         logger.warning('%s: cannot write report: %s', out / REPORT_JSON, err)
-
-
-def _landmarks(logic: Any) -> tuple[np.ndarray | None, np.ndarray]:
-    """Return ``(ids or None, points (N, 3))`` from the logic's ``landmarks()``."""
-    value = logic.landmarks()
-    if isinstance(value, tuple) and len(value) == 2:
-        ids, points = value
-        return (None if ids is None else np.asarray(ids)), np.asarray(points, dtype=np.float64)
-    return None, np.asarray(value, dtype=np.float64).reshape(-1, 3)
 
 
 __all__ = ['FRONTEND_TUM', 'LANDMARKS_PLY', 'OPTIMIZED_TUM', 'REPORT_JSON', 'RESULT_BAG',

@@ -18,10 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._json import to_jsonable
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.logic import BackendLogic
 
 SUSPECT_COUNTERS = {
     'feature_ids_inexact': 'observations dropped: feature ids that cannot be exact in the '
@@ -167,30 +170,26 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def collect_stats(logic: Any, report: ReplayReport) -> None:
-    """Copy per-solve timings, iterations, costs and counters from ``logic.stats``."""
-    stats = getattr(logic, 'stats', None)
-    if stats is None:
-        return
-    report.solve_ms = [float(v) for v in getattr(stats, 'solve_ms', [])]
-    report.iterations = [int(v) for v in getattr(stats, 'iterations', [])]
-    report.costs = [float(v) for v in getattr(stats, 'cost_after', [])]
-    report.costs_before = [float(v) for v in getattr(stats, 'cost_before', [])]
-    report.update_ms = [float(v) for v in getattr(stats, 'update_ms', [])]
-    report.counters = dict(sorted(dict(getattr(stats, 'counters', {}) or {}).items()))
+def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
+    """Copy timings, iterations, costs, counters and the extrinsic used from ``logic``."""
+    stats = logic.stats
+    report.solve_ms = [float(v) for v in stats.solve_ms]
+    report.iterations = [int(v) for v in stats.iterations]
+    report.costs = [float(v) for v in stats.cost_after]
+    report.costs_before = [float(v) for v in stats.cost_before]
+    report.update_ms = [float(v) for v in stats.update_ms]
+    report.counters = dict(sorted(stats.counters.items()))
     for name, text in SUSPECT_COUNTERS.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {text}')
-    if hasattr(stats, 'keyframes'):
-        report.counters['keyframes_processed'] = int(stats.keyframes)
-    report.keyframes_not_optimized = int(getattr(stats, 'not_optimized', 0))
-    report.map_scale = [float(v) for v in getattr(stats, 'map_scale', [])]
+    report.counters['keyframes_processed'] = stats.keyframes
+    report.keyframes_not_optimized = stats.not_optimized
+    report.map_scale = [float(v) for v in stats.map_scale]
     fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
                  'reinitializations': 'window re-initializations from the front-end'}
     for name, what in fallbacks.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {what}')
-    extrinsic = getattr(logic, 'extrinsic', None)
-    if extrinsic is not None:
-        report.extrinsic = {'source': getattr(logic, 'extrinsic_source', ''),
-                            'body_to_camera': [round(v, 9) for v in extrinsic.to_flat()]}
+    if logic.extrinsic is not None:
+        report.extrinsic = {'source': logic.extrinsic_source,
+                            'body_to_camera': [round(v, 9) for v in logic.extrinsic.to_flat()]}

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from pmba_ros import replay as replay_mod
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import BackendStats
 from pmba_ros.backend.outputs import make_path, make_tf
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.errors import BagError, EvaluationError, MessageError
@@ -37,7 +38,11 @@ import pytest
 
 
 class StubLogic:
-    """A stand-in back-end: parses inputs like the real one and echoes front-end poses."""
+    """A stand-in back-end: parses inputs like the real one and echoes front-end poses.
+
+    It has the attributes of :class:`~pmba_ros.backend.logic.BackendLogic` that the replay
+    reads, and no solver.
+    """
 
     def __init__(self, config: BackendConfig, backend: Any) -> None:
         """Keep the config and message backend."""
@@ -45,7 +50,10 @@ class StubLogic:
         self.backend = backend
         self.poses: list[Any] = []
         self.pending: list[Any] = []
-        self.stats = SimpleNamespace(solve_ms=[], iterations=[], counters={'keyframes': 0})
+        self.stats = BackendStats()
+        self.last_error = ''
+        self.extrinsic = None
+        self.extrinsic_source = ''
 
     def on_camera_info(self, msg: Any) -> None:
         """Parse a CameraInfo."""
@@ -54,6 +62,9 @@ class StubLogic:
     def on_tracks(self, msg: Any) -> None:
         """Parse tracks with the configured layout."""
         parse_tracks(msg, self.config.feature_layout)
+
+    def on_tf(self, msg: Any) -> None:
+        """Ignore transforms (the stub has no extrinsic)."""
 
     def on_keyframe(self, msg: Any) -> None:
         """Queue a keyframe pose."""
@@ -122,7 +133,6 @@ def test_resolve_topic() -> None:
 
 def test_stamp_ordered_sorts_by_header_stamp_and_kind() -> None:
     """Out-of-order log times come out in stamp order; tracks before keyframes at a tie."""
-    from types import SimpleNamespace
 
     from pmba_ros.io.bags import BagMessage
 

@@ -16,15 +16,19 @@
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 from pmba_ros.errors import EvaluationError
+from pmba_ros.eval.metrics import evaluate
+
+if TYPE_CHECKING:
+    from pmba_ros.eval.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
 
-def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
-             max_diff_s: float = 0.01) -> dict[str, Any]:
+def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
+             align: str = 'sim3', max_diff_s: float = 0.01) -> dict[str, Any]:
     """Return ATE / RPE of the front-end and optimized keyframes against ground truth.
 
     Args:
@@ -43,8 +47,6 @@ def accuracy(frontend: Any, optimized: Any, gt: Any, *, align: str = 'sim3',
     Raises:
         EvaluationError: If a trajectory has no stamps overlapping the ground truth.
     """
-    from pmba_ros.eval.metrics import evaluate
-
     results = {}
     for name, traj in (('frontend', frontend), ('optimized', optimized)):
         if len(traj) == 0 and name == 'optimized':

@@ -20,10 +20,13 @@ from dataclasses import dataclass
 import heapq
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 from pmba_ros.errors import BagError, MessageError
 from pmba_ros.io.bags import BagMessage, list_topics
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.config import BackendConfig
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +80,7 @@ class ReplayInputs:
     tf: tuple[str, ...] = ()
 
 
-def select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
+def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: bool,
                   warnings: list[str]) -> tuple[ReplayInputs, dict[str, int]]:
     """Check the recorded topics against the configuration; return topics and counts.
 
@@ -132,7 +135,7 @@ def select_inputs(bags: Sequence[Path], config: Any, camera_given: bool,
     return ReplayInputs(tracks, keyframes, camera_info, tf), counts
 
 
-def stamp_ns(msg: Any, fallback: int) -> int:
+def header_stamp_ns(msg: Any, fallback: int) -> int:
     """Return a message's header stamp in ns (``fallback`` if it has no header)."""
     try:
         stamp = msg.header.stamp
@@ -160,7 +163,7 @@ def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],
     heap: list[tuple[int, int, int, str, BagMessage]] = []
     for seq, message in enumerate(messages):
         kind = kinds[message.topic]
-        stamp = stamp_ns(message.msg, message.log_time_ns)
+        stamp = header_stamp_ns(message.msg, message.log_time_ns)
         heapq.heappush(heap, (stamp, _KIND_ORDER[kind], seq, kind, message))
         if len(heap) > window:
             stamp, _, _, kind, message = heapq.heappop(heap)
