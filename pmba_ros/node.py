@@ -56,6 +56,7 @@ from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.core import so3, warmup
 from pmba_ros.errors import MessageError, PmbaError
@@ -207,7 +208,7 @@ class _Transforms:
     transforms: list[Any]
 
 
-class _NodeMsgBackend(out.RclpyBackend):
+class _NodeMsgBackend(RclpyBackend):
     """rclpy messages; a TFMessage stand-in where tf2_msgs is not importable."""
 
     def msg_class(self, type_name: str) -> Any:
@@ -672,7 +673,7 @@ class PmbaNode:
 
 
 _CLOCK_PERIOD_S = 0.025
-_CLOCK_BACKEND = out.RclpyBackend()
+_CLOCK_BACKEND = RclpyBackend()
 
 
 #: Seconds between a publisher seeing its subscribers and the first message of ``pmba play``.

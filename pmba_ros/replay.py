@@ -103,9 +103,10 @@ def camera_info_from_intrinsics(intrinsics: Sequence[float], stamp_ns: int = 0) 
     Raises:
         MessageError: If the intrinsics are not four positive, finite numbers.
     """
-    from pmba_ros.backend.outputs import make_camera_info, RosbagsBackend
+    from pmba_ros.backend.msg_backend import RosbagsBackend
     from pmba_ros.backend.types import CameraModel
     from pmba_ros.io.bags import jazzy_typestore
+    from pmba_ros.sim.inputs import make_camera_info
 
     values = [float(v) for v in intrinsics]
     if len(values) != 4:
@@ -198,7 +199,7 @@ class _Run:
 def _make_logic(config: BackendConfig) -> BackendLogic:
     """Create the back-end for a replay (deterministic, rosbags messages)."""
     from pmba_ros.backend.logic import BackendLogic
-    from pmba_ros.backend.outputs import RosbagsBackend
+    from pmba_ros.backend.msg_backend import RosbagsBackend
     from pmba_ros.io.bags import jazzy_typestore
     return BackendLogic(config, RosbagsBackend(jazzy_typestore()))
 

@@ -30,8 +30,10 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.core import so3
 from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 import rclpy
@@ -81,15 +83,15 @@ def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence) -> Non
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, PointCloud
 
-    backend = out.RclpyBackend()
+    backend = RclpyBackend()
     pub_tracks = driver.create_publisher(PointCloud, 'features', RELIABLE)
     pub_kf = driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE)
     pub_info = driver.create_publisher(CameraInfo, 'camera_info', RELIABLE)
     assert spin_until(executor, lambda: min(p.get_subscription_count() for p in
                                             (pub_tracks, pub_kf, pub_info)) > 0)
-    pub_info.publish(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+    pub_info.publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
     for i in range(len(seq)):
-        pub_tracks.publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+        pub_tracks.publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
         pub_kf.publish(out.make_odometry(
             int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
             so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))

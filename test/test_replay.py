@@ -112,7 +112,7 @@ def stub(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _backend() -> Any:
-    from pmba_ros.backend.outputs import RosbagsBackend
+    from pmba_ros.backend.msg_backend import RosbagsBackend
     return RosbagsBackend(jazzy_typestore())
 
 
@@ -133,7 +133,6 @@ def test_resolve_topic() -> None:
 
 def test_stamp_ordered_sorts_by_header_stamp_and_kind() -> None:
     """Out-of-order log times come out in stamp order; tracks before keyframes at a tie."""
-
     from pmba_ros.io.bags import BagMessage
 
     def msg(topic: str, stamp: int, log: int) -> BagMessage:

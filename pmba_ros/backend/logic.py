@@ -42,6 +42,7 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
@@ -109,11 +110,11 @@ class BackendLogic:
 
     Args:
         config: The configuration.
-        msg_backend: Builds the output messages (:class:`~pmba_ros.backend.outputs.
+        msg_backend: Builds the output messages (:class:`~pmba_ros.backend.msg_backend.
             RclpyBackend` in the node, ``RosbagsBackend`` in the replay tool and tests).
     """
 
-    def __init__(self, config: BackendConfig, msg_backend: out.MsgBackend) -> None:
+    def __init__(self, config: BackendConfig, msg_backend: MsgBackend) -> None:
         """Create the logic in state ``collecting``."""
         self.config = config
         self.backend = msg_backend

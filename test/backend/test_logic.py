@@ -28,6 +28,7 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
+from pmba_ros.backend.msg_backend import MsgBackend, RosbagsBackend
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.backend.window import (
     KeyframeObs,
@@ -40,10 +41,11 @@ from pmba_ros.core import so3
 from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 
-BACKEND = out.RosbagsBackend()
+BACKEND = RosbagsBackend()
 OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
                  DIAGNOSTICS_TOPIC)
 
@@ -51,21 +53,21 @@ OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry
 # --- helpers (also used by the node tests) --------------------------------------------------
 
 
-def keyframe_msg(seq: SimSequence, i: int, backend: out.MsgBackend = BACKEND) -> Any:
+def keyframe_msg(seq: SimSequence, i: int, backend: MsgBackend = BACKEND) -> Any:
     """Front-end keyframe pose of keyframe i as nav_msgs/Odometry (frame odom)."""
     return out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
                              so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend)
 
 
 def tracks_msg(seq: SimSequence, i: int, layout: str = 'vins_fusion',
-               backend: out.MsgBackend = BACKEND, frame: TrackFrame | None = None) -> Any:
+               backend: MsgBackend = BACKEND, frame: TrackFrame | None = None) -> Any:
     """Track message of keyframe i in a layout."""
-    return out.make_tracks(seq.frames[i] if frame is None else frame, layout, backend)
+    return make_tracks(seq.frames[i] if frame is None else frame, layout, backend)
 
 
-def camera_info_msg(seq: SimSequence, backend: out.MsgBackend = BACKEND) -> Any:
+def camera_info_msg(seq: SimSequence, backend: MsgBackend = BACKEND) -> Any:
     """Camera info msg."""
-    return out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
+    return make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
 
 
 def feed(logic: BackendLogic, seq: SimSequence, indices: range | list[int],

@@ -26,9 +26,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+from pmba_ros.sim.inputs import make_camera_info, make_point_cloud, make_tracks
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -64,14 +66,14 @@ def builders() -> dict[str, Callable[[Any], Any]]:
         'diagnostics': lambda b: outputs.make_diagnostics(
             T_NS, 'pmba_ros: solver', 'warn', 'slow', {'solve_ms': 12.5, 'n_kf': 7,
                                                        'mode': 'refine'}, b),
-        'point_cloud': lambda b: outputs.make_point_cloud(
+        'point_cloud': lambda b: make_point_cloud(
             T_NS, 'world', POSITIONS, [('a', [1, 2, 3]), ('b', [4.5])], b),
         'cloud2_named': lambda b: outputs.make_point_cloud2_named(
             T_NS, 'cam0', {'id': np.arange(3, dtype=np.uint32),
                            'u': np.ones(3, np.float32), 'w': np.ones(3, np.int16)}, b),
-        'camera_info': lambda b: outputs.make_camera_info(T_NS, 'cam0',
-                                                          CAMERAS['plumb_bob'], b),
-        **{f'tracks_{lay}': (lambda b, lay=lay: outputs.make_tracks(frame, lay, b))
+        'camera_info': lambda b: make_camera_info(T_NS, 'cam0',
+                                                  CAMERAS['plumb_bob'], b),
+        **{f'tracks_{lay}': (lambda b, lay=lay: make_tracks(frame, lay, b))
            for lay in ('vins_mono', 'vins_fusion', 'per_point', 'named')},
     }
 
@@ -206,24 +208,24 @@ def test_make_tracks_rejects_what_layouts_cannot_carry(backend: Any) -> None:
     """Make tracks rejects what layouts cannot carry."""
     stereo = TrackFrame(0, 'w', [1, 1], [0, 1], [[1.0, 2.0], [3.0, 4.0]], [[0, 0], [0, 0]])
     with pytest.raises(MessageError, match='camera'):
-        outputs.make_tracks(stereo, 'per_point', backend)
+        make_tracks(stereo, 'per_point', backend)
     with pytest.raises(MessageError, match='num_cams'):
-        outputs.make_tracks(stereo, 'vins_mono', backend, num_cams=1)
+        make_tracks(stereo, 'vins_mono', backend, num_cams=1)
     big = TrackFrame(0, 'w', [2**24], [0], [[1.0, 2.0]], [[0.0, 0.0]])
     with pytest.raises(MessageError, match='2\\^24'):
-        outputs.make_tracks(big, 'vins_fusion', backend)
+        make_tracks(big, 'vins_fusion', backend)
     no_norm = TrackFrame(0, 'w', [1], [0], [[1.0, 2.0]], None)
     with pytest.raises(MessageError, match='normalized'):
-        outputs.make_tracks(no_norm, 'vins_fusion', backend)
+        make_tracks(no_norm, 'vins_fusion', backend)
     with pytest.raises(MessageError, match='unknown feature layout'):
-        outputs.make_tracks(no_norm, 'orb', backend)
+        make_tracks(no_norm, 'orb', backend)
 
 
 @pytest.mark.parametrize('model', sorted(CAMERAS))
 def test_camera_info_roundtrip(ts: Any, backend: Any, model: str) -> None:
     """Camera info roundtrip."""
     cam = CAMERAS[model]
-    msg = outputs.make_camera_info(T_NS, 'cam0', cam, backend)
+    msg = make_camera_info(T_NS, 'cam0', cam, backend)
     back = parse_camera_info(ts.deserialize_cdr(ts.serialize_cdr(msg, msg.__msgtype__),
                                                 msg.__msgtype__))
     assert back.distortion_model == model
@@ -235,7 +237,7 @@ def test_camera_info_roundtrip(ts: Any, backend: Any, model: str) -> None:
 
 def test_camera_info_rejects_unsupported(ts: Any, backend: Any) -> None:
     """Camera info rejects unsupported."""
-    msg = outputs.make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
+    msg = make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
     msg.distortion_model = 'rational_polynomial'
     msg.d = np.array([0.1, 0.01, 0, 0, 0, 0.2, 0, 0])
     with pytest.raises(MessageError, match='not supported'):
@@ -307,7 +309,7 @@ def fake_rclpy_modules(ts: Any) -> Callable[[str], Any]:
 def test_rclpy_backend_containers_and_lazy_loading(ts: Any) -> None:
     """Rclpy backend containers and lazy loading."""
     loader = fake_rclpy_modules(ts)
-    backend = outputs.RclpyBackend(loader)
+    backend = RclpyBackend(loader)
     assert backend.msg_class('nav_msgs/msg/Path') is ts.types['nav_msgs/msg/Path']
     assert backend.msg_class('nav_msgs/Path') is ts.types['nav_msgs/msg/Path']
     values = backend.seq_f32(np.array([1.5, 2.5]))
@@ -318,7 +320,7 @@ def test_rclpy_backend_containers_and_lazy_loading(ts: Any) -> None:
     assert backend.seq_f64([1.0]).typecode == 'd'
     cloud = outputs.make_point_cloud2_xyz(T_NS, 'map', POSITIONS, backend)
     assert isinstance(cloud.data, array.array)
-    info = outputs.make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
+    info = make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
     assert isinstance(info.d, array.array) and isinstance(info.k, np.ndarray)
     path = outputs.make_path(T_NS, 'map', POSITIONS, QUATS, [1, 2, 3], backend)
     assert type(path.poses[0].pose.position.x) is float  # rclpy asserts Python floats
@@ -334,8 +336,9 @@ def test_rclpy_backend_builds_real_messages_without_importing_rclpy() -> None:
     run_python(
         'import sys\n'
         'from pmba_ros.backend import outputs\n'
+        'from pmba_ros.backend.msg_backend import RclpyBackend\n'
         'path = outputs.make_path(5, "map", [[0.0, 0.0, 1.0]], [[0.0, 0.0, 0.0, 1.0]], [5],\n'
-        '                         outputs.RclpyBackend())\n'
+        '                         RclpyBackend())\n'
         'assert type(path).__module__ == "nav_msgs.msg._path", type(path)\n'
         'assert path.poses[0].pose.position.z == 1.0\n'
         'assert "rclpy" not in sys.modules\n', timeout_s=120.0)

@@ -24,9 +24,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.tracks import LAYOUTS, parse_keyframe, parse_tracks, stamp_to_ns, TrackMemory
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+from pmba_ros.sim.inputs import make_tracks
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -85,7 +87,7 @@ def test_layout_roundtrip_through_jazzy_cdr(ts: Any, backend: Any, layout: str,
                                             num_cams: int) -> None:
     """Layout roundtrip through jazzy cdr."""
     frame = random_frame(np.random.default_rng(1), layout, num_cams)
-    msg = cdr_roundtrip(ts, outputs.make_tracks(frame, layout, backend, num_cams))
+    msg = cdr_roundtrip(ts, make_tracks(frame, layout, backend, num_cams))
     assert_same(parse_tracks(msg, layout, num_cams), frame)
 
 
@@ -94,7 +96,7 @@ def test_all_layouts_roundtrip_through_mcap_ros2(ts: Any, backend: Any, tmp_path
     """All layouts roundtrip through mcap ros2."""
     rng = np.random.default_rng(2)
     frames = {f'/{lay}_{n}': (lay, n, random_frame(rng, lay, n)) for lay, n in CASES}
-    items = [(topic, outputs.make_tracks(f, lay, backend, n))
+    items = [(topic, make_tracks(f, lay, backend, n))
              for topic, (lay, n, f) in frames.items()]
     decoded = mcap_roundtrip(ts, tmp_path / 'tracks', items)
     assert set(decoded) == set(frames)
@@ -114,7 +116,7 @@ def test_rclpy_style_containers_parse(ts: Any) -> None:
     for layout in LAYOUTS:
         if layout == 'per_point':
             frame = random_frame(np.random.default_rng(3), 'per_point', 1)
-        msg = outputs.make_tracks(frame, layout, outputs.RclpyBackend(loader), 2)
+        msg = make_tracks(frame, layout, RclpyBackend(loader), 2)
         if layout == 'named':
             assert isinstance(msg.data, array.array)
         else:
@@ -189,7 +191,7 @@ def test_nonfinite_coordinates_are_dropped_and_counted(backend: Any, layout: str
     normalized[7, 0] = -np.inf
     bad = TrackFrame(frame.stamp_ns, frame.frame_id, frame.feature_ids, frame.camera_ids,
                      pixels, normalized)
-    got = parse_tracks(outputs.make_tracks(bad, layout, backend), layout)
+    got = parse_tracks(make_tracks(bad, layout, backend), layout)
     keep = np.setdiff1d(np.arange(10), [2, 5, 7])
     assert got.dropped == 3
     np.testing.assert_array_equal(got.feature_ids, frame.feature_ids[keep])
@@ -256,8 +258,8 @@ def test_ids_that_cannot_be_exact_in_float32_are_dropped(ts: Any, layout: str, b
 def test_per_point_data_fed_to_vins_fusion_raises(backend: Any, n_pts: int) -> None:
     """Also for 5 and 6 points, where every channel happens to have one value per point."""
     frame = random_frame(np.random.default_rng(n_pts), 'per_point', 1, k=n_pts)
-    msg = outputs.make_tracks(frame, 'per_point', backend,
-                              landmarks_xyz=np.full((n_pts, 3), 4.0))
+    msg = make_tracks(frame, 'per_point', backend,
+                      landmarks_xyz=np.full((n_pts, 3), 4.0))
     for layout in ('vins_fusion', 'vins_mono'):
         with pytest.raises(MessageError, match='wrong layout'):
             parse_tracks(msg, layout)
@@ -272,7 +274,7 @@ def test_other_layout_mixups_raise(backend: Any, written: str, read: str) -> Non
     """Other layout mixups raise."""
     frame = random_frame(np.random.default_rng(5), written, 1, k=12)
     with pytest.raises(MessageError, match='wrong layout'):
-        parse_tracks(outputs.make_tracks(frame, written, backend), read)
+        parse_tracks(make_tracks(frame, written, backend), read)
 
 
 def test_channel_of_wrong_length_raises(ts: Any) -> None:
@@ -318,7 +320,7 @@ def test_unknown_layout_and_bad_num_cams_raise(ts: Any) -> None:
 def test_empty_cloud_gives_empty_frame(ts: Any, backend: Any, layout: str) -> None:
     """Empty cloud gives empty frame."""
     empty = TrackFrame.empty(STAMP_NS, 'world')
-    msg = cdr_roundtrip(ts, outputs.make_tracks(empty, layout, backend))
+    msg = cdr_roundtrip(ts, make_tracks(empty, layout, backend))
     frame = parse_tracks(msg, layout)
     assert len(frame) == 0
     assert frame.stamp_ns == STAMP_NS

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import jazzy_typestore, open_writer
 import pytest
@@ -94,7 +95,7 @@ def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 1 and 'no such bag' in stderr and 'Traceback' not in stderr
     tf_bag = tmp_path / 'tf'
-    backend = out.RosbagsBackend(jazzy_typestore())
+    backend = RosbagsBackend(jazzy_typestore())
     with open_writer(tf_bag) as writer:
         writer.write('/tf', out.make_tf(1, 'map', 'odom', np.zeros(3), [0, 0, 0, 1.0],
                                         backend), 1)
