@@ -40,10 +40,8 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, fields, replace
 import importlib
-import inspect
 import logging
 import queue
-import re
 import sys
 import threading
 import time
@@ -55,8 +53,10 @@ from pmba_ros._typing import FloatArray
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.log_bridge import ENGINE_LOGGERS, RosLogHandler
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
-from pmba_ros.backend.msg_backend import RclpyBackend
+from pmba_ros.backend.msg_backend import NodeMsgBackend, RclpyBackend
+from pmba_ros.backend.parameters import parameter_descriptions, RUNTIME_PARAMETERS
 from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.core import so3, warmup
 from pmba_ros.errors import MessageError, PmbaError
@@ -68,21 +68,12 @@ MAP_TO_ODOM_TOPIC = 'pmba/map_to_odom'
 
 NODE_DIAGNOSTICS_NAME = 'pmba_ros: node'
 
-RUNTIME_PARAMETERS = frozenset({
-    'max_iterations', 'max_time_s', 'loss', 'loss_scale_px', 'transform_tolerance_s',
-    'covariance_position_m2', 'covariance_rotation_rad2', 'stamp_tolerance_s',
-    'association_timeout_s', 'init_min_parallax_px', 'init_retry_every', 'init_max_iterations',
-    'min_observations', 'max_observations_per_feature', 'max_fixed_keyframes', 'fixed_lookback',
-    'deterministic', 'save_directory', 'tf_rate_hz', 'stale_input_s', 'publish_tf'})
-"""Parameters ``ros2 param set`` may change while running; the others are read-only."""
-
 _STOP = object()
 _WORKER_POLL_S = 0.1
 _JOIN_TIMEOUT_S = 1.0
 _DIAGNOSTICS_PERIOD_S = 1.0
 _PROVISIONAL_COVARIANCE_SCALE = 10.0
 _INT_MAX = 2**31 - 1
-_ENGINE_LOGGERS = ('pmba_ros.core', 'pmba_ros.init')
 
 
 def _msg_type(name: str) -> Any:
@@ -92,21 +83,6 @@ def _msg_type(name: str) -> Any:
 
 
 # --- parameters ---------------------------------------------------------------------------
-
-
-def parameter_descriptions() -> dict[str, str]:
-    """Return each :class:`BackendConfig` field's description (its docstring's Attributes)."""
-    doc = inspect.cleandoc(BackendConfig.__doc__ or '').split('Attributes:', 1)[-1]
-    descriptions: dict[str, str] = {}
-    name = ''
-    for line in doc.splitlines():
-        match = re.match(r'    (\w+): (.*)', line)
-        if match:
-            name = match[1]
-            descriptions[name] = match[2]
-        elif name and line.strip():
-            descriptions[name] += ' ' + line.strip()
-    return descriptions
 
 
 def parameter_descriptor(name: str, description: str) -> Any:
@@ -168,57 +144,7 @@ def input_qos(preset: str, config: BackendConfig) -> Any:
                       durability=durability)
 
 
-# --- logging ------------------------------------------------------------------------------
-
-
-class RosLogHandler(logging.Handler):
-    """Forward Python ``logging`` records to an rclpy logger (and so to /rosout)."""
-
-    def __init__(self, ros_logger: Any) -> None:
-        """Wrap ``ros_logger`` (``node.get_logger()``)."""
-        super().__init__()
-        self._ros = ros_logger
-        self.setFormatter(logging.Formatter('%(name)s: %(message)s'))
-
-    def emit(self, record: logging.LogRecord) -> None:
-        """Log ``record`` at the matching rclpy severity."""
-        try:
-            text = self.format(record)
-            if record.levelno >= logging.CRITICAL:
-                self._ros.fatal(text)
-            elif record.levelno >= logging.ERROR:
-                self._ros.error(text)
-            elif record.levelno >= logging.WARNING:
-                self._ros.warning(text)
-            elif record.levelno >= logging.INFO:
-                self._ros.info(text)
-            else:
-                self._ros.debug(text)
-        except Exception:
-            self.handleError(record)
-
-
 # --- TF -----------------------------------------------------------------------------------
-
-
-@dataclass
-class _Transforms:
-    """Stand-in for tf2_msgs/TFMessage where tf2_msgs is missing (never published as such)."""
-
-    transforms: list[Any]
-
-
-class _NodeMsgBackend(RclpyBackend):
-    """rclpy messages; a TFMessage stand-in where tf2_msgs is not importable."""
-
-    def msg_class(self, type_name: str) -> Any:
-        """Return the rclpy class of ``type_name`` (or :class:`_Transforms` for TFMessage)."""
-        try:
-            return super().msg_class(type_name)
-        except MessageError:
-            if type_name == 'tf2_msgs/msg/TFMessage':
-                return _Transforms
-            raise
 
 
 @dataclass(frozen=True)
@@ -248,7 +174,7 @@ class PmbaNode:
 
         self.node = node
         self.config = cfg = declare_config(node)
-        self.backend = _NodeMsgBackend()
+        self.backend = NodeMsgBackend()
         # The logic always emits map -> odom: the node needs it for the provisional poses
         # and decides itself whether it goes to TF.
         self.logic = BackendLogic(replace(cfg, publish_tf=True), self.backend)
@@ -333,11 +259,11 @@ class PmbaNode:
         package_logger = logging.getLogger('pmba_ros')
         level = int(self.node.get_logger().get_effective_level())
         self._saved_logging = {name: logging.getLogger(name).level
-                               for name in ('pmba_ros', *_ENGINE_LOGGERS)}
+                               for name in ('pmba_ros', *ENGINE_LOGGERS)}
         package_logger.addHandler(handler)
         package_logger.setLevel(level)
         package_logger.propagate = False
-        for name in _ENGINE_LOGGERS:
+        for name in ENGINE_LOGGERS:
             # Their INFO lines come with every solve: debug material for a running node.
             logging.getLogger(name).setLevel(level if level <= logging.DEBUG
                                              else max(level, logging.WARNING))

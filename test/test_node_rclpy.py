@@ -31,8 +31,9 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.msg_backend import RclpyBackend
+from pmba_ros.backend.parameters import RUNTIME_PARAMETERS
 from pmba_ros.core import so3
-from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest

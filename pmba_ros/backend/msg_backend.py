@@ -25,6 +25,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 import array
 from collections.abc import Callable
+from dataclasses import dataclass
 import importlib
 from types import ModuleType
 from typing import Any
@@ -202,4 +203,25 @@ class RclpyBackend(MsgBackend):
         return out
 
 
-__all__ = ['MsgBackend', 'RclpyBackend', 'RosbagsBackend']
+@dataclass
+class TransformsStandIn:
+    """Stand-in for tf2_msgs/TFMessage where tf2_msgs is missing (never published as such)."""
+
+    transforms: list[Any]
+
+
+class NodeMsgBackend(RclpyBackend):
+    """rclpy messages; a TFMessage stand-in where tf2_msgs is not importable."""
+
+    def msg_class(self, type_name: str) -> Any:
+        """Return the rclpy class of ``type_name`` (:class:`TransformsStandIn` for TFMessage)."""
+        try:
+            return super().msg_class(type_name)
+        except MessageError:
+            if type_name == 'tf2_msgs/msg/TFMessage':
+                return TransformsStandIn
+            raise
+
+
+__all__ = ['MsgBackend', 'NodeMsgBackend', 'RclpyBackend', 'RosbagsBackend',
+           'TransformsStandIn']
