@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from pmba_ros import replay as replay_mod
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.logic import BackendStats
 from pmba_ros.backend.outputs import make_path, make_tf
+from pmba_ros.backend.status import BackendStats
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.errors import BagError, EvaluationError, MessageError
 from pmba_ros.eval.trajectory import read_tum, Trajectory, write_tum

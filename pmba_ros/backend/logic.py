@@ -44,6 +44,7 @@ from pmba_ros.backend.estimator import Estimator, UpdateInfo
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.status import BackendStats, DIAGNOSTICS_NAME, INFO_COUNTERS
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
@@ -55,38 +56,6 @@ logger = logging.getLogger(__name__)
 
 TF_TOPIC = '/tf'
 DIAGNOSTICS_TOPIC = '/diagnostics'
-DIAGNOSTICS_NAME = 'pmba_ros: back-end'
-INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
-                           'init_failures', 'keyframes_passed_through'})
-"""Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
-
-
-@dataclass
-class BackendStats:
-    """Per-keyframe statistics and event counters.
-
-    Attributes:
-        solve_ms: Solver time of each optimized keyframe update, ms.
-        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
-        iterations: Solver iterations per optimized update.
-        cost_before: Cost before each solve.
-        cost_after: Cost after each solve.
-        counters: Event counts by reason (rejected inputs, drops, errors, ...).
-        keyframes: Keyframes handed to the estimator.
-        not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
-        map_scale: Scale of the map <- odom similarity after each keyframe since the
-            initialization (a monocular map drifting in scale against odom shows here).
-    """
-
-    solve_ms: list[float] = field(default_factory=list)
-    update_ms: list[float] = field(default_factory=list)
-    iterations: list[int] = field(default_factory=list)
-    cost_before: list[float] = field(default_factory=list)
-    cost_after: list[float] = field(default_factory=list)
-    counters: Counter[str] = field(default_factory=Counter)
-    keyframes: int = 0
-    not_optimized: int = 0
-    map_scale: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)

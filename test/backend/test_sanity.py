@@ -23,8 +23,9 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from pmba_ros.backend.logic import BackendLogic, BackendStats, DIAGNOSTICS_TOPIC
+from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.status import BackendStats
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.io.bags import iter_messages
 from pmba_ros.replay import replay
