@@ -57,6 +57,7 @@ from pmba_ros.backend.log_bridge import ENGINE_LOGGERS, RosLogHandler
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.msg_backend import NodeMsgBackend, RclpyBackend
 from pmba_ros.backend.parameters import parameter_descriptions, RUNTIME_PARAMETERS
+from pmba_ros.backend.status import node_level_and_message
 from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.core import so3, warmup
 from pmba_ros.errors import MessageError, PmbaError
@@ -532,16 +533,11 @@ class PmbaNode:
         age = now - since
         with self._counts_lock:
             received = dict(self._received)
-        level, message = 'ok', 'receiving input'
-        if age > self.config.stale_input_s:
-            level = 'warn'
-            what = 'no input for' if self._last_input >= 0 else 'no input received in'
-            message = f'{what} {age:.1f} s (check the topics, remaps and QoS)'
-        elif self._last_input < 0:
-            message = 'waiting for input'
-        if self.config.publish_tf and self.tf_mode.startswith('off'):
-            level = 'warn'
-            message = f'{message}; TF {self.tf_mode}, map -> odom on {MAP_TO_ODOM_TOPIC}'
+        tf_off = (self.tf_mode if self.config.publish_tf and self.tf_mode.startswith('off')
+                  else None)
+        level, message = node_level_and_message(age, self._last_input >= 0,
+                                                self.config.stale_input_s, tf_off,
+                                                MAP_TO_ODOM_TOPIC)
         values: dict[str, str | float] = {
             'tf': self.tf_mode, 'input_age_s': round(age, 3),
             'queue_length': self._queue.qsize(),
