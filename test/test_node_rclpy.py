@@ -230,7 +230,7 @@ def test_parameters_descriptors_and_runtime_changes(
                                   Parameter('loss_scale_px', value=3)])
         assert all(r.successful for r in ok)
         assert wrapper.config.max_iterations == 5 and wrapper.config.loss_scale_px == 3.0
-        wrapper._enqueue('tracks', object())     # the worker applies it at its next message
+        wrapper.worker.enqueue('tracks', object())  # the worker applies it at its next message
         assert spin_until(executor, lambda: wrapper.logic.config.max_iterations == 5, 5.0)
         assert wrapper.logic.estimator.config.loss_scale_px == 3.0
         assert RUNTIME_PARAMETERS <= set(BackendConfig().to_params())

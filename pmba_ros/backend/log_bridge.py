@@ -49,4 +49,38 @@ class RosLogHandler(logging.Handler):
             self.handleError(record)
 
 
-__all__ = ['ENGINE_LOGGERS', 'RosLogHandler']
+class LogRoute:
+    """The package's ``logging`` routed to a ROS logger, until :meth:`close`.
+
+    The package logger takes the ROS logger's level and stops propagating (no duplicate
+    lines on the console); the engine loggers are held at WARNING unless the level is DEBUG.
+
+    Args:
+        ros_logger: An rclpy logger (``node.get_logger()``).
+    """
+
+    def __init__(self, ros_logger: Any) -> None:
+        """Install the handler and set the levels (the previous ones are kept)."""
+        self.handler = RosLogHandler(ros_logger)
+        level = int(ros_logger.get_effective_level())
+        self._saved = {name: logging.getLogger(name).level
+                       for name in ('pmba_ros', *ENGINE_LOGGERS)}
+        package_logger = logging.getLogger('pmba_ros')
+        package_logger.addHandler(self.handler)
+        package_logger.setLevel(level)
+        package_logger.propagate = False
+        for name in ENGINE_LOGGERS:
+            # Their INFO lines come with every solve: debug material for a running node.
+            logging.getLogger(name).setLevel(level if level <= logging.DEBUG
+                                             else max(level, logging.WARNING))
+
+    def close(self) -> None:
+        """Remove the handler and restore the levels and propagation."""
+        package_logger = logging.getLogger('pmba_ros')
+        package_logger.removeHandler(self.handler)
+        package_logger.propagate = True
+        for name, level in self._saved.items():
+            logging.getLogger(name).setLevel(level)
+
+
+__all__ = ['ENGINE_LOGGERS', 'LogRoute', 'RosLogHandler']

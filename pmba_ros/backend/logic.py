@@ -458,11 +458,10 @@ class BackendLogic:
         kf = self.estimator.kf
         cfg = self.config
         optimized = bool(self.estimator.optimized(np.array([i]))[0])
-        inflate = 1.0 if optimized else 10.0
-        cov = np.diag([cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        cov = cfg.odometry_covariance(optimized=optimized)
         R, C = self.body_poses(np.array([i]))
         return out.make_odometry(int(kf.stamps_ns[i]), cfg.map_frame, self._base_frame,
-                                 C[0], so3.to_quat_xyzw(R[0]), inflate * cov, self.backend)
+                                 C[0], so3.to_quat_xyzw(R[0]), cov, self.backend)
 
     def map_from_odom_at(self, i: int) -> Rigid:
         """REP-105: T_map_odom = T_map_body (back-end) * T_odom_body (front-end)^-1 at i."""

@@ -17,8 +17,13 @@ from __future__ import annotations
 
 import inspect
 import re
+from typing import Any
 
+from pmba_ros.backend import config as settings
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.msg_backend import MsgBackend
+
+_INT_MAX = 2**31 - 1
 
 RUNTIME_PARAMETERS = frozenset({
     'max_iterations', 'max_time_s', 'loss', 'loss_scale_px', 'transform_tolerance_s',
@@ -44,4 +49,28 @@ def parameter_descriptions() -> dict[str, str]:
     return descriptions
 
 
-__all__ = ['RUNTIME_PARAMETERS', 'parameter_descriptions']
+def parameter_descriptor(name: str, description: str, backend: MsgBackend) -> Any:
+    """Return the ``rcl_interfaces/ParameterDescriptor`` of config field ``name``.
+
+    Types are dynamic so that an integer is accepted for a float (``max_time_s: 1``);
+    :class:`BackendConfig` checks every type and value and names the parameter.
+    """
+    desc = backend.new('rcl_interfaces/msg/ParameterDescriptor', name=name,
+                       description=description, dynamic_typing=True,
+                       read_only=name not in RUNTIME_PARAMETERS)
+    if name in settings.CHOICES:
+        allowed = settings.CHOICES[name]
+        desc.additional_constraints = 'one of ' + ', '.join(repr(c) for c in allowed)
+    elif name in settings.INT_MINIMUMS:
+        desc.integer_range = [backend.new('rcl_interfaces/msg/IntegerRange',
+                                          from_value=settings.INT_MINIMUMS[name],
+                                          to_value=_INT_MAX, step=1)]
+    elif name in settings.POSITIVE_FLOATS or name in settings.NON_NEGATIVE_FLOATS:
+        desc.floating_point_range = [backend.new('rcl_interfaces/msg/FloatingPointRange',
+                                                 from_value=0.0, to_value=float('inf'),
+                                                 step=0.0)]
+        desc.additional_constraints = '> 0' if name in settings.POSITIVE_FLOATS else '>= 0'
+    return desc
+
+
+__all__ = ['RUNTIME_PARAMETERS', 'parameter_descriptions', 'parameter_descriptor']

@@ -22,6 +22,7 @@ import logging
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
+from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, tracks_msgtype
 from pmba_ros.errors import BagError, MessageError
 from pmba_ros.io.bags import BagMessage, list_topics
 
@@ -30,10 +31,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-TRACKS_TYPES = {'named': ('sensor_msgs/msg/PointCloud2',)}
-"""Accepted message types of the tracks topic per layout (default: PointCloud)."""
-KEYFRAME_TYPES = {'odometry': ('nav_msgs/msg/Odometry',),
-                  'pose_stamped': ('geometry_msgs/msg/PoseStamped',)}
 CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
 TF_TOPICS = ('/tf_static', '/tf')
 """Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
@@ -102,19 +99,19 @@ def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: boo
 
     tracks = need('tracks', config.features_topic)
     layout = config.feature_layout
-    accepted = TRACKS_TYPES.get(layout, ('sensor_msgs/msg/PointCloud',))
-    if topics[tracks].msgtype not in accepted:
+    accepted = tracks_msgtype(layout)
+    if topics[tracks].msgtype != accepted:
         msg = (f'{where}: tracks topic {tracks!r} has type {topics[tracks].msgtype}, but layout '
-               f'{layout!r} reads {" or ".join(accepted)} (wrong --tracks-layout?)')
+               f'{layout!r} reads {accepted} (wrong --tracks-layout?)')
         raise MessageError(msg)
     keyframes = None
     if config.keyframe_source == 'keyframe_topic':
         keyframes = need('keyframes', config.keyframe_topic)
-        accepted = KEYFRAME_TYPES[config.keyframe_type]
-        if topics[keyframes].msgtype not in accepted:
+        accepted = KEYFRAME_MSGTYPES[config.keyframe_type]
+        if topics[keyframes].msgtype != accepted:
             msg = (f'{where}: keyframes topic {keyframes!r} has type '
                    f'{topics[keyframes].msgtype}, but --keyframes-type '
-                   f'{config.keyframe_type!r} reads {accepted[0]}')
+                   f'{config.keyframe_type!r} reads {accepted}')
             raise MessageError(msg)
     camera_info = find_topic(resolve_topic(config.camera_info_topic), topics)
     if camera_info is not None and topics[camera_info].msgtype not in CAMERA_INFO_TYPES:

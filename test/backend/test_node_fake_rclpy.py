@@ -511,9 +511,9 @@ def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
     wrapper = make(fake_ros, deterministic=True)
     subs = {s.topic: s.callback for s in fake_ros.created[0].subscriptions}
     assert {'/tf_static', '/tf'} <= subs.keys()
-    last_input = wrapper._last_input
+    last_input = wrapper.worker.last_input
     subs['/tf_static'](make_tf(0, 'base_link', 'camera', [0.1, 0.0, 0.0], [0, 0, 0, 1], BACKEND))
-    assert wrapper._last_input == last_input
+    assert wrapper.worker.last_input == last_input
     assert wrapper.process_pending() == 1
     assert len(wrapper.logic.tf_tree) == 1
 
