@@ -110,13 +110,6 @@ class UpdateInfo:
     message: str = ''
     dropped: dict[str, int] = field(default_factory=dict)
 
-    def diagnostic_values(self) -> dict[str, float]:
-        """Return the update's diagnostics key-values (solve figures, problem size)."""
-        return {'iterations': self.iterations,
-                'cost_before': self.cost_before, 'cost_after': self.cost_after,
-                'problem_poses': self.n_cams, 'problem_free_poses': self.n_free,
-                'problem_features': self.n_feats, 'problem_observations': self.n_obs}
-
 
 class Estimator:
     """Keyframe-by-keyframe PMBA estimator (see the module docstring)."""

@@ -522,7 +522,7 @@ class BackendLogic:
             'state': state, 'mode': cfg.mode, 'last_update': info.kind,
             'keyframes': self._stats.keyframes,
             'optimized_keyframes': int(self.estimator.estimated().shape[0]),
-            **info.diagnostic_values(),
+            **status.update_values(info),
             'input_lag_ms': max(0.0, (self._newest_input_ns - self._last_kf_stamp) * 1e-6)
             if self._last_kf_stamp >= 0 else 0.0,
             'pending_keyframes': len(self._pending), 'buffered_tracks': len(self._tracks),

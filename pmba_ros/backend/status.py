@@ -110,6 +110,14 @@ def backend_message(state: str, estimator_message: str, update_kind: str,
     return message
 
 
+def update_values(info: UpdateInfo) -> dict[str, str | float]:
+    """Return the diagnostics key-values of a keyframe update (solve figures, problem size)."""
+    return {'iterations': info.iterations,
+            'cost_before': info.cost_before, 'cost_after': info.cost_after,
+            'problem_poses': info.n_cams, 'problem_free_poses': info.n_free,
+            'problem_features': info.n_feats, 'problem_observations': info.n_obs}
+
+
 def counter_values(counters: Counter[str]) -> dict[str, str | float]:
     """Return the diagnostics key-values of the counters: ``dropped_total`` and ``count.*``."""
     values: dict[str, str | float] = {
@@ -147,4 +155,4 @@ def node_level_and_message(input_age_s: float, any_input: bool, stale_input_s: f
 
 
 __all__ = ['DIAGNOSTICS_NAME', 'INFO_COUNTERS', 'BackendStats', 'backend_level', 'backend_message',
-           'counter_values', 'node_level_and_message']
+           'counter_values', 'node_level_and_message', 'update_values']
