@@ -452,7 +452,7 @@ def test_tf_topic_fallback_without_tf2_ros(fake_ros: FakeRclpy, seq: SimSequence
 
 @pytest.mark.parametrize('exc', [KeyboardInterrupt, ExternalShutdownException])
 def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) -> None:
-    """Test: main shuts down cleanly."""
+    """An interrupt or external shutdown while spinning destroys the node and shuts down once."""
     from pmba_ros.node import main
 
     def interrupt(node: Node) -> None:
@@ -466,7 +466,7 @@ def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) 
 
 def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    """Test: main exits on invalid parameters."""
+    """An invalid parameter is one fatal log line, a clean shutdown and SystemExit."""
     import pmba_ros.node as node_mod
 
     def bad_config(node: Any) -> Any:
