@@ -17,8 +17,8 @@ A solve allocates the same temporaries (100 kB to a few MB each) at every iterat
 glibc's default settings freed memory at the top of the heap is given back to the kernel, and
 arrays above the mmap threshold get fresh pages: every new array is then page-faulted in again.
 Run back to back, small window solves then spend a noticeable share of their time in minor
-page faults. Only the programs that own the process call
-:func:`keep_freed_memory`; importing the library changes nothing.
+page faults. Only the programs that own the process call :func:`keep_freed_memory`;
+importing the library changes nothing.
 """
 
 from __future__ import annotations
