@@ -54,3 +54,14 @@ def test_no_module_is_over_600_lines() -> None:
              for path in package.rglob('*.py')}
     over = {name: n for name, n in sizes.items() if n > 600 and name not in OVERSIZE_PENDING}
     assert not over, f'modules over 600 lines: {over}'
+
+
+@pytest.mark.linter
+def test_codespell_is_clean() -> None:
+    """Codespell finds no misspelling in the sources, tests, docs and configuration."""
+    pytest.importorskip('codespell_lib')
+    paths = ['pmba_ros', 'test', 'docs', 'config', 'launch', 'scripts', 'benchmarks',
+             'setup.py', 'setup.cfg', 'package.xml', 'README.md']
+    proc = subprocess.run([sys.executable, '-m', 'codespell_lib', *paths], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
