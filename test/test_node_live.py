@@ -147,6 +147,7 @@ def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
     assert {'pmba_ros: node', 'pmba_ros: back-end'} <= names
 
 
+@pytest.mark.slow
 def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                                                        tmp_path: Path) -> None:
     """VINS-Mono topics and layout, recording played by ``pmba play``; SIGINT exits 0 fast."""
@@ -183,6 +184,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                 proc.wait()
 
 
+@pytest.mark.slow
 def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listener,
                                                                tmp_path: Path) -> None:
     """VINS-Fusion layout with PoseStamped keyframes from a driver node at 10 Hz."""

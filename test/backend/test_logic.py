@@ -599,6 +599,7 @@ def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None
     assert 'solve_rollbacks' not in logic.stats.counters
 
 
+@pytest.mark.slow
 def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
     """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down.
 

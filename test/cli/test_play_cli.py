@@ -51,6 +51,7 @@ def play(args: list[str], domain: int) -> subprocess.Popen[str]:
                             stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """Every message arrives, keyframes spaced by period / rate, /clock follows the bag."""
@@ -88,6 +89,7 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
                 proc.kill()
 
 
+@pytest.mark.slow
 def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
     """Missing bag and message types rclpy lacks give one error line and exit 1."""
     domain = domain_id()

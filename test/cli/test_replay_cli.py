@@ -236,6 +236,7 @@ def test_progress_bar_draws_and_finishes() -> None:
     assert text.endswith('\n') and text.count('\n') == 1
 
 
+@pytest.mark.slow
 def test_sigterm_leaves_a_readable_result_bag(tmp_path: Path) -> None:
     """A replay killed with SIGTERM exits non-zero and leaves a finalized result.mcap."""
     import signal
