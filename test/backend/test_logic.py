@@ -66,7 +66,7 @@ def tracks_msg(seq: SimSequence, i: int, layout: str = 'vins_fusion',
 
 
 def camera_info_msg(seq: SimSequence, backend: MsgBackend = BACKEND) -> Any:
-    """Camera info msg."""
+    """Return the sequence's CameraInfo (rosbags message)."""
     return make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
 
 
@@ -91,36 +91,36 @@ def run(logic: BackendLogic, seq: SimSequence, n: int | None = None,
 
 
 def last(outputs: list[tuple[str, Any]], topic: str) -> Any:
-    """Last."""
+    """Return the last output on ``topic`` (failing if there is none)."""
     msgs = [m for t, m in outputs if t == topic]
     assert msgs, f'no output on {topic}'
     return msgs[-1]
 
 
 def diag_values(msg: Any) -> dict[str, str]:
-    """Diag values."""
+    """Return the key-values of a diagnostics message's first status."""
     return {kv.key: kv.value for kv in msg.status[0].values}
 
 
 def stamp_ns(header: Any) -> int:
-    """Stamp ns."""
+    """Return a header's stamp in ns."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def config(**kwargs: Any) -> BackendConfig:
-    """Config."""
+    """Return a deterministic config with ``kwargs`` changed."""
     return BackendConfig(deterministic=True, **kwargs)
 
 
 @pytest.fixture(scope='module')
 def street() -> SimSequence:
-    """Street."""
+    """Simulate the 200-keyframe street once for the module."""
     return simulate_sequence('street', n_keyframes=200, seed=0)
 
 
 @pytest.fixture(scope='module')
 def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]:
-    """Short run."""
+    """Run the back-end over the street's first 28 keyframes once for the module."""
     logic = BackendLogic(config(), BACKEND)
     return logic, run(logic, street, 28)
 

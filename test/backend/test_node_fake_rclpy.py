@@ -289,7 +289,7 @@ class Node:
 
 
 def _trigger() -> type:
-    """Trigger."""
+    """Return a stand-in for std_srvs/srv/Trigger."""
 
     @dataclass
     class Request:
@@ -306,7 +306,7 @@ def _trigger() -> type:
 
 
 def _set_bool() -> type:
-    """Set bool."""
+    """Return a stand-in for std_srvs/srv/SetBool."""
 
     @dataclass
     class Request:
@@ -335,7 +335,7 @@ class FakeRclpy:
 
 @pytest.fixture
 def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
-    """Fake ros."""
+    """Put fake rclpy, QoS, service and message modules in sys.modules."""
     state = FakeRclpy([], [], [])
     rclpy_mod = types.ModuleType('rclpy')
 
@@ -405,12 +405,12 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
 
 @pytest.fixture(scope='module')
 def seq() -> SimSequence:
-    """Seq."""
+    """Simulate a 16-keyframe street once for the module."""
     return simulate_sequence('street', n_keyframes=16, seed=1)
 
 
 def make(fake: FakeRclpy, **overrides: Any) -> Any:
-    """Make."""
+    """Create a PmbaNode on a fake node with parameter overrides, no worker thread."""
     from pmba_ros.node import PmbaNode
     import rclpy as fake_rclpy
     node = fake_rclpy.create_node('pmba_node', parameter_overrides=overrides)
@@ -418,7 +418,7 @@ def make(fake: FakeRclpy, **overrides: Any) -> Any:
 
 
 def by_topic(node: Node) -> dict[str, Publisher]:
-    """By topic."""
+    """Return a node's publishers by topic."""
     return {p.topic: p for p in node.publishers}
 
 
@@ -456,7 +456,7 @@ def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) 
     from pmba_ros.node import main
 
     def interrupt(node: Node) -> None:
-        """Interrupt."""
+        """Raise the exception under test while spinning."""
         raise exc
 
     fake_ros.spin.append(interrupt)
@@ -470,7 +470,7 @@ def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
     import pmba_ros.node as node_mod
 
     def bad_config(node: Any) -> Any:
-        """Bad config."""
+        """Fail like an invalid parameter."""
         msg = 'parameter window_size=1: expected an integer >= 2'
         raise ValueError(msg)
 

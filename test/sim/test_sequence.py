@@ -29,7 +29,7 @@ import pytest
 
 @pytest.fixture(scope='module', params=SCENARIOS)
 def seq(request: pytest.FixtureRequest) -> SimSequence:
-    """Seq."""
+    """Simulate 40 keyframes of each scenario once for the module."""
     return simulate_sequence(request.param, n_keyframes=40, seed=3)
 
 
