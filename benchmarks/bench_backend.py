@@ -43,15 +43,17 @@ from pmba_ros._process import tune_process
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.io import cdr
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 
 logger = logging.getLogger('bench_backend')
 
 
-def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i: int,
+def _feed(logic: BackendLogic, seq: SimSequence, backend: RosbagsBackend, i: int,
           encoders: dict[str, cdr.Encoder] | None = None,
           ) -> tuple[float, float, list[tuple[str, Any]]]:
     """Feed keyframe i; return wall and CPU seconds of the processing step and its outputs.
@@ -59,7 +61,7 @@ def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i:
     With ``encoders`` (one per topic) the outputs are serialized to CDR too, as the replay's
     writer does.
     """
-    logic.on_tracks(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+    logic.on_tracks(make_tracks(seq.frames[i], 'vins_fusion', backend))
     logic.step()
     logic.on_keyframe(out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera',
                                         seq.centers_odom[i], so3.to_quat_xyzw(seq.R_wc_odom[i]),
@@ -73,12 +75,12 @@ def _feed(logic: BackendLogic, seq: SimSequence, backend: out.RosbagsBackend, i:
     return time.perf_counter() - t0, time.process_time() - c0, outputs
 
 
-def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, out.RosbagsBackend]:
+def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, RosbagsBackend]:
     """Start."""
-    backend = out.RosbagsBackend()
+    backend = RosbagsBackend()
     logic = BackendLogic(config, backend)
-    logic.on_camera_info(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera,
-                                              backend))
+    logic.on_camera_info(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera,
+                                          backend))
     return logic, backend
 
 

@@ -16,10 +16,9 @@
 A solve allocates the same temporaries (100 kB to a few MB each) at every iteration. With
 glibc's default settings freed memory at the top of the heap is given back to the kernel, and
 arrays above the mmap threshold get fresh pages: every new array is then page-faulted in again.
-Run back to back, the street replay's window solves (2,600 observations, two iterations)
-take about 1,200 minor faults and 2.5 ms of an 18 ms solve that way (numpy engine); the latency
-benchmark gets 10-15 % faster without them. Only the programs that own the process call
-:func:`keep_freed_memory`; importing the library changes nothing.
+Run back to back, small window solves then spend a noticeable share of their time in minor
+page faults. Only the programs that own the process call :func:`keep_freed_memory`;
+importing the library changes nothing.
 """
 
 from __future__ import annotations

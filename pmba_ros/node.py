@@ -40,25 +40,27 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, fields, replace
 import importlib
-import inspect
 import logging
-import queue
-import re
 import sys
-import threading
 import time
 from typing import Any
 
 import numpy as np
 from pmba_ros._process import tune_process
-from pmba_ros._typing import FloatArray
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.extrinsics import Rigid
+from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
-from pmba_ros.backend.tracks import parse_keyframe
+from pmba_ros.backend.msg_backend import NodeMsgBackend, RclpyBackend
+from pmba_ros.backend.parameters import parameter_descriptions, parameter_descriptor
+from pmba_ros.backend.status import node_level_and_message
+from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, parse_keyframe, tracks_msgtype
+from pmba_ros.backend.worker import LogicWorker
 from pmba_ros.core import so3, warmup
 from pmba_ros.errors import MessageError, PmbaError
+from pmba_ros.io.playback import paced, wait_until
 
 logger = logging.getLogger(__name__)
 
@@ -67,21 +69,7 @@ MAP_TO_ODOM_TOPIC = 'pmba/map_to_odom'
 
 NODE_DIAGNOSTICS_NAME = 'pmba_ros: node'
 
-RUNTIME_PARAMETERS = frozenset({
-    'max_iterations', 'max_time_s', 'loss', 'loss_scale_px', 'transform_tolerance_s',
-    'covariance_position_m2', 'covariance_rotation_rad2', 'stamp_tolerance_s',
-    'association_timeout_s', 'init_min_parallax_px', 'init_retry_every', 'init_max_iterations',
-    'min_observations', 'max_observations_per_feature', 'max_fixed_keyframes', 'fixed_lookback',
-    'deterministic', 'save_directory', 'tf_rate_hz', 'stale_input_s', 'publish_tf'})
-"""Parameters ``ros2 param set`` may change while running; the others are read-only."""
-
-_STOP = object()
-_WORKER_POLL_S = 0.1
-_JOIN_TIMEOUT_S = 1.0
 _DIAGNOSTICS_PERIOD_S = 1.0
-_PROVISIONAL_COVARIANCE_SCALE = 10.0
-_INT_MAX = 2**31 - 1
-_ENGINE_LOGGERS = ('pmba_ros.core', 'pmba_ros.init')
 
 
 def _msg_type(name: str) -> Any:
@@ -93,44 +81,6 @@ def _msg_type(name: str) -> Any:
 # --- parameters ---------------------------------------------------------------------------
 
 
-def parameter_descriptions() -> dict[str, str]:
-    """Return each :class:`BackendConfig` field's description (its docstring's Attributes)."""
-    doc = inspect.cleandoc(BackendConfig.__doc__ or '').split('Attributes:', 1)[-1]
-    descriptions: dict[str, str] = {}
-    name = ''
-    for line in doc.splitlines():
-        match = re.match(r'    (\w+): (.*)', line)
-        if match:
-            name = match[1]
-            descriptions[name] = match[2]
-        elif name and line.strip():
-            descriptions[name] += ' ' + line.strip()
-    return descriptions
-
-
-def parameter_descriptor(name: str, description: str) -> Any:
-    """Return the ``rcl_interfaces/ParameterDescriptor`` of config field ``name``.
-
-    Types are dynamic so that an integer is accepted for a float (``max_time_s: 1``);
-    :class:`BackendConfig` checks every type and value and names the parameter.
-    """
-    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-
-    desc = ParameterDescriptor(name=name, description=description, dynamic_typing=True,
-                               read_only=name not in RUNTIME_PARAMETERS)
-    if name in settings.CHOICES:
-        allowed = settings.CHOICES[name]
-        desc.additional_constraints = 'one of ' + ', '.join(repr(c) for c in allowed)
-    elif name in settings.INT_MINIMUMS:
-        desc.integer_range = [IntegerRange(from_value=settings.INT_MINIMUMS[name],
-                                           to_value=_INT_MAX, step=1)]
-    elif name in settings.POSITIVE_FLOATS or name in settings.NON_NEGATIVE_FLOATS:
-        desc.floating_point_range = [FloatingPointRange(from_value=0.0, to_value=float('inf'),
-                                                        step=0.0)]
-        desc.additional_constraints = '> 0' if name in settings.POSITIVE_FLOATS else '>= 0'
-    return desc
-
-
 def declare_config(node: Any) -> BackendConfig:
     """Declare every :class:`BackendConfig` field as a parameter and build the config.
 
@@ -140,11 +90,12 @@ def declare_config(node: Any) -> BackendConfig:
     """
     defaults = BackendConfig()
     descriptions = parameter_descriptions()
+    backend = RclpyBackend()
     values = {}
     for f in fields(BackendConfig):
         value = node.declare_parameter(
             f.name, getattr(defaults, f.name),
-            parameter_descriptor(f.name, descriptions.get(f.name, ''))).value
+            parameter_descriptor(f.name, descriptions.get(f.name, ''), backend)).value
         # An empty list in a parameter file has no type: rclpy leaves such a parameter unset.
         values[f.name] = getattr(defaults, f.name) if value is None else value
     return BackendConfig.from_params(values)
@@ -167,65 +118,14 @@ def input_qos(preset: str, config: BackendConfig) -> Any:
                       durability=durability)
 
 
-# --- logging ------------------------------------------------------------------------------
-
-
-class RosLogHandler(logging.Handler):
-    """Forward Python ``logging`` records to an rclpy logger (and so to /rosout)."""
-
-    def __init__(self, ros_logger: Any) -> None:
-        """Wrap ``ros_logger`` (``node.get_logger()``)."""
-        super().__init__()
-        self._ros = ros_logger
-        self.setFormatter(logging.Formatter('%(name)s: %(message)s'))
-
-    def emit(self, record: logging.LogRecord) -> None:
-        """Log ``record`` at the matching rclpy severity."""
-        try:
-            text = self.format(record)
-            if record.levelno >= logging.CRITICAL:
-                self._ros.fatal(text)
-            elif record.levelno >= logging.ERROR:
-                self._ros.error(text)
-            elif record.levelno >= logging.WARNING:
-                self._ros.warning(text)
-            elif record.levelno >= logging.INFO:
-                self._ros.info(text)
-            else:
-                self._ros.debug(text)
-        except Exception:
-            self.handleError(record)
-
-
 # --- TF -----------------------------------------------------------------------------------
-
-
-@dataclass
-class _Transforms:
-    """Stand-in for tf2_msgs/TFMessage where tf2_msgs is missing (never published as such)."""
-
-    transforms: list[Any]
-
-
-class _NodeMsgBackend(out.RclpyBackend):
-    """rclpy messages; a TFMessage stand-in where tf2_msgs is not importable."""
-
-    def msg_class(self, type_name: str) -> Any:
-        """Return the rclpy class of ``type_name`` (or :class:`_Transforms` for TFMessage)."""
-        try:
-            return super().msg_class(type_name)
-        except MessageError:
-            if type_name == 'tf2_msgs/msg/TFMessage':
-                return _Transforms
-            raise
 
 
 @dataclass(frozen=True)
 class MapToOdom:
-    """The newest map <- odom transform (rotation, translation) and its frames."""
+    """The newest map <- odom transform and its message (with the frames)."""
 
-    rotation: FloatArray
-    translation: FloatArray
+    link: Rigid
     transform: Any
 
 
@@ -247,20 +147,13 @@ class PmbaNode:
 
         self.node = node
         self.config = cfg = declare_config(node)
-        self.backend = _NodeMsgBackend()
+        self.backend = NodeMsgBackend()
         # The logic always emits map -> odom: the node needs it for the provisional poses
         # and decides itself whether it goes to TF.
         self.logic = BackendLogic(replace(cfg, publish_tf=True), self.backend)
-        self._log_handler = self._route_logging()
-        self._lock = threading.Lock()
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=cfg.queue_size)
-        self._drops: Counter[str] = Counter()
-        self._received: Counter[str] = Counter()
-        self._counts_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._staged: BackendConfig | None = None
+        self._log_route = LogRoute(node.get_logger())
+        self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size)
         self._started = time.monotonic()
-        self._last_input = -1.0
         self._map_to_odom: MapToOdom | None = None
         self._newest_provisional = -1
         self._backend_status: list[Any] = []
@@ -272,21 +165,18 @@ class PmbaNode:
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              history=HistoryPolicy.KEEP_LAST)
-        tracks_type = ('sensor_msgs/msg/PointCloud2' if cfg.feature_layout == 'named'
-                       else 'sensor_msgs/msg/PointCloud')
-        kf_type = ('nav_msgs/msg/Odometry' if cfg.keyframe_type == 'odometry'
-                   else 'geometry_msgs/msg/PoseStamped')
         self.subscriptions = [
-            node.create_subscription(_msg_type(tracks_type), cfg.features_topic,
-                                     self._enqueuer('tracks'),
+            node.create_subscription(_msg_type(tracks_msgtype(cfg.feature_layout)),
+                                     cfg.features_topic, self._enqueuer('tracks'),
                                      input_qos(cfg.features_qos, cfg),
                                      qos_overriding_options=overrides),
             *self._subscribe_camera_infos(overrides),
         ]
         if cfg.keyframe_source == 'keyframe_topic':
             self.subscriptions.append(node.create_subscription(
-                _msg_type(kf_type), cfg.keyframe_topic, self._on_keyframe,
-                input_qos(cfg.keyframe_qos, cfg), qos_overriding_options=overrides))
+                _msg_type(KEYFRAME_MSGTYPES[cfg.keyframe_type]), cfg.keyframe_topic,
+                self._on_keyframe, input_qos(cfg.keyframe_qos, cfg),
+                qos_overriding_options=overrides))
         self.subscriptions.extend(self._subscribe_tf())
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),
@@ -315,29 +205,12 @@ class PmbaNode:
         self._tf_timer: Any = None
         self._reset_tf_timer()
         self._diag_timer = node.create_timer(_DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
-        self._worker: threading.Thread | None = None
         if start_worker:
-            self._worker = threading.Thread(target=self._run, name='pmba_solver', daemon=True)
-            self._worker.start()
+            self.worker.start()
         node.get_logger().info(
             f'pmba_node: mode {cfg.mode}, window {cfg.window_size}, layout '
             f'{cfg.feature_layout}, tracks on {cfg.features_topic!r}, keyframes on '
             f'{cfg.keyframe_topic!r}, TF: {self.tf_mode}')
-
-    def _route_logging(self) -> RosLogHandler:
-        handler = RosLogHandler(self.node.get_logger())
-        package_logger = logging.getLogger('pmba_ros')
-        level = int(self.node.get_logger().get_effective_level())
-        self._saved_logging = {name: logging.getLogger(name).level
-                               for name in ('pmba_ros', *_ENGINE_LOGGERS)}
-        package_logger.addHandler(handler)
-        package_logger.setLevel(level)
-        package_logger.propagate = False
-        for name in _ENGINE_LOGGERS:
-            # Their INFO lines come with every solve: debug material for a running node.
-            logging.getLogger(name).setLevel(level if level <= logging.DEBUG
-                                             else max(level, logging.WARNING))
-        return handler
 
     def _make_tf(self) -> str:
         """Create the TF output and return how map -> odom is sent."""
@@ -407,8 +280,7 @@ class PmbaNode:
             return
         old = self.config
         self.config = replace(old, **changes)
-        with self._counts_lock:
-            self._staged = self.config
+        self.worker.stage_config(self.config)
         if self.config.publish_tf and self.tf_mode.startswith('disabled'):
             self.tf_mode = self._make_tf()
         if (old.tf_rate_hz, old.publish_tf) != (self.config.tf_rate_hz, self.config.publish_tf):
@@ -424,17 +296,6 @@ class PmbaNode:
                                                     self._resend_map_to_odom)
 
     # --- callbacks (executor thread): enqueue only ------------------------------------------
-
-    def _enqueue(self, kind: str, msg: Any) -> None:
-        if kind != 'tf':  # TF keeps flowing when the front-end has stopped
-            self._last_input = time.monotonic()
-        try:
-            self._queue.put_nowait((kind, msg))
-        except queue.Full:
-            with self._counts_lock:
-                self._drops[f'queue_full_{kind}'] += 1
-        with self._counts_lock:
-            self._received[kind] += 1
 
     def _subscribe_camera_infos(self, overrides: Any) -> list[Any]:
         """Subscribe to ``camera_info_topic``, or to each of ``camera_info_topics`` (a rig).
@@ -455,11 +316,11 @@ class PmbaNode:
 
     def _enqueuer(self, kind: str) -> Any:
         def callback(msg: Any) -> None:
-            self._enqueue(kind, msg)
+            self.worker.enqueue(kind, msg)
         return callback
 
     def _on_keyframe(self, msg: Any) -> None:
-        self._enqueue('keyframe', msg)
+        self.worker.enqueue('keyframe', msg)
         if not self.logic.paused:
             self._publish_provisional(msg)
 
@@ -473,18 +334,14 @@ class PmbaNode:
         if pose.stamp_ns <= self._newest_provisional:
             return
         self._newest_provisional = pose.stamp_ns
-        R_ok = so3.from_quat_xyzw(pose.quat_xyzw)
-        link = self._map_to_odom
-        if link is None:
-            R, C = R_ok, np.asarray(pose.position)
-        else:
-            R, C = link.rotation @ R_ok, link.rotation @ pose.position + link.translation
-        cov = _PROVISIONAL_COVARIANCE_SCALE * np.diag(
-            [cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        T = Rigid(so3.from_quat_xyzw(pose.quat_xyzw), np.asarray(pose.position))
+        if self._map_to_odom is not None:
+            T = self._map_to_odom.link @ T
         child = cfg.base_frame or pose.child_frame_id or 'base_link'
         try:
-            odom = out.make_odometry(pose.stamp_ns, cfg.map_frame, child, C,
-                                     so3.to_quat_xyzw(R), cov, self.backend)
+            odom = out.make_odometry(pose.stamp_ns, cfg.map_frame, child, T.translation,
+                                     so3.to_quat_xyzw(T.rotation),
+                                     cfg.odometry_covariance(optimized=False), self.backend)
             self.publishers[cfg.odometry_topic].publish(odom)
         except Exception as err:
             self.node.get_logger().error(f'publishing the provisional pose failed: {err}')
@@ -493,7 +350,7 @@ class PmbaNode:
 
     def _on_reset(self, request: Any, response: Any) -> Any:
         del request
-        with self._lock:
+        with self.worker.lock:
             self.logic.reset()
         self._map_to_odom = None
         self._newest_provisional = -1
@@ -502,7 +359,7 @@ class PmbaNode:
         return response
 
     def _on_pause(self, request: Any, response: Any) -> Any:
-        with self._lock:
+        with self.worker.lock:
             self.logic.set_paused(bool(request.data))
         response.success = True
         response.message = 'paused' if request.data else 'resumed'
@@ -511,7 +368,7 @@ class PmbaNode:
     def _on_save(self, request: Any, response: Any) -> Any:
         del request
         try:
-            with self._lock:
+            with self.worker.lock:
                 paths = self.logic.save(self.config.save_directory)
         except Exception as err:
             response.success = False
@@ -523,49 +380,9 @@ class PmbaNode:
 
     # --- worker thread ----------------------------------------------------------------------
 
-    def _dispatch(self, kind: str, msg: Any) -> None:
-        if kind == 'tracks':
-            self.logic.on_tracks(msg)
-        elif kind == 'keyframe':
-            self.logic.on_keyframe(msg)
-        elif kind == 'tf':
-            self.logic.on_tf(msg)
-        elif kind.startswith('camera_info.'):
-            self.logic.on_camera_info(msg, int(kind.split('.', 1)[1]))
-        else:
-            self.logic.on_camera_info(msg)
-
     def process_pending(self) -> int:
-        """Handle every queued message (worker body; tests call it directly).
-
-        Returns:
-            The number of messages handled.
-        """
-        handled = 0
-        while True:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                return handled
-            if item is _STOP:
-                self._stop.set()
-                return handled
-            self._handle(*item)
-            handled += 1
-
-    def _handle(self, kind: str, msg: Any) -> None:
-        with self._counts_lock:
-            drops = dict(self._drops)
-            self._drops.clear()
-            staged, self._staged = self._staged, None
-        with self._lock:
-            if staged is not None:
-                self.logic.apply_config(replace(staged, publish_tf=True))
-            for reason, n in drops.items():
-                self.logic.count(reason, n)
-            self._dispatch(kind, msg)
-            outputs = self.logic.step()
-        self.publish(outputs)
+        """Handle every queued message now (see :meth:`LogicWorker.process_pending`)."""
+        return self.worker.process_pending()
 
     def publish(self, outputs: list[tuple[str, Any]]) -> None:
         """Publish ``(topic, msg)`` outputs of the logic."""
@@ -586,8 +403,8 @@ class PmbaNode:
         """Remember map -> odom (for the provisional poses) and send it on TF and the topic."""
         q = transform.transform.rotation
         t = transform.transform.translation
-        self._map_to_odom = MapToOdom(so3.from_quat_xyzw(np.array([q.x, q.y, q.z, q.w])),
-                                      np.array([t.x, t.y, t.z]), transform)
+        self._map_to_odom = MapToOdom(Rigid.from_xyz_quat([t.x, t.y, t.z], [q.x, q.y, q.z, q.w]),
+                                      transform)
         if not self.config.publish_tf:
             return
         self.publishers[MAP_TO_ODOM_TOPIC].publish(transform)
@@ -617,23 +434,17 @@ class PmbaNode:
     def node_status(self) -> Any:
         """Return the node's own DiagnosticStatus (TF mode, input age, queue, counts)."""
         now = time.monotonic()
-        since = self._last_input if self._last_input >= 0 else self._started
-        age = now - since
-        with self._counts_lock:
-            received = dict(self._received)
-        level, message = 'ok', 'receiving input'
-        if age > self.config.stale_input_s:
-            level = 'warn'
-            what = 'no input for' if self._last_input >= 0 else 'no input received in'
-            message = f'{what} {age:.1f} s (check the topics, remaps and QoS)'
-        elif self._last_input < 0:
-            message = 'waiting for input'
-        if self.config.publish_tf and self.tf_mode.startswith('off'):
-            level = 'warn'
-            message = f'{message}; TF {self.tf_mode}, map -> odom on {MAP_TO_ODOM_TOPIC}'
+        last_input = self.worker.last_input
+        age = now - (last_input if last_input >= 0 else self._started)
+        received = self.worker.received()
+        tf_off = (self.tf_mode if self.config.publish_tf and self.tf_mode.startswith('off')
+                  else None)
+        level, message = node_level_and_message(age, last_input >= 0,
+                                                self.config.stale_input_s, tf_off,
+                                                MAP_TO_ODOM_TOPIC)
         values: dict[str, str | float] = {
             'tf': self.tf_mode, 'input_age_s': round(age, 3),
-            'queue_length': self._queue.qsize(),
+            'queue_length': self.worker.queue_length(),
             'provisional_odometry': self._sent['provisional_odometry'],
             'map_to_odom_sent': self._sent['map_to_odom']}
         for kind in ('tracks', 'keyframe', 'camera_info'):
@@ -655,34 +466,10 @@ class PmbaNode:
         except Exception as err:
             self.node.get_logger().error(f'publishing diagnostics failed: {err}')
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                item = self._queue.get(timeout=_WORKER_POLL_S)
-            except queue.Empty:
-                continue
-            if item is _STOP:
-                break
-            try:
-                self._handle(*item)
-            except Exception:
-                logger.exception('pmba worker: unexpected error')
-
     def close(self) -> None:
         """Stop the worker (pending messages are discarded) and destroy the node."""
-        self._stop.set()
-        try:
-            self._queue.put_nowait(_STOP)
-        except queue.Full:
-            pass
-        if self._worker is not None:
-            # A solve in progress is not interrupted: the daemon thread ends with the process.
-            self._worker.join(timeout=_JOIN_TIMEOUT_S)
-        package_logger = logging.getLogger('pmba_ros')
-        package_logger.removeHandler(self._log_handler)
-        package_logger.propagate = True
-        for name, level in self._saved_logging.items():
-            logging.getLogger(name).setLevel(level)
+        self.worker.stop()
+        self._log_route.close()
         self.node.destroy_node()
 
 
@@ -690,11 +477,13 @@ class PmbaNode:
 
 
 _CLOCK_PERIOD_S = 0.025
-_CLOCK_BACKEND = out.RclpyBackend()
+_CLOCK_BACKEND = RclpyBackend()
 
 
-#: Seconds between a publisher seeing its subscribers and the first message of ``pmba play``.
 MATCH_SETTLE_S = 2.0
+"""Seconds from a publisher seeing its subscribers to the first message of ``pmba play``: the
+reader matches the writer later (no API shows when) and, volatile, drops what comes before;
+generous, as discovery is slow on a loaded machine."""
 
 
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
@@ -751,29 +540,16 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
                                           10) if clock else None
         time.sleep(delay_s)
-        deadline = time.monotonic() + wait_for_subscribers_s
-        while time.monotonic() < deadline and not all(
-                p.get_subscription_count() for p in publishers.values()):
-            time.sleep(0.02)
         if wait_for_subscribers_s > 0:
-            # The writer sees the reader before the reader has matched the writer; a sample
-            # sent in between is dropped by a volatile reader. There is no API to see the
-            # reader's side, so give it time, generously: discovery is slow on a loaded machine.
-            time.sleep(MATCH_SETTLE_S)
-        start: tuple[float, int] | None = None
-        for topic, t_ns, raw in messages:
-            if start is None:
-                start = (time.monotonic(), t_ns)
-            target = start[0] + (t_ns - start[1]) * 1e-9 / rate
-            while (wait := target - time.monotonic()) > 0:
-                if clock_pub is not None:
-                    bag_ns = start[1] + round((time.monotonic() - start[0]) * rate * 1e9)
-                    _publish_clock(clock_pub, min(bag_ns, t_ns))
-                time.sleep(min(wait, _CLOCK_PERIOD_S) if clock_pub is not None else wait)
+            wait_until(lambda: all(p.get_subscription_count() for p in publishers.values()),
+                       wait_for_subscribers_s, settle_s=MATCH_SETTLE_S)
+        clock_period_s = _CLOCK_PERIOD_S if clock_pub is not None else None
+        for tick in paced(messages, rate, clock_period_s=clock_period_s):
             if clock_pub is not None:
-                _publish_clock(clock_pub, t_ns)
-            publishers[topic].publish(raw)
-            count += 1
+                _publish_clock(clock_pub, tick.stamp_ns)
+            if tick.topic is not None:
+                publishers[tick.topic].publish(tick.raw)
+                count += 1
     except KeyboardInterrupt:
         pass
     finally:

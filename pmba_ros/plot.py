@@ -24,13 +24,16 @@ from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
-from pmba_ros.errors import PmbaError
+from pmba_ros.errors import EvaluationError, PmbaError
 from pmba_ros.io.atomic import write_atomic
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from numpy.typing import ArrayLike
+    from pmba_ros.eval.metrics import EvalResult
     from pmba_ros.eval.trajectory import Trajectory
+    from pmba_ros.replay_report import ReplayReport
 
 logger = logging.getLogger(__name__)
 
@@ -109,7 +112,7 @@ def plot_series(path: Path, values: Sequence[float], ylabel: str, title: str, *,
                        xlabel=xlabel)
 
 
-def plot_curves(path: Path, curves: Sequence[tuple[str, Sequence[float]]], ylabel: str,
+def plot_curves(path: Path, curves: Sequence[tuple[str, ArrayLike]], ylabel: str,
                 title: str, *, log_scale: bool = False, xlabel: str = 'keyframe') -> Path:
     """Plot several labelled series against their index.
 
@@ -161,4 +164,55 @@ def _save(fig: Any, plt: Any, path: Path) -> Path:
     return path
 
 
-__all__ = ['plot_curves', 'plot_series', 'plot_top_view']
+def write_replay_plots(out: Path, frontend: Trajectory, optimized: Trajectory,
+                       gt: Trajectory | None, report: ReplayReport,
+                       align: str = 'sim3') -> dict[str, Path]:
+    """Write the replay PNGs: top view, cost per solve, solve time per keyframe.
+
+    With ground truth, both estimates are aligned onto it (``align``) for the top view.
+
+    Returns:
+        Plot name -> path.
+
+    Raises:
+        PmbaError: If matplotlib is missing or a file cannot be written.
+    """
+    curves: list[tuple[str, Trajectory]] = []
+    errors: list[tuple[str, ArrayLike]] = []
+    if gt is not None:
+        from pmba_ros.eval.metrics import ate
+        curves.append(('ground truth', gt))
+        for label, traj in (('front-end', frontend), ('optimized', optimized)):
+            try:
+                result = ate(traj, gt, align=align)
+            except EvaluationError:
+                curves.append((label, traj))
+                continue
+            curves.append((label, _aligned(traj, result)))
+            errors.append((label, result.errors))
+    else:
+        curves = [('front-end', frontend), ('optimized', optimized)]
+    files = {'plot_top_view': plot_top_view(out / 'trajectories_top.png', curves)}
+    if errors:
+        files['plot_ate'] = plot_curves(out / 'ate_per_keyframe.png', errors,
+                                        'position error (m)',
+                                        f'ATE per keyframe ({align}-aligned)')
+    files['plot_cost'] = plot_curves(out / 'cost_per_solve.png',
+                                     [('before', report.costs_before),
+                                      ('after', report.costs)],
+                                     'cost', 'Cost per solve', log_scale=True,
+                                     xlabel='solve')
+    files['plot_solve_time'] = plot_series(out / 'solve_time.png', report.solve_ms,
+                                           'solve time (ms)', 'Solve time per keyframe',
+                                           xlabel='keyframe solve')
+    return files
+
+
+def _aligned(traj: Trajectory, result: EvalResult) -> Trajectory:
+    """Return ``traj`` moved by the alignment of an ATE result."""
+    from pmba_ros.eval.align import apply_alignment, UmeyamaResult
+    fit = UmeyamaResult(result.rotation, result.translation, result.scale)
+    return apply_alignment(traj, fit)
+
+
+__all__ = ['plot_curves', 'plot_series', 'plot_top_view', 'write_replay_plots']

@@ -30,7 +30,7 @@ RANKS = {
     'backend': 3,
     'io': 4,
     'sim': 5,
-    'node': 6, 'replay': 6, 'plot': 6,
+    'node': 6, 'replay': 6, 'replay_report': 6, 'plot': 6,
     'cli': 7, '__main__': 7,
 }
 
@@ -47,7 +47,7 @@ CORE_RANKS = {
 #: Third-party modules allowed only in some places (top-level or lazy imports alike).
 RESTRICTED = {
     'rclpy': {'node'},
-    'rosbags': {'io.bags', 'backend.outputs'},
+    'rosbags': {'io.bags', 'backend.msg_backend'},
     'mcap': {'io.bags'},
     'mcap_ros2': {'io.bags'},
     'matplotlib': {'plot'},

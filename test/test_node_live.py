@@ -34,9 +34,11 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.cli.main import main as pmba
 from pmba_ros.core import so3
 from pmba_ros.node import MATCH_SETTLE_S
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 from rclpy.context import Context
@@ -145,6 +147,7 @@ def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
     assert {'pmba_ros: node', 'pmba_ros: back-end'} <= names
 
 
+@pytest.mark.slow
 def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                                                        tmp_path: Path) -> None:
     """VINS-Mono topics and layout, recording played by ``pmba play``; SIGINT exits 0 fast."""
@@ -181,6 +184,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                 proc.wait()
 
 
+@pytest.mark.slow
 def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listener,
                                                                tmp_path: Path) -> None:
     """VINS-Fusion layout with PoseStamped keyframes from a driver node at 10 Hz."""
@@ -194,7 +198,7 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
                       '-p', f'save_directory:={tmp_path / "saved"}',
                       '-r', 'features:=/vins/feature', '-r', 'keyframe_pose:=/vins/pose')
     seq = simulate_sequence('street', n_keyframes=N_KEYFRAMES, seed=4)
-    backend = out.RclpyBackend()
+    backend = RclpyBackend()
     driver = listener.node
     pubs = (driver.create_publisher(PointCloud, '/vins/feature', RELIABLE),
             driver.create_publisher(PoseStamped, '/vins/pose', RELIABLE),
@@ -210,8 +214,8 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         t0 = time.monotonic()
         for i in range(len(seq)):
             stamp = int(seq.stamps_ns[i])
-            pubs[2].publish(out.make_camera_info(stamp, 'camera', seq.camera, backend))
-            pubs[0].publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+            pubs[2].publish(make_camera_info(stamp, 'camera', seq.camera, backend))
+            pubs[0].publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
             pubs[1].publish(out.make_pose_stamped(stamp, 'odom', seq.centers_odom[i],
                                                   so3.to_quat_xyzw(seq.R_wc_odom[i]), backend))
             spin_until(listener.executor, lambda: False,

@@ -31,9 +31,12 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import Rigid
+from pmba_ros.backend.msg_backend import RclpyBackend
+from pmba_ros.backend.parameters import RUNTIME_PARAMETERS
 from pmba_ros.core import so3
-from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode, RUNTIME_PARAMETERS
+from pmba_ros.node import MAP_TO_ODOM_TOPIC, PmbaNode
 from pmba_ros.sim.bag import EUROC_CAM0
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.rig import add_camera, EUROC_CAM1
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
@@ -84,15 +87,15 @@ def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence) -> Non
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, PointCloud
 
-    backend = out.RclpyBackend()
+    backend = RclpyBackend()
     pub_tracks = driver.create_publisher(PointCloud, 'features', RELIABLE)
     pub_kf = driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE)
     pub_info = driver.create_publisher(CameraInfo, 'camera_info', RELIABLE)
     assert spin_until(executor, lambda: min(p.get_subscription_count() for p in
                                             (pub_tracks, pub_kf, pub_info)) > 0)
-    pub_info.publish(out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+    pub_info.publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
     for i in range(len(seq)):
-        pub_tracks.publish(out.make_tracks(seq.frames[i], 'vins_fusion', backend))
+        pub_tracks.publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
         pub_kf.publish(out.make_odometry(
             int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
             so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
@@ -230,7 +233,7 @@ def test_parameters_descriptors_and_runtime_changes(
                                   Parameter('loss_scale_px', value=3)])
         assert all(r.successful for r in ok)
         assert wrapper.config.max_iterations == 5 and wrapper.config.loss_scale_px == 3.0
-        wrapper._enqueue('tracks', object())     # the worker applies it at its next message
+        wrapper.worker.enqueue('tracks', object())  # the worker applies it at its next message
         assert spin_until(executor, lambda: wrapper.logic.config.max_iterations == 5, 5.0)
         assert wrapper.logic.estimator.config.loss_scale_px == 3.0
         assert RUNTIME_PARAMETERS <= set(BackendConfig().to_params())
@@ -353,7 +356,7 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
     executor.add_node(node)
     executor.add_node(driver)
     assert wrapper.config.camera_info_topics == ('camera_info', 'cam1/camera_info')
-    backend = out.RclpyBackend()
+    backend = RclpyBackend()
     pubs = [driver.create_publisher(PointCloud, 'features', RELIABLE),
             driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE),
             driver.create_publisher(CameraInfo, 'camera_info', RELIABLE),
@@ -361,12 +364,12 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
     try:
         assert spin_until(executor, lambda: min(p.get_subscription_count() for p in pubs) > 0)
         stamp = int(seq.stamps_ns[0])
-        pubs[2].publish(out.make_camera_info(stamp, 'camera', seq.camera, backend))
-        pubs[3].publish(out.make_camera_info(stamp, 'camera1', seq.camera, backend))
+        pubs[2].publish(make_camera_info(stamp, 'camera', seq.camera, backend))
+        pubs[3].publish(make_camera_info(stamp, 'camera1', seq.camera, backend))
         assert spin_until(executor, lambda: wrapper.process_pending() >= 0
                           and 1 in wrapper.logic.other_cameras)
         for i in range(len(stereo)):
-            pubs[0].publish(out.make_tracks(stereo.frames[i], 'vins_fusion', backend))
+            pubs[0].publish(make_tracks(stereo.frames[i], 'vins_fusion', backend))
             pubs[1].publish(out.make_odometry(
                 int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
                 so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))

@@ -24,19 +24,25 @@ import numpy as np
 from pmba_ros import replay as replay_mod
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.outputs import make_path, make_tf
+from pmba_ros.backend.status import BackendStats
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks
 from pmba_ros.errors import BagError, EvaluationError, MessageError
 from pmba_ros.eval.trajectory import read_tum, Trajectory, write_tum
+from pmba_ros.io.bag_inputs import resolve_topic, stamp_ordered
 from pmba_ros.io.bags import iter_messages, jazzy_typestore, list_topics
 from pmba_ros.io.ply import read_ply
-from pmba_ros.replay import replay, resolve_topic, stamp_ordered
+from pmba_ros.replay import replay
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 
 
 class StubLogic:
-    """A stand-in back-end: parses inputs like the real one and echoes front-end poses."""
+    """A stand-in back-end: parses inputs like the real one and echoes front-end poses.
+
+    It has the attributes of :class:`~pmba_ros.backend.logic.BackendLogic` that the replay
+    reads, and no solver.
+    """
 
     def __init__(self, config: BackendConfig, backend: Any) -> None:
         """Keep the config and message backend."""
@@ -44,7 +50,10 @@ class StubLogic:
         self.backend = backend
         self.poses: list[Any] = []
         self.pending: list[Any] = []
-        self.stats = SimpleNamespace(solve_ms=[], iterations=[], counters={'keyframes': 0})
+        self.stats = BackendStats()
+        self.last_error = ''
+        self.extrinsic = None
+        self.extrinsic_source = ''
 
     def on_camera_info(self, msg: Any) -> None:
         """Parse a CameraInfo."""
@@ -53,6 +62,9 @@ class StubLogic:
     def on_tracks(self, msg: Any) -> None:
         """Parse tracks with the configured layout."""
         parse_tracks(msg, self.config.feature_layout)
+
+    def on_tf(self, msg: Any) -> None:
+        """Ignore transforms (the stub has no extrinsic)."""
 
     def on_keyframe(self, msg: Any) -> None:
         """Queue a keyframe pose."""
@@ -100,7 +112,7 @@ def stub(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _backend() -> Any:
-    from pmba_ros.backend.outputs import RosbagsBackend
+    from pmba_ros.backend.msg_backend import RosbagsBackend
     return RosbagsBackend(jazzy_typestore())
 
 
@@ -121,8 +133,6 @@ def test_resolve_topic() -> None:
 
 def test_stamp_ordered_sorts_by_header_stamp_and_kind() -> None:
     """Out-of-order log times come out in stamp order; tracks before keyframes at a tie."""
-    from types import SimpleNamespace
-
     from pmba_ros.io.bags import BagMessage
 
     def msg(topic: str, stamp: int, log: int) -> BagMessage:
@@ -233,24 +243,10 @@ def test_interrupted_replay_leaves_valid_result_bag(street_bag: Path, tmp_path: 
 # --- the real back-end -------------------------------------------------------------------
 
 
-def _real_logic_available() -> bool:
-    try:
-        import pmba_ros.backend.logic  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_logic = pytest.mark.skipif(not _real_logic_available(),
-                                 reason='pmba_ros.backend.logic not available')
-
-
 @pytest.fixture(scope='module')
 def real_replay(street_bag: Path, tmp_path_factory: pytest.TempPathFactory,
                 ) -> tuple[Path, replay_mod.ReplayReport]:
     """One replay of the 60-keyframe street with the real back-end."""
-    if not _real_logic_available():
-        pytest.skip('pmba_ros.backend.logic not available')
     out = tmp_path_factory.mktemp('real') / 'a'
     return out, replay([street_bag], out, gt=groundtruth_path(street_bag))
 
@@ -302,10 +298,9 @@ def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(
     assert n == report.messages_out
 
 
-@needs_logic
 @pytest.mark.slow
 def test_street_200_optimized_ate_at_most_30_percent_of_frontend(tmp_path: Path) -> None:
-    """Acceptance: the 200-keyframe default street (about 35 s here)."""
+    """Acceptance: on the 200-keyframe default street the optimized ATE is at most 30 %."""
     bag = tmp_path / 'street'
     write_sequence_bag(simulate_sequence('street', n_keyframes=200, seed=0), bag)
     report = replay([bag], tmp_path / 'o', gt=groundtruth_path(bag))
@@ -313,7 +308,6 @@ def test_street_200_optimized_ate_at_most_30_percent_of_frontend(tmp_path: Path)
     assert report.accuracy['ate_optimized_m'] <= 0.3 * report.accuracy['ate_frontend_m']
 
 
-@needs_logic
 @pytest.mark.slow
 def test_kitti00_replay_reports_both_ates(tmp_path: Path) -> None:
     """KITTI-00 tracks: front-end and optimized ATE against the KITTI ground truth."""

@@ -34,7 +34,8 @@ from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts
 from pmba_ros.io.bags import BagWriter, iter_messages, list_topics, open_writer, ReadStats
-from pmba_ros.replay import output_lock, replay
+from pmba_ros.io.output_dir import output_lock
+from pmba_ros.replay import replay
 from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest

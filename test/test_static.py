@@ -40,3 +40,28 @@ def test_mypy_is_clean() -> None:
     proc = subprocess.run([sys.executable, '-m', 'mypy', '--no-incremental', 'pmba_ros'],
                           cwd=ROOT, capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+#: Modules other branches are splitting at the same time (the engine in core/, the
+#: initialization pipeline); remove each entry when its split is merged.
+OVERSIZE_PENDING = {'core/kernels.py', 'core/normal_equations.py', 'init/pipeline.py'}
+
+
+def test_no_module_is_over_600_lines() -> None:
+    """Every module of the package stays within 600 lines (one concept per module)."""
+    package = ROOT / 'pmba_ros'
+    sizes = {path.relative_to(package).as_posix(): len(path.read_text().splitlines())
+             for path in package.rglob('*.py')}
+    over = {name: n for name, n in sizes.items() if n > 600 and name not in OVERSIZE_PENDING}
+    assert not over, f'modules over 600 lines: {over}'
+
+
+@pytest.mark.linter
+def test_codespell_is_clean() -> None:
+    """Codespell finds no misspelling in the sources, tests, docs and configuration."""
+    pytest.importorskip('codespell_lib')
+    paths = ['pmba_ros', 'test', 'docs', 'config', 'launch', 'scripts', 'benchmarks',
+             'setup.py', 'setup.cfg', 'package.xml', 'README.md']
+    proc = subprocess.run([sys.executable, '-m', 'codespell_lib', *paths], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr

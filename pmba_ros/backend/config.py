@@ -26,6 +26,8 @@ import math
 import os
 from typing import Any
 
+import numpy as np
+from pmba_ros._typing import FloatArray
 from pmba_ros.backend.extrinsics import extrinsics_from_params
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
 
@@ -65,6 +67,9 @@ NON_NEGATIVE_FLOATS = ('motion_prior_translation_rel', 'motion_prior_rotation_ra
 """Float parameters (an integer is accepted and converted) that must be > 0 / >= 0."""
 
 NODE_NAME = 'pmba_node'
+
+NOT_OPTIMIZED_COVARIANCE_SCALE = 10.0
+"""Covariance factor of keyframe poses published before their solve."""
 """Node name; ``config/pmba.yaml`` nests its parameters under it."""
 
 _IGNORED_PARAMS = ('use_sim_time', 'start_type_description_service')
@@ -331,6 +336,15 @@ class BackendConfig:
             msg = f'{os.fspath(path)}: expected a YAML mapping of parameters'
             raise ValueError(msg)
         return cls.from_params(data)
+
+    def odometry_covariance(self, *, optimized: bool = True) -> FloatArray:
+        """Return the 6x6 covariance (position, rotation) published with a keyframe pose.
+
+        A pose not optimized (yet) gets :data:`NOT_OPTIMIZED_COVARIANCE_SCALE` times the
+        floor: it is the front-end's, mapped through map <- odom.
+        """
+        cov = np.diag([self.covariance_position_m2] * 3 + [self.covariance_rotation_rad2] * 3)
+        return cov if optimized else NOT_OPTIMIZED_COVARIANCE_SCALE * cov
 
     def to_params(self) -> dict[str, Any]:
         """Return the flat parameter dict (the node declares these; sequences as lists)."""

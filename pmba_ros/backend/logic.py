@@ -39,9 +39,11 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend import status
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
@@ -54,38 +56,6 @@ logger = logging.getLogger(__name__)
 
 TF_TOPIC = '/tf'
 DIAGNOSTICS_TOPIC = '/diagnostics'
-DIAGNOSTICS_NAME = 'pmba_ros: back-end'
-INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
-                           'init_failures', 'keyframes_passed_through'})
-"""Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
-
-
-@dataclass
-class BackendStats:
-    """Per-keyframe statistics and event counters.
-
-    Attributes:
-        solve_ms: Solver time of each optimized keyframe update, ms.
-        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
-        iterations: Solver iterations per optimized update.
-        cost_before: Cost before each solve.
-        cost_after: Cost after each solve.
-        counters: Event counts by reason (rejected inputs, drops, errors, ...).
-        keyframes: Keyframes handed to the estimator.
-        not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
-        map_scale: Scale of the map <- odom similarity after each keyframe since the
-            initialization (a monocular map drifting in scale against odom shows here).
-    """
-
-    solve_ms: list[float] = field(default_factory=list)
-    update_ms: list[float] = field(default_factory=list)
-    iterations: list[int] = field(default_factory=list)
-    cost_before: list[float] = field(default_factory=list)
-    cost_after: list[float] = field(default_factory=list)
-    counters: Counter[str] = field(default_factory=Counter)
-    keyframes: int = 0
-    not_optimized: int = 0
-    map_scale: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -109,17 +79,17 @@ class BackendLogic:
 
     Args:
         config: The configuration.
-        msg_backend: Builds the output messages (:class:`~pmba_ros.backend.outputs.
+        msg_backend: Builds the output messages (:class:`~pmba_ros.backend.msg_backend.
             RclpyBackend` in the node, ``RosbagsBackend`` in the replay tool and tests).
     """
 
-    def __init__(self, config: BackendConfig, msg_backend: out.MsgBackend) -> None:
+    def __init__(self, config: BackendConfig, msg_backend: MsgBackend) -> None:
         """Create the logic in state ``collecting``."""
         self.config = config
         self.backend = msg_backend
         self.camera: CameraModel | None = None
         self.estimator = Estimator(config)
-        self._stats = BackendStats()
+        self._stats = status.BackendStats()
         self._paused = False
         self.last_error = ''
         self.tf_tree = TransformTree()
@@ -154,8 +124,7 @@ class BackendLogic:
 
     def count(self, reason: str, n: int = 1) -> None:
         """Count ``n`` events under ``reason`` (also used by the node for queue drops)."""
-        if n:
-            self._stats.counters[reason] += int(n)
+        self._stats.count(reason, n)
 
     def _reject(self, reason: str, err: Exception | str) -> None:
         self.count(reason)
@@ -304,7 +273,7 @@ class BackendLogic:
         return 'paused' if self._paused else self.estimator.state
 
     @property
-    def stats(self) -> BackendStats:
+    def stats(self) -> status.BackendStats:
         """Return the statistics (live object)."""
         return self._stats
 
@@ -383,23 +352,12 @@ class BackendLogic:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)
             info = UpdateInfo('error', message=str(err))
-        self._stats.keyframes += 1
-        for reason, n in info.dropped.items():
-            self.count(reason, n)
-        if info.kind in ('dropped', 'dead_reckoned', 'passed_through'):
-            self.count(f'keyframes_{info.kind}')
-        if info.kind in ('init', 'init_failed'):
-            self.count('init_attempts')
-            self.count('init_failures', int(info.kind == 'init_failed'))
+        self._stats.record_update(info)
         idx = self.estimator.estimated()
         self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
         if self.estimator.state == 'tracking':
             self._stats.map_scale.append(self.estimator.map_from_odom.scale)
         if info.kind in ('refine', 'init'):
-            self._stats.solve_ms.append(info.solve_ms)
-            self._stats.iterations.append(info.iterations)
-            self._stats.cost_before.append(info.cost_before)
-            self._stats.cost_after.append(info.cost_after)
             explosion = self._cost_monitor.check(info.cost_after, info.n_obs)
             if explosion is not None:
                 self._reject('cost_explosions', explosion)
@@ -588,11 +546,10 @@ class BackendLogic:
         kf = self.estimator.kf
         cfg = self.config
         optimized = bool(self.estimator.optimized(np.array([i]))[0])
-        inflate = 1.0 if optimized else 10.0
-        cov = np.diag([cfg.covariance_position_m2] * 3 + [cfg.covariance_rotation_rad2] * 3)
+        cov = cfg.odometry_covariance(optimized=optimized)
         R, C = self.body_poses(np.array([i]))
         return out.make_odometry(int(kf.stamps_ns[i]), cfg.map_frame, self._base_frame,
-                                 C[0], so3.to_quat_xyzw(R[0]), inflate * cov, self.backend)
+                                 C[0], so3.to_quat_xyzw(R[0]), cov, self.backend)
 
     def map_from_odom_at(self, i: int) -> Rigid:
         """REP-105: T_map_odom = T_map_body (back-end) * T_odom_body (front-end)^-1 at i."""
@@ -645,28 +602,15 @@ class BackendLogic:
         cfg = self.config
         info = self._last_info
         counters = self._stats.counters
-        new_drops = any(counters[k] > self._counters_at_diag[k] for k in counters
-                        if k not in INFO_COUNTERS)
         state = self.state
-        if info.kind == 'error' or (new_drops and counters['internal_errors']
-                                    > self._counters_at_diag['internal_errors']):
-            level = 'error'
-        elif state != 'tracking' or new_drops:
-            level = 'warn'
-        else:
-            level = 'ok'
-        message = {'paused': 'paused', 'tracking': 'tracking'}.get(
-            state, self.estimator.last_message)
-        if info.message and info.kind not in ('refine', 'collect'):
-            message = f'{message}; {info.message}' if message != info.message else message
+        level = status.backend_level(info.kind, state, counters, self._counters_at_diag)
+        message = status.backend_message(state, self.estimator.last_message, info.kind,
+                                         info.message)
         values: dict[str, str | float] = {
             'state': state, 'mode': cfg.mode, 'last_update': info.kind,
             'keyframes': self._stats.keyframes,
             'optimized_keyframes': int(self.estimator.estimated().shape[0]),
-            'iterations': info.iterations, 'cost_before': info.cost_before,
-            'cost_after': info.cost_after, 'problem_poses': info.n_cams,
-            'problem_free_poses': info.n_free, 'problem_features': info.n_feats,
-            'problem_observations': info.n_obs,
+            **status.update_values(info),
             'input_lag_ms': max(0.0, (self._newest_input_ns - self._last_kf_stamp) * 1e-6)
             if self._last_kf_stamp >= 0 else 0.0,
             'pending_keyframes': len(self._pending), 'buffered_tracks': len(self._tracks),
@@ -682,16 +626,13 @@ class BackendLogic:
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms
             values['update_ms'] = self._stats.update_ms[-1] if self._stats.update_ms else 0.0
-        values['dropped_total'] = int(sum(v for k, v in counters.items()
-                                          if k not in INFO_COUNTERS))
-        for reason in sorted(counters):
-            values[f'count.{reason}'] = int(counters[reason])
+        values.update(status.counter_values(counters))
         if self.last_error:
             values['last_error'] = self.last_error
         self._diag_dirty = False
         self._counters_at_diag = Counter(counters)
-        return DIAGNOSTICS_TOPIC, out.make_diagnostics(stamp, DIAGNOSTICS_NAME, level, message,
-                                                       values, self.backend)
+        return DIAGNOSTICS_TOPIC, out.make_diagnostics(
+            stamp, status.DIAGNOSTICS_NAME, level, message, values, self.backend)
 
     # --- accessors ------------------------------------------------------------------------
 

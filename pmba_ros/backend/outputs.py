@@ -11,209 +11,32 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Numpy to ROS messages through a :class:`MsgBackend` (no ROS import at module level).
+"""The back end's outputs (Path, PoseArray, xyz PointCloud2, Odometry, TF, diagnostics).
 
-Message construction differs between rclpy and rosbags (``ros2_notes.md`` §3.2): rosbags
-classes need every field and numpy arrays for primitive sequences, rclpy classes want
-``array.array`` for unbounded sequences, Python ``float``/``int`` scalars and ``bytes``
-byte constants. The builders below always pass every field as a keyword, convert scalars
+Numpy to ROS messages through a :class:`~pmba_ros.backend.msg_backend.MsgBackend` (no ROS
+import at module level). The builders always pass every field as a keyword, convert scalars
 with ``float``/``int``, and route sequences through the backend, so the same builder makes
-publishable rclpy messages and Jazzy-CDR-serializable rosbags messages.
-
-Besides the back end's outputs (Path, PoseArray, xyz PointCloud2, Odometry, TF,
-diagnostics), :func:`make_tracks` and :func:`make_camera_info` write front-end-like inputs:
-they are the inverses of :func:`pmba_ros.backend.tracks.parse_tracks` and
-:meth:`~pmba_ros.backend.types.CameraModel.from_camera_info`.
+publishable rclpy messages and Jazzy-CDR-serializable rosbags messages. The front-end inputs
+(tracks, camera info) are built in :mod:`pmba_ros.sim.inputs`.
 """
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
-import array
-from collections.abc import Callable, Mapping, Sequence
-import importlib
-from types import ModuleType
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from pmba_ros._typing import FloatArray
-from pmba_ros.backend.tracks import LAYOUTS, POINTFIELD_DTYPES
-from pmba_ros.backend.types import CameraModel, float_rows, TrackFrame
+from pmba_ros.backend.msg_backend import MsgBackend
+from pmba_ros.backend.tracks import POINTFIELD_DTYPES
+from pmba_ros.backend.types import float_rows
 from pmba_ros.errors import MessageError
 
 DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
 """Levels accepted by :func:`make_diagnostics`."""
 
 _NUMPY_TO_POINTFIELD = {np.dtype(code): dt for dt, code in POINTFIELD_DTYPES.items()}
-_F32_EXACT_INT = 2**24
-
-
-class MsgBackend(ABC):
-    """Creates message objects and the container types their sequence fields need."""
-
-    @abstractmethod
-    def msg_class(self, type_name: str) -> Any:
-        """Return the message class of ``type_name`` ('pkg/msg/Name').
-
-        Raises:
-            MessageError: If the type is unknown.
-        """
-
-    def new(self, type_name: str, **fields: Any) -> Any:
-        """Return a new ``type_name`` message built from keyword fields.
-
-        Args:
-            type_name: Message type, e.g. 'nav_msgs/msg/Path'.
-            **fields: Every field of the message.
-
-        Returns:
-            The message.
-
-        Raises:
-            MessageError: If the type is unknown.
-        """
-        return self.msg_class(type_name)(**fields)
-
-    def constant(self, type_name: str, name: str) -> Any:
-        """Return the class constant ``name`` of ``type_name`` (byte constants differ).
-
-        Raises:
-            MessageError: If the type or constant is unknown.
-        """
-        try:
-            return getattr(self.msg_class(type_name), name)
-        except AttributeError as err:
-            msg = f'{type_name} has no constant {name!r}'
-            raise MessageError(msg) from err
-
-    @staticmethod
-    def fixed_f64(values: ArrayLike) -> FloatArray:
-        """Return a fixed-size ``float64[N]`` field value (numpy in both backends)."""
-        return np.array(values, dtype=np.float64).reshape(-1)
-
-    @abstractmethod
-    def seq_f32(self, values: ArrayLike) -> Any:
-        """Return an unbounded ``float32[]`` field value."""
-
-    @abstractmethod
-    def seq_f64(self, values: ArrayLike) -> Any:
-        """Return an unbounded ``float64[]`` field value."""
-
-    @abstractmethod
-    def seq_u8(self, data: bytes | np.ndarray) -> Any:
-        """Return an unbounded ``uint8[]`` field value from raw bytes."""
-
-
-class RosbagsBackend(MsgBackend):
-    """Messages as rosbags typestore dataclasses (default: the pinned ROS 2 Jazzy store).
-
-    Args:
-        typestore: A rosbags ``Typestore``; ``None`` loads
-            ``get_typestore(Stores.ROS2_JAZZY)`` (rosbags is imported only then).
-    """
-
-    def __init__(self, typestore: Any = None) -> None:
-        """Store the typestore, loading the Jazzy one if none is given."""
-        if typestore is None:
-            from rosbags.typesys import get_typestore, Stores
-            typestore = get_typestore(Stores.ROS2_JAZZY)
-        self.typestore = typestore
-
-    def msg_class(self, type_name: str) -> Any:
-        """Return the typestore class of ``type_name``.
-
-        Raises:
-            MessageError: If the typestore does not know the type.
-        """
-        try:
-            return self.typestore.types[type_name]
-        except KeyError as err:
-            msg = f'type {type_name!r} is not in the rosbags typestore'
-            raise MessageError(msg) from err
-
-    def seq_f32(self, values: ArrayLike) -> np.ndarray:
-        """Return a float32 numpy array (``serialize_cdr`` rejects lists)."""
-        return np.array(values, dtype=np.float32).reshape(-1)
-
-    def seq_f64(self, values: ArrayLike) -> np.ndarray:
-        """Return a float64 numpy array."""
-        return np.array(values, dtype=np.float64).reshape(-1)
-
-    def seq_u8(self, data: bytes | np.ndarray) -> np.ndarray:
-        """Return a uint8 numpy array (a copy)."""
-        return np.frombuffer(data, dtype=np.uint8).copy()
-
-    def serialize(self, msg: Any) -> bytes:
-        """Serialize a message of this typestore to CDR.
-
-        Raises:
-            MessageError: If the message does not serialize.
-        """
-        try:
-            return bytes(self.typestore.serialize_cdr(msg, msg.__msgtype__))
-        except Exception as err:
-            msg_ = f'cannot serialize {getattr(msg, "__msgtype__", type(msg).__name__)}: {err}'
-            raise MessageError(msg_) from err
-
-
-class RclpyBackend(MsgBackend):
-    """Messages as rclpy (rosidl-generated) classes, imported lazily by type name.
-
-    It never imports rclpy, only message modules such as ``nav_msgs.msg``. Unbounded
-    sequences are ``array.array`` (rosidl setters take the fast path for them; ``bytes``
-    for ``uint8[]`` is also accepted, but then checked element by element under
-    ``__debug__``).
-
-    Args:
-        module_loader: Imports a module by dotted name (default
-            :func:`importlib.import_module`); tests may inject fake message modules.
-    """
-
-    def __init__(self, module_loader: Callable[[str], ModuleType] | None = None) -> None:
-        """Store the loader and an empty class cache."""
-        self._loader = module_loader or importlib.import_module
-        self._cache: dict[str, Any] = {}
-
-    def msg_class(self, type_name: str) -> Any:
-        """Return the class of 'pkg/msg/Name' (or 'pkg/Name') from module ``pkg.msg``.
-
-        Raises:
-            MessageError: If the module or class cannot be loaded.
-        """
-        cls = self._cache.get(type_name)
-        if cls is None:
-            parts = type_name.split('/')
-            if len(parts) == 2:
-                parts.insert(1, 'msg')
-            if len(parts) != 3 or not all(parts):
-                msg = f'bad message type name {type_name!r} (want pkg/msg/Name)'
-                raise MessageError(msg)
-            try:
-                cls = getattr(self._loader(f'{parts[0]}.{parts[1]}'), parts[2])
-            except (ImportError, AttributeError) as err:
-                msg = f'cannot load message type {type_name!r}: {err}'
-                raise MessageError(msg) from err
-            self._cache[type_name] = cls
-        return cls
-
-    def seq_f32(self, values: ArrayLike) -> array.array[float]:
-        """Return ``array.array('f')`` (rclpy rejects numpy arrays for float32[])."""
-        out = array.array('f')
-        out.frombytes(np.asarray(values, dtype=np.float32).reshape(-1).tobytes())
-        return out
-
-    def seq_f64(self, values: ArrayLike) -> array.array[float]:
-        """Return ``array.array('d')``."""
-        out = array.array('d')
-        out.frombytes(np.asarray(values, dtype=np.float64).reshape(-1).tobytes())
-        return out
-
-    def seq_u8(self, data: bytes | np.ndarray) -> array.array[int]:
-        """Return ``array.array('B')`` holding ``data``."""
-        out = array.array('B')
-        out.frombytes(np.frombuffer(data, dtype=np.uint8).tobytes())
-        return out
 
 
 # --- small pieces -------------------------------------------------------------------------
@@ -228,7 +51,7 @@ def _vec(value: ArrayLike, n: int, what: str) -> FloatArray:
     return arr
 
 
-def _rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
+def finite_rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
     """Return ``value`` as a finite (N, n_cols) float64 array."""
     arr = float_rows(value, n_cols, what)
     if not np.all(np.isfinite(arr)):
@@ -239,7 +62,7 @@ def _rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
 
 def _unit_quats(quats_xyzw: ArrayLike, what: str = 'quats_xyzw') -> FloatArray:
     """Return (N, 4) quaternions normalized to unit length."""
-    q = _rows(quats_xyzw, 4, what)
+    q = finite_rows(quats_xyzw, 4, what)
     norm = np.linalg.norm(q, axis=1)
     if np.any(norm < 1e-9):
         msg = f'{what}: zero-norm quaternion'
@@ -393,7 +216,7 @@ def pose_stamped_msgs(stamps_ns: ArrayLike, frame_id: str, positions: ArrayLike,
     Raises:
         MessageError: On shape mismatches, non-finite values or zero quaternions.
     """
-    pos = _rows(positions, 3, 'positions')
+    pos = finite_rows(positions, 3, 'positions')
     quats = _unit_quats(quats_xyzw)
     stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
     if not pos.shape[0] == quats.shape[0] == stamps.shape[0]:
@@ -422,7 +245,7 @@ def make_pose_array(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xy
     Raises:
         MessageError: On shape mismatches, non-finite values or zero quaternions.
     """
-    pos = _rows(positions, 3, 'positions')
+    pos = finite_rows(positions, 3, 'positions')
     quats = _unit_quats(quats_xyzw)
     if pos.shape[0] != quats.shape[0]:
         msg = f'make_pose_array: {pos.shape[0]} positions, {quats.shape[0]} quaternions'
@@ -553,37 +376,6 @@ def make_diagnostics(stamp_ns: int, name: str, level: str, message: str,
 # --- point clouds -------------------------------------------------------------------------
 
 
-def make_point_cloud(stamp_ns: int, frame_id: str, points: ArrayLike,
-                     channels: Sequence[tuple[str, ArrayLike]], backend: MsgBackend) -> Any:
-    """Return a ``sensor_msgs/msg/PointCloud`` with arbitrary channels.
-
-    Channel lengths are not checked against the point count, so per-point layouts can be
-    written too.
-
-    Args:
-        stamp_ns: Header stamp, ns.
-        frame_id: Header frame.
-        points: Point coordinates, shape (N, 3) (stored as float32 Point32).
-        channels: ``(name, values)`` pairs; values are stored as float32.
-        backend: Message backend.
-
-    Returns:
-        The PointCloud message.
-
-    Raises:
-        MessageError: If ``points`` is not (N, 3).
-    """
-    pts = float_rows(points, 3, 'make_point_cloud: points')
-    point_type = backend.msg_class('geometry_msgs/msg/Point32')
-    point_msgs = [point_type(x=x, y=y, z=z) for x, y, z in pts.tolist()]
-    channel_msgs = [backend.new('sensor_msgs/msg/ChannelFloat32', name=str(name),
-                                values=backend.seq_f32(values))
-                    for name, values in channels]
-    return backend.new('sensor_msgs/msg/PointCloud',
-                       header=header_msg(stamp_ns, frame_id, backend),
-                       points=point_msgs, channels=channel_msgs)
-
-
 def make_point_cloud2_named(stamp_ns: int, frame_id: str, columns: Mapping[str, ArrayLike],
                             backend: MsgBackend, *, big_endian: bool = False) -> Any:
     """Return an unorganized (height 1) ``sensor_msgs/msg/PointCloud2`` from named columns.
@@ -654,134 +446,8 @@ def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
                                    {'x': pts[:, 0], 'y': pts[:, 1], 'z': pts[:, 2]}, backend)
 
 
-# --- front-end inputs (inverses of the parsers) -------------------------------------------
-
-
-def make_tracks(frame: TrackFrame, layout: str, backend: MsgBackend, num_cams: int = 1, *,
-                landmarks_xyz: ArrayLike | None = None) -> Any:
-    """Write a :class:`TrackFrame` in a front-end layout (inverse of ``parse_tracks``).
-
-    Velocity channels are written as zeros. Coordinates and ids travel as float32.
-
-    Args:
-        frame: Observations to write.
-        layout: One of :data:`~pmba_ros.backend.tracks.LAYOUTS`.
-        backend: Message backend.
-        num_cams: Front-end camera count (vins_mono id encoding, ``id*num_cams+cam``).
-        landmarks_xyz: World points, shape (K, 3), for ``per_point`` ``points`` and for
-            ``named`` fields x, y, z; default zeros (per_point) or omitted (named).
-
-    Returns:
-        A PointCloud (vins_mono, vins_fusion, per_point) or PointCloud2 (named).
-
-    Raises:
-        MessageError: If the layout is unknown or cannot carry the frame (vins layouts
-            need pixels and normalized coordinates, per_point needs pixels and camera 0,
-            ids must be exact in float32, i.e. < 2^24).
-    """
-    if layout not in LAYOUTS:
-        msg = f'unknown feature layout {layout!r} (expected one of {", ".join(LAYOUTS)})'
-        raise MessageError(msg)
-    n_obs = len(frame)
-    ids, cams = frame.feature_ids, frame.camera_ids
-    landmarks = None if landmarks_xyz is None else _rows(landmarks_xyz, 3, 'landmarks_xyz')
-    if landmarks is not None and landmarks.shape[0] != n_obs:
-        msg = f'make_tracks: {landmarks.shape[0]} landmarks for {n_obs} observations'
-        raise MessageError(msg)
-    if layout == 'named':
-        columns: dict[str, ArrayLike] = {'id': ids.astype(np.uint32),
-                                         'cam': cams.astype(np.uint8)}
-        if frame.pixels is not None:
-            columns |= {'u': frame.pixels[:, 0].astype(np.float32),
-                        'v': frame.pixels[:, 1].astype(np.float32)}
-        if frame.normalized is not None:
-            columns |= {'x_n': frame.normalized[:, 0].astype(np.float32),
-                        'y_n': frame.normalized[:, 1].astype(np.float32)}
-        if landmarks is not None:
-            columns |= {k: landmarks[:, i].astype(np.float32) for i, k in enumerate('xyz')}
-        if np.any(ids < 0) or np.any(ids >= 2**32) or np.any(cams < 0) or np.any(cams > 255):
-            msg = 'make_tracks: named layout stores id as uint32 and cam as uint8'
-            raise MessageError(msg)
-        return make_point_cloud2_named(frame.stamp_ns, frame.frame_id, columns, backend)
-    if frame.pixels is None and n_obs:
-        msg = f'make_tracks: layout {layout!r} needs pixels'
-        raise MessageError(msg)
-    pixels = frame.pixels if frame.pixels is not None else np.zeros((0, 2))
-    zeros = np.zeros(n_obs)
-    if layout == 'per_point':
-        if np.any(cams != 0):
-            msg = "make_tracks: layout 'per_point' has no camera id; all cameras must be 0"
-            raise MessageError(msg)
-        _check_f32_ids(ids)
-        norm = frame.normalized if frame.normalized is not None else np.zeros((n_obs, 2))
-        table = np.column_stack([norm, pixels, ids.astype(np.float64)])
-        points = landmarks if landmarks is not None else np.zeros((n_obs, 3))
-        return make_point_cloud(frame.stamp_ns, frame.frame_id, points,
-                                [('', row) for row in table], backend)
-    if frame.normalized is None and n_obs:
-        msg = f'make_tracks: layout {layout!r} needs normalized coordinates'
-        raise MessageError(msg)
-    norm = frame.normalized if frame.normalized is not None else np.zeros((0, 2))
-    points = np.column_stack([norm, np.ones(n_obs)])
-    if layout == 'vins_mono':
-        if np.any(cams >= num_cams):
-            msg = f'make_tracks: camera id >= num_cams {num_cams}'
-            raise MessageError(msg)
-        code = ids * int(num_cams) + cams
-        _check_f32_ids(code)
-        values = [code, pixels[:, 0], pixels[:, 1], zeros, zeros]
-    else:
-        _check_f32_ids(ids)
-        values = [ids, cams, pixels[:, 0], pixels[:, 1], zeros, zeros]
-    return make_point_cloud(frame.stamp_ns, frame.frame_id, points,
-                            [('', v) for v in values], backend)
-
-
-def _check_f32_ids(ids: np.ndarray) -> None:
-    """Raise if ids cannot travel exactly as float32 (VINS channels)."""
-    if np.any(ids < 0) or np.any(ids >= _F32_EXACT_INT):
-        msg = 'make_tracks: ids must be in [0, 2^24) to be exact in float32 channels'
-        raise MessageError(msg)
-
-
-def make_camera_info(stamp_ns: int, frame_id: str, camera: CameraModel,
-                     backend: MsgBackend) -> Any:
-    """Return a ``sensor_msgs/msg/CameraInfo`` for a camera model (monocular, no binning).
-
-    Model 'none' is written as 'plumb_bob' with five zero coefficients (the ROS convention
-    for a rectified camera), which :meth:`CameraModel.from_camera_info` reads back as 'none'.
-
-    Args:
-        stamp_ns: Header stamp, ns.
-        frame_id: Camera optical frame.
-        camera: The camera model.
-        backend: Message backend.
-
-    Returns:
-        The CameraInfo message (r = identity, p = [K | 0]).
-
-    Raises:
-        MessageError: If the backend lacks the types.
-    """
-    if camera.distortion_model == 'none':
-        model, d = 'plumb_bob', np.zeros(5)
-    else:
-        model, d = camera.distortion_model, camera.d
-    k = camera.k
-    p = np.column_stack([k, np.zeros(3)])
-    roi = backend.new('sensor_msgs/msg/RegionOfInterest', x_offset=0, y_offset=0, height=0,
-                      width=0, do_rectify=False)
-    return backend.new('sensor_msgs/msg/CameraInfo',
-                       header=header_msg(stamp_ns, frame_id, backend),
-                       height=int(camera.height), width=int(camera.width),
-                       distortion_model=model, d=backend.seq_f64(d),
-                       k=backend.fixed_f64(k), r=backend.fixed_f64(np.eye(3)),
-                       p=backend.fixed_f64(p), binning_x=0, binning_y=0, roi=roi)
-
-
 __all__ = [
-    'DIAGNOSTIC_LEVELS', 'MsgBackend', 'RclpyBackend', 'RosbagsBackend', 'header_msg',
-    'make_camera_info', 'make_diagnostics', 'make_odometry', 'make_path', 'make_point_cloud',
-    'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array', 'make_pose_stamped',
-    'make_tf', 'make_tracks', 'pose_msg', 'pose_stamped_msgs', 'time_msg',
+    'DIAGNOSTIC_LEVELS', 'finite_rows', 'header_msg', 'make_diagnostics', 'make_odometry',
+    'make_path', 'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array',
+    'make_pose_stamped', 'make_tf', 'pose_msg', 'pose_stamped_msgs', 'time_msg',
 ]

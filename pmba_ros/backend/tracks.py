@@ -68,6 +68,16 @@ LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
 KEYFRAME_KINDS = ('odometry', 'pose_stamped')
 """Keyframe message kinds :func:`parse_keyframe` understands."""
 
+KEYFRAME_MSGTYPES = {'odometry': 'nav_msgs/msg/Odometry',
+                     'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
+"""Message type of each keyframe kind."""
+
+
+def tracks_msgtype(layout: str) -> str:
+    """Return the message type of tracks in ``layout`` (PointCloud2 for 'named')."""
+    return 'sensor_msgs/msg/PointCloud2' if layout == 'named' else 'sensor_msgs/msg/PointCloud'
+
+
 POINTFIELD_DTYPES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
 """``sensor_msgs/PointField`` datatype constant -> numpy type code (without byte order)."""
 

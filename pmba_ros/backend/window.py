@@ -233,8 +233,10 @@ def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: 
     than 1e-6 of centre spread the scale is ``prior_scale``.
 
     Args:
-        R_a, C_a: Poses in frame a, shapes (P, 3, 3) and (P, 3).
-        R_b, C_b: The same poses in frame b.
+        R_a: Rotations of the poses in frame a, shape (P, 3, 3).
+        C_a: Centres of the poses in frame a, shape (P, 3).
+        R_b: Rotations of the same poses in frame b, shape (P, 3, 3).
+        C_b: Centres of the same poses in frame b, shape (P, 3).
         prior_scale: Scale used when the centres do not determine it.
 
     Returns:

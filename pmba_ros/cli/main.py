@@ -20,6 +20,7 @@ Each verb module has ``add_arguments(parser)`` and ``run(args) -> int``. Library
 from __future__ import annotations
 
 import argparse
+import atexit
 from collections.abc import Sequence
 import contextlib
 import importlib
@@ -33,7 +34,8 @@ from pmba_ros._process import tune_process
 from pmba_ros.errors import PmbaError
 
 VERBS: dict[str, tuple[str, str]] = {
-    'solve': ('pmba_ros.cli.solve', 'solve a BA problem (BAL, ParallaxBA, simulated scene)'),
+    'solve': ('pmba_ros.cli.solve',
+              'solve a bundle adjustment problem (BAL, ParallaxBA, COLMAP, Bundler, simulated)'),
     'simulate': ('pmba_ros.cli.simulate', 'write a simulated front-end bag or BA problem'),
     'replay': ('pmba_ros.cli.replay', 'run the back-end over recorded bags and evaluate'),
     'evaluate': ('pmba_ros.cli.evaluate', 'ATE / RPE of a trajectory against ground truth'),
@@ -44,17 +46,43 @@ VERBS: dict[str, tuple[str, str]] = {
 #: Verbs that solve: the compiled loops are made ready (with a message) before they start.
 SOLVING_VERBS = frozenset({'solve', 'replay'})
 
+DESCRIPTION = """\
+Parallax bundle adjustment (PMBA) for visual SLAM back-ends: solve bundle adjustment
+problems, run the ROS 2 back-end offline over recorded front-end bags, and evaluate
+trajectories against ground truth."""
+
+EPILOG = """\
+examples:
+  pmba solve sim:street --compare      compare PMBA with XYZ and inverse-depth BA
+  pmba simulate --out street           write a simulated front-end bag
+  pmba replay street --out result      run the back-end over it, with accuracy
+  pmba evaluate est.tum gt.tum         ATE / RPE of a trajectory
+
+'pmba VERB --help' describes a verb's options."""
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show an option's default only where it has one (not for required options or flags)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        """Return the help text, with ``(default: ...)`` where a default means something."""
+        if action.required or action.default in (None, False, argparse.SUPPRESS):
+            return action.help
+        return super()._get_help_string(action)
+
 
 def build_parser(verbs: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """Return the argument parser with a subparser per verb."""
-    parser = argparse.ArgumentParser(prog='pmba', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='pmba', description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--version', action='version', version=f'pmba_ros {__version__}')
     parser.add_argument('-v', '--verbose', action='store_true', help='log debug messages')
-    sub = parser.add_subparsers(dest='verb', required=True, metavar='VERB')
+    sub = parser.add_subparsers(dest='verb', required=True, metavar='VERB',
+                                help='what to do (one of the verbs below)')
     for name in verbs or VERBS:
         module_name, help_text = VERBS[name]
         verb_parser = sub.add_parser(name, help=help_text, description=help_text,
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                     formatter_class=HelpFormatter)
         importlib.import_module(module_name).add_arguments(verb_parser)
     return parser
 
@@ -84,6 +112,7 @@ def _program(argv: list[str], *, as_program: bool) -> int:
     finally:
         # A further Ctrl-C during interpreter shutdown would print an atexit traceback.
         _ignore_sigint(as_program)
+        _drop_terminal_reset()
 
 
 def _run(argv: list[str]) -> int:
@@ -118,6 +147,17 @@ def _one_line(err: BaseException) -> str:
     else:
         text = str(err) or type(err).__name__
     return ' '.join(text.split())
+
+
+def _drop_terminal_reset() -> None:
+    """Cancel the terminal reset colorama would write at exit, after the command's output.
+
+    numba's error formatting calls ``colorama.init()`` when compiled code is loaded; colorama
+    then writes an ANSI reset (ESC [0m) to a terminal at exit: a stray escape sequence.
+    """
+    initialise = sys.modules.get('colorama.initialise')
+    if initialise is not None:
+        atexit.unregister(initialise.reset_all)
 
 
 def _interrupt_once(signum: int, frame: object) -> None:

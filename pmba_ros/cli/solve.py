@@ -56,12 +56,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default='auto', help='auto: a directory with cameras.txt/.bin is a '
                         'COLMAP model, a .out file a Bundler file; with --out their refined '
                         'model is written there too, in the same format')
-    parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba')
-    parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg')
-    parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none')
+    parser.add_argument('--param', choices=['pmba', 'xyz', 'idp'], default='pmba',
+                        help='feature parameterization: parallax angle (PMBA), Euclidean '
+                        'points (XYZ) or inverse depth (IDP)')
+    parser.add_argument('--solver', choices=['dogleg', 'lm', 'gn'], default='dogleg',
+                        help='Powell dogleg, Levenberg-Marquardt or Gauss-Newton')
+    parser.add_argument('--loss', choices=['none', 'huber', 'cauchy'], default='none',
+                        help='robust loss on the residuals (none: least squares)')
     parser.add_argument('--loss-scale', type=positive_float, default=2.0,
                         help='loss scale in pixels')
-    parser.add_argument('--max-iters', type=non_negative_int, default=100)
+    parser.add_argument('--max-iters', type=non_negative_int, default=100,
+                        help='iteration budget of each solve')
     parser.add_argument('--init', choices=['file', 'global'], default='file',
                         help="start from the file's poses and points, or run PMBA's global "
                         'initialization from the tracks alone')
@@ -69,11 +74,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="PMBA: the paper's isotropic chordal ray error instead of the "
                         'pixel-weighted one')
     parser.add_argument('--compare', action='store_true',
-                        help='run PMBA-Dogleg, XYZ-LM and IDP-LM and print one table')
+                        help='run PMBA-Dogleg, XYZ-LM and IDP-LM from the same file and print '
+                        "one table; rms0 is each method's pixel RMS at its own start, which "
+                        'for PMBA can be lower: points behind their main anchor are '
+                        're-initialized from the rotations')
     parser.add_argument('--report', type=Path, help='write a JSON report here')
     parser.add_argument('--out', type=Path, help='write poses (TUM), points and report here')
     parser.add_argument('--plot', action='store_true', help='with --out: convergence.png')
-    parser.add_argument('--quiet', action='store_true', help='no per-iteration progress')
+    parser.add_argument('--quiet', action='store_true',
+                        help='no per-iteration progress lines on stderr (iteration, cost, '
+                        'pixel RMS, trust-region radius, elapsed time, step outcome)')
 
 
 def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
@@ -228,12 +238,25 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         bundler.write_bundler(out / source.name, b_refined)
 
 
-def _progress(label: str) -> Any:
+def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
+    """Return a callback printing one line per iteration, every iteration number included.
+
+    An iteration whose linear system or model gave no usable step has no record: it is
+    printed as such, so the numbers run without gaps.
+    """
+    last = -1
+
     def show(rec: IterationRecord) -> None:
-        mark = ' ' if rec.accepted else 'x'
-        print(f'  {label} it {rec.iteration:3d}{mark} cost {rec.cost:.6e}'
+        nonlocal last
+        for skipped in range(last + 1, rec.iteration):
+            print(f'  {label} it {skipped:3d}  no usable step (retried with more damping)',
+                  file=sys.stderr)
+        last = rec.iteration
+        outcome = ('start' if rec.iteration == 0
+                   else 'accepted' if rec.accepted else 'rejected')
+        print(f'  {label} it {rec.iteration:3d}  cost {rec.cost:.6e}'
               f'  rms {rec.rms_px:8.4f} px  radius {rec.trust_radius:9.3e}'
-              f'  {rec.time_s:7.2f} s', file=sys.stderr)
+              f'  {rec.time_s:7.2f} s  {outcome}', file=sys.stderr)
     return show
 
 
@@ -250,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
     report: dict[str, Any] = {}
     for param, solver in runs:
         options = _options(param, solver, args)
-        callback = None if args.quiet else _progress(f'{param}-{solver}')
+        callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
         if args.init == 'global':
             from pmba_ros.init.pipeline import global_init, InitOptions
             init = global_init(problem, InitOptions(solve_options=options), progress=None)
@@ -290,6 +313,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _table(results: list[SolveResult]) -> str:
+    """Return the ``--compare`` table, with a note when the methods start differently."""
     head = (f'{"method":<14}{"iters":>7}{"solves":>8}{"rms0 px":>10}{"rms px":>10}'
             f'{"cost":>14}{"time s":>9}{"s/iter":>8}  converged')
     rows = [head, '-' * len(head)]
@@ -299,6 +323,13 @@ def _table(results: list[SolveResult]) -> str:
         rows.append(f'{label:<14}{r.iterations:>7}{r.linear_solves:>8}'
                     f'{r.initial_rms_px:>10.4f}{r.final_rms_px:>10.4f}{r.final_cost:>14.6e}'
                     f'{r.time_s:>9.2f}{per_it:>8.3f}  {r.converged}')
+    rows.append('rms0 / rms: pixel reprojection RMS at the start / at the end; solves: '
+                'linear solves')
+    starts = {round(r.initial_rms_px, 4) for r in results}
+    if len(starts) > 1:
+        rows.append("rms0 differs between methods: each starts from the file's points in its "
+                    'own parameterization, and PMBA re-initializes points behind their main '
+                    'anchor from the rotations')
     return '\n'.join(rows)
 
 

@@ -45,19 +45,14 @@ from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.backend.extrinsics import Rigid
-from pmba_ros.backend.outputs import (
-    make_camera_info,
-    make_odometry,
-    make_pose_stamped,
-    make_tf,
-    make_tracks,
-    RosbagsBackend,
-)
+from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.outputs import make_odometry, make_pose_stamped, make_tf
 from pmba_ros.backend.tracks import LAYOUTS
 from pmba_ros.core import so3
 from pmba_ros.errors import BagError
 from pmba_ros.eval.trajectory import Trajectory, write_tum
 from pmba_ros.io.bags import jazzy_typestore, open_writer
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RosbagsBackend
 import pytest
 from rosbags.typesys import get_typestore, Stores
 
@@ -29,6 +29,6 @@ def ts() -> Any:
 
 
 @pytest.fixture(scope='module')
-def backend(ts: Any) -> outputs.RosbagsBackend:
+def backend(ts: Any) -> RosbagsBackend:
     """Return a rosbags message backend on the Jazzy store."""
-    return outputs.RosbagsBackend(ts)
+    return RosbagsBackend(ts)

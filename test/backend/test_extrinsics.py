@@ -26,6 +26,7 @@ from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import Trajectory
 from pmba_ros.sim.bag import EUROC_CAM0
+from pmba_ros.sim.inputs import make_camera_info
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 
@@ -111,7 +112,7 @@ def _body_keyframe(seq: SimSequence, i: int, T_bc: Rigid) -> Any:
 
 
 def _run_body(logic: BackendLogic, seq: SimSequence, T_bc: Rigid, n: int) -> list[Any]:
-    info = out.make_camera_info(int(seq.stamps_ns[0]), 'cam0', seq.camera, BACKEND)
+    info = make_camera_info(int(seq.stamps_ns[0]), 'cam0', seq.camera, BACKEND)
     logic.on_camera_info(info)
     outputs = []
     for i in range(n):

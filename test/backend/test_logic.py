@@ -28,6 +28,7 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
+from pmba_ros.backend.msg_backend import MsgBackend, RosbagsBackend
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.backend.window import (
     KeyframeObs,
@@ -40,10 +41,11 @@ from pmba_ros.core import so3
 from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
+from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 
-BACKEND = out.RosbagsBackend()
+BACKEND = RosbagsBackend()
 OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry', TF_TOPIC,
                  DIAGNOSTICS_TOPIC)
 
@@ -51,21 +53,21 @@ OUTPUT_TOPICS = ('pmba/path', 'pmba/keyframes', 'pmba/landmarks', 'pmba/odometry
 # --- helpers (also used by the node tests) --------------------------------------------------
 
 
-def keyframe_msg(seq: SimSequence, i: int, backend: out.MsgBackend = BACKEND) -> Any:
+def keyframe_msg(seq: SimSequence, i: int, backend: MsgBackend = BACKEND) -> Any:
     """Front-end keyframe pose of keyframe i as nav_msgs/Odometry (frame odom)."""
     return out.make_odometry(int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
                              so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend)
 
 
 def tracks_msg(seq: SimSequence, i: int, layout: str = 'vins_fusion',
-               backend: out.MsgBackend = BACKEND, frame: TrackFrame | None = None) -> Any:
+               backend: MsgBackend = BACKEND, frame: TrackFrame | None = None) -> Any:
     """Track message of keyframe i in a layout."""
-    return out.make_tracks(seq.frames[i] if frame is None else frame, layout, backend)
+    return make_tracks(seq.frames[i] if frame is None else frame, layout, backend)
 
 
-def camera_info_msg(seq: SimSequence, backend: out.MsgBackend = BACKEND) -> Any:
-    """Camera info msg."""
-    return out.make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
+def camera_info_msg(seq: SimSequence, backend: MsgBackend = BACKEND) -> Any:
+    """Return the sequence's CameraInfo (rosbags message)."""
+    return make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend)
 
 
 def feed(logic: BackendLogic, seq: SimSequence, indices: range | list[int],
@@ -89,36 +91,36 @@ def run(logic: BackendLogic, seq: SimSequence, n: int | None = None,
 
 
 def last(outputs: list[tuple[str, Any]], topic: str) -> Any:
-    """Last."""
+    """Return the last output on ``topic`` (failing if there is none)."""
     msgs = [m for t, m in outputs if t == topic]
     assert msgs, f'no output on {topic}'
     return msgs[-1]
 
 
 def diag_values(msg: Any) -> dict[str, str]:
-    """Diag values."""
+    """Return the key-values of a diagnostics message's first status."""
     return {kv.key: kv.value for kv in msg.status[0].values}
 
 
 def stamp_ns(header: Any) -> int:
-    """Stamp ns."""
+    """Return a header's stamp in ns."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def config(**kwargs: Any) -> BackendConfig:
-    """Config."""
+    """Return a deterministic config with ``kwargs`` changed."""
     return BackendConfig(deterministic=True, **kwargs)
 
 
 @pytest.fixture(scope='module')
 def street() -> SimSequence:
-    """Street."""
+    """Simulate the 200-keyframe street once for the module."""
     return simulate_sequence('street', n_keyframes=200, seed=0)
 
 
 @pytest.fixture(scope='module')
 def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]:
-    """Short run."""
+    """Run the back-end over the street's first 28 keyframes once for the module."""
     logic = BackendLogic(config(), BACKEND)
     return logic, run(logic, street, 28)
 
@@ -127,13 +129,13 @@ def short_run(street: SimSequence) -> tuple[BackendLogic, list[tuple[str, Any]]]
 
 
 def test_config_yaml_matches_defaults() -> None:
-    """Test: config yaml matches defaults."""
+    """config/pmba.yaml sets every parameter to its BackendConfig default."""
     path = Path(__file__).resolve().parents[2] / 'config' / 'pmba.yaml'
     assert BackendConfig.from_yaml(path) == BackendConfig()
 
 
 def test_config_from_params_flat_and_nested() -> None:
-    """Test: config from params flat and nested."""
+    """Flat and node-nested parameter mappings give the same config; ints pass as floats."""
     flat = BackendConfig.from_params({'mode': 'global', 'window_size': 7, 'use_sim_time': True})
     nested = BackendConfig.from_params(
         {'pmba_node': {'ros__parameters': {'mode': 'global', 'window_size': 7}}})
@@ -156,13 +158,13 @@ def test_config_from_params_flat_and_nested() -> None:
     ({'windowsize': 20}, 'unknown parameter'),
 ])
 def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
-    """Test: config rejects bad params."""
+    """An invalid parameter value is a ValueError naming the parameter."""
     with pytest.raises(ValueError, match=match):
         BackendConfig.from_params(params)
 
 
 def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
-    """Test: thin tracks keeps ends and caps counts."""
+    """Thinning keeps a long track's first and last observation and caps its length."""
     ids = np.array([5] * 20 + [3] * 4 + [7] * 9)
     cams = np.concatenate([np.arange(20), np.arange(4), np.arange(9)])
     keep = thin_tracks(ids, cams, 6)
@@ -173,7 +175,7 @@ def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
 
 
 def test_select_fixed_counts_shared_features_and_prefers_recent() -> None:
-    """Test: select_fixed ranks candidates by shared window features, newer first on ties."""
+    """Fixed keyframes are chosen by shared window features, the newer first on ties."""
     store = KeyframeStore()
     rng = np.random.default_rng(3)
     shared = [4, 0, 7, 7, 2, 0, 5]
@@ -197,7 +199,7 @@ def test_select_fixed_counts_shared_features_and_prefers_recent() -> None:
 
 @pytest.mark.parametrize('layout', ['vins_mono', 'vins_fusion', 'per_point', 'named'])
 def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) -> None:
-    """Test: every layout initializes and refines."""
+    """Each tracks layout initializes, publishes every output and reaches an ATE under 5 cm."""
     logic = BackendLogic(config(feature_layout=layout), BACKEND)
     outputs = run(logic, street, 24, layout)
     assert logic.state == 'tracking'
@@ -211,7 +213,7 @@ def test_every_layout_initializes_and_refines(street: SimSequence, layout: str) 
 
 def test_outputs_serialize_with_the_jazzy_typestore(
         short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
-    """Test: outputs serialize with the jazzy typestore."""
+    """Every output round-trips through Jazzy CDR with its expected message type."""
     _, outputs = short_run
     types = {}
     for topic, msg in outputs:
@@ -228,7 +230,7 @@ def test_outputs_serialize_with_the_jazzy_typestore(
 
 def test_output_contents_frames_and_stamps(
         street: SimSequence, short_run: tuple[BackendLogic, list[tuple[str, Any]]]) -> None:
-    """Test: output contents frames and stamps."""
+    """Outputs carry the configured frames and keyframe stamps; map -> odom obeys REP-105."""
     logic, outputs = short_run
     stamp = int(street.stamps_ns[27])
     path = last(outputs, 'pmba/path')
@@ -291,7 +293,7 @@ def test_path_follows_the_keyframes_and_reuses_final_poses(street: SimSequence) 
 
 
 def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence) -> None:
-    """Test: solve timing in diagnostics when not deterministic."""
+    """Without deterministic mode the diagnostics report solve and update times."""
     logic = BackendLogic(BackendConfig(init_batch_size=10), BACKEND)
     values = diag_values(last(run(logic, street, 14), DIAGNOSTICS_TOPIC))
     assert float(values['solve_ms']) > 0 and float(values['update_ms']) > 0
@@ -299,7 +301,7 @@ def test_solve_timing_in_diagnostics_when_not_deterministic(street: SimSequence)
 
 
 def test_deterministic_outputs_are_byte_identical(street: SimSequence) -> None:
-    """Test: deterministic outputs are byte identical."""
+    """Two deterministic runs over the same input serialize to the same bytes."""
     def serialized() -> list[bytes]:
         """Return the serialized outputs of one run."""
         logic = BackendLogic(config(init_batch_size=10), BACKEND)
@@ -308,7 +310,7 @@ def test_deterministic_outputs_are_byte_identical(street: SimSequence) -> None:
 
 
 def test_keyframes_as_tracks_without_frontend_poses(street: SimSequence) -> None:
-    """Test: keyframes as tracks without frontend poses."""
+    """With keyframe_source 'tracks' every tracks message is a keyframe and no TF is sent."""
     logic = BackendLogic(config(keyframe_source='tracks'), BACKEND)
     logic.on_camera_info(camera_info_msg(street))
     outputs = []
@@ -330,7 +332,7 @@ def _counts(logic: BackendLogic, outputs: list[tuple[str, Any]]) -> dict[str, st
 
 
 def test_non_finite_and_duplicate_observations_are_dropped(street: SimSequence) -> None:
-    """Test: non finite and duplicate observations are dropped."""
+    """Non-finite and repeated observations are dropped and counted; tracking goes on."""
     logic = BackendLogic(config(), BACKEND)
     logic.on_camera_info(camera_info_msg(street))
     outputs: list[tuple[str, Any]] = []
@@ -356,7 +358,7 @@ def test_non_finite_and_duplicate_observations_are_dropped(street: SimSequence) 
 
 
 def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
-    """Test: message in the wrong layout is counted."""
+    """Tracks in another layout count as bad_tracks, name the layout and raise a WARN."""
     logic = BackendLogic(config(feature_layout='vins_fusion'), BACKEND)
     logic.on_tracks(object())
     logic.on_tracks(tracks_msg(street, 0, 'named'))  # PointCloud2 into a PointCloud layout
@@ -369,7 +371,7 @@ def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
 
 
 def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
-    """Test: empty clouds and keyframes without tracks."""
+    """Keyframes with an empty cloud or no tracks are dead-reckoned and stay in the path."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)
     empty = TrackFrame.empty(int(street.stamps_ns[22]), 'odom')
@@ -392,7 +394,7 @@ def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
 
 
 def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
-    """Test: tracks of non keyframes are normal."""
+    """Tracks between keyframes are counted as information, not drops, and stay OK."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 21)
     shifted = street.frames[21]
@@ -407,7 +409,7 @@ def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
 
 
 def test_stamps_going_backwards(street: SimSequence) -> None:
-    """Test: stamps going backwards."""
+    """Keyframes and tracks older than the last keyframe are rejected and counted."""
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)
     logic.on_keyframe(keyframe_msg(street, 10))
@@ -422,7 +424,7 @@ def test_stamps_going_backwards(street: SimSequence) -> None:
 
 
 def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
-    """Test: tracks before camera info wait for it."""
+    """Pixel-only tracks wait for the CameraInfo; normalized ones need none."""
     logic = BackendLogic(config(feature_layout='per_point'), BACKEND)
     outputs: list[tuple[str, Any]] = []
     for i in range(3):  # OpenVINS style: pixels only, x_n = y_n = 0
@@ -445,7 +447,7 @@ def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
 
 
 def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
-    """Test: bad camera info and bad keyframes."""
+    """Invalid intrinsics and keyframe poses are rejected and counted."""
     logic = BackendLogic(config(), BACKEND)
     info = camera_info_msg(street)
     info.k[0] = -1.0
@@ -597,6 +599,7 @@ def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None
     assert 'solve_rollbacks' not in logic.stats.counters
 
 
+@pytest.mark.slow
 def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
     """Aerial (ground 40 m below, 0.5 m steps): the prior brings ATE and RPE down.
 
@@ -627,7 +630,7 @@ def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
 
 
 def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
-    """Test: pause reset and save."""
+    """Pause drops input, resume continues, save writes TUM and PLY, reset empties the map."""
     logic = BackendLogic(config(), BACKEND)
     run(logic, street, 22)
     logic.set_paused(True)
@@ -656,7 +659,7 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
 
 
 def test_sliding_memory_is_bounded(street: SimSequence) -> None:
-    """Test: sliding memory is bounded."""
+    """In sliding mode the window and the feature count stay bounded over a long run."""
     logic = BackendLogic(config(window_size=6, fixed_lookback=3, max_fixed_keyframes=2,
                                 init_batch_size=10, max_iterations=1), BACKEND)
     sizes = []
@@ -684,7 +687,7 @@ def _acceptance(street: SimSequence, **kwargs: Any) -> tuple[float, float, Any]:
 
 
 def test_acceptance_street_sliding(street: SimSequence) -> None:
-    """Test: acceptance street sliding."""
+    """Acceptance: sliding-mode ATE on the street is at most 30 % of the front-end's."""
     be, fe, path = _acceptance(street, mode='sliding')
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
     assert be <= 0.3 * fe, f'ATE back-end {be:.3f} m vs front-end {fe:.3f} m'
@@ -692,10 +695,9 @@ def test_acceptance_street_sliding(street: SimSequence) -> None:
 
 @pytest.mark.slow
 def test_acceptance_street_global(street: SimSequence) -> None:
-    """Test: acceptance street global.
+    """Acceptance: global-mode ATE on the street is at most 30 % of the front-end's.
 
-    Global mode re-solves every keyframe over all keyframes: minutes of wall time for 200
-    keyframes on a loaded 2-core machine, hence ``slow``.
+    Global mode re-solves every keyframe over all keyframes, hence ``slow``.
     """
     be, fe, path = _acceptance(street, mode='global', max_iterations=1)
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
@@ -703,7 +705,7 @@ def test_acceptance_street_global(street: SimSequence) -> None:
 
 
 def test_global_mode_short_street(street: SimSequence) -> None:
-    """Test: global mode short street."""
+    """Global mode frees every pose but the gauge root; its ATE is at most half the front-end's."""
     logic = BackendLogic(config(mode='global', max_iterations=1), BACKEND)
     outputs = run(logic, street, 45)
     assert len(last(outputs, 'pmba/path').poses) == 45

@@ -289,7 +289,7 @@ class Node:
 
 
 def _trigger() -> type:
-    """Trigger."""
+    """Return a stand-in for std_srvs/srv/Trigger."""
 
     @dataclass
     class Request:
@@ -306,7 +306,7 @@ def _trigger() -> type:
 
 
 def _set_bool() -> type:
-    """Set bool."""
+    """Return a stand-in for std_srvs/srv/SetBool."""
 
     @dataclass
     class Request:
@@ -335,7 +335,7 @@ class FakeRclpy:
 
 @pytest.fixture
 def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
-    """Fake ros."""
+    """Put fake rclpy, QoS, service and message modules in sys.modules."""
     state = FakeRclpy([], [], [])
     rclpy_mod = types.ModuleType('rclpy')
 
@@ -405,12 +405,12 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
 
 @pytest.fixture(scope='module')
 def seq() -> SimSequence:
-    """Seq."""
+    """Simulate a 16-keyframe street once for the module."""
     return simulate_sequence('street', n_keyframes=16, seed=1)
 
 
 def make(fake: FakeRclpy, **overrides: Any) -> Any:
-    """Make."""
+    """Create a PmbaNode on a fake node with parameter overrides, no worker thread."""
     from pmba_ros.node import PmbaNode
     import rclpy as fake_rclpy
     node = fake_rclpy.create_node('pmba_node', parameter_overrides=overrides)
@@ -418,7 +418,7 @@ def make(fake: FakeRclpy, **overrides: Any) -> Any:
 
 
 def by_topic(node: Node) -> dict[str, Publisher]:
-    """By topic."""
+    """Return a node's publishers by topic."""
     return {p.topic: p for p in node.publishers}
 
 
@@ -452,11 +452,11 @@ def test_tf_topic_fallback_without_tf2_ros(fake_ros: FakeRclpy, seq: SimSequence
 
 @pytest.mark.parametrize('exc', [KeyboardInterrupt, ExternalShutdownException])
 def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) -> None:
-    """Test: main shuts down cleanly."""
+    """An interrupt or external shutdown while spinning destroys the node and shuts down once."""
     from pmba_ros.node import main
 
     def interrupt(node: Node) -> None:
-        """Interrupt."""
+        """Raise the exception under test while spinning."""
         raise exc
 
     fake_ros.spin.append(interrupt)
@@ -466,11 +466,11 @@ def test_main_shuts_down_cleanly(fake_ros: FakeRclpy, exc: type[BaseException]) 
 
 def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    """Test: main exits on invalid parameters."""
+    """An invalid parameter is one fatal log line, a clean shutdown and SystemExit."""
     import pmba_ros.node as node_mod
 
     def bad_config(node: Any) -> Any:
-        """Bad config."""
+        """Fail like an invalid parameter."""
         msg = 'parameter window_size=1: expected an integer >= 2'
         raise ValueError(msg)
 
@@ -511,9 +511,9 @@ def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
     wrapper = make(fake_ros, deterministic=True)
     subs = {s.topic: s.callback for s in fake_ros.created[0].subscriptions}
     assert {'/tf_static', '/tf'} <= subs.keys()
-    last_input = wrapper._last_input
+    last_input = wrapper.worker.last_input
     subs['/tf_static'](make_tf(0, 'base_link', 'camera', [0.1, 0.0, 0.0], [0, 0, 0, 1], BACKEND))
-    assert wrapper._last_input == last_input
+    assert wrapper.worker.last_input == last_input
     assert wrapper.process_pending() == 1
     assert len(wrapper.logic.tf_tree) == 1
 

@@ -26,9 +26,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+from pmba_ros.sim.inputs import make_camera_info, make_point_cloud, make_tracks
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -64,21 +66,21 @@ def builders() -> dict[str, Callable[[Any], Any]]:
         'diagnostics': lambda b: outputs.make_diagnostics(
             T_NS, 'pmba_ros: solver', 'warn', 'slow', {'solve_ms': 12.5, 'n_kf': 7,
                                                        'mode': 'refine'}, b),
-        'point_cloud': lambda b: outputs.make_point_cloud(
+        'point_cloud': lambda b: make_point_cloud(
             T_NS, 'world', POSITIONS, [('a', [1, 2, 3]), ('b', [4.5])], b),
         'cloud2_named': lambda b: outputs.make_point_cloud2_named(
             T_NS, 'cam0', {'id': np.arange(3, dtype=np.uint32),
                            'u': np.ones(3, np.float32), 'w': np.ones(3, np.int16)}, b),
-        'camera_info': lambda b: outputs.make_camera_info(T_NS, 'cam0',
-                                                          CAMERAS['plumb_bob'], b),
-        **{f'tracks_{lay}': (lambda b, lay=lay: outputs.make_tracks(frame, lay, b))
+        'camera_info': lambda b: make_camera_info(T_NS, 'cam0',
+                                                  CAMERAS['plumb_bob'], b),
+        **{f'tracks_{lay}': (lambda b, lay=lay: make_tracks(frame, lay, b))
            for lay in ('vins_mono', 'vins_fusion', 'per_point', 'named')},
     }
 
 
 @pytest.mark.parametrize('name', sorted(builders()))
 def test_builder_output_serializes_with_jazzy(ts: Any, backend: Any, name: str) -> None:
-    """Builder output serializes with jazzy."""
+    """Each builder's message survives a Jazzy CDR round trip byte for byte."""
     msg = builders()[name](backend)
     raw = ts.serialize_cdr(msg, msg.__msgtype__)
     back = ts.deserialize_cdr(raw, msg.__msgtype__)
@@ -86,7 +88,7 @@ def test_builder_output_serializes_with_jazzy(ts: Any, backend: Any, name: str) 
 
 
 def test_all_builders_read_back_with_mcap_ros2(ts: Any, backend: Any, tmp_path: Path) -> None:
-    """All builders read back with mcap ros2."""
+    """An MCAP of every builder's message decodes with mcap_ros2 to the values written."""
     msgs = {name: build(backend) for name, build in builders().items()}
     out = tmp_path / 'outputs'
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -107,7 +109,7 @@ def test_all_builders_read_back_with_mcap_ros2(ts: Any, backend: Any, tmp_path: 
 
 
 def test_path_and_pose_array_content(backend: Any) -> None:
-    """Path and pose array content."""
+    """Path and PoseArray carry the frames, per-pose stamps and normalized quaternions."""
     path = outputs.make_path(T_NS, 'map', POSITIONS, QUATS, [5, 6, 1_000_000_007], backend)
     assert path.header.frame_id == 'map'
     assert (path.header.stamp.sec, path.header.stamp.nanosec) == (42, 7)
@@ -131,13 +133,13 @@ def test_path_and_pose_array_content(backend: Any) -> None:
 ])
 def test_make_path_rejects_bad_input(backend: Any, positions: Any, quats: Any, stamps: Any,
                                      match: str) -> None:
-    """Make path rejects bad input."""
+    """Mismatched lengths, non-finite values and zero quaternions are a MessageError."""
     with pytest.raises(MessageError, match=match):
         outputs.make_path(T_NS, 'map', positions, quats, stamps, backend)
 
 
 def test_point_cloud2_xyz_layout(backend: Any) -> None:
-    """Point cloud2 xyz layout."""
+    """The landmark cloud has float32 x, y, z fields, little-endian, 12 bytes a point."""
     msg = outputs.make_point_cloud2_xyz(T_NS, 'map', POSITIONS, backend)
     assert [(f.name, f.offset, f.datatype, f.count) for f in msg.fields] == [
         ('x', 0, 7, 1), ('y', 4, 7, 1), ('z', 8, 7, 1)]
@@ -149,7 +151,7 @@ def test_point_cloud2_xyz_layout(backend: Any) -> None:
 
 
 def test_point_cloud2_named_rejects_bad_columns(backend: Any) -> None:
-    """Point cloud2 named rejects bad columns."""
+    """Columns of unequal length or without a PointField type are a MessageError."""
     with pytest.raises(MessageError, match='different lengths'):
         outputs.make_point_cloud2_named(T_NS, 'c', {'a': np.zeros(2), 'b': np.zeros(3)},
                                         backend)
@@ -158,7 +160,7 @@ def test_point_cloud2_named_rejects_bad_columns(backend: Any) -> None:
 
 
 def test_odometry_covariance(backend: Any) -> None:
-    """Odometry covariance."""
+    """Odometry carries the pose covariance; invalid covariances are a MessageError."""
     msg = outputs.make_odometry(T_NS, 'map', 'base_link', [1, 2, 3], QUATS[1], COV, backend)
     np.testing.assert_array_equal(np.asarray(msg.pose.covariance).reshape(6, 6), COV)
     assert msg.child_frame_id == 'base_link'
@@ -170,7 +172,7 @@ def test_odometry_covariance(backend: Any) -> None:
 
 
 def test_tf_message(backend: Any) -> None:
-    """Tf message."""
+    """A TF message has the frames and the normalized rotation; NaN rotations are refused."""
     msg = outputs.make_tf(T_NS, 'map', 'odom', [1, 2, 3], [0, 0, 0, 3], backend)
     (tf,) = msg.transforms
     assert (tf.header.frame_id, tf.child_frame_id) == ('map', 'odom')
@@ -180,7 +182,7 @@ def test_tf_message(backend: Any) -> None:
 
 
 def test_diagnostics(backend: Any) -> None:
-    """Diagnostics."""
+    """Diagnostics map the level names to the constants and the values to strings."""
     msg = outputs.make_diagnostics(T_NS, 'pmba', 'error', 'diverged',
                                    {'cost': 0.1, 'iters': np.int64(3), 'ok': False,
                                     'mode': 'global_init'}, backend, hardware_id='cpu')
@@ -195,7 +197,7 @@ def test_diagnostics(backend: Any) -> None:
 
 
 def test_negative_and_large_stamps(backend: Any) -> None:
-    """Negative and large stamps."""
+    """Stamps before the epoch and far after it split into exact sec and nanosec."""
     stamp = outputs.time_msg(-1, backend)
     assert (stamp.sec, stamp.nanosec) == (-1, 999_999_999)
     stamp = outputs.time_msg(1_700_000_000_123_456_789, backend)
@@ -203,27 +205,27 @@ def test_negative_and_large_stamps(backend: Any) -> None:
 
 
 def test_make_tracks_rejects_what_layouts_cannot_carry(backend: Any) -> None:
-    """Make tracks rejects what layouts cannot carry."""
+    """Tracks a layout cannot carry (cameras, id range, coordinates) are refused."""
     stereo = TrackFrame(0, 'w', [1, 1], [0, 1], [[1.0, 2.0], [3.0, 4.0]], [[0, 0], [0, 0]])
     with pytest.raises(MessageError, match='camera'):
-        outputs.make_tracks(stereo, 'per_point', backend)
+        make_tracks(stereo, 'per_point', backend)
     with pytest.raises(MessageError, match='num_cams'):
-        outputs.make_tracks(stereo, 'vins_mono', backend, num_cams=1)
+        make_tracks(stereo, 'vins_mono', backend, num_cams=1)
     big = TrackFrame(0, 'w', [2**24], [0], [[1.0, 2.0]], [[0.0, 0.0]])
     with pytest.raises(MessageError, match='2\\^24'):
-        outputs.make_tracks(big, 'vins_fusion', backend)
+        make_tracks(big, 'vins_fusion', backend)
     no_norm = TrackFrame(0, 'w', [1], [0], [[1.0, 2.0]], None)
     with pytest.raises(MessageError, match='normalized'):
-        outputs.make_tracks(no_norm, 'vins_fusion', backend)
+        make_tracks(no_norm, 'vins_fusion', backend)
     with pytest.raises(MessageError, match='unknown feature layout'):
-        outputs.make_tracks(no_norm, 'orb', backend)
+        make_tracks(no_norm, 'orb', backend)
 
 
 @pytest.mark.parametrize('model', sorted(CAMERAS))
 def test_camera_info_roundtrip(ts: Any, backend: Any, model: str) -> None:
-    """Camera info roundtrip."""
+    """A CameraInfo written for a camera model parses back to the same model."""
     cam = CAMERAS[model]
-    msg = outputs.make_camera_info(T_NS, 'cam0', cam, backend)
+    msg = make_camera_info(T_NS, 'cam0', cam, backend)
     back = parse_camera_info(ts.deserialize_cdr(ts.serialize_cdr(msg, msg.__msgtype__),
                                                 msg.__msgtype__))
     assert back.distortion_model == model
@@ -234,8 +236,8 @@ def test_camera_info_roundtrip(ts: Any, backend: Any, model: str) -> None:
 
 
 def test_camera_info_rejects_unsupported(ts: Any, backend: Any) -> None:
-    """Camera info rejects unsupported."""
-    msg = outputs.make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
+    """Unsupported distortion models and coefficients, and zero focal lengths, are refused."""
+    msg = make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
     msg.distortion_model = 'rational_polynomial'
     msg.d = np.array([0.1, 0.01, 0, 0, 0, 0.2, 0, 0])
     with pytest.raises(MessageError, match='not supported'):
@@ -251,7 +253,7 @@ def test_camera_info_rejects_unsupported(ts: Any, backend: Any) -> None:
 
 
 def test_plumb_bob_normalize_matches_cv2_projection() -> None:
-    """Plumb bob normalize matches cv2 projection."""
+    """Plumb-bob distortion and its inverse agree with cv2.projectPoints."""
     cam = CAMERAS['plumb_bob']
     xy = np.random.default_rng(7).uniform(-0.7, 0.7, size=(300, 2))
     rays = np.column_stack([xy, np.ones(len(xy))])
@@ -265,7 +267,7 @@ def test_plumb_bob_normalize_matches_cv2_projection() -> None:
 
 
 def test_equidistant_normalize_matches_cv2_fisheye_projection() -> None:
-    """Equidistant normalize matches cv2 fisheye projection."""
+    """Equidistant distortion and its inverse agree with cv2.fisheye."""
     cam = CAMERAS['equidistant']
     xy = np.random.default_rng(8).uniform(-2.0, 2.0, size=(300, 2))
     rays = np.column_stack([xy, np.ones(len(xy))]).reshape(-1, 1, 3)
@@ -278,7 +280,7 @@ def test_equidistant_normalize_matches_cv2_fisheye_projection() -> None:
 
 
 def test_normalize_none_and_unreachable_pixels() -> None:
-    """Normalize none and unreachable pixels."""
+    """Undistorted cameras only scale; pixels beyond a fisheye's reach become NaN."""
     cam = CAMERAS['none']
     np.testing.assert_allclose(cam.normalize([[cam.cx + cam.fx, cam.cy]]), [[1.0, 0.0]])
     # theta_d = 2 rad is beyond 90 deg for this fisheye: no normalized coordinates exist
@@ -305,9 +307,9 @@ def fake_rclpy_modules(ts: Any) -> Callable[[str], Any]:
 
 
 def test_rclpy_backend_containers_and_lazy_loading(ts: Any) -> None:
-    """Rclpy backend containers and lazy loading."""
+    """The rclpy backend loads classes by name and fills arrays and Python scalars."""
     loader = fake_rclpy_modules(ts)
-    backend = outputs.RclpyBackend(loader)
+    backend = RclpyBackend(loader)
     assert backend.msg_class('nav_msgs/msg/Path') is ts.types['nav_msgs/msg/Path']
     assert backend.msg_class('nav_msgs/Path') is ts.types['nav_msgs/msg/Path']
     values = backend.seq_f32(np.array([1.5, 2.5]))
@@ -318,7 +320,7 @@ def test_rclpy_backend_containers_and_lazy_loading(ts: Any) -> None:
     assert backend.seq_f64([1.0]).typecode == 'd'
     cloud = outputs.make_point_cloud2_xyz(T_NS, 'map', POSITIONS, backend)
     assert isinstance(cloud.data, array.array)
-    info = outputs.make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
+    info = make_camera_info(T_NS, 'cam0', CAMERAS['plumb_bob'], backend)
     assert isinstance(info.d, array.array) and isinstance(info.k, np.ndarray)
     path = outputs.make_path(T_NS, 'map', POSITIONS, QUATS, [1, 2, 3], backend)
     assert type(path.poses[0].pose.position.x) is float  # rclpy asserts Python floats
@@ -334,15 +336,16 @@ def test_rclpy_backend_builds_real_messages_without_importing_rclpy() -> None:
     run_python(
         'import sys\n'
         'from pmba_ros.backend import outputs\n'
+        'from pmba_ros.backend.msg_backend import RclpyBackend\n'
         'path = outputs.make_path(5, "map", [[0.0, 0.0, 1.0]], [[0.0, 0.0, 0.0, 1.0]], [5],\n'
-        '                         outputs.RclpyBackend())\n'
+        '                         RclpyBackend())\n'
         'assert type(path).__module__ == "nav_msgs.msg._path", type(path)\n'
         'assert path.poses[0].pose.position.z == 1.0\n'
         'assert "rclpy" not in sys.modules\n', timeout_s=120.0)
 
 
 def test_rosbags_backend_errors(backend: Any) -> None:
-    """Rosbags backend errors."""
+    """The rosbags backend names unknown types and constants in its MessageError."""
     with pytest.raises(MessageError, match='not in the rosbags typestore'):
         backend.msg_class('pmba_msgs/msg/Nope')
     with pytest.raises(MessageError, match='no constant'):

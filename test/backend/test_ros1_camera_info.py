@@ -20,10 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.backend.tracks import parse_camera_info
 from pmba_ros.backend.types import CameraModel
 from pmba_ros.io.bags import iter_messages
+from pmba_ros.sim.inputs import make_camera_info
 from rosbags.rosbag1 import Writer
 from rosbags.typesys import get_typestore, Stores
 
@@ -62,7 +63,7 @@ def test_ros1_camera_info_from_a_ros1_bag_reads_like_ros2(tmp_path: Path) -> Non
     (read,) = list(iter_messages([bag]))
     assert hasattr(read.msg, 'K') and not hasattr(read.msg, 'k')
     from_ros1 = parse_camera_info(read.msg)
-    ros2 = outputs.make_camera_info(1, 'cam0', CAMERA, outputs.RosbagsBackend())
+    ros2 = make_camera_info(1, 'cam0', CAMERA, RosbagsBackend())
     from_ros2 = parse_camera_info(ros2)
     for model in (from_ros1, from_ros2):
         assert (model.fx, model.fy, model.cx, model.cy) == (CAMERA.fx, CAMERA.fy, CAMERA.cx,

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 import dataclasses
 import json
 from pathlib import Path
@@ -24,9 +25,11 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.status import BackendStats
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.io.bags import iter_messages
-from pmba_ros.replay import _collect_stats, replay, ReplayReport
+from pmba_ros.replay import replay
+from pmba_ros.replay_report import collect_stats, ReplayReport
 from pmba_ros.sim.bag import write_sequence_bag
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
@@ -163,9 +166,10 @@ def test_ids_beyond_float32_are_counted_not_merged(street: SimSequence) -> None:
 def test_suspect_counters_become_report_warnings() -> None:
     """The replay report lists a warning per suspect-input counter."""
     report = ReplayReport(bags=[], out_dir=Path())
-    logic = SimpleNamespace(stats=SimpleNamespace(
-        counters={'cost_explosions': 7, 'feature_ids_inexact': 12, 'resets': 1}))
-    _collect_stats(logic, report)
+    stats = BackendStats(counters=Counter({'cost_explosions': 7, 'feature_ids_inexact': 12,
+                                           'resets': 1}))
+    logic = SimpleNamespace(stats=stats, extrinsic=None, extrinsic_source='')
+    collect_stats(logic, report)
     inexact = ("12 observations dropped: feature ids that cannot be exact in the message's "
                'number type (>= 2^24 in float32: tracks would merge)')
     cost = ('7 solves whose cost per observation exploded relative to their history '

@@ -24,9 +24,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 from pmba_ros.backend import outputs
+from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.tracks import LAYOUTS, parse_keyframe, parse_tracks, stamp_to_ns, TrackMemory
 from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.errors import MessageError
+from pmba_ros.sim.inputs import make_tracks
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -83,18 +85,18 @@ def assert_same(got: TrackFrame, want: TrackFrame) -> None:
 @pytest.mark.parametrize(('layout', 'num_cams'), CASES)
 def test_layout_roundtrip_through_jazzy_cdr(ts: Any, backend: Any, layout: str,
                                             num_cams: int) -> None:
-    """Layout roundtrip through jazzy cdr."""
+    """Tracks written in a layout parse back to the same frame after Jazzy CDR."""
     frame = random_frame(np.random.default_rng(1), layout, num_cams)
-    msg = cdr_roundtrip(ts, outputs.make_tracks(frame, layout, backend, num_cams))
+    msg = cdr_roundtrip(ts, make_tracks(frame, layout, backend, num_cams))
     assert_same(parse_tracks(msg, layout, num_cams), frame)
 
 
 def test_all_layouts_roundtrip_through_mcap_ros2(ts: Any, backend: Any, tmp_path: Path,
                                                  ) -> None:
-    """All layouts roundtrip through mcap ros2."""
+    """Every layout parses back from mcap_ros2's decoded messages (lists, bytes)."""
     rng = np.random.default_rng(2)
     frames = {f'/{lay}_{n}': (lay, n, random_frame(rng, lay, n)) for lay, n in CASES}
-    items = [(topic, outputs.make_tracks(f, lay, backend, n))
+    items = [(topic, make_tracks(f, lay, backend, n))
              for topic, (lay, n, f) in frames.items()]
     decoded = mcap_roundtrip(ts, tmp_path / 'tracks', items)
     assert set(decoded) == set(frames)
@@ -114,7 +116,7 @@ def test_rclpy_style_containers_parse(ts: Any) -> None:
     for layout in LAYOUTS:
         if layout == 'per_point':
             frame = random_frame(np.random.default_rng(3), 'per_point', 1)
-        msg = outputs.make_tracks(frame, layout, outputs.RclpyBackend(loader), 2)
+        msg = make_tracks(frame, layout, RclpyBackend(loader), 2)
         if layout == 'named':
             assert isinstance(msg.data, array.array)
         else:
@@ -144,7 +146,7 @@ def point_cloud(ts: Any, points: Any, channels: list[list[float]]) -> Any:
 
 
 def test_vins_mono_decodes_id_and_camera_with_rounding(ts: Any) -> None:
-    """Vins mono decodes id and camera with rounding."""
+    """VINS-Mono codes id*num_cams+cam are rounded from float32 and split."""
     # codes 7 and 10 (float32 noise) with NUM_OF_CAM = 2 -> (3, 1) and (5, 0)
     msg = point_cloud(ts, [[0.1, 0.2, 1.0], [0.3, 0.4, 1.0]],
                       [[6.9999, 10.0002], [10, 20], [11, 21], [0, 0], [0, 0]])
@@ -155,7 +157,7 @@ def test_vins_mono_decodes_id_and_camera_with_rounding(ts: Any) -> None:
 
 
 def test_per_point_openvins_zero_normalized_means_missing(ts: Any) -> None:
-    """Per point openvins zero normalized means missing."""
+    """Zero normalized coordinates (OpenVINS) mean none: the pixels are kept alone."""
     cam = CameraModel(400.0, 400.0, 320.0, 240.0, 'plumb_bob', [-0.2, 0.05, 0, 0, 0])
     xy = np.array([[0.1, -0.2], [-0.3, 0.25], [0.0, 0.0]])
     px = cam.denormalize(xy)
@@ -169,7 +171,7 @@ def test_per_point_openvins_zero_normalized_means_missing(ts: Any) -> None:
 
 
 def test_per_point_accepts_longer_channels(ts: Any) -> None:
-    """Per point accepts longer channels."""
+    """Per-point channels with extra trailing values are read."""
     msg = point_cloud(ts, np.zeros((2, 3)),
                       [[0.1, 0.2, 10, 20, 4, 99], [0.3, 0.4, 30, 40, 5, 99, 98]])
     frame = parse_tracks(msg, 'per_point')
@@ -180,7 +182,7 @@ def test_per_point_accepts_longer_channels(ts: Any) -> None:
 
 @pytest.mark.parametrize('layout', ['vins_mono', 'vins_fusion', 'per_point', 'named'])
 def test_nonfinite_coordinates_are_dropped_and_counted(backend: Any, layout: str) -> None:
-    """Nonfinite coordinates are dropped and counted."""
+    """Observations with a non-finite pixel or coordinate are dropped and counted."""
     frame = random_frame(np.random.default_rng(4), layout, 1, k=10)
     pixels = frame.pixels.copy()  # type: ignore[union-attr]
     normalized = frame.normalized.copy()  # type: ignore[union-attr]
@@ -189,7 +191,7 @@ def test_nonfinite_coordinates_are_dropped_and_counted(backend: Any, layout: str
     normalized[7, 0] = -np.inf
     bad = TrackFrame(frame.stamp_ns, frame.frame_id, frame.feature_ids, frame.camera_ids,
                      pixels, normalized)
-    got = parse_tracks(outputs.make_tracks(bad, layout, backend), layout)
+    got = parse_tracks(make_tracks(bad, layout, backend), layout)
     keep = np.setdiff1d(np.arange(10), [2, 5, 7])
     assert got.dropped == 3
     np.testing.assert_array_equal(got.feature_ids, frame.feature_ids[keep])
@@ -197,7 +199,7 @@ def test_nonfinite_coordinates_are_dropped_and_counted(backend: Any, layout: str
 
 
 def test_nonfinite_id_is_dropped(ts: Any) -> None:
-    """Nonfinite id is dropped."""
+    """An observation with a NaN feature id is dropped and counted."""
     msg = point_cloud(ts, [[0.1, 0.2, 1.0], [0.3, 0.4, 1.0]],
                       [[np.nan, 4], [0, 0], [10, 20], [11, 21], [0, 0], [0, 0]])
     frame = parse_tracks(msg, 'vins_fusion')
@@ -256,8 +258,8 @@ def test_ids_that_cannot_be_exact_in_float32_are_dropped(ts: Any, layout: str, b
 def test_per_point_data_fed_to_vins_fusion_raises(backend: Any, n_pts: int) -> None:
     """Also for 5 and 6 points, where every channel happens to have one value per point."""
     frame = random_frame(np.random.default_rng(n_pts), 'per_point', 1, k=n_pts)
-    msg = outputs.make_tracks(frame, 'per_point', backend,
-                              landmarks_xyz=np.full((n_pts, 3), 4.0))
+    msg = make_tracks(frame, 'per_point', backend,
+                      landmarks_xyz=np.full((n_pts, 3), 4.0))
     for layout in ('vins_fusion', 'vins_mono'):
         with pytest.raises(MessageError, match='wrong layout'):
             parse_tracks(msg, layout)
@@ -269,14 +271,14 @@ def test_per_point_data_fed_to_vins_fusion_raises(backend: Any, n_pts: int) -> N
                                                ('vins_mono', 'named'),
                                                ('named', 'vins_fusion')])
 def test_other_layout_mixups_raise(backend: Any, written: str, read: str) -> None:
-    """Other layout mixups raise."""
+    """Tracks read with another layout's reader are a 'wrong layout' MessageError."""
     frame = random_frame(np.random.default_rng(5), written, 1, k=12)
     with pytest.raises(MessageError, match='wrong layout'):
-        parse_tracks(outputs.make_tracks(frame, written, backend), read)
+        parse_tracks(make_tracks(frame, written, backend), read)
 
 
 def test_channel_of_wrong_length_raises(ts: Any) -> None:
-    """Channel of wrong length raises."""
+    """A channel shorter than the points is a MessageError naming both lengths."""
     msg = point_cloud(ts, [[0.1, 0.2, 1.0], [0.3, 0.4, 1.0]],
                       [[1, 2], [0, 0], [10, 20], [11], [0, 0], [0, 0]])
     with pytest.raises(MessageError, match=r'one value per point.*\[3\].*\[1\]'):
@@ -284,21 +286,21 @@ def test_channel_of_wrong_length_raises(ts: Any) -> None:
 
 
 def test_per_point_short_channel_raises(ts: Any) -> None:
-    """Per point short channel raises."""
+    """A per-point channel with fewer than five values is a MessageError."""
     msg = point_cloud(ts, np.zeros((2, 3)), [[0, 0, 1, 2, 3], [0, 0, 1, 2]])
     with pytest.raises(MessageError, match='>= 5 values'):
         parse_tracks(msg, 'per_point')
 
 
 def test_non_integral_ids_raise(ts: Any) -> None:
-    """Non integral ids raise."""
+    """Fractional feature ids are a MessageError."""
     msg = point_cloud(ts, [[0.1, 0.2, 1.0]], [[2.5], [0], [10], [11], [0], [0]])
     with pytest.raises(MessageError, match='non-negative integers'):
         parse_tracks(msg, 'vins_fusion')
 
 
 def test_camera_id_out_of_range_raises(ts: Any) -> None:
-    """Camera id out of range raises."""
+    """Camera ids at or above num_cams are a MessageError."""
     msg = point_cloud(ts, [[0.1, 0.2, 1.0]], [[2], [1], [10], [11], [0], [0]])
     with pytest.raises(MessageError, match='num_cams'):
         parse_tracks(msg, 'vins_fusion', num_cams=1)
@@ -306,7 +308,7 @@ def test_camera_id_out_of_range_raises(ts: Any) -> None:
 
 
 def test_unknown_layout_and_bad_num_cams_raise(ts: Any) -> None:
-    """Unknown layout and bad num cams raise."""
+    """An unknown layout or num_cams below one is a MessageError."""
     msg = point_cloud(ts, [], [])
     with pytest.raises(MessageError, match="unknown feature layout 'orb'"):
         parse_tracks(msg, 'orb')
@@ -316,9 +318,9 @@ def test_unknown_layout_and_bad_num_cams_raise(ts: Any) -> None:
 
 @pytest.mark.parametrize('layout', LAYOUTS)
 def test_empty_cloud_gives_empty_frame(ts: Any, backend: Any, layout: str) -> None:
-    """Empty cloud gives empty frame."""
+    """An empty cloud in any layout gives an empty frame with the message's stamp."""
     empty = TrackFrame.empty(STAMP_NS, 'world')
-    msg = cdr_roundtrip(ts, outputs.make_tracks(empty, layout, backend))
+    msg = cdr_roundtrip(ts, make_tracks(empty, layout, backend))
     frame = parse_tracks(msg, layout)
     assert len(frame) == 0
     assert frame.stamp_ns == STAMP_NS
@@ -326,7 +328,7 @@ def test_empty_cloud_gives_empty_frame(ts: Any, backend: Any, layout: str) -> No
 
 
 def test_empty_pointcloud_without_channels(ts: Any) -> None:
-    """Empty pointcloud without channels."""
+    """A PointCloud without points and channels gives an empty frame."""
     assert len(parse_tracks(point_cloud(ts, [], []), 'vins_fusion')) == 0
 
 
@@ -337,7 +339,7 @@ def named_cloud(backend: Any, columns: dict[str, Any], **kwargs: Any) -> Any:
 
 @pytest.mark.parametrize('missing', ['id', 'u'])
 def test_named_missing_field_raises(backend: Any, missing: str) -> None:
-    """Named missing field raises."""
+    """A named cloud without id, u or v is a MessageError listing the fields needed."""
     cols = {'id': np.array([1, 2], np.uint32), 'cam': np.zeros(2, np.uint8),
             'u': np.ones(2, np.float32), 'v': np.ones(2, np.float32)}
     del cols[missing]
@@ -346,7 +348,7 @@ def test_named_missing_field_raises(backend: Any, missing: str) -> None:
 
 
 def test_named_big_endian_float64_extra_fields_and_no_cam(ts: Any, backend: Any) -> None:
-    """Named big endian float64 extra fields and no cam."""
+    """Named clouds may be big-endian, float64, padded and without a cam field."""
     cols = {'x': np.arange(3, dtype=np.float32), 'id': np.array([7, 8, 9], np.float64),
             'pad': np.zeros(3, np.uint8), 'x_n': np.array([0.1, 0.2, 0.3], np.float64),
             'y_n': np.array([0.4, 0.5, 0.6], np.float64)}
@@ -390,7 +392,7 @@ def test_named_organized_cloud_with_row_padding(ts: Any) -> None:
 
 
 def test_named_field_beyond_point_step_raises(backend: Any) -> None:
-    """Named field beyond point step raises."""
+    """A field that does not fit in point_step is a MessageError naming it."""
     msg = named_cloud(backend, {'id': np.array([1], np.uint32), 'u': np.ones(1, np.float32),
                                 'v': np.ones(1, np.float32)})
     msg.point_step = 8
@@ -399,7 +401,7 @@ def test_named_field_beyond_point_step_raises(backend: Any) -> None:
 
 
 def test_keyframe_odometry_and_pose_stamped(ts: Any, backend: Any, tmp_path: Path) -> None:
-    """Keyframe odometry and pose stamped."""
+    """Odometry and PoseStamped keyframes parse back from CDR and mcap_ros2."""
     cov = np.diag([1e-4] * 3 + [1e-5] * 3)
     quat = np.array([0.1, -0.2, 0.3, 0.9])
     odom = outputs.make_odometry(STAMP_NS, 'world', 'body', [1, 2, 3], quat, cov, backend)
@@ -418,7 +420,7 @@ def test_keyframe_odometry_and_pose_stamped(ts: Any, backend: Any, tmp_path: Pat
 
 @pytest.mark.parametrize('quat', [[np.nan, 0, 0, 1], [0, 0, np.inf, 1], [0, 0, 0, 0]])
 def test_keyframe_rejects_bad_quaternion(backend: Any, quat: list[float]) -> None:
-    """Keyframe rejects bad quaternion."""
+    """Keyframe poses with a non-finite or zero quaternion are a MessageError."""
     msg = outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1], backend)
     msg.pose.orientation.x, msg.pose.orientation.y = quat[0], quat[1]
     msg.pose.orientation.z, msg.pose.orientation.w = quat[2], quat[3]
@@ -427,7 +429,7 @@ def test_keyframe_rejects_bad_quaternion(backend: Any, quat: list[float]) -> Non
 
 
 def test_keyframe_wrong_kind_or_type_raises(backend: Any) -> None:
-    """Keyframe wrong kind or type raises."""
+    """A keyframe of the wrong message type or an unknown kind is a MessageError."""
     msg = outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1], backend)
     with pytest.raises(MessageError, match='expects nav_msgs/msg/Odometry'):
         parse_keyframe(msg, 'odometry')
@@ -436,7 +438,7 @@ def test_keyframe_wrong_kind_or_type_raises(backend: Any) -> None:
 
 
 def test_stamp_to_ns_is_exact_int() -> None:
-    """Stamp to ns is exact int."""
+    """Stamps convert to integer ns without float rounding; non-stamps are refused."""
     stamp = SimpleNamespace(sec=1_700_000_000, nanosec=999_999_999)
     assert stamp_to_ns(stamp) == 1_700_000_000_999_999_999
     with pytest.raises(MessageError, match='Time'):
@@ -444,7 +446,7 @@ def test_stamp_to_ns_is_exact_int() -> None:
 
 
 def test_trackframe_validates_and_freezes() -> None:
-    """Trackframe validates and freezes."""
+    """A TrackFrame copies its arrays read-only and refuses inconsistent rows."""
     ids = np.array([1, 2])
     frame = TrackFrame(0, 'w', ids, [0, 0], None, [[0.0, 0.0], [1.0, 1.0]])
     ids[0] = 99

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import jazzy_typestore, open_writer
 import pytest
@@ -50,6 +51,7 @@ def play(args: list[str], domain: int) -> subprocess.Popen[str]:
                             stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """Every message arrives, keyframes spaced by period / rate, /clock follows the bag."""
@@ -87,6 +89,7 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
                 proc.kill()
 
 
+@pytest.mark.slow
 def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
     """Missing bag and message types rclpy lacks give one error line and exit 1."""
     domain = domain_id()
@@ -94,7 +97,7 @@ def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 1 and 'no such bag' in stderr and 'Traceback' not in stderr
     tf_bag = tmp_path / 'tf'
-    backend = out.RosbagsBackend(jazzy_typestore())
+    backend = RosbagsBackend(jazzy_typestore())
     with open_writer(tf_bag) as writer:
         writer.write('/tf', out.make_tf(1, 'map', 'odom', np.zeros(3), [0, 0, 0, 1.0],
                                         backend), 1)

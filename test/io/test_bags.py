@@ -19,7 +19,8 @@ from pathlib import Path
 import struct
 
 import numpy as np
-from pmba_ros.backend.outputs import make_pose_stamped, RosbagsBackend
+from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.outputs import make_pose_stamped
 from pmba_ros.errors import BagError
 from pmba_ros.io.bags import (
     iter_messages,

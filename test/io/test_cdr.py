@@ -16,7 +16,8 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.backend.outputs import header_msg, pose_stamped_msgs, RosbagsBackend
+from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.outputs import header_msg, pose_stamped_msgs
 from pmba_ros.io import cdr
 from pmba_ros.io.bags import jazzy_typestore
 import pytest

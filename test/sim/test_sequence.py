@@ -29,12 +29,12 @@ import pytest
 
 @pytest.fixture(scope='module', params=SCENARIOS)
 def seq(request: pytest.FixtureRequest) -> SimSequence:
-    """Seq."""
+    """Simulate 40 keyframes of each scenario once for the module."""
     return simulate_sequence(request.param, n_keyframes=40, seed=3)
 
 
 def test_shapes_and_stamps(seq: SimSequence) -> None:
-    """Test: shapes and stamps."""
+    """One pose and frame per keyframe at 10 Hz; the rotations are orthonormal."""
     F = len(seq)
     assert F == 40 == len(seq.frames)
     assert seq.R_wc_gt.shape == seq.R_wc_odom.shape == (F, 3, 3)
@@ -47,7 +47,7 @@ def test_shapes_and_stamps(seq: SimSequence) -> None:
 
 
 def test_observations_are_noisy_projections(seq: SimSequence) -> None:
-    """Test: observations are noisy projections."""
+    """Pixels are ground-truth projections plus noise of the requested size, in the image."""
     for i in (0, len(seq) // 2, len(seq) - 1):
         f = seq.frames[i]
         assert len(f) >= 50
@@ -64,7 +64,7 @@ def test_observations_are_noisy_projections(seq: SimSequence) -> None:
 
 
 def test_tracks_are_local_and_contiguous(seq: SimSequence) -> None:
-    """Test: tracks are local and contiguous."""
+    """A feature is seen on consecutive keyframes only, most of them on two or more."""
     lengths = track_lengths(seq)
     assert lengths.max() <= 40
     seen = lengths > 0
@@ -81,7 +81,7 @@ def test_tracks_are_local_and_contiguous(seq: SimSequence) -> None:
 
 
 def test_same_seed_same_sequence() -> None:
-    """Test: same seed same sequence."""
+    """A seed reproduces the sequence exactly; another seed changes it."""
     a = simulate_sequence('street', 15, seed=7)
     b = simulate_sequence('street', 15, seed=7)
     c = simulate_sequence('street', 15, seed=8)
@@ -91,7 +91,7 @@ def test_same_seed_same_sequence() -> None:
 
 
 def test_street_is_forward_motion_with_far_features() -> None:
-    """Test: street is forward motion with far features."""
+    """The street moves 1 m per keyframe along x with a gentle weave; many features are far."""
     seq = simulate_sequence('street', 100, seed=0)
     steps = np.diff(seq.centers_gt, axis=0)
     assert np.all(steps[:, 0] == pytest.approx(1.0))  # 10 m/s at 10 Hz
@@ -102,7 +102,7 @@ def test_street_is_forward_motion_with_far_features() -> None:
 
 
 def test_drift_is_about_the_requested_fraction() -> None:
-    """Test: drift is about the requested fraction."""
+    """Front-end drift ends near the requested fraction of the distance; zero is exact."""
     seq = simulate_sequence('street', 200, seed=0, drift=0.02)
     distance = np.sum(np.linalg.norm(np.diff(seq.centers_gt, axis=0), axis=1))
     end_error = np.linalg.norm(seq.centers_odom[-1] - seq.centers_gt[-1])
@@ -113,7 +113,7 @@ def test_drift_is_about_the_requested_fraction() -> None:
 
 
 def test_rotation_scenario_has_no_baseline() -> None:
-    """Test: rotation scenario has no baseline."""
+    """The rotation scenario turns by more than 10 degrees without moving the camera."""
     seq = simulate_sequence('rotation', 30, seed=0)
     assert np.all(seq.centers_gt == 0.0)
     assert np.max(np.rad2deg(so3.angle(seq.R_wc_gt[0], seq.R_wc_gt))) > 10.0
@@ -121,7 +121,7 @@ def test_rotation_scenario_has_no_baseline() -> None:
 
 @pytest.mark.parametrize('distortion', ['none', 'plumb_bob', 'equidistant'])
 def test_distortion_models(distortion: str) -> None:
-    """Test: distortion models."""
+    """Each distortion model's normalized coordinates map back onto the pixels."""
     seq = simulate_sequence('aerial', 5, distortion=distortion, noise_px=0.0)
     assert seq.camera.distortion_model == distortion
     f = seq.frames[2]
@@ -132,6 +132,6 @@ def test_distortion_models(distortion: str) -> None:
                                     {'noise_px': -1.0}, {'rate_hz': 0.0},
                                     {'distortion': 'fisheye'}, {'max_track_length': 1}])
 def test_invalid_arguments(kwargs: dict[str, object]) -> None:
-    """Test: invalid arguments."""
+    """Unknown scenarios, distortions or counts are a ValueError naming the argument."""
     with pytest.raises(ValueError, match=r'simulate_sequence|scenario|distortion'):
         simulate_sequence(**kwargs)  # type: ignore[arg-type]

@@ -1,0 +1,158 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""What the back-end reports about itself: its statistics and its diagnostics status."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.estimator import UpdateInfo
+
+DIAGNOSTICS_NAME = 'pmba_ros: back-end'
+INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
+                           'init_failures', 'keyframes_passed_through'})
+"""Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
+
+
+@dataclass
+class BackendStats:
+    """Per-keyframe statistics and event counters.
+
+    Attributes:
+        solve_ms: Solver time of each optimized keyframe update, ms.
+        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
+        iterations: Solver iterations per optimized update.
+        cost_before: Cost before each solve.
+        cost_after: Cost after each solve.
+        counters: Event counts by reason (rejected inputs, drops, errors, ...).
+        keyframes: Keyframes handed to the estimator.
+        not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
+        map_scale: Scale of the map <- odom similarity after each keyframe since the
+            initialization (a monocular map drifting in scale against odom shows here).
+    """
+
+    solve_ms: list[float] = field(default_factory=list)
+    update_ms: list[float] = field(default_factory=list)
+    iterations: list[int] = field(default_factory=list)
+    cost_before: list[float] = field(default_factory=list)
+    cost_after: list[float] = field(default_factory=list)
+    counters: Counter[str] = field(default_factory=Counter)
+    keyframes: int = 0
+    not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
+
+    def count(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` events under ``reason`` (a reason is listed once it has happened)."""
+        if n:
+            self.counters[reason] += int(n)
+
+    def record_update(self, info: UpdateInfo) -> None:
+        """Count one keyframe update: its drops, its kind and, after a solve, its figures."""
+        self.keyframes += 1
+        for reason, n in info.dropped.items():
+            self.count(reason, n)
+        if info.kind in ('dropped', 'dead_reckoned', 'passed_through'):
+            self.count(f'keyframes_{info.kind}')
+        if info.kind in ('init', 'init_failed'):
+            self.count('init_attempts')
+            self.count('init_failures', int(info.kind == 'init_failed'))
+        if info.kind in ('refine', 'init'):
+            self.solve_ms.append(info.solve_ms)
+            self.iterations.append(info.iterations)
+            self.cost_before.append(info.cost_before)
+            self.cost_after.append(info.cost_after)
+
+
+def backend_level(update_kind: str, state: str, counters: Counter[str],
+                  reported: Counter[str]) -> str:
+    """Return the back-end's diagnostics level: 'error', 'warn' or 'ok'.
+
+    Args:
+        update_kind: Kind of the last keyframe update (``UpdateInfo.kind``).
+        state: The back-end's state ('tracking', 'paused', ...).
+        counters: The event counters now.
+        reported: The event counters at the last diagnostics message.
+
+    Returns:
+        'error' after a failed update or new internal errors among new drops, 'warn' when
+        not tracking or after new drops (counters outside :data:`INFO_COUNTERS` that grew),
+        else 'ok'.
+    """
+    new_drops = any(counters[k] > reported[k] for k in counters if k not in INFO_COUNTERS)
+    if update_kind == 'error' or (new_drops and counters['internal_errors']
+                                  > reported['internal_errors']):
+        return 'error'
+    if state != 'tracking' or new_drops:
+        return 'warn'
+    return 'ok'
+
+
+def backend_message(state: str, estimator_message: str, update_kind: str,
+                    update_message: str) -> str:
+    """Return the back-end's diagnostics message: its state, and a noteworthy update's note."""
+    message = {'paused': 'paused', 'tracking': 'tracking'}.get(state, estimator_message)
+    if update_message and update_kind not in ('refine', 'collect') and message != update_message:
+        message = f'{message}; {update_message}'
+    return message
+
+
+def update_values(info: UpdateInfo) -> dict[str, str | float]:
+    """Return the diagnostics key-values of a keyframe update (solve figures, problem size)."""
+    return {'iterations': info.iterations,
+            'cost_before': info.cost_before, 'cost_after': info.cost_after,
+            'problem_poses': info.n_cams, 'problem_free_poses': info.n_free,
+            'problem_features': info.n_feats, 'problem_observations': info.n_obs}
+
+
+def counter_values(counters: Counter[str]) -> dict[str, str | float]:
+    """Return the diagnostics key-values of the counters: ``dropped_total`` and ``count.*``."""
+    values: dict[str, str | float] = {
+        'dropped_total': int(sum(v for k, v in counters.items() if k not in INFO_COUNTERS))}
+    for reason in sorted(counters):
+        values[f'count.{reason}'] = int(counters[reason])
+    return values
+
+
+def node_level_and_message(input_age_s: float, any_input: bool, stale_input_s: float,
+                           tf_off: str | None, map_to_odom_topic: str) -> tuple[str, str]:
+    """Return the node's own diagnostics level and message.
+
+    Args:
+        input_age_s: Seconds since the last front-end input (or since the start).
+        any_input: Whether any front-end input has arrived.
+        stale_input_s: Input age from which the input counts as stale.
+        tf_off: Why map -> odom is not sent on TF although ``publish_tf`` asks for it, or None.
+        map_to_odom_topic: The topic map -> odom goes to instead.
+
+    Returns:
+        ``(level, message)``: 'warn' for stale input or TF off, else 'ok'.
+    """
+    level, message = 'ok', 'receiving input'
+    if input_age_s > stale_input_s:
+        level = 'warn'
+        what = 'no input for' if any_input else 'no input received in'
+        message = f'{what} {input_age_s:.1f} s (check the topics, remaps and QoS)'
+    elif not any_input:
+        message = 'waiting for input'
+    if tf_off is not None:
+        level = 'warn'
+        message = f'{message}; TF {tf_off}, map -> odom on {map_to_odom_topic}'
+    return level, message
+
+
+__all__ = ['DIAGNOSTICS_NAME', 'INFO_COUNTERS', 'BackendStats', 'backend_level', 'backend_message',
+           'counter_values', 'node_level_and_message', 'update_values']

@@ -1,0 +1,166 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The node's solver thread: a bounded queue in front of a :class:`BackendLogic`.
+
+Subscription callbacks only :meth:`LogicWorker.enqueue`; the worker thread feeds the logic
+and hands its outputs to a publish callback, so solving never blocks the executor. Messages
+that find the queue full are dropped and counted (``queue_full_<kind>`` in the back-end's
+counters). No rclpy import: the node owns the thread's ROS side.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import replace
+import logging
+import queue
+import threading
+import time
+from typing import Any, TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.config import BackendConfig
+    from pmba_ros.backend.logic import BackendLogic
+
+logger = logging.getLogger(__name__)
+
+Outputs = list[tuple[str, Any]]
+"""``(topic, message)`` pairs of :meth:`BackendLogic.step`."""
+
+_STOP = object()
+_POLL_S = 0.1
+_JOIN_TIMEOUT_S = 1.0
+
+
+class LogicWorker:
+    """Feeds a :class:`BackendLogic` from a bounded queue on its own thread.
+
+    Args:
+        logic: The back-end; use it from other threads only under :attr:`lock`.
+        publish: Called on the worker thread with the outputs after each message.
+        queue_size: Messages held; further ones are dropped and counted.
+    """
+
+    def __init__(self, logic: BackendLogic, publish: Callable[[Outputs], None],
+                 queue_size: int) -> None:
+        """Create the queue; the thread starts with :meth:`start`."""
+        self.logic = logic
+        self.lock = threading.Lock()
+        self._publish = publish
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        self._drops: Counter[str] = Counter()
+        self._received: Counter[str] = Counter()
+        self._counts_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._staged: BackendConfig | None = None
+        self._thread: threading.Thread | None = None
+        self.last_input = -1.0
+        """``time.monotonic()`` of the newest front-end input (-1: none yet; TF excluded)."""
+
+    def start(self) -> None:
+        """Start the solver thread (a daemon: a solve in progress ends with the process)."""
+        self._thread = threading.Thread(target=self._run, name='pmba_solver', daemon=True)
+        self._thread.start()
+
+    def enqueue(self, kind: str, msg: Any) -> None:
+        """Queue an input ('tracks', 'keyframe', 'camera_info' or 'tf'); never blocks."""
+        if kind != 'tf':  # TF keeps flowing when the front-end has stopped
+            self.last_input = time.monotonic()
+        try:
+            self._queue.put_nowait((kind, msg))
+        except queue.Full:
+            with self._counts_lock:
+                self._drops[f'queue_full_{kind}'] += 1
+        with self._counts_lock:
+            self._received[kind] += 1
+
+    def stage_config(self, config: BackendConfig) -> None:
+        """Apply ``config`` to the logic before the next message (``publish_tf`` forced on)."""
+        with self._counts_lock:
+            self._staged = config
+
+    def received(self) -> dict[str, int]:
+        """Return the inputs received so far per kind."""
+        with self._counts_lock:
+            return dict(self._received)
+
+    def queue_length(self) -> int:
+        """Return the number of queued messages."""
+        return self._queue.qsize()
+
+    def process_pending(self) -> int:
+        """Handle every queued message (the thread's body; tests call it directly).
+
+        Returns:
+            The number of messages handled.
+        """
+        handled = 0
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return handled
+            if item is _STOP:
+                self._stop.set()
+                return handled
+            self._handle(*item)
+            handled += 1
+
+    def _handle(self, kind: str, msg: Any) -> None:
+        with self._counts_lock:
+            drops = dict(self._drops)
+            self._drops.clear()
+            staged, self._staged = self._staged, None
+        with self.lock:
+            if staged is not None:
+                # The logic always emits map -> odom: the node needs it for the provisional
+                # poses and decides itself whether it goes to TF.
+                self.logic.apply_config(replace(staged, publish_tf=True))
+            for reason, n in drops.items():
+                self.logic.count(reason, n)
+            if kind.startswith('camera_info.'):  # camera c of a rig
+                self.logic.on_camera_info(msg, int(kind.split('.', 1)[1]))
+            else:
+                handler = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
+                           'tf': self.logic.on_tf}.get(kind, self.logic.on_camera_info)
+                handler(msg)
+            outputs = self.logic.step()
+        self._publish(outputs)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                item = self._queue.get(timeout=_POLL_S)
+            except queue.Empty:
+                continue
+            if item is _STOP:
+                break
+            try:
+                self._handle(*item)
+            except Exception:
+                logger.exception('pmba worker: unexpected error')
+
+    def stop(self) -> None:
+        """Stop the thread; pending messages are discarded, a solve in progress is not cut."""
+        self._stop.set()
+        try:
+            self._queue.put_nowait(_STOP)
+        except queue.Full:
+            pass
+        if self._thread is not None:
+            self._thread.join(timeout=_JOIN_TIMEOUT_S)
+
+
+__all__ = ['LogicWorker', 'Outputs']

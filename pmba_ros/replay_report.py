@@ -1,0 +1,208 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""What a replay did and wrote: :class:`ReplayReport` (``report.json``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from pathlib import Path
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+from pmba_ros._json import to_jsonable
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.extrinsics import Rigid
+    from pmba_ros.backend.logic import BackendLogic
+
+SUSPECT_COUNTERS = {
+    'feature_ids_inexact': 'observations dropped: feature ids that cannot be exact in the '
+                           "message's number type (>= 2^24 in float32: tracks would merge)",
+    'duplicate_observations': 'repeated feature ids in one message, resolved by the copy '
+                              "nearest to the track's previous observation",
+    'ambiguous_duplicate_observations': 'repeated feature ids without a previous observation '
+                                        '(every copy dropped)',
+    'keyframe_pose_jumps': 'keyframe poses rejected: they jump far beyond the recent motion',
+    'cost_explosions': 'solves whose cost per observation exploded relative to their '
+                       'history (inconsistent tracks?)',
+}
+"""Back-end counters of suspect input, each worth a warning in the report."""
+
+
+@dataclass
+class ReplayReport:
+    """What a replay did and wrote (``report.json`` is :meth:`to_dict`).
+
+    Attributes:
+        bags: Input recordings.
+        out_dir: Output folder.
+        files: Output name -> path (result bag, TUM files, PLY, report, plots).
+        topics: Input role -> topic read ('tracks', 'keyframes', 'camera_info').
+        messages_in: Input messages fed to the back-end.
+        messages_rejected: Input messages the back-end rejected (parse errors).
+        messages_out: Output messages written to the result bag.
+        keyframes_in: Keyframe messages read.
+        keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
+        map_scale: Scale of map <- odom after each keyframe since the initialization.
+        keyframes_not_optimized: Of those, keyframes at their front-end pose through
+            map <- odom (before the initialization, too few observations).
+        solve_ms: Solve time per keyframe solve, ms.
+        iterations: Solver iterations per solve.
+        costs: Cost after each solve.
+        costs_before: Cost before each solve.
+        update_ms: Whole update time (association, solve, bookkeeping) per keyframe, ms.
+        counters: The back-end's counters.
+        bag_duration_s: Header-stamp span of the inputs, s.
+        wall_s: Wall time of the replay, s.
+        accuracy: With ground truth: ATE / RPE of front-end and optimized poses.
+        extrinsic: The body -> camera transform used (``source``: 'parameters', 'tf',
+            'frames_agree' or 'identity'; ``body_to_camera``: x, y, z, qx, qy, qz, qw);
+            with a rig, ``rig_cameras``: each other camera's source and pose in the
+            reference camera's frame.
+        complete: False if the replay stopped early or the input was incomplete.
+        error: The error that stopped it, if any.
+        warnings: Non-fatal problems.
+        messages_announced: Messages the bags' metadata announces on the topics read.
+        messages_read: Messages read from the bags (decoded).
+        messages_undecodable: Messages skipped because they do not deserialize.
+        damaged_parts: Corrupt parts of the storage skipped (reading resumed after them).
+        read_error: The first of them, if any.
+    """
+
+    bags: list[Path]
+    out_dir: Path
+    files: dict[str, Path] = field(default_factory=dict)
+    topics: dict[str, str] = field(default_factory=dict)
+    messages_in: int = 0
+    messages_rejected: int = 0
+    messages_out: int = 0
+    keyframes_in: int = 0
+    keyframes_out: int = 0
+    keyframes_not_optimized: int = 0
+    map_scale: list[float] = field(default_factory=list)
+    solve_ms: list[float] = field(default_factory=list)
+    iterations: list[int] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    costs_before: list[float] = field(default_factory=list)
+    update_ms: list[float] = field(default_factory=list)
+    counters: dict[str, Any] = field(default_factory=dict)
+    bag_duration_s: float = 0.0
+    wall_s: float = 0.0
+    accuracy: dict[str, Any] | None = None
+    extrinsic: dict[str, Any] | None = None
+    complete: bool = False
+    error: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    messages_announced: int = 0
+    messages_read: int = 0
+    messages_undecodable: int = 0
+    damaged_parts: int = 0
+    read_error: str | None = None
+
+    @property
+    def input_complete(self) -> bool:
+        """Return True if every announced message was read and decoded."""
+        return (not self.damaged_parts and not self.messages_undecodable
+                and self.messages_read >= self.messages_announced)
+
+    @property
+    def realtime_factor(self) -> float:
+        """Bag duration divided by wall time (how much faster than real time)."""
+        return self.bag_duration_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON-serializable report."""
+        solve = np.asarray(self.solve_ms, dtype=np.float64)
+        out: dict[str, Any] = {
+            'bags': [str(b) for b in self.bags],
+            'out_dir': str(self.out_dir),
+            'files': {k: str(v) for k, v in sorted(self.files.items())},
+            'topics': dict(self.topics),
+            'complete': self.complete,
+            'input_complete': self.input_complete,
+            'messages_announced': self.messages_announced,
+            'messages_read': self.messages_read,
+            'messages_undecodable': self.messages_undecodable,
+            'damaged_parts': self.damaged_parts,
+            'read_error': self.read_error,
+            'keyframes_in': self.keyframes_in,
+            'keyframes_out': self.keyframes_out,
+            'keyframes_not_optimized': self.keyframes_not_optimized,
+            'map_from_odom_scale': [round(float(v), 6) for v in self.map_scale],
+            'messages_in': self.messages_in,
+            'messages_rejected': self.messages_rejected,
+            'messages_out': self.messages_out,
+            'counters': to_jsonable(self.counters),
+            'solves': len(self.solve_ms),
+            'solve_ms': [round(float(v), 3) for v in self.solve_ms],
+            'solve_ms_mean': float(solve.mean()) if solve.size else None,
+            'solve_ms_max': float(solve.max()) if solve.size else None,
+            'iterations': [int(v) for v in self.iterations],
+            'costs': [_finite(v) for v in self.costs],
+            'costs_before': [_finite(v) for v in self.costs_before],
+            'update_ms': [round(float(v), 3) for v in self.update_ms],
+            'bag_duration_s': self.bag_duration_s,
+            'wall_s': self.wall_s,
+            'realtime_factor': (self.realtime_factor if math.isfinite(self.realtime_factor)
+                                else None),
+            'warnings': list(self.warnings),
+        }
+        if self.extrinsic is not None:
+            out['extrinsic'] = self.extrinsic
+        if self.accuracy is not None:
+            out['accuracy'] = self.accuracy
+        if self.error is not None:
+            out['error'] = self.error
+        return out
+
+
+def _finite(value: float) -> float | None:
+    """Return ``value`` or None if it is not finite (JSON has no NaN)."""
+    return float(value) if math.isfinite(value) else None
+
+
+def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
+    """Copy timings, iterations, costs, counters and the extrinsic used from ``logic``."""
+    stats = logic.stats
+    report.solve_ms = [float(v) for v in stats.solve_ms]
+    report.iterations = [int(v) for v in stats.iterations]
+    report.costs = [float(v) for v in stats.cost_after]
+    report.costs_before = [float(v) for v in stats.cost_before]
+    report.update_ms = [float(v) for v in stats.update_ms]
+    report.counters = dict(sorted(stats.counters.items()))
+    for name, text in SUSPECT_COUNTERS.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {text}')
+    report.counters['keyframes_processed'] = stats.keyframes
+    report.keyframes_not_optimized = stats.not_optimized
+    report.map_scale = [float(v) for v in stats.map_scale]
+    fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
+                 'reinitializations': 'window re-initializations from the front-end'}
+    for name, what in fallbacks.items():
+        if report.counters.get(name):
+            report.warnings.append(f'{report.counters[name]} {what}')
+    if logic.extrinsic is not None:
+        report.extrinsic = {'source': logic.extrinsic_source,
+                            'body_to_camera': [round(v, 9) for v in logic.extrinsic.to_flat()]}
+        report.extrinsic |= _rig_report(logic.rig_cameras)
+
+
+def _rig_report(rig_cameras: dict[int, tuple[Rigid, str]]) -> dict[str, Any]:
+    """Return the report entry of the other cameras used: pose in the reference camera."""
+    if not rig_cameras:
+        return {}
+    return {'rig_cameras': {str(cam): {'source': source, 'in_reference_camera': [
+        round(v, 9) for v in offset.to_flat()]} for cam, (offset, source)
+        in sorted(rig_cameras.items())}}
