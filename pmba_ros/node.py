@@ -45,7 +45,6 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
 from pmba_ros._process import tune_process
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
@@ -55,10 +54,10 @@ from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.msg_backend import NodeMsgBackend, RclpyBackend
 from pmba_ros.backend.parameters import parameter_descriptions, parameter_descriptor
-from pmba_ros.backend.status import node_level_and_message
+from pmba_ros.backend.status import node_level_and_message, received_values
 from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, parse_keyframe, tracks_msgtype
 from pmba_ros.backend.worker import LogicWorker
-from pmba_ros.core import so3, warmup
+from pmba_ros.core import warmup
 from pmba_ros.errors import MessageError, PmbaError
 from pmba_ros.io.playback import paced, wait_until
 
@@ -116,9 +115,6 @@ def input_qos(preset: str, config: BackendConfig) -> Any:
                       reliability=(ReliabilityPolicy.RELIABLE if reliable
                                    else ReliabilityPolicy.BEST_EFFORT),
                       durability=durability)
-
-
-# --- TF -----------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -334,14 +330,11 @@ class PmbaNode:
         if pose.stamp_ns <= self._newest_provisional:
             return
         self._newest_provisional = pose.stamp_ns
-        T = Rigid(so3.from_quat_xyzw(pose.quat_xyzw), np.asarray(pose.position))
-        if self._map_to_odom is not None:
-            T = self._map_to_odom.link @ T
-        child = cfg.base_frame or pose.child_frame_id or 'base_link'
+        link = None if self._map_to_odom is None else self._map_to_odom.link
         try:
-            odom = out.make_odometry(pose.stamp_ns, cfg.map_frame, child, T.translation,
-                                     so3.to_quat_xyzw(T.rotation),
-                                     cfg.odometry_covariance(optimized=False), self.backend)
+            odom = out.provisional_odometry(pose, link, cfg.map_frame, cfg.base_frame,
+                                            cfg.odometry_covariance(optimized=False),
+                                            self.backend)
             self.publishers[cfg.odometry_topic].publish(odom)
         except Exception as err:
             self.node.get_logger().error(f'publishing the provisional pose failed: {err}')
@@ -421,13 +414,9 @@ class PmbaNode:
         now_ns = self.node.get_clock().now().nanoseconds
         if link is None or now_ns <= 0:
             return
-        old = link.transform
         stamp = now_ns + round(self.config.transform_tolerance_s * 1e9)
         try:
-            self._send_map_to_odom(self.backend.new(
-                'geometry_msgs/msg/TransformStamped',
-                header=out.header_msg(stamp, old.header.frame_id, self.backend),
-                child_frame_id=old.child_frame_id, transform=old.transform))
+            self._send_map_to_odom(out.restamped(link.transform, stamp, self.backend))
         except Exception as err:
             self.node.get_logger().error(f're-sending map -> odom failed: {err}')
 
@@ -446,11 +435,7 @@ class PmbaNode:
             'tf': self.tf_mode, 'input_age_s': round(age, 3),
             'queue_length': self.worker.queue_length(),
             'provisional_odometry': self._sent['provisional_odometry'],
-            'map_to_odom_sent': self._sent['map_to_odom']}
-        for kind in ('tracks', 'keyframe', 'camera_info'):
-            values[f'received.{kind}'] = received.get(kind, 0)
-        for kind in sorted(k for k in received if k.startswith('camera_info.')):
-            values[f'received.{kind}'] = received[kind]
+            'map_to_odom_sent': self._sent['map_to_odom'], **received_values(received)}
         array = out.make_diagnostics(self.node.get_clock().now().nanoseconds,
                                      NODE_DIAGNOSTICS_NAME, level, message, values,
                                      self.backend)

@@ -193,10 +193,11 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     for name, what in fallbacks.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {what}')
-    if logic.extrinsic is not None:
-        report.extrinsic = {'source': logic.extrinsic_source,
-                            'body_to_camera': [round(v, 9) for v in logic.extrinsic.to_flat()]}
-        report.extrinsic |= _rig_report(logic.rig_cameras)
+    cameras = logic.cameras
+    if cameras.extrinsic is not None:
+        report.extrinsic = {'source': cameras.extrinsic_source,
+                            'body_to_camera': [round(v, 9) for v in cameras.extrinsic.to_flat()]}
+        report.extrinsic |= _rig_report(cameras.rig)
 
 
 def _rig_report(rig_cameras: dict[int, tuple[Rigid, str]]) -> dict[str, Any]:

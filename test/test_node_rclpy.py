@@ -367,7 +367,7 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
         pubs[2].publish(make_camera_info(stamp, 'camera', seq.camera, backend))
         pubs[3].publish(make_camera_info(stamp, 'camera1', seq.camera, backend))
         assert spin_until(executor, lambda: wrapper.process_pending() >= 0
-                          and 1 in wrapper.logic.other_cameras)
+                          and 1 in wrapper.logic.cameras.others)
         for i in range(len(stereo)):
             pubs[0].publish(make_tracks(stereo.frames[i], 'vins_fusion', backend))
             pubs[1].publish(out.make_odometry(
@@ -378,7 +378,7 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
         assert spin_until(executor, lambda: wrapper.process_pending() >= 0
                           and logic.stats.keyframes == len(seq), timeout_s=60.0)
         assert logic.state == 'tracking'
-        assert 1 in logic.rig_cameras and logic.rig_cameras[1][1] == 'parameters'
+        assert 1 in logic.cameras.rig and logic.cameras.rig[1][1] == 'parameters'
         assert logic.stats.counters['other_camera_observations'] == 0
         status = wrapper.node_status()
         values = {kv.key: kv.value for kv in status.values}

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros import replay as replay_mod
+from pmba_ros.backend.cameras import FrontendCameras
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.outputs import make_path, make_tf
 from pmba_ros.backend.status import BackendStats
@@ -52,8 +53,7 @@ class StubLogic:
         self.pending: list[Any] = []
         self.stats = BackendStats()
         self.last_error = ''
-        self.extrinsic = None
-        self.extrinsic_source = ''
+        self.cameras = FrontendCameras(config)
 
     def on_camera_info(self, msg: Any) -> None:
         """Parse a CameraInfo."""

@@ -29,7 +29,7 @@ so identical inputs give byte-identical outputs.
 from __future__ import annotations
 
 from collections import Counter, deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import logging
 import os
 from pathlib import Path
@@ -40,9 +40,10 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend import status
+from pmba_ros.backend.cameras import frame_id_of, FrontendCameras
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator, UpdateInfo
-from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
@@ -64,16 +65,6 @@ class _Keyframe:
     pose: KeyframePose | None
 
 
-@dataclass
-class _PublishedPoses:
-    """The keyframes of the last Path / PoseArray and their messages."""
-
-    idx: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    final: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    stamped: list[Any] = field(default_factory=list)
-    plain: list[Any] = field(default_factory=list)
-
-
 class BackendLogic:
     """Online PMBA back-end driven by messages of any backend (rclpy, rosbags, mcap_ros2).
 
@@ -92,12 +83,7 @@ class BackendLogic:
         self._stats = status.BackendStats()
         self._paused = False
         self.last_error = ''
-        self.tf_tree = TransformTree()
-        self._camera_frame = ''
-        self.other_cameras: dict[int, CameraModel] = {}
-        self._other_frames: dict[int, str] = {}
-        self._param_extrinsics = extrinsics_from_params(config.camera_extrinsics,
-                                                        config.num_cams)
+        self.cameras = FrontendCameras(config)
         self._init_buffers()
 
     def _init_buffers(self) -> None:
@@ -107,18 +93,14 @@ class BackendLogic:
         self._newest_input_ns = -1
         self._odom_frame = self.config.odom_frame or 'odom'
         self._base_frame = self.config.base_frame or 'base_link'
-        self._published = _PublishedPoses()
+        self._published = out.PoseMessageCache()
         self._last_info = UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
         self._track_memory = TrackMemory()
         self._pose_check = PoseJumpCheck()
         self._cost_monitor = CostMonitor()
-        self.extrinsic: Rigid | None = None
-        self.extrinsic_source = ''
-        self._body_frame = ''
-        self.rig_cameras: dict[int, tuple[Rigid, str]] = {}
-        self._unconfigured_warned: set[int] = set()
+        self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------
 
@@ -152,22 +134,19 @@ class BackendLogic:
                         camera.fy)
             self._diag_dirty = True
         self.camera = camera
-        self._camera_frame = str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
+        self.cameras.reference_frame = frame_id_of(msg)
         self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
 
     def _set_other_camera_info(self, camera_id: int, camera: CameraModel, msg: Any) -> None:
         """Keep the intrinsics and frame of a camera other than the reference one."""
-        if not 0 <= camera_id < self.config.num_cams:
-            self._reject('bad_camera_info', f'camera id {camera_id} is not in [0, num_cams='
-                         f'{self.config.num_cams})')
-            return
-        if camera_id not in self.other_cameras:
+        new = camera_id not in self.cameras.others
+        refused = self.cameras.set_other(camera_id, camera, frame_id_of(msg))
+        if refused:
+            self._reject('bad_camera_info', refused)
+        elif new:
             logger.info('camera info of camera %d: fx=%.1f fy=%.1f', camera_id, camera.fx,
                         camera.fy)
             self._diag_dirty = True
-        self.other_cameras[camera_id] = camera
-        self._other_frames[camera_id] = str(
-            getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
 
     def on_tf(self, msg: Any) -> None:
         """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).
@@ -177,7 +156,7 @@ class BackendLogic:
         keyframe with a front-end pose.
         """
         try:
-            self.tf_tree.add_message(msg)
+            self.cameras.tf_tree.add_message(msg)
         except Exception as err:
             self._reject('bad_tf', err)
 
@@ -367,34 +346,24 @@ class BackendLogic:
     def _resolve_extrinsic(self, pose: KeyframePose, frame: TrackFrame | None) -> Rigid:
         """Return the body -> camera extrinsic, fixing it at the first keyframe pose.
 
-        In order: ``camera_extrinsics``; identity when the keyframe pose already describes the
-        camera frame; the TF chain from the pose's ``child_frame_id`` to the CameraInfo's (or
-        else the tracks') ``frame_id``; identity with a warning (counted as
-        ``extrinsic_unknown``).
+        See :meth:`FrontendCameras.resolve_extrinsic`; without one, the keyframe poses are
+        taken as camera poses with a warning (counted as ``extrinsic_unknown``).
         """
-        if self.extrinsic is not None:
-            return self.extrinsic
-        camera_frame = self._camera_frame or (frame.frame_id if frame is not None else '')
-        body = pose.child_frame_id
-        self._body_frame = body
-        found: Rigid | None = None
-        if self._param_extrinsics is not None:
-            found, source = self._param_extrinsics[self.config.camera_id], 'parameters'
-        elif body and body == camera_frame:
-            found, source = Rigid.identity(), 'frames_agree'
-        elif body and camera_frame:
-            found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
+        cams = self.cameras
+        if cams.extrinsic is not None:
+            return cams.extrinsic
+        camera_frame = cams.reference_frame or (frame.frame_id if frame is not None else '')
+        found, source = cams.resolve_extrinsic(pose.child_frame_id, camera_frame)
         if found is None:
-            found, source = Rigid.identity(), 'identity'
             self._reject('extrinsic_unknown',
-                         f'no body -> camera transform from {body or "(no child_frame_id)"!r} '
-                         f'to {camera_frame or "(no camera frame)"!r} (parameter '
+                         f'no body -> camera transform from '
+                         f'{pose.child_frame_id or "(no child_frame_id)"!r} to '
+                         f'{camera_frame or "(no camera frame)"!r} (parameter '
                          'camera_extrinsics or TF); taking the keyframe poses as camera poses')
         else:
             logger.info('body -> camera extrinsic from %s: %s', source,
                         [round(v, 6) for v in found.to_flat()])
-        self.extrinsic, self.extrinsic_source = found, source
-        return found
+        return cams.extrinsic  # type: ignore[return-value]
 
     def _observations(self, frame: TrackFrame) -> KeyframeObs:
         """Return the unit bearings of the finite observations of every configured camera.
@@ -408,7 +377,7 @@ class BackendLogic:
         usable = {ref: self.camera}
         for cam in np.unique(frame.camera_ids).tolist():
             if cam != ref and self._rig_camera(int(cam), frame) is not None:
-                usable[int(cam)] = self.other_cameras.get(int(cam))
+                usable[int(cam)] = self.cameras.others.get(int(cam))
         sel = np.isin(frame.camera_ids, list(usable))
         self.count('other_camera_observations', int(np.count_nonzero(~sel)))
         cams = frame.camera_ids[sel]
@@ -435,48 +404,29 @@ class BackendLogic:
     def _rig_camera(self, cam: int, frame: TrackFrame) -> Rigid | None:
         """Return camera ``cam``'s pose in the reference camera's frame, or None (unusable).
 
-        Fixed once found, from the body -> camera extrinsics of both cameras:
-        ``camera_extrinsics``; the TF chain from the keyframe poses' body frame to the
-        camera's CameraInfo ``frame_id``; identity when those frames agree. It needs the
-        reference camera's extrinsic from parameters, TF or agreeing frames, and, for tracks
-        in pixels, the camera's CameraInfo (``camera_info_topics``).
+        See :meth:`FrontendCameras.rig_camera`; an unusable camera is named once in a
+        warning, a new one is handed to the estimator.
         """
-        if cam in self.rig_cameras:
-            return self.rig_cameras[cam][0]
-        why = ''
-        T_bc: Rigid | None = None
-        frame_id = self._other_frames.get(cam, '')
-        if frame.normalized is None and cam not in self.other_cameras:
-            why = 'no CameraInfo (parameter camera_info_topics, one topic per camera id)'
-        elif self.extrinsic is None or self.extrinsic_source == 'identity':
-            why = 'the reference camera has no known body -> camera extrinsic'
-        elif self._param_extrinsics is not None:
-            T_bc, source = self._param_extrinsics[cam], 'parameters'
-        elif self._body_frame and frame_id == self._body_frame:
-            T_bc, source = Rigid.identity(), 'frames_agree'
-        elif self._body_frame and frame_id:
-            T_bc, source = self.tf_tree.lookup(self._body_frame, frame_id), 'tf'
-        if T_bc is None:
-            why = why or (f'no body -> camera transform from {self._body_frame!r} to '
-                          f'{frame_id or "(no CameraInfo frame)"!r} (camera_extrinsics or TF)')
-            if cam not in self._unconfigured_warned:
-                self._unconfigured_warned.add(cam)
-                self.last_error = f'other_camera_observations: camera id {cam} unused: {why}'
+        known = cam in self.cameras.rig
+        offset, source = self.cameras.rig_camera(cam, frame.normalized is not None)
+        if offset is None:
+            if cam not in self.cameras.unconfigured_warned:
+                self.cameras.unconfigured_warned.add(cam)
+                self.last_error = f'other_camera_observations: camera id {cam} unused: {source}'
                 logger.warning('%s', self.last_error)
-            return None
-        offset = self.extrinsic.inverse() @ T_bc  # type: ignore[union-attr]
-        self.rig_cameras[cam] = (offset, source)
-        self.estimator.set_rig_camera(cam, offset.rotation, offset.translation)
-        logger.info('camera %d in the reference camera frame (from %s): %s', cam, source,
-                    [round(v, 6) for v in offset.to_flat()])
-        self._diag_dirty = True
+        elif not known:
+            self.estimator.set_rig_camera(cam, offset.rotation, offset.translation)
+            logger.info('camera %d in the reference camera frame (from %s): %s', cam, source,
+                        [round(v, 6) for v in offset.to_flat()])
+            self._diag_dirty = True
         return offset
 
     # --- outputs --------------------------------------------------------------------------
 
     def _camera_to_body(self) -> Rigid:
         """Return T_cb (identity until an extrinsic is known)."""
-        return Rigid.identity() if self.extrinsic is None else self.extrinsic.inverse()
+        extrinsic = self.cameras.extrinsic
+        return Rigid.identity() if extrinsic is None else extrinsic.inverse()
 
     def body_poses(self, idx: np.ndarray) -> tuple[FloatArray, FloatArray]:
         """Return the map-frame body poses (R (n, 3, 3), positions (n, 3)) of keyframes idx."""
@@ -489,35 +439,23 @@ class BackendLogic:
         return self._camera_to_body().apply_to_poses(kf.R_odom[idx], kf.C_odom[idx])
 
     def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
-        """Return PoseStamped and Pose messages of keyframes ``idx``.
+        """Return PoseStamped and Pose messages of keyframes ``idx`` (built incrementally).
 
-        Keyframes that were final (fixed or dead-reckoned) when last published keep their
-        messages; when ``idx`` extends the last published keyframes, only the others and the
-        new ones are built, so the cost follows the window, not the trajectory.
+        Fixed and dead-reckoned keyframes are final (and passed-through ones once tracking):
+        their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`).
         """
         kf = self.estimator.kf
         status = kf.status[idx]
         final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
         if self.estimator.state == 'tracking':  # passed through before the initialization
             final |= status == KeyframeStatus.PASSED_THROUGH
-        last = self._published
-        n_last, n = last.idx.shape[0], idx.shape[0]
-        if n_last <= n and np.array_equal(idx[:n_last], last.idx):
-            redo = np.concatenate([np.flatnonzero(~last.final), np.arange(n_last, n)])
-            stamped = last.stamped + [None] * (n - n_last)
-            plain = last.plain + [None] * (n - n_last)
-        else:
-            redo = np.arange(n)
-            stamped, plain = [None] * n, [None] * n
-        sel = idx[redo]
-        R, C = self.body_poses(sel)
-        fresh = out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, C,
-                                      so3.to_quat_xyzw(R), self.backend)
-        for k, ps in zip(redo.tolist(), fresh, strict=True):
-            stamped[k] = ps
-            plain[k] = ps.pose
-        self._published = _PublishedPoses(idx.copy(), final, stamped, plain)
-        return list(stamped), list(plain)
+
+        def build(sel: np.ndarray) -> list[Any]:
+            R, C = self.body_poses(sel)
+            return out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, C,
+                                         so3.to_quat_xyzw(R), self.backend)
+
+        return self._published.update(idx, final, build)
 
     def _outputs(self) -> list[tuple[str, Any]]:
         cfg = self.config
@@ -565,31 +503,6 @@ class BackendLogic:
         idx = idx[self.estimator.kf.has_odom[idx]]
         return int(idx[-1]) if idx.shape[0] else None
 
-    def immediate_pose(self, msg: Any) -> KeyframePose:
-        """Return the map-frame body pose to publish for a keyframe pose that just arrived.
-
-        The node can publish this at once, before the keyframe's tracks arrive and its solve
-        runs: the front-end pose through the newest ``map -> odom`` (the transform the node
-        last published, so the result agrees with TF), identity before any keyframe. Pure:
-        nothing is buffered or counted.
-
-        Args:
-            msg: The keyframe message (``keyframe_type``: nav_msgs/Odometry or
-                geometry_msgs/PoseStamped) of any backend.
-
-        Returns:
-            The pose in ``map_frame`` (same stamp and child frame id).
-
-        Raises:
-            MessageError: If the message cannot be parsed.
-        """
-        pose = parse_keyframe(msg, self.config.keyframe_type)
-        newest = self._newest_with_odom()
-        T = Rigid.identity() if newest is None else self.map_from_odom_at(newest)
-        R = T.rotation @ so3.from_quat_xyzw(pose.quat_xyzw)
-        return KeyframePose(pose.stamp_ns, self.config.map_frame, pose.child_frame_id,
-                            T.rotation @ pose.position + T.translation, so3.to_quat_xyzw(R))
-
     def _map_to_odom(self, i: int) -> Any:
         """Return the map -> odom TF at keyframe i (see :meth:`map_from_odom_at`)."""
         T = self.map_from_odom_at(i)
@@ -619,9 +532,9 @@ class BackendLogic:
             'map_from_odom_scale': self.estimator.map_from_odom.scale,
             'not_optimized_keyframes': self._stats.not_optimized,
             'init_attempts': self.estimator.init_attempts,
-            'extrinsic_source': self.extrinsic_source or 'none',
+            'extrinsic_source': self.cameras.extrinsic_source or 'none',
             'cameras_used': ','.join(str(c) for c in sorted(
-                [self.config.camera_id, *self.rig_cameras])),
+                [self.config.camera_id, *self.cameras.rig])),
         }
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms

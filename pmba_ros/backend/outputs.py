@@ -22,15 +22,18 @@ publishable rclpy messages and Jazzy-CDR-serializable rosbags messages. The fron
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from pmba_ros._typing import FloatArray
+from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.tracks import POINTFIELD_DTYPES
-from pmba_ros.backend.types import float_rows
+from pmba_ros.backend.types import float_rows, KeyframePose
+from pmba_ros.core import so3
 from pmba_ros.errors import MessageError
 
 DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
@@ -299,6 +302,29 @@ def make_odometry(stamp_ns: int, frame_id: str, child_frame_id: str, position: A
                        child_frame_id=str(child_frame_id), pose=pose, twist=twist)
 
 
+def provisional_odometry(pose: KeyframePose, map_from_odom: Rigid | None, map_frame: str,
+                         base_frame: str, covariance: ArrayLike, backend: MsgBackend) -> Any:
+    """Return the Odometry of a front-end keyframe pose mapped through ``map_from_odom``.
+
+    A node publishes it as soon as the keyframe pose arrives, before its solve; identity
+    stands for a missing ``map_from_odom`` (map = odom before the first solve). The child
+    frame is ``base_frame``, else the pose's, else 'base_link'.
+    """
+    T = Rigid(so3.from_quat_xyzw(pose.quat_xyzw), np.asarray(pose.position))
+    if map_from_odom is not None:
+        T = map_from_odom @ T
+    return make_odometry(pose.stamp_ns, map_frame,
+                         base_frame or pose.child_frame_id or 'base_link', T.translation,
+                         so3.to_quat_xyzw(T.rotation), covariance, backend)
+
+
+def restamped(transform: Any, stamp_ns: int, backend: MsgBackend) -> Any:
+    """Return a copy of a ``geometry_msgs/msg/TransformStamped`` with a new stamp."""
+    return backend.new('geometry_msgs/msg/TransformStamped',
+                       header=header_msg(stamp_ns, transform.header.frame_id, backend),
+                       child_frame_id=transform.child_frame_id, transform=transform.transform)
+
+
 def make_tf(stamp_ns: int, parent: str, child: str, translation: ArrayLike,
             quat_xyzw: ArrayLike, backend: MsgBackend) -> Any:
     """Return a ``tf2_msgs/msg/TFMessage`` holding one transform parent -> child.
@@ -451,3 +477,43 @@ __all__ = [
     'make_path', 'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array',
     'make_pose_stamped', 'make_tf', 'pose_msg', 'pose_stamped_msgs', 'time_msg',
 ]
+
+
+@dataclass
+class PoseMessageCache:
+    """The keyframes of the last Path / PoseArray and their messages.
+
+    Attributes:
+        idx: Keyframe indices last published.
+        final: Which of them were final (their poses no longer change).
+        stamped: Their PoseStamped messages.
+        plain: Their Pose messages.
+    """
+
+    idx: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    final: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    stamped: list[Any] = field(default_factory=list)
+    plain: list[Any] = field(default_factory=list)
+
+    def update(self, idx: np.ndarray, final: np.ndarray,
+               build: Callable[[np.ndarray], list[Any]]) -> tuple[list[Any], list[Any]]:
+        """Return PoseStamped and Pose messages of keyframes ``idx``, then remember them.
+
+        Keyframes that were final when last published keep their messages; when ``idx``
+        extends the last published keyframes, only the others and the new ones are built
+        (``build(keyframes)`` returns their PoseStamped messages), so the cost follows the
+        window, not the trajectory.
+        """
+        n_last, n = self.idx.shape[0], idx.shape[0]
+        if n_last <= n and np.array_equal(idx[:n_last], self.idx):
+            redo = np.concatenate([np.flatnonzero(~self.final), np.arange(n_last, n)])
+            stamped = self.stamped + [None] * (n - n_last)
+            plain = self.plain + [None] * (n - n_last)
+        else:
+            redo = np.arange(n)
+            stamped, plain = [None] * n, [None] * n
+        for k, ps in zip(redo.tolist(), build(idx[redo]), strict=True):
+            stamped[k] = ps
+            plain[k] = ps.pose
+        self.idx, self.final, self.stamped, self.plain = idx.copy(), final, stamped, plain
+        return list(stamped), list(plain)

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -154,5 +155,12 @@ def node_level_and_message(input_age_s: float, any_input: bool, stale_input_s: f
     return level, message
 
 
+def received_values(received: Mapping[str, int]) -> dict[str, str | float]:
+    """Return the node's ``received.<kind>`` diagnostics values (a rig's ``camera_info.c`` too)."""
+    kinds = ['tracks', 'keyframe', 'camera_info',
+             *sorted(k for k in received if k.startswith('camera_info.'))]
+    return {f'received.{kind}': received.get(kind, 0) for kind in kinds}
+
+
 __all__ = ['DIAGNOSTICS_NAME', 'INFO_COUNTERS', 'BackendStats', 'backend_level', 'backend_message',
-           'counter_values', 'node_level_and_message', 'update_values']
+           'counter_values', 'node_level_and_message', 'received_values', 'update_values']

@@ -143,7 +143,7 @@ def test_body_poses_in_and_out(street: SimSequence, source: str) -> None:
         logic.on_tf(out.make_tf(0, 'imu', 'cam0', T.translation,
                                 so3.to_quat_xyzw(T.rotation), BACKEND))
     outputs = _run_body(logic, street, EUROC_CAM0, 60)
-    assert logic.extrinsic_source == source
+    assert logic.cameras.extrinsic_source == source
     assert diag_values(last(outputs, DIAGNOSTICS_TOPIC))['extrinsic_source'] == source
     R_gt, C_gt = _body(street.R_wc_gt, street.centers_gt, EUROC_CAM0)
     gt = Trajectory(street.stamps_ns * 1e-9, C_gt, R_gt)

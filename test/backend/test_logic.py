@@ -38,7 +38,6 @@ from pmba_ros.backend.window import (
     thin_tracks,
 )
 from pmba_ros.core import so3
-from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
@@ -512,32 +511,6 @@ def test_every_keyframe_is_in_the_outputs_from_the_start(street: SimSequence) ->
     for _ in feed(logic, street, range(30, 33)):
         pass
     np.testing.assert_array_equal(logic.optimized_trajectory().positions_xyz[7], before)
-
-
-def test_immediate_pose_is_the_front_end_pose_through_the_last_map_to_odom(
-        street: SimSequence) -> None:
-    """The pose a node can publish on arrival: front-end pose through the newest map -> odom."""
-    logic = BackendLogic(config(), BACKEND)
-    first = logic.immediate_pose(keyframe_msg(street, 0))  # nothing yet: map = odom
-    assert first.frame_id == 'map' and first.stamp_ns == street.stamps_ns[0]
-    np.testing.assert_allclose(first.position, street.centers_odom[0], atol=1e-12)
-    outputs = run(logic, street, 25)
-    tf = last(outputs, TF_TOPIC).transforms[0].transform
-    quat = np.array([tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w])
-    R_mo = so3.from_quat_xyzw(quat)
-    t_mo = np.array([tf.translation.x, tf.translation.y, tf.translation.z])
-    n_kf, counters = logic.stats.keyframes, dict(logic.stats.counters)
-    pose = logic.immediate_pose(keyframe_msg(street, 25))
-    assert logic.stats.keyframes == n_kf and dict(logic.stats.counters) == counters  # pure
-    assert logic.step() == []  # nothing was buffered
-    np.testing.assert_allclose(pose.position, R_mo @ street.centers_odom[25] + t_mo, atol=1e-9)
-    R = so3.from_quat_xyzw(pose.quat_xyzw)
-    np.testing.assert_allclose(R, R_mo @ street.R_wc_odom[25], atol=1e-9)
-    gt_step = np.linalg.norm(street.centers_gt[25] - street.centers_gt[24])
-    est = logic.optimized_trajectory().positions_xyz[24]
-    assert np.linalg.norm(pose.position - est) < 2 * gt_step  # one keyframe ahead of the map
-    with pytest.raises(MessageError):
-        logic.immediate_pose(tracks_msg(street, 25))
 
 
 def _far_heavy(seq: SimSequence, near_kept: float) -> SimSequence:

@@ -515,7 +515,7 @@ def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
     subs['/tf_static'](make_tf(0, 'base_link', 'camera', [0.1, 0.0, 0.0], [0, 0, 0, 1], BACKEND))
     assert wrapper.worker.last_input == last_input
     assert wrapper.process_pending() == 1
-    assert len(wrapper.logic.tf_tree) == 1
+    assert len(wrapper.logic.cameras.tf_tree) == 1
 
 
 def test_no_tf_subscription_with_extrinsics_given(fake_ros: FakeRclpy) -> None:

@@ -1,0 +1,132 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The front-end's cameras: intrinsics and frames per camera id, body -> camera extrinsics.
+
+The reference camera ``camera_id`` carries the keyframe poses; every other camera of a rig
+is used through its pose in the reference camera's frame, once that is known. Extrinsics
+come, in order, from ``camera_extrinsics``, from agreeing frames, or from the TF chain between
+the keyframe poses' body frame and each CameraInfo's ``frame_id`` (issue #12).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.types import CameraModel
+
+
+def frame_id_of(msg: Any) -> str:
+    """Return a message's header ``frame_id`` ('' without one)."""
+    return str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
+
+
+class FrontendCameras:
+    """Intrinsics, frames and extrinsics of the front-end's cameras (no logging, no counting).
+
+    Args:
+        config: The configuration (``camera_id``, ``num_cams``, ``camera_extrinsics``).
+    """
+
+    def __init__(self, config: BackendConfig) -> None:
+        """Start with no camera known."""
+        self.config = config
+        self.tf_tree = TransformTree()
+        self.reference_frame = ''
+        self.others: dict[int, CameraModel] = {}
+        self.other_frames: dict[int, str] = {}
+        self.param_extrinsics = extrinsics_from_params(config.camera_extrinsics,
+                                                       config.num_cams)
+        self.forget_extrinsics()
+
+    def forget_extrinsics(self) -> None:
+        """Forget the extrinsics found (a reset: they are looked up again)."""
+        self.extrinsic: Rigid | None = None
+        self.extrinsic_source = ''
+        self.body_frame = ''
+        self.rig: dict[int, tuple[Rigid, str]] = {}
+        self.unconfigured_warned: set[int] = set()
+
+    def set_other(self, camera_id: int, camera: CameraModel, frame_id: str) -> str:
+        """Keep the intrinsics and frame of a camera other than the reference one.
+
+        Returns:
+            Why the camera id is refused ('' if it was taken).
+        """
+        if not 0 <= camera_id < self.config.num_cams:
+            return f'camera id {camera_id} is not in [0, num_cams={self.config.num_cams})'
+        self.others[camera_id] = camera
+        self.other_frames[camera_id] = frame_id
+        return ''
+
+    def resolve_extrinsic(self, body: str, camera_frame: str) -> tuple[Rigid | None, str]:
+        """Find and fix the reference camera's body -> camera extrinsic.
+
+        In order: ``camera_extrinsics``; identity when the keyframe pose's frame ``body`` is
+        the camera frame; the TF chain from ``body`` to the CameraInfo's (or else the
+        tracks') frame ``camera_frame``. When none is found, identity is fixed with source
+        'identity'.
+
+        Returns:
+            The extrinsic found (None: taken as identity) and its source.
+        """
+        self.body_frame = body
+        found: Rigid | None = None
+        source = 'identity'
+        if self.param_extrinsics is not None:
+            found, source = self.param_extrinsics[self.config.camera_id], 'parameters'
+        elif body and body == camera_frame:
+            found, source = Rigid.identity(), 'frames_agree'
+        elif body and camera_frame:
+            found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
+        if found is None:
+            source = 'identity'
+        self.extrinsic = found if found is not None else Rigid.identity()
+        self.extrinsic_source = source
+        return found, source
+
+    def rig_camera(self, cam: int, normalized_tracks: bool) -> tuple[Rigid | None, str]:
+        """Find camera ``cam``'s pose in the reference camera's frame (fixed once found).
+
+        From the body -> camera extrinsics of both cameras: ``camera_extrinsics``; the TF
+        chain from the keyframe poses' body frame to the camera's CameraInfo ``frame_id``;
+        identity when those frames agree. It needs the reference camera's extrinsic from
+        parameters, TF or agreeing frames, and, unless the tracks carry normalized
+        coordinates, the camera's CameraInfo (``camera_info_topics``).
+
+        Returns:
+            The pose (None: unusable) and its source, or why it is unusable.
+        """
+        if cam in self.rig:
+            return self.rig[cam]
+        T_bc: Rigid | None = None
+        frame_id = self.other_frames.get(cam, '')
+        if not normalized_tracks and cam not in self.others:
+            return None, 'no CameraInfo (parameter camera_info_topics, one topic per camera id)'
+        if self.extrinsic is None or self.extrinsic_source == 'identity':
+            return None, 'the reference camera has no known body -> camera extrinsic'
+        source = ''
+        if self.param_extrinsics is not None:
+            T_bc, source = self.param_extrinsics[cam], 'parameters'
+        elif self.body_frame and frame_id == self.body_frame:
+            T_bc, source = Rigid.identity(), 'frames_agree'
+        elif self.body_frame and frame_id:
+            T_bc, source = self.tf_tree.lookup(self.body_frame, frame_id), 'tf'
+        if T_bc is None:
+            return None, (f'no body -> camera transform from {self.body_frame!r} to '
+                          f'{frame_id or "(no CameraInfo frame)"!r} (camera_extrinsics or TF)')
+        offset = self.extrinsic.inverse() @ T_bc
+        self.rig[cam] = (offset, source)
+        return offset, source

@@ -1,0 +1,119 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The front-end's motion as information: the relative-pose prior and the consistency check.
+
+A window solve must not make the local motion worse than the front-end's (issue #12): the
+front-end's keyframe-to-keyframe motion enters the solve as a weak prior
+(:func:`frontend_motion_prior`), and each applied solve is compared with it
+(:func:`motion_error`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.core.pose_prior import RelativePosePrior
+
+
+def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
+                          metric_scale: float, config: BackendConfig,
+                          ) -> RelativePosePrior | None:
+    """Return the front-end's motion between consecutive problem keyframes as a prior.
+
+    Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
+    both have front-end poses and one is free. The measured translation is the front-end's
+    times ``metric_scale`` (the map <- odom scale of the initialization), so the map keeps
+    the front-end's scale instead of drifting. Weights: one sigma (of the step length
+    ``motion_prior_translation_rel``, across it ``motion_prior_direction_rel``, both of the
+    step plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one pixel of
+    reprojection error; where the front-end gives pose covariances they take over
+    (:func:`covariance_weights`).
+    """
+    cfg = config
+    if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
+        return None
+    a_loc = np.arange(cams.shape[0] - 1)
+    a, b = cams[:-1], cams[1:]
+    ok = kf.has_odom[a] & kf.has_odom[b] & ~(fixed[:-1] & fixed[1:])
+    a_loc, a, b = a_loc[ok], a[ok], b[ok]
+    R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
+    t_ab = metric_scale * np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+    step = np.linalg.norm(t_ab, axis=1)
+    # Square-root information: 1 / sigma along the step (its length: the scale) and
+    # 1 / sigma across it (its direction, which a front-end measures much better).
+    along = t_ab / np.maximum(step, 1e-12)[:, None]
+    P_along = np.einsum('mi,mj->mij', along, along)
+    W_trans = np.zeros((a.shape[0], 3, 3))
+    if cfg.motion_prior_translation_rel > 0:
+        w_len = 1.0 / (cfg.motion_prior_translation_rel * step + 1e-3)
+        w_dir = 1.0 / (cfg.motion_prior_direction_rel * step + 1e-3)
+        W_trans = (w_len[:, None, None] * P_along
+                   + w_dir[:, None, None] * (np.eye(3) - P_along))
+    w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
+                    if cfg.motion_prior_rotation_rad > 0 else 0.0)
+    covariance_weights(kf, a, b, metric_scale, config, W_trans, w_rot)
+    return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
+
+
+def covariance_weights(kf: KeyframeStore, a: IntArray, b: IntArray, metric_scale: float,
+                       config: BackendConfig, W_trans: FloatArray, w_rot: FloatArray) -> None:
+    """Weigh the factors a -> b by the front-end's pose covariances where they are usable.
+
+    The covariance a step adds is taken as ``Sigma_b - Sigma_a`` (a front-end's covariance
+    grows by what each step adds); where both keyframes have a covariance and that
+    difference is positive definite, it replaces the parameter sigmas: translation
+    ``W = Sigma_t^(-1/2)`` in the frame of a (times the map scale), rotation
+    ``1 / sqrt(trace(Sigma_r) / 3)``. Parts switched off by their parameter stay off; other
+    factors keep the parameter weights. In place.
+    """
+    both = np.flatnonzero(kf.has_cov[a] & kf.has_cov[b])
+    if both.shape[0] == 0:
+        return
+    Q = kf.cov_odom[b[both]] - kf.cov_odom[a[both]]
+    R_a = kf.R_odom[a[both]]
+    Q_t = np.einsum('nji,njk,nkl->nil', R_a, Q[:, :3, :3], R_a) * metric_scale ** 2
+    lam, V = np.linalg.eigh(0.5 * (Q_t + np.swapaxes(Q_t, 1, 2)))
+    q_rot = np.trace(Q[:, 3:, 3:], axis1=1, axis2=2) / 3.0
+    scale = np.max(np.abs(Q), axis=(1, 2))
+    pd = (lam[:, 0] > 1e-12 * scale) & (q_rot > 0)
+    if config.motion_prior_translation_rel > 0:
+        W = np.einsum('nij,nj,nkj->nik', V, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), V)
+        W_trans[both[pd]] = W[pd]
+    if config.motion_prior_rotation_rad > 0:
+        w_rot[both[pd]] = 1.0 / np.sqrt(q_rot[pd])
+
+
+def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
+    """Median relative error of the map's keyframe-to-keyframe translations vs odom's.
+
+    Over the keyframes ``idx`` (each with its predecessor), the map's relative translation
+    in the earlier keyframe's frame, divided by the map <- odom scale ``map_scale``, is
+    compared with the front-end's; the error is relative to the front-end's step length.
+    """
+    b = idx[(idx > 0)]
+    a = b - 1
+    ok = kf.has_odom[a] & kf.has_odom[b] & (kf.status[a] != KeyframeStatus.COLLECTED)
+    a, b = a[ok], b[ok]
+    if a.shape[0] == 0:
+        return 0.0
+    t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
+    t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+    step = np.linalg.norm(t_odom, axis=1)
+    moving = step > 1e-6
+    if not np.any(moving):
+        return 0.0
+    err = np.linalg.norm(t_map / map_scale - t_odom, axis=1)
+    return float(np.median(err[moving] / step[moving]))
