@@ -75,7 +75,10 @@ class LogicWorker:
         self._thread.start()
 
     def enqueue(self, kind: str, msg: Any) -> None:
-        """Queue an input ('tracks', 'keyframe', 'camera_info' or 'tf'); never blocks."""
+        """Queue an input ('tracks', 'keyframe', 'camera_info' or 'tf'); never blocks.
+
+        An unknown kind is a ValueError when the message is handled.
+        """
         if kind != 'tf':  # TF keeps flowing when the front-end has stopped
             self.last_input = time.monotonic()
         try:
@@ -130,9 +133,12 @@ class LogicWorker:
                 self.logic.apply_config(replace(staged, publish_tf=True))
             for reason, n in drops.items():
                 self.logic.count(reason, n)
-            handler = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
-                       'tf': self.logic.on_tf}.get(kind, self.logic.on_camera_info)
-            handler(msg)
+            handlers = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
+                        'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf}
+            if kind not in handlers:
+                msg_ = f'unknown input kind {kind!r} (expected one of {sorted(handlers)})'
+                raise ValueError(msg_)
+            handlers[kind](msg)
             outputs = self.logic.step()
         self._publish(outputs)
 
