@@ -102,7 +102,7 @@ def test_an_unknown_kind_is_an_error_not_a_camera_info() -> None:
     logic = RecordingLogic()
     worker = LogicWorker(logic, lambda outputs: None, queue_size=4)
     worker.enqueue('camera_info.1', None)
-    with pytest.raises(ValueError, match="unknown input kind 'camera_info.1'"):
+    with pytest.raises(ValueError, match=r"unknown input kind 'camera_info\.1'"):
         worker.process_pending()
     assert logic.calls == []
 
