@@ -75,7 +75,10 @@ class LogicWorker:
         self._thread.start()
 
     def enqueue(self, kind: str, msg: Any) -> None:
-        """Queue an input ('tracks', 'keyframe', 'camera_info' or 'tf'); never blocks."""
+        """Queue an input ('tracks', 'keyframe', 'camera_info[.c]' or 'tf'); never blocks.
+
+        An unknown kind is a ValueError when the message is handled.
+        """
         if kind != 'tf':  # TF keeps flowing when the front-end has stopped
             self.last_input = time.monotonic()
         try:
@@ -130,12 +133,18 @@ class LogicWorker:
                 self.logic.apply_config(replace(staged, publish_tf=True))
             for reason, n in drops.items():
                 self.logic.count(reason, n)
-            if kind.startswith('camera_info.'):  # camera c of a rig
-                self.logic.on_camera_info(msg, int(kind.split('.', 1)[1]))
+            kind, _, camera = kind.partition('.')  # 'camera_info.c': camera c of a rig
+            handlers = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
+                        'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf}
+            if kind not in handlers or (camera and not (kind == 'camera_info'
+                                                        and camera.isdigit())):
+                msg_ = (f'unknown input kind {kind + "." * bool(camera) + camera!r} (expected '
+                        f"one of {sorted(handlers)} or 'camera_info.<camera id>')")
+                raise ValueError(msg_)
+            if camera:
+                self.logic.on_camera_info(msg, int(camera))
             else:
-                handler = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
-                           'tf': self.logic.on_tf}.get(kind, self.logic.on_camera_info)
-                handler(msg)
+                handlers[kind](msg)
             outputs = self.logic.step()
         self._publish(outputs)
 

@@ -1,0 +1,124 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The node's solver thread without ROS: queue, drops, staged parameters, dispatch."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+import time
+from typing import Any
+
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.worker import LogicWorker
+import pytest
+
+
+class RecordingLogic(BackendLogic):
+    """The real back-end, recording which handler each message reached."""
+
+    def __init__(self) -> None:
+        """Create a deterministic back-end."""
+        super().__init__(BackendConfig(deterministic=True), RosbagsBackend())
+        self.calls: list[tuple[str, Any]] = []
+
+    def on_tracks(self, msg: Any) -> None:
+        """Record tracks."""
+        self.calls.append(('tracks', msg))
+
+    def on_keyframe(self, msg: Any) -> None:
+        """Record a keyframe pose."""
+        self.calls.append(('keyframe', msg))
+
+    def on_camera_info(self, msg: Any, camera_id: int | None = None) -> None:
+        """Record a CameraInfo (with the camera id of a rig's other camera)."""
+        self.calls.append(('camera_info' if camera_id is None else f'camera_info.{camera_id}',
+                           msg))
+
+    def on_tf(self, msg: Any) -> None:
+        """Record transforms."""
+        self.calls.append(('tf', msg))
+
+
+def test_messages_reach_their_handler_in_order_and_outputs_are_published() -> None:
+    """Each kind goes to its handler, in queue order, and every step's outputs are published."""
+    logic = RecordingLogic()
+    published: list[list[tuple[str, Any]]] = []
+    worker = LogicWorker(logic, published.append, queue_size=10)
+    for kind in ('camera_info', 'tracks', 'keyframe', 'tf'):
+        worker.enqueue(kind, kind.upper())
+    assert worker.queue_length() == 4
+    assert worker.process_pending() == 4
+    assert logic.calls == [('camera_info', 'CAMERA_INFO'), ('tracks', 'TRACKS'),
+                           ('keyframe', 'KEYFRAME'), ('tf', 'TF')]
+    assert len(published) == 4
+    assert worker.received() == {'camera_info': 1, 'tracks': 1, 'keyframe': 1, 'tf': 1}
+
+
+def test_a_full_queue_drops_and_the_logic_counts_the_drops() -> None:
+    """Messages beyond the queue size are dropped and counted as queue_full_<kind>."""
+    logic = RecordingLogic()
+    worker = LogicWorker(logic, lambda outputs: None, queue_size=2)
+    for i in range(5):
+        worker.enqueue('tracks', i)
+    assert worker.process_pending() == 2
+    assert logic.stats.counters['queue_full_tracks'] == 3
+    assert worker.received() == {'tracks': 5}
+
+
+def test_staged_parameters_apply_before_the_next_message() -> None:
+    """A staged config reaches the logic at its next message, with publish_tf kept on."""
+    logic = RecordingLogic()
+    worker = LogicWorker(logic, lambda outputs: None, queue_size=4)
+    worker.stage_config(replace(logic.config, max_iterations=7, publish_tf=False))
+    assert logic.config.max_iterations != 7
+    worker.enqueue('tracks', None)
+    worker.process_pending()
+    assert logic.config.max_iterations == 7 and logic.config.publish_tf
+
+
+def test_tf_does_not_count_as_front_end_input() -> None:
+    """Only front-end messages move last_input; transforms keep flowing without a front-end."""
+    worker = LogicWorker(RecordingLogic(), lambda outputs: None, queue_size=4)
+    worker.enqueue('tf', None)
+    assert worker.last_input == -1.0
+    worker.enqueue('keyframe', None)
+    assert 0 < worker.last_input <= time.monotonic()
+
+
+def test_an_unknown_kind_is_an_error_not_a_camera_info() -> None:
+    """A kind the worker does not know is refused; a rig camera's CameraInfo carries its id."""
+    logic = RecordingLogic()
+    worker = LogicWorker(logic, lambda outputs: None, queue_size=4)
+    worker.enqueue('camera_info.1', 'CAM1')  # a rig's camera 1
+    assert worker.process_pending() == 1
+    assert logic.calls == [('camera_info.1', 'CAM1')]
+    worker.enqueue('tracks.1', None)
+    with pytest.raises(ValueError, match=r"unknown input kind 'tracks\.1'"):
+        worker.process_pending()
+    assert logic.calls == [('camera_info.1', 'CAM1')]
+
+
+def test_the_thread_handles_messages_and_stops() -> None:
+    """Started, the thread handles what is queued; stop() ends it."""
+    logic = RecordingLogic()
+    worker = LogicWorker(logic, lambda outputs: None, queue_size=4)
+    worker.start()
+    worker.enqueue('tracks', 1)
+    deadline = time.monotonic() + 10.0
+    while not logic.calls and time.monotonic() < deadline:
+        time.sleep(0.01)
+    worker.stop()
+    assert logic.calls == [('tracks', 1)]
