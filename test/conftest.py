@@ -40,11 +40,11 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture(params=['numpy', 'compiled'])
 def engine_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run a test on the numpy engine, then on the compiled loops of pmba_ros.core.kernels."""
-    from pmba_ros.core import kernels
+    """Run a test on the numpy engine, then on the compiled loops of pmba_ros.core.compiled."""
+    from pmba_ros.core import compiled
     if request.param == 'compiled':
         pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', request.param == 'compiled')
+    monkeypatch.setattr(compiled, 'ENABLED', request.param == 'compiled')
     return str(request.param)
 
 

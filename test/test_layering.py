@@ -38,7 +38,7 @@ RANKS = {
 CORE_RANKS = {
     'so3': 0, 'sphere': 0, 'camera': 0, 'jit': 0,
     'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1, 'jacobian': 1,
-    'conversions': 2, 'residuals': 2, 'baselines': 2, 'kernels': 2,
+    'conversions': 2, 'residuals': 2, 'baselines': 2, 'compiled': 2,
     'models': 3, 'normal_equations': 3,
     'solve': 4,
     'warmup': 5,

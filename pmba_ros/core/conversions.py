@@ -24,7 +24,8 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, residuals, sphere
+from pmba_ros.core import compiled, residuals, sphere
+from pmba_ros.core.compiled import anchors as compiled_anchors
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -80,8 +81,8 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     if centers_w is not None:
         close = _coincident_pairs(centers_w)
     counts = np.bincount(obs.feat_idx, minlength=N)
-    if kernels.ENABLED:
-        main_idx, assoc_idx, ok = kernels.widest_pairs(
+    if compiled.ENABLED:
+        main_idx, assoc_idx, ok = compiled_anchors.widest_pairs(
             rays, obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]), allowed_pairs, close,
             M)
         return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)

@@ -21,8 +21,9 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, kernels, residuals
+from pmba_ros.core import baselines, compiled, residuals
 from pmba_ros.core.camera import project, projection_jacobian
+from pmba_ros.core.compiled import camera as compiled_camera
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
     BAProblem,
@@ -97,8 +98,8 @@ class Model(ABC, Generic[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
-        if kernels.ENABLED:
-            return kernels.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
+        if compiled.ENABLED:
+            return compiled_camera.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
                                                self.obs.cam_idx, self.obs.pixels)
         pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
         return np.linalg.norm(pix - self.obs.pixels, axis=1)
@@ -129,8 +130,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            if kernels.ENABLED:
-                self._weights = kernels.projection_jacobian(v, problem.intrinsics,
+            if compiled.ENABLED:
+                self._weights = compiled_camera.projection_jacobian(v, problem.intrinsics,
                                                             problem.obs.cam_idx)
             else:
                 _, self._weights = projection_jacobian(v, problem.intrinsics,

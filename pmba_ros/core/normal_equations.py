@@ -39,10 +39,10 @@ whichever needs fewer multiply-adds. Every index array that depends only on the 
 built once in :class:`SchurStructure`; each iteration fills values, with no Python loop over
 observations (scatter-adds are sparse products with 0/1 matrices).
 
-Where numba is installed (and up to :data:`kernels.MAX_BLOCKS` free poses) the structure is
-only the covisible pose pairs, and assembly, scaling, reduction, back-substitution and x^T H x
-run as the compiled loops of :mod:`pmba_ros.core.kernels`; both paths give the same numbers
-to rounding (``test_normal_equations.py`` runs every one).
+Where numba is installed (and up to :data:`compiled.assembly.MAX_BLOCKS` free poses) the
+structure is only the covisible pose pairs, and assembly, scaling, reduction,
+back-substitution and x^T H x run as the compiled loops of :mod:`pmba_ros.core.compiled`;
+both paths give the same numbers to rounding (``test_normal_equations.py`` runs every one).
 """
 
 from __future__ import annotations
@@ -52,7 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 from pmba_ros._threads import blas_threads_for
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels
+from pmba_ros.core import compiled
+from pmba_ros.core.compiled import assembly as compiled_assembly
+from pmba_ros.core.compiled import schur as compiled_schur
 from pmba_ros.core.jacobian import ANCHOR_START, Linearization
 from pmba_ros.errors import SolverError
 import scipy.linalg
@@ -307,7 +309,7 @@ class SchurStructure:
         anchor_pose, anchor_obs = _anchors(cam_idx, feat_idx, slot_pose, starts)
         anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
 
-        if kernels.ENABLED and n_blocks <= kernels.MAX_BLOCKS:
+        if compiled.ENABLED and n_blocks <= compiled_assembly.MAX_BLOCKS:
             return cls._build_compiled(feat_idx, n_feats, obs_block, anchor_cols,
                                        anchor_block, anchor_obs, starts)
 
@@ -399,13 +401,13 @@ class SchurStructure:
                         obs_block: IntArray, anchor_cols: tuple[tuple[int, int], ...],
                         anchor_block: IntArray, anchor_obs: IntArray, starts: IntArray,
                         ) -> SchurStructure:
-        """Build the structure that the compiled loops of :mod:`kernels` read.
+        """Build the structure that the compiled loops of :mod:`compiled` read.
 
         The pose pairs are the covisible ones: two free poses that observe one feature (the
         anchors observe their features, so they are among the observers).
         """
         n_blocks = int(obs_block.max()) + 1
-        pair_index = kernels.covisible_pairs(starts, obs_block, n_blocks)
+        pair_index = compiled_assembly.covisible_pairs(starts, obs_block, n_blocks)
         pair_rows, pair_cols = np.nonzero(pair_index >= 0)
         none = np.zeros(0, dtype=np.int64)
         return cls(n_blocks, n_feats, 0, feat_idx, tuple(anchor_cols), pair_rows, pair_cols,
@@ -456,7 +458,7 @@ def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
         raise SolverError(msg)
     E = lin.rows
     if st._pair_index is not None:
-        return NormalEquations(*kernels.assemble(
+        return NormalEquations(*compiled_assembly.assemble(
             E, st._starts, st._obs_block, st._anchor_block,
             st._anchor_obs, st.anchor_cols, st._pair_index, st.pair_rows.shape[0]))
     K, d, width = E.shape
@@ -534,7 +536,7 @@ def scale(structure: SchurStructure, eqs: NormalEquations, c_pose: FloatArray,
     cp_c = c_pose[structure.pair_cols]
     W = eqs.W
     if structure._pair_index is not None:
-        kernels.scale_w(W, structure.feat_idx, structure._obs_block, c_pose, c_feat)
+        compiled_assembly.scale_w(W, structure.feat_idx, structure._obs_block, c_pose, c_feat)
     else:
         W *= c_pose[structure.w_block][:, :, None]
         W *= c_feat[structure.feat_idx][:, None, :]
@@ -606,9 +608,9 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     """
     st = structure
     if st._pair_index is not None:
-        S_blocks, rhs, V_inv, bad = kernels.reduce(eqs.U, eqs.W, eqs.V, damp_feat, eqs.g_pose,
-                                                   eqs.g_feat, st._starts, st._obs_block,
-                                                   st._pair_index)
+        S_blocks, rhs, V_inv, bad = compiled_schur.reduce(
+            eqs.U, eqs.W, eqs.V, damp_feat, eqs.g_pose, eqs.g_feat, st._starts, st._obs_block,
+            st._pair_index)
         if bad >= 0:
             msg = f'singular feature block (feature {bad})'
             raise ReducedSystemError(msg)
@@ -662,7 +664,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
     if st._pair_index is not None:
-        return x_pose, kernels.back_substitute(eqs.W, V_inv, eqs.g_feat, x_pose, st._starts,
+        return x_pose, compiled_schur.back_substitute(eqs.W, V_inv, eqs.g_feat, x_pose, st._starts,
                                                st._obs_block)
     Wt_x = np.einsum('qji,qj->qi', eqs.W, x_pose[structure.w_block])
     W_x = _scatter_add(structure.feat_idx, Wt_x, structure.n_feats)
@@ -692,7 +694,7 @@ def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: Floa
     """Return x^T H x for H = J^T J held as (upper) U, W and V blocks; cheaper than |J x|^2."""
     r, c = structure.pair_rows, structure.pair_cols
     if structure._pair_index is not None:
-        return kernels.quadratic_form(eqs.U, r, c, eqs.W, eqs.V, x_pose, x_feat,
+        return compiled_assembly.quadratic_form(eqs.U, r, c, eqs.W, eqs.V, x_pose, x_feat,
                                       structure.feat_idx, structure._obs_block)
     Ux = np.einsum('pij,pj->pi', eqs.U, x_pose[c])
     weight = np.where(r == c, 1.0, 2.0)  # off-diagonal blocks stand for themselves and U^T

@@ -42,15 +42,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, so3, sphere
+from pmba_ros.core import compiled, so3, sphere
+from pmba_ros.core.compiled import residuals as compiled_residuals
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 
 #: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
 #: anchor's centre (its rotation does not enter eq. 6).
 ANCHOR_COLS = ((0, 6), (3, 6))
-#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (shared with kernels).
-_TINY = kernels.TINY
+#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (shared with the
+#: compiled loops).
+_TINY = compiled_residuals.TINY
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,7 +100,7 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     References:
         PMBA eq. (6), arccos-free form (pmba.md §1.3).
     """
-    if kernels.ENABLED:
+    if compiled.ENABLED:
         return rays_and_residuals(R_wc, centers_w, feats, obs)[0]
     u, t, s, c, sin_t, cos_t, g = anchor_terms(R_wc, centers_w, feats)
     j = obs.feat_idx
@@ -119,8 +121,8 @@ def rays_and_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxF
 
     ``weights`` as in :func:`ray_jacobians`. One compiled pass where numba is there.
     """
-    if kernels.ENABLED:
-        fields, rays_c, res = kernels.pmba_rays(R_wc, centers_w, feats, obs, weights)
+    if compiled.ENABLED:
+        fields, rays_c, res = compiled_residuals.pmba_rays(R_wc, centers_w, feats, obs, weights)
         return RayGeometry(*fields), rays_c, res
     geo = observation_rays(R_wc, centers_w, feats, obs)
     rays_c = camera_rays_from(geo, R_wc, obs)
@@ -195,8 +197,8 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
     lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
     E = lin.rows
-    if kernels.ENABLED:  # the same rows from compiled loops
-        kernels.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, E)
+    if compiled.ENABLED:  # the same rows from compiled loops
+        compiled_residuals.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, E)
         return lin
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
@@ -265,7 +267,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
 
 def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
     """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3)."""
-    retract = kernels.sphere_retract if kernels.ENABLED else sphere.retract
+    retract = compiled_residuals.sphere_retract if compiled.ENABLED else sphere.retract
     return ParallaxFeatures(feats.theta + delta[:, 0], retract(feats.n, delta[:, 1:]),
                             feats.main_idx, feats.assoc_idx)
 

@@ -33,8 +33,9 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
-from pmba_ros.core import conversions, dogleg, kernels, so3
+from pmba_ros.core import compiled, conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
+from pmba_ros.core.compiled import loss as compiled_loss
 from pmba_ros.core.gauge import choose_gauge, free_gauge
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
 from pmba_ros.core.models import Evaluation, make_model, Model
@@ -275,8 +276,8 @@ class _Linearized:
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray,
                  prior: tuple[RelativePosePrior, np.ndarray] | None = None) -> None:
         lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
-        if loss is not Loss.NONE and kernels.ENABLED:
-            kernels.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
+        if loss is not Loss.NONE and compiled.ENABLED:
+            compiled_loss.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
         elif loss is not Loss.NONE:
             lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
         eqs = ne.assemble(structure, lin)
@@ -398,8 +399,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
 
     def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
         ev = model.evaluate(R, P, feats)
-        if kernels.ENABLED:
-            return _State(R, P, feats, kernels.robust_cost(ev.residuals, options.loss.value,
+        if compiled.ENABLED:
+            return _State(R, P, feats, compiled_loss.robust_cost(ev.residuals, options.loss.value,
                                                            loss_scale) + prior_cost(R, P), ev)
         if not np.all(np.isfinite(ev.residuals)):
             return _State(R, P, feats, math.inf, ev)

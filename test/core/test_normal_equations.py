@@ -16,8 +16,9 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.core import conversions, kernels
+from pmba_ros.core import compiled, conversions
 from pmba_ros.core import normal_equations as ne
+from pmba_ros.core.compiled import assembly as compiled_assembly
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
 from pmba_ros.core.problem import make_problem, permute_features, XyzFeatures
@@ -27,14 +28,14 @@ import pytest
 from .helpers import forward_problem
 
 #: Ways of assembling J^T J and forming W V^-1 W^T: numpy's (one dense product; per pair or
-#: per delta, in small batches) and the compiled loops of pmba_ros.core.kernels.
+#: per delta, in small batches) and the compiled loops of pmba_ros.core.compiled.
 SCHUR_PATHS = ['dense', 'pairs', 'per_delta', 'compiled']
 
 
 def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> None:
     if schur_products == 'compiled':
         pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', schur_products == 'compiled')
+    monkeypatch.setattr(compiled, 'ENABLED', schur_products == 'compiled')
 
 
 def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
@@ -213,9 +214,9 @@ def test_singular_feature_block_is_a_clear_error(engine_path: str) -> None:
 
 def test_problems_over_the_pair_index_limit_take_the_numpy_path(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Above kernels.MAX_BLOCKS free poses the structure is numpy's, and still solves."""
+    """Above compiled.assembly.MAX_BLOCKS free poses the structure is numpy's, and still solves."""
     pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', True)
+    monkeypatch.setattr(compiled, 'ENABLED', True)
     problem = forward_problem(2, n_cams=5, n_points=20)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
@@ -223,7 +224,7 @@ def test_problems_over_the_pair_index_limit_take_the_numpy_path(
     args = (problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats), problem.n_feats,
             np.arange(problem.n_cams), model.anchor_cols)
     assert ne.SchurStructure.build(*args)._pair_index is not None
-    monkeypatch.setattr(kernels, 'MAX_BLOCKS', problem.n_cams - 1)
+    monkeypatch.setattr(compiled_assembly, 'MAX_BLOCKS', problem.n_cams - 1)
     st = ne.SchurStructure.build(*args)
     assert st._pair_index is None
     eqs = ne.assemble(st, model.linearize(problem.R_wc, problem.centers_w, feats))

@@ -16,7 +16,9 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.core import conversions, kernels, so3, sphere
+from pmba_ros.core import compiled, conversions, so3, sphere
+from pmba_ros.core.compiled import camera as compiled_camera
+from pmba_ros.core.compiled import residuals as compiled_residuals
 from pmba_ros.core.models import ParallaxModel
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.core.residuals import observation_rays, pose_slots, ray_residuals
@@ -91,15 +93,15 @@ def test_jacobians_at_tiny_parallax(engine_path: str) -> None:
 @pytest.mark.parametrize('pixel_weighted', [False, True])
 def test_compiled_rows_equal_numpy_rows(pixel_weighted: bool,
                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The compiled PMBA evaluation and rows (pmba_ros.core.kernels) equal numpy's."""
+    """The compiled PMBA evaluation and rows (pmba_ros.core.compiled) equal numpy's."""
     pytest.importorskip('numba')
     problem, R, P, feats = _perturbed()
     model = ParallaxModel(problem, pixel_weighted)
     rows, evals = {}, {}
-    for compiled in (False, True):
-        monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        evals[compiled] = model.evaluate(R, P, feats)
-        rows[compiled] = model.linearize(R, P, feats, evals[compiled]).rows
+    for on in (False, True):
+        monkeypatch.setattr(compiled, 'ENABLED', on)
+        evals[on] = model.evaluate(R, P, feats)
+        rows[on] = model.linearize(R, P, feats, evals[on]).rows
     scale = np.max(np.abs(rows[False]))
     np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12 * scale)
     for name in ('residuals', 'rays_c'):
@@ -148,20 +150,20 @@ def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatc
     intr = replace(problem.intrinsics, k1=np.linspace(-0.2, 0.1, M), k2=np.full(M, 0.03))
     model = ParallaxModel(replace(problem, intrinsics=intr), pixel_weighted=True)
     errors = {}
-    for compiled in (False, True):
-        monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        errors[compiled] = model.reprojection_errors_px(model.evaluate(R, P, feats))
+    for on in (False, True):
+        monkeypatch.setattr(compiled, 'ENABLED', on)
+        errors[on] = model.reprojection_errors_px(model.evaluate(R, P, feats))
     assert np.all(errors[False] > 0)
     np.testing.assert_allclose(errors[True], errors[False], rtol=1e-9, atol=1e-9)
     from pmba_ros.core.camera import projection_jacobian
     _, weights = projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx)
     np.testing.assert_allclose(
-        kernels.projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx),
+        compiled_camera.projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx),
         weights, rtol=1e-12, atol=1e-12 * np.max(np.abs(weights)))
 
 
 def test_compiled_sphere_retraction_equals_numpy() -> None:
-    """kernels.sphere_retract equals sphere.retract.
+    """compiled_residuals.sphere_retract equals sphere.retract.
 
     Small, zero and large steps; rays on the axes and diagonals (the tangent basis' ties).
     """
@@ -172,5 +174,5 @@ def test_compiled_sphere_retraction_equals_numpy() -> None:
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     delta = rng.normal(size=(n.shape[0], 2)) * np.logspace(-9, 0.5, n.shape[0])[:, None]
     delta[:3] = 0.0
-    np.testing.assert_allclose(kernels.sphere_retract(n, delta), sphere.retract(n, delta),
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(compiled_residuals.sphere_retract(n, delta),
+                               sphere.retract(n, delta), rtol=0, atol=1e-14)
