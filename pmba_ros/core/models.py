@@ -21,9 +21,8 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, compiled, residuals
-from pmba_ros.core.camera import project, projection_jacobian
-from pmba_ros.core.compiled import camera as compiled_camera
+from pmba_ros.core import baselines, residuals
+from pmba_ros.core.engine import default_engine, Engine
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
     BAProblem,
@@ -62,10 +61,14 @@ class Model(ABC, Generic[F]):
     pixel_residuals: bool
     anchor_cols: tuple[tuple[int, int], ...] = ()
 
-    def __init__(self, problem: BAProblem) -> None:
-        """Bind the model to a problem's observations and intrinsics."""
+    def __init__(self, problem: BAProblem, engine: Engine | None = None) -> None:
+        """Bind the model to a problem's observations and intrinsics, and to an engine.
+
+        ``engine`` defaults to :func:`~pmba_ros.core.engine.default_engine`.
+        """
         self.problem = problem
         self.obs = problem.obs
+        self.engine = engine or default_engine()
 
     @abstractmethod
     def slots(self, feats: F) -> IntArray:
@@ -98,11 +101,8 @@ class Model(ABC, Generic[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
-        if compiled.ENABLED:
-            return compiled_camera.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
+        return self.engine.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
                                                self.obs.cam_idx, self.obs.pixels)
-        pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
-        return np.linalg.norm(pix - self.obs.pixels, axis=1)
 
 
 class ParallaxModel(Model[ParallaxFeatures]):
@@ -122,20 +122,17 @@ class ParallaxModel(Model[ParallaxFeatures]):
     pixel_residuals = False
     anchor_cols = residuals.ANCHOR_COLS
 
-    def __init__(self, problem: BAProblem, pixel_weighted: bool = False) -> None:
+    def __init__(self, problem: BAProblem, pixel_weighted: bool = False,
+                 engine: Engine | None = None) -> None:
         """Bind the model; precompute the per-observation pixel weights if requested."""
-        super().__init__(problem)
+        super().__init__(problem, engine)
         self.pixel_weighted = pixel_weighted
         self._weights: FloatArray | None = None
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            if compiled.ENABLED:
-                self._weights = compiled_camera.projection_jacobian(v, problem.intrinsics,
+            self._weights = self.engine.projection_jacobian(v, problem.intrinsics,
                                                             problem.obs.cam_idx)
-            else:
-                _, self._weights = projection_jacobian(v, problem.intrinsics,
-                                                       problem.obs.cam_idx)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
@@ -144,8 +141,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
     def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
                  feats: ParallaxFeatures) -> Evaluation:
         """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
-        geo, rays_c, res = residuals.rays_and_residuals(R_wc, centers_w, feats, self.obs,
-                                                        self._weights)
+        geo, rays_c, res = self.engine.rays_and_residuals(R_wc, centers_w, feats, self.obs,
+                                                          self._weights)
         return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -153,13 +150,13 @@ class ParallaxModel(Model[ParallaxFeatures]):
                   ) -> Linearization:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
         if evaluation is None:
-            return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
-        return residuals.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights,
-                                       evaluation.geometry, evaluation.rays_c)
+            return self.engine.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights)
+        return self.engine.ray_jacobians(R_wc, centers_w, feats, self.obs, self._weights,
+                                         evaluation.geometry, evaluation.rays_c)
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""
-        return residuals.retract_features(feats, delta)
+        return residuals.retract_features(feats, delta, self.engine.sphere_retract)
 
     def parameter_norm_sq(self, feats: ParallaxFeatures) -> float:
         """Return |theta|^2 + |n|^2."""
@@ -246,10 +243,10 @@ class IdpModel(_PixelErrorModel[IdpFeatures]):
 
 
 def make_model(param: Parameterization, problem: BAProblem, *, pixel_weighted: bool = False,
-               ) -> ParallaxModel | XyzModel | IdpModel:
-    """Return the model of a parameterization bound to a problem."""
+               engine: Engine | None = None) -> ParallaxModel | XyzModel | IdpModel:
+    """Return the model of a parameterization bound to a problem and an engine."""
     if param is Parameterization.PMBA:
-        return ParallaxModel(problem, pixel_weighted)
+        return ParallaxModel(problem, pixel_weighted, engine)
     if param is Parameterization.XYZ:
-        return XyzModel(problem)
-    return IdpModel(problem)
+        return XyzModel(problem, engine)
+    return IdpModel(problem, engine)

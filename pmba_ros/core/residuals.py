@@ -38,21 +38,20 @@ closed forms of §1.6, which touch R_m and n only.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import compiled, so3, sphere
-from pmba_ros.core.compiled import residuals as compiled_residuals
+from pmba_ros.core import so3, sphere
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 
 #: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
 #: anchor's centre (its rotation does not enter eq. 6).
 ANCHOR_COLS = ((0, 6), (3, 6))
-#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (shared with the
-#: compiled loops).
-_TINY = compiled_residuals.TINY
+#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (pmba.md §1.3).
+TINY = 1e-300
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,13 +99,11 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     References:
         PMBA eq. (6), arccos-free form (pmba.md §1.3).
     """
-    if compiled.ENABLED:
-        return rays_and_residuals(R_wc, centers_w, feats, obs)[0]
     u, t, s, c, sin_t, cos_t, g = anchor_terms(R_wc, centers_w, feats)
     j = obs.feat_idx
     d = centers_w[feats.main_idx[j]] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
-    norm = np.maximum(np.linalg.norm(N, axis=1), _TINY)
+    norm = np.maximum(np.linalg.norm(N, axis=1), TINY)
     N_hat = N / norm[:, None]
     main = _is_main(feats, obs)
     jm = j[main]
@@ -119,11 +116,8 @@ def rays_and_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxF
                        ) -> tuple[RayGeometry, FloatArray, FloatArray]:
     """Return the rays of eq. (6), R_i^T xi(N) and the errors of eq. (8) (weighted: in pixels).
 
-    ``weights`` as in :func:`ray_jacobians`. One compiled pass where numba is there.
+    ``weights`` as in :func:`ray_jacobians`.
     """
-    if compiled.ENABLED:
-        fields, rays_c, res = compiled_residuals.pmba_rays(R_wc, centers_w, feats, obs, weights)
-        return RayGeometry(*fields), rays_c, res
     geo = observation_rays(R_wc, centers_w, feats, obs)
     rays_c = camera_rays_from(geo, R_wc, obs)
     if weights is None:
@@ -197,9 +191,6 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
     lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
     E = lin.rows
-    if compiled.ENABLED:  # the same rows from compiled loops
-        compiled_residuals.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, E)
-        return lin
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
     v = obs.bearings_c
@@ -211,7 +202,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
     Rm_hat_n = so3.times_hat(R_wc[feats.main_idx], feats.n)
     A_f = sphere.tangent_basis(feats.n)
-    cos_over_s = cos_t / np.maximum(s, _TINY)
+    cos_over_s = cos_t / np.maximum(s, TINY)
     D_sq = np.sum(t * t, axis=1)
     dg_du_f = cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
     dg_dt_f = cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
@@ -265,9 +256,13 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     return lin
 
 
-def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
-    """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3)."""
-    retract = compiled_residuals.sphere_retract if compiled.ENABLED else sphere.retract
+def retract_features(feats: ParallaxFeatures, delta: FloatArray,
+                     retract: Callable[[FloatArray, FloatArray], FloatArray] = sphere.retract,
+                     ) -> ParallaxFeatures:
+    """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3).
+
+    ``retract`` is :func:`pmba_ros.core.sphere.retract` or an engine's equal.
+    """
     return ParallaxFeatures(feats.theta + delta[:, 0], retract(feats.n, delta[:, 1:]),
                             feats.main_idx, feats.assoc_idx)
 

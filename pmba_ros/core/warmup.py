@@ -35,6 +35,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
 from pmba_ros.core.solve import solve, SolveOptions, SolverKind
@@ -65,7 +66,7 @@ def _marker() -> Path | None:
 
 def is_warm() -> bool:
     """Return whether the loops load from the cache (True when they are off)."""
-    if not compiled.ENABLED:
+    if not compiled_available():
         return True
     marker = _marker()
     return marker is not None and marker.exists()
@@ -100,7 +101,7 @@ def warm_up() -> float:
 
     Returns 0.0 without numba or with ``PMBA_NUMBA=0``. Writes the :func:`is_warm` marker.
     """
-    if not compiled.ENABLED:
+    if not compiled_available():
         return 0.0
     t0 = time.perf_counter()
     problem = _tiny_problem()

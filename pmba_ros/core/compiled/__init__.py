@@ -25,18 +25,12 @@ loops visit each observation, feature or observation pair once and write in plac
   the back-substitution and x^T H x (normal_equations.py), and the covisible pose pairs;
 - the widest-pair anchor search (conversions.select_anchors).
 
-They are used when numba is installed (the ``fast`` extra) and give the numpy code's results
-to rounding: the tests run both. ``PMBA_NUMBA=0`` turns them off (:mod:`jit`). Each jitted
-loop has a typed wrapper without the underscore; the numpy functions they replace stay the
-reference.
+They are the compiled engine (:mod:`pmba_ros.core.engine`), the default when numba is
+installed (the ``fast`` extra), and give the numpy code's results to rounding: the tests run
+both. ``PMBA_NUMBA=0`` turns them off (:mod:`pmba_ros.core.jit`). Each module mirrors a numpy
+module of the same concept, which stays the reference; each jitted loop has a typed wrapper
+without the underscore.
 
 Block addressing: ``pair_index[a, b]`` (a <= b) is the row of the upper pair block (a, b) in
 ``U``; a pair (a, b) with a > b is stored transposed at ``pair_index[b, a]``.
 """
-
-from __future__ import annotations
-
-from pmba_ros.core import jit
-
-#: Whether the compiled loops are used (numba importable and not turned off).
-ENABLED = jit.NUMBA is not None

@@ -24,12 +24,9 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import jit
+from pmba_ros.core.residuals import TINY
 
 _jit = jit.jit
-
-
-#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0; pmba.md §1.3.
-TINY = 1e-300
 
 
 @_jit

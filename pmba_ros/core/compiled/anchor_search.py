@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Compiled widest-pair anchor search (mirrors conversions.select_anchors)."""
+"""Compiled widest-pair anchor search (mirrors :mod:`pmba_ros.core.anchor_search`)."""
 
 from __future__ import annotations
 
