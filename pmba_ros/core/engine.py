@@ -167,8 +167,7 @@ class CompiledEngine:
                            weights: FloatArray | None,
                            ) -> tuple[RayGeometry, FloatArray, FloatArray]:
         """Return :func:`pmba_ros.core.residuals.rays_and_residuals`, in one pass."""
-        fields, rays_c, res = compiled_residuals.pmba_rays(R_wc, centers_w, feats, obs, weights)
-        return RayGeometry(*fields), rays_c, res
+        return compiled_residuals.pmba_rays(R_wc, centers_w, feats, obs, weights)
 
     def ray_jacobians(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
                       obs: Observations, weights: FloatArray | None,

@@ -19,14 +19,79 @@ Mirrors :mod:`pmba_ros.core.residuals`: the rays N = g u + sin(theta) (P_m - P_i
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple, TYPE_CHECKING
 
 import numpy as np
-from pmba_ros._typing import FloatArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import jit
-from pmba_ros.core.residuals import TINY
+from pmba_ros.core.residuals import RayGeometry, TINY
+
+if TYPE_CHECKING:
+    from pmba_ros.core.problem import Observations, ParallaxFeatures
 
 _jit = jit.jit
+
+
+class ObsArrays(NamedTuple):
+    """The observations' arrays (:class:`~pmba_ros.core.problem.Observations`), (K,) / (K, 3)."""
+
+    cam_idx: IntArray
+    feat_idx: IntArray
+    bearings_c: FloatArray
+
+
+class FeatureArrays(NamedTuple):
+    """PMBA features (:class:`~pmba_ros.core.problem.ParallaxFeatures`), one row each."""
+
+    theta: FloatArray
+    n: FloatArray
+    main_idx: IntArray
+    assoc_idx: IntArray
+
+
+class FeatureTerms(NamedTuple):
+    """Per-feature terms of eq. (6), as in :class:`~pmba_ros.core.residuals.RayGeometry`."""
+
+    u: FloatArray
+    t: FloatArray
+    s: FloatArray
+    c: FloatArray
+    g: FloatArray
+    sin_t: FloatArray
+    cos_t: FloatArray
+
+
+class RayTerms(NamedTuple):
+    """Per-observation rays of eq. (6): N, P_m - P_i, xi(N), |N| and main-anchor flags."""
+
+    N: FloatArray
+    P_m_minus_P_i: FloatArray
+    N_hat: FloatArray
+    norm: FloatArray
+    main: BoolArray
+
+
+class FeatureFactors(NamedTuple):
+    """Per-feature factors of the Jacobian rows: R_m [n]x, A_n, dg/du, dg/dt, dN/dtheta part."""
+
+    Rm_hat_n: FloatArray
+    A_f: FloatArray
+    dg_du: FloatArray
+    dg_dt: FloatArray
+    dth_u: FloatArray
+
+
+def _obs_arrays(obs: Observations) -> ObsArrays:
+    return ObsArrays(obs.cam_idx, obs.feat_idx, obs.bearings_c)
+
+
+def _feature_arrays(feats: ParallaxFeatures) -> FeatureArrays:
+    return FeatureArrays(feats.theta, feats.n, feats.main_idx, feats.assoc_idx)
+
+
+def _split(geo: RayGeometry) -> tuple[FeatureTerms, RayTerms]:
+    return (FeatureTerms(geo.u, geo.t, geo.s, geo.c, geo.g, geo.sin_t, geo.cos_t),
+            RayTerms(geo.N, geo.P_m_minus_P_i, geo.N_hat, geo.norm, geo.main))
 
 
 @_jit
@@ -39,11 +104,15 @@ def _cross_into(out: Any, a0: float, a1: float, a2: float, b0: float, b1: float,
 
 
 @_jit
-def _pmba_rows(cam_idx: Any, feat_idx: Any, main_idx: Any, is_main: Any, R_wc: Any, v: Any,
-               N_hat: Any, norm: Any, d_mi: Any, n: Any, u: Any, g: Any, sin_t: Any,
-               cos_t: Any, dg_du: Any, dg_dt: Any, dth_u: Any, Rm_hat_n: Any, A_f: Any,
-               weights: Any, rays_c: Any, E: Any) -> None:
+def _pmba_rows(obs: ObsArrays, feats: FeatureArrays, R_wc: FloatArray, ft: FeatureTerms,
+               rt: RayTerms, ff: FeatureFactors, weights: FloatArray, rays_c: FloatArray,
+               E: FloatArray) -> None:
     """Residual and Jacobian rows of PMBA observations; see residuals.ray_jacobians."""
+    cam_idx, feat_idx, v = obs.cam_idx, obs.feat_idx, obs.bearings_c
+    n, main_idx = feats.n, feats.main_idx
+    u, g, sin_t, cos_t = ft.u, ft.g, ft.sin_t, ft.cos_t
+    d_mi, N_hat, norm, is_main = rt.P_m_minus_P_i, rt.N_hat, rt.norm, rt.main
+    Rm_hat_n, A_f, dg_du, dg_dt, dth_u = ff.Rm_hat_n, ff.A_f, ff.dg_du, ff.dg_dt, ff.dth_u
     K, d, width = E.shape
     weighted = weights.shape[0] > 0
     L = np.empty((d, 3))
@@ -140,13 +209,15 @@ def _tangent_basis_into(n0: float, n1: float, n2: float, A: Any) -> None:
 
 
 @_jit
-def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: Any, c: Any,
-                          sin_t: Any, cos_t: Any, Rm_hat_n: Any, A_f: Any, dg_du: Any,
-                          dg_dt: Any, dth_u: Any) -> None:
+def _pmba_feature_factors(R_wc: FloatArray, feats: FeatureArrays, ft: FeatureTerms,
+                          ff: FeatureFactors) -> None:
     """Compute the per-feature factors of residuals.ray_jacobians.
 
     R_m [n]x, A_n (as sphere.tangent_basis), dg/du, dg/dt and -(s sin(theta) + c cos(theta)) u.
     """
+    n, main_idx = feats.n, feats.main_idx
+    u, t, s, c, sin_t, cos_t = ft.u, ft.t, ft.s, ft.c, ft.sin_t, ft.cos_t
+    Rm_hat_n, A_f, dg_du, dg_dt, dth_u = ff.Rm_hat_n, ff.A_f, ff.dg_du, ff.dg_dt, ff.dth_u
     for j in range(n.shape[0]):
         R = R_wc[main_idx[j]]
         n0, n1, n2 = n[j, 0], n[j, 1], n[j, 2]
@@ -161,29 +232,33 @@ def _pmba_feature_factors(R_wc: Any, n: Any, main_idx: Any, u: Any, t: Any, s: A
             dth_u[j, r] = -(s[j] * sin_t[j] + c[j] * cos_t[j]) * u[j, r]
 
 
-def pmba_rows(obs: Any, feats: Any, R_wc: FloatArray, geo: Any, weights: FloatArray | None,
-              rays_c: FloatArray | None, E: FloatArray) -> None:
+def pmba_rows(obs: Observations, feats: ParallaxFeatures, R_wc: FloatArray, geo: RayGeometry,
+              weights: FloatArray | None, rays_c: FloatArray | None, E: FloatArray) -> None:
     """Fill E (K, d, 19) with the PMBA rows of residuals.ray_jacobians."""
     N = feats.n.shape[0]
-    Rm_hat_n = np.empty((N, 3, 3))
-    A_f = np.empty((N, 3, 2))
-    dg_du, dg_dt, dth_u = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3))
+    ff = FeatureFactors(np.empty((N, 3, 3)), np.empty((N, 3, 2)), np.empty((N, 3)),
+                        np.empty((N, 3)), np.empty((N, 3)))
     R_wc = np.ascontiguousarray(R_wc)
-    _pmba_feature_factors(R_wc, feats.n, feats.main_idx, geo.u, geo.t, geo.s, geo.c,
-                          geo.sin_t, geo.cos_t, Rm_hat_n, A_f, dg_du, dg_dt, dth_u)
-    _pmba_rows(obs.cam_idx, obs.feat_idx, feats.main_idx, geo.main, R_wc, obs.bearings_c,
-               geo.N_hat, geo.norm, geo.P_m_minus_P_i, feats.n, geo.u, geo.g, geo.sin_t,
-               geo.cos_t, dg_du, dg_dt, dth_u, Rm_hat_n, A_f,
+    fa = _feature_arrays(feats)
+    ft, rt = _split(geo)
+    _pmba_feature_factors(R_wc, fa, ft, ff)
+    _pmba_rows(_obs_arrays(obs), fa, R_wc, ft, rt, ff,
                np.zeros((0, 2, 3)) if weights is None else weights,
                geo.N_hat if rays_c is None else rays_c, E)
 
 
 @_jit
-def _pmba_rays(R_wc: Any, centers_w: Any, theta: Any, n: Any, main_idx: Any, assoc_idx: Any,
-               cam_idx: Any, feat_idx: Any, v: Any, weights: Any, u: Any, t: Any, s: Any,
-               c: Any, g: Any, sin_t: Any, cos_t: Any, N: Any, d: Any, N_hat: Any, norm: Any,
-               main: Any, rays_c: Any, res: Any) -> None:
-    """Rays N = g u + sin(theta) (P_m - P_i) (PMBA eq. 6), R_i^T xi(N) and the errors (eq. 8)."""
+def _pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: FeatureArrays, obs: ObsArrays,
+               weights: FloatArray, ft: FeatureTerms, rt: RayTerms, rays_c: FloatArray,
+               res: FloatArray) -> None:
+    """Rays N = g u + sin(theta) (P_m - P_i) (PMBA eq. 6), R_i^T xi(N) and the errors (eq. 8).
+
+    Writes ``ft``, ``rt``, ``rays_c`` and ``res``.
+    """
+    theta, n, main_idx, assoc_idx = feats.theta, feats.n, feats.main_idx, feats.assoc_idx
+    cam_idx, feat_idx, v = obs.cam_idx, obs.feat_idx, obs.bearings_c
+    u, t, s, c, g, sin_t, cos_t = ft.u, ft.t, ft.s, ft.c, ft.g, ft.sin_t, ft.cos_t
+    N, d, N_hat, norm, main = rt.N, rt.P_m_minus_P_i, rt.N_hat, rt.norm, rt.main
     for j in range(theta.shape[0]):
         m, a = main_idx[j], assoc_idx[j]
         for r in range(3):
@@ -224,20 +299,21 @@ def _pmba_rays(R_wc: Any, centers_w: Any, theta: Any, n: Any, main_idx: Any, ass
                                            + R_wc[i, r, 2] * v[k, 2])
 
 
-def pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: Any, obs: Any,
-              weights: FloatArray | None) -> tuple[tuple[Any, ...], FloatArray, FloatArray]:
-    """Return the fields of residuals.RayGeometry, the camera rays and the residuals."""
+def pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+              obs: Observations, weights: FloatArray | None,
+              ) -> tuple[RayGeometry, FloatArray, FloatArray]:
+    """Return the rays (residuals.RayGeometry), the camera rays and the residuals."""
     N_f, K = feats.theta.shape[0], obs.cam_idx.shape[0]
-    per_feat = [np.empty((N_f, 3)), np.empty((N_f, 3))] + [np.empty(N_f) for _ in range(5)]
-    N, d, N_hat, rays_c = (np.empty((K, 3)) for _ in range(4))
-    norm = np.empty(K)
-    main = np.empty(K, dtype=np.bool_)
+    ft = FeatureTerms(np.empty((N_f, 3)), np.empty((N_f, 3)),
+                      *(np.empty(N_f) for _ in range(5)))
+    rt = RayTerms(np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3)), np.empty(K),
+                  np.empty(K, dtype=np.bool_))
+    rays_c = np.empty((K, 3))
     res = np.empty((K, 3 if weights is None else 2))
-    _pmba_rays(np.ascontiguousarray(R_wc), np.ascontiguousarray(centers_w), feats.theta,
-               feats.n, feats.main_idx, feats.assoc_idx, obs.cam_idx, obs.feat_idx,
-               obs.bearings_c, np.zeros((0, 2, 3)) if weights is None else weights, *per_feat,
-               N, d, N_hat, norm, main, rays_c, res)
-    return (*per_feat, N, d, N_hat, norm, main), rays_c, res
+    _pmba_rays(np.ascontiguousarray(R_wc), np.ascontiguousarray(centers_w),
+               _feature_arrays(feats), _obs_arrays(obs),
+               np.zeros((0, 2, 3)) if weights is None else weights, ft, rt, rays_c, res)
+    return RayGeometry(*ft, *rt), rays_c, res
 
 
 @_jit
