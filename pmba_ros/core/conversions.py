@@ -43,7 +43,8 @@ _SWAP_DEPTH_RATIO = 30.0
 
 def world_rays(problem: BAProblem, R_wc: FloatArray) -> FloatArray:
     """Return the world-frame rays r_k = R_i v_k of all observations, shape (K, 3)."""
-    return np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], problem.obs.bearings_c)
+    out: FloatArray = np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], problem.obs.bearings_c)
+    return out
 
 
 def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
@@ -131,7 +132,8 @@ def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
     if keys.shape[0] == 0 or np.any(keys[k] != want):
         msg = 'anchor_observations: an anchor camera does not observe its feature'
         raise ProblemError(msg)
-    return k.astype(np.int64)
+    out: IntArray = k.astype(np.int64)
+    return out
 
 
 def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,
@@ -225,8 +227,9 @@ def idp_to_xyz(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures) -> F
     """Euclidean points X = P_h + R_h [a, b, 1]^T / rho."""
     m = np.concatenate([feats.ab, np.ones((feats.ab.shape[0], 1))], axis=1)
     with np.errstate(divide='ignore', invalid='ignore'):
-        return centers_w[feats.anchor_idx] + np.einsum(
+        out: FloatArray = centers_w[feats.anchor_idx] + np.einsum(
             'nij,nj->ni', R_wc[feats.anchor_idx], m) / feats.rho[:, None]
+        return out
 
 
 def to_xyz(R_wc: FloatArray, centers_w: FloatArray,

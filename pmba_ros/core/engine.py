@@ -129,7 +129,8 @@ class NumpyEngine:
     def reprojection_errors(self, rays_c: FloatArray, intr: Intrinsics, cam_idx: IntArray,
                             pixels: FloatArray) -> FloatArray:
         """Return |camera.project(rays_c) - pixels| per observation, shape (K,)."""
-        return np.linalg.norm(camera.project(rays_c, intr, cam_idx) - pixels, axis=1)
+        out: FloatArray = np.linalg.norm(camera.project(rays_c, intr, cam_idx) - pixels, axis=1)
+        return out
 
     def projection_jacobian(self, h_c: FloatArray, intr: Intrinsics,
                             cam_idx: IntArray) -> FloatArray:

@@ -179,7 +179,8 @@ class _PixelErrorModel(Model[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the residual norms: they are the reprojection errors."""
-        return np.linalg.norm(evaluation.residuals, axis=1)
+        out: FloatArray = np.linalg.norm(evaluation.residuals, axis=1)
+        return out
 
 
 class XyzModel(_PixelErrorModel[XyzFeatures]):

@@ -86,7 +86,8 @@ def _find(sorted_keys: IntArray, keys: IntArray) -> IntArray:
     if n == 0:
         return np.zeros(keys.shape, dtype=np.int64)
     idx = np.minimum(np.searchsorted(sorted_keys, keys), n - 1)
-    return np.where(sorted_keys[idx] == keys, idx, n)
+    out: IntArray = np.where(sorted_keys[idx] == keys, idx, n)
+    return out
 
 
 def _pair_key(a: IntArray, b: IntArray, n_blocks: int) -> IntArray:
@@ -287,7 +288,7 @@ class NumpySchurPlan:
         A pair (x, y), x <= y, is cross(x, y) + cross(y, x)^T, plus self(x) on the diagonal.
         """
         padded = np.concatenate([cross, np.zeros((1, 6, 6))])
-        out = padded[self.fold_fwd] + np.swapaxes(padded[self.fold_bwd], 1, 2)
+        out: FloatArray = padded[self.fold_fwd] + np.swapaxes(padded[self.fold_bwd], 1, 2)
         diag = np.flatnonzero(self.pair_rows == self.pair_cols)
         out[diag] += self_blocks[self.pair_rows[diag]]
         return out
@@ -418,7 +419,8 @@ class NumpySchurPlan:
         lt = self.layout
         Wt_x = np.einsum('qji,qj->qi', eqs.W, x_pose[lt.w_block])
         W_x = _scatter_add(lt.feat_idx, Wt_x, lt.n_feats)
-        return np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - W_x)
+        out: FloatArray = np.einsum('nij,nj->ni', V_inv, -eqs.g_feat - W_x)
+        return out
 
     def quadratic_form(self, eqs: NormalEquations, x_pose: FloatArray,
                        x_feat: FloatArray) -> float:

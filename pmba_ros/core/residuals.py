@@ -136,18 +136,21 @@ def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
 
 
 def _is_main(feats: ParallaxFeatures, obs: Observations) -> np.ndarray:
-    return obs.cam_idx == feats.main_idx[obs.feat_idx]
+    out: np.ndarray = obs.cam_idx == feats.main_idx[obs.feat_idx]
+    return out
 
 
 def residuals_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> FloatArray:
     """Ray-direction errors (PMBA eq. 8) from the rays of :func:`observation_rays`."""
-    return geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    out: FloatArray = geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    return out
 
 
 def pixel_weighted_residuals(weights: FloatArray, rays_c: FloatArray,
                              obs: Observations) -> FloatArray:
     """Return weights (R_i^T xi(N) - v), the ray errors mapped to pixels, shape (K, 2)."""
-    return np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
+    out: FloatArray = np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
+    return out
 
 
 def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
@@ -273,4 +276,5 @@ def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> F
     Projecting them gives the pixel reprojection of eq. (2) points without dividing by
     sin(theta), so points at infinity project to their direction.
     """
-    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], geo.N_hat)
+    out: FloatArray = np.einsum('kji,kj->ki', R_wc[obs.cam_idx], geo.N_hat)
+    return out
