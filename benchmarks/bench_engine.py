@@ -580,6 +580,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="Ceres' num_threads of the reference row (a 2-thread row is added)")
     parser.add_argument('--scipy-budget-s', type=float, default=600.0,
                         help='wall-time budget of the scipy solve per dataset (s)')
+    parser.add_argument('--engine', choices=['auto', 'numpy', 'compiled'], default='auto',
+                        help="the engine rows' SolveOptions.engine (numpy or numba loops)")
     parser.add_argument('--quiet', action='store_true', help='print only the tables')
     args = parser.parse_args(argv)
     datasets = [d for d in args.datasets.split(',') if d]
@@ -608,11 +610,12 @@ def main(argv: list[str] | None = None) -> int:
         if 'pmba' in methods:
             log(f'[{name}] PMBA-Dogleg ...')
             rows.append(measured(partial(run_engine, problem, 'PMBA-Dogleg (engine)',
-                                         SolveOptions())))
+                                         SolveOptions(engine=args.engine))))
         if 'xyz' in methods:
             log(f'[{name}] XYZ-LM ...')
             xyz_row = measured(partial(run_engine, problem, 'XYZ-LM (engine)',
-                                       SolveOptions(param='xyz', solver='lm')))
+                                       SolveOptions(param='xyz', solver='lm',
+                                                    engine=args.engine)))
             rows.append(xyz_row)
         if 'scipy' in methods:
             log(f'[{name}] scipy least_squares trf ...')

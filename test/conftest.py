@@ -16,9 +16,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+
+if TYPE_CHECKING:
+    from pmba_ros.core.engine import Engine
 
 #: The read-only datasets live beside the repository (CI clones it with shared/ next to it).
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
@@ -39,13 +43,10 @@ def rng() -> np.random.Generator:
 
 
 @pytest.fixture(params=['numpy', 'compiled'])
-def engine_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run a test on the numpy engine, then on the compiled loops of pmba_ros.core.kernels."""
-    from pmba_ros.core import kernels
-    if request.param == 'compiled':
-        pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', request.param == 'compiled')
-    return str(request.param)
+def engine(request: pytest.FixtureRequest) -> Engine:
+    """Return the numpy engine, then the compiled one (where numba is there)."""
+    from .core.helpers import engine_named
+    return engine_named(str(request.param))
 
 
 def run_python(code: str, timeout_s: float = 600.0) -> None:

@@ -38,10 +38,12 @@ RANKS = {
 CORE_RANKS = {
     'so3': 0, 'sphere': 0, 'camera': 0, 'jit': 0,
     'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1, 'jacobian': 1,
-    'conversions': 2, 'residuals': 2, 'baselines': 2, 'kernels': 2,
-    'models': 3, 'normal_equations': 3,
-    'solve': 4,
-    'warmup': 5,
+    'residuals': 2, 'baselines': 2, 'anchor_search': 2, 'normal_equations': 2,
+    'numpy_schur': 2, 'compiled': 2,
+    'engine': 3,
+    'conversions': 4, 'models': 4,
+    'solve': 5,
+    'warmup': 6,
 }
 
 #: Third-party modules allowed only in some places (top-level or lazy imports alike).

@@ -67,6 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='loss scale in pixels')
     parser.add_argument('--max-iters', type=non_negative_int, default=100,
                         help='iteration budget of each solve')
+    parser.add_argument('--engine', choices=['auto', 'numpy', 'compiled'], default='auto',
+                        help='numerical engine: numpy, the compiled numba loops, or auto '
+                        '(compiled where numba is installed and PMBA_NUMBA is not 0); '
+                        'both give the same iterates to rounding')
     parser.add_argument('--init', choices=['file', 'global'], default='file',
                         help="start from the file's poses and points, or run PMBA's global "
                         'initialization from the tracks alone')
@@ -175,7 +179,8 @@ def _options(param: str, solver: str, args: argparse.Namespace) -> SolveOptions:
     try:
         return SolveOptions(param=Parameterization(param), solver=SolverKind(solver),
                             loss=Loss(args.loss), loss_scale_px=args.loss_scale,
-                            max_iterations=args.max_iters, pixel_weighted=not args.paper_error)
+                            max_iterations=args.max_iters, pixel_weighted=not args.paper_error,
+                            engine=args.engine)
     except ValueError as err:
         msg = f'invalid solver options: {err}'
         raise FormatError(msg) from err

@@ -53,9 +53,9 @@ def ensure_compiled(stream: TextIO, *, always: bool = False) -> None:
 def run(args: argparse.Namespace) -> int:
     """Compile the loops (or check they load) and report how long it took."""
     del args
-    from pmba_ros.core import kernels
+    from pmba_ros.core.engine import compiled_available
 
-    if not kernels.ENABLED:
+    if not compiled_available():
         print('compiled loops off (numba not installed, or PMBA_NUMBA=0): nothing to compile')
         return 0
     ensure_compiled(sys.stdout, always=True)

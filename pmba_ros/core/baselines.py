@@ -36,7 +36,8 @@ def xyz_camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: XyzFeatures,
                     obs: Observations) -> FloatArray:
     """Camera-frame points h = R_i^T (X_j - P_i), shape (K, 3)."""
     d = feats.points_w[obs.feat_idx] - centers_w[obs.cam_idx]
-    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], d)
+    out: FloatArray = np.einsum('kji,kj->ki', R_wc[obs.cam_idx], d)
+    return out
 
 
 def pixel_errors(h_c: FloatArray, obs: Observations, intr: Intrinsics) -> FloatArray:
@@ -77,7 +78,8 @@ def idp_camera_rays(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures,
     m = np.concatenate([feats.ab[j], np.ones((j.shape[0], 1))], axis=1)
     world = (np.einsum('kij,kj->ki', R_wc[h_idx], m)
              + feats.rho[j][:, None] * (centers_w[h_idx] - centers_w[obs.cam_idx]))
-    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], world)
+    out: FloatArray = np.einsum('kji,kj->ki', R_wc[obs.cam_idx], world)
+    return out
 
 
 def idp_slots(feats: IdpFeatures, obs: Observations) -> IntArray:

@@ -141,4 +141,5 @@ def pixels_to_bearings(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray
             r = r - f / np.where(np.abs(df) < 1e-12, 1e-12, df)
     scale = np.where(rd > 0, r / np.where(rd > 0, rd, 1.0), 1.0)
     rays = np.stack([xd * scale, yd * scale, np.ones_like(xd)], axis=1)
-    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    out: FloatArray = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    return out

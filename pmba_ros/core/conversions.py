@@ -24,7 +24,8 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, residuals, rig, sphere
+from pmba_ros.core import residuals, rig, sphere
+from pmba_ros.core.engine import default_engine, Engine
 from pmba_ros.core.problem import (
     BAProblem,
     IdpFeatures,
@@ -45,13 +46,16 @@ def world_rays(problem: BAProblem, R_wc: FloatArray) -> FloatArray:
 
     With a rig, v_k is the bearing in the rig frame (:func:`rig.rig_frame_bearings`).
     """
-    return np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx], rig.rig_frame_bearings(problem))
+    out: FloatArray = np.einsum('kij,kj->ki', R_wc[problem.obs.cam_idx],
+                                rig.rig_frame_bearings(problem))
+    return out
 
 
 def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
                    allowed_pairs: BoolArray | None = None,
                    centers_w: FloatArray | None = None,
                    points_w: FloatArray | None = None,
+                   engine: Engine | None = None,
                    ) -> tuple[IntArray, IntArray, BoolArray]:
     """Pick main and associate anchors of every feature: its maximum-parallax observer pair.
 
@@ -68,52 +72,22 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         centers_w: Optional camera centres (M, 3): pairs closer than 1e-9 of the scene size
             are not anchors (zero baseline, pmba.md §3.3).
         points_w: Optional points (N, 3) for the depth-ratio swap.
+        engine: The engine that searches the pairs (default: :func:`default_engine`).
 
     Returns:
         main_idx (N,), assoc_idx (N,) and ok (N,): False where no admissible pair exists.
     """
     obs = problem.obs
-    rays = world_rays(problem, R_wc)
-    N = problem.n_feats
-    main_idx = np.zeros(N, dtype=np.int64)
-    assoc_idx = np.zeros(N, dtype=np.int64)
-    ok = np.zeros(N, dtype=bool)
-    M = R_wc.shape[0]
     close = np.zeros(0, dtype=np.int64)
     if centers_w is not None:
         close = _coincident_pairs(centers_w)
-    counts = np.bincount(obs.feat_idx, minlength=N)
+    counts = np.bincount(obs.feat_idx, minlength=problem.n_feats)
     if problem.rig is not None:  # two cameras of one pose have no baseline between anchors
-        other = ~np.eye(M, dtype=bool)
+        other = ~np.eye(R_wc.shape[0], dtype=bool)
         allowed_pairs = other if allowed_pairs is None else allowed_pairs & other
-    if kernels.ENABLED:
-        main_idx, assoc_idx, ok = kernels.widest_pairs(
-            rays, obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]), allowed_pairs, close,
-            M)
-        return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)
-    starts = np.concatenate([[0], np.cumsum(counts)])[:-1]
-    # Features with c observations at a time: all pairwise cosines as one (c x c) Gram matrix
-    # per feature; the first minimum of the upper triangle (row-major) is the widest pair.
-    for c in np.unique(counts[counts >= 2]):
-        c = int(c)
-        feats = np.flatnonzero(counts == c)
-        k = starts[feats][:, None] + np.arange(c)                      # (n, c)
-        r = rays[k]
-        cos = r @ np.swapaxes(r, 1, 2)
-        cams = obs.cam_idx[k]
-        # Inadmissible pairs (and the lower triangle) score above every cosine.
-        bad = np.broadcast_to(~np.triu(np.ones((c, c), dtype=bool), 1), cos.shape).copy()
-        if allowed_pairs is not None:
-            bad |= ~allowed_pairs[cams[:, :, None], cams[:, None, :]]
-        if close.size:
-            bad |= np.isin(cams[:, :, None] * M + cams[:, None, :], close)
-        cos[bad] = 2.0
-        best = np.argmin(cos.reshape(-1, c * c), axis=1)
-        a, b = best // c, best % c
-        rows = np.arange(feats.shape[0])
-        main_idx[feats] = cams[rows, b]      # the later camera is the main anchor
-        assoc_idx[feats] = cams[rows, a]
-        ok[feats] = cos.reshape(-1, c * c)[rows, best] < 2.0
+    main_idx, assoc_idx, ok = (engine or default_engine()).widest_pairs(
+        world_rays(problem, R_wc), obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]),
+        allowed_pairs, close, R_wc.shape[0])
     return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)
 
 
@@ -165,7 +139,8 @@ def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
     if keys.shape[0] == 0 or np.any(keys[k] != want):
         msg = 'anchor_observations: an anchor camera does not observe its feature'
         raise ProblemError(msg)
-    return k.astype(np.int64)
+    out: IntArray = k.astype(np.int64)
+    return out
 
 
 def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,
@@ -187,6 +162,7 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
 
 def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
                     points_w: FloatArray, *, allowed_pairs: BoolArray | None = None,
+                    engine: Engine | None = None,
                     ) -> tuple[ParallaxFeatures, BoolArray]:
     """Convert Euclidean points to PMBA features with anchors chosen by :func:`select_anchors`.
 
@@ -197,7 +173,8 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
         The features and ok (N,): False for features without an admissible anchor pair.
     """
     main_idx, assoc_idx, ok = select_anchors(problem, R_wc, allowed_pairs=allowed_pairs,
-                                             centers_w=centers_w, points_w=points_w)
+                                             centers_w=centers_w, points_w=points_w,
+                                             engine=engine)
     from_rot = features_from_rotations(problem, R_wc, main_idx, assoc_idx)
     d_m = points_w - centers_w[main_idx]
     d_a = points_w - centers_w[assoc_idx]
@@ -257,8 +234,9 @@ def idp_to_xyz(R_wc: FloatArray, centers_w: FloatArray, feats: IdpFeatures) -> F
     """Euclidean points X = P_h + R_h [a, b, 1]^T / rho."""
     m = np.concatenate([feats.ab, np.ones((feats.ab.shape[0], 1))], axis=1)
     with np.errstate(divide='ignore', invalid='ignore'):
-        return centers_w[feats.anchor_idx] + np.einsum(
+        out: FloatArray = centers_w[feats.anchor_idx] + np.einsum(
             'nij,nj->ni', R_wc[feats.anchor_idx], m) / feats.rho[:, None]
+        return out
 
 
 def to_xyz(R_wc: FloatArray, centers_w: FloatArray,

@@ -11,17 +11,16 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""numba for the compiled loops of :mod:`pmba_ros.core.kernels`: the switch and the cache.
+"""numba for the compiled loops of :mod:`pmba_ros.core.compiled`: the switch and the cache.
 
 ``PMBA_NUMBA=0`` is read before numba is imported: the loops then stay plain Python (the
 numpy engine runs) and numba is never loaded. numba compiles a loop once and keeps the machine
-code on disk; by default next to the source (``pmba_ros/core/__pycache__``). An install that
-the user cannot write to (a system install run by another user) gets a per-user folder
-instead, named once in a warning (:class:`CacheWarning`) when it is created:
+code on disk; by default next to the source (``pmba_ros/core/compiled/__pycache__``). An
+install that the user cannot write to (a system install run by another user) gets a per-user
+folder instead, named once in a warning (:class:`CacheWarning`) when it is created:
 ``$XDG_CACHE_HOME/pmba_ros/numba`` (``~/.cache/...``), else a private folder in the temporary
-directory. ``NUMBA_CACHE_DIR``, if
-set, is numba's own choice and is left alone. With no writable place at all the loops are
-compiled in memory, in every process.
+directory. ``NUMBA_CACHE_DIR``, if set, is numba's own choice and is left alone. With no
+writable place at all the loops are compiled in memory, in every process.
 """
 
 from __future__ import annotations
@@ -36,7 +35,7 @@ from typing import Any
 import warnings
 
 #: The loops' source folder; numba's default cache is its ``__pycache__``.
-SOURCE_DIR = Path(__file__).resolve().parent
+SOURCE_DIR = Path(__file__).resolve().parent / 'compiled'
 
 
 class CacheWarning(UserWarning):

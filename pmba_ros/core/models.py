@@ -21,8 +21,8 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
-from pmba_ros.core import baselines, kernels, residuals, rig
-from pmba_ros.core.camera import project, projection_jacobian
+from pmba_ros.core import baselines, residuals, rig
+from pmba_ros.core.engine import default_engine, Engine
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import (
     BAProblem,
@@ -62,10 +62,14 @@ class Model(ABC, Generic[F]):
     pixel_residuals: bool
     anchor_cols: tuple[tuple[int, int], ...] = ()
 
-    def __init__(self, problem: BAProblem) -> None:
-        """Bind the model to a problem's observations and intrinsics."""
+    def __init__(self, problem: BAProblem, engine: Engine | None = None) -> None:
+        """Bind the model to a problem's observations and intrinsics, and to an engine.
+
+        ``engine`` defaults to :func:`~pmba_ros.core.engine.default_engine`.
+        """
         self.problem = problem
         self.obs = problem.obs
+        self.engine = engine or default_engine()
 
     @abstractmethod
     def slots(self, feats: F) -> IntArray:
@@ -98,11 +102,8 @@ class Model(ABC, Generic[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,)."""
-        if kernels.ENABLED:
-            return kernels.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
+        return self.engine.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
                                                self.obs.cam_idx, self.obs.pixels)
-        pix = project(evaluation.rays_c, self.problem.intrinsics, self.obs.cam_idx)
-        return np.linalg.norm(pix - self.obs.pixels, axis=1)
 
 
 class ParallaxModel(Model[ParallaxFeatures]):
@@ -125,9 +126,10 @@ class ParallaxModel(Model[ParallaxFeatures]):
     pixel_residuals = False
     anchor_cols = residuals.ANCHOR_COLS
 
-    def __init__(self, problem: BAProblem, pixel_weighted: bool = False) -> None:
+    def __init__(self, problem: BAProblem, pixel_weighted: bool = False,
+                 engine: Engine | None = None) -> None:
         """Bind the model; precompute the per-observation pixel weights if requested."""
-        super().__init__(problem)
+        super().__init__(problem, engine)
         self.pixel_weighted = pixel_weighted
         self._weights: FloatArray | None = None
         self._ray_obs = problem.obs
@@ -136,12 +138,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            if kernels.ENABLED:
-                self._weights = kernels.projection_jacobian(v, problem.intrinsics,
+            self._weights = self.engine.projection_jacobian(v, problem.intrinsics,
                                                             problem.obs.cam_idx)
-            else:
-                _, self._weights = projection_jacobian(v, problem.intrinsics,
-                                                       problem.obs.cam_idx)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
@@ -160,8 +158,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
                  feats: ParallaxFeatures) -> Evaluation:
         """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
         R, P = self._ray_poses(R_wc, centers_w)
-        geo, rays_c, res = residuals.rays_and_residuals(R, P, feats, self._ray_obs,
-                                                        self._weights)
+        geo, rays_c, res = self.engine.rays_and_residuals(R, P, feats, self._ray_obs,
+                                                          self._weights)
         return Evaluation(res, rays_c, geo)
 
     def linearize(self, R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
@@ -169,17 +167,18 @@ class ParallaxModel(Model[ParallaxFeatures]):
                   ) -> Linearization:
         """Return ray errors and their analytic Jacobians (pmba.md §1.6)."""
         R, P = self._ray_poses(R_wc, centers_w)
-        geo = rays_c = None
-        if evaluation is not None:
-            geo, rays_c = evaluation.geometry, evaluation.rays_c
-        lin = residuals.ray_jacobians(R, P, feats, self._ray_obs, self._weights, geo, rays_c)
+        if evaluation is None:
+            lin = self.engine.ray_jacobians(R, P, feats, self._ray_obs, self._weights)
+        else:
+            lin = self.engine.ray_jacobians(R, P, feats, self._ray_obs, self._weights,
+                                            evaluation.geometry, evaluation.rays_c)
         if self.problem.rig is not None:
             rig.observer_to_rig(lin.rows, R_wc, self.obs, self.problem.rig)
         return lin
 
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""
-        return residuals.retract_features(feats, delta)
+        return residuals.retract_features(feats, delta, self.engine.sphere_retract)
 
     def parameter_norm_sq(self, feats: ParallaxFeatures) -> float:
         """Return |theta|^2 + |n|^2."""
@@ -202,7 +201,8 @@ class _PixelErrorModel(Model[F]):
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the residual norms: they are the reprojection errors."""
-        return np.linalg.norm(evaluation.residuals, axis=1)
+        out: FloatArray = np.linalg.norm(evaluation.residuals, axis=1)
+        return out
 
 
 class XyzModel(_PixelErrorModel[XyzFeatures]):
@@ -266,17 +266,17 @@ class IdpModel(_PixelErrorModel[IdpFeatures]):
 
 
 def make_model(param: Parameterization, problem: BAProblem, *, pixel_weighted: bool = False,
-               ) -> ParallaxModel | XyzModel | IdpModel:
-    """Return the model of a parameterization bound to a problem.
+               engine: Engine | None = None) -> ParallaxModel | XyzModel | IdpModel:
+    """Return the model of a parameterization bound to a problem and an engine.
 
     Raises:
         ProblemError: For a multi-camera rig with a parameterization other than PMBA.
     """
     if param is Parameterization.PMBA:
-        return ParallaxModel(problem, pixel_weighted)
+        return ParallaxModel(problem, pixel_weighted, engine)
     if problem.rig is not None:
         msg = f'multi-camera rigs are solved with the pmba parameterization, not {param.value}'
         raise ProblemError(msg)
     if param is Parameterization.XYZ:
-        return XyzModel(problem)
-    return IdpModel(problem)
+        return XyzModel(problem, engine)
+    return IdpModel(problem, engine)

@@ -138,8 +138,9 @@ class Rig:
 
     def in_rig_frame(self) -> BoolArray:
         """Return which cameras are the rig frame itself (identity offset), shape (C,)."""
-        return (np.all(np.abs(self.R_rc - np.eye(3)) <= 1e-12, axis=(1, 2))
-                & np.all(np.abs(self.t_rc) <= 1e-12, axis=1))
+        same: BoolArray = (np.all(np.abs(self.R_rc - np.eye(3)) <= 1e-12, axis=(1, 2))
+                           & np.all(np.abs(self.t_rc) <= 1e-12, axis=1))
+        return same
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,19 +38,20 @@ closed forms of §1.6, which touch R_m and n only.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import kernels, so3, sphere
+from pmba_ros.core import so3, sphere
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 
 #: Pose columns of the anchor slots: the main anchor's rotation and centre, the associate
 #: anchor's centre (its rotation does not enter eq. 6).
 ANCHOR_COLS = ((0, 6), (3, 6))
-#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (shared with kernels).
-_TINY = kernels.TINY
+#: Guard for |t x u| = 0 (ray exactly along the baseline) and |N| = 0 (pmba.md §1.3).
+TINY = 1e-300
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,13 +99,11 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     References:
         PMBA eq. (6), arccos-free form (pmba.md §1.3).
     """
-    if kernels.ENABLED:
-        return rays_and_residuals(R_wc, centers_w, feats, obs)[0]
     u, t, s, c, sin_t, cos_t, g = anchor_terms(R_wc, centers_w, feats)
     j = obs.feat_idx
     d = centers_w[feats.main_idx[j]] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
-    norm = np.maximum(np.linalg.norm(N, axis=1), _TINY)
+    norm = np.maximum(np.linalg.norm(N, axis=1), TINY)
     N_hat = N / norm[:, None]
     main = _is_main(feats, obs)
     jm = j[main]
@@ -117,11 +116,8 @@ def rays_and_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxF
                        ) -> tuple[RayGeometry, FloatArray, FloatArray]:
     """Return the rays of eq. (6), R_i^T xi(N) and the errors of eq. (8) (weighted: in pixels).
 
-    ``weights`` as in :func:`ray_jacobians`. One compiled pass where numba is there.
+    ``weights`` as in :func:`ray_jacobians`.
     """
-    if kernels.ENABLED:
-        fields, rays_c, res = kernels.pmba_rays(R_wc, centers_w, feats, obs, weights)
-        return RayGeometry(*fields), rays_c, res
     geo = observation_rays(R_wc, centers_w, feats, obs)
     rays_c = camera_rays_from(geo, R_wc, obs)
     if weights is None:
@@ -140,18 +136,21 @@ def ray_residuals(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
 
 
 def _is_main(feats: ParallaxFeatures, obs: Observations) -> np.ndarray:
-    return obs.cam_idx == feats.main_idx[obs.feat_idx]
+    out: np.ndarray = obs.cam_idx == feats.main_idx[obs.feat_idx]
+    return out
 
 
 def residuals_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> FloatArray:
     """Ray-direction errors (PMBA eq. 8) from the rays of :func:`observation_rays`."""
-    return geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    out: FloatArray = geo.N_hat - np.einsum('kij,kj->ki', R_wc[obs.cam_idx], obs.bearings_c)
+    return out
 
 
 def pixel_weighted_residuals(weights: FloatArray, rays_c: FloatArray,
                              obs: Observations) -> FloatArray:
     """Return weights (R_i^T xi(N) - v), the ray errors mapped to pixels, shape (K, 2)."""
-    return np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
+    out: FloatArray = np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
+    return out
 
 
 def pose_slots(feats: ParallaxFeatures, obs: Observations) -> IntArray:
@@ -195,9 +194,6 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
     lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
     E = lin.rows
-    if kernels.ENABLED:  # the same rows from compiled loops
-        kernels.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, E)
-        return lin
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
     v = obs.bearings_c
@@ -209,7 +205,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     # dg/dt = cos(theta) (t - c u)/s - sin(theta) u
     Rm_hat_n = so3.times_hat(R_wc[feats.main_idx], feats.n)
     A_f = sphere.tangent_basis(feats.n)
-    cos_over_s = cos_t / np.maximum(s, _TINY)
+    cos_over_s = cos_t / np.maximum(s, TINY)
     D_sq = np.sum(t * t, axis=1)
     dg_du_f = cos_over_s[:, None] * (D_sq[:, None] * u - c[:, None] * t) - sin_t[:, None] * t
     dg_dt_f = cos_over_s[:, None] * (t - c[:, None] * u) - sin_t[:, None] * u
@@ -263,9 +259,13 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     return lin
 
 
-def retract_features(feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
-    """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3)."""
-    retract = kernels.sphere_retract if kernels.ENABLED else sphere.retract
+def retract_features(feats: ParallaxFeatures, delta: FloatArray,
+                     retract: Callable[[FloatArray, FloatArray], FloatArray] = sphere.retract,
+                     ) -> ParallaxFeatures:
+    """Apply theta <- theta + d theta and n <- Exp(A_n dn) n (PMBA eqs. 3-4); delta (N, 3).
+
+    ``retract`` is :func:`pmba_ros.core.sphere.retract` or an engine's equal.
+    """
     return ParallaxFeatures(feats.theta + delta[:, 0], retract(feats.n, delta[:, 1:]),
                             feats.main_idx, feats.assoc_idx)
 
@@ -276,4 +276,5 @@ def camera_rays_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> F
     Projecting them gives the pixel reprojection of eq. (2) points without dividing by
     sin(theta), so points at infinity project to their direction.
     """
-    return np.einsum('kji,kj->ki', R_wc[obs.cam_idx], geo.N_hat)
+    out: FloatArray = np.einsum('kji,kj->ki', R_wc[obs.cam_idx], geo.N_hat)
+    return out

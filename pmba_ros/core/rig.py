@@ -91,4 +91,5 @@ def rig_frame_bearings(problem: BAProblem) -> FloatArray:
     obs = problem.obs
     if problem.rig is None or obs.camera is None:
         return obs.bearings_c
-    return np.einsum('kij,kj->ki', problem.rig.R_rc[obs.camera], obs.bearings_c)
+    rotated: FloatArray = np.einsum('kij,kj->ki', problem.rig.R_rc[obs.camera], obs.bearings_c)
+    return rotated

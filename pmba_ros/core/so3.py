@@ -85,7 +85,8 @@ def exp(omega: FloatArray) -> FloatArray:
     b = np.where(small, 0.5 - theta_sq / 24.0, (1.0 - np.cos(theta)) / (theta * theta))
     K = hat(omega)
     eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    out: FloatArray = eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return out
 
 
 def log(rotation: FloatArray) -> FloatArray:
@@ -129,7 +130,8 @@ def project(matrix: FloatArray) -> FloatArray:
     D[..., 0, 0] = 1.0
     D[..., 1, 1] = 1.0
     D[..., 2, 2] = det
-    return U @ D @ Vt
+    out: FloatArray = U @ D @ Vt
+    return out
 
 
 def angle(rotation_a: FloatArray, rotation_b: FloatArray) -> FloatArray:
@@ -172,4 +174,5 @@ def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
     k = np.argmax(np.diagonal(K, axis1=-2, axis2=-1), axis=-1)
     q = np.take_along_axis(K, k[..., None, None], axis=-2)[..., 0, :]
     q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    out: FloatArray = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return out

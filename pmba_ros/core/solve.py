@@ -33,10 +33,11 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
-from pmba_ros.core import conversions, dogleg, kernels, so3
+from pmba_ros.core import conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
+from pmba_ros.core.engine import Engine, EngineName, resolve
 from pmba_ros.core.gauge import choose_gauge, free_gauge
-from pmba_ros.core.loss import Loss, robust_cost, robust_weights
+from pmba_ros.core.loss import Loss
 from pmba_ros.core.models import Evaluation, make_model, Model
 from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
 from pmba_ros.core.problem import (
@@ -102,6 +103,9 @@ class SolveOptions:
         fix_gauge: Hold the root pose and one centre coordinate (ParallaxBA's gauge, pmba.md
             §2) instead of leaving the similarity freedom to the damping, as Ceres does
             (see :func:`~pmba_ros.core.gauge.free_gauge`).
+        engine: ``'numpy'``, ``'compiled'`` (numba loops) or ``'auto'``: compiled where numba
+            is installed and ``PMBA_NUMBA`` is not 0 (:mod:`pmba_ros.core.engine`). Both give
+            the same iterates to rounding.
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -117,6 +121,7 @@ class SolveOptions:
     jacobi_scaling: bool = True
     pixel_weighted: bool = True
     fix_gauge: bool = False
+    engine: EngineName = EngineName.AUTO
 
     def __post_init__(self) -> None:
         """Coerce enum strings and validate ranges."""
@@ -124,6 +129,7 @@ class SolveOptions:
             object.__setattr__(self, 'param', Parameterization(self.param))
             object.__setattr__(self, 'solver', SolverKind(self.solver))
             object.__setattr__(self, 'loss', Loss(self.loss))
+            object.__setattr__(self, 'engine', EngineName(self.engine))
         except ValueError as err:
             msg = f'SolveOptions: {err}'
             raise ValueError(msg) from err
@@ -236,8 +242,10 @@ class SolveResult:
 
 
 def initial_features(problem: BAProblem, param: Parameterization,
-                     ) -> tuple[BAProblem, Features]:
+                     engine: Engine | None = None) -> tuple[BAProblem, Features]:
     """Return features of a parameterization from the problem's points (dropping unusable ones).
+
+    ``engine`` searches PMBA's anchor pairs (default: the ``'auto'`` engine).
 
     Raises:
         ProblemError: If the problem has no initial points.
@@ -251,11 +259,11 @@ def initial_features(problem: BAProblem, param: Parameterization,
         return problem, conversions.xyz_to_idp(problem, problem.R_wc, problem.centers_w,
                                                problem.points_w)
     feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                            problem.points_w)
+                                            problem.points_w, engine=engine)
     if not np.all(ok):
         problem = subset_features(problem, ok, 'features_without_anchor_baseline')
         feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                               np.asarray(problem.points_w))
+                                               np.asarray(problem.points_w), engine=engine)
     return problem, feats
 
 
@@ -276,10 +284,8 @@ class _Linearized:
                  loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray,
                  prior: PriorAssembly | None = None) -> None:
         lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
-        if loss is not Loss.NONE and kernels.ENABLED:
-            kernels.robust_scale_rows(lin.rows, loss.value, loss_scale)   # rows are new
-        elif loss is not Loss.NONE:
-            lin = lin.scaled(robust_weights(lin.residuals, loss, loss_scale))
+        if loss is not Loss.NONE:
+            lin = model.engine.robust_rows(lin, loss, loss_scale)   # the rows are new
         eqs = ne.assemble(structure, lin)
         if prior is not None and state.prior is not None:
             eqs = prior.add_to(eqs, state.prior)
@@ -365,13 +371,15 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
 
     Raises:
         ProblemError: If there are no initial features or they do not fit the problem.
-        SolverError: If the start is not finite or nothing is free to optimize.
+        SolverError: If the start is not finite, nothing is free to optimize, or the
+            compiled engine is asked for without numba.
     """
     options = options or SolveOptions()
     t0 = time.perf_counter()
+    engine = resolve(options.engine)
     _check_not_empty(problem)
     if features is None:
-        problem, features = initial_features(problem, options.param)
+        problem, features = initial_features(problem, options.param, engine)
         _check_not_empty(problem)
     _check_features(problem, features, options.param)
     # The normal equations want features ordered by their number of observations; the
@@ -379,7 +387,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     order = ne.feature_order(problem.obs.feat_idx, problem.n_feats)
     solved = permute_features(problem, order)
     model: Model[Any] = make_model(options.param, solved,
-                                   pixel_weighted=options.pixel_weighted)
+                                   pixel_weighted=options.pixel_weighted, engine=engine)
     if options.fix_gauge:
         gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                              problem.obs.feat_idx, problem.n_feats,
@@ -390,7 +398,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     features = take_features(features, order)
     structure = ne.SchurStructure.build(solved.obs.cam_idx, solved.obs.feat_idx,
                                         model.slots(features), problem.n_feats, free_block,
-                                        model.anchor_cols)
+                                        model.anchor_cols, engine.schur_plan)
     col_mask = gauge.column_mask()
     focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
     loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
@@ -404,12 +412,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         ev = model.evaluate(R, P, feats)
         pe = factors.evaluate(R, P) if factors is not None else None
         prior_cost = pe.cost if pe is not None else 0.0
-        if kernels.ENABLED:
-            return _State(R, P, feats, kernels.robust_cost(ev.residuals, options.loss.value,
-                                                           loss_scale) + prior_cost, ev, pe)
-        if not np.all(np.isfinite(ev.residuals)):
-            return _State(R, P, feats, math.inf, ev, pe)
-        return _State(R, P, feats, robust_cost(ev.residuals, options.loss, loss_scale)
+        return _State(R, P, feats, engine.robust_cost(ev.residuals, options.loss, loss_scale)
                       + prior_cost, ev, pe)
 
     def norm_of(state: _State) -> float:

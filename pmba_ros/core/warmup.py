@@ -13,7 +13,7 @@
 # limitations under the License.
 """Compile (or load) the solver's compiled loops ahead of the work that needs them.
 
-numba compiles each loop of :mod:`pmba_ros.core.kernels` at its first call and keeps the
+numba compiles each loop of :mod:`pmba_ros.core.compiled` at its first call and keeps the
 machine code in its cache (:mod:`pmba_ros.core.jit`). The first call after an install or an
 upgrade therefore compiles them all, which takes tens of seconds; later processes load them
 in about a second. :func:`warm_up` solves a tiny problem that reaches every loop with the
@@ -33,8 +33,9 @@ import sys
 import time
 
 import numpy as np
-from pmba_ros.core import conversions, jit, kernels, so3
+from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
 from pmba_ros.core.solve import solve, SolveOptions, SolverKind
@@ -55,17 +56,17 @@ def _marker() -> Path | None:
     folder = jit.cache_folder()
     if folder is None:
         return None
-    source = Path(kernels.__file__)
-    info = source.stat()
-    key = '|'.join([str(info.st_mtime_ns), str(info.st_size), jit.numba_version(),
-                    platform.python_version(), platform.machine(), sys.platform])
+    stamps = [f'{src.name}:{src.stat().st_mtime_ns}:{src.stat().st_size}'
+              for src in sorted(Path(compiled.__file__).parent.glob('*.py'))]
+    key = '|'.join([*stamps, jit.numba_version(), platform.python_version(),
+                    platform.machine(), sys.platform])
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     return folder / f'pmba_warmup-{digest}.ok'
 
 
 def is_warm() -> bool:
     """Return whether the loops load from the cache (True when they are off)."""
-    if not kernels.ENABLED:
+    if not compiled_available():
         return True
     marker = _marker()
     return marker is not None and marker.exists()
@@ -100,7 +101,7 @@ def warm_up() -> float:
 
     Returns 0.0 without numba or with ``PMBA_NUMBA=0``. Writes the :func:`is_warm` marker.
     """
-    if not kernels.ENABLED:
+    if not compiled_available():
         return 0.0
     t0 = time.perf_counter()
     problem = _tiny_problem()

@@ -163,3 +163,15 @@ def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: st
     gt = scene.gt
     start_err = np.linalg.norm(p.centers_w - gt.centers_w, axis=1).mean()
     assert np.linalg.norm(refined.centers_w - gt.centers_w, axis=1).mean() < 0.5 * start_err
+
+
+def test_solve_engine_option_gives_the_same_result(tmp_path: Path) -> None:
+    """`--engine numpy` and `--engine compiled` reach the same cost; the report says so."""
+    pytest.importorskip('numba')
+    costs = {}
+    for name in ('numpy', 'compiled'):
+        report = tmp_path / f'{name}.json'
+        assert main(['solve', 'sim:table3', '--quiet', '--engine', name, '--max-iters', '5',
+                     '--report', str(report)]) == 0
+        costs[name] = json.loads(report.read_text())['final_cost']
+    assert costs['compiled'] == pytest.approx(costs['numpy'], rel=1e-6)

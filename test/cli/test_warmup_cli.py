@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 from pmba_ros.cli.main import main
-from pmba_ros.core import kernels, warmup
+from pmba_ros.core import engine, warmup
 import pytest
 
 
@@ -32,7 +32,7 @@ def test_warmup_verb_reports_the_loops_ready(capsys: pytest.CaptureFixture[str])
 def test_warmup_verb_without_compiled_loops(monkeypatch: pytest.MonkeyPatch,
                                             capsys: pytest.CaptureFixture[str]) -> None:
     """With the loops off, it says there is nothing to compile."""
-    monkeypatch.setattr(kernels, 'ENABLED', False)
+    monkeypatch.setattr(engine, 'compiled_available', lambda: False)
     assert main(['warmup']) == 0
     assert 'nothing to compile' in capsys.readouterr().out
 

@@ -20,8 +20,10 @@ from typing import Any
 import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.engine import compiled_available, Engine, resolve
 from pmba_ros.core.models import Model
 from pmba_ros.core.problem import BAProblem, make_problem
+import pytest
 
 
 def forward_problem(seed: int = 0, n_cams: int = 6, n_points: int = 40, noise_px: float = 0.5,
@@ -77,3 +79,10 @@ def check_jacobians(model: Model[Any], R_wc: np.ndarray, centers_w: np.ndarray, 
                - model.residuals(R_wc, centers_w, model.retract(feats, -d))) / (2 * eps)
         feat_err = max(feat_err, float(np.max(np.abs(num - J_feat[:, :, c]))))
     return pose_err, feat_err
+
+
+def engine_named(name: str) -> Engine:
+    """Return the engine of a name, skipping the test where it cannot run (no numba)."""
+    if name == 'compiled' and not compiled_available():
+        pytest.skip('the compiled engine needs numba')
+    return resolve(name)

@@ -19,6 +19,7 @@ import itertools
 
 import numpy as np
 from pmba_ros.core import conversions
+from pmba_ros.core.engine import Engine
 from pmba_ros.core.problem import make_problem
 import pytest
 
@@ -61,7 +62,7 @@ def _brute_force(problem, R_wc, centers_w, tol, allowed=None):
 
 @pytest.mark.parametrize('restricted', [False, True])
 def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
-                                                         engine_path: str) -> None:
+                                                         engine: Engine) -> None:
     """Anchors equal an enumeration of all observer pairs, with coincident cameras excluded.
 
     ``restricted``: only some camera pairs may anchor (the epipolar-geometry pairs of init).
@@ -78,7 +79,7 @@ def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
         allowed = np.random.default_rng(5).random((7, 7)) < 0.6
         allowed |= allowed.T
     main, assoc, ok = conversions.select_anchors(problem, problem.R_wc, allowed_pairs=allowed,
-                                                 centers_w=problem.centers_w)
+                                                 centers_w=problem.centers_w, engine=engine)
     scale = float(np.ptp(centers, axis=0).max())
     expected = _brute_force(problem, problem.R_wc, problem.centers_w, scale * 1e-9, allowed)
     for f, pair in expected.items():

@@ -27,15 +27,17 @@ PACKAGE = Path(__file__).resolve().parents[2] / 'pmba_ros'
 
 _SOLVE = """
 import sys
-from pmba_ros.core import kernels
+from pmba_ros.core import jit
+from pmba_ros.core.compiled import loss
+from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.solve import SolveOptions, solve
 from pmba_ros.sim.scenes import street_scene
 scene = street_scene(seed=0, n_cams=6, n_points=40)
 result = solve(scene.start, SolveOptions(max_iterations=3))
 assert result.final_rms_px < result.initial_rms_px, result.summary()
-assert kernels.__file__.startswith(sys.argv[1]), kernels.__file__
-hits = sum(kernels._robust_cost.stats.cache_hits.values()) if kernels.ENABLED else 0
-print('numba' in sys.modules, kernels.ENABLED, kernels.jit.CACHING, hits)
+assert loss.__file__.startswith(sys.argv[1]), loss.__file__
+hits = sum(loss._robust_cost.stats.cache_hits.values()) if compiled_available() else 0
+print('numba' in sys.modules, compiled_available(), jit.CACHING, hits)
 """
 
 
@@ -44,7 +46,7 @@ def _copy_package(root: Path) -> Path:
     dest = root / 'site' / 'pmba_ros'
     shutil.copytree(PACKAGE, dest, ignore=shutil.ignore_patterns('__pycache__'))
     # A file where numba's in-tree cache folder would go: not writable even for root.
-    (dest / 'core' / '__pycache__').write_text('')
+    (dest / 'core' / 'compiled' / '__pycache__').write_text('')
     return dest
 
 

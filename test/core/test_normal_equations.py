@@ -16,25 +16,32 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.core import conversions, kernels
+from pmba_ros.core import conversions, numpy_schur
 from pmba_ros.core import normal_equations as ne
+from pmba_ros.core.compiled import assembly as compiled_assembly
+from pmba_ros.core.compiled.plan import CompiledSchurPlan
+from pmba_ros.core.engine import Engine, NUMPY
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
+from pmba_ros.core.numpy_schur import NumpySchurPlan
 from pmba_ros.core.problem import make_problem, permute_features, XyzFeatures
 from pmba_ros.errors import SolverError
 import pytest
 
-from .helpers import forward_problem
+from .helpers import engine_named, forward_problem
 
 #: Ways of assembling J^T J and forming W V^-1 W^T: numpy's (one dense product; per pair or
-#: per delta, in small batches) and the compiled loops of pmba_ros.core.kernels.
+#: per delta, in small batches) and the compiled loops of pmba_ros.core.compiled.
 SCHUR_PATHS = ['dense', 'pairs', 'per_delta', 'compiled']
 
 
-def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    if schur_products == 'compiled':
-        pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', schur_products == 'compiled')
+def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> Engine:
+    """Return the engine of a path; pick the numpy plan's strategy by its thresholds."""
+    if schur_products != 'dense':
+        monkeypatch.setattr(numpy_schur, 'DENSE_SCHUR_RATIO', 0)
+    if schur_products == 'per_delta':
+        monkeypatch.setattr(numpy_schur, 'LOOP_MIN_FEATURES', 1)
+    return engine_named('compiled' if schur_products == 'compiled' else 'numpy')
 
 
 def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
@@ -60,15 +67,15 @@ def _uneven_tracks(problem):
                         points_w=problem.points_w)
 
 
-def _model_and_features(problem, param: str, weighted: bool = False):
+def _model_and_features(problem, param: str, weighted: bool = False, engine: Engine = NUMPY):
     if param == 'pmba':
         feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                               problem.points_w)
-        return ParallaxModel(problem, pixel_weighted=weighted), feats
+                                               problem.points_w, engine=engine)
+        return ParallaxModel(problem, pixel_weighted=weighted, engine=engine), feats
     if param == 'idp':
-        return IdpModel(problem), conversions.xyz_to_idp(problem, problem.R_wc,
-                                                         problem.centers_w, problem.points_w)
-    return XyzModel(problem), XyzFeatures(np.array(problem.points_w))
+        return IdpModel(problem, engine), conversions.xyz_to_idp(
+            problem, problem.R_wc, problem.centers_w, problem.points_w)
+    return XyzModel(problem, engine), XyzFeatures(np.array(problem.points_w))
 
 
 @pytest.mark.parametrize(('param', 'weighted'),
@@ -85,26 +92,24 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
     reduced system.
     """
     monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
-    _select_path(schur_products, monkeypatch)
-    if schur_products != 'dense':
-        monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
-    if schur_products == 'per_delta':
-        monkeypatch.setattr(ne, 'LOOP_MIN_FEATURES', 1)
-    monkeypatch.setattr(ne, '_SCHUR_BATCH', 37)
+    engine = _select_path(schur_products, monkeypatch)
+    monkeypatch.setattr(numpy_schur, '_SCHUR_BATCH', 37)
     problem = forward_problem(6, n_cams=5, n_points=25)
     if tracks == 'uneven':
         problem = _uneven_tracks(problem)
         assert len(set(np.bincount(problem.obs.feat_idx).tolist())) >= 3
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
-    model, feats = _model_and_features(problem, param, weighted)
+    model, feats = _model_and_features(problem, param, weighted, engine)
     gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                          problem.obs.feat_idx, problem.n_feats)
     free_block = gauge.free_block()
     slots = model.slots(feats)
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
-                                 problem.n_feats, free_block, model.anchor_cols)
-    assert st._dense_schur == (schur_products == 'dense')
+                                 problem.n_feats, free_block, model.anchor_cols,
+                                 engine.schur_plan)
+    assert isinstance(st.plan, NumpySchurPlan) != (schur_products == 'compiled')
+    assert getattr(st.plan, 'dense', False) == (schur_products == 'dense')
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
     r, Jp, Jf = lin.residuals, lin.J_pose(), lin.J_feat
     eqs = ne.assemble(st, lin)
@@ -134,12 +139,8 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
 def test_schur_with_fixed_poses_equals_dense_solve(param: str, schur_products: str, seed: int,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """Poses held fixed (anchors and observers alike), as the sliding window does."""
-    _select_path(schur_products, monkeypatch)
-    if schur_products != 'dense':
-        monkeypatch.setattr(ne, 'DENSE_SCHUR_RATIO', 0)
-    if schur_products == 'per_delta':
-        monkeypatch.setattr(ne, 'LOOP_MIN_FEATURES', 1)
-    monkeypatch.setattr(ne, '_SCHUR_BATCH', 29)
+    engine = _select_path(schur_products, monkeypatch)
+    monkeypatch.setattr(numpy_schur, '_SCHUR_BATCH', 29)
     base = forward_problem(seed, n_cams=7, n_points=30)
     rng = np.random.default_rng(seed)
     keep = rng.random(base.n_obs) < 0.7
@@ -148,13 +149,14 @@ def test_schur_with_fixed_poses_equals_dense_solve(param: str, schur_products: s
                            points_w=base.points_w)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
-    model, feats = _model_and_features(problem, param, weighted=param == 'pmba')
+    model, feats = _model_and_features(problem, param, weighted=param == 'pmba', engine=engine)
     fixed = rng.permutation(7)[:3]
     free_block = np.full(7, -1)
     free_block[np.setdiff1d(np.arange(7), fixed)] = np.arange(4)
     slots = model.slots(feats)
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
-                                 problem.n_feats, free_block, model.anchor_cols)
+                                 problem.n_feats, free_block, model.anchor_cols,
+                                 engine.schur_plan)
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
     eqs = ne.assemble(st, lin)
     damp_p = np.full((st.n_blocks, 6), 1e-3)
@@ -175,7 +177,8 @@ def test_structure_rejects_unordered_features() -> None:
     model, feats = _model_and_features(problem, 'xyz')
     with pytest.raises(SolverError, match='sorted by feature'):
         ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx,
-                                model.slots(feats), problem.n_feats, np.arange(5))
+                                model.slots(feats), problem.n_feats, np.arange(5), (),
+                                NUMPY.schur_plan)
 
 
 def test_pmba_gauge_has_seven_dimensions() -> None:
@@ -194,15 +197,16 @@ def test_pmba_gauge_has_seven_dimensions() -> None:
     assert ev[7] > 1e-7 * ev[-1]
 
 
-def test_singular_feature_block_is_a_clear_error(engine_path: str) -> None:
+def test_singular_feature_block_is_a_clear_error(engine: Engine) -> None:
     """A feature whose Jacobian columns are zero, undamped: ReducedSystemError, not NaN."""
     problem = forward_problem(4, n_cams=5, n_points=20)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
-    model, feats = _model_and_features(problem, 'xyz')
+    model, feats = _model_and_features(problem, 'xyz', engine=engine)
     free_block = np.arange(problem.n_cams)
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats),
-                                 problem.n_feats, free_block, model.anchor_cols)
+                                 problem.n_feats, free_block, model.anchor_cols,
+                                 engine.schur_plan)
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
     lin.rows[problem.obs.feat_idx == 7, :, 7:10] = 0.0
     eqs = ne.assemble(st, lin)
@@ -213,19 +217,18 @@ def test_singular_feature_block_is_a_clear_error(engine_path: str) -> None:
 
 def test_problems_over_the_pair_index_limit_take_the_numpy_path(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Above kernels.MAX_BLOCKS free poses the structure is numpy's, and still solves."""
-    pytest.importorskip('numba')
-    monkeypatch.setattr(kernels, 'ENABLED', True)
+    """Above compiled.assembly.MAX_BLOCKS free poses the structure is numpy's, and still solves."""
+    engine = engine_named('compiled')
     problem = forward_problem(2, n_cams=5, n_points=20)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
-    model, feats = _model_and_features(problem, 'pmba', weighted=True)
+    model, feats = _model_and_features(problem, 'pmba', weighted=True, engine=engine)
     args = (problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats), problem.n_feats,
-            np.arange(problem.n_cams), model.anchor_cols)
-    assert ne.SchurStructure.build(*args)._pair_index is not None
-    monkeypatch.setattr(kernels, 'MAX_BLOCKS', problem.n_cams - 1)
+            np.arange(problem.n_cams), model.anchor_cols, engine.schur_plan)
+    assert isinstance(ne.SchurStructure.build(*args).plan, CompiledSchurPlan)
+    monkeypatch.setattr(compiled_assembly, 'MAX_BLOCKS', problem.n_cams - 1)
     st = ne.SchurStructure.build(*args)
-    assert st._pair_index is None
+    assert isinstance(st.plan, NumpySchurPlan)
     eqs = ne.assemble(st, model.linearize(problem.R_wc, problem.centers_w, feats))
     x_p, x_f = ne.solve_schur(st, eqs, np.full((st.n_blocks, 6), 1e-3),
                               np.full((problem.n_feats, 3), 1e-3),

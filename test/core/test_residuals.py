@@ -16,13 +16,16 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.core import conversions, kernels, so3, sphere
+from pmba_ros.core import conversions, so3, sphere
+from pmba_ros.core.compiled import camera as compiled_camera
+from pmba_ros.core.compiled import residuals as compiled_residuals
+from pmba_ros.core.engine import Engine
 from pmba_ros.core.models import ParallaxModel
 from pmba_ros.core.problem import ParallaxFeatures
-from pmba_ros.core.residuals import observation_rays, pose_slots, ray_residuals
+from pmba_ros.core.residuals import pose_slots, ray_residuals
 import pytest
 
-from .helpers import check_jacobians, forward_problem
+from .helpers import check_jacobians, engine_named, forward_problem
 
 
 def _perturbed(seed: int = 3):
@@ -38,38 +41,38 @@ def _perturbed(seed: int = 3):
     return problem, R, P, ParallaxFeatures(theta, n, feats.main_idx, feats.assoc_idx)
 
 
-def test_observation_rays_eq6_equals_eq2_projection(engine_path: str) -> None:
+def test_observation_rays_eq6_equals_eq2_projection(engine: Engine) -> None:
     """xi(N_ji) of eq. (6) equals the direction from P_i to the eq. (2) point."""
     problem, R, P, feats = _perturbed()
     X = conversions.parallax_to_xyz(R, P, feats)
     near = feats.theta > 1e-3  # sin(theta) > 0: N = sin(theta) (F - P_i)
-    N = observation_rays(R, P, feats, problem.obs).N
+    N = engine.rays_and_residuals(R, P, feats, problem.obs, None)[0].N
     obs_near = near[problem.obs.feat_idx]
     d = X[problem.obs.feat_idx] - P[problem.obs.cam_idx]
     np.testing.assert_allclose(sphere.normalize(N[obs_near]), sphere.normalize(d[obs_near]),
                                atol=1e-9)
 
 
-def test_theta_zero_is_a_point_at_infinity(engine_path: str) -> None:
+def test_theta_zero_is_a_point_at_infinity(engine: Engine) -> None:
     """At theta = 0 every observer's predicted ray is R_m n (pmba.md §1.3)."""
     problem, R, P, feats = _perturbed()
     feats0 = ParallaxFeatures(np.zeros_like(feats.theta), feats.n, feats.main_idx,
                               feats.assoc_idx)
-    N = observation_rays(R, P, feats0, problem.obs).N
+    N = engine.rays_and_residuals(R, P, feats0, problem.obs, None)[0].N
     u = np.einsum('kij,kj->ki', R[feats.main_idx[problem.obs.feat_idx]],
                   feats.n[problem.obs.feat_idx])
     np.testing.assert_allclose(sphere.normalize(N), u, atol=1e-12)
 
 
 @pytest.mark.parametrize('pixel_weighted', [False, True])
-def test_jacobians_match_central_differences(pixel_weighted: bool, engine_path: str) -> None:
+def test_jacobians_match_central_differences(pixel_weighted: bool, engine: Engine) -> None:
     """All blocks, all observer kinds, incl. near-collinear and 1e4-baseline features."""
     problem, R, P, feats = _perturbed()
     slots = pose_slots(feats, problem.obs)
     kinds = {'main': np.all(slots[:, 1:] < 0, axis=1),
              'assoc': slots[:, 0] == slots[:, 2], 'generic': slots[:, 0] != slots[:, 2]}
     assert all(k.any() for k in kinds.values())
-    model = ParallaxModel(problem, pixel_weighted)
+    model = ParallaxModel(problem, pixel_weighted, engine)
     pose_err, feat_err = check_jacobians(model, R, P, feats)
     scale = 500.0 if pixel_weighted else 1.0
     assert pose_err < 1e-6 * scale
@@ -79,27 +82,24 @@ def test_jacobians_match_central_differences(pixel_weighted: bool, engine_path: 
     np.testing.assert_allclose(reused.rows, model.linearize(R, P, feats).rows, rtol=0, atol=0)
 
 
-def test_jacobians_at_tiny_parallax(engine_path: str) -> None:
+def test_jacobians_at_tiny_parallax(engine: Engine) -> None:
     """Jacobians stay exact as theta -> 0 (far features are harmless)."""
     problem, R, P, feats = _perturbed()
     tiny = ParallaxFeatures(np.full_like(feats.theta, 1e-9), feats.n, feats.main_idx,
                             feats.assoc_idx)
-    pose_err, feat_err = check_jacobians(ParallaxModel(problem), R, P, tiny)
+    pose_err, feat_err = check_jacobians(ParallaxModel(problem, engine=engine), R, P, tiny)
     assert pose_err < 1e-6 and feat_err < 1e-6
 
 
 @pytest.mark.parametrize('pixel_weighted', [False, True])
-def test_compiled_rows_equal_numpy_rows(pixel_weighted: bool,
-                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    """The compiled PMBA evaluation and rows (pmba_ros.core.kernels) equal numpy's."""
-    pytest.importorskip('numba')
+def test_compiled_rows_equal_numpy_rows(pixel_weighted: bool) -> None:
+    """The compiled PMBA evaluation and rows (pmba_ros.core.compiled) equal numpy's."""
     problem, R, P, feats = _perturbed()
-    model = ParallaxModel(problem, pixel_weighted)
     rows, evals = {}, {}
-    for compiled in (False, True):
-        monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        evals[compiled] = model.evaluate(R, P, feats)
-        rows[compiled] = model.linearize(R, P, feats, evals[compiled]).rows
+    for on in (False, True):
+        model = ParallaxModel(problem, pixel_weighted, engine_named('compiled' if on else 'numpy'))
+        evals[on] = model.evaluate(R, P, feats)
+        rows[on] = model.linearize(R, P, feats, evals[on]).rows
     scale = np.max(np.abs(rows[False]))
     np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12 * scale)
     for name in ('residuals', 'rays_c'):
@@ -135,7 +135,7 @@ def test_feature_block_bounded_below_by_0382() -> None:
     assert np.min(lam) < 0.39  # the bound is attained, not 1 as Theorem 1 says
 
 
-def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_compiled_reprojection_errors_equal_numpy() -> None:
     """Pixel errors and projection Jacobians from the compiled loops equal camera.py's.
 
     Radial distortion included.
@@ -146,22 +146,22 @@ def test_compiled_reprojection_errors_equal_numpy(monkeypatch: pytest.MonkeyPatc
     problem, R, P, feats = _perturbed()
     M = problem.n_cams
     intr = replace(problem.intrinsics, k1=np.linspace(-0.2, 0.1, M), k2=np.full(M, 0.03))
-    model = ParallaxModel(replace(problem, intrinsics=intr), pixel_weighted=True)
     errors = {}
-    for compiled in (False, True):
-        monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        errors[compiled] = model.reprojection_errors_px(model.evaluate(R, P, feats))
+    for on in (False, True):
+        model = ParallaxModel(replace(problem, intrinsics=intr), pixel_weighted=True,
+                              engine=engine_named('compiled' if on else 'numpy'))
+        errors[on] = model.reprojection_errors_px(model.evaluate(R, P, feats))
     assert np.all(errors[False] > 0)
     np.testing.assert_allclose(errors[True], errors[False], rtol=1e-9, atol=1e-9)
     from pmba_ros.core.camera import projection_jacobian
     _, weights = projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx)
     np.testing.assert_allclose(
-        kernels.projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx),
+        compiled_camera.projection_jacobian(problem.obs.bearings_c, intr, problem.obs.cam_idx),
         weights, rtol=1e-12, atol=1e-12 * np.max(np.abs(weights)))
 
 
 def test_compiled_sphere_retraction_equals_numpy() -> None:
-    """kernels.sphere_retract equals sphere.retract.
+    """compiled_residuals.sphere_retract equals sphere.retract.
 
     Small, zero and large steps; rays on the axes and diagonals (the tangent basis' ties).
     """
@@ -172,5 +172,5 @@ def test_compiled_sphere_retraction_equals_numpy() -> None:
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     delta = rng.normal(size=(n.shape[0], 2)) * np.logspace(-9, 0.5, n.shape[0])[:, None]
     delta[:3] = 0.0
-    np.testing.assert_allclose(kernels.sphere_retract(n, delta), sphere.retract(n, delta),
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(compiled_residuals.sphere_retract(n, delta),
+                               sphere.retract(n, delta), rtol=0, atol=1e-14)

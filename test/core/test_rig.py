@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from pmba_ros.core import conversions, so3, sphere
 from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.engine import Engine
 from pmba_ros.core.models import make_model, ParallaxModel
 from pmba_ros.core.problem import (
     BAProblem,
@@ -80,11 +81,11 @@ def _perturbed(problem: BAProblem, seed: int = 1):
 @pytest.mark.parametrize('offset_first', [False, True])
 @pytest.mark.parametrize('pixel_weighted', [False, True])
 def test_rig_jacobians_match_central_differences(offset_first: bool, pixel_weighted: bool,
-                                                 engine_path: str) -> None:
+                                                 engine: Engine) -> None:
     """Observer blocks through the camera offsets, anchors on the rig poses: all exact."""
     problem, _ = rig_problem(offset_first=offset_first)
     R, P, feats = _perturbed(problem)
-    model = ParallaxModel(problem, pixel_weighted)
+    model = ParallaxModel(problem, pixel_weighted, engine)
     slots = model.slots(feats)
     # Second-camera observations of a main anchor name its pose in two slots.
     assert np.any((slots[:, 0] == slots[:, 1]) & (problem.obs.camera == 1))
@@ -104,7 +105,7 @@ def test_rig_rays_point_from_each_camera_to_the_point() -> None:
 
 
 @pytest.mark.parametrize('offset_first', [False, True])
-def test_rig_solve_recovers_metric_scale(offset_first: bool, engine_path: str) -> None:
+def test_rig_solve_recovers_metric_scale(offset_first: bool, engine: Engine) -> None:
     """From poses 15 % too far apart, the stereo baseline brings back the true positions."""
     problem, X = rig_problem(offset_first=offset_first, noise_px=0.3, n_poses=6)
     true_P = problem.centers_w.copy()
@@ -116,7 +117,7 @@ def test_rig_solve_recovers_metric_scale(offset_first: bool, engine_path: str) -
     start = make_problem(start.R_wc, start.centers_w, start.intrinsics, start.obs.cam_idx,
                          start.obs.feat_idx, start.obs.pixels, points_w=start.points_w,
                          camera=start.obs.camera, rig=start.rig, fixed=fixed)
-    res = solve(start, SolveOptions(max_iterations=50))
+    res = solve(start, SolveOptions(max_iterations=50, engine=engine.name))
     err = np.linalg.norm(res.centers_w - true_P, axis=1)
     assert np.max(err) < 0.1 * np.max(np.linalg.norm(start_P - true_P, axis=1)), err
     # Without the second camera the scale stays where it started.
@@ -129,7 +130,7 @@ def test_rig_solve_recovers_metric_scale(offset_first: bool, engine_path: str) -
                                                      start.obs.bearings_c[mono]),
                                 ) if not offset_first else None
     if mono_problem is not None:
-        res_mono = solve(mono_problem, SolveOptions(max_iterations=50))
+        res_mono = solve(mono_problem, SolveOptions(max_iterations=50, engine=engine.name))
         spread = np.linalg.norm(res_mono.centers_w[-1] - res_mono.centers_w[0])
         assert spread > 1.1 * np.linalg.norm(true_P[-1] - true_P[0])
 

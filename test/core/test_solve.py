@@ -260,24 +260,22 @@ def test_fake_pile_pmba_dogleg_no_worse_than_xyz_lm() -> None:
 
 
 @pytest.mark.parametrize('param', ['pmba', 'xyz'])
-def test_compiled_normal_equations_take_the_same_steps(param: str,
-                                                       monkeypatch: pytest.MonkeyPatch) -> None:
-    """The numba loops (pmba_ros.core.kernels) and numpy give the same iterates.
+def test_compiled_normal_equations_take_the_same_steps(param: str) -> None:
+    """The numba loops (pmba_ros.core.compiled) and numpy give the same iterates.
 
     Ten iterations on a street scene with three poses held fixed, as in a sliding window;
     the sums run in another order, so the iterates agree to rounding amplified by ten steps.
     """
     pytest.importorskip('numba')
-    from pmba_ros.core import kernels
     scene = street_scene(seed=5, n_cams=10, n_points=200)
     fixed = np.zeros(scene.start.n_cams, dtype=bool)
     fixed[[0, 4, 7]] = True
     problem = replace(scene.start, fixed=fixed)
-    options = SolveOptions(param=param, max_iterations=10, loss='cauchy', loss_scale_px=2.0)
     results = {}
-    for compiled in (False, True):
-        monkeypatch.setattr(kernels, 'ENABLED', compiled)
-        results[compiled] = solve(problem, options)
+    for on in (False, True):
+        options = SolveOptions(param=param, max_iterations=10, loss='cauchy', loss_scale_px=2.0,
+                               engine='compiled' if on else 'numpy')
+        results[on] = solve(problem, options)
     costs = [[r.cost for r in res.history] for res in results.values()]
     np.testing.assert_allclose(costs[1], costs[0], rtol=1e-6)
     np.testing.assert_allclose(results[True].problem.centers_w,
@@ -289,8 +287,8 @@ def test_solves_without_numba_installed() -> None:
     """Without numba (the optional `fast` extra) the numpy engine runs and converges."""
     run_python(
         "import sys; sys.modules['numba'] = None\n"   # import numba now raises ImportError
-        'from pmba_ros.core import kernels\n'
-        'assert not kernels.ENABLED\n'
+        'from pmba_ros.core.engine import NUMPY, resolve\n'
+        'assert resolve() is NUMPY\n'
         'from pmba_ros.core.solve import SolveOptions, solve\n'
         'from pmba_ros.sim.scenes import street_scene\n'
         'r = solve(street_scene(seed=3, n_cams=8, n_points=150).start,'

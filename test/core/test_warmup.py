@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pmba_ros.core import jit, kernels, warmup
+from pmba_ros.core import engine, jit, warmup
 import pytest
 
 from ..conftest import run_python
@@ -25,7 +25,8 @@ from ..conftest import run_python
 
 def test_warm_up_without_compiled_loops_does_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
     """With the loops off there is nothing to wait for."""
-    monkeypatch.setattr(kernels, 'ENABLED', False)
+    monkeypatch.setattr(engine, 'compiled_available', lambda: False)
+    monkeypatch.setattr(warmup, 'compiled_available', lambda: False)
     assert warmup.warm_up() == 0.0
     assert warmup.is_warm()
 
@@ -41,10 +42,14 @@ def test_warm_up_leaves_nothing_to_compile_for_solves_and_a_replay() -> None:
         'import tempfile\n'
         'from pathlib import Path\n'
         'from numba.core.registry import CPUDispatcher\n'
-        'from pmba_ros.core import kernels, warmup\n'
+        'import pmba_ros.core.compiled.anchor_search, pmba_ros.core.compiled.assembly\n'
+        'import pmba_ros.core.compiled.camera, pmba_ros.core.compiled.loss\n'
+        'import pmba_ros.core.compiled.residuals, pmba_ros.core.compiled.schur\n'
+        'from pmba_ros.core import compiled, warmup\n'
         'def signatures():\n'
-        '    return {n: len(d.signatures) for n, d in vars(kernels).items()\n'
-        '            if isinstance(d, CPUDispatcher)}\n'
+        '    return {n: len(d.signatures) for m in (compiled.anchor_search, compiled.assembly,\n'
+        '            compiled.camera, compiled.loss, compiled.residuals, compiled.schur)\n'
+        '            for n, d in vars(m).items() if isinstance(d, CPUDispatcher)}\n'
         'assert not any(signatures().values())\n'
         'assert warmup.warm_up() > 0.0\n'
         'after = signatures()\n'
