@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.conversions import xyz_to_parallax
+from pmba_ros.core.engine import Engine
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.normal_equations import NormalEquations, SchurStructure
 from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse
@@ -79,11 +80,12 @@ def test_jacobians_match_central_differences() -> None:
             np.testing.assert_allclose(J[:, :, col], num, atol=2e-6, err_msg=f'{sel} col {col}')
 
 
-def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks() -> None:
+def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks(
+        engine: Engine) -> None:
     """add_to adds J^T J and J^T r of the stacked factors to the structure's blocks.
 
     Pose 0 is fixed (no columns); the factor (1, 3) joins poses that share no feature, so its
-    cross block is left out and only its diagonal blocks are added.
+    cross block is added only where the engine's plan has that block.
     """
     rng = np.random.default_rng(2)
     n = 5
@@ -94,7 +96,8 @@ def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks() ->
     cam = np.array([0, 1, 1, 2, 2, 3, 3, 4])
     feat = np.repeat(np.arange(4), 2)
     free_block = np.array([-1, 0, 1, 2, 3])
-    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 4, free_block)
+    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 4, free_block, (),
+                              engine.schur_plan)
     n_pairs = st.pair_rows.shape[0]
     zero = NormalEquations(np.zeros((n_pairs, 6, 6)), np.zeros((8, 6, 3)), np.zeros((4, 3, 3)),
                            np.zeros((4, 6)), np.zeros((4, 3)))
@@ -111,7 +114,9 @@ def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks() ->
     np.testing.assert_allclose(eqs.g_pose.ravel(), J_flat.T @ prior.residuals(R, P).ravel(),
                                rtol=1e-12, atol=1e-9)
     pairs = set(zip(st.pair_rows.tolist(), st.pair_cols.tolist(), strict=True))
-    assert (0, 2) not in pairs and (0, 1) in pairs     # poses 1 and 3: blocks 0 and 2
+    assert (0, 1) in pairs
+    # Poses 1 and 3 (blocks 0 and 2) share no feature: a sparse plan has no block for them
+    # and the factor's cross block is left out; a dense plan holds it, and it is added.
     for p, (r, c) in enumerate(zip(st.pair_rows, st.pair_cols, strict=True)):
         np.testing.assert_allclose(eqs.U[p], H[r, :, c, :], rtol=1e-12, atol=1e-9,
                                    err_msg=f'pair ({r}, {c})')
