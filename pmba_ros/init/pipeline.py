@@ -98,6 +98,9 @@ class InitOptions:
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
         max_pair_partners: If set, try only the pairs that are among the most co-visible
             partners of one of their cameras (None: every pair with enough common tracks).
+        ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
+            (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
+            and the parallax test use all of them.
         ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         ransac_confidence: RANSAC confidence.
         ransac_method: 'usac_accurate' (default; local optimization refines the essential
@@ -133,6 +136,7 @@ class InitOptions:
     min_pair_matches: int = 30
     min_pair_inliers: int = 20
     max_pair_partners: int | None = None
+    ransac_max_points: int | None = 100
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
     ransac_method: str = 'usac_accurate'
@@ -157,6 +161,9 @@ class InitOptions:
             raise ValueError(msg)
         if self.max_pair_partners is not None and self.max_pair_partners < 1:
             msg = '`max_pair_partners` must be None or >= 1'
+            raise ValueError(msg)
+        if self.ransac_max_points is not None and self.ransac_max_points < 5:
+            msg = '`ransac_max_points` must be None or >= 5 (5-point solver)'
             raise ValueError(msg)
         if self.ransac_method not in two_view.RANSAC_METHODS:
             msg = f'`ransac_method` must be one of {sorted(two_view.RANSAC_METHODS)}'
@@ -281,7 +288,8 @@ def _estimate_pairs(problem: BAProblem, options: InitOptions,
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
-        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method])
+        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
+        max_sample=options.ransac_max_points)
     entries = {'pairs_candidate': corr.n_pairs, 'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,
                'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs

@@ -231,21 +231,157 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
     return lam1, lam2
 
 
-def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
-    """Return the median angle (rad) left between b2 and R b1 by the best pure rotation R.
+def _segment_medians(values: FloatArray, segment: IntArray, n_segments: int) -> FloatArray:
+    """Return the median of ``values`` within each segment id (0 for an empty segment)."""
+    order = np.lexsort((values, segment))
+    v, seg = values[order], segment[order]
+    counts = np.bincount(seg, minlength=n_segments)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    lo = starts + np.maximum(counts - 1, 0) // 2
+    hi = starts + counts // 2
+    med = np.zeros(n_segments)
+    has = counts > 0
+    med[has] = 0.5 * (v[lo[has]] + v[hi[has]])
+    return med
 
-    R is the orthogonal Procrustes fit (b2 ~ R b1). For a pair without baseline (pure
-    rotation) the result is at noise level, whatever the essential matrix says.
+
+def _segment_sums(values: FloatArray, offsets: IntArray) -> FloatArray:
+    """Return the sums of ``values`` (C, ...) over the CSR segments ``offsets`` (P+1,)."""
+    out = np.zeros((offsets.shape[0] - 1, *values.shape[1:]))
+    nonempty = np.diff(offsets) > 0
+    if values.shape[0]:
+        out[nonempty] = np.add.reduceat(values, offsets[:-1][nonempty], axis=0)
+    return out
+
+
+def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
+                             n_segments: int) -> FloatArray:
+    """Return, per segment, the median angle (rad) left between b2 and R b1 by the best R.
+
+    R is the orthogonal Procrustes fit (b2 ~ R b1) of each segment (pair) of correspondences.
+    For a pair without baseline (pure rotation) the result is at noise level, whatever the
+    essential matrix says.
 
     Args:
         b1: Unit bearings in camera 1, shape (C, 3).
         b2: Unit bearings in camera 2, shape (C, 3).
+        segment: Segment (pair) of every correspondence, shape (C,), values < n_segments.
+        n_segments: Number of segments P.
+
+    Returns:
+        Median angles, shape (P,) (0 for a segment without correspondences).
     """
-    U, _, Vt = np.linalg.svd(b2.T @ b1)
-    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    cosang = np.clip(np.sum((b1 @ R.T) * b2, axis=1), -1.0, 1.0)
-    return float(np.median(np.arccos(cosang)))
+    cov = np.zeros((n_segments, 3, 3))
+    np.add.at(cov, segment, b2[:, :, None] * b1[:, None, :])
+    U, _, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
+    R = U @ Vt
+    cosang = np.clip(np.sum(b2 * np.einsum('kij,kj->ki', R[segment], b1), axis=1), -1.0, 1.0)
+    return _segment_medians(np.arccos(cosang), segment, n_segments)
+
+
+def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
+    """Return :func:`rotation_only_parallaxes` of one pair of bearing sets (C, 3) (rad)."""
+    return float(rotation_only_parallaxes(b1, b2, np.zeros(b1.shape[0], dtype=np.int64), 1)[0])
+
+
+def _normalized(b: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(b[:, :2] / b[:, 2:3])
+
+
+def essential_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *, prob: float = 0.999,
+                  method: int = cv2.USAC_ACCURATE) -> FloatArray | None:
+    """Return one pair's essential matrix (3, 3) from OpenCV's 5-point RANSAC, or None.
+
+    Args:
+        b1: Unit bearings in camera 1 (z > 0), shape (C, 3).
+        b2: Unit bearings of the same features in camera 2, shape (C, 3).
+        threshold: RANSAC threshold on normalized image coordinates (about px / f).
+        prob: RANSAC confidence.
+        method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
+
+    References:
+        PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
+    """
+    try:
+        E, mask = cv2.findEssentialMat(_normalized(b1), _normalized(b2), np.eye(3),
+                                       method=method, prob=prob, threshold=threshold)
+    except cv2.error as err:
+        logger.debug('findEssentialMat failed: %s', err)
+        return None
+    if E is None or mask is None or E.shape[0] < 3:
+        return None
+    return np.asarray(E[:3], dtype=float)
+
+
+def sampson_errors(E: FloatArray, b1: FloatArray, b2: FloatArray) -> FloatArray:
+    """Return the Sampson distances of correspondences to their essential matrices.
+
+    Args:
+        E: Essential matrix of every correspondence, shape (C, 3, 3) (x2^T E x1 = 0).
+        b1: Bearings in camera 1 (z > 0), shape (C, 3).
+        b2: Bearings in camera 2 (z > 0), shape (C, 3).
+
+    Returns:
+        Distances on normalized image coordinates (about px / f), shape (C,).
+    """
+    x1 = b1 / b1[:, 2:3]
+    x2 = b2 / b2[:, 2:3]
+    Ex1 = np.einsum('kij,kj->ki', E, x1)
+    Etx2 = np.einsum('kji,kj->ki', E, x2)
+    num = np.sum(x2 * Ex1, axis=1)
+    den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-300))
+
+
+#: Triangulated points farther than this many baselines do not count as cheirality inliers
+#: (OpenCV's recoverPose rule: they carry no information on the translation).
+_MAX_DEPTH_BASELINES = 50.0
+
+
+def decompose_essential(E: FloatArray, b1: FloatArray, b2: FloatArray, segment: IntArray,
+                        inliers: BoolArray) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Choose each pair's (R, t) among the four of its essential matrix by cheirality.
+
+    The candidate that puts most of the pair's ``inliers`` in front of both cameras (closer
+    than 50 baselines, as OpenCV's recoverPose) wins.
+
+    Args:
+        E: Essential matrices, shape (P, 3, 3).
+        b1: Unit bearings in camera 1 of every correspondence, shape (C, 3).
+        b2: Unit bearings in camera 2, shape (C, 3).
+        segment: Pair of every correspondence, shape (C,).
+        inliers: Epipolar inliers, shape (C,).
+
+    Returns:
+        R_cv (P, 3, 3), unit t_cv (P, 3) and the cheirality inliers (C,) (epipolar inliers
+        in front of both cameras).
+    """
+    U, _, Vt = np.linalg.svd(E)
+    U = U * np.where(np.linalg.det(U) < 0.0, -1.0, 1.0)[:, None, None]
+    Vt = Vt * np.where(np.linalg.det(Vt) < 0.0, -1.0, 1.0)[:, None, None]
+    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    rotations = (U @ W @ Vt, U @ W.T @ Vt)
+    t = U[:, :, 2]
+    P = E.shape[0]
+    best_score = np.full(P, -1)
+    R_best = np.zeros((P, 3, 3))
+    t_best = np.zeros((P, 3))
+    good_best = np.zeros(b1.shape[0], dtype=bool)
+    for R in rotations:
+        for sign in (1.0, -1.0):
+            lam1, lam2 = cheirality_depths(R[segment], sign * t[segment], b1, b2)
+            good = (inliers & (lam1 > 0.0) & (lam2 > 0.0)
+                    & (lam1 * b1[:, 2] < _MAX_DEPTH_BASELINES)
+                    & (lam2 * b2[:, 2] < _MAX_DEPTH_BASELINES))
+            score = np.bincount(segment[good], minlength=P)
+            better = score > best_score
+            best_score = np.where(better, score, best_score)
+            R_best[better] = R[better]
+            t_best[better] = sign * t[better]
+            good_best = np.where(better[segment], good, good_best)
+    return R_best, t_best, good_best
 
 
 def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
@@ -261,39 +397,41 @@ def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
         method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
 
     Returns:
-        (R_cv (3, 3), t_cv (3,), cheirality inlier mask (C,), RANSAC inlier mask (C,)), or
+        (R_cv (3, 3), t_cv (3,), cheirality inlier mask (C,), epipolar inlier mask (C,)), or
         None if OpenCV finds no model.
-
-    References:
-        PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
     """
-    x1 = np.ascontiguousarray(b1[:, :2] / b1[:, 2:3])
-    x2 = np.ascontiguousarray(b2[:, :2] / b2[:, 2:3])
-    eye = np.eye(3)
-    try:
-        E, mask = cv2.findEssentialMat(x1, x2, eye, method=method, prob=prob,
-                                       threshold=threshold)
-    except cv2.error as err:
-        logger.debug('findEssentialMat failed: %s', err)
+    E = essential_5pt(b1, b2, threshold, prob=prob, method=method)
+    if E is None:
         return None
-    if E is None or mask is None or E.shape[0] < 3:
-        return None
-    E = E[:3]
-    _, R, t, mask2 = cv2.recoverPose(E, x1, x2, eye, mask=mask.copy())
-    return R.astype(float), t.ravel().astype(float), mask2.ravel() > 0, mask.ravel() > 0
+    seg = np.zeros(b1.shape[0], dtype=np.int64)
+    epi = sampson_errors(np.broadcast_to(E, (b1.shape[0], 3, 3)), b1, b2) <= threshold
+    R, t, inl = decompose_essential(E[None], b1, b2, seg, epi)
+    return R[0], t[0], inl, epi
+
+
+def _sample(n: int, max_points: int) -> IntArray:
+    """Return up to ``max_points`` indices evenly spread over range(n)."""
+    if n <= max_points:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
                       prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      max_sample: int | None = None,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
-    A pair is kept if OpenCV returns a model with at least ``min_inliers`` cheirality inliers and
-    the median parallax that the best pure rotation leaves on its inliers
-    (:func:`rotation_only_parallax`) is at least ``min_parallax_px``; otherwise the pair has no
-    usable baseline (pure rotation) and its translation direction is undetermined.
+    OpenCV estimates each pair's essential matrix, from at most ``max_sample`` of its
+    correspondences (evenly spread); everything else is vectorized over all pairs at once:
+    the epipolar inliers among all correspondences (Sampson distance), the choice of (R, t) by
+    cheirality, and the parallax test. A pair is kept if its model has at least
+    ``min_inliers`` cheirality inliers and the median parallax that the best pure rotation
+    leaves on its epipolar inliers (:func:`rotation_only_parallaxes`) is at least
+    ``min_parallax_px``; otherwise the pair has no usable baseline (pure rotation) and its
+    translation direction is undetermined.
 
     Args:
         bearings_c: Unit bearings of all observations (camera frame), shape (K, 3).
@@ -304,6 +442,8 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         min_parallax_px: Minimum median parallax (px) left by the best pure rotation.
         prob: RANSAC confidence.
         method: OpenCV robust method.
+        max_sample: Largest number of a pair's correspondences given to the RANSAC (None:
+            all of them).
 
     Returns:
         The kept pairs, and counts of rejected pairs by reason.
@@ -312,57 +452,48 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         PMBA Sec. 3, Fig. 5 (EG pairs); pmba.md §4.1.
     """
     rejected = {'ransac_failed': 0, 'too_few_inliers': 0, 'low_parallax': 0}
-    keep_idx: list[int] = []
-    Rs: list[FloatArray] = []
-    ts: list[FloatArray] = []
-    inlier_masks: list[BoolArray] = []
-    parallax: list[float] = []
-    for p in range(corr.n_pairs):  # per-pair loop: one OpenCV call each
-        sl = slice(int(corr.offsets[p]), int(corr.offsets[p + 1]))
-        ia, ib = corr.obs_a[sl], corr.obs_b[sl]
-        b1, b2 = bearings_c[ia], bearings_c[ib]
-        front = (b1[:, 2] > 1e-3) & (b2[:, 2] > 1e-3)
-        if int(front.sum()) < max(min_inliers, 5):
-            rejected['too_few_inliers'] += 1
-            continue
-        f = float(np.sqrt(np.median(focal_px[ia]) * np.median(focal_px[ib])))
-        out = relative_pose_5pt(b1[front], b2[front], threshold_px / f, prob=prob,
-                                method=method)
-        if out is None:
-            rejected['ransac_failed'] += 1
-            continue
-        R, t, inl_front, ransac_front = out
-        # Parallax on the RANSAC inliers, before cheirality: without baseline the
-        # cheirality test of an arbitrary t drops points at random.
-        par_px = (rotation_only_parallax(b1[front][ransac_front], b2[front][ransac_front]) * f
-                  if int(ransac_front.sum()) >= 5 else 0.0)
-        if par_px < min_parallax_px:
-            rejected['low_parallax'] += 1
-            continue
-        inl = np.zeros(front.shape[0], dtype=bool)
-        inl[np.flatnonzero(front)[inl_front]] = True
-        if int(inl.sum()) < min_inliers:
-            rejected['too_few_inliers'] += 1
-            continue
-        keep_idx.append(p)
-        Rs.append(R)
-        ts.append(t / np.linalg.norm(t))
-        inlier_masks.append(inl)
-        parallax.append(par_px)
-    keep = np.asarray(keep_idx, dtype=np.int64)
-    if keep.size:
-        counts = np.asarray([int(m.sum()) for m in inlier_masks], dtype=np.int64)
-        sel = np.concatenate(inlier_masks)
-        rows = np.concatenate([np.arange(corr.offsets[p], corr.offsets[p + 1]) for p in keep])
-        obs_a, obs_b = corr.obs_a[rows][sel], corr.obs_b[rows][sel]
-        R_rel, t_rel = np.stack(Rs), np.stack(ts)
-    else:
-        counts = np.zeros(0, dtype=np.int64)
-        obs_a = obs_b = np.zeros(0, dtype=np.int64)
-        R_rel, t_rel = np.zeros((0, 3, 3)), np.zeros((0, 3))
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R_rel, t_rel, counts, offsets,
-                    obs_a, obs_b, np.asarray(parallax, dtype=float))
+    n_pairs = corr.n_pairs
+    seg_all = np.repeat(np.arange(n_pairs), corr.counts())
+    b1_all, b2_all = bearings_c[corr.obs_a], bearings_c[corr.obs_b]
+    front = (b1_all[:, 2] > 1e-3) & (b2_all[:, 2] > 1e-3)
+    n_front = np.bincount(seg_all[front], minlength=n_pairs)
+    first = corr.offsets[:-1]  # every candidate pair has a correspondence
+    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
+    thresholds = threshold_px / f_pair
+    E = np.zeros((n_pairs, 3, 3))
+    has_model = np.zeros(n_pairs, dtype=bool)
+    front_idx = np.flatnonzero(front)
+    front_offsets = np.concatenate([[0], np.cumsum(n_front)])
+    for p in np.flatnonzero(n_front >= max(min_inliers, 5)):  # one OpenCV call per pair
+        rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
+        if max_sample is not None:
+            rows = rows[_sample(rows.shape[0], max_sample)]
+        model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]), prob=prob,
+                              method=method)
+        if model is not None:
+            E[p], has_model[p] = model, True
+    rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
+    rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
+    sel = front & has_model[seg_all]
+    seg, b1, b2 = seg_all[sel], b1_all[sel], b2_all[sel]
+    epi = sampson_errors(E[seg], b1, b2) <= thresholds[seg]
+    R, t, inl = decompose_essential(E, b1, b2, seg, epi)
+    # Parallax on the epipolar inliers, before cheirality: without baseline the
+    # cheirality test of an arbitrary t drops points at random.
+    n_epi = np.bincount(seg[epi], minlength=n_pairs)
+    par_px = rotation_only_parallaxes(b1[epi], b2[epi], seg[epi], n_pairs) * f_pair
+    par_px = np.where(n_epi >= 5, par_px, 0.0)
+    low = has_model & (par_px < min_parallax_px)
+    counts = np.bincount(seg[inl], minlength=n_pairs)
+    few = has_model & ~low & (counts < min_inliers)
+    rejected['low_parallax'] += int(np.sum(low))
+    rejected['too_few_inliers'] += int(np.sum(few))
+    keep = has_model & ~low & ~few
+    inl_keep = inl & keep[seg]
+    rows = np.flatnonzero(sel)[inl_keep]  # sorted by pair, as corr
+    pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R[keep], t[keep], counts[keep],
+                    np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
+                    corr.obs_a[rows], corr.obs_b[rows], par_px[keep])
     return pairs, rejected
 
 
