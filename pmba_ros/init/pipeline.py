@@ -96,8 +96,9 @@ class InitOptions:
     Attributes:
         min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
-        max_pair_partners: If set, try only the pairs that are among the most co-visible
-            partners of one of their cameras (None: every pair with enough common tracks).
+        max_pair_partners: If set, try only the pairs that are among the best partners of one
+            of their cameras, by a quick parallax estimate times the square root of the
+            shared tracks (None: every pair with enough common tracks).
         ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
             (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
             and the parallax test use all of them.
@@ -135,7 +136,7 @@ class InitOptions:
 
     min_pair_matches: int = 30
     min_pair_inliers: int = 20
-    max_pair_partners: int | None = None
+    max_pair_partners: int | None = 8
     ransac_max_points: int | None = 100
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
@@ -274,23 +275,44 @@ def _check_input(problem: BAProblem) -> dict[str, Any]:
     return info
 
 
+def _best_partners(n_cams: int, corr: two_view.PairCorrespondences, bearings_c: FloatArray,
+                   focal: FloatArray, max_partners: int, min_parallax_px: float) -> BoolArray:
+    """Return the candidate pairs worth a RANSAC: each camera's best partners.
+
+    A pair's score is its quick parallax estimate times the square root of its shared tracks
+    (the translation direction's accuracy grows with both); pairs whose estimate is below
+    ``min_parallax_px`` (near pure rotation, rejected after the RANSAC anyway) rank after
+    every other and only fill the places of cameras without enough pairs with a baseline.
+    """
+    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
+    counts = corr.counts().astype(float)
+    score = np.where(parallax >= min_parallax_px, parallax * np.sqrt(counts), 0.0)
+    score += counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
+    return two_view.top_partners(corr.cam_a, corr.cam_b, score, n_cams, max_partners)
+
+
 def _estimate_pairs(problem: BAProblem, options: InitOptions,
                     ) -> tuple[two_view.EGPairs, dict[str, Any]]:
     obs = problem.obs
     corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
-                                         options.min_pair_matches,
-                                         max_partners=options.max_pair_partners)
+                                         options.min_pair_matches)
     if corr.n_pairs == 0:
         msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
                'tracks (min_pair_matches)')
         raise InitError(msg)
     focal = np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
+    n_covisible = corr.n_pairs
+    if options.max_pair_partners is not None:
+        corr = corr.subset(_best_partners(problem.n_cams, corr, obs.bearings_c, focal,
+                                          options.max_pair_partners,
+                                          options.min_pair_parallax_px))
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
         prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
         max_sample=options.ransac_max_points)
-    entries = {'pairs_candidate': corr.n_pairs, 'pairs_found': pairs.n_pairs,
+    entries = {'pairs_covisible': n_covisible, 'pairs_candidate': corr.n_pairs,
+               'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,
                'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs
                            else 0.0}}

@@ -78,6 +78,15 @@ class PairCorrespondences:
         """Return the number of common observations of each pair, shape (P,)."""
         return np.diff(self.offsets)
 
+    def subset(self, keep: BoolArray) -> PairCorrespondences:
+        """Return the pairs selected by the mask ``keep`` (P,), with their correspondences."""
+        keep = np.asarray(keep, dtype=bool)
+        counts = self.counts()
+        rows = np.repeat(keep, counts)
+        return PairCorrespondences(self.cam_a[keep], self.cam_b[keep],
+                                   np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
+                                   self.obs_a[rows], self.obs_b[rows])
+
 
 @dataclass(frozen=True, eq=False)
 class EGPairs:
@@ -171,15 +180,9 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     """
     counts = covisibility_counts(cam_idx, feat_idx, n_cams)
     eligible = counts >= max(int(min_matches), 1)
-    if max_partners is not None and max_partners < n_cams - 1:
-        sym = np.where(eligible, counts, 0)
-        sym = sym + sym.T
-        # Rank of every partner of a camera by co-visibility (0 = most co-visible).
-        rank = np.empty_like(sym)
-        np.put_along_axis(rank, np.argsort(-sym, axis=1, kind='stable'),
-                          np.arange(n_cams)[None, :].repeat(n_cams, axis=0), axis=1)
-        top = rank < max_partners
-        eligible &= top | top.T
+    if max_partners is not None:
+        a, b = np.nonzero(eligible)
+        eligible[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
     selected = eligible.ravel()
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
@@ -202,6 +205,60 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     offsets = np.concatenate([starts, [key_all.shape[0]]]).astype(np.int64)
     return PairCorrespondences(pair_keys // n_cams, pair_keys % n_cams, offsets,
                                obs_a.astype(np.int64), obs_b.astype(np.int64))
+
+
+def top_partners(cam_a: IntArray, cam_b: IntArray, score: FloatArray, n_cams: int,
+                 max_partners: int) -> BoolArray:
+    """Return the pairs that are among the ``max_partners`` best of one of their cameras.
+
+    Args:
+        cam_a: First camera of each pair, shape (P,).
+        cam_b: Second camera of each pair, shape (P,).
+        score: Score of each pair (higher is better), shape (P,); ties keep the pair order.
+        n_cams: Number of cameras M.
+        max_partners: Partners kept per camera (>= 1).
+
+    Returns:
+        Mask (P,) of the kept pairs.
+    """
+    P = cam_a.shape[0]
+    cam = np.concatenate([cam_a, cam_b])
+    pair = np.concatenate([np.arange(P), np.arange(P)])
+    order = np.lexsort((pair, -np.concatenate([score, score]), cam))
+    cam_sorted = cam[order]
+    first = np.searchsorted(cam_sorted, np.arange(n_cams))
+    rank = np.arange(cam.shape[0]) - first[cam_sorted]
+    keep = np.zeros(P, dtype=bool)
+    keep[pair[order][rank < max_partners]] = True
+    return keep
+
+
+def sampled_parallax_px(corr: PairCorrespondences, bearings_c: FloatArray,
+                        focal_px: FloatArray, max_points: int = 100) -> FloatArray:
+    """Return a quick median rotation-compensated parallax (px) of every candidate pair.
+
+    :func:`rotation_only_parallaxes` on at most ``max_points`` of each pair's
+    correspondences (evenly spread, outliers included): a cheap estimate before any RANSAC,
+    to prefer pairs with a baseline.
+
+    Args:
+        corr: Candidate pairs.
+        bearings_c: Unit bearings of all observations, shape (K, 3).
+        focal_px: Focal length of the observing camera of every observation, shape (K,).
+        max_points: Correspondences used per pair.
+
+    Returns:
+        Parallax estimates, shape (P,) (px, with the pair's mean focal length).
+    """
+    n = corr.counts()
+    m = np.minimum(n, max_points)
+    seg = np.repeat(np.arange(corr.n_pairs), m)
+    i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
+    rows = corr.offsets[seg] + (i * n[seg]) // np.maximum(m[seg], 1)
+    ia, ib = corr.obs_a[rows], corr.obs_b[rows]
+    first = corr.offsets[:-1]
+    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
+    return rotation_only_parallaxes(bearings_c[ia], bearings_c[ib], seg, corr.n_pairs) * f_pair
 
 
 def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: FloatArray,
@@ -271,8 +328,9 @@ def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
     Returns:
         Median angles, shape (P,) (0 for a segment without correspondences).
     """
-    cov = np.zeros((n_segments, 3, 3))
-    np.add.at(cov, segment, b2[:, :, None] * b1[:, None, :])
+    outer = (b2[:, :, None] * b1[:, None, :]).reshape(-1, 9)
+    cov = np.stack([np.bincount(segment, weights=outer[:, c], minlength=n_segments)
+                    for c in range(9)], axis=1).reshape(n_segments, 3, 3)
     U, _, Vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(U @ Vt))
     U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
