@@ -104,9 +104,10 @@ class InitOptions:
             and the parallax test use all of them.
         ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         ransac_confidence: RANSAC confidence.
-        ransac_method: 'usac_accurate' (default; local optimization refines the essential
-            matrix on its inliers), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's
-            classic RANSAC, whose minimal-sample model is several times less accurate).
+        ransac_method: 'usac_fast' (default) or 'usac_accurate' (both with local optimization
+            refining the essential matrix on its inliers; the fast one with fewer inner
+            iterations), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's classic RANSAC,
+            whose minimal-sample model is several times less accurate).
         min_pair_parallax_px: Minimum median parallax (px) that the best pure rotation leaves
             on a pair's inliers; pairs below it have no usable baseline (pure rotation).
         max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
@@ -140,7 +141,7 @@ class InitOptions:
     ransac_max_points: int | None = 100
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
-    ransac_method: str = 'usac_accurate'
+    ransac_method: str = 'usac_fast'
     min_pair_parallax_px: float = 2.0
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0

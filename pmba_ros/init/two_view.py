@@ -43,12 +43,14 @@ except ImportError as err:  # pragma: no cover - depends on the installation
     raise ImportError(msg) from err
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import so3
 
 logger = logging.getLogger(__name__)
 
 #: OpenCV robust estimators by name (``InitOptions.ransac_method``).
 RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
-                  'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT}
+                  'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT,
+                  'usac_fast': cv2.USAC_FAST}
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,10 +283,10 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
     """
     Rb1 = np.einsum('...ij,...j->...i', R_rel, b1)
     t = np.broadcast_to(t_rel, Rb1.shape)
-    m = np.cross(Rb1, b2)  # Rb1 x b2
+    m = so3.cross(Rb1, b2)  # Rb1 x b2
     mm = np.maximum(np.sum(m * m, axis=1), 1e-300)
-    lam1 = -np.sum(np.cross(t, b2) * m, axis=1) / mm
-    lam2 = -np.sum(np.cross(t, Rb1) * m, axis=1) / mm
+    lam1 = -np.sum(so3.cross(t, b2) * m, axis=1) / mm
+    lam2 = -np.sum(so3.cross(t, Rb1) * m, axis=1) / mm
     return lam1, lam2
 
 
@@ -349,7 +351,7 @@ def _normalized(b: FloatArray) -> FloatArray:
 
 
 def essential_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *, prob: float = 0.999,
-                  method: int = cv2.USAC_ACCURATE) -> FloatArray | None:
+                  method: int = cv2.USAC_FAST) -> FloatArray | None:
     """Return one pair's essential matrix (3, 3) from OpenCV's 5-point RANSAC, or None.
 
     Args:
@@ -427,23 +429,26 @@ def decompose_essential(E: FloatArray, b1: FloatArray, b2: FloatArray, segment: 
     R_best = np.zeros((P, 3, 3))
     t_best = np.zeros((P, 3))
     good_best = np.zeros(b1.shape[0], dtype=bool)
+    rows = np.flatnonzero(inliers)
+    seg, b1, b2 = segment[rows], b1[rows], b2[rows]
     for R in rotations:
+        # The depths are linear in t: -t flips both signs, one solve serves both.
+        lam1, lam2 = cheirality_depths(R[seg], t[seg], b1, b2)
+        near = ((np.abs(lam1) * b1[:, 2] < _MAX_DEPTH_BASELINES)
+                & (np.abs(lam2) * b2[:, 2] < _MAX_DEPTH_BASELINES))
         for sign in (1.0, -1.0):
-            lam1, lam2 = cheirality_depths(R[segment], sign * t[segment], b1, b2)
-            good = (inliers & (lam1 > 0.0) & (lam2 > 0.0)
-                    & (lam1 * b1[:, 2] < _MAX_DEPTH_BASELINES)
-                    & (lam2 * b2[:, 2] < _MAX_DEPTH_BASELINES))
-            score = np.bincount(segment[good], minlength=P)
+            good = near & (sign * lam1 > 0.0) & (sign * lam2 > 0.0)
+            score = np.bincount(seg[good], minlength=P)
             better = score > best_score
             best_score = np.where(better, score, best_score)
             R_best[better] = R[better]
             t_best[better] = sign * t[better]
-            good_best = np.where(better[segment], good, good_best)
+            good_best[rows] = np.where(better[seg], good, good_best[rows])
     return R_best, t_best, good_best
 
 
 def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
-                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      prob: float = 0.999, method: int = cv2.USAC_FAST,
                       ) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray] | None:
     """Estimate one pair's relative pose with OpenCV's 5-point RANSAC and the cheirality check.
 
@@ -477,7 +482,7 @@ def _sample(n: int, max_points: int) -> IntArray:
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
-                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      prob: float = 0.999, method: int = cv2.USAC_FAST,
                       max_sample: int | None = None,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.

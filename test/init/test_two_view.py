@@ -130,7 +130,7 @@ def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
 
 @pytest.mark.parametrize('seed', [0, 1])
 def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> None:
-    """USAC_ACCURATE relative rotations are within a few hundredths of a degree."""
+    """USAC_FAST relative rotations are within a few hundredths of a degree."""
     p = street_scene(seed, n_cams=8, n_points=300, noise_px=0.5).gt
     corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
