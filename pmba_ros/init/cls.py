@@ -110,6 +110,11 @@ class LinearRays:
         """Return the number of observations K."""
         return int(self.cam.shape[0])
 
+    def subset(self, keep: BoolArray) -> LinearRays:
+        """Return the rays of the observations selected by the mask ``keep`` (K,)."""
+        return LinearRays(self.cam[keep], self.feat[keep], self.assoc, self.main,
+                          self.anchor_coeff, self.sin_t, self.rays[keep])
+
     def points(self, centers_w: FloatArray) -> FloatArray:
         """Return X_j(P) = C_a P_a + C_m P_m of every feature, shape (N, 3)."""
         return (np.einsum('nij,nj->ni', self.anchor_coeff[:, 0], centers_w[self.assoc])
@@ -258,7 +263,8 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     for it in range(max_penalty_iterations + 1):  # noqa: B007 - reported after the loop
         Hp = H
         if np.any(active):
-            Hp = H + lin.normal_matrix((mu * active)[:, None, None] * rr, n_cams)
+            rows = lin.subset(active)
+            Hp = H + rows.normal_matrix(mu * rr[active], n_cams)
         kkt = np.zeros((fidx.size + 1, fidx.size + 1))
         kkt[:-1, :-1] = Hp[np.ix_(fidx, fidx)]
         kkt[:-1, -1] = cf

@@ -292,9 +292,11 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
 
 def _segment_medians(values: FloatArray, segment: IntArray, n_segments: int) -> FloatArray:
     """Return the median of ``values`` within each segment id (0 for an empty segment)."""
-    order = np.lexsort((values, segment))
-    v, seg = values[order], segment[order]
-    counts = np.bincount(seg, minlength=n_segments)
+    # One sort of segment + a value squashed into [0, 1): cheaper than a two-key lexsort.
+    lo_v, hi_v = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+    squashed = (values - lo_v) / ((hi_v - lo_v) * (1.0 + 1e-9) + 1e-300)
+    v = values[np.argsort(segment + squashed)]
+    counts = np.bincount(segment, minlength=n_segments)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     lo = starts + np.maximum(counts - 1, 0) // 2
     hi = starts + counts // 2
