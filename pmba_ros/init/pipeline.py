@@ -97,8 +97,8 @@ class InitOptions:
         min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
         max_pair_partners: If set, try only the pairs that are among the best partners of one
-            of their cameras, by a quick parallax estimate times the square root of the
-            shared tracks (None: every pair with enough common tracks).
+            of their cameras: half by shared tracks, half by a quick parallax estimate times
+            the square root of the shared tracks (None: every pair with enough common tracks).
         ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
             (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
             and the parallax test use all of them.
@@ -280,16 +280,24 @@ def _best_partners(n_cams: int, corr: two_view.PairCorrespondences, bearings_c: 
                    focal: FloatArray, max_partners: int, min_parallax_px: float) -> BoolArray:
     """Return the candidate pairs worth a RANSAC: each camera's best partners.
 
-    A pair's score is its quick parallax estimate times the square root of its shared tracks
-    (the translation direction's accuracy grows with both); pairs whose estimate is below
-    ``min_parallax_px`` (near pure rotation, rejected after the RANSAC anyway) rank after
-    every other and only fill the places of cameras without enough pairs with a baseline.
+    Half of a camera's places go to the partners sharing most tracks (the best measured
+    relative rotations: on real photo collections they keep the averaging and the BA on
+    course), half to the partners of widest baseline: a quick parallax estimate times the
+    square root of the shared tracks (the accuracy of the translation direction, which anchors
+    the features of the CLS and NLS). Pairs whose estimate is below ``min_parallax_px`` (near
+    pure rotation, rejected after the RANSAC anyway) rank last for both.
     """
-    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
     counts = corr.counts().astype(float)
-    score = np.where(parallax >= min_parallax_px, parallax * np.sqrt(counts), 0.0)
-    score += counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
-    return two_view.top_partners(corr.cam_a, corr.cam_b, score, n_cams, max_partners)
+    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
+    baseline = parallax >= min_parallax_px
+    rest = counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
+    by_tracks = two_view.top_partners(corr.cam_a, corr.cam_b,
+                                      np.where(baseline, counts, 0.0) + rest, n_cams,
+                                      max_partners // 2)
+    score = np.where(baseline, parallax * np.sqrt(counts), 0.0) + rest
+    by_baseline = two_view.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
+                                        max_partners - max_partners // 2)
+    return by_tracks | by_baseline
 
 
 def _estimate_pairs(problem: BAProblem, options: InitOptions,
