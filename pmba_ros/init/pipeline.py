@@ -98,7 +98,9 @@ class InitOptions:
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
         max_pair_partners: If set, try only the pairs that are among the best partners of one
             of their cameras: half by shared tracks, half by a quick parallax estimate times
-            the square root of the shared tracks (None: every pair with enough common tracks).
+            the square root of the shared tracks. Only where there are more than
+            ``max_pair_partners`` pairs per camera (small collections keep every pair; None:
+            always every pair with enough common tracks).
         ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
             (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
             and the parallax test use all of them.
@@ -311,10 +313,10 @@ def _estimate_pairs(problem: BAProblem, options: InitOptions,
         raise InitError(msg)
     focal = np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
     n_covisible = corr.n_pairs
-    if options.max_pair_partners is not None:
+    k = options.max_pair_partners
+    if k is not None and corr.n_pairs > k * problem.n_cams:
         corr = corr.subset(_best_partners(problem.n_cams, corr, obs.bearings_c, focal,
-                                          options.max_pair_partners,
-                                          options.min_pair_parallax_px))
+                                          k, options.min_pair_parallax_px))
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
