@@ -139,7 +139,7 @@ class InitOptions:
 
     min_pair_matches: int = 30
     min_pair_inliers: int = 20
-    max_pair_partners: int | None = 8
+    max_pair_partners: int | None = 10
     ransac_max_points: int | None = 200
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
