@@ -370,6 +370,12 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
+        if self._motion_prior_on():
+            # The initialization used vision alone; where near features are few its local
+            # motion is noisier than the front-end's. One refine of the whole batch with the
+            # front-end's motion as prior, before older keyframes leave the window.
+            refine = self._refine(slide=False)
+            info.solve_ms += refine.solve_ms
         self._slide()
         if left_out.shape[0]:
             refine = self._refine()
@@ -442,9 +448,9 @@ class Estimator:
         self.kf.forget_observations_before(int(active[0]) - self.config.fixed_lookback)
         return window_ids
 
-    def _refine(self) -> UpdateInfo:
+    def _refine(self, *, slide: bool = True) -> UpdateInfo:
         cfg = self.config
-        window_ids = self._slide()
+        window_ids = self._slide() if slide else None
         active = self.kf.indices(KeyframeStatus.ACTIVE)
         if window_ids is not None:
             older = np.array(sorted(i for i in self.kf.obs if i < active[0]), dtype=np.int64)
@@ -499,6 +505,10 @@ class Estimator:
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         return info
+
+    def _motion_prior_on(self) -> bool:
+        cfg = self.config
+        return cfg.motion_prior_translation_rel > 0 or cfg.motion_prior_rotation_rad > 0
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""

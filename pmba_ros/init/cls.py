@@ -23,12 +23,18 @@ with C_a = s Q_j, C_m = -s Q_j + sin(theta-bar) I, C_i = -sin(theta-bar) I, s = 
 theta-bar). Blocks of the same camera (i = m or i = a) simply add up. Eq. (14) minimises
 sum_k ||[r_k]x N-bar_k(P)||^2, r_k = R-bar_i v_k, subject to cheirality.
 
+X_j = C_a P_a + C_m P_m is shared by all observations of feature j, so normal matrices are
+assembled per feature for the anchors and per observation only for P_i
+(:meth:`LinearRays.normal_matrix`); the CLS and the NLS (eq. 13) differ only in the 3x3 weight
+of each observation's ray.
+
 ==========  ============  ==========  ===================================================
 paper       code          shape       meaning
 ==========  ============  ==========  ===================================================
 r_k         rays          (K,3)       R-bar_i v_k, measured ray in the world frame
-C           coeff         (K,3,3,3)   [slot (a, m, i)] 3x3 blocks of N-bar on P_slot
-h_k         (rows)        (K,3,3)     r_k^T C_slot: the cheirality row r_k . N-bar_k(P)
+C_a, C_m    anchor_coeff  (N,2,3,3)   3x3 blocks of N-bar on P_a, P_m (per feature)
+X_j         points()      (N,3)       C_a P_a + C_m P_m, the feature's homogeneous point
+h_k         (gradient)    (3M,)       dN-bar_k/dP^T r_k: the cheirality row r_k . N-bar_k(P)
 ==========  ============  ==========  ===================================================
 """
 
@@ -39,7 +45,6 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import so3
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.errors import InitError
 from pmba_ros.init.anchors import LinearizationFrames
@@ -48,28 +53,120 @@ import scipy.linalg
 logger = logging.getLogger(__name__)
 
 
+def _scatter_blocks(rows: IntArray, cols: IntArray, blocks: FloatArray, n_cams: int,
+                    ) -> FloatArray:
+    """Return sum of the 3x3 ``blocks`` (K, 3, 3) at block (rows[k], cols[k]), (M, M, 3, 3)."""
+    key = rows * n_cams + cols
+    flat = blocks.reshape(-1, 9)
+    out = np.empty((9, n_cams * n_cams))
+    for c in range(9):  # nine entries of a block, each a bincount over the observations
+        out[c] = np.bincount(key, weights=flat[:, c], minlength=n_cams * n_cams)
+    return out.T.reshape(n_cams, n_cams, 3, 3)
+
+
+def _sum_by(index: IntArray, values: FloatArray, n: int) -> FloatArray:
+    """Return sum of ``values`` (K, ...) grouped by ``index`` (K,) into (n, ...)."""
+    flat = values.reshape(values.shape[0], -1)
+    out = np.empty((flat.shape[1], n))
+    for c in range(flat.shape[1]):
+        out[c] = np.bincount(index, weights=flat[:, c], minlength=n)
+    return out.T.reshape(n, *values.shape[1:])
+
+
+def _dense(blocks: FloatArray) -> FloatArray:
+    """Return the (3M, 3M) matrix of (M, M, 3, 3) blocks."""
+    M = blocks.shape[0]
+    return np.ascontiguousarray(blocks.transpose(0, 2, 1, 3).reshape(3 * M, 3 * M))
+
+
 @dataclass(frozen=True, eq=False)
 class LinearRays:
-    """Coefficient blocks of the linearised rays N-bar_k(P) of eq. (12).
+    """The linearised rays N-bar_k(P) of eq. (12), in their per-feature form.
+
+    N-bar_k(P) = X_j(P) - sin(theta-bar_j) P_i with X_j(P) = C_a P_a + C_m P_m the feature's
+    homogeneous point (pmba.md §1.3): every observation of a feature shares X_j, so the
+    products over the anchors are done once per feature.
 
     Attributes:
-        slots: Cameras (a, m, i) of every observation, shape (K, 3).
-        coeff: 3x3 blocks of N-bar on P_a, P_m, P_i, shape (K, 3, 3, 3).
+        cam: Observing camera i of every observation, shape (K,).
+        feat: Feature j of every observation, shape (K,).
+        assoc: Associate anchor a of every feature, shape (N,).
+        main: Main anchor m of every feature, shape (N,).
+        anchor_coeff: C_a and C_m of every feature, shape (N, 2, 3, 3).
+        sin_t: sin(theta-bar) of every feature, shape (N,) (C_i = -sin_t I).
         rays: Measured world rays R-bar_i v_k, shape (K, 3).
     """
 
-    slots: IntArray
-    coeff: FloatArray
+    cam: IntArray
+    feat: IntArray
+    assoc: IntArray
+    main: IntArray
+    anchor_coeff: FloatArray
+    sin_t: FloatArray
     rays: FloatArray
+
+    @property
+    def n_obs(self) -> int:
+        """Return the number of observations K."""
+        return int(self.cam.shape[0])
+
+    def subset(self, keep: BoolArray) -> LinearRays:
+        """Return the rays of the observations selected by the mask ``keep`` (K,)."""
+        return LinearRays(self.cam[keep], self.feat[keep], self.assoc, self.main,
+                          self.anchor_coeff, self.sin_t, self.rays[keep])
+
+    def points(self, centers_w: FloatArray) -> FloatArray:
+        """Return X_j(P) = C_a P_a + C_m P_m of every feature, shape (N, 3)."""
+        return (np.einsum('nij,nj->ni', self.anchor_coeff[:, 0], centers_w[self.assoc])
+                + np.einsum('nij,nj->ni', self.anchor_coeff[:, 1], centers_w[self.main]))
 
     def evaluate(self, centers_w: FloatArray) -> FloatArray:
         """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3)."""
-        return np.matmul(self.coeff, centers_w[self.slots][..., None]).sum(axis=1)[..., 0]
+        return (self.points(centers_w)[self.feat]
+                - self.sin_t[self.feat, None] * centers_w[self.cam])
+
+    def normal_matrix(self, A: FloatArray, n_cams: int) -> FloatArray:
+        """Return sum_k G_k^T A_k G_k over all positions, shape (3M, 3M).
+
+        G_k = dN-bar_k / dP (blocks C_a, C_m, -sin_t I on P_a, P_m, P_i; blocks of the same
+        camera add up) and A_k a symmetric 3x3 weight of the observation's ray.
+
+        Args:
+            A: Symmetric weights, shape (K, 3, 3).
+            n_cams: Number of cameras M.
+        """
+        st = self.sin_t[self.feat]
+        C = self.anchor_coeff
+        # P_i with itself, and P_i with X_j (then X_j -> P_a, P_m).
+        H = _scatter_blocks(self.cam, self.cam, (st * st)[:, None, None] * A, n_cams)
+        cross = -st[:, None, None] * A
+        Ck = C[self.feat]
+        Hc = (_scatter_blocks(self.cam, self.assoc[self.feat], cross @ Ck[:, 0], n_cams)
+              + _scatter_blocks(self.cam, self.main[self.feat], cross @ Ck[:, 1], n_cams))
+        H += Hc + Hc.transpose(1, 0, 3, 2)
+        # X_j with itself, once per feature.
+        B = _sum_by(self.feat, A, C.shape[0])
+        CtB = np.swapaxes(C, 2, 3) @ B[:, None]  # (N, 2, 3, 3)
+        CtBC = CtB[:, :, None] @ C[:, None, :]  # (N, 2, 2, 3, 3): C_s^T B C_t
+        anchor = np.stack([self.assoc, self.main], axis=1)
+        rows = np.repeat(anchor, 2, axis=1).ravel()
+        cols = np.tile(anchor, (1, 2)).ravel()
+        H += _scatter_blocks(rows, cols, CtBC.reshape(-1, 3, 3), n_cams)
+        return _dense(H)
+
+    def gradient(self, y: FloatArray, n_cams: int) -> FloatArray:
+        """Return sum_k G_k^T y_k over all positions, shape (3M,), for y (K, 3)."""
+        st = self.sin_t[self.feat]
+        g = _sum_by(self.cam, -st[:, None] * y, n_cams)
+        Y = _sum_by(self.feat, y, self.anchor_coeff.shape[0])
+        CtY = np.einsum('nsai,na->nsi', self.anchor_coeff, Y)
+        g += _sum_by(self.assoc, CtY[:, 0], n_cams) + _sum_by(self.main, CtY[:, 1], n_cams)
+        return g.reshape(-1)
 
 
 def linear_rays(R_wc: FloatArray, features: ParallaxFeatures, frames: LinearizationFrames,
                 cam_idx: IntArray, feat_idx: IntArray, bearings_c: FloatArray) -> LinearRays:
-    """Build the coefficient blocks of the linearised ray of every observation (eq. 12).
+    """Build the coefficient blocks of the linearised rays (eq. 12).
 
     Args:
         R_wc: Rotations, shape (M, 3, 3).
@@ -85,53 +182,12 @@ def linear_rays(R_wc: FloatArray, features: ParallaxFeatures, frames: Linearizat
     References:
         PMBA eq. (12); pmba.md §4.5.
     """
-    j = feat_idx
-    s = frames.sin_am_t[j]
-    st = frames.sin_t[j]
-    sQ = s[:, None, None] * frames.Q[j]
-    eye = np.eye(3)[None]
-    coeff = np.empty((j.shape[0], 3, 3, 3))
-    coeff[:, 0] = sQ  # on P_a
-    coeff[:, 1] = -sQ + st[:, None, None] * eye  # on P_m
-    coeff[:, 2] = -st[:, None, None] * eye  # on P_i, eq. (12)
-    slots = np.stack([features.assoc_idx[j], features.main_idx[j], cam_idx], axis=1)
+    sQ = frames.sin_am_t[:, None, None] * frames.Q
+    coeff = np.stack([sQ, -sQ + frames.sin_t[:, None, None] * np.eye(3)], axis=1)  # eq. (12)
     rays = np.einsum('kij,kj->ki', R_wc[cam_idx], bearings_c)
-    return LinearRays(slots.astype(np.int64), coeff, rays)
-
-
-def accumulate_normal_matrix(blocks: FloatArray, slots: IntArray, n_cams: int,
-                             weights: FloatArray | None = None) -> FloatArray:
-    """Return the dense (3M, 3M) matrix sum_k sum_{s,t} G_ks^T w_k G_kt.
-
-    Args:
-        blocks: Row blocks G_ks of every observation and slot, shape (K, S, R, 3).
-        slots: Camera of every slot, shape (K, S).
-        n_cams: Number of cameras M.
-        weights: Optional observation weights (K,).
-
-    Returns:
-        The normal matrix over all camera positions (duplicates of a camera are summed).
-    """
-    K, S, R, _ = blocks.shape
-    w = np.ones(K) if weights is None else weights
-    # A_k = [G_k1 ... G_kS] (R x 3S); H_k = A_k^T w_k A_k, scattered block by block.
-    A = blocks.transpose(0, 2, 1, 3).reshape(K, R, 3 * S)
-    H_k = np.matmul(A.transpose(0, 2, 1) * w[:, None, None], A)  # (K, 3S, 3S)
-    n = 3 * n_cams
-    idx = (3 * slots[:, :, None] + np.arange(3)[None, None, :]).reshape(K, 3 * S)
-    flat = idx[:, :, None] * n + idx[:, None, :]
-    H = np.bincount(flat.ravel(), weights=H_k.ravel(), minlength=n * n)
-    return np.asarray(H, dtype=np.float64).reshape(n, n)
-
-
-def accumulate_gradient(blocks: FloatArray, slots: IntArray, n_cams: int,
-                        residuals: FloatArray, weights: FloatArray | None = None) -> FloatArray:
-    """Return sum_k sum_s G_ks^T w_k e_k as a (3M,) vector (blocks (K,S,R,3), e (K,R))."""
-    w = np.ones(slots.shape[0]) if weights is None else weights
-    g = np.matmul((residuals * w[:, None])[:, None, None, :], blocks)[:, :, 0, :]  # (K,S,3)
-    idx = 3 * slots[:, :, None] + np.arange(3)[None, None, :]
-    return np.asarray(np.bincount(idx.ravel(), weights=g.ravel(), minlength=3 * n_cams),
-                      dtype=np.float64)
+    return LinearRays(np.asarray(cam_idx, dtype=np.int64), np.asarray(feat_idx, dtype=np.int64),
+                      features.assoc_idx.astype(np.int64), features.main_idx.astype(np.int64),
+                      coeff, np.asarray(frames.sin_t, dtype=float), rays)
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,42 +232,41 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     References:
         PMBA eq. (14); pmba.md §4.6, §8 item 2.
     """
-    K = lin.slots.shape[0]
+    K = lin.n_obs
     w = np.ones(K) if weights is None else np.asarray(weights, dtype=float)
     cams = np.ones(n_cams, dtype=bool) if cameras is None else np.asarray(cameras, dtype=bool)
-    # Rows [r_k]x C_slot (3 rows per observation), eq. (14).
-    B = np.matmul(so3.hat(lin.rays)[:, None], lin.coeff)  # eq. (14): [r_k]x N-bar_k
-    H = accumulate_normal_matrix(B, lin.slots, n_cams, w)
-    # Cheirality rows h_k = r_k^T C_slot: r_k . N-bar_k(P) >= 0.
+    r = lin.rays
+    rr = r[:, :, None] * r[:, None, :]
+    # Rows [r_k]x N-bar_k (eq. 14): weight [r_k]x^T [r_k]x = |r_k|^2 I - r_k r_k^T.
+    cross_w = np.sum(r * r, axis=1)[:, None, None] * np.eye(3) - rr
+    H = lin.normal_matrix(w[:, None, None] * cross_w, n_cams)
+    # Cheirality rows h_k = dN-bar_k/dP^T r_k: r_k . N-bar_k(P) >= 0.
     # DEVIATION(eq. 14): the printed z(R_i N) >= 0 is read as "predicted ray on the measured
     # side", r_k . N-bar_k >= 0, which is convention-free and linear (pmba.md §8 item 2).
-    h = np.einsum('ka,ksaj->ksj', lin.rays, lin.coeff)  # (K, 3 slots, 3)
-    h_idx = 3 * lin.slots[:, :, None] + np.arange(3)[None, None, :]
     # DEVIATION(eq. 14): scale constraint sum_k w_k r_k . N-bar_k(P) = sum_k w_k; without it
     # P = 0 is optimal (pmba.md §8 item 2).
-    c = np.bincount(h_idx.ravel(), weights=(h * w[:, None, None]).ravel(),
-                    minlength=3 * n_cams)
+    c = lin.gradient(w[:, None] * r, n_cams)
     free = np.repeat(cams, 3)
     free[3 * root:3 * root + 3] = False
     fidx = np.flatnonzero(free)
-    Hf = H[np.ix_(fidx, fidx)]
     cf = c[fidx]
     target = float(np.sum(w))
-    scale_diag = float(np.mean(np.diag(Hf))) if fidx.size else 1.0
-    row_norm2 = np.bincount(np.arange(K).repeat(9), weights=(h * h).ravel(), minlength=K)
+    scale_diag = float(np.mean(np.diag(H)[fidx])) if fidx.size else 1.0
+    Ct_r = np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 0], r)
+    Cm_r = np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 1], r)
+    row_norm2 = (np.sum(Ct_r ** 2, axis=1) + np.sum(Cm_r ** 2, axis=1)
+                 + lin.sin_t[lin.feat] ** 2 * np.sum(r * r, axis=1))
     mu = penalty_weight * scale_diag / max(float(np.mean(row_norm2)), 1e-300)
     active = np.zeros(K, dtype=bool)
     p = np.zeros(3 * n_cams)
     it = 0
     for it in range(max_penalty_iterations + 1):  # noqa: B007 - reported after the loop
-        Hp = H.copy()
+        Hp = H
         if np.any(active):
-            ha = h[active]
-            Hp += accumulate_normal_matrix(ha[:, :, None, :], lin.slots[active], n_cams,
-                                           np.full(int(active.sum()), mu))
-        Hpf = Hp[np.ix_(fidx, fidx)]
+            rows = lin.subset(active)
+            Hp = H + rows.normal_matrix(mu * rr[active], n_cams)
         kkt = np.zeros((fidx.size + 1, fidx.size + 1))
-        kkt[:-1, :-1] = Hpf
+        kkt[:-1, :-1] = Hp[np.ix_(fidx, fidx)]
         kkt[:-1, -1] = cf
         kkt[-1, :-1] = cf
         rhs = np.zeros(fidx.size + 1)
@@ -226,7 +281,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
             raise InitError(msg)
         p = np.zeros(3 * n_cams)
         p[fidx] = sol[:-1]
-        depth = np.einsum('ksj,ksj->k', h, p[h_idx])
+        depth = np.sum(r * lin.evaluate(p.reshape(n_cams, 3)), axis=1)
         violated = (depth < 0.0) & (w > 0)
         new_active = active | violated
         if np.array_equal(new_active, active):

@@ -39,7 +39,7 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
-from pmba_ros.init.cls import accumulate_gradient, accumulate_normal_matrix, LinearRays
+from pmba_ros.init.cls import LinearRays
 import scipy.linalg
 
 logger = logging.getLogger(__name__)
@@ -123,7 +123,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         noisy theta-bar of low-parallax features act as outliers (pmba.md §4.7, §8 item 5).
     """
     M = centers_w.shape[0]
-    K = lin.slots.shape[0]
+    K = lin.n_obs
     w = np.ones(K) if weights is None else np.asarray(weights, dtype=float)
     cams = np.ones(M, dtype=bool) if cameras is None else np.asarray(cameras, dtype=bool)
     P = np.array(centers_w, dtype=float)
@@ -137,18 +137,20 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
     lam = 1e-4
     converged = False
     it = 0
-    eye3 = np.eye(3)[None]
     for it in range(1, max_iterations + 1):
         N, e = _errors(lin, P)
-        norm = np.maximum(np.linalg.norm(N, axis=1), 1e-300)
+        norm = np.maximum(np.linalg.norm(N, axis=1), 1e-150)
         Nh = N / norm[:, None]
-        J_N = (eye3 - Nh[:, :, None] * Nh[:, None, :]) / norm[:, None, None]
-        G = np.matmul(J_N[:, None], lin.coeff)  # de/dP_slot, (K, 3, 3, 3)
+        # J_N = (I - N^ N^T) / |N| is symmetric, J_N^T J_N = (I - N^ N^T) / |N|^2.
+        proj = np.eye(3)[None] - Nh[:, :, None] * Nh[:, None, :]
         _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
         # DEVIATION(eq. 13): Cauchy-weighted (IRLS) instead of plain L2 (pmba.md §8 item 5).
         wk = w * drho
-        H = accumulate_normal_matrix(G, lin.slots, M, wk)[np.ix_(fidx, fidx)]
-        g = accumulate_gradient(G, lin.slots, M, e, wk)[fidx]
+        # Unused observations (weight 0) may have N = 0: keep their 0 * inf out.
+        w_n = np.where(wk > 0.0, wk / norm, 0.0)
+        H = lin.normal_matrix((w_n / norm)[:, None, None] * proj, M)[np.ix_(fidx, fidx)]
+        y = w_n[:, None] * np.einsum('kij,kj->ki', proj, e)
+        g = lin.gradient(y, M)[fidx]
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
         while lam < 1e12:

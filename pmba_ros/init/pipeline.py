@@ -96,13 +96,20 @@ class InitOptions:
     Attributes:
         min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
         min_pair_inliers: Minimum cheirality inliers of an EG pair.
-        max_pair_partners: If set, try only the pairs that are among the most co-visible
-            partners of one of their cameras (None: every pair with enough common tracks).
+        max_pair_partners: If set, try only the pairs that are among the best partners of one
+            of their cameras: half by shared tracks, half by a quick parallax estimate times
+            the square root of the shared tracks. Only where there are more than
+            ``max_pair_partners`` pairs per camera (small collections keep every pair; None:
+            always every pair with enough common tracks).
+        ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
+            (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
+            and the parallax test use all of them.
         ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         ransac_confidence: RANSAC confidence.
-        ransac_method: 'usac_accurate' (default; local optimization refines the essential
-            matrix on its inliers), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's
-            classic RANSAC, whose minimal-sample model is several times less accurate).
+        ransac_method: 'usac_fast' (default) or 'usac_accurate' (both with local optimization
+            refining the essential matrix on its inliers; the fast one with fewer inner
+            iterations), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's classic RANSAC,
+            whose minimal-sample model is several times less accurate).
         min_pair_parallax_px: Minimum median parallax (px) that the best pure rotation leaves
             on a pair's inliers; pairs below it have no usable baseline (pure rotation).
         max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
@@ -132,10 +139,11 @@ class InitOptions:
 
     min_pair_matches: int = 30
     min_pair_inliers: int = 20
-    max_pair_partners: int | None = None
+    max_pair_partners: int | None = 10
+    ransac_max_points: int | None = 200
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
-    ransac_method: str = 'usac_accurate'
+    ransac_method: str = 'usac_fast'
     min_pair_parallax_px: float = 2.0
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0
@@ -157,6 +165,9 @@ class InitOptions:
             raise ValueError(msg)
         if self.max_pair_partners is not None and self.max_pair_partners < 1:
             msg = '`max_pair_partners` must be None or >= 1'
+            raise ValueError(msg)
+        if self.ransac_max_points is not None and self.ransac_max_points < 5:
+            msg = '`ransac_max_points` must be None or >= 5 (5-point solver)'
             raise ValueError(msg)
         if self.ransac_method not in two_view.RANSAC_METHODS:
             msg = f'`ransac_method` must be one of {sorted(two_view.RANSAC_METHODS)}'
@@ -267,22 +278,52 @@ def _check_input(problem: BAProblem) -> dict[str, Any]:
     return info
 
 
+def _best_partners(n_cams: int, corr: two_view.PairCorrespondences, bearings_c: FloatArray,
+                   focal: FloatArray, max_partners: int, min_parallax_px: float) -> BoolArray:
+    """Return the candidate pairs worth a RANSAC: each camera's best partners.
+
+    Half of a camera's places go to the partners sharing most tracks (the best measured
+    relative rotations: on real photo collections they keep the averaging and the BA on
+    course), half to the partners of widest baseline: a quick parallax estimate times the
+    square root of the shared tracks (the accuracy of the translation direction, which anchors
+    the features of the CLS and NLS). Pairs whose estimate is below ``min_parallax_px`` (near
+    pure rotation, rejected after the RANSAC anyway) rank last for both.
+    """
+    counts = corr.counts().astype(float)
+    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
+    baseline = parallax >= min_parallax_px
+    rest = counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
+    by_tracks = two_view.top_partners(corr.cam_a, corr.cam_b,
+                                      np.where(baseline, counts, 0.0) + rest, n_cams,
+                                      max_partners // 2)
+    score = np.where(baseline, parallax * np.sqrt(counts), 0.0) + rest
+    by_baseline = two_view.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
+                                        max_partners - max_partners // 2)
+    return by_tracks | by_baseline
+
+
 def _estimate_pairs(problem: BAProblem, options: InitOptions,
                     ) -> tuple[two_view.EGPairs, dict[str, Any]]:
     obs = problem.obs
     corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
-                                         options.min_pair_matches,
-                                         max_partners=options.max_pair_partners)
+                                         options.min_pair_matches)
     if corr.n_pairs == 0:
         msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
                'tracks (min_pair_matches)')
         raise InitError(msg)
     focal = np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
+    n_covisible = corr.n_pairs
+    k = options.max_pair_partners
+    if k is not None and corr.n_pairs > k * problem.n_cams:
+        corr = corr.subset(_best_partners(problem.n_cams, corr, obs.bearings_c, focal,
+                                          k, options.min_pair_parallax_px))
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
-        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method])
-    entries = {'pairs_candidate': corr.n_pairs, 'pairs_found': pairs.n_pairs,
+        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
+        max_sample=options.ransac_max_points)
+    entries = {'pairs_covisible': n_covisible, 'pairs_candidate': corr.n_pairs,
+               'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,
                'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs
                            else 0.0}}

@@ -43,12 +43,14 @@ except ImportError as err:  # pragma: no cover - depends on the installation
     raise ImportError(msg) from err
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import so3
 
 logger = logging.getLogger(__name__)
 
 #: OpenCV robust estimators by name (``InitOptions.ransac_method``).
 RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
-                  'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT}
+                  'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT,
+                  'usac_fast': cv2.USAC_FAST}
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +79,15 @@ class PairCorrespondences:
     def counts(self) -> IntArray:
         """Return the number of common observations of each pair, shape (P,)."""
         return np.diff(self.offsets)
+
+    def subset(self, keep: BoolArray) -> PairCorrespondences:
+        """Return the pairs selected by the mask ``keep`` (P,), with their correspondences."""
+        keep = np.asarray(keep, dtype=bool)
+        counts = self.counts()
+        rows = np.repeat(keep, counts)
+        return PairCorrespondences(self.cam_a[keep], self.cam_b[keep],
+                                   np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
+                                   self.obs_a[rows], self.obs_b[rows])
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,15 +182,9 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     """
     counts = covisibility_counts(cam_idx, feat_idx, n_cams)
     eligible = counts >= max(int(min_matches), 1)
-    if max_partners is not None and max_partners < n_cams - 1:
-        sym = np.where(eligible, counts, 0)
-        sym = sym + sym.T
-        # Rank of every partner of a camera by co-visibility (0 = most co-visible).
-        rank = np.empty_like(sym)
-        np.put_along_axis(rank, np.argsort(-sym, axis=1, kind='stable'),
-                          np.arange(n_cams)[None, :].repeat(n_cams, axis=0), axis=1)
-        top = rank < max_partners
-        eligible &= top | top.T
+    if max_partners is not None:
+        a, b = np.nonzero(eligible)
+        eligible[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
     selected = eligible.ravel()
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
@@ -204,6 +209,60 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
                                obs_a.astype(np.int64), obs_b.astype(np.int64))
 
 
+def top_partners(cam_a: IntArray, cam_b: IntArray, score: FloatArray, n_cams: int,
+                 max_partners: int) -> BoolArray:
+    """Return the pairs that are among the ``max_partners`` best of one of their cameras.
+
+    Args:
+        cam_a: First camera of each pair, shape (P,).
+        cam_b: Second camera of each pair, shape (P,).
+        score: Score of each pair (higher is better), shape (P,); ties keep the pair order.
+        n_cams: Number of cameras M.
+        max_partners: Partners kept per camera (>= 1).
+
+    Returns:
+        Mask (P,) of the kept pairs.
+    """
+    P = cam_a.shape[0]
+    cam = np.concatenate([cam_a, cam_b])
+    pair = np.concatenate([np.arange(P), np.arange(P)])
+    order = np.lexsort((pair, -np.concatenate([score, score]), cam))
+    cam_sorted = cam[order]
+    first = np.searchsorted(cam_sorted, np.arange(n_cams))
+    rank = np.arange(cam.shape[0]) - first[cam_sorted]
+    keep = np.zeros(P, dtype=bool)
+    keep[pair[order][rank < max_partners]] = True
+    return keep
+
+
+def sampled_parallax_px(corr: PairCorrespondences, bearings_c: FloatArray,
+                        focal_px: FloatArray, max_points: int = 100) -> FloatArray:
+    """Return a quick median rotation-compensated parallax (px) of every candidate pair.
+
+    :func:`rotation_only_parallaxes` on at most ``max_points`` of each pair's
+    correspondences (evenly spread, outliers included): a cheap estimate before any RANSAC,
+    to prefer pairs with a baseline.
+
+    Args:
+        corr: Candidate pairs.
+        bearings_c: Unit bearings of all observations, shape (K, 3).
+        focal_px: Focal length of the observing camera of every observation, shape (K,).
+        max_points: Correspondences used per pair.
+
+    Returns:
+        Parallax estimates, shape (P,) (px, with the pair's mean focal length).
+    """
+    n = corr.counts()
+    m = np.minimum(n, max_points)
+    seg = np.repeat(np.arange(corr.n_pairs), m)
+    i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
+    rows = corr.offsets[seg] + (i * n[seg]) // np.maximum(m[seg], 1)
+    ia, ib = corr.obs_a[rows], corr.obs_b[rows]
+    first = corr.offsets[:-1]
+    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
+    return rotation_only_parallaxes(bearings_c[ia], bearings_c[ib], seg, corr.n_pairs) * f_pair
+
+
 def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: FloatArray,
                       ) -> tuple[FloatArray, FloatArray]:
     """Return the depths (lambda1, lambda2) with lambda1 R b1 + t = lambda2 b2 (midpoint-free).
@@ -224,32 +283,174 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
     """
     Rb1 = np.einsum('...ij,...j->...i', R_rel, b1)
     t = np.broadcast_to(t_rel, Rb1.shape)
-    m = np.cross(Rb1, b2)  # Rb1 x b2
+    m = so3.cross(Rb1, b2)  # Rb1 x b2
     mm = np.maximum(np.sum(m * m, axis=1), 1e-300)
-    lam1 = -np.sum(np.cross(t, b2) * m, axis=1) / mm
-    lam2 = -np.sum(np.cross(t, Rb1) * m, axis=1) / mm
+    lam1 = -np.sum(so3.cross(t, b2) * m, axis=1) / mm
+    lam2 = -np.sum(so3.cross(t, Rb1) * m, axis=1) / mm
     return lam1, lam2
 
 
-def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
-    """Return the median angle (rad) left between b2 and R b1 by the best pure rotation R.
+def _segment_medians(values: FloatArray, segment: IntArray, n_segments: int) -> FloatArray:
+    """Return the median of ``values`` within each segment id (0 for an empty segment)."""
+    # One sort of segment + a value squashed into [0, 1): cheaper than a two-key lexsort.
+    lo_v, hi_v = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+    squashed = (values - lo_v) / ((hi_v - lo_v) * (1.0 + 1e-9) + 1e-300)
+    v = values[np.argsort(segment + squashed)]
+    counts = np.bincount(segment, minlength=n_segments)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    lo = starts + np.maximum(counts - 1, 0) // 2
+    hi = starts + counts // 2
+    med = np.zeros(n_segments)
+    has = counts > 0
+    med[has] = 0.5 * (v[lo[has]] + v[hi[has]])
+    return med
 
-    R is the orthogonal Procrustes fit (b2 ~ R b1). For a pair without baseline (pure
-    rotation) the result is at noise level, whatever the essential matrix says.
+
+def _segment_sums(values: FloatArray, offsets: IntArray) -> FloatArray:
+    """Return the sums of ``values`` (C, ...) over the CSR segments ``offsets`` (P+1,)."""
+    out = np.zeros((offsets.shape[0] - 1, *values.shape[1:]))
+    nonempty = np.diff(offsets) > 0
+    if values.shape[0]:
+        out[nonempty] = np.add.reduceat(values, offsets[:-1][nonempty], axis=0)
+    return out
+
+
+def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
+                             n_segments: int) -> FloatArray:
+    """Return, per segment, the median angle (rad) left between b2 and R b1 by the best R.
+
+    R is the orthogonal Procrustes fit (b2 ~ R b1) of each segment (pair) of correspondences.
+    For a pair without baseline (pure rotation) the result is at noise level, whatever the
+    essential matrix says.
 
     Args:
         b1: Unit bearings in camera 1, shape (C, 3).
         b2: Unit bearings in camera 2, shape (C, 3).
+        segment: Segment (pair) of every correspondence, shape (C,), values < n_segments.
+        n_segments: Number of segments P.
+
+    Returns:
+        Median angles, shape (P,) (0 for a segment without correspondences).
     """
-    U, _, Vt = np.linalg.svd(b2.T @ b1)
-    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    cosang = np.clip(np.sum((b1 @ R.T) * b2, axis=1), -1.0, 1.0)
-    return float(np.median(np.arccos(cosang)))
+    outer = (b2[:, :, None] * b1[:, None, :]).reshape(-1, 9)
+    cov = np.stack([np.bincount(segment, weights=outer[:, c], minlength=n_segments)
+                    for c in range(9)], axis=1).reshape(n_segments, 3, 3)
+    U, _, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
+    R = U @ Vt
+    cosang = np.clip(np.sum(b2 * np.einsum('kij,kj->ki', R[segment], b1), axis=1), -1.0, 1.0)
+    return _segment_medians(np.arccos(cosang), segment, n_segments)
+
+
+def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
+    """Return :func:`rotation_only_parallaxes` of one pair of bearing sets (C, 3) (rad)."""
+    return float(rotation_only_parallaxes(b1, b2, np.zeros(b1.shape[0], dtype=np.int64), 1)[0])
+
+
+def _normalized(b: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(b[:, :2] / b[:, 2:3])
+
+
+def essential_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *, prob: float = 0.999,
+                  method: int = cv2.USAC_FAST) -> FloatArray | None:
+    """Return one pair's essential matrix (3, 3) from OpenCV's 5-point RANSAC, or None.
+
+    Args:
+        b1: Unit bearings in camera 1 (z > 0), shape (C, 3).
+        b2: Unit bearings of the same features in camera 2, shape (C, 3).
+        threshold: RANSAC threshold on normalized image coordinates (about px / f).
+        prob: RANSAC confidence.
+        method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
+
+    References:
+        PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
+    """
+    try:
+        E, mask = cv2.findEssentialMat(_normalized(b1), _normalized(b2), np.eye(3),
+                                       method=method, prob=prob, threshold=threshold)
+    except cv2.error as err:
+        logger.debug('findEssentialMat failed: %s', err)
+        return None
+    if E is None or mask is None or E.shape[0] < 3:
+        return None
+    return np.asarray(E[:3], dtype=float)
+
+
+def sampson_errors(E: FloatArray, b1: FloatArray, b2: FloatArray) -> FloatArray:
+    """Return the Sampson distances of correspondences to their essential matrices.
+
+    Args:
+        E: Essential matrix of every correspondence, shape (C, 3, 3) (x2^T E x1 = 0).
+        b1: Bearings in camera 1 (z > 0), shape (C, 3).
+        b2: Bearings in camera 2 (z > 0), shape (C, 3).
+
+    Returns:
+        Distances on normalized image coordinates (about px / f), shape (C,).
+    """
+    x1 = b1 / b1[:, 2:3]
+    x2 = b2 / b2[:, 2:3]
+    Ex1 = np.einsum('kij,kj->ki', E, x1)
+    Etx2 = np.einsum('kji,kj->ki', E, x2)
+    num = np.sum(x2 * Ex1, axis=1)
+    den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-300))
+
+
+#: Triangulated points farther than this many baselines do not count as cheirality inliers
+#: (OpenCV's recoverPose rule: they carry no information on the translation).
+_MAX_DEPTH_BASELINES = 50.0
+
+
+def decompose_essential(E: FloatArray, b1: FloatArray, b2: FloatArray, segment: IntArray,
+                        inliers: BoolArray) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Choose each pair's (R, t) among the four of its essential matrix by cheirality.
+
+    The candidate that puts most of the pair's ``inliers`` in front of both cameras (closer
+    than 50 baselines, as OpenCV's recoverPose) wins.
+
+    Args:
+        E: Essential matrices, shape (P, 3, 3).
+        b1: Unit bearings in camera 1 of every correspondence, shape (C, 3).
+        b2: Unit bearings in camera 2, shape (C, 3).
+        segment: Pair of every correspondence, shape (C,).
+        inliers: Epipolar inliers, shape (C,).
+
+    Returns:
+        R_cv (P, 3, 3), unit t_cv (P, 3) and the cheirality inliers (C,) (epipolar inliers
+        in front of both cameras).
+    """
+    U, _, Vt = np.linalg.svd(E)
+    U = U * np.where(np.linalg.det(U) < 0.0, -1.0, 1.0)[:, None, None]
+    Vt = Vt * np.where(np.linalg.det(Vt) < 0.0, -1.0, 1.0)[:, None, None]
+    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    rotations = (U @ W @ Vt, U @ W.T @ Vt)
+    t = U[:, :, 2]
+    P = E.shape[0]
+    best_score = np.full(P, -1)
+    R_best = np.zeros((P, 3, 3))
+    t_best = np.zeros((P, 3))
+    good_best = np.zeros(b1.shape[0], dtype=bool)
+    rows = np.flatnonzero(inliers)
+    seg, b1, b2 = segment[rows], b1[rows], b2[rows]
+    for R in rotations:
+        # The depths are linear in t: -t flips both signs, one solve serves both.
+        lam1, lam2 = cheirality_depths(R[seg], t[seg], b1, b2)
+        near = ((np.abs(lam1) * b1[:, 2] < _MAX_DEPTH_BASELINES)
+                & (np.abs(lam2) * b2[:, 2] < _MAX_DEPTH_BASELINES))
+        for sign in (1.0, -1.0):
+            good = near & (sign * lam1 > 0.0) & (sign * lam2 > 0.0)
+            score = np.bincount(seg[good], minlength=P)
+            better = score > best_score
+            best_score = np.where(better, score, best_score)
+            R_best[better] = R[better]
+            t_best[better] = sign * t[better]
+            good_best[rows] = np.where(better[seg], good, good_best[rows])
+    return R_best, t_best, good_best
 
 
 def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
-                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      prob: float = 0.999, method: int = cv2.USAC_FAST,
                       ) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray] | None:
     """Estimate one pair's relative pose with OpenCV's 5-point RANSAC and the cheirality check.
 
@@ -261,39 +462,41 @@ def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
         method: OpenCV robust method (cv2.RANSAC or a cv2.USAC_* flag).
 
     Returns:
-        (R_cv (3, 3), t_cv (3,), cheirality inlier mask (C,), RANSAC inlier mask (C,)), or
+        (R_cv (3, 3), t_cv (3,), cheirality inlier mask (C,), epipolar inlier mask (C,)), or
         None if OpenCV finds no model.
-
-    References:
-        PMBA Sec. 3 (EG pairs; "Kneip's 5-point" there, Nister's here: pmba.md §8 item 9).
     """
-    x1 = np.ascontiguousarray(b1[:, :2] / b1[:, 2:3])
-    x2 = np.ascontiguousarray(b2[:, :2] / b2[:, 2:3])
-    eye = np.eye(3)
-    try:
-        E, mask = cv2.findEssentialMat(x1, x2, eye, method=method, prob=prob,
-                                       threshold=threshold)
-    except cv2.error as err:
-        logger.debug('findEssentialMat failed: %s', err)
+    E = essential_5pt(b1, b2, threshold, prob=prob, method=method)
+    if E is None:
         return None
-    if E is None or mask is None or E.shape[0] < 3:
-        return None
-    E = E[:3]
-    _, R, t, mask2 = cv2.recoverPose(E, x1, x2, eye, mask=mask.copy())
-    return R.astype(float), t.ravel().astype(float), mask2.ravel() > 0, mask.ravel() > 0
+    seg = np.zeros(b1.shape[0], dtype=np.int64)
+    epi = sampson_errors(np.broadcast_to(E, (b1.shape[0], 3, 3)), b1, b2) <= threshold
+    R, t, inl = decompose_essential(E[None], b1, b2, seg, epi)
+    return R[0], t[0], inl, epi
+
+
+def _sample(n: int, max_points: int) -> IntArray:
+    """Return up to ``max_points`` indices evenly spread over range(n)."""
+    if n <= max_points:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
-                      prob: float = 0.999, method: int = cv2.USAC_ACCURATE,
+                      prob: float = 0.999, method: int = cv2.USAC_FAST,
+                      max_sample: int | None = None,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
-    A pair is kept if OpenCV returns a model with at least ``min_inliers`` cheirality inliers and
-    the median parallax that the best pure rotation leaves on its inliers
-    (:func:`rotation_only_parallax`) is at least ``min_parallax_px``; otherwise the pair has no
-    usable baseline (pure rotation) and its translation direction is undetermined.
+    OpenCV estimates each pair's essential matrix, from at most ``max_sample`` of its
+    correspondences (evenly spread); everything else is vectorized over all pairs at once:
+    the epipolar inliers among all correspondences (Sampson distance), the choice of (R, t) by
+    cheirality, and the parallax test. A pair is kept if its model has at least
+    ``min_inliers`` cheirality inliers and the median parallax that the best pure rotation
+    leaves on its epipolar inliers (:func:`rotation_only_parallaxes`) is at least
+    ``min_parallax_px``; otherwise the pair has no usable baseline (pure rotation) and its
+    translation direction is undetermined.
 
     Args:
         bearings_c: Unit bearings of all observations (camera frame), shape (K, 3).
@@ -304,6 +507,8 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         min_parallax_px: Minimum median parallax (px) left by the best pure rotation.
         prob: RANSAC confidence.
         method: OpenCV robust method.
+        max_sample: Largest number of a pair's correspondences given to the RANSAC (None:
+            all of them).
 
     Returns:
         The kept pairs, and counts of rejected pairs by reason.
@@ -312,57 +517,48 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         PMBA Sec. 3, Fig. 5 (EG pairs); pmba.md §4.1.
     """
     rejected = {'ransac_failed': 0, 'too_few_inliers': 0, 'low_parallax': 0}
-    keep_idx: list[int] = []
-    Rs: list[FloatArray] = []
-    ts: list[FloatArray] = []
-    inlier_masks: list[BoolArray] = []
-    parallax: list[float] = []
-    for p in range(corr.n_pairs):  # per-pair loop: one OpenCV call each
-        sl = slice(int(corr.offsets[p]), int(corr.offsets[p + 1]))
-        ia, ib = corr.obs_a[sl], corr.obs_b[sl]
-        b1, b2 = bearings_c[ia], bearings_c[ib]
-        front = (b1[:, 2] > 1e-3) & (b2[:, 2] > 1e-3)
-        if int(front.sum()) < max(min_inliers, 5):
-            rejected['too_few_inliers'] += 1
-            continue
-        f = float(np.sqrt(np.median(focal_px[ia]) * np.median(focal_px[ib])))
-        out = relative_pose_5pt(b1[front], b2[front], threshold_px / f, prob=prob,
-                                method=method)
-        if out is None:
-            rejected['ransac_failed'] += 1
-            continue
-        R, t, inl_front, ransac_front = out
-        # Parallax on the RANSAC inliers, before cheirality: without baseline the
-        # cheirality test of an arbitrary t drops points at random.
-        par_px = (rotation_only_parallax(b1[front][ransac_front], b2[front][ransac_front]) * f
-                  if int(ransac_front.sum()) >= 5 else 0.0)
-        if par_px < min_parallax_px:
-            rejected['low_parallax'] += 1
-            continue
-        inl = np.zeros(front.shape[0], dtype=bool)
-        inl[np.flatnonzero(front)[inl_front]] = True
-        if int(inl.sum()) < min_inliers:
-            rejected['too_few_inliers'] += 1
-            continue
-        keep_idx.append(p)
-        Rs.append(R)
-        ts.append(t / np.linalg.norm(t))
-        inlier_masks.append(inl)
-        parallax.append(par_px)
-    keep = np.asarray(keep_idx, dtype=np.int64)
-    if keep.size:
-        counts = np.asarray([int(m.sum()) for m in inlier_masks], dtype=np.int64)
-        sel = np.concatenate(inlier_masks)
-        rows = np.concatenate([np.arange(corr.offsets[p], corr.offsets[p + 1]) for p in keep])
-        obs_a, obs_b = corr.obs_a[rows][sel], corr.obs_b[rows][sel]
-        R_rel, t_rel = np.stack(Rs), np.stack(ts)
-    else:
-        counts = np.zeros(0, dtype=np.int64)
-        obs_a = obs_b = np.zeros(0, dtype=np.int64)
-        R_rel, t_rel = np.zeros((0, 3, 3)), np.zeros((0, 3))
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R_rel, t_rel, counts, offsets,
-                    obs_a, obs_b, np.asarray(parallax, dtype=float))
+    n_pairs = corr.n_pairs
+    seg_all = np.repeat(np.arange(n_pairs), corr.counts())
+    b1_all, b2_all = bearings_c[corr.obs_a], bearings_c[corr.obs_b]
+    front = (b1_all[:, 2] > 1e-3) & (b2_all[:, 2] > 1e-3)
+    n_front = np.bincount(seg_all[front], minlength=n_pairs)
+    first = corr.offsets[:-1]  # every candidate pair has a correspondence
+    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
+    thresholds = threshold_px / f_pair
+    E = np.zeros((n_pairs, 3, 3))
+    has_model = np.zeros(n_pairs, dtype=bool)
+    front_idx = np.flatnonzero(front)
+    front_offsets = np.concatenate([[0], np.cumsum(n_front)])
+    for p in np.flatnonzero(n_front >= max(min_inliers, 5)):  # one OpenCV call per pair
+        rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
+        if max_sample is not None:
+            rows = rows[_sample(rows.shape[0], max_sample)]
+        model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]), prob=prob,
+                              method=method)
+        if model is not None:
+            E[p], has_model[p] = model, True
+    rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
+    rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
+    sel = front & has_model[seg_all]
+    seg, b1, b2 = seg_all[sel], b1_all[sel], b2_all[sel]
+    epi = sampson_errors(E[seg], b1, b2) <= thresholds[seg]
+    R, t, inl = decompose_essential(E, b1, b2, seg, epi)
+    # Parallax on the epipolar inliers, before cheirality: without baseline the
+    # cheirality test of an arbitrary t drops points at random.
+    n_epi = np.bincount(seg[epi], minlength=n_pairs)
+    par_px = rotation_only_parallaxes(b1[epi], b2[epi], seg[epi], n_pairs) * f_pair
+    par_px = np.where(n_epi >= 5, par_px, 0.0)
+    low = has_model & (par_px < min_parallax_px)
+    counts = np.bincount(seg[inl], minlength=n_pairs)
+    few = has_model & ~low & (counts < min_inliers)
+    rejected['low_parallax'] += int(np.sum(low))
+    rejected['too_few_inliers'] += int(np.sum(few))
+    keep = has_model & ~low & ~few
+    inl_keep = inl & keep[seg]
+    rows = np.flatnonzero(sel)[inl_keep]  # sorted by pair, as corr
+    pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R[keep], t[keep], counts[keep],
+                    np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
+                    corr.obs_a[rows], corr.obs_b[rows], par_px[keep])
     return pairs, rejected
 
 

@@ -238,7 +238,8 @@ def test_features_without_eg_anchor_pair_are_recovered_not_dropped() -> None:
 
     Cameras 0 and 11 share 25 tracks (below min_pair_matches = 30), seen by no other camera:
     they have no EG anchor pair. They are anchored after the NLS on (0, 11), every feature
-    is used, and the one BA reaches the cost of PMBA started from the true values.
+    is used, and the one BA reaches the cost of PMBA started from the true values, or a lower
+    one (that start can stall on a far, near-collinear feature, as in the twenty-seed test).
     """
     gt = sim_street(4, n_cams=12, n_points=400, noise_px=0.5).gt
     problem, cut = _only_pair_tracks(gt, 0, 11, 25)
@@ -250,4 +251,4 @@ def test_features_without_eg_anchor_pair_are_recovered_not_dropped() -> None:
     assert res.problem.n_feats == problem.n_feats
     assert np.isin(cut, res.feature_index).all()
     assert res.solve.converged
-    assert res.solve.final_cost == pytest.approx(_gt_start_cost(problem, res), rel=1e-6)
+    assert res.solve.final_cost <= _gt_start_cost(problem, res) * (1.0 + 1e-6)

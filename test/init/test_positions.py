@@ -136,3 +136,27 @@ def test_cls_then_nls_are_accurate_with_noise() -> None:
     assert _aligned_error(res_cls.centers_w, P_true, st.root) < 0.02
     assert _aligned_error(res_nls.centers_w, P_true, st.root) < 0.02
     assert res_nls.final_cost <= res_nls.initial_cost
+
+
+def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
+        rng: np.random.Generator) -> None:
+    """sum_k G_k^T A_k G_k and sum_k G_k^T y_k equal J^T blockdiag(A) J and J^T y.
+
+    N-bar is linear in P, so the dense Jacobian's columns are N-bar at unit positions.
+    """
+    st = _setup(5)
+    lin, M, K = st.lin, st.problem.n_cams, st.problem.n_obs
+    J = np.empty((K, 3, 3 * M))
+    for col in range(3 * M):
+        unit = np.zeros(3 * M)
+        unit[col] = 1.0
+        J[:, :, col] = lin.evaluate(unit.reshape(M, 3))
+    L = rng.normal(size=(K, 3, 3))
+    A = L @ np.swapaxes(L, 1, 2)
+    y = rng.normal(size=(K, 3))
+    H_ref = np.einsum('kai,kab,kbj->ij', J, A, J)
+    np.testing.assert_allclose(lin.normal_matrix(A, M), H_ref, atol=1e-10 * np.abs(H_ref).max())
+    g_ref = np.einsum('kai,ka->i', J, y)
+    np.testing.assert_allclose(lin.gradient(y, M), g_ref, atol=1e-10 * np.abs(g_ref).max())
+    # Anchors observe their own features: the i = m and i = a blocks add up.
+    assert np.any(lin.cam == lin.main[lin.feat]) and np.any(lin.cam == lin.assoc[lin.feat])

@@ -130,7 +130,7 @@ def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
 
 @pytest.mark.parametrize('seed', [0, 1])
 def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> None:
-    """USAC_ACCURATE relative rotations are within a few hundredths of a degree."""
+    """USAC_FAST relative rotations are within a few hundredths of a degree."""
     p = street_scene(seed, n_cams=8, n_points=300, noise_px=0.5).gt
     corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
@@ -156,3 +156,34 @@ def test_max_partners_keeps_each_cameras_most_covisible_pairs() -> None:
         assert b in top_a or a in top_b
     # Every camera keeps at least its best partner.
     assert set(few.cam_a.tolist()) | set(few.cam_b.tolist()) == set(range(p.n_cams))
+
+
+def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> None:
+    """100 evenly spread correspondences give the parallax within noise; none without baseline.
+
+    The full estimate is the median over all correspondences (:func:`rotation_only_parallax`).
+    """
+    p = street_scene(2, n_cams=8, n_points=400, noise_px=0.5).gt
+    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
+    focal = p.intrinsics.fx[p.obs.cam_idx]
+    quick = two_view.sampled_parallax_px(corr, p.obs.bearings_c, focal)
+    full = np.array([two_view.rotation_only_parallax(
+        p.obs.bearings_c[corr.obs_a[a:b]], p.obs.bearings_c[corr.obs_b[a:b]])
+        for a, b in zip(corr.offsets[:-1], corr.offsets[1:], strict=True)]) * focal[0]
+    assert np.all(corr.counts() > 30) and full.max() > 5.0
+    np.testing.assert_allclose(quick, full, rtol=0.35, atol=1.0)
+    rot = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0).gt
+    corr = two_view.pair_correspondences(rot.obs.cam_idx, rot.obs.feat_idx, rot.n_cams, 20)
+    quick = two_view.sampled_parallax_px(corr, rot.obs.bearings_c,
+                                         rot.intrinsics.fx[rot.obs.cam_idx])
+    assert corr.n_pairs > 0 and quick.max() < 1.0
+
+
+def test_top_partners_by_score_keep_each_cameras_best() -> None:
+    """Each camera keeps its k best-scored pairs; a pair stays if it is best for either end."""
+    cam_a = np.array([0, 0, 0, 1, 1, 2])
+    cam_b = np.array([1, 2, 3, 2, 3, 3])
+    score = np.array([5.0, 1.0, 3.0, 4.0, 0.5, 2.0])
+    keep = two_view.top_partners(cam_a, cam_b, score, 4, 1)
+    # Best of 0: (0,1); of 1: (0,1); of 2: (1,2); of 3: (0,3).
+    assert keep.tolist() == [True, False, True, True, False, False]
