@@ -54,26 +54,23 @@ The CLS and NLS use dense (3M x 3M) normal matrices: fine up to about 1500 camer
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 import logging
 import time
 from typing import Any
 
 import numpy as np
-from pmba_ros._json import to_jsonable
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import conversions
-from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import (
     BAProblem,
     make_problem,
     ParallaxFeatures,
-    Parameterization,
     subset_features,
 )
-from pmba_ros.core.solve import solve, SolveOptions, SolveResult, SolverKind
+from pmba_ros.core.solve import solve
 from pmba_ros.errors import InitError
 from pmba_ros.init import anchors, cls, nls, rotation_averaging, tracks, two_view, view_graph
+from pmba_ros.init.options import InitOptions, InitResult
 
 logger = logging.getLogger(__name__)
 
@@ -82,155 +79,6 @@ ProgressCallback = Callable[[str, Mapping[str, Any]], None]
 
 
 STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'tracks', 'ba')
-
-
-def _default_solve_options() -> SolveOptions:
-    # The engine's (Ceres') defaults; tighten function_tolerance to compare optima closely.
-    return SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE)
-
-
-@dataclass(frozen=True, slots=True)
-class InitOptions:
-    """Options of :func:`global_init`.
-
-    Attributes:
-        min_pair_matches: Minimum common tracks of an image pair to try a 5-point RANSAC.
-        min_pair_inliers: Minimum cheirality inliers of an EG pair.
-        max_pair_partners: If set, try only the pairs that are among the best partners of one
-            of their cameras: half by shared tracks, half by a quick parallax estimate times
-            the square root of the shared tracks. Only where there are more than
-            ``max_pair_partners`` pairs per camera (small collections keep every pair; None:
-            always every pair with enough common tracks).
-        ransac_max_points: Largest number of a pair's correspondences given to the RANSAC
-            (evenly spread over its tracks; None: all). The inliers, the choice of (R, t)
-            and the parallax test use all of them.
-        ransac_threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
-        ransac_confidence: RANSAC confidence.
-        ransac_method: 'usac_fast' (default) or 'usac_accurate' (both with local optimization
-            refining the essential matrix on its inliers; the fast one with fewer inner
-            iterations), 'usac_magsac', 'usac_default' or 'ransac' (OpenCV's classic RANSAC,
-            whose minimal-sample model is several times less accurate).
-        min_pair_parallax_px: Minimum median parallax (px) that the best pure rotation leaves
-            on a pair's inliers; pairs below it have no usable baseline (pure rotation).
-        max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
-            chained along the maximum spanning tree by more than this.
-        max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
-            averaged rotations by more than this, then average again.
-        rotation_cauchy_deg: Cauchy scale (deg) of the iteratively reweighted rotation
-            averaging: pairs disagreeing with the consensus by several times this lose
-            their weight.
-        cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
-        nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
-        nls_max_iterations: LM iteration limit of the NLS (a safeguard: the NLS stops on its
-            tolerances well before it; the report says whether it converged).
-        track_min_px: Tracks whose RMS angle to their triangulated point (px) exceeds
-            max(track_min_px, track_relative x the median over all tracks) once positions
-            are known are dropped as wrong matches before the BA.
-        track_relative: See ``track_min_px``.
-        camera_min_px: Cameras whose median residual to the triangulated points (px) exceeds
-            max(camera_min_px, camera_relative x the median over cameras) after the NLS are
-            placed again by resection from the other cameras' points before the BA.
-        camera_relative: See ``camera_min_px``.
-        theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
-            divided by the main anchor's focal length) start the BA at infinity (theta = 0).
-        solve_options: Options of the final (and only) BA: PMBA with Dogleg, no loss, the
-            engine's defaults otherwise (function_tolerance 1e-6, as Ceres).
-    """
-
-    min_pair_matches: int = 30
-    min_pair_inliers: int = 20
-    max_pair_partners: int | None = 10
-    ransac_max_points: int | None = 200
-    ransac_threshold_px: float = 1.0
-    ransac_confidence: float = 0.999
-    ransac_method: str = 'usac_fast'
-    min_pair_parallax_px: float = 2.0
-    max_tree_disagreement_deg: float = 5.0
-    max_pair_disagreement_deg: float = 2.0
-    rotation_cauchy_deg: float = 1.0
-    cls_max_penalty_iterations: int = 10
-    nls_cauchy_px: float = 3.0
-    nls_max_iterations: int = 500
-    track_min_px: float = 10.0
-    track_relative: float = 30.0
-    camera_min_px: float = 10.0
-    camera_relative: float = 5.0
-    theta_floor_px: float = 3.0
-    solve_options: SolveOptions = field(default_factory=_default_solve_options)
-
-    def __post_init__(self) -> None:
-        """Validate ranges."""
-        if self.min_pair_matches < 5 or self.min_pair_inliers < 5:
-            msg = '`min_pair_matches` and `min_pair_inliers` must be >= 5 (5-point solver)'
-            raise ValueError(msg)
-        if self.max_pair_partners is not None and self.max_pair_partners < 1:
-            msg = '`max_pair_partners` must be None or >= 1'
-            raise ValueError(msg)
-        if self.ransac_max_points is not None and self.ransac_max_points < 5:
-            msg = '`ransac_max_points` must be None or >= 5 (5-point solver)'
-            raise ValueError(msg)
-        if self.ransac_method not in two_view.RANSAC_METHODS:
-            msg = f'`ransac_method` must be one of {sorted(two_view.RANSAC_METHODS)}'
-            raise ValueError(msg)
-        if not 0.0 < self.ransac_confidence < 1.0:
-            msg = '`ransac_confidence` must be in (0, 1)'
-            raise ValueError(msg)
-        for name in ('ransac_threshold_px', 'max_tree_disagreement_deg',
-                     'max_pair_disagreement_deg', 'nls_cauchy_px', 'track_min_px',
-                     'rotation_cauchy_deg', 'camera_min_px', 'camera_relative',
-                     'track_relative'):
-            if not getattr(self, name) > 0.0:
-                msg = f'`{name}` must be positive'
-                raise ValueError(msg)
-        if self.min_pair_parallax_px < 0.0 or self.theta_floor_px < 0.0:
-            msg = '`min_pair_parallax_px` and `theta_floor_px` must be >= 0'
-            raise ValueError(msg)
-        if self.solve_options.param.value != 'pmba':
-            msg = '`solve_options.param` must be pmba (the features are parallax features)'
-            raise ValueError(msg)
-
-
-@dataclass(frozen=True, eq=False)
-class InitResult:
-    """Result of :func:`global_init`.
-
-    Attributes:
-        problem: The problem handed to the final BA: cameras of the largest component of the
-            view graph (renumbered), every feature they see twice, poses from the NLS.
-        features: The PMBA features the BA started from: theta-bar and n-bar from the
-            averaged rotations (Remark 5), anchors on EG pairs (on the widest pair with a
-            baseline for the features recovered in the ``tracks`` stage) oriented so that
-            the triangle is valid, theta = 0 (infinity) below ``InitOptions.theta_floor_px``.
-        solve: The final PMBA result (its R_wc, centers_w, features and points are the output).
-        camera_index: Input camera index of each camera of ``problem``, shape (M',).
-        feature_index: Input feature index of each feature of ``problem``, shape (N',).
-        cameras_used: Mask (M,) of input cameras that are in ``problem``.
-        report: Per-stage report (see :meth:`to_report`).
-        ba_invocations: Number of BA solves (always 1).
-    """
-
-    problem: BAProblem
-    features: ParallaxFeatures
-    solve: SolveResult
-    camera_index: IntArray
-    feature_index: IntArray
-    cameras_used: BoolArray
-    report: dict[str, Any]
-    ba_invocations: int = 1
-
-    @property
-    def R_wc(self) -> FloatArray:
-        """Final camera -> world rotations of ``problem``'s cameras, shape (M', 3, 3)."""
-        return self.solve.R_wc
-
-    @property
-    def centers_w(self) -> FloatArray:
-        """Final camera centres of ``problem``'s cameras, shape (M', 3)."""
-        return self.solve.centers_w
-
-    def to_report(self) -> dict[str, Any]:
-        """Return the JSON-able report: one entry per stage and ``time_s`` per stage."""
-        return to_jsonable(self.report)
 
 
 def _angle_stats(angles_deg: FloatArray) -> dict[str, float]:

@@ -343,11 +343,6 @@ def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
     return _segment_medians(np.arccos(cosang), segment, n_segments)
 
 
-def rotation_only_parallax(b1: FloatArray, b2: FloatArray) -> float:
-    """Return :func:`rotation_only_parallaxes` of one pair of bearing sets (C, 3) (rad)."""
-    return float(rotation_only_parallaxes(b1, b2, np.zeros(b1.shape[0], dtype=np.int64), 1)[0])
-
-
 def _normalized(b: FloatArray) -> FloatArray:
     return np.ascontiguousarray(b[:, :2] / b[:, 2:3])
 

@@ -94,13 +94,19 @@ def test_cheirality_depths_are_positive_in_front_and_flip_with_t(
     assert np.all(lam1n < 0) and np.all(lam2n < 0)
 
 
+def _parallax(b1: np.ndarray, b2: np.ndarray) -> float:
+    """Return the rotation-compensated parallax of one pair of bearing sets, rad."""
+    one = np.zeros(b1.shape[0], dtype=np.int64)
+    return float(two_view.rotation_only_parallaxes(b1, b2, one, 1)[0])
+
+
 def test_rotation_only_parallax_is_noise_level_for_pure_rotation(
         rng: np.random.Generator) -> None:
     """Pure rotation leaves no parallax after the Procrustes rotation; a baseline does."""
     b1, b2, _, _ = _two_cameras(rng)
     R = so3.exp(np.array([0.1, -0.2, 0.05]))
-    assert two_view.rotation_only_parallax(b1, b1 @ R.T) < 1e-12
-    assert two_view.rotation_only_parallax(b1, b2) > 1e-3
+    assert _parallax(b1, b1 @ R.T) < 1e-12
+    assert _parallax(b1, b2) > 1e-3
 
 
 def test_refine_translations_recovers_direction_and_sign() -> None:
@@ -161,13 +167,13 @@ def test_max_partners_keeps_each_cameras_most_covisible_pairs() -> None:
 def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> None:
     """100 evenly spread correspondences give the parallax within noise; none without baseline.
 
-    The full estimate is the median over all correspondences (:func:`rotation_only_parallax`).
+    The full estimate is the median over all correspondences of the pair (:func:`_parallax`).
     """
     p = street_scene(2, n_cams=8, n_points=400, noise_px=0.5).gt
     corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     focal = p.intrinsics.fx[p.obs.cam_idx]
     quick = two_view.sampled_parallax_px(corr, p.obs.bearings_c, focal)
-    full = np.array([two_view.rotation_only_parallax(
+    full = np.array([_parallax(
         p.obs.bearings_c[corr.obs_a[a:b]], p.obs.bearings_c[corr.obs_b[a:b]])
         for a, b in zip(corr.offsets[:-1], corr.offsets[1:], strict=True)]) * focal[0]
     assert np.all(corr.counts() > 30) and full.max() > 5.0
