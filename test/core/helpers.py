@@ -18,11 +18,11 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from pmba_ros.core import so3
+from pmba_ros.core import conversions, so3, sphere
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.engine import compiled_available, Engine, resolve
 from pmba_ros.core.models import Model
-from pmba_ros.core.problem import BAProblem, make_problem
+from pmba_ros.core.problem import BAProblem, make_problem, ParallaxFeatures
 import pytest
 
 
@@ -86,3 +86,17 @@ def engine_named(name: str) -> Engine:
     if name == 'compiled' and not compiled_available():
         pytest.skip('the compiled engine needs numba')
     return resolve(name)
+
+
+def perturbed_state(problem: BAProblem, seed: int,
+                    ) -> tuple[np.ndarray, np.ndarray, ParallaxFeatures]:
+    """Return poses and PMBA features of ``problem``'s true state, each slightly perturbed."""
+    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                            problem.points_w)
+    assert ok.all()
+    rng = np.random.default_rng(seed)
+    R = problem.R_wc @ so3.exp(rng.normal(0, 0.01, (problem.n_cams, 3)))
+    P = problem.centers_w + rng.normal(0, 0.05, problem.centers_w.shape)
+    theta = feats.theta + rng.normal(0, 1e-3, feats.theta.shape)
+    n = sphere.retract(feats.n, rng.normal(0, 1e-2, (feats.n.shape[0], 2)))
+    return R, P, ParallaxFeatures(theta, n, feats.main_idx, feats.assoc_idx)

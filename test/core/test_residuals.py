@@ -25,20 +25,12 @@ from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.core.residuals import pose_slots, ray_residuals
 import pytest
 
-from .helpers import check_jacobians, engine_named, forward_problem
+from .helpers import check_jacobians, engine_named, forward_problem, perturbed_state
 
 
 def _perturbed(seed: int = 3):
     problem = forward_problem(seed)
-    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                            problem.points_w)
-    assert ok.all()
-    rng = np.random.default_rng(seed)
-    R = problem.R_wc @ so3.exp(rng.normal(0, 0.01, (problem.n_cams, 3)))
-    P = problem.centers_w + rng.normal(0, 0.05, problem.centers_w.shape)
-    theta = feats.theta + rng.normal(0, 1e-3, feats.theta.shape)
-    n = sphere.retract(feats.n, rng.normal(0, 1e-2, (feats.n.shape[0], 2)))
-    return problem, R, P, ParallaxFeatures(theta, n, feats.main_idx, feats.assoc_idx)
+    return (problem, *perturbed_state(problem, seed))
 
 
 def test_observation_rays_eq6_equals_eq2_projection(engine: Engine) -> None:

@@ -16,14 +16,13 @@
 from __future__ import annotations
 
 import numpy as np
-from pmba_ros.core import conversions, so3, sphere
+from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.engine import Engine
 from pmba_ros.core.models import make_model, ParallaxModel
 from pmba_ros.core.problem import (
     BAProblem,
     make_problem,
-    ParallaxFeatures,
     Parameterization,
     Rig,
 )
@@ -31,7 +30,7 @@ from pmba_ros.core.solve import solve, SolveOptions
 from pmba_ros.errors import ProblemError
 import pytest
 
-from .helpers import check_jacobians
+from .helpers import check_jacobians, perturbed_state
 
 
 def _rig(offset_first: bool) -> Rig:
@@ -66,25 +65,13 @@ def rig_problem(seed: int = 0, offset_first: bool = False, n_poses: int = 5,
     return problem, X
 
 
-def _perturbed(problem: BAProblem, seed: int = 1):
-    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                            problem.points_w)
-    assert ok.all()
-    rng = np.random.default_rng(seed)
-    R = problem.R_wc @ so3.exp(rng.normal(0, 0.01, (problem.n_cams, 3)))
-    P = problem.centers_w + rng.normal(0, 0.05, problem.centers_w.shape)
-    theta = feats.theta + rng.normal(0, 1e-3, feats.theta.shape)
-    n = sphere.retract(feats.n, rng.normal(0, 1e-2, (feats.n.shape[0], 2)))
-    return R, P, ParallaxFeatures(theta, n, feats.main_idx, feats.assoc_idx)
-
-
 @pytest.mark.parametrize('offset_first', [False, True])
 @pytest.mark.parametrize('pixel_weighted', [False, True])
 def test_rig_jacobians_match_central_differences(offset_first: bool, pixel_weighted: bool,
                                                  engine: Engine) -> None:
     """Observer blocks through the camera offsets, anchors on the rig poses: all exact."""
     problem, _ = rig_problem(offset_first=offset_first)
-    R, P, feats = _perturbed(problem)
+    R, P, feats = perturbed_state(problem, 1)
     model = ParallaxModel(problem, pixel_weighted, engine)
     slots = model.slots(feats)
     # Second-camera observations of a main anchor name its pose in two slots.
