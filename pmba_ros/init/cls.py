@@ -117,8 +117,10 @@ class LinearRays:
 
     def points(self, centers_w: FloatArray) -> FloatArray:
         """Return X_j(P) = C_a P_a + C_m P_m of every feature, shape (N, 3)."""
-        return (np.einsum('nij,nj->ni', self.anchor_coeff[:, 0], centers_w[self.assoc])
-                + np.einsum('nij,nj->ni', self.anchor_coeff[:, 1], centers_w[self.main]))
+        points: FloatArray = (
+            np.einsum('nij,nj->ni', self.anchor_coeff[:, 0], centers_w[self.assoc])
+            + np.einsum('nij,nj->ni', self.anchor_coeff[:, 1], centers_w[self.main]))
+        return points
 
     def evaluate(self, centers_w: FloatArray) -> FloatArray:
         """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3)."""

@@ -172,4 +172,5 @@ class InitResult:
 
     def to_report(self) -> dict[str, Any]:
         """Return the JSON-able report: one entry per stage and ``time_s`` per stage."""
-        return to_jsonable(self.report)
+        report: dict[str, Any] = to_jsonable(self.report)
+        return report

@@ -556,3 +556,6 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     return InitResult(init_problem, feats, result, cam_index,
                       np.asarray(init_problem.feature_ids, dtype=np.int64), cameras_used, report,
                       1)
+
+
+__all__ = ['STAGES', 'InitOptions', 'InitResult', 'ProgressCallback', 'global_init']

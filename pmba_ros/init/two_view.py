@@ -389,7 +389,8 @@ def sampson_errors(E: FloatArray, b1: FloatArray, b2: FloatArray) -> FloatArray:
     Etx2 = np.einsum('kji,kj->ki', E, x2)
     num = np.sum(x2 * Ex1, axis=1)
     den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
-    return np.abs(num) / np.sqrt(np.maximum(den, 1e-300))
+    errors: FloatArray = np.abs(num) / np.sqrt(np.maximum(den, 1e-300))
+    return errors
 
 
 #: Triangulated points farther than this many baselines do not count as cheirality inliers
