@@ -60,7 +60,8 @@ INT_MINIMUMS: dict[str, int] = {
 POSITIVE_FLOATS = ('motion_prior_direction_rel', 'max_time_s', 'loss_scale_px',
                    'covariance_position_m2', 'covariance_rotation_rad2', 'fallback_focal_px',
                    'association_timeout_s', 'stale_input_s')
-NON_NEGATIVE_FLOATS = ('motion_prior_translation_rel', 'motion_prior_rotation_rad',
+NON_NEGATIVE_FLOATS = ('motion_prior_translation_rel', 'motion_prior_shape_rel',
+                       'motion_prior_rotation_rad',
                        'fallback_max_scale_jump', 'fallback_max_motion_error',
                        'init_min_parallax_px', 'transform_tolerance_s', 'stamp_tolerance_s',
                        'tf_rate_hz')
@@ -94,9 +95,14 @@ class BackendConfig:
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
-        motion_prior_translation_rel: Sigma of the front-end's keyframe-to-keyframe translation
-            as a fraction of the step (the relative-motion prior of each window solve; one
-            sigma weighs as one pixel of reprojection error; 0: no translation prior).
+        motion_prior_translation_rel: Sigma of the length of the front-end's keyframe-to-keyframe
+            translation against the initialization's map <- odom scale, as a fraction of the
+            step (the relative-motion prior of each window solve; one sigma weighs as one pixel
+            of reprojection error; 0: no translation prior).
+        motion_prior_shape_rel: Sigma of that length against the map's own map <- odom scale
+            over the ``window_size`` steps around it (the front-end's steps agree with each
+            other better than its scale holds), as a fraction of the step; monocular
+            sliding windows only (0: only the length above).
         motion_prior_direction_rel: Sigma of that translation across the step (its direction),
             as a fraction of the step.
         motion_prior_rotation_rad: Sigma of its relative rotation, rad (0: none).
@@ -179,6 +185,7 @@ class BackendConfig:
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
     motion_prior_translation_rel: float = 0.2
+    motion_prior_shape_rel: float = 0.02
     motion_prior_direction_rel: float = 0.01
     motion_prior_rotation_rad: float = 0.001
     fallback_max_scale_jump: float = 0.1

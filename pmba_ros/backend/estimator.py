@@ -370,7 +370,8 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
-        if self._motion_prior_on():
+        if self.config.motion_prior_translation_rel > 0 or \
+                self.config.motion_prior_rotation_rad > 0:
             # The initialization used vision alone; where near features are few its local
             # motion is noisier than the front-end's. One refine of the whole batch with the
             # front-end's motion as prior, before older keyframes leave the window.
@@ -506,13 +507,11 @@ class Estimator:
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         return info
 
-    def _motion_prior_on(self) -> bool:
-        cfg = self.config
-        return cfg.motion_prior_translation_rel > 0 or cfg.motion_prior_rotation_rad > 0
-
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""
-        return frontend_motion_prior(self.kf, cams, fixed, self._metric_scale, self.config)
+        return frontend_motion_prior(
+            self.kf, cams, fixed, self._metric_scale, self.config,
+            follow_map_scale=self.config.mode == 'sliding' and self._rig() is None)
 
     def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
                        moved: IntArray, error_before: float) -> str:

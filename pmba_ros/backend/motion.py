@@ -22,6 +22,7 @@ front-end's keyframe-to-keyframe motion enters the solve as a weak prior
 from __future__ import annotations
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
@@ -29,16 +30,27 @@ from pmba_ros.core.pose_prior import RelativePosePrior
 
 
 def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
-                          metric_scale: float, config: BackendConfig,
-                          ) -> RelativePosePrior | None:
+                          metric_scale: float, config: BackendConfig, *,
+                          follow_map_scale: bool = True) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
-    both have front-end poses and one is free. The measured translation is the front-end's
-    times ``metric_scale`` (the map <- odom scale of the initialization), so the map keeps
-    the front-end's scale instead of drifting. Weights: one sigma (of the step length
-    ``motion_prior_translation_rel``, across it ``motion_prior_direction_rel``, both of the
-    step plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one pixel of
+    both have front-end poses and one is free. A step's length enters as two Gaussian
+    factors merged into one:
+
+    * against ``metric_scale``, the map <- odom scale of the initialization (the
+      front-end's metric scale; sigma ``motion_prior_translation_rel``);
+    * with ``follow_map_scale``, against the map's own scale around the step
+      (:func:`local_scales` over ``window_size`` steps; sigma ``motion_prior_shape_rel``):
+      a front-end's step lengths agree with each other far better than its scale holds.
+
+    The second keeps the front-end's local motion and leaves the map's scale to the
+    vision, the first slowly pulls that scale back to the front-end's. As the second also
+    holds back changes of the map's scale, it suits a monocular sliding window, whose
+    vision sees the scale weakly and step by step, not a stereo rig (a metric map) or a
+    global solve (which moves the whole map's scale at once). Weights: one sigma (of the
+    length, of the direction across it ``motion_prior_direction_rel``, each of the step
+    plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one pixel of
     reprojection error; where the front-end gives pose covariances they take over
     (:func:`covariance_weights`).
     """
@@ -50,22 +62,51 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     ok = kf.has_odom[a] & kf.has_odom[b] & ~(fixed[:-1] & fixed[1:])
     a_loc, a, b = a_loc[ok], a[ok], b[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
-    t_ab = metric_scale * np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
-    step = np.linalg.norm(t_ab, axis=1)
-    # Square-root information: 1 / sigma along the step (its length: the scale) and
-    # 1 / sigma across it (its direction, which a front-end measures much better).
-    along = t_ab / np.maximum(step, 1e-12)[:, None]
-    P_along = np.einsum('mi,mj->mij', along, along)
+    t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+    step = np.linalg.norm(t_odom, axis=1)
+    scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
     if cfg.motion_prior_translation_rel > 0:
-        w_len = 1.0 / (cfg.motion_prior_translation_rel * step + 1e-3)
-        w_dir = 1.0 / (cfg.motion_prior_direction_rel * step + 1e-3)
-        W_trans = (w_len[:, None, None] * P_along
+        info = 1.0 / (cfg.motion_prior_translation_rel * metric_scale * step + 1e-3) ** 2
+        if cfg.motion_prior_shape_rel > 0 and follow_map_scale:
+            local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size)
+            info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + 1e-3) ** 2
+            scale = (info * metric_scale + info_local * local) / (info + info_local)
+            info = info + info_local
+        # Square-root information: along the step (its length: the scale) and across it
+        # (its direction, which a front-end measures much better).
+        along = t_odom / np.maximum(step, 1e-12)[:, None]
+        P_along = np.einsum('mi,mj->mij', along, along)
+        w_dir = 1.0 / (cfg.motion_prior_direction_rel * scale * step + 1e-3)
+        W_trans = (np.sqrt(info)[:, None, None] * P_along
                    + w_dir[:, None, None] * (np.eye(3) - P_along))
     w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
                     if cfg.motion_prior_rotation_rad > 0 else 0.0)
     covariance_weights(kf, a, b, metric_scale, config, W_trans, w_rot)
-    return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans)
+    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom, w_rot, W_trans)
+
+
+def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray,
+                 fallback: float, span: int) -> FloatArray:
+    """Return the map <- odom scale around each step a -> b, shape (M,).
+
+    The median of the map / odom length ratios of the solved steps within ``span`` steps
+    on either side. The last step, to the newest keyframe, holds only its prediction and
+    does not count; ``fallback`` serves where fewer than two solved steps move nearby.
+    """
+    step_odom = np.linalg.norm(t_odom, axis=1)
+    step_map = np.linalg.norm(kf.C_map[b] - kf.C_map[a], axis=1)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratio = step_map / step_odom
+    usable = (step_odom > 1e-6) & np.isfinite(ratio) & (ratio > 0)
+    usable[-1:] = False
+    ratio = np.where(usable, ratio, np.nan)
+    windows = sliding_window_view(np.pad(ratio, span, constant_values=np.nan), 2 * span + 1)
+    enough = np.count_nonzero(~np.isnan(windows), axis=1) >= 2
+    scales = np.full(ratio.shape[0], fallback)
+    if np.any(enough):
+        scales[enough] = np.nanmedian(windows[enough], axis=1)
+    return scales
 
 
 def covariance_weights(kf: KeyframeStore, a: IntArray, b: IntArray, metric_scale: float,

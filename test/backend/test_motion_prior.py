@@ -1,0 +1,99 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The front-end's motion prior: step lengths against the map's local scale."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.backend.motion import frontend_motion_prior, local_scales
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.eval.metrics import ate, rpe
+from pmba_ros.sim.sequence import simulate_sequence
+import pytest
+
+from .test_logic import BACKEND, config, run
+
+
+def _store(map_steps: np.ndarray) -> KeyframeStore:
+    """Keyframes 1 m apart along x in odom; the map's steps have the given lengths."""
+    kf = KeyframeStore()
+    n = map_steps.shape[0] + 1
+    for i in range(n):
+        kf.add(i, (np.eye(3), np.array([float(i), 0.0, 0.0])), None, KeyframeStatus.ACTIVE)
+    kf.R_map[:n] = np.eye(3)
+    kf.C_map[:n, 0] = np.concatenate([[0.0], np.cumsum(map_steps)])
+    return kf
+
+
+def _steps(kf: KeyframeStore) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    idx = np.arange(kf.n)
+    a, b = idx[:-1], idx[1:]
+    return a, b, kf.C_odom[b] - kf.C_odom[a]
+
+
+def test_local_scales_are_nearby_medians_of_solved_steps() -> None:
+    """Each step gets the median map / odom ratio of its neighbours; the newest step is out."""
+    steps = np.concatenate([np.full(10, 1.1), np.full(10, 0.9), [5.0]])  # last: a prediction
+    kf = _store(steps)
+    a, b, t_odom = _steps(kf)
+    scales = local_scales(kf, a, b, t_odom, fallback=1.0, span=3)
+    np.testing.assert_allclose(scales[:7], 1.1)
+    np.testing.assert_allclose(scales[13:], 0.9)
+    assert 0.9 <= scales[9] <= 1.1
+    # The newest step's 7.0 would make the median 1.4.
+    few = _store(np.array([1.2, 1.4, 7.0]))
+    a, b, t_odom = _steps(few)
+    np.testing.assert_allclose(local_scales(few, a, b, t_odom, 1.0, 3), 1.3)
+    # Fewer than two solved steps nearby: the fallback.
+    short = _store(np.array([1.2, 7.0]))
+    a, b, t_odom = _steps(short)
+    np.testing.assert_array_equal(local_scales(short, a, b, t_odom, 0.8, 3), [0.8, 0.8])
+
+
+def test_step_length_follows_the_map_scale_with_a_pull_to_the_front_ends() -> None:
+    """Two Gaussian factors on each step's length, merged: their information-weighted mean."""
+    kf = _store(np.full(12, 1.3))
+    cams, fixed = np.arange(kf.n), np.zeros(kf.n, dtype=bool)
+    cfg = BackendConfig()
+    prior = frontend_motion_prior(kf, cams, fixed, 1.0, cfg)
+    assert prior is not None
+    info_abs = 1.0 / (cfg.motion_prior_translation_rel * 1.0 + 1e-3) ** 2
+    info_map = 1.0 / (cfg.motion_prior_shape_rel * 1.3 + 1e-3) ** 2
+    expected = (info_abs * 1.0 + info_map * 1.3) / (info_abs + info_map)
+    np.testing.assert_allclose(prior.t_ab[:, 0], expected)
+    np.testing.assert_allclose(prior.W_trans[:, 0, 0], np.sqrt(info_abs + info_map))
+    # Switched off, or not asked for: the initialization's scale alone.
+    for off, follow in ((BackendConfig(motion_prior_shape_rel=0.0), True), (cfg, False)):
+        plain = frontend_motion_prior(kf, cams, fixed, 1.0, off, follow_map_scale=follow)
+        assert plain is not None
+        np.testing.assert_allclose(plain.t_ab[:, 0], 1.0)
+        np.testing.assert_allclose(plain.W_trans[:, 0, 0], np.sqrt(info_abs))
+
+
+@pytest.mark.parametrize(('scenario', 'seed'), [('aerial', 0), ('aerial', 2), ('loop', 0)])
+def test_never_worse_than_the_front_end(scenario: str, seed: int) -> None:
+    """Weak vision (ground 40 m below, or a turning loop): ATE and RPE at most the front-end's."""
+    seq = simulate_sequence(scenario, n_keyframes=60, seed=seed)
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, seq)
+    gt, fe, opt = seq.gt_trajectory(), seq.odom_trajectory(), logic.optimized_trajectory()
+    figures: dict[str, Any] = {
+        'ate': (ate(opt, gt, 'sim3').rmse, ate(fe, gt, 'sim3').rmse),
+        'rpe': (rpe(opt, gt, align='sim3').rmse, rpe(fe, gt, align='sim3').rmse)}
+    assert figures['ate'][0] <= figures['ate'][1], figures
+    assert figures['rpe'][0] <= figures['rpe'][1], figures
