@@ -73,6 +73,10 @@ class InitOptions:
             max(camera_min_px, camera_relative x the median over cameras) after the NLS are
             placed again by resection from the other cameras' points before the BA.
         camera_relative: See ``camera_min_px``.
+        register_min_points: Cameras left out of the view graph's largest component are
+            placed by PnP on the component's triangulated tracks when at least this many of
+            their points agree (inliers within the track threshold of ``track_min_px``);
+            0: never.
         theta_floor_px: Features whose rotation-only parallax theta-bar is below this (px,
             divided by the main anchor's focal length) start the BA at infinity (theta = 0).
         solve_options: Options of the final (and only) BA: PMBA with Dogleg, no loss, the
@@ -97,6 +101,7 @@ class InitOptions:
     track_relative: float = 30.0
     camera_min_px: float = 10.0
     camera_relative: float = 5.0
+    register_min_points: int = 12
     theta_floor_px: float = 3.0
     solve_options: SolveOptions = field(default_factory=_default_solve_options)
 
@@ -124,6 +129,9 @@ class InitOptions:
             if not getattr(self, name) > 0.0:
                 msg = f'`{name}` must be positive'
                 raise ValueError(msg)
+        if self.register_min_points != 0 and self.register_min_points < 6:
+            msg = '`register_min_points` must be 0 (off) or >= 6 (a pose and some to spare)'
+            raise ValueError(msg)
         if self.min_pair_parallax_px < 0.0 or self.theta_floor_px < 0.0:
             msg = '`min_pair_parallax_px` and `theta_floor_px` must be >= 0'
             raise ValueError(msg)

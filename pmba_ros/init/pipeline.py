@@ -69,7 +69,16 @@ from pmba_ros.core.problem import (
 )
 from pmba_ros.core.solve import solve
 from pmba_ros.errors import InitError
-from pmba_ros.init import anchors, cls, nls, rotation_averaging, tracks, two_view, view_graph
+from pmba_ros.init import (
+    anchors,
+    cls,
+    nls,
+    register,
+    rotation_averaging,
+    tracks,
+    two_view,
+    view_graph,
+)
 from pmba_ros.init.options import InitOptions, InitResult
 
 logger = logging.getLogger(__name__)
@@ -422,6 +431,20 @@ def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options:
     return centers, bad, cam_px
 
 
+def _register(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
+              component_centers: FloatArray, bad_ids: IntArray, options: InitOptions,
+              max_px: float) -> register.Registration:
+    """Place the cameras outside the component by PnP on its consistent tracks."""
+    C = np.zeros((problem.n_cams, 3))
+    C[cameras] = component_centers
+    if options.register_min_points == 0 or np.all(cameras):
+        return register.Registration(cameras, R_wc, C, np.zeros(0, dtype=np.int64))
+    every, _ = _subproblem(problem, np.ones(problem.n_cams, dtype=bool), R_wc)
+    every = subset_features(every, ~np.isin(every.feature_ids, bad_ids), 'inconsistent_tracks')
+    return register.register_cameras(every, cameras, R_wc, C,
+                                     min_points=options.register_min_points, max_px=max_px)
+
+
 def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
             ) -> tuple[ParallaxFeatures, BoolArray]:
     """Swap anchors of features whose triangle is only valid the other way round."""
@@ -510,14 +533,26 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
 
     full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
     centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
-    init_problem, feats, entries = _complete_tracks(full, sub, feats, centers)
+    reg = _register(problem, cameras_used, R_wc, centers, bad_ids, options, check.threshold_px)
+    P = reg.centers_w.copy()
+    P[cam_index] = res_nls.centers_w
+    if reg.registered.shape[0]:
+        moved = _compact(reg.cameras)[cam_index]  # the component's cameras, renumbered
+        feats = ParallaxFeatures(feats.theta, feats.n, moved[feats.main_idx],
+                                 moved[feats.assoc_idx])
+        cameras_used = reg.cameras
+        full, cam_index = _subproblem(problem, cameras_used, reg.R_wc)
+        full = subset_features(full, ~np.isin(full.feature_ids, bad_ids), 'inconsistent_tracks')
+    P = P[cam_index]
+    init_problem, feats, entries = _complete_tracks(full, sub, feats,
+                                                    reg.centers_w[cam_index])
     st.done('tracks', {'inconsistent_tracks': int(np.sum(check.inconsistent)),
                        'track_threshold_px': check.threshold_px,
                        'track_residual_median_px': float(np.median(check.rms_px)),
                        'camera_residual_px': _angle_stats(cam_px),
-                       'cameras_resected': cam_index[resected].tolist(), **entries})
+                       'cameras_resected': cam_index[resected].tolist(),
+                       'cameras_registered': reg.registered.tolist(), **entries})
     # With positions known, alpha is recomputed by the BA: re-check the anchor order.
-    P = res_nls.centers_w
     d_ma = P[feats.main_idx] - P[feats.assoc_idx]
     d_ma /= np.maximum(np.linalg.norm(d_ma, axis=1, keepdims=True), 1e-300)
     feats, swapped = _orient(init_problem, feats, d_ma)
@@ -526,7 +561,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     # EG pairs of noise-level parallaxes); such features start at infinity, theta = 0, a
     # valid PMBA state (pmba.md §1.3, §3.3). Near-collinear features otherwise start at a
     # wrong finite depth, between the cameras, and the BA can stall there.
-    f_main = np.sqrt(sub.intrinsics.fx * sub.intrinsics.fy)[feats.main_idx]
+    f_main = np.sqrt(init_problem.intrinsics.fx * init_problem.intrinsics.fy)[feats.main_idx]
     low = feats.theta < options.theta_floor_px / f_main
     feats = ParallaxFeatures(np.where(low, 0.0, feats.theta), feats.n, feats.main_idx,
                              feats.assoc_idx)
@@ -551,6 +586,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         'features_recovered': report['tracks']['features_recovered'],
         'inconsistent_tracks': report['tracks']['inconsistent_tracks'],
         'cameras_resected': report['tracks']['cameras_resected'],
+        'cameras_registered': report['tracks']['cameras_registered'],
         'final_rms_px': result.final_rms_px, 'ba_converged': result.converged,
         'ba_termination': result.termination.value, 'ba_invocations': 1}
     return InitResult(init_problem, feats, result, cam_index,

@@ -20,6 +20,7 @@ import logging
 from test.init.scenes import street_scene
 
 import numpy as np
+from pmba_ros.backend.window import estimate_similarity
 from pmba_ros.core import so3
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.core.solve import solve, SolveOptions
@@ -135,13 +136,35 @@ def _drop_camera_tracks(problem: BAProblem, cam: int, keep: int) -> BAProblem:
 
 def test_camera_without_eg_pair_is_reported_not_fatal() -> None:
     """A camera sharing too few tracks with every other one is left out and reported."""
-    gt = _drop_camera_tracks(sim_street(2, n_cams=10, n_points=250).gt, cam=4, keep=12)
+    gt = _drop_camera_tracks(sim_street(2, n_cams=10, n_points=250).gt, cam=4, keep=8)
     res = global_init(gt)
     assert res.report['summary']['cameras_left_out'] == [4]
+    assert res.report['summary']['cameras_registered'] == []
     assert res.cameras_used.tolist() == [k != 4 for k in range(10)]
     assert res.camera_index.tolist() == [0, 1, 2, 3, 5, 6, 7, 8, 9]
     assert res.solve.converged
     assert res.solve.final_rms_px < 1.0
+
+
+def test_camera_without_eg_pair_is_registered_on_the_triangulated_tracks() -> None:
+    """Twelve tracks, each seen by other cameras too: PnP places the camera before the BA."""
+    scene = sim_street(2, n_cams=10, n_points=250)
+    gt = _drop_camera_tracks(scene.gt, cam=4, keep=12)
+    res = global_init(gt)
+    summary = res.report['summary']
+    assert summary['cameras_left_out'] == [] and summary['cameras_registered'] == [4]
+    assert res.camera_index.tolist() == list(range(10))
+    assert np.count_nonzero(res.problem.obs.cam_idx == 4) == 12
+    assert res.solve.converged and res.solve.final_rms_px < 1.0
+    # Its pose agrees with the ground truth as well as the others' (after a similarity).
+    sim = estimate_similarity(gt.R_wc, gt.centers_w, res.solve.R_wc, res.solve.centers_w)
+    R, C = sim.apply_poses(res.solve.R_wc, res.solve.centers_w)
+    step = np.linalg.norm(gt.centers_w[5] - gt.centers_w[4])
+    assert np.linalg.norm(C[4] - gt.centers_w[4]) < 0.05 * step
+    angle = np.linalg.norm(so3.log(R[4].T @ gt.R_wc[4]))
+    assert np.rad2deg(angle) < 0.5
+    off = global_init(gt, InitOptions(register_min_points=0))
+    assert off.report['summary']['cameras_left_out'] == [4]
 
 
 def _two_scenes(a: BAProblem, b: BAProblem) -> BAProblem:
