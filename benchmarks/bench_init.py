@@ -17,7 +17,8 @@ Usage::
 
     python benchmarks/bench_init.py                 # every case below
     python benchmarks/bench_init.py --only street50 --only photos50   # a 50-keyframe street
-                                                    # batch, a 50-camera ring (~30k obs)
+                                                    # batch, a 50-camera ring (~30k obs;
+                                                    # photos50_60k: ~60k obs)
     python benchmarks/bench_init.py --only ladybug --repeat 3 --json out.json
 
 BLAS thread pools are set as ``pmba`` sets them (:func:`pmba_ros._process.tune_process`):
@@ -66,18 +67,18 @@ def _street50() -> BAProblem | None:
                         jitter_m=0.05, jitter_deg=1.0).gt
 
 
-def _photos50() -> BAProblem | None:
+def _photos50(n_points: int = 2500) -> BAProblem | None:
     from pmba_ros.sim.scenes import synthetic_large
 
     # A closer ring and wider incidence than the defaults: a pair then sees a curved patch
     # with depth spread (the default's near-planar patches leave ~1 px of parallax).
-    return synthetic_large(0, n_cams=50, n_points=2500, noise_px=0.5, max_incidence_deg=60,
-                           radius_m=5.0).gt
+    return synthetic_large(0, n_cams=50, n_points=n_points, noise_px=0.5,
+                           max_incidence_deg=60, radius_m=5.0).gt
 
 
 CASES: dict[str, Callable[[], BAProblem | None]] = {
     'ladybug': _ladybug, 'street200': _street200, 'street50': _street50,
-    'photos50': _photos50}
+    'photos50': _photos50, 'photos50_60k': lambda: _photos50(5000)}
 
 
 def run_case(name: str, repeat: int) -> dict[str, Any] | None:
