@@ -533,6 +533,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
 
     full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
     centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
+    resected_ids, in_component = cam_index[resected], int(np.count_nonzero(cameras_used))
     reg = _register(problem, cameras_used, R_wc, centers, bad_ids, options, check.threshold_px)
     P = reg.centers_w.copy()
     P[cam_index] = res_nls.centers_w
@@ -550,7 +551,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                        'track_threshold_px': check.threshold_px,
                        'track_residual_median_px': float(np.median(check.rms_px)),
                        'camera_residual_px': _angle_stats(cam_px),
-                       'cameras_resected': cam_index[resected].tolist(),
+                       'cameras_resected': resected_ids.tolist(),
                        'cameras_registered': reg.registered.tolist(), **entries})
     # With positions known, alpha is recomputed by the BA: re-check the anchor order.
     d_ma = P[feats.main_idx] - P[feats.assoc_idx]
@@ -578,7 +579,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     report['summary'] = {
         'pairs_found': report['pairs']['pairs_found'],
         'pairs_kept': report['rotations']['pairs_kept'],
-        'cameras_in_component': int(cameras_used.sum()),
+        'cameras_in_component': in_component,
         'cameras_left_out': np.flatnonzero(~cameras_used).tolist(),
         'rotation_residual_deg': report['rotations']['rotation_residual_deg']['mean'],
         'cls_residual': res_cls.residual, 'nls_residual': res_nls.residual,

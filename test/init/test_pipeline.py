@@ -153,6 +153,7 @@ def test_camera_without_eg_pair_is_registered_on_the_triangulated_tracks() -> No
     res = global_init(gt)
     summary = res.report['summary']
     assert summary['cameras_left_out'] == [] and summary['cameras_registered'] == [4]
+    assert summary['cameras_in_component'] == 9
     assert res.camera_index.tolist() == list(range(10))
     assert np.count_nonzero(res.problem.obs.cam_idx == 4) == 12
     assert res.solve.converged and res.solve.final_rms_px < 1.0
