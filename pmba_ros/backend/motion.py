@@ -94,6 +94,8 @@ def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray
     on either side. The last step, to the newest keyframe, holds only its prediction and
     does not count; ``fallback`` serves where fewer than two solved steps move nearby.
     """
+    if a.shape[0] == 0:
+        return np.zeros(0)
     step_odom = np.linalg.norm(t_odom, axis=1)
     step_map = np.linalg.norm(kf.C_map[b] - kf.C_map[a], axis=1)
     with np.errstate(divide='ignore', invalid='ignore'):

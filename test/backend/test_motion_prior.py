@@ -63,6 +63,8 @@ def test_local_scales_are_nearby_medians_of_solved_steps() -> None:
     short = _store(np.array([1.2, 7.0]))
     a, b, t_odom = _steps(short)
     np.testing.assert_array_equal(local_scales(short, a, b, t_odom, 0.8, 3), [0.8, 0.8])
+    none = np.zeros(0, dtype=np.int64)
+    assert local_scales(short, none, none, np.zeros((0, 3)), 0.8, 3).shape == (0,)
 
 
 def test_step_length_follows_the_map_scale_with_a_pull_to_the_front_ends() -> None:
@@ -97,3 +99,13 @@ def test_never_worse_than_the_front_end(scenario: str, seed: int) -> None:
         'rpe': (rpe(opt, gt, align='sim3').rmse, rpe(fe, gt, align='sim3').rmse)}
     assert figures['ate'][0] <= figures['ate'][1], figures
     assert figures['rpe'][0] <= figures['rpe'][1], figures
+
+
+def test_keyframes_without_front_end_poses_give_no_factor() -> None:
+    """Tracks without keyframe poses: an empty prior, not an error."""
+    kf = KeyframeStore()
+    for i in range(5):
+        kf.add(i, None, None, KeyframeStatus.ACTIVE)
+    prior = frontend_motion_prior(kf, np.arange(5), np.zeros(5, dtype=bool), 1.0,
+                                  BackendConfig())
+    assert prior is not None and len(prior) == 0
