@@ -485,7 +485,8 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
             message) for nodes with ``use_sim_time``.
         delay_s: Wait this long after creating the publishers (discovery) before playing.
         wait_for_subscribers_s: Then wait up to this long until every topic has a
-            subscriber (messages sent before a subscriber matched are lost to it).
+            subscriber. A volatile subscriber may still lose the first messages (its side of
+            the match can come later); a transient-local one gets the last 100 per topic.
         ros_args: rclpy arguments (``--ros-args -r FROM:=TO ...``).
 
     Returns:
@@ -515,13 +516,12 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
     node = rclpy.create_node('pmba_play')
     count = 0
     try:
-        publishers = {}
-        for topic, cls in classes.items():
-            latched = topic.endswith('/tf_static')
-            publishers[topic] = node.create_publisher(cls, topic, QoSProfile(
-                depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
-                            else DurabilityPolicy.VOLATILE)))
+        # Transient local suits every reader: a volatile one sees no difference, and a
+        # transient-local one also gets what was published before it matched the writer.
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        publishers = {topic: node.create_publisher(cls, topic, qos)
+                      for topic, cls in classes.items()}
         clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
                                           10) if clock else None
         time.sleep(delay_s)

@@ -22,8 +22,9 @@ For users with rclpy from pip (``pip install .[ros]``) but no ``ros2 bag``::
     pmba play street_bag --remap /features:=/feature_tracker/feature
     pmba play street_bag --topics /features /keyframe_pose --wait-for-subscribers 30
 
-Messages are published as stored (CDR), reliable and volatile (``/tf_static`` transient
-local). ROS 1 bags must be converted first (``rosbags-convert``).
+Messages are published as stored (CDR), reliable and transient local: a subscriber that is
+transient local too (``features_qos:=transient_local`` on pmba_node) loses none of the first
+messages to discovery. ROS 1 bags must be converted first (``rosbags-convert``).
 """
 
 from __future__ import annotations
