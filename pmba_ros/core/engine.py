@@ -179,8 +179,7 @@ class CompiledEngine:
             geo = self.rays_and_residuals(R_wc, centers_w, feats, obs, None)[0]
         if weights is not None and rays_c is None:
             rays_c = residuals.camera_rays_from(geo, R_wc, obs)
-        lin = Linearization.empty(obs.cam_idx.shape[0], 3 if weights is None else 2,
-                                  residuals.ANCHOR_COLS)
+        lin = Linearization.empty(obs.cam_idx.shape[0], 3, residuals.ANCHOR_COLS)
         compiled_residuals.pmba_rows(obs, feats, R_wc, geo, weights, rays_c, lin.rows)
         return lin
 

@@ -111,7 +111,9 @@ class ParallaxModel(Model[ParallaxFeatures]):
 
     With ``pixel_weighted`` the chordal error is taken in the observer's frame (eq. 7, the
     same norm as eq. 8) and mapped to pixels by the projection's Jacobian at the measured
-    bearing, a constant 2x3 matrix per observation: ``r = d pi/d h(v) (R_i^T xi(N) - v)``.
+    bearing, a constant matrix per observation: ``r = W (R_i^T xi(N) - v)``, W = d pi/d h(v)
+    with a third row along v that keeps |r| increasing with the ray's angle
+    (:func:`~pmba_ros.core.residuals.pixel_weights`).
 
     DEVIATION(eq. 8): the paper's isotropic chordal error weighs every ray alike, so cameras
     with long focal lengths (BAL Trafalgar: 1362-12325 px) and image borders are under-weighted
@@ -138,8 +140,8 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            self._weights = self.engine.projection_jacobian(v, problem.intrinsics,
-                                                            problem.obs.cam_idx)
+            self._weights = residuals.pixel_weights(
+                self.engine.projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx), v)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
@@ -156,7 +158,7 @@ class ParallaxModel(Model[ParallaxFeatures]):
 
     def evaluate(self, R_wc: FloatArray, centers_w: FloatArray,
                  feats: ParallaxFeatures) -> Evaluation:
-        """Return ray errors (K, 3), or pixel-weighted ones (K, 2), and R_i^T xi(N_ji)."""
+        """Return ray errors (K, 3), or pixel-weighted ones (K, 3), and R_i^T xi(N_ji)."""
         R, P = self._ray_poses(R_wc, centers_w)
         geo, rays_c, res = self.engine.rays_and_residuals(R, P, feats, self._ray_obs,
                                                           self._weights)

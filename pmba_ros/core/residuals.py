@@ -60,8 +60,9 @@ class RayGeometry:
 
     u, t, s, c, g, sin_t and cos_t are per feature; the rest per observation: N, P_m - P_i,
     the unit ray N_hat = xi(N) and |N| (floored), and which observations are the main
-    anchor's own. The main anchor's N_hat is exactly sign(g) u, which avoids the
-    cancellation in g u + sin(theta) 0.
+    anchor's own. The main anchor's N_hat is u = R_m n itself (pmba.md §1.4): exact, without
+    the cancellation in g u + sin(theta) 0, and continuous where g changes sign (a point
+    passing the main anchor's centre), which sign(g) u is not.
     """
 
     u: FloatArray
@@ -107,7 +108,7 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     N_hat = N / norm[:, None]
     main = _is_main(feats, obs)
     jm = j[main]
-    N_hat[main] = np.where(g[jm] >= 0.0, 1.0, -1.0)[:, None] * u[jm]
+    N_hat[main] = u[jm]
     return RayGeometry(u, t, s, c, g, sin_t, cos_t, N, d, N_hat, norm, main)
 
 
@@ -146,9 +147,29 @@ def residuals_from(geo: RayGeometry, R_wc: FloatArray, obs: Observations) -> Flo
     return out
 
 
+def pixel_weights(jac_px: FloatArray, bearings_c: FloatArray) -> FloatArray:
+    """Return the (K, 3, 3) maps of observer-frame ray errors to pixel-weighted residuals.
+
+    Rows 1-2 are d pi/d h at the measured bearing v (``jac_px``, (K, 2, 3)). They cannot see
+    the error along v, so on their own a ray turned by an angle beta has a residual growing
+    like sin(beta): it falls again past 90 degrees and vanishes at the antipode, a false
+    minimum that a poor start (a street's far features) drifts towards. Row 3 is
+    sigma_max v^T (sigma_max the largest singular value of ``jac_px``): it adds
+    sigma_max^2 (1 - cos beta)^2 to the squared residual, fourth order in the error near the
+    measurement (the pixel weighting holds there), and makes the norm increase up to
+    beta = 180 degrees.
+    """
+    # sigma_max^2: the larger eigenvalue of the 2x2 J J^T.
+    gram = jac_px @ np.swapaxes(jac_px, 1, 2)
+    half_trace = 0.5 * (gram[:, 0, 0] + gram[:, 1, 1])
+    det = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] * gram[:, 1, 0]
+    sigma_max = np.sqrt(half_trace + np.sqrt(np.maximum(half_trace ** 2 - det, 0.0)))
+    return np.concatenate([jac_px, (sigma_max[:, None] * bearings_c)[:, None, :]], axis=1)
+
+
 def pixel_weighted_residuals(weights: FloatArray, rays_c: FloatArray,
                              obs: Observations) -> FloatArray:
-    """Return weights (R_i^T xi(N) - v), the ray errors mapped to pixels, shape (K, 2)."""
+    """Return weights (R_i^T xi(N) - v), the ray errors mapped to pixels, shape (K, 3)."""
     out: FloatArray = np.einsum('kij,kj->ki', weights, rays_c - obs.bearings_c)
     return out
 
@@ -173,15 +194,15 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
         centers_w: Camera centres, shape (M, 3).
         feats: PMBA features.
         obs: Observations.
-        weights: Optional (K, 2, 3) maps of observer-frame errors to pixels: the residual
-            becomes ``weights (R_i^T xi(N) - v)`` (see ``ParallaxModel``), d = 2.
+        weights: Optional (K, 3, 3) maps of observer-frame errors to pixels
+            (:func:`pixel_weights`): the residual becomes ``weights (R_i^T xi(N) - v)``.
         geo: :func:`observation_rays` at this state, if the caller has it.
         rays_c: :func:`camera_rays_from` of ``geo``, if the caller has it (weighted only).
 
     Returns:
         The residuals and Jacobian in the layout of :mod:`pmba_ros.core.jacobian`, anchor
-        slots (m, a) with :data:`ANCHOR_COLS`; feature columns [d theta, d n_1, d n_2].
-        d = 3 without weights.
+        slots (m, a) with :data:`ANCHOR_COLS`; feature columns [d theta, d n_1, d n_2];
+        d = 3 rows.
 
     References:
         pmba.md §1.6 (checked against central differences in the tests).
@@ -192,7 +213,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     if weights is not None and rays_c is None:
         rays_c = camera_rays_from(geo, R_wc, obs)
     # Blocks are written in place into the rows of pmba_ros.core.jacobian (strided views).
-    lin = Linearization.empty(K, 3 if weights is None else 2, ANCHOR_COLS)
+    lin = Linearization.empty(K, 3, ANCHOR_COLS)
     E = lin.rows
     j = obs.feat_idx
     R_i = R_wc[obs.cam_idx]
@@ -215,7 +236,7 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     N_hat, norm, main = geo.N_hat, geo.norm, geo.main
     # L, the left factor of every block, is d xi / d N = (I - N^ N^T) / |N| (weighted:
     # weights R_i^T times it, formed as (B - (B N^) N^T) / |N| without the 3x3 product).
-    # The main anchor's N^ = sign(g) u equals N / |N| up to rounding.
+    # The main anchor's N^ = u equals N / |N| up to rounding where g > 0.
     if weights is None or rays_c is None:     # rays_c is set whenever weights are
         L = (np.eye(3) - N_hat[:, :, None] * N_hat[:, None, :]) / norm[:, None, None]
         E[:, :, 6] = residuals_from(geo, R_wc, obs)
@@ -244,18 +265,17 @@ def ray_jacobians(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatur
     if np.any(main):
         rows = np.flatnonzero(main)
         jm = j[rows]
-        sgn = np.where(g[jm] >= 0.0, 1.0, -1.0)[:, None, None]
         hat_n_A = so3.hat(feats.n[jm]) @ A_f[jm]
         res_main = E[rows, :, 6]
         E[rows] = 0.0
         E[rows, :, 6] = res_main
         if weights is None:
             R_m = R_wc[feats.main_idx[jm]]
-            E[rows, :, 0:3] = so3.times_hat(R_m, v[rows]) - sgn * Rm_hat_n[jm]
-            E[rows, :, 8:10] = -sgn * (R_m @ hat_n_A)
+            E[rows, :, 0:3] = so3.times_hat(R_m, v[rows]) - Rm_hat_n[jm]
+            E[rows, :, 8:10] = -(R_m @ hat_n_A)
         else:
-            # In the main anchor's own frame its error sign(g) n - v does not depend on R_m.
-            E[rows, :, 8:10] = -sgn * (weights[rows] @ hat_n_A)
+            # In the main anchor's own frame its error n - v does not depend on R_m.
+            E[rows, :, 8:10] = -(weights[rows] @ hat_n_A)
     return lin
 
 

@@ -152,6 +152,41 @@ def test_compiled_reprojection_errors_equal_numpy() -> None:
         weights, rtol=1e-12, atol=1e-12 * np.max(np.abs(weights)))
 
 
+def test_pixel_weighted_error_grows_with_the_angle_up_to_the_antipode() -> None:
+    """|W (r - v)| increases with the angle between r and v up to 180 degrees.
+
+    The projection Jacobian alone (rows 1-2) peaks at 90 degrees and is 0 at the antipode;
+    near the measurement the third row adds a term of second order in the angle (relative).
+    Distorted, off-axis and wide cameras.
+    """
+    from pmba_ros.core.camera import Intrinsics, projection_jacobian
+    from pmba_ros.core.residuals import pixel_weights
+
+    rng = np.random.default_rng(0)
+    K = 200
+    v = sphere.normalize(rng.normal(size=(K, 3)) * [0.6, 0.6, 1.0] + [0.0, 0.0, 1.5])
+    cams = np.arange(K) % 4
+    intr = Intrinsics(np.array([300.0, 500.0, 1500.0, 8000.0]),
+                      np.array([300.0, 550.0, 1400.0, 8000.0]), np.full(4, 320.0),
+                      np.full(4, 240.0), np.array([-0.2, 0.0, 0.05, 0.0]),
+                      np.array([0.03, 0.0, 0.0, 0.0]))
+    J = projection_jacobian(v, intr, cams)[1]
+    W = pixel_weights(J, v)
+    assert W.shape == (K, 3, 3)
+    np.testing.assert_array_equal(W[:, :2], J)
+    axis = sphere.normalize(np.cross(v, rng.normal(size=(K, 3))))
+    angles = np.linspace(1e-3, np.pi - 1e-3, 400)
+    norms = np.empty((len(angles), K))
+    for a, beta in enumerate(angles):
+        r = np.einsum('kij,kj->ki', so3.exp(beta * axis), v)
+        norms[a] = np.linalg.norm(np.einsum('kij,kj->ki', W, r - v), axis=1)
+    assert np.all(np.diff(norms, axis=0) > 0.0)
+    small = np.einsum('kij,kj->ki', so3.exp(1e-4 * axis), v) - v
+    two_rows = np.linalg.norm(np.einsum('kij,kj->ki', J, small), axis=1)
+    np.testing.assert_allclose(np.linalg.norm(np.einsum('kij,kj->ki', W, small), axis=1),
+                               two_rows, rtol=1e-6)
+
+
 def test_compiled_sphere_retraction_equals_numpy() -> None:
     """compiled_residuals.sphere_retract equals sphere.retract.
 

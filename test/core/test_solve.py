@@ -243,6 +243,21 @@ def _pmba_vs_xyz(problem) -> tuple[float, float]:
     return pmba.final_rms_px, xyz.final_rms_px
 
 
+@pytest.mark.parametrize('seed', [0, 1, 2, 3])
+def test_street_from_a_poor_start_reaches_the_ground_truth_starts_minimum(seed: int) -> None:
+    """PMBA-Dogleg (pixel-weighted) from a street's 100 px start ends where its GT start does.
+
+    Far features near the direction of travel turn their rays far from the measurement on
+    the way; a weighting blind to the error along the ray stalled there for 100 iterations.
+    """
+    scene = street_scene(seed)
+    from_gt = solve(scene.gt)
+    res = solve(scene.start)
+    assert res.initial_rms_px > 50.0
+    assert res.converged and res.iterations < 50
+    assert res.final_cost <= from_gt.final_cost * (1.0 + 1e-4)
+
+
 @pytest.mark.parametrize('name', ['problem-49-7776-pre.txt', 'problem-21-11315-pre.txt'])
 def test_bal_pmba_dogleg_no_worse_than_xyz_lm(name: str) -> None:
     """BAL Ladybug-49 and Trafalgar-21: PMBA-DL pixel RMS within 1% of XYZ-LM's (or better)."""

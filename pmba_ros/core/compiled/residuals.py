@@ -148,7 +148,6 @@ def _pmba_rows(obs: ObsArrays, feats: FeatureArrays, R_wc: FloatArray, ft: Featu
             L[r, 2] = (B[r, 2] - bn * nh2) * inv
         if is_main[k]:
             # The main anchor's own observation: closed forms of pmba.md §1.6.
-            sgn = 1.0 if g[j] >= 0.0 else -1.0
             for q in range(2):
                 _cross_into(nA[:, q], n[j, 0], n[j, 1], n[j, 2], A_f[j, 0, q], A_f[j, 1, q],
                             A_f[j, 2, q])
@@ -159,13 +158,13 @@ def _pmba_rows(obs: ObsArrays, feats: FeatureArrays, R_wc: FloatArray, ft: Featu
                         e[r, c] = 0.0
                 for c in range(3):
                     if not weighted:
-                        e[r, c] -= sgn * Rm_hat_n[j, r, c]
+                        e[r, c] -= Rm_hat_n[j, r, c]
                 for q in range(2):
                     acc = 0.0
                     for c in range(3):
                         m = weights[k, r, c] if weighted else Rm[r, c]
                         acc += m * nA[c, q]
-                    e[r, 8 + q] = -sgn * acc
+                    e[r, 8 + q] = -acc
             continue
         s_t, c_t, g_j = sin_t[j], cos_t[j], g[j]
         for r in range(d):
@@ -243,7 +242,7 @@ def pmba_rows(obs: Observations, feats: ParallaxFeatures, R_wc: FloatArray, geo:
     ft, rt = _split(geo)
     _pmba_feature_factors(R_wc, fa, ft, ff)
     _pmba_rows(_obs_arrays(obs), fa, R_wc, ft, rt, ff,
-               np.zeros((0, 2, 3)) if weights is None else weights,
+               np.zeros((0, 3, 3)) if weights is None else weights,
                geo.N_hat if rays_c is None else rays_c, E)
 
 
@@ -282,10 +281,9 @@ def _pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: FeatureArrays, ob
             sq += N[k, r] * N[k, r]
         norm[k] = max(np.sqrt(sq), TINY)
         main[k] = i == m
-        # The main anchor's ray is exactly sign(g) u (no cancellation in g u + 0).
-        sgn = 1.0 if g[j] >= 0.0 else -1.0
+        # The main anchor's ray is u itself (residuals.RayGeometry).
         for r in range(3):
-            N_hat[k, r] = sgn * u[j, r] if main[k] else N[k, r] / norm[k]
+            N_hat[k, r] = u[j, r] if main[k] else N[k, r] / norm[k]
         for r in range(3):
             rays_c[k, r] = (R_wc[i, 0, r] * N_hat[k, 0] + R_wc[i, 1, r] * N_hat[k, 1]
                             + R_wc[i, 2, r] * N_hat[k, 2])
@@ -309,10 +307,10 @@ def pmba_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
     rt = RayTerms(np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3)), np.empty(K),
                   np.empty(K, dtype=np.bool_))
     rays_c = np.empty((K, 3))
-    res = np.empty((K, 3 if weights is None else 2))
+    res = np.empty((K, 3))
     _pmba_rays(np.ascontiguousarray(R_wc), np.ascontiguousarray(centers_w),
                _feature_arrays(feats), _obs_arrays(obs),
-               np.zeros((0, 2, 3)) if weights is None else weights, ft, rt, rays_c, res)
+               np.zeros((0, 3, 3)) if weights is None else weights, ft, rt, rays_c, res)
     return RayGeometry(*ft, *rt), rays_c, res
 
 
