@@ -80,7 +80,7 @@ def main() -> int:
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     with tempfile.TemporaryDirectory(prefix='pmba_bench_node_') as tmp:
         bag = Path(tmp) / 'street'
@@ -94,6 +94,9 @@ def main() -> int:
         listener = rclpy.create_node('bench_listener', context=context)
         executor.add_node(listener)
         qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+        # pmba play publishes transient local; readers that are too lose no first message.
+        latched = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         arrivals: dict[int, float] = {}
         first_out: dict[int, float] = {}
         last_out: dict[int, float] = {}
@@ -107,14 +110,16 @@ def main() -> int:
             first_out.setdefault(_stamp_ns(msg), now)
             last_out[_stamp_ns(msg)] = now
 
-        listener.create_subscription(Odometry, '/keyframe_pose', on_keyframe, qos)
+        listener.create_subscription(Odometry, '/keyframe_pose', on_keyframe, latched)
         listener.create_subscription(Odometry, '/pmba/odometry', on_odometry, qos)
         listener.create_subscription(PathMsg, '/pmba/path', paths.append, qos)
         # The node's log goes to a file: an unread pipe would block it once full.
         node_log = (Path(tmp) / 'node.log').open('w+', encoding='utf-8')
         node = subprocess.Popen(
             [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file',
-             str(ROOT / 'config' / 'pmba.yaml')], env=env, stdout=node_log, stderr=node_log,
+             str(ROOT / 'config' / 'pmba.yaml'), '-p', 'features_qos:=transient_local',
+             '-p', 'keyframe_qos:=transient_local', '-p', 'camera_info_qos:=transient_local'],
+            env=env, stdout=node_log, stderr=node_log,
             text=True, preexec_fn=_default_sigint)
         player = None
         try:

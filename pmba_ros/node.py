@@ -523,7 +523,7 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         publishers = {topic: node.create_publisher(cls, topic, qos)
                       for topic, cls in classes.items()}
         clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
-                                          10) if clock else None
+                                          qos) if clock else None
         time.sleep(delay_s)
         if wait_for_subscribers_s > 0:
             wait_until(lambda: all(p.get_subscription_count() for p in publishers.values()),
