@@ -60,7 +60,7 @@ class RayGeometry:
 
     u, t, s, c, g, sin_t and cos_t are per feature; the rest per observation: N, P_m - P_i,
     the unit ray N_hat = xi(N) and |N| (floored), and which observations are the main
-    anchor's own. The main anchor's N_hat is u = R_m n itself (pmba.md §1.4): exact, without
+    anchor's own. The main anchor's N_hat is u = R_m n itself (pmba.md §1.3): exact, without
     the cancellation in g u + sin(theta) 0, and continuous where g changes sign (a point
     passing the main anchor's centre), which sign(g) u is not.
     """
