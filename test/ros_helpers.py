@@ -51,6 +51,19 @@ def isolate(monkeypatch: Any, domain: int) -> None:
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
 
 
+def transient_local_qos(depth: int) -> Any:
+    """Return a reliable, transient-local QoS, as ``pmba play`` publishes.
+
+    A volatile reader drops what a writer sends before the reader's side of the match
+    (eProsima/Fast-DDS#2641), which no wait rules out on a loaded machine; transient local
+    on both sides delivers those too.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float = 30.0) -> bool:
     """Spin ``executor`` until ``condition()`` holds; return whether it did in time."""
     deadline = time.monotonic() + timeout_s

@@ -42,19 +42,16 @@ from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from .ros_helpers import isolated_env, isolated_node, spin_until
+from .ros_helpers import isolated_env, isolated_node, spin_until, transient_local_qos
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'pmba.yaml'
 N_KEYFRAMES = 24
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-# Inputs: a volatile reader drops what a writer sends before the reader's side of the match
-# (eProsima/Fast-DDS#2641), which no wait rules out on a loaded machine; transient local on
-# both sides delivers those too.
-LATCHED = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED = transient_local_qos(200)
+# The node's inputs read transient local too (see transient_local_qos).
 LATCHED_INPUTS = ('-p', 'features_qos:=transient_local', '-p', 'keyframe_qos:=transient_local',
                   '-p', 'camera_info_qos:=transient_local')
 

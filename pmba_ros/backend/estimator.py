@@ -370,8 +370,8 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
-        if self.config.motion_prior_translation_rel > 0 or \
-                self.config.motion_prior_rotation_rad > 0:
+        cfg = self.config
+        if cfg.motion_prior_translation_rel > 0 or cfg.motion_prior_rotation_rad > 0:
             # The initialization used vision alone; where near features are few its local
             # motion is noisier than the front-end's. One refine of the whole batch with the
             # front-end's motion as prior, before older keyframes leave the window.

@@ -28,9 +28,8 @@ from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.cli.main import main
 from pmba_ros.io.bags import jazzy_typestore, open_writer
 import pytest
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from ..ros_helpers import domain_id, isolated_env, isolated_node, spin_until
+from ..ros_helpers import domain_id, isolated_env, isolated_node, spin_until, transient_local_qos
 
 RATE = 2.0
 KEYFRAME_PERIOD_S = 0.1     # pmba simulate's default --rate-hz 10
@@ -60,9 +59,7 @@ def test_play_keeps_timing_remaps_and_publishes_clock(sim_bag: Path,
     from sensor_msgs.msg import PointCloud
 
     with isolated_node(monkeypatch, 'play_listener') as (domain, executor, node):
-        # Transient local, as pmba play publishes: nothing is lost before the match.
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        qos = transient_local_qos(100)
         got: dict[str, list[tuple[float, Any]]] = {'kf': [], 'tracks': [], 'clock': []}
         node.create_subscription(Odometry, '/keyframe_pose',
                                  lambda m: got['kf'].append((time.monotonic(), m)), qos)
