@@ -470,6 +470,10 @@ MATCH_SETTLE_S = 2.0
 reader matches the writer later (no API shows when) and, volatile, drops what comes before;
 generous, as discovery is slow on a loaded machine."""
 
+ACK_TIMEOUT_S = 10.0
+"""Seconds ``pmba play`` waits, after its last message, for every reliable subscriber to
+acknowledge what it was sent: a writer that goes away first cannot resend a lost sample."""
+
 
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
                   rate: float = 1.0, clock: bool = False, delay_s: float = 0.0,
@@ -490,7 +494,8 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         ros_args: rclpy arguments (``--ros-args -r FROM:=TO ...``).
 
     Returns:
-        The number of messages published (playback stops early on Ctrl-C).
+        The number of messages published (playback stops early on Ctrl-C), once every
+        reliable subscriber acknowledged them or :data:`ACK_TIMEOUT_S` passed.
 
     Raises:
         MessageError: If a message type cannot be imported in this ROS environment.
@@ -535,12 +540,25 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
             if tick.topic is not None:
                 publishers[tick.topic].publish(tick.raw)
                 count += 1
+        _wait_for_acks([*publishers.values(), *([clock_pub] if clock_pub else [])], node)
     except KeyboardInterrupt:
         pass
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     return count
+
+
+def _wait_for_acks(publishers: list[Any], node: Any) -> None:
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + ACK_TIMEOUT_S
+    late = [p.topic_name for p in publishers
+            if not p.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))]
+    if late:
+        node.get_logger().warning(
+            f'not every subscriber acknowledged the last messages within {ACK_TIMEOUT_S:g} s '
+            f'on {", ".join(late)}; a slow or lossy subscriber may have missed them')
 
 
 def _publish_clock(publisher: Any, stamp_ns: int) -> None:
