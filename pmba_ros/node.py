@@ -14,24 +14,22 @@
 
 """The ROS 2 node ``pmba_node``: the only module that imports rclpy (lazily, in functions).
 
-Wiring only: parameters (with descriptors; the run-time ones applied by an on-set callback)
--> :class:`~pmba_ros.backend.config.BackendConfig`, subscriptions (tracks, keyframe poses,
-CameraInfo; QoS per input, ``qos_overrides`` honoured), publishers (path, keyframes,
-landmarks with a transient-local QoS, odometry, ``pmba/map_to_odom``, ``/diagnostics``),
-map -> odom on TF (tf2_ros, else a plain ``/tf`` publisher, else off with a warning) and the
-services ``~/reset`` (std_srvs/Trigger), ``~/pause`` (std_srvs/SetBool) and ``~/save``
-(std_srvs/Trigger).
+Wiring only: parameters (with descriptors; the run-time ones applied by an on-set callback) ->
+:class:`~pmba_ros.backend.config.BackendConfig`, subscriptions (tracks, keyframe poses,
+CameraInfo; QoS per input, ``qos_overrides`` honoured), publishers (path, keyframes, landmarks
+with a transient-local QoS, odometry, ``pmba/map_to_odom``, ``/diagnostics``), map -> odom on TF
+(tf2_ros, else a plain ``/tf`` publisher, else off with a warning) and the services ``~/reset``
+(std_srvs/Trigger), ``~/pause`` (std_srvs/SetBool) and ``~/save`` (std_srvs/Trigger).
 
-The callbacks only enqueue messages into a bounded queue (drops are counted in the
-diagnostics); a worker thread feeds :class:`~pmba_ros.backend.logic.BackendLogic` and
-publishes its outputs, so solving never blocks the executor. Outputs never wait for a
-solve: a keyframe pose is published on ``odometry_topic`` as it arrives (the front-end pose
-mapped through the newest map <- odom, identity before the first initialization) and again,
-corrected, when the worker has optimized it; map -> odom is re-sent at ``tf_rate_hz`` and
-the diagnostics at 1 Hz. Back-end ``logging`` goes to the node's logger (and /rosout); the
-engine's per-solve INFO lines (``pmba_ros.core``, ``pmba_ros.init``) only at ``--log-level
-debug``.
-Run with ``ros2 run pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
+The callbacks only enqueue messages into a bounded queue (drops are counted in the diagnostics);
+a worker thread feeds :class:`~pmba_ros.backend.logic.BackendLogic` and publishes its outputs,
+so solving never blocks the executor. Outputs never wait for a solve: a keyframe pose is
+published on ``odometry_topic`` as it arrives (the front-end pose mapped through the newest map
+<- odom, identity before the first initialization) and again, corrected, when the worker has
+optimized it; map -> odom is re-sent at ``tf_rate_hz`` and the diagnostics at 1 Hz. Back-end
+``logging`` goes to the node's logger (and /rosout); the engine's per-solve INFO lines
+(``pmba_ros.core``, ``pmba_ros.init``) only at ``--log-level debug``. Run with ``ros2 run
+pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
 """
 
 from __future__ import annotations
@@ -59,7 +57,7 @@ from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, parse_keyframe, tracks_ms
 from pmba_ros.backend.worker import LogicWorker
 from pmba_ros.core import warmup
 from pmba_ros.errors import MessageError, PmbaError
-from pmba_ros.io.playback import paced, wait_until
+from pmba_ros.io.playback import ACK_TIMEOUT_S, CLOCK_PERIOD_S, MATCH_SETTLE_S, paced, wait_until
 
 logger = logging.getLogger(__name__)
 
@@ -461,18 +459,7 @@ class PmbaNode:
 # --- pmba play -----------------------------------------------------------------------------
 
 
-_CLOCK_PERIOD_S = 0.025
 _CLOCK_BACKEND = RclpyBackend()
-
-
-MATCH_SETTLE_S = 2.0
-"""Seconds from a publisher seeing its subscribers to the first message of ``pmba play``: the
-reader matches the writer later (no API shows when) and, volatile, drops what comes before;
-generous, as discovery is slow on a loaded machine."""
-
-ACK_TIMEOUT_S = 10.0
-"""Seconds ``pmba play`` waits, after its last message, for every reliable subscriber to
-acknowledge what it was sent: a writer that goes away first cannot resend a lost sample."""
 
 
 def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, str], *,
@@ -495,7 +482,7 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
 
     Returns:
         The number of messages published (playback stops early on Ctrl-C), once every
-        reliable subscriber acknowledged them or :data:`ACK_TIMEOUT_S` passed.
+        reliable subscriber acknowledged them (or ``ACK_TIMEOUT_S`` passed).
 
     Raises:
         MessageError: If a message type cannot be imported in this ROS environment.
@@ -527,16 +514,16 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         publishers = {topic: node.create_publisher(cls, topic, qos)
                       for topic, cls in classes.items()}
-        clock_pub = node.create_publisher(_msg_type('rosgraph_msgs/msg/Clock'), '/clock',
-                                          qos) if clock else None
+        clock_cls = _msg_type('rosgraph_msgs/msg/Clock')
+        clock_pub = node.create_publisher(clock_cls, '/clock', qos) if clock else None
         time.sleep(delay_s)
         if wait_for_subscribers_s > 0:
             wait_until(lambda: all(p.get_subscription_count() for p in publishers.values()),
                        wait_for_subscribers_s, settle_s=MATCH_SETTLE_S)
-        clock_period_s = _CLOCK_PERIOD_S if clock_pub is not None else None
+        clock_period_s = CLOCK_PERIOD_S if clock_pub is not None else None
         for tick in paced(messages, rate, clock_period_s=clock_period_s):
             if clock_pub is not None:
-                _publish_clock(clock_pub, tick.stamp_ns)
+                clock_pub.publish(clock_cls(clock=out.time_msg(tick.stamp_ns, _CLOCK_BACKEND)))
             if tick.topic is not None:
                 publishers[tick.topic].publish(tick.raw)
                 count += 1
@@ -556,13 +543,8 @@ def _wait_for_acks(publishers: list[Any], node: Any) -> None:
     late = [p.topic_name for p in publishers
             if not p.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))]
     if late:
-        node.get_logger().warning(
-            f'not every subscriber acknowledged the last messages within {ACK_TIMEOUT_S:g} s '
-            f'on {", ".join(late)}; a slow or lossy subscriber may have missed them')
-
-
-def _publish_clock(publisher: Any, stamp_ns: int) -> None:
-    publisher.publish(publisher.msg_type(clock=out.time_msg(stamp_ns, _CLOCK_BACKEND)))
+        node.get_logger().warning(f'{", ".join(late)}: not every subscriber acknowledged the '
+                                  f'last messages within {ACK_TIMEOUT_S:g} s; some may be lost')
 
 
 def main(args: list[str] | None = None) -> None:

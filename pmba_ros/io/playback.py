@@ -19,6 +19,18 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 import time
 
+CLOCK_PERIOD_S = 0.025
+"""Period of ``/clock`` between messages when ``pmba play --clock``."""
+
+MATCH_SETTLE_S = 2.0
+"""Seconds from a publisher seeing its subscribers to the first message of ``pmba play``: the
+reader matches the writer later (no API shows when) and, volatile, drops what comes before;
+generous, as discovery is slow on a loaded machine."""
+
+ACK_TIMEOUT_S = 10.0
+"""Seconds ``pmba play`` waits, after its last message, for every reliable subscriber to
+acknowledge what it was sent: a writer that goes away first cannot resend a lost sample."""
+
 
 @dataclass(frozen=True)
 class Tick:
