@@ -188,6 +188,7 @@ class SolveResult:
         initial_rms_px, final_rms_px: Pixel reprojection RMS before and after.
         time_s: Wall time in seconds.
         history: Per-iteration records, starting with the initial state.
+        noise_px: Per-axis pixel noise the final errors suggest (:func:`noise_scale_px`).
     """
 
     R_wc: FloatArray
@@ -207,6 +208,7 @@ class SolveResult:
     final_rms_px: float
     time_s: float
     history: list[IterationRecord] = field(default_factory=list)
+    noise_px: float = math.nan
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -220,7 +222,8 @@ class SolveResult:
         return '\n'.join([
             head,
             f'  cost     {self.initial_cost:.6e} -> {self.final_cost:.6e}',
-            f'  rms_px   {self.initial_rms_px:.4f} -> {self.final_rms_px:.4f}',
+            (f'  rms_px   {self.initial_rms_px:.4f} -> {self.final_rms_px:.4f}'
+             f' (noise estimate {self.noise_px:.4f} px per axis)'),
             iters,
             f'  termination: {self.termination.value} ({state})'])
 
@@ -233,6 +236,7 @@ class SolveResult:
             'accepted_steps': self.accepted_steps, 'linear_solves': self.linear_solves,
             'initial_cost': self.initial_cost, 'final_cost': self.final_cost,
             'initial_rms_px': self.initial_rms_px, 'final_rms_px': self.final_rms_px,
+            'noise_px': self.noise_px if math.isfinite(self.noise_px) else None,
             'time_s': self.time_s, 'n_cams': self.problem.n_cams,
             'n_feats': self.problem.n_feats, 'n_obs': self.problem.n_obs,
             'dropped': dict(self.problem.dropped),
@@ -520,12 +524,29 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             termination = TerminationReason.MIN_TRUST_REGION
             break
 
+    n_params = int(np.count_nonzero(col_mask)) + 3 * problem.n_feats
+    noise_px = noise_scale_px(model.reprojection_errors_px(state.evaluation), n_params)
     final_feats = take_features(state.feats, np.argsort(order))
     points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
-                       time.perf_counter() - t0, history)
+                       time.perf_counter() - t0, history, noise_px)
+
+
+def noise_scale_px(errors_px: FloatArray, n_params: int) -> float:
+    """Return a robust per-axis pixel noise estimate from reprojection error norms.
+
+    The median norm of 2-D Gaussian errors is sigma sqrt(2 ln 2); the redundancy factor
+    sqrt(2K / (2K - n_params)) adds back what the fitted parameters absorbed. NaN when the
+    K errors do not outnumber the parameters.
+    """
+    k = errors_px.shape[0]
+    redundancy = 2 * k - n_params
+    if k == 0 or redundancy <= 0:
+        return math.nan
+    return (float(np.median(errors_px)) / math.sqrt(2.0 * math.log(2.0))
+            * math.sqrt(2.0 * k / redundancy))
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,

@@ -310,3 +310,21 @@ def test_solves_without_numba_installed() -> None:
         ' SolveOptions(max_iterations=50))\n'
         'assert r.final_rms_px < 1.0, r.final_rms_px\n'
         "assert 'numba' not in {m.split('.')[0] for m in sys.modules if sys.modules[m]}\n")
+
+
+@pytest.mark.parametrize('noise_px', [0.5, 2.0])
+def test_noise_estimate_recovers_the_pixel_noise_despite_outliers(noise_px: float) -> None:
+    """noise_px is the simulated per-axis sigma within 10 %, with 5 % of pixels gross outliers."""
+    from pmba_ros.core.camera import pixels_to_bearings
+    from pmba_ros.core.loss import Loss
+
+    problem = street_scene(seed=4, noise_px=noise_px).gt
+    rng = np.random.default_rng(0)
+    bad = rng.random(problem.n_obs) < 0.05
+    pixels = problem.obs.pixels.copy()
+    pixels[bad] += rng.choice([-1.0, 1.0], size=(int(bad.sum()), 2)) * 40.0
+    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
+    corrupted = replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+    for res in (solve(problem), solve(corrupted, SolveOptions(loss=Loss.CAUCHY))):
+        assert res.noise_px == pytest.approx(noise_px, rel=0.1)
+    assert solve(problem).final_rms_px > noise_px  # the RMS is not the per-axis sigma
