@@ -16,11 +16,13 @@
 The cost of an observation is ``1/2 a^2 rho(z / a^2)`` for a scale a (in residual units). Both
 losses here have rho'' <= 0 wherever they down-weight, where Ceres' ``Corrector`` reduces to
 scaling residual and Jacobian by sqrt(rho'), the form used by :func:`robust_weights`.
+:func:`noise_scale_px` estimates the noise those scales are compared with.
 """
 
 from __future__ import annotations
 
 from enum import Enum
+import math
 
 import numpy as np
 from pmba_ros._typing import FloatArray
@@ -62,3 +64,18 @@ def robust_weights(residuals: FloatArray, loss: Loss, scale: float) -> FloatArra
     """Return sqrt(rho'(|e_k|^2)), shape (K,), to scale residuals and Jacobian rows by."""
     _, d_rho = rho(np.sum(residuals * residuals, axis=1), loss, scale)
     return np.sqrt(d_rho)
+
+
+def noise_scale_px(errors_px: FloatArray, n_params: int) -> float:
+    """Return a robust per-axis pixel noise estimate from reprojection error norms.
+
+    The median norm of 2-D Gaussian errors is sigma sqrt(2 ln 2); the redundancy factor
+    sqrt(2K / (2K - n_params)) adds back what the fitted parameters absorbed. NaN when the
+    K errors do not outnumber the parameters.
+    """
+    k = errors_px.shape[0]
+    redundancy = 2 * k - n_params
+    if k == 0 or redundancy <= 0:
+        return math.nan
+    return (float(np.median(errors_px)) / math.sqrt(2.0 * math.log(2.0))
+            * math.sqrt(2.0 * k / redundancy))

@@ -37,7 +37,7 @@ from pmba_ros.core import conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.engine import Engine, EngineName, resolve
 from pmba_ros.core.gauge import choose_gauge, free_gauge
-from pmba_ros.core.loss import Loss
+from pmba_ros.core.loss import Loss, noise_scale_px
 from pmba_ros.core.models import Evaluation, make_model, Model
 from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
 from pmba_ros.core.problem import (
@@ -188,7 +188,7 @@ class SolveResult:
         initial_rms_px, final_rms_px: Pixel reprojection RMS before and after.
         time_s: Wall time in seconds.
         history: Per-iteration records, starting with the initial state.
-        noise_px: Per-axis pixel noise the final errors suggest (:func:`noise_scale_px`).
+        noise_px: Per-axis pixel noise the final errors suggest (see ``noise_scale_px``).
     """
 
     R_wc: FloatArray
@@ -532,21 +532,6 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
                        time.perf_counter() - t0, history, noise_px)
-
-
-def noise_scale_px(errors_px: FloatArray, n_params: int) -> float:
-    """Return a robust per-axis pixel noise estimate from reprojection error norms.
-
-    The median norm of 2-D Gaussian errors is sigma sqrt(2 ln 2); the redundancy factor
-    sqrt(2K / (2K - n_params)) adds back what the fitted parameters absorbed. NaN when the
-    K errors do not outnumber the parameters.
-    """
-    k = errors_px.shape[0]
-    redundancy = 2 * k - n_params
-    if k == 0 or redundancy <= 0:
-        return math.nan
-    return (float(np.median(errors_px)) / math.sqrt(2.0 * math.log(2.0))
-            * math.sqrt(2.0 * k / redundancy))
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
