@@ -16,12 +16,14 @@
 Usage::
 
     python benchmarks/bench_backend.py ate --mode sliding
+    python benchmarks/bench_backend.py ate --keyframes 300 --seed 3 --noise-px 1.0
     python benchmarks/bench_backend.py latency --keyframes 200
     python benchmarks/bench_backend.py latency --keyframes 1500 --serialize --deterministic
     python benchmarks/bench_backend.py memory --keyframes 2000
 
-``ate``: ATE (Sim(3) alignment) of the optimized keyframes and of the front-end on the
-simulated street, deterministic config. ``latency``: wall and CPU time of each ``step()``
+``ate``: ATE and RPE (Sim(3) alignment) of the optimized keyframes and of the front-end on a
+simulated scenario (street by default), deterministic config, with the pixel noise the
+back-end measured. ``latency``: wall and CPU time of each ``step()``
 that processes a keyframe (association, solve, outputs), with the node's default budgets.
 ``memory``: tracemalloc and RSS every ``--every`` keyframes over a long street; the
 optimization state (stored observations, features in the problem) must stay flat, the
@@ -45,7 +47,7 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.core import so3
-from pmba_ros.eval.metrics import ate
+from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.io import cdr
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
@@ -86,7 +88,8 @@ def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, Rosba
 
 def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     """Bench ate."""
-    seq = simulate_sequence('street', args.keyframes, seed=args.seed)
+    seq = simulate_sequence(args.scenario, args.keyframes, seed=args.seed,
+                            noise_px=args.noise_px, drift=args.drift)
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
                         max_iterations=args.iterations)
     logic, backend = _start(cfg, seq)
@@ -96,11 +99,15 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
         for topic, msg in _feed(logic, seq, backend, i)[2]:
             if topic == cfg.path_topic:
                 path_len = len(msg.poses)
-    be = ate(logic.optimized_trajectory(), seq.gt_trajectory(), 'sim3').rmse
-    fe = ate(seq.odom_trajectory(), seq.gt_trajectory(), 'sim3').rmse
-    return {'bench': 'ate', 'mode': args.mode, 'seed': args.seed, 'keyframes': len(seq),
+    opt, fe_traj, gt = logic.optimized_trajectory(), seq.odom_trajectory(), seq.gt_trajectory()
+    be, fe = ate(opt, gt, 'sim3').rmse, ate(fe_traj, gt, 'sim3').rmse
+    rpe_be, rpe_fe = rpe(opt, gt, align='sim3').rmse, rpe(fe_traj, gt, align='sim3').rmse
+    return {'bench': 'ate', 'scenario': args.scenario, 'mode': args.mode, 'seed': args.seed,
+            'keyframes': len(seq), 'noise_px': args.noise_px, 'drift': args.drift,
             'path_poses': path_len, 'ate_backend_m': be, 'ate_frontend_m': fe,
-            'ratio': be / fe, 'wall_s': time.perf_counter() - t0}
+            'ratio': be / fe, 'rpe_ratio': rpe_be / rpe_fe,
+            'noise_estimate_px': logic.estimator.pixel_noise.sigma,
+            'wall_s': time.perf_counter() - t0}
 
 
 def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
@@ -204,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--window', type=int, default=20)
     parser.add_argument('--iterations', type=int, default=None)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--scenario', choices=('street', 'aerial', 'loop'), default='street',
+                        help='ate: simulated scenario')
+    parser.add_argument('--noise-px', type=float, default=0.5, help='ate: pixel noise sigma')
+    parser.add_argument('--drift', type=float, default=0.02, help='ate: front-end drift')
     parser.add_argument('--every', type=int, default=200)
     parser.add_argument('--deterministic', action='store_true',
                         help='latency: no time budget (fixed iterations; CPU time is then the '

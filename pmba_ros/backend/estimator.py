@@ -42,7 +42,6 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 import logging
 import math
 import time
@@ -50,7 +49,8 @@ import time
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.motion import frontend_motion_prior, motion_error
+from pmba_ros.backend.motion import frontend_motion_prior, motion_error, PixelNoise
+from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
     compensated_parallax_angles,
     estimate_similarity,
@@ -86,38 +86,6 @@ STATES = ('collecting', 'waiting_for_parallax', 'tracking')
 _MIN_SHARED_FOR_PARALLAX = 20
 
 
-@dataclass
-class UpdateInfo:
-    """What one keyframe update did (for diagnostics and stats).
-
-    Attributes:
-        kind: 'collect', 'init', 'init_failed', 'refine', 'dead_reckoned' or 'dropped'.
-        keyframe: Index of the keyframe (-1 if it was dropped).
-        solve_ms: Solver wall time, ms (0 if no solve).
-        iterations: Solver iterations.
-        cost_before: Cost before the solve.
-        cost_after: Cost after the solve.
-        n_cams: Poses in the problem.
-        n_free: Free poses in the problem.
-        n_feats: Features in the problem.
-        n_obs: Observations in the problem.
-        message: Human-readable note (failure reason).
-    """
-
-    kind: str
-    keyframe: int = -1
-    solve_ms: float = 0.0
-    iterations: int = 0
-    cost_before: float = math.nan
-    cost_after: float = math.nan
-    n_cams: int = 0
-    n_free: int = 0
-    n_feats: int = 0
-    n_obs: int = 0
-    message: str = ''
-    dropped: dict[str, int] = field(default_factory=dict)
-
-
 class Estimator:
     """Keyframe-by-keyframe PMBA estimator (see the module docstring)."""
 
@@ -140,6 +108,7 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
+        self.pixel_noise = PixelNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
 
@@ -357,6 +326,7 @@ class Estimator:
         self.state = 'tracking'
         self._update_similarity()
         self._metric_scale = self.map_from_odom.scale
+        self.pixel_noise.note(res.noise_px)
         passed = self.kf.indices(KeyframeStatus.PASSED_THROUGH)
         if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
             self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
@@ -501,6 +471,7 @@ class Estimator:
             self.kf.R_map[moved], self.kf.C_map[moved], self.map_from_odom = before
             return self._fall_back(info, failure)
         self._failures = 0
+        self.pixel_noise.note(res.noise_px)
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
@@ -511,7 +482,8 @@ class Estimator:
         """Return the front-end's motion between the problem's keyframes as a prior."""
         return frontend_motion_prior(
             self.kf, cams, fixed, self._metric_scale, self.config,
-            follow_map_scale=self.config.mode == 'sliding' and self._rig() is None)
+            follow_map_scale=self.config.mode == 'sliding' and self._rig() is None,
+            pixel_sigma=self.pixel_noise.sigma)
 
     def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
                        moved: IntArray, error_before: float) -> str:

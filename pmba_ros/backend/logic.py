@@ -42,10 +42,11 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend import status
 from pmba_ros.backend.cameras import frame_id_of, FrontendCameras
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.estimator import Estimator, UpdateInfo
+from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
@@ -536,6 +537,8 @@ class BackendLogic:
             'cameras_used': ','.join(str(c) for c in sorted(
                 [self.config.camera_id, *self.cameras.rig])),
         }
+        if state == 'tracking':  # measured by the solves since the initialization
+            values['tracks_noise_px'] = round(self.estimator.pixel_noise.sigma, 4)
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms
             values['update_ms'] = self._stats.update_ms[-1] if self._stats.update_ms else 0.0

@@ -21,6 +21,9 @@ front-end's keyframe-to-keyframe motion enters the solve as a weak prior
 
 from __future__ import annotations
 
+from collections import deque
+import math
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -29,9 +32,39 @@ from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core.pose_prior import RelativePosePrior
 
 
+class PixelNoise:
+    """The tracks' per-axis pixel noise: the median of the recent solves' estimates.
+
+    Enough solves are pooled that one odd window does not move the prior's weight, few
+    enough that the estimate follows a change of the tracks' quality; 1 px before any.
+    """
+
+    HISTORY = 25
+
+    def __init__(self) -> None:
+        """Start without an estimate."""
+        self._recent: deque[float] = deque(maxlen=self.HISTORY)
+
+    @property
+    def sigma(self) -> float:
+        """Return the pooled estimate, px."""
+        return float(np.median(self._recent)) if self._recent else 1.0
+
+    def note(self, noise_px: float) -> None:
+        """Add one solve's estimate (non-finite or non-positive ones are skipped)."""
+        if math.isfinite(noise_px) and noise_px > 0:
+            self._recent.append(noise_px)
+
+
+MIN_PIXEL_SIGMA = 0.1
+"""Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
+accuracy ends about there, whatever a noise-free simulation's residuals say."""
+
+
 def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                           metric_scale: float, config: BackendConfig, *,
-                          follow_map_scale: bool = True) -> RelativePosePrior | None:
+                          follow_map_scale: bool = True,
+                          pixel_sigma: float = 1.0) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
@@ -50,9 +83,10 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     vision sees the scale weakly and step by step, not a stereo rig (a metric map) or a
     global solve (which moves the whole map's scale at once). Weights: one sigma (of the
     length, of the direction across it ``motion_prior_direction_rel``, each of the step
-    plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one pixel of
-    reprojection error; where the front-end gives pose covariances they take over
-    (:func:`covariance_weights`).
+    plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one sigma of the
+    tracks' pixel noise, ``pixel_sigma`` (measured by the solves), so that noisy tracks lean
+    more on the front-end and clean ones less; where the front-end gives pose covariances
+    they take over (:func:`covariance_weights`).
     """
     cfg = config
     if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
@@ -83,7 +117,9 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
                     if cfg.motion_prior_rotation_rad > 0 else 0.0)
     covariance_weights(kf, a, b, metric_scale, config, W_trans, w_rot)
-    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom, w_rot, W_trans)
+    weight = max(pixel_sigma, MIN_PIXEL_SIGMA)
+    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom, weight * w_rot,
+                             weight * W_trans)
 
 
 def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray,

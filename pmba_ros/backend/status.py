@@ -18,15 +18,44 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from pmba_ros.backend.estimator import UpdateInfo
+import math
 
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
 INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
                            'init_failures', 'keyframes_passed_through'})
 """Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
+
+
+@dataclass
+class UpdateInfo:
+    """What one keyframe update did (for diagnostics and stats).
+
+    Attributes:
+        kind: 'collect', 'init', 'init_failed', 'refine', 'dead_reckoned' or 'dropped'.
+        keyframe: Index of the keyframe (-1 if it was dropped).
+        solve_ms: Solver wall time, ms (0 if no solve).
+        iterations: Solver iterations.
+        cost_before: Cost before the solve.
+        cost_after: Cost after the solve.
+        n_cams: Poses in the problem.
+        n_free: Free poses in the problem.
+        n_feats: Features in the problem.
+        n_obs: Observations in the problem.
+        message: Human-readable note (failure reason).
+    """
+
+    kind: str
+    keyframe: int = -1
+    solve_ms: float = 0.0
+    iterations: int = 0
+    cost_before: float = math.nan
+    cost_after: float = math.nan
+    n_cams: int = 0
+    n_free: int = 0
+    n_feats: int = 0
+    n_obs: int = 0
+    message: str = ''
+    dropped: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
