@@ -291,7 +291,8 @@ class Estimator:
                                          np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)),
                                          all_cameras=False)
         opts = InitOptions(solve_options=SolveOptions(
-            param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss.NONE,
+            param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss(cfg.loss),
+            loss_scale_px=cfg.loss_scale_px,
             max_iterations=cfg.init_max_iterations,
             function_tolerance=1e-10))
         t0 = time.perf_counter()
