@@ -153,7 +153,8 @@ class BackendConfig:
             is taken without tracks.
         max_iterations: Dogleg iteration budget per refine.
         max_time_s: Wall-time budget per refine, s (ignored if ``deterministic``).
-        loss: Robust loss of the refines ('huber', 'cauchy' or 'none').
+        loss: Robust loss of every solve, the initialization's BA included ('huber', 'cauchy'
+            or 'none').
         loss_scale_px: Robust loss scale, px.
         covariance_position_m2: Odometry position variance floor, m^2 (> 0).
         covariance_rotation_rad2: Odometry rotation variance floor, rad^2 (> 0).
