@@ -46,7 +46,6 @@ from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
-from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
@@ -95,7 +94,7 @@ class BackendLogic:
         self._odom_frame = self.config.odom_frame or 'odom'
         self._base_frame = self.config.base_frame or 'base_link'
         self._published = out.PoseMessageCache()
-        self._last_info = UpdateInfo('none')
+        self._last_info = status.UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
         self._track_memory = TrackMemory()
@@ -209,8 +208,7 @@ class BackendLogic:
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
         if kf.stamp_ns <= newest:
-            self._reject('keyframe_stamp_not_increasing',
-                         f'{kf.stamp_ns} ns after {newest} ns')
+            self._reject('keyframe_stamp_not_increasing', f'{kf.stamp_ns} ns after {newest} ns')
             return
         if len(self._pending) >= self.config.buffer_size:
             self._pending.popleft()
@@ -331,7 +329,7 @@ class BackendLogic:
         except Exception as err:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)
-            info = UpdateInfo('error', message=str(err))
+            info = status.UpdateInfo('error', message=str(err))
         self._stats.record_update(info)
         idx = self.estimator.estimated()
         self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
@@ -533,12 +531,12 @@ class BackendLogic:
             'map_from_odom_scale': self.estimator.map_from_odom.scale,
             'not_optimized_keyframes': self._stats.not_optimized,
             'init_attempts': self.estimator.init_attempts,
+            'tracks_noise_px': round(self.estimator.pixel_noise.sigma, 4) if state == 'tracking'
+            else 'not measured before the initialization',
             'extrinsic_source': self.cameras.extrinsic_source or 'none',
             'cameras_used': ','.join(str(c) for c in sorted(
                 [self.config.camera_id, *self.cameras.rig])),
         }
-        if state == 'tracking':  # measured by the solves since the initialization
-            values['tracks_noise_px'] = round(self.estimator.pixel_noise.sigma, 4)
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms
             values['update_ms'] = self._stats.update_ms[-1] if self._stats.update_ms else 0.0
