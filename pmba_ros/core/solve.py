@@ -424,8 +424,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         return math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
                          + model.parameter_norm_sq(state.feats))
 
-    def rms_of(state: _State) -> float:
-        err = model.reprojection_errors_px(state.evaluation)
+    def rms_of(err: FloatArray) -> float:
         return float(np.sqrt(np.mean(err * err))) if err.size else 0.0
 
     state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
@@ -433,7 +432,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         msg = 'residuals are not finite at the initial point'
         raise SolverError(msg)
     x_norm = norm_of(state)
-    initial_cost, initial_rms = state.cost, rms_of(state)
+    errors = model.reprojection_errors_px(state.evaluation)  # also for the noise estimate
+    initial_cost, initial_rms = state.cost, rms_of(errors)
     history = [IterationRecord(0, initial_cost, initial_rms, True,
                                options.initial_trust_region_radius, 0.0, math.nan, 0, 0.0)]
     if callback:
@@ -508,7 +508,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         if accepted:
             accepted_steps += 1
             state = trial
-            rms = rms_of(state)
+            errors = model.reprojection_errors_px(state.evaluation)
+            rms = rms_of(errors)
             x_norm = norm_of(state)
             mu = max(dogleg.MIN_MU, mu / 5.0)
             lin = None
@@ -524,8 +525,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             termination = TerminationReason.MIN_TRUST_REGION
             break
 
-    n_params = int(np.count_nonzero(col_mask)) + 3 * problem.n_feats
-    noise_px = noise_scale_px(model.reprojection_errors_px(state.evaluation), n_params)
+    noise_px = noise_scale_px(errors, int(np.count_nonzero(col_mask)) + 3 * problem.n_feats)
     final_feats = take_features(state.feats, np.argsort(order))
     points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
