@@ -27,7 +27,7 @@ front-end and optimized ATE (Sim(3)-aligned RMSE), their ratio, and the throughp
 multiple of real time (bag duration / replay wall time; the street runs at 10 keyframes/s),
 with the replay's CPU time (process time) as a load-independent figure. A warm-up replay of
 30 keyframes runs first, so that every row measures steady-state throughput. ``--max-iterations``
-adds a row per Dogleg budget per keyframe solve (the node's ``max_iterations``; default 2).
+adds a row per Dogleg budget per keyframe solve (the node's ``max_iterations``; default 1).
 ``--repeat N`` replays each row N times and prints each run, then the median and range of
 wall time, CPU time and speed (on a shared machine the CPU time is the steadier figure).
 ``--budget`` times the main parts of the street replays (CPU seconds, summed over the row's

@@ -120,4 +120,5 @@ def test_pixel_only_tracks_use_each_cameras_camera_info(tmp_path: Path) -> None:
     data = json.loads((tmp_path / 'out' / 'report.json').read_text())
     assert 'other_camera_observations' not in data['counters']
     assert '1' in data['extrinsic']['rig_cameras']
-    assert report.accuracy is not None and report.accuracy['ate_ratio'] < 0.3
+    # A CameraInfo applied to the wrong camera leaves the front-end's poses (ratio 1).
+    assert report.accuracy is not None and report.accuracy['ate_ratio'] < 0.35

@@ -151,7 +151,9 @@ class BackendConfig:
         stamp_tolerance_s: Largest stamp difference between a keyframe and its tracks, s.
         association_timeout_s: A keyframe whose tracks did not arrive by then (input stamps)
             is taken without tracks.
-        max_iterations: Dogleg iteration budget per refine.
+        max_iterations: Dogleg iteration budget per refine. One suits a sliding window:
+            each keyframe's solve starts where the last one stopped, and a second iteration
+            lowers the cost by a fraction of a percent, far less than the first.
         max_time_s: Wall-time budget per refine, s (ignored if ``deterministic``).
         loss: Robust loss of every solve, the initialization's BA included ('huber', 'cauchy'
             or 'none').
@@ -218,7 +220,7 @@ class BackendConfig:
     buffer_size: int = 200
     stamp_tolerance_s: float = 0.005
     association_timeout_s: float = 1.0
-    max_iterations: int = 2
+    max_iterations: int = 1
     max_time_s: float = 0.15
     loss: str = 'cauchy'
     loss_scale_px: float = 2.0
