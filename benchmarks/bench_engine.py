@@ -20,7 +20,9 @@ Run::
 
 One table per dataset, one row per method, all from the same start:
 
-* ``PMBA-Dogleg``: :func:`pmba_ros.core.solve.solve` with default options.
+* ``PMBA-Dogleg``: :func:`pmba_ros.core.solve.solve` with default options, on every core
+  where the problem is large enough to split (:mod:`pmba_ros.core.compiled.chunks`), and on
+  one thread.
 * ``XYZ-LM``: the same engine with ``param='xyz', solver='lm'``.
 * ``scipy trf``: :func:`scipy.optimize.least_squares` (``method='trf'``, ``x_scale='jac'``,
   ``tr_solver='lsmr'`` with at most 200 LSMR iterations per step, wall time capped by
@@ -70,6 +72,7 @@ import numpy as np
 from pmba_ros._process import tune_process
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import project
+from pmba_ros.core.compiled import chunks
 from pmba_ros.core.models import XyzModel
 from pmba_ros.core.problem import BAProblem, XyzFeatures
 from pmba_ros.core.solve import initial_features, solve, SolveOptions, SolveResult
@@ -608,9 +611,16 @@ def main(argv: list[str] | None = None) -> int:
         rows: list[Row] = []
         xyz_row = ceres_row = None
         if 'pmba' in methods:
-            log(f'[{name}] PMBA-Dogleg ...')
-            rows.append(measured(partial(run_engine, problem, 'PMBA-Dogleg (engine)',
-                                         SolveOptions(engine=args.engine))))
+            # As users run it (every core on a large problem), and on one thread.
+            for limit in sorted({chunks.threads_for(problem.n_obs), 1}, reverse=True):
+                log(f'[{name}] PMBA-Dogleg ({limit} thr) ...')
+                chunks.set_max_threads(limit)
+                try:
+                    rows.append(measured(partial(run_engine, problem,
+                                                 f'PMBA-Dogleg ({limit} thr)',
+                                                 SolveOptions(engine=args.engine))))
+                finally:
+                    chunks.set_max_threads(None)
         if 'xyz' in methods:
             log(f'[{name}] XYZ-LM ...')
             xyz_row = measured(partial(run_engine, problem, 'XYZ-LM (engine)',

@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._json import dumps_report
-from pmba_ros.cli.argtypes import non_negative_int, positive_float
+from pmba_ros.cli.argtypes import non_negative_int, positive_float, positive_int
 from pmba_ros.core import so3
+from pmba_ros.core.compiled import chunks
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
@@ -71,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='numerical engine: numpy, the compiled numba loops, or auto '
                         '(compiled where numba is installed and PMBA_NUMBA is not 0); '
                         'both give the same iterates to rounding')
+    parser.add_argument('--threads', type=positive_int, default=None,
+                        help='most threads for the compiled loops of a large problem '
+                        '(default: every core this process may use)')
     parser.add_argument('--init', choices=['file', 'global'], default='file',
                         help="start from the file's poses and points, or run PMBA's global "
                         'initialization from the tracks alone')
@@ -268,6 +272,7 @@ def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
 def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
     _check_outputs(args)
+    chunks.set_max_threads(args.threads)
     problem = load_problem(args.problem, args.format)
     print(f'{args.problem}: {problem.n_cams} cameras, {problem.n_feats} features, '
           f'{problem.n_obs} observations' + (f', dropped {problem.dropped}' if problem.dropped

@@ -175,3 +175,23 @@ def test_solve_engine_option_gives_the_same_result(tmp_path: Path) -> None:
                      '--report', str(report)]) == 0
         costs[name] = json.loads(report.read_text())['final_cost']
     assert costs['compiled'] == pytest.approx(costs['numpy'], rel=1e-6)
+
+
+def test_solve_threads_option_caps_the_compiled_loops(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`--threads N` caps the threads a large problem's loops use; 0 is a usage error."""
+    pytest.importorskip('numba')
+    from pmba_ros.core.compiled import chunks
+
+    monkeypatch.setattr(chunks, 'available_cores', lambda: 4)
+    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    used: list[int] = []
+    run = chunks.run
+    monkeypatch.setattr(chunks, 'run', lambda fn, n: used.append(n) or run(fn, n))
+    try:
+        assert main(['solve', 'sim:table3', '--quiet', '--max-iters', '2', '--threads', '3',
+                     '--engine', 'compiled']) == 0
+    finally:
+        chunks.set_max_threads(None)
+    assert used and set(used) == {3}
+    with pytest.raises(SystemExit):
+        main(['solve', 'sim:table3', '--threads', '0'])

@@ -19,6 +19,7 @@ import numpy as np
 from pmba_ros.core import conversions, numpy_schur
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.compiled import assembly as compiled_assembly
+from pmba_ros.core.compiled import chunks
 from pmba_ros.core.compiled.plan import CompiledSchurPlan
 from pmba_ros.core.engine import Engine, NUMPY
 from pmba_ros.core.gauge import choose_gauge
@@ -31,8 +32,9 @@ import pytest
 from .helpers import engine_named, forward_problem
 
 #: Ways of assembling J^T J and forming W V^-1 W^T: numpy's (one dense product; per pair or
-#: per delta, in small batches) and the compiled loops of pmba_ros.core.compiled.
-SCHUR_PATHS = ['dense', 'pairs', 'per_delta', 'compiled']
+#: per delta, in small batches) and the compiled loops of pmba_ros.core.compiled, on one
+#: thread or with the features split into three chunks (as a large problem on three cores).
+SCHUR_PATHS = ['dense', 'pairs', 'per_delta', 'compiled', 'compiled_chunks']
 
 
 def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> Engine:
@@ -41,7 +43,18 @@ def _select_path(schur_products: str, monkeypatch: pytest.MonkeyPatch) -> Engine
         monkeypatch.setattr(numpy_schur, 'DENSE_SCHUR_RATIO', 0)
     if schur_products == 'per_delta':
         monkeypatch.setattr(numpy_schur, 'LOOP_MIN_FEATURES', 1)
-    return engine_named('compiled' if schur_products == 'compiled' else 'numpy')
+    if schur_products == 'compiled_chunks':
+        _split_in_three(monkeypatch)
+    return engine_named('numpy' if schur_products in NUMPY_PATHS else 'compiled')
+
+
+NUMPY_PATHS = ('dense', 'pairs', 'per_delta')
+
+
+def _split_in_three(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Make every problem large enough for the compiled loops to run in three chunks."""
+    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'max_threads', lambda: 3)
 
 
 def _dense_jacobian(J_pose, J_feat, slot_block, feat_idx, n_blocks, n_feats):
@@ -108,7 +121,7 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
     st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
                                  problem.n_feats, free_block, model.anchor_cols,
                                  engine.schur_plan)
-    assert isinstance(st.plan, NumpySchurPlan) != (schur_products == 'compiled')
+    assert isinstance(st.plan, NumpySchurPlan) == (schur_products in NUMPY_PATHS)
     assert getattr(st.plan, 'dense', False) == (schur_products == 'dense')
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
     r, Jp, Jf = lin.residuals, lin.J_pose(), lin.J_feat
@@ -197,8 +210,15 @@ def test_pmba_gauge_has_seven_dimensions() -> None:
     assert ev[7] > 1e-7 * ev[-1]
 
 
-def test_singular_feature_block_is_a_clear_error(engine: Engine) -> None:
-    """A feature whose Jacobian columns are zero, undamped: ReducedSystemError, not NaN."""
+@pytest.mark.parametrize('split', [False, True])
+def test_singular_feature_block_is_a_clear_error(engine: Engine, split: bool,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A feature whose Jacobian columns are zero, undamped: ReducedSystemError, not NaN.
+
+    Also when the feature is in a later chunk of a problem split between threads.
+    """
+    if split:
+        _split_in_three(monkeypatch)
     problem = forward_problem(4, n_cams=5, n_points=20)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
@@ -208,7 +228,8 @@ def test_singular_feature_block_is_a_clear_error(engine: Engine) -> None:
                                  problem.n_feats, free_block, model.anchor_cols,
                                  engine.schur_plan)
     lin = model.linearize(problem.R_wc, problem.centers_w, feats)
-    lin.rows[problem.obs.feat_idx == 7, :, 7:10] = 0.0
+    bad = problem.n_feats - 2  # features run by track length: in the last chunk
+    lin.rows[problem.obs.feat_idx == bad, :, 7:10] = 0.0
     eqs = ne.assemble(st, lin)
     with pytest.raises(ne.ReducedSystemError, match='singular feature block'):
         ne.solve_schur(st, eqs, np.full((st.n_blocks, 6), 1e-3),

@@ -25,6 +25,9 @@ loops visit each observation, feature or observation pair once and write in plac
   the back-substitution and x^T H x (normal_equations.py), and the covisible pose pairs;
 - the widest-pair anchor search (conversions.select_anchors).
 
+On large problems the rows, J^T J and the Schur complement run on every core, features split
+between threads (chunks.py).
+
 They are the compiled engine (:mod:`pmba_ros.core.engine`), the default when numba is
 installed (the ``fast`` extra), and give the numpy code's results to rounding: the tests run
 both. ``PMBA_NUMBA=0`` turns them off (:mod:`pmba_ros.core.jit`). Each module mirrors a numpy

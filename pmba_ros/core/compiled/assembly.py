@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import jit
+from pmba_ros.core.compiled import chunks
 from pmba_ros.core.jacobian import ANCHOR_START
 
 _jit = jit.jit
@@ -83,8 +84,8 @@ def _outer_add(E: Any, k: int, i0: int, m0: int, out: Any) -> None:
 @_jit
 def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs: Any,
               anchor_lo: Any, anchor_w: Any, pair_index: Any, U: Any, W: Any, V: Any,
-              g_pose: Any, g_feat: Any) -> None:
-    """J^T [J | r] of every observation into U, W, V, g (zeroed by the caller).
+              g_pose: Any, g_feat: Any, f0: int, f1: int) -> None:
+    """J^T [J | r] of the observations of features f0..f1-1 into U, W, V, g (zeroed).
 
     As in the numpy assembly, the observer's rows are formed per observation and the rows
     of the residual, the feature and the anchors summed per feature (Q) and added once.
@@ -93,7 +94,7 @@ def _assemble(E: Any, starts: Any, obs_block: Any, anchor_block: Any, anchor_obs
     n_anchor = anchor_lo.shape[0]
     P = np.empty((6, width))        # observer rows of one observation
     Q = np.empty((width - 6, width - 6))
-    for f in range(starts.shape[0] - 1):
+    for f in range(f0, f1):
         Q[:] = 0.0
         for k in range(starts[f], starts[f + 1]):
             _outer_add(E, k, 6, 6, Q)
@@ -151,14 +152,20 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
     n_blocks, N = pair_index.shape[0], starts.shape[0] - 1
     anchor_lo = np.array([lo for lo, _ in anchor_cols], dtype=np.int64)
     anchor_w = np.array([hi - lo for lo, hi in anchor_cols], dtype=np.int64)
-    U = np.zeros((n_pairs, 6, 6))
-    W = np.zeros((K, 6, 3))
-    V = np.zeros((N, 3, 3))
-    g_pose = np.zeros((n_blocks, 6))
-    g_feat = np.zeros((N, 3))
-    _assemble(np.ascontiguousarray(E), starts, obs_block, anchor_block, anchor_obs,
-              anchor_lo, anchor_w, pair_index, U, W, V, g_pose, g_feat)
-    return U, W, V, g_pose, g_feat
+    E = np.ascontiguousarray(E)
+    n = chunks.threads_for(K)
+    W, V, g_feat = np.zeros((K, 6, 3)), np.zeros((N, 3, 3)), np.zeros((N, 3))
+    # Pose blocks are shared between features: each chunk fills its own.
+    U = [np.zeros((n_pairs, 6, 6)) for _ in range(n)]
+    g_pose = [np.zeros((n_blocks, 6)) for _ in range(n)]
+    cut = chunks.bounds(np.diff(starts), n)
+    chunks.run(lambda t: _assemble(E, starts, obs_block, anchor_block, anchor_obs, anchor_lo,
+                                   anchor_w, pair_index, U[t], W, V, g_pose[t], g_feat,
+                                   int(cut[t]), int(cut[t + 1])), n)
+    for t in range(1, n):
+        U[0] += U[t]
+        g_pose[0] += g_pose[t]
+    return U[0], W, V, g_pose[0], g_feat
 
 
 @_jit

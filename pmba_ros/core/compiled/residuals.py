@@ -24,6 +24,7 @@ from typing import Any, NamedTuple, TYPE_CHECKING
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import jit
+from pmba_ros.core.compiled import chunks
 from pmba_ros.core.residuals import RayGeometry, TINY
 
 if TYPE_CHECKING:
@@ -106,21 +107,21 @@ def _cross_into(out: Any, a0: float, a1: float, a2: float, b0: float, b1: float,
 @_jit
 def _pmba_rows(obs: ObsArrays, feats: FeatureArrays, R_wc: FloatArray, ft: FeatureTerms,
                rt: RayTerms, ff: FeatureFactors, weights: FloatArray, rays_c: FloatArray,
-               E: FloatArray) -> None:
-    """Residual and Jacobian rows of PMBA observations; see residuals.ray_jacobians."""
+               E: FloatArray, k0: int, k1: int) -> None:
+    """Residual and Jacobian rows of PMBA observations k0..k1-1; see residuals.ray_jacobians."""
     cam_idx, feat_idx, v = obs.cam_idx, obs.feat_idx, obs.bearings_c
     n, main_idx = feats.n, feats.main_idx
     u, g, sin_t, cos_t = ft.u, ft.g, ft.sin_t, ft.cos_t
     d_mi, N_hat, norm, is_main = rt.P_m_minus_P_i, rt.N_hat, rt.norm, rt.main
     Rm_hat_n, A_f, dg_du, dg_dt, dth_u = ff.Rm_hat_n, ff.A_f, ff.dg_du, ff.dg_dt, ff.dth_u
-    K, d, width = E.shape
+    _, d, width = E.shape
     weighted = weights.shape[0] > 0
     L = np.empty((d, 3))
     B = np.empty((d, 3))
     Lu = np.empty(d)
     LdN = np.empty((d, 3))
     nA = np.empty((3, 2))
-    for k in range(K):
+    for k in range(k0, k1):
         j = feat_idx[k]
         R = R_wc[cam_idx[k]]
         nh0, nh1, nh2 = N_hat[k, 0], N_hat[k, 1], N_hat[k, 2]
@@ -241,9 +242,14 @@ def pmba_rows(obs: Observations, feats: ParallaxFeatures, R_wc: FloatArray, geo:
     fa = _feature_arrays(feats)
     ft, rt = _split(geo)
     _pmba_feature_factors(R_wc, fa, ft, ff)
-    _pmba_rows(_obs_arrays(obs), fa, R_wc, ft, rt, ff,
-               np.zeros((0, 3, 3)) if weights is None else weights,
-               geo.N_hat if rays_c is None else rays_c, E)
+    oa = _obs_arrays(obs)
+    w = np.zeros((0, 3, 3)) if weights is None else weights
+    rays = geo.N_hat if rays_c is None else rays_c
+    K = E.shape[0]
+    n = chunks.threads_for(K)
+    cut = np.linspace(0, K, n + 1).astype(np.int64)
+    chunks.run(lambda t: _pmba_rows(oa, fa, R_wc, ft, rt, ff, w, rays, E, int(cut[t]),
+                                    int(cut[t + 1])), n)
 
 
 @_jit

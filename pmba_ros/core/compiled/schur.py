@@ -24,19 +24,20 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core import jit
+from pmba_ros.core.compiled import chunks
 
 _jit = jit.jit
 
 
 @_jit
 def _schur(W: Any, V_inv: Any, starts: Any, w_block: Any, pair_index: Any, out: Any,
-           sign: float) -> None:
-    """Add sign W_a V^-1 W_b^T of every feature's observation pairs (a <= b) to ``out``."""
+           sign: float, f0: int, f1: int) -> None:
+    """Add sign W_a V^-1 W_b^T of features f0..f1-1's observation pairs (a <= b) to ``out``."""
     longest = 0
-    for f in range(starts.shape[0] - 1):
+    for f in range(f0, f1):
         longest = max(longest, starts[f + 1] - starts[f])
     Y = np.empty((longest, 3, 6))                      # V^-1 W^T of each observation
-    for f in range(starts.shape[0] - 1):
+    for f in range(f0, f1):
         lo, hi = starts[f], starts[f + 1]
         for a in range(hi - lo):
             for r in range(3):
@@ -97,19 +98,16 @@ def _inverse3(A: Any, out: Any) -> bool:
 
 
 @_jit
-def _reduce(U: Any, W: Any, V: Any, damp_feat: Any, g_pose: Any, g_feat: Any, starts: Any,
-            w_block: Any, pair_index: Any, V_inv: Any, S: Any, rhs: Any) -> int:
-    """Schur complement of the damped feature blocks; returns -1, or the singular feature.
+def _reduce(W: Any, V: Any, damp_feat: Any, g_feat: Any, starts: Any, w_block: Any,
+            pair_index: Any, V_inv: Any, S: Any, rhs: Any, f0: int, f1: int) -> int:
+    """Schur terms of the damped feature blocks f0..f1-1; returns -1, or a singular feature.
 
-    S = U - sum_f W_f V_f^-1 W_f^T (upper pair blocks) and rhs = -g_T + W V^-1 g_F.
+    Adds -sum_f W_f V_f^-1 W_f^T to S (upper pair blocks) and W V^-1 g_F to rhs, which
+    start at U and -g_T (or at zero, for a chunk's own copy).
     """
     A = np.empty((3, 3))
     Vg = np.empty(3)
-    S[:] = U
-    for b in range(rhs.shape[0]):
-        for i in range(6):
-            rhs[b, i] = -g_pose[b, i]
-    for f in range(starts.shape[0] - 1):
+    for f in range(f0, f1):
         for i in range(3):
             for m in range(3):
                 A[i, m] = V[f, i, m]
@@ -124,7 +122,7 @@ def _reduce(U: Any, W: Any, V: Any, damp_feat: Any, g_pose: Any, g_feat: Any, st
             if b >= 0:
                 for i in range(6):
                     rhs[b, i] += W[k, i, 0] * Vg[0] + W[k, i, 1] * Vg[1] + W[k, i, 2] * Vg[2]
-    _schur(W, V_inv, starts, w_block, pair_index, S, -1.0)
+    _schur(W, V_inv, starts, w_block, pair_index, S, -1.0, f0, f1)
     return -1
 
 
@@ -132,12 +130,21 @@ def reduce(U: FloatArray, W: FloatArray, V: FloatArray, damp_feat: FloatArray,
            g_pose: FloatArray, g_feat: FloatArray, starts: IntArray, obs_block: IntArray,
            pair_index: IntArray) -> tuple[FloatArray, FloatArray, FloatArray, int]:
     """Return S (upper pair blocks), the right-hand side, V^-1, and -1 or a singular feature."""
+    n = chunks.threads_for(W.shape[0])
     V_inv = np.empty_like(V)
-    S = np.empty_like(U)
-    rhs = np.empty_like(g_pose)
-    bad = _reduce(U, W, V, damp_feat, g_pose, g_feat, starts, obs_block, pair_index, V_inv,
-                  S, rhs)
-    return S, rhs, V_inv, int(bad)
+    # Pose blocks are shared between features: chunks after the first fill their own.
+    S = [U.copy(), *(np.zeros_like(U) for _ in range(1, n))]
+    rhs = [-g_pose, *(np.zeros_like(g_pose) for _ in range(1, n))]
+    # A feature's Schur terms grow with the square of its observations.
+    per_feature = np.diff(starts).astype(float)
+    cut = chunks.bounds(per_feature * (per_feature + 1.0), n)
+    bad = chunks.run(lambda t: int(_reduce(W, V, damp_feat, g_feat, starts, obs_block,
+                                           pair_index, V_inv, S[t], rhs[t], int(cut[t]),
+                                           int(cut[t + 1]))), n)
+    for t in range(1, n):
+        S[0] += S[t]
+        rhs[0] += rhs[t]
+    return S[0], rhs[0], V_inv, next((b for b in bad if b >= 0), -1)
 
 
 @_jit

@@ -1,0 +1,103 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The compiled loops on several cores: features split into chunks, one thread per chunk.
+
+The loops release the GIL (:func:`pmba_ros.core.jit.jit`), so plain threads run them side by
+side. A chunk is a contiguous range of features (observations are stored feature by
+feature) with about an equal share of the work. Where features add into blocks they share
+(the pose blocks of J^T J and of the Schur complement), each chunk adds into its own copy and
+the copies are summed in chunk order afterwards: the result does not depend on which thread
+finishes first, only on the number of chunks.
+
+Large problems use every core this process may run on (:func:`max_threads`), as a BLAS
+library would; :func:`set_max_threads` (``pmba solve --threads``) caps that.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+import threading
+from typing import TypeVar
+
+import numpy as np
+from pmba_ros._threads import available_cores
+from pmba_ros._typing import FloatArray, IntArray
+
+T = TypeVar('T')
+
+MIN_OBSERVATIONS = 20_000
+"""Problems with fewer observations run on one thread: each of their loops takes about a
+millisecond, about what handing a chunk to another thread and summing its copy costs."""
+
+
+class _State:
+    """The thread limit and the worker pool, shared by every solve of the process."""
+
+    limit: int | None = None
+    pool: ThreadPoolExecutor | None = None
+    pool_size = 0
+    lock = threading.Lock()
+
+
+def set_max_threads(n: int | None) -> None:
+    """Cap the threads of the compiled loops at ``n`` (None: every available core).
+
+    Raises:
+        ValueError: If ``n`` is not a positive integer or None.
+    """
+    if n is not None and (not isinstance(n, int) or isinstance(n, bool) or n < 1):
+        msg = f'the thread limit must be a positive integer or None, got {n!r}'
+        raise ValueError(msg)
+    _State.limit = n
+
+
+def max_threads() -> int:
+    """Return the most threads a large problem's loops use."""
+    cores = available_cores()
+    return cores if _State.limit is None else min(cores, _State.limit)
+
+
+def threads_for(n_obs: int) -> int:
+    """Return the threads worth using on loops over ``n_obs`` observations."""
+    return 1 if n_obs < MIN_OBSERVATIONS else max_threads()
+
+
+def bounds(cost: FloatArray, n: int) -> IntArray:
+    """Return n + 1 indices that split items of ``cost`` (per item) into n equal-cost ranges.
+
+    Ranges may be empty when a few items carry most of the cost.
+    """
+    total = np.cumsum(cost, dtype=float)
+    if n <= 1 or total.shape[0] == 0:
+        return np.array([0, total.shape[0]], dtype=np.int64)
+    inner = np.searchsorted(total, total[-1] * np.arange(1, n) / n, side='right')
+    return np.concatenate([[0], inner, [total.shape[0]]]).astype(np.int64)
+
+
+def run(fn: Callable[[int], T], n: int) -> list[T]:
+    """Return [fn(0), ..., fn(n - 1)], chunk 0 on the calling thread, the others in the pool."""
+    if n <= 1:
+        return [fn(0)]
+    with _State.lock:
+        if _State.pool is None or _State.pool_size < n - 1:
+            if _State.pool is not None:
+                _State.pool.shutdown(wait=False)
+            _State.pool = ThreadPoolExecutor(max_workers=n - 1,
+                                             thread_name_prefix='pmba-loops')
+            _State.pool_size = n - 1
+        pool = _State.pool
+    futures = [pool.submit(fn, t) for t in range(1, n)]
+    first = fn(0)
+    return [first, *(f.result() for f in futures)]
