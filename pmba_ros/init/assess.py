@@ -29,7 +29,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import solve, SolveResult
-from pmba_ros.init import two_view, view_graph
+from pmba_ros.init import covisibility, view_graph
 from pmba_ros.init.pipeline import global_init, InitOptions, InitResult
 
 
@@ -107,7 +107,7 @@ class InitAssessment:
 def _reachable(problem: BAProblem, min_matches: int) -> tuple[BoolArray, BoolArray]:
     """Return the cameras (M,) and features (N,) a pairwise initialization can reach."""
     obs = problem.obs
-    counts = two_view.covisibility_counts(obs.cam_idx, obs.feat_idx, problem.n_cams)
+    counts = covisibility.covisibility_counts(obs.cam_idx, obs.feat_idx, problem.n_cams)
     cam_a, cam_b = np.nonzero(counts >= min_matches)
     cams = view_graph.largest_component(problem.n_cams, cam_a, cam_b)
     seen = np.bincount(obs.feat_idx[cams[obs.cam_idx]], minlength=problem.n_feats)

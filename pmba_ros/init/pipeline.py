@@ -72,6 +72,7 @@ from pmba_ros.errors import InitError
 from pmba_ros.init import (
     anchors,
     cls,
+    covisibility,
     nls,
     register,
     rotation_averaging,
@@ -135,7 +136,7 @@ def _check_input(problem: BAProblem) -> dict[str, Any]:
     return info
 
 
-def _best_partners(n_cams: int, corr: two_view.PairCorrespondences, bearings_c: FloatArray,
+def _best_partners(n_cams: int, corr: covisibility.PairCorrespondences, bearings_c: FloatArray,
                    focal: FloatArray, max_partners: int, min_parallax_px: float) -> BoolArray:
     """Return the candidate pairs worth a RANSAC: each camera's best partners.
 
@@ -150,20 +151,20 @@ def _best_partners(n_cams: int, corr: two_view.PairCorrespondences, bearings_c: 
     parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
     baseline = parallax >= min_parallax_px
     rest = counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
-    by_tracks = two_view.top_partners(corr.cam_a, corr.cam_b,
-                                      np.where(baseline, counts, 0.0) + rest, n_cams,
-                                      max_partners // 2)
+    by_tracks = covisibility.top_partners(corr.cam_a, corr.cam_b,
+                                          np.where(baseline, counts, 0.0) + rest, n_cams,
+                                          max_partners // 2)
     score = np.where(baseline, parallax * np.sqrt(counts), 0.0) + rest
-    by_baseline = two_view.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
-                                        max_partners - max_partners // 2)
+    by_baseline = covisibility.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
+                                            max_partners - max_partners // 2)
     return by_tracks | by_baseline
 
 
 def _estimate_pairs(problem: BAProblem, options: InitOptions,
                     ) -> tuple[two_view.EGPairs, dict[str, Any]]:
     obs = problem.obs
-    corr = two_view.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
-                                         options.min_pair_matches)
+    corr = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
+                                             options.min_pair_matches)
     if corr.n_pairs == 0:
         msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
                'tracks (min_pair_matches)')

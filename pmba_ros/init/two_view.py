@@ -24,8 +24,8 @@ t_cv        t_rel[p]      (P,3)     unit translation, t_cv ~ R_2^T (P_1 - P_2)
 b1, b2      bearings      (C,3)     unit bearings of a correspondence in cams 1 and 2
 ==========  ============  ========  ===================================================
 
-Correspondences are built for all pairs at once with vectorized joins on the feature index
-(observations sorted by feature then camera); only the OpenCV calls loop over pairs.
+The pairs and their correspondences come from :mod:`pmba_ros.init.covisibility`; only the
+OpenCV calls loop over pairs.
 """
 
 from __future__ import annotations
@@ -44,6 +44,8 @@ except ImportError as err:  # pragma: no cover - depends on the installation
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
+from pmba_ros.core.compiled import chunks
+from pmba_ros.init import covisibility
 
 logger = logging.getLogger(__name__)
 
@@ -51,43 +53,6 @@ logger = logging.getLogger(__name__)
 RANSAC_METHODS = {'ransac': cv2.RANSAC, 'usac_accurate': cv2.USAC_ACCURATE,
                   'usac_magsac': cv2.USAC_MAGSAC, 'usac_default': cv2.USAC_DEFAULT,
                   'usac_fast': cv2.USAC_FAST}
-
-
-@dataclass(frozen=True, eq=False)
-class PairCorrespondences:
-    """Co-visible camera pairs and their common observations (CSR layout).
-
-    Attributes:
-        cam_a: First camera of each pair, shape (P,); cam_a < cam_b.
-        cam_b: Second camera of each pair, shape (P,).
-        offsets: CSR offsets (P+1,) into ``obs_a``/``obs_b``.
-        obs_a: Observation index (into the problem's observations) in cam_a, shape (C,).
-        obs_b: Observation index of the same feature in cam_b, shape (C,).
-    """
-
-    cam_a: IntArray
-    cam_b: IntArray
-    offsets: IntArray
-    obs_a: IntArray
-    obs_b: IntArray
-
-    @property
-    def n_pairs(self) -> int:
-        """Return the number of pairs P."""
-        return int(self.cam_a.shape[0])
-
-    def counts(self) -> IntArray:
-        """Return the number of common observations of each pair, shape (P,)."""
-        return np.diff(self.offsets)
-
-    def subset(self, keep: BoolArray) -> PairCorrespondences:
-        """Return the pairs selected by the mask ``keep`` (P,), with their correspondences."""
-        keep = np.asarray(keep, dtype=bool)
-        counts = self.counts()
-        rows = np.repeat(keep, counts)
-        return PairCorrespondences(self.cam_a[keep], self.cam_b[keep],
-                                   np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
-                                   self.obs_a[rows], self.obs_b[rows])
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,106 +101,7 @@ class EGPairs:
                        self.obs_a[corr_keep], self.obs_b[corr_keep], self.parallax_px[keep])
 
 
-def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, int]:
-    """Return observation order sorted by (feature, camera) and the max track length."""
-    order = np.lexsort((cam_idx, feat_idx)).astype(np.int64)
-    max_len = int(np.bincount(feat_idx).max()) if feat_idx.size else 0
-    return order, max_len
-
-
-def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> IntArray:
-    """Return the number of features seen by both cameras, as a dense (M, M) upper triangle.
-
-    Args:
-        cam_idx: Camera of each observation, shape (K,).
-        feat_idx: Feature of each observation, shape (K,).
-        n_cams: Number of cameras M.
-
-    Returns:
-        counts[a, b] for a < b (zero elsewhere), shape (M, M).
-    """
-    order, max_len = _track_layout(cam_idx, feat_idx)
-    f, c = feat_idx[order], cam_idx[order]
-    counts = np.zeros(n_cams * n_cams, dtype=np.int64)
-    for d in range(1, max_len):  # loop over the offset inside a track, not observations
-        same = f[d:] == f[:-d]
-        key = c[:-d][same] * n_cams + c[d:][same]
-        counts += np.bincount(key, minlength=n_cams * n_cams)
-    return counts.reshape(n_cams, n_cams)
-
-
-def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
-                         min_matches: int, *, max_partners: int | None = None,
-                         ) -> PairCorrespondences:
-    """Return all camera pairs with at least ``min_matches`` common features and their matches.
-
-    Args:
-        cam_idx: Camera of each observation, shape (K,).
-        feat_idx: Feature of each observation, shape (K,); one observation per (camera, feature).
-        n_cams: Number of cameras M.
-        min_matches: Minimum number of common features of a pair.
-        max_partners: If set, keep a pair only if it is among the ``max_partners`` most
-            co-visible partners of one of its cameras (limits the pairs of long sequences).
-
-    Returns:
-        The pairs (sorted by (cam_a, cam_b)) and their correspondences.
-    """
-    counts = covisibility_counts(cam_idx, feat_idx, n_cams)
-    eligible = counts >= max(int(min_matches), 1)
-    if max_partners is not None:
-        a, b = np.nonzero(eligible)
-        eligible[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
-    selected = eligible.ravel()
-    order, max_len = _track_layout(cam_idx, feat_idx)
-    f, c = feat_idx[order], cam_idx[order]
-    keys: list[IntArray] = []
-    first: list[IntArray] = []
-    second: list[IntArray] = []
-    for d in range(1, max_len):
-        same = np.flatnonzero(f[d:] == f[:-d])
-        key = c[same] * n_cams + c[same + d]
-        sel = selected[key]
-        keys.append(key[sel])
-        first.append(order[same[sel]])
-        second.append(order[same[sel] + d])
-    key_all = np.concatenate(keys) if keys else np.zeros(0, dtype=np.int64)
-    obs_a = np.concatenate(first) if first else np.zeros(0, dtype=np.int64)
-    obs_b = np.concatenate(second) if second else np.zeros(0, dtype=np.int64)
-    srt = np.argsort(key_all, kind='stable')
-    key_all, obs_a, obs_b = key_all[srt], obs_a[srt], obs_b[srt]
-    pair_keys, starts = np.unique(key_all, return_index=True)
-    offsets = np.concatenate([starts, [key_all.shape[0]]]).astype(np.int64)
-    return PairCorrespondences(pair_keys // n_cams, pair_keys % n_cams, offsets,
-                               obs_a.astype(np.int64), obs_b.astype(np.int64))
-
-
-def top_partners(cam_a: IntArray, cam_b: IntArray, score: FloatArray, n_cams: int,
-                 max_partners: int) -> BoolArray:
-    """Return the pairs that are among the ``max_partners`` best of one of their cameras.
-
-    Args:
-        cam_a: First camera of each pair, shape (P,).
-        cam_b: Second camera of each pair, shape (P,).
-        score: Score of each pair (higher is better), shape (P,); ties keep the pair order.
-        n_cams: Number of cameras M.
-        max_partners: Partners kept per camera (>= 1).
-
-    Returns:
-        Mask (P,) of the kept pairs.
-    """
-    P = cam_a.shape[0]
-    cam = np.concatenate([cam_a, cam_b])
-    pair = np.concatenate([np.arange(P), np.arange(P)])
-    order = np.lexsort((pair, -np.concatenate([score, score]), cam))
-    cam_sorted = cam[order]
-    first = np.searchsorted(cam_sorted, np.arange(n_cams))
-    rank = np.arange(cam.shape[0]) - first[cam_sorted]
-    keep = np.zeros(P, dtype=bool)
-    keep[pair[order][rank < max_partners]] = True
-    return keep
-
-
-def sampled_parallax_px(corr: PairCorrespondences, bearings_c: FloatArray,
+def sampled_parallax_px(corr: covisibility.PairCorrespondences, bearings_c: FloatArray,
                         focal_px: FloatArray, max_points: int = 100) -> FloatArray:
     """Return a quick median rotation-compensated parallax (px) of every candidate pair.
 
@@ -478,7 +344,7 @@ def _sample(n: int, max_points: int) -> IntArray:
 
 
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
-                      corr: PairCorrespondences, *, threshold_px: float = 1.0,
+                      corr: covisibility.PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
                       prob: float = 0.999, method: int = cv2.USAC_FAST,
                       max_sample: int | None = None,
@@ -525,14 +391,20 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     has_model = np.zeros(n_pairs, dtype=bool)
     front_idx = np.flatnonzero(front)
     front_offsets = np.concatenate([[0], np.cumsum(n_front)])
-    for p in np.flatnonzero(n_front >= max(min_inliers, 5)):  # one OpenCV call per pair
-        rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
-        if max_sample is not None:
-            rows = rows[_sample(rows.shape[0], max_sample)]
-        model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]), prob=prob,
-                              method=method)
-        if model is not None:
-            E[p], has_model[p] = model, True
+    todo = np.flatnonzero(n_front >= max(min_inliers, 5))
+
+    def estimate(t: int) -> None:  # one OpenCV call per pair; it runs without the GIL
+        for p in todo[cut[t]:cut[t + 1]]:
+            rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
+            rows = rows if max_sample is None else rows[_sample(rows.shape[0], max_sample)]
+            model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
+                                  prob=prob, method=method)
+            if model is not None:
+                E[p], has_model[p] = model, True
+
+    n_threads = chunks.threads_for(int(np.sum(n_front[todo])))
+    cut = chunks.bounds(n_front[todo].astype(float), n_threads)
+    chunks.run(estimate, n_threads)
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
     rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
     sel = front & has_model[seg_all]

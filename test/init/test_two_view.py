@@ -20,7 +20,7 @@ from test.init.scenes import street_scene
 
 import numpy as np
 from pmba_ros.core import so3
-from pmba_ros.init import two_view
+from pmba_ros.init import covisibility, two_view
 import pytest
 
 
@@ -52,7 +52,7 @@ def test_pair_correspondences_equal_brute_force_join(rng: np.random.Generator) -
     feat, cam = np.nonzero(seen)
     perm = rng.permutation(feat.shape[0])
     feat, cam = feat[perm].astype(np.int64), cam[perm].astype(np.int64)
-    corr = two_view.pair_correspondences(cam, feat, n_cams, min_matches=10)
+    corr = covisibility.pair_correspondences(cam, feat, n_cams, min_matches=10)
     expected = {}
     for a, b in itertools.combinations(range(n_cams), 2):
         common = set(np.flatnonzero(seen[:, a] & seen[:, b]).tolist())
@@ -66,7 +66,7 @@ def test_pair_correspondences_equal_brute_force_join(rng: np.random.Generator) -
         assert np.array_equal(feat[corr.obs_a[sl]], feat[corr.obs_b[sl]])
         got[(a, b)] = set(feat[corr.obs_a[sl]].tolist())
     assert got == expected
-    counts = two_view.covisibility_counts(cam, feat, n_cams)
+    counts = covisibility.covisibility_counts(cam, feat, n_cams)
     for (a, b), common in expected.items():
         assert counts[a, b] == len(common)
 
@@ -113,7 +113,7 @@ def test_refine_translations_recovers_direction_and_sign() -> None:
     """With true rotations, the smallest eigenvector gives xi(P_a - P_b) with the right sign."""
     scene = street_scene(3, n_cams=6, n_points=200, noise_px=0.0, translation_jitter_m=0.3)
     p = scene.gt
-    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
     pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
                                           corr, min_parallax_px=0.0)
     assert pairs.n_pairs == corr.n_pairs
@@ -126,7 +126,7 @@ def test_refine_translations_recovers_direction_and_sign() -> None:
 def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
     """Pairs of a rotating camera without baseline are rejected with reason low_parallax."""
     p = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0).gt
-    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
     assert corr.n_pairs > 0
     pairs, rejected = two_view.estimate_eg_pairs(
         p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr, min_parallax_px=2.0)
@@ -138,7 +138,7 @@ def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
 def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> None:
     """USAC_FAST relative rotations are within a few hundredths of a degree."""
     p = street_scene(seed, n_cams=8, n_points=300, noise_px=0.5).gt
-    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     pairs, _ = two_view.estimate_eg_pairs(p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx],
                                           corr)
     R_true = np.swapaxes(p.R_wc[pairs.cam_b], 1, 2) @ p.R_wc[pairs.cam_a]
@@ -150,11 +150,11 @@ def test_eg_pairs_relative_rotations_are_accurate_at_half_pixel(seed: int) -> No
 def test_max_partners_keeps_each_cameras_most_covisible_pairs() -> None:
     """With max_partners=2 on a sequence, every kept pair is a top-2 pair of one camera."""
     p = street_scene(1, n_cams=10, n_points=300).gt
-    full = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
-    few = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20,
-                                        max_partners=2)
+    full = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    few = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20,
+                                            max_partners=2)
     assert 0 < few.n_pairs < full.n_pairs
-    counts = two_view.covisibility_counts(p.obs.cam_idx, p.obs.feat_idx, p.n_cams)
+    counts = covisibility.covisibility_counts(p.obs.cam_idx, p.obs.feat_idx, p.n_cams)
     sym = counts + counts.T
     for a, b in zip(few.cam_a.tolist(), few.cam_b.tolist(), strict=True):
         top_a = np.argsort(-sym[a], kind='stable')[:2]
@@ -170,7 +170,7 @@ def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> No
     The full estimate is the median over all correspondences of the pair (:func:`_parallax`).
     """
     p = street_scene(2, n_cams=8, n_points=400, noise_px=0.5).gt
-    corr = two_view.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     focal = p.intrinsics.fx[p.obs.cam_idx]
     quick = two_view.sampled_parallax_px(corr, p.obs.bearings_c, focal)
     full = np.array([_parallax(
@@ -179,7 +179,7 @@ def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> No
     assert np.all(corr.counts() > 30) and full.max() > 5.0
     np.testing.assert_allclose(quick, full, rtol=0.35, atol=1.0)
     rot = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0).gt
-    corr = two_view.pair_correspondences(rot.obs.cam_idx, rot.obs.feat_idx, rot.n_cams, 20)
+    corr = covisibility.pair_correspondences(rot.obs.cam_idx, rot.obs.feat_idx, rot.n_cams, 20)
     quick = two_view.sampled_parallax_px(corr, rot.obs.bearings_c,
                                          rot.intrinsics.fx[rot.obs.cam_idx])
     assert corr.n_pairs > 0 and quick.max() < 1.0
@@ -190,6 +190,22 @@ def test_top_partners_by_score_keep_each_cameras_best() -> None:
     cam_a = np.array([0, 0, 0, 1, 1, 2])
     cam_b = np.array([1, 2, 3, 2, 3, 3])
     score = np.array([5.0, 1.0, 3.0, 4.0, 0.5, 2.0])
-    keep = two_view.top_partners(cam_a, cam_b, score, 4, 1)
+    keep = covisibility.top_partners(cam_a, cam_b, score, 4, 1)
     # Best of 0: (0,1); of 1: (0,1); of 2: (1,2); of 3: (0,3).
     assert keep.tolist() == [True, False, True, True, False, False]
+
+
+def test_eg_pairs_split_between_threads_are_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The 5-point calls in three chunks of pairs give the pairs of one thread, bit for bit."""
+    from pmba_ros.core.compiled import chunks
+
+    p = street_scene(2, n_cams=12, n_points=400, noise_px=0.5).gt
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    args = (p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr)
+    one, rejected_one = two_view.estimate_eg_pairs(*args)
+    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'max_threads', lambda: 3)
+    three, rejected_three = two_view.estimate_eg_pairs(*args)
+    assert one.n_pairs > 10 and rejected_three == rejected_one
+    for field in ('cam_a', 'cam_b', 'R_rel', 't_rel', 'n_inliers', 'obs_a', 'obs_b'):
+        np.testing.assert_array_equal(getattr(three, field), getattr(one, field))
