@@ -93,6 +93,7 @@ def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> I
 
 def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
                          min_matches: int, *, max_partners: int | None = None,
+                         pairs: BoolArray | None = None, max_per_pair: int | None = None,
                          ) -> PairCorrespondences:
     """Return all camera pairs with at least ``min_matches`` common features and their matches.
 
@@ -103,16 +104,26 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
         min_matches: Minimum number of common features of a pair.
         max_partners: If set, keep a pair only if it is among the ``max_partners`` most
             co-visible partners of one of its cameras (limits the pairs of long sequences).
+        pairs: If set, the pairs to join instead, as an (M, M) upper-triangle mask
+            (``min_matches`` and ``max_partners`` are then not used).
+        max_per_pair: If set, keep at most this many correspondences of each pair, evenly
+            spread over the pair's correspondences in the order returned without it (the
+            sample of :func:`~pmba_ros.init.two_view.sampled_parallax_px`), without holding
+            them all at once.
 
     Returns:
         The pairs (sorted by (cam_a, cam_b)) and their correspondences.
     """
-    counts = covisibility_counts(cam_idx, feat_idx, n_cams)
-    eligible = counts >= max(int(min_matches), 1)
-    if max_partners is not None:
-        a, b = np.nonzero(eligible)
-        eligible[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
-    selected = eligible.ravel()
+    if pairs is None:
+        counts = covisibility_counts(cam_idx, feat_idx, n_cams)
+        pairs = counts >= max(int(min_matches), 1)
+        if max_partners is not None:
+            a, b = np.nonzero(pairs)
+            pairs[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
+    selected = np.asarray(pairs, dtype=bool).ravel()
+    if max_per_pair is not None:
+        total = covisibility_counts(cam_idx, feat_idx, n_cams).ravel()
+        seen = np.zeros(n_cams * n_cams, dtype=np.int64)
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
     keys: list[IntArray] = []
@@ -121,7 +132,12 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     for d in range(1, max_len):
         same = np.flatnonzero(f[d:] == f[:-d])
         key = c[same] * n_cams + c[same + d]
-        sel = selected[key]
+        sel = np.flatnonzero(selected[key])
+        if max_per_pair is not None:
+            k = key[sel]
+            j = seen[k] + _rank_within(k)   # place in the pair's full list
+            seen += np.bincount(k, minlength=seen.shape[0])
+            sel = sel[_evenly_spread(j, total[k], max_per_pair)]
         keys.append(key[sel])
         first.append(order[same[sel]])
         second.append(order[same[sel] + d])
@@ -134,6 +150,22 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     offsets = np.concatenate([starts, [key_all.shape[0]]]).astype(np.int64)
     return PairCorrespondences(pair_keys // n_cams, pair_keys % n_cams, offsets,
                                obs_a.astype(np.int64), obs_b.astype(np.int64))
+
+
+def _evenly_spread(j: IntArray, n: IntArray, m_max: int) -> BoolArray:
+    """Return whether place j of n is among the min(n, m_max) places (i n) // m, i < m."""
+    m = np.minimum(n, m_max)
+    i = -(-j * m // n)   # the smallest i with i n / m >= j
+    return (i < m) & ((i * n) // m == j)
+
+
+def _rank_within(key: IntArray) -> IntArray:
+    """Return each entry's rank among the entries of equal key before it, shape (n,)."""
+    srt = np.argsort(key, kind='stable')
+    sorted_keys = key[srt]
+    rank = np.empty_like(srt)
+    rank[srt] = np.arange(key.shape[0]) - np.searchsorted(sorted_keys, sorted_keys, 'left')
+    return rank
 
 
 def top_partners(cam_a: IntArray, cam_b: IntArray, score: FloatArray, n_cams: int,

@@ -28,7 +28,7 @@ paper       code          shape       meaning
 N-bar_k     N             (K,3)       linearised ray, eq. (12)
 e_k         e             (K,3)       xi(N-bar_k) - r_k, eq. (13)
 J_N         J_N           (K,3,3)     (I - N^ N^T) / |N|
-f           f_scale       scalar      Cauchy scale (ray units, ~ px / focal)
+f           f_scale       (K,) or 1   Cauchy scale (ray units, ~ px / focal)
 ==========  ============  ==========  ===================================================
 """
 
@@ -66,7 +66,7 @@ class NlsResult:
     converged: bool
 
 
-def _cauchy(sq: FloatArray, f_scale: float) -> tuple[FloatArray, FloatArray]:
+def _cauchy(sq: FloatArray, f_scale: float | FloatArray) -> tuple[FloatArray, FloatArray]:
     """Return rho(s) and rho'(s) of the Cauchy loss for squared norms s."""
     f2 = f_scale * f_scale
     z = sq / f2
@@ -80,7 +80,7 @@ def _errors(lin: LinearRays, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     return N, N / np.maximum(norm, 1e-300) - lin.rays  # eq. (13)
 
 
-def robust_cost(lin: LinearRays, P: FloatArray, f_scale: float,
+def robust_cost(lin: LinearRays, P: FloatArray, f_scale: float | FloatArray,
                 weights: FloatArray | None = None) -> float:
     """Return 1/2 sum_k w_k rho(||xi(N-bar_k(P)) - r_k||^2) (eq. 13 with a Cauchy loss)."""
     _, e = _errors(lin, P)
@@ -98,7 +98,8 @@ def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tu
     return int(k), int(axis)
 
 
-def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: float,
+def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
+              f_scale: float | FloatArray,
               weights: FloatArray | None = None, cameras: BoolArray | None = None,
               max_iterations: int = 50, function_tolerance: float = 1e-5,
               step_tolerance: float = 1e-10) -> NlsResult:
@@ -108,7 +109,10 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *, f_scale: flo
         lin: Linearised rays (eq. 12) of all observations.
         centers_w: Starting centres (M, 3), e.g. from the CLS (eq. 14).
         root: Reference camera (held fixed).
-        f_scale: Cauchy scale in ray units (about 3 px / focal length).
+        f_scale: Cauchy scale in ray units (about 3 px / focal length), one for all
+            observations or one each (K,): a pixel scale divided by each observer's focal
+            length, so that cameras of different focal lengths are judged in their own
+            pixels.
         weights: Optional observation weights (K,).
         cameras: Optional mask (M,) of cameras to solve for (others are held fixed).
         max_iterations: LM iteration limit.

@@ -62,7 +62,8 @@ class InitOptions:
             averaging: pairs disagreeing with the consensus by several times this lose
             their weight.
         cls_max_penalty_iterations: Active-set iterations for the CLS cheirality penalty.
-        nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal).
+        nls_cauchy_px: Cauchy scale of the NLS (eq. 13) in pixels (divided by the focal length
+            of each observation's camera).
         nls_max_iterations: LM iteration limit of the NLS (a safeguard: the NLS stops on its
             tolerances well before it; the report says whether it converged).
         track_min_px: Tracks whose RMS angle to their triangulated point (px) exceeds

@@ -72,8 +72,8 @@ from pmba_ros.errors import InitError
 from pmba_ros.init import (
     anchors,
     cls,
-    covisibility,
     nls,
+    pair_selection,
     register,
     rotation_averaging,
     tracks,
@@ -134,67 +134,6 @@ def _check_input(problem: BAProblem) -> dict[str, Any]:
                + (f' ({single} tracks of length 1 were dropped)' if single else ''))
         raise InitError(msg)
     return info
-
-
-def _best_partners(n_cams: int, corr: covisibility.PairCorrespondences, bearings_c: FloatArray,
-                   focal: FloatArray, max_partners: int, min_parallax_px: float) -> BoolArray:
-    """Return the candidate pairs worth a RANSAC: each camera's best partners.
-
-    Half of a camera's places go to the partners sharing most tracks (the best measured
-    relative rotations: on real photo collections they keep the averaging and the BA on
-    course), half to the partners of widest baseline: a quick parallax estimate times the
-    square root of the shared tracks (the accuracy of the translation direction, which anchors
-    the features of the CLS and NLS). Pairs whose estimate is below ``min_parallax_px`` (near
-    pure rotation, rejected after the RANSAC anyway) rank last for both.
-    """
-    counts = corr.counts().astype(float)
-    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal)
-    baseline = parallax >= min_parallax_px
-    rest = counts / (1.0 + float(counts.max()))  # below 1: orders only the rest by tracks
-    by_tracks = covisibility.top_partners(corr.cam_a, corr.cam_b,
-                                          np.where(baseline, counts, 0.0) + rest, n_cams,
-                                          max_partners // 2)
-    score = np.where(baseline, parallax * np.sqrt(counts), 0.0) + rest
-    by_baseline = covisibility.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
-                                            max_partners - max_partners // 2)
-    return by_tracks | by_baseline
-
-
-def _estimate_pairs(problem: BAProblem, options: InitOptions,
-                    ) -> tuple[two_view.EGPairs, dict[str, Any]]:
-    obs = problem.obs
-    corr = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, problem.n_cams,
-                                             options.min_pair_matches)
-    if corr.n_pairs == 0:
-        msg = (f'global init: no image pair shares at least {options.min_pair_matches} '
-               'tracks (min_pair_matches)')
-        raise InitError(msg)
-    focal = np.sqrt(problem.intrinsics.fx * problem.intrinsics.fy)[obs.cam_idx]
-    n_covisible = corr.n_pairs
-    k = options.max_pair_partners
-    if k is not None and corr.n_pairs > k * problem.n_cams:
-        corr = corr.subset(_best_partners(problem.n_cams, corr, obs.bearings_c, focal,
-                                          k, options.min_pair_parallax_px))
-    pairs, rejected = two_view.estimate_eg_pairs(
-        obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
-        min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
-        prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
-        max_sample=options.ransac_max_points)
-    entries = {'pairs_covisible': n_covisible, 'pairs_candidate': corr.n_pairs,
-               'pairs_found': pairs.n_pairs,
-               'pairs_rejected': rejected,
-               'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs
-                           else 0.0}}
-    if pairs.n_pairs == 0:
-        if rejected['low_parallax'] > 0 and rejected['low_parallax'] >= corr.n_pairs // 2:
-            msg = (f'global init: no EG pair has a baseline: {rejected["low_parallax"]} of '
-                   f'{corr.n_pairs} pairs have median parallax below '
-                   f'{options.min_pair_parallax_px} px after removing the rotation (pure '
-                   'rotation? PMBA needs anchors with a baseline, pmba.md §3.3)')
-        else:
-            msg = f'global init: no EG pair could be estimated (rejected: {rejected})'
-        raise InitError(msg)
-    return pairs, entries
 
 
 def _compact(mask: BoolArray) -> IntArray:
@@ -478,7 +417,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     st.report['input'] = _check_input(problem)
     M = problem.n_cams
 
-    pairs, entries = _estimate_pairs(problem, options)
+    pairs, entries = pair_selection.estimate_pairs(problem, options)
     st.done('pairs', entries)
 
     pairs, comp, entries = _view_graph(M, pairs, options)
@@ -508,8 +447,9 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                     'penalty_iterations': res_cls.penalty_iterations})
 
     focal = float(np.median(np.sqrt(sub.intrinsics.fx * sub.intrinsics.fy)))
+    focal_obs = np.sqrt(sub.intrinsics.fx * sub.intrinsics.fy)[sub.obs.cam_idx]
     res_nls = nls.solve_nls(lin, res_cls.centers_w, root,
-                            f_scale=options.nls_cauchy_px / focal, weights=weights,
+                            f_scale=options.nls_cauchy_px / focal_obs, weights=weights,
                             max_iterations=options.nls_max_iterations)
     # Wrong tracks pull the positions; with positions known they stand out: drop them and
     # refine the positions again without them.
@@ -522,7 +462,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     if np.any(bad_eg):
         weights = weights * ~bad_eg[sub.obs.feat_idx]
         res_nls = nls.solve_nls(lin, res_nls.centers_w, root,
-                                f_scale=options.nls_cauchy_px / focal, weights=weights,
+                                f_scale=options.nls_cauchy_px / focal_obs, weights=weights,
                                 max_iterations=options.nls_max_iterations)
     st.done('nls', {'nls_residual': res_nls.residual,
                     'nls_residual_px': res_nls.residual * focal,

@@ -65,3 +65,19 @@ def test_ladybug_1800_variants_meet_the_criterion() -> None:
 
     _sweep(read_bal(shared_file('bal', 'bal-ladybug-problem-49-7776-pre-shrink-1800.txt')),
            list(VARIANTS))
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_mixed_focal_lengths_initialize_on_one_or_two_threads(
+        threads: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 40-camera street with focal lengths from 1/3x to 3x, its loops on one or two threads.
+
+    The NLS judges each observation in its own camera's pixels; with one scale for all, the
+    BA started near 9 px and, with the loops split in two, crawled to its iteration cap.
+    """
+    from pmba_ros.core.compiled import chunks
+
+    monkeypatch.setattr(chunks, 'max_threads', lambda: threads)
+    gt = street_scene(0, n_cams=40, n_points=3000, max_track_length=12).gt
+    assert gt.n_obs >= chunks.MIN_OBSERVATIONS
+    _sweep(gt, ['focal3'], original=False)

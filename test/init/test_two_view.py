@@ -209,3 +209,50 @@ def test_eg_pairs_split_between_threads_are_the_same(monkeypatch: pytest.MonkeyP
     assert one.n_pairs > 10 and rejected_three == rejected_one
     for field in ('cam_a', 'cam_b', 'R_rel', 't_rel', 'n_inliers', 'obs_a', 'obs_b'):
         np.testing.assert_array_equal(getattr(three, field), getattr(one, field))
+
+
+def test_capped_correspondences_are_a_sample_of_each_pair() -> None:
+    """max_per_pair keeps min(shared tracks, cap) correspondences of every pair, evenly spread."""
+    p = street_scene(1, n_cams=10, n_points=300).gt
+    obs = p.obs
+    full = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, p.n_cams, 20)
+    mask = np.zeros((p.n_cams, p.n_cams), dtype=bool)
+    mask[full.cam_a, full.cam_b] = True
+    capped = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, p.n_cams, 0,
+                                               pairs=mask, max_per_pair=25)
+    np.testing.assert_array_equal(capped.cam_a, full.cam_a)
+    np.testing.assert_array_equal(capped.cam_b, full.cam_b)
+    np.testing.assert_array_equal(capped.counts(), np.minimum(full.counts(), 25))
+    assert np.any(full.counts() > 25)
+    assert np.all(obs.feat_idx[capped.obs_a] == obs.feat_idx[capped.obs_b])
+    seg = np.repeat(np.arange(capped.n_pairs), capped.counts())
+    assert np.all(obs.cam_idx[capped.obs_a] == capped.cam_a[seg])
+    assert np.all(obs.cam_idx[capped.obs_b] == capped.cam_b[seg])
+    # The sample is the one sampled_parallax_px takes from the full list: the same estimate.
+    focal = p.intrinsics.fx[obs.cam_idx]
+    np.testing.assert_array_equal(two_view.sampled_parallax_px(capped, obs.bearings_c, focal,
+                                                               25),
+                                  two_view.sampled_parallax_px(full, obs.bearings_c, focal, 25))
+    n, m = full.counts(), capped.counts()
+    seg = np.repeat(np.arange(full.n_pairs), m)
+    i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
+    rows = full.offsets[seg] + (i * n[seg]) // m[seg]
+    np.testing.assert_array_equal(capped.obs_a, full.obs_a[rows])
+    np.testing.assert_array_equal(capped.obs_b, full.obs_b[rows])
+
+
+def test_pair_selection_joins_only_the_pairs_it_tries() -> None:
+    """Many co-visible pairs: each camera's best partners only, with all their tracks."""
+    from pmba_ros.init import pair_selection
+    from pmba_ros.init.options import InitOptions
+
+    p = street_scene(0, n_cams=30, n_points=1500, noise_px=0.5).gt
+    options = InitOptions(max_pair_partners=4)
+    pairs, entries = pair_selection.estimate_pairs(p, options)
+    assert entries['pairs_covisible'] > 4 * p.n_cams
+    assert entries['pairs_candidate'] <= 4 * p.n_cams
+    assert pairs.n_pairs >= p.n_cams - 1
+    counts = covisibility.covisibility_counts(p.obs.cam_idx, p.obs.feat_idx, p.n_cams)
+    assert np.all(pairs.n_inliers <= counts[pairs.cam_a, pairs.cam_b])
+    # Inliers come from all shared tracks, not from the ranking's sample.
+    assert np.any(pairs.n_inliers > pair_selection.PARTNER_SAMPLE)
