@@ -156,7 +156,8 @@ def _evenly_spread(j: IntArray, n: IntArray, m_max: int) -> BoolArray:
     """Return whether place j of n is among the min(n, m_max) places (i n) // m, i < m."""
     m = np.minimum(n, m_max)
     i = -(-j * m // n)   # the smallest i with i n / m >= j
-    return (i < m) & ((i * n) // m == j)
+    spread: BoolArray = (i < m) & ((i * n) // m == j)
+    return spread
 
 
 def _rank_within(key: IntArray) -> IntArray:
