@@ -83,10 +83,15 @@ def _errors(lin: LinearRays, P: FloatArray) -> tuple[FloatArray, FloatArray]:
 def robust_cost(lin: LinearRays, P: FloatArray, f_scale: float | FloatArray,
                 weights: FloatArray | None = None) -> float:
     """Return 1/2 sum_k w_k rho(||xi(N-bar_k(P)) - r_k||^2) (eq. 13 with a Cauchy loss)."""
-    _, e = _errors(lin, P)
+    return _evaluate(lin, P, f_scale, 1.0 if weights is None else weights)[0]
+
+
+def _evaluate(lin: LinearRays, P: FloatArray, f_scale: float | FloatArray,
+              w: float | FloatArray) -> tuple[float, FloatArray, FloatArray]:
+    """Return the robust cost, N-bar and e at P (the next linearization reuses them)."""
+    N, e = _errors(lin, P)
     rho, _ = _cauchy(np.sum(e * e, axis=1), f_scale)
-    w = 1.0 if weights is None else weights
-    return 0.5 * float(np.sum(w * rho))
+    return 0.5 * float(np.sum(w * rho)), N, e
 
 
 def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tuple[int, int]:
@@ -136,13 +141,12 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
     k_fix, axis_fix = gauge_coordinate(P, root, cams)
     free[3 * k_fix + axis_fix] = False
     fidx = np.flatnonzero(free)
-    cost = robust_cost(lin, P, f_scale, w)
+    cost, N, e = _evaluate(lin, P, f_scale, w)
     initial_cost = cost
     lam = 1e-4
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
-        N, e = _errors(lin, P)
         norm = np.maximum(np.linalg.norm(N, axis=1), 1e-150)
         Nh = N / norm[:, None]
         # J_N = (I - N^ N^T) / |N| is symmetric, J_N^T J_N = (I - N^ N^T) / |N|^2.
@@ -166,7 +170,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
                 continue
             P_new = P.copy()
             P_new.reshape(-1)[fidx] += step
-            new_cost = robust_cost(lin, P_new, f_scale, w)
+            new_cost, N_new, e_new = _evaluate(lin, P_new, f_scale, w)
             if new_cost < cost:
                 accepted = True
                 break
@@ -177,12 +181,11 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
         logger.debug('NLS it %d cost %.6e lam %.1e', it, new_cost, lam)
         rel_dec = (cost - new_cost) / max(cost, 1e-300)
         rel_step = float(np.linalg.norm(step)) / max(float(np.linalg.norm(P[cams])), 1e-300)
-        P, cost = P_new, new_cost
+        P, cost, N, e = P_new, new_cost, N_new, e_new
         lam = max(lam / 10.0, 1e-12)
         if rel_dec < function_tolerance or rel_step < step_tolerance:
             converged = True
             break
-    _, e = _errors(lin, P)
     used = w > 0
     residual = float(np.sqrt(np.mean(np.sum(e[used] ** 2, axis=1)))) if used.any() else 0.0
     logger.info('NLS: cost %.4e -> %.4e in %d iterations (rms %.3e)', initial_cost, cost,
