@@ -53,15 +53,6 @@ class PairCorrespondences:
         """Return the number of common observations of each pair, shape (P,)."""
         return np.diff(self.offsets)
 
-    def subset(self, keep: BoolArray) -> PairCorrespondences:
-        """Return the pairs selected by the mask ``keep`` (P,), with their correspondences."""
-        keep = np.asarray(keep, dtype=bool)
-        counts = self.counts()
-        rows = np.repeat(keep, counts)
-        return PairCorrespondences(self.cam_a[keep], self.cam_b[keep],
-                                   np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
-                                   self.obs_a[rows], self.obs_b[rows])
-
 
 def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, int]:
     """Return observation order sorted by (feature, camera) and the max track length."""
