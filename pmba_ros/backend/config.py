@@ -152,8 +152,8 @@ class BackendConfig:
         association_timeout_s: A keyframe whose tracks did not arrive by then (input stamps)
             is taken without tracks.
         max_iterations: Dogleg iteration budget per refine. One suits a sliding window:
-            each keyframe's solve starts where the last one stopped, and a second iteration
-            lowers the cost by a fraction of a percent, far less than the first.
+            each keyframe's solve starts where the last one stopped, so a second iteration
+            adds little (docs/speed.md).
         max_time_s: Wall-time budget per refine, s (ignored if ``deterministic``).
         loss: Robust loss of every solve, the initialization's BA included ('huber', 'cauchy'
             or 'none').
