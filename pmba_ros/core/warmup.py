@@ -35,6 +35,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
+from pmba_ros.core.compiled import linear_rays
 from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
@@ -109,6 +110,13 @@ def warm_up() -> float:
                                            np.asarray(problem.points_w))
     solve(problem, SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
                                 loss=Loss.CAUCHY, max_iterations=2), feats)
+    # The global initialization's position steps (init.cls), on the same problem's indices.
+    obs = problem.obs
+    linear_rays.ray_normal_matrix(obs.cam_idx, obs.feat_idx, feats.assoc_idx.astype(np.int64),
+                                  feats.main_idx.astype(np.int64),
+                                  np.zeros((problem.n_feats, 2, 3, 3)),
+                                  np.zeros(problem.n_feats), np.zeros((problem.n_obs, 3, 3)),
+                                  problem.n_cams)
     marker = _marker()
     if marker is not None:
         try:

@@ -45,6 +45,8 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core.compiled import linear_rays as compiled_linear_rays
+from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.errors import InitError
 from pmba_ros.init.anchors import LinearizationFrames
@@ -127,7 +129,8 @@ class LinearRays:
         return (self.points(centers_w)[self.feat]
                 - self.sin_t[self.feat, None] * centers_w[self.cam])
 
-    def normal_matrix(self, A: FloatArray, n_cams: int) -> FloatArray:
+    def normal_matrix(self, A: FloatArray, n_cams: int,
+                      engine: EngineName | str = EngineName.AUTO) -> FloatArray:
         """Return sum_k G_k^T A_k G_k over all positions, shape (3M, 3M).
 
         G_k = dN-bar_k / dP (blocks C_a, C_m, -sin_t I on P_a, P_m, P_i; blocks of the same
@@ -136,7 +139,12 @@ class LinearRays:
         Args:
             A: Symmetric weights, shape (K, 3, 3).
             n_cams: Number of cameras M.
+            engine: The compiled loop (``'auto'``: where numba runs) or this numpy code.
         """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.ray_normal_matrix(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t, A,
+                n_cams)
         st = self.sin_t[self.feat]
         C = self.anchor_coeff
         # P_i with itself, and P_i with X_j (then X_j -> P_a, P_m).

@@ -20,6 +20,7 @@ from test.init.scenes import street_scene
 
 import numpy as np
 from pmba_ros.core import conversions, residuals
+from pmba_ros.core.engine import Engine
 from pmba_ros.core.problem import BAProblem, ParallaxFeatures
 from pmba_ros.init import anchors, cls, nls
 import pytest
@@ -139,10 +140,11 @@ def test_cls_then_nls_are_accurate_with_noise() -> None:
 
 
 def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
-        rng: np.random.Generator) -> None:
+        rng: np.random.Generator, engine: Engine) -> None:
     """sum_k G_k^T A_k G_k and sum_k G_k^T y_k equal J^T blockdiag(A) J and J^T y.
 
-    N-bar is linear in P, so the dense Jacobian's columns are N-bar at unit positions.
+    N-bar is linear in P, so the dense Jacobian's columns are N-bar at unit positions. The
+    normal matrix from numpy and from the compiled loop.
     """
     st = _setup(5)
     lin, M, K = st.lin, st.problem.n_cams, st.problem.n_obs
@@ -155,7 +157,8 @@ def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
     A = L @ np.swapaxes(L, 1, 2)
     y = rng.normal(size=(K, 3))
     H_ref = np.einsum('kai,kab,kbj->ij', J, A, J)
-    np.testing.assert_allclose(lin.normal_matrix(A, M), H_ref, atol=1e-10 * np.abs(H_ref).max())
+    np.testing.assert_allclose(lin.normal_matrix(A, M, engine.name), H_ref,
+                               atol=1e-10 * np.abs(H_ref).max())
     g_ref = np.einsum('kai,ka->i', J, y)
     np.testing.assert_allclose(lin.gradient(y, M), g_ref, atol=1e-10 * np.abs(g_ref).max())
     # Anchors observe their own features: the i = m and i = a blocks add up.
