@@ -104,3 +104,13 @@ def test_a_solve_split_between_threads_ends_where_one_thread_does(
     assert three.iterations == one.iterations
     assert three.final_cost == pytest.approx(one.final_cost, rel=1e-9)
     np.testing.assert_allclose(three.centers_w, one.centers_w, atol=1e-7)
+
+
+def test_private_copies_stay_within_their_memory_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Many cores and large pose blocks: fewer chunks, so that the copies fit the budget."""
+    monkeypatch.setattr(chunks, 'available_cores', lambda: 64)
+    big = chunks.COPY_BUDGET_BYTES // 4
+    n = chunks.threads_for(10 * chunks.MIN_OBSERVATIONS, big)
+    assert n == 5 and (n - 1) * big <= chunks.COPY_BUDGET_BYTES
+    assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS, 2 * chunks.COPY_BUDGET_BYTES) == 1
+    assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS) == 64

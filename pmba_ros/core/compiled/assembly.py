@@ -153,7 +153,7 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
     anchor_lo = np.array([lo for lo, _ in anchor_cols], dtype=np.int64)
     anchor_w = np.array([hi - lo for lo, hi in anchor_cols], dtype=np.int64)
     E = np.ascontiguousarray(E)
-    n = chunks.threads_for(K)
+    n = chunks.threads_for(K, 8 * (36 * n_pairs + 6 * n_blocks))
     W, V, g_feat = np.zeros((K, 6, 3)), np.zeros((N, 3, 3)), np.zeros((N, 3))
     # Pose blocks are shared between features: each chunk fills its own.
     U = [np.zeros((n_pairs, 6, 6)) for _ in range(n)]

@@ -70,9 +70,19 @@ def max_threads() -> int:
     return cores if _State.limit is None else min(cores, _State.limit)
 
 
-def threads_for(n_obs: int) -> int:
-    """Return the threads worth using on loops over ``n_obs`` observations."""
-    return 1 if n_obs < MIN_OBSERVATIONS else max_threads()
+#: Memory the chunks' private copies of the pose blocks may take together: on a machine with
+#: many cores and a problem with many covisible pose pairs, fewer chunks.
+COPY_BUDGET_BYTES = 1 << 30
+
+
+def threads_for(n_obs: int, copy_bytes: int = 0) -> int:
+    """Return the threads worth using on loops over ``n_obs`` observations.
+
+    ``copy_bytes`` is the size of the private copy each chunk after the first needs.
+    """
+    if n_obs < MIN_OBSERVATIONS:
+        return 1
+    return max(1, min(max_threads(), 1 + COPY_BUDGET_BYTES // max(copy_bytes, 1)))
 
 
 def bounds(cost: FloatArray, n: int) -> IntArray:

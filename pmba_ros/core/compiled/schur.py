@@ -130,7 +130,7 @@ def reduce(U: FloatArray, W: FloatArray, V: FloatArray, damp_feat: FloatArray,
            g_pose: FloatArray, g_feat: FloatArray, starts: IntArray, obs_block: IntArray,
            pair_index: IntArray) -> tuple[FloatArray, FloatArray, FloatArray, int]:
     """Return S (upper pair blocks), the right-hand side, V^-1, and -1 or a singular feature."""
-    n = chunks.threads_for(W.shape[0])
+    n = chunks.threads_for(W.shape[0], U.nbytes + g_pose.nbytes)
     V_inv = np.empty_like(V)
     # Pose blocks are shared between features: chunks after the first fill their own.
     S = [U.copy(), *(np.zeros_like(U) for _ in range(1, n))]
