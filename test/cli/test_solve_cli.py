@@ -183,7 +183,7 @@ def test_solve_threads_option_caps_the_compiled_loops(monkeypatch: pytest.Monkey
     from pmba_ros.core.compiled import chunks
 
     monkeypatch.setattr(chunks, 'available_cores', lambda: 4)
-    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'CHUNK_OBSERVATIONS', 1)
     used: list[int] = []
     run = chunks.run
     monkeypatch.setattr(chunks, 'run', lambda fn, n: used.append(n) or run(fn, n))

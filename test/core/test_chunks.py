@@ -79,10 +79,12 @@ def test_thread_limit_caps_the_threads(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(chunks, 'available_cores', lambda: 8)
     try:
         chunks.set_max_threads(3)
-        assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS) == 3
-        assert chunks.threads_for(chunks.MIN_OBSERVATIONS - 1) == 1
+        assert chunks.threads_for(10 * chunks.CHUNK_OBSERVATIONS) == 3
+        assert chunks.threads_for(2 * chunks.CHUNK_OBSERVATIONS - 1) == 1
         chunks.set_max_threads(None)
-        assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS) == 8
+        assert chunks.threads_for(10 * chunks.CHUNK_OBSERVATIONS) == 8
+        # No chunk smaller than CHUNK_OBSERVATIONS.
+        assert chunks.threads_for(5 * chunks.CHUNK_OBSERVATIONS) == 5
     finally:
         chunks.set_max_threads(None)
 
@@ -94,7 +96,7 @@ def test_a_solve_split_between_threads_ends_where_one_thread_does(
     problem = forward_problem(3, n_cams=8, n_points=60)
     options = SolveOptions(engine=engine.name, max_iterations=10)
     one = solve(problem, options)
-    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'CHUNK_OBSERVATIONS', 1)
     monkeypatch.setattr(chunks, 'max_threads', lambda: 3)
     calls: list[int] = []
     run = chunks.run
@@ -110,7 +112,8 @@ def test_private_copies_stay_within_their_memory_budget(monkeypatch: pytest.Monk
     """Many cores and large pose blocks: fewer chunks, so that the copies fit the budget."""
     monkeypatch.setattr(chunks, 'available_cores', lambda: 64)
     big = chunks.COPY_BUDGET_BYTES // 4
-    n = chunks.threads_for(10 * chunks.MIN_OBSERVATIONS, big)
+    many = 100 * chunks.CHUNK_OBSERVATIONS
+    n = chunks.threads_for(many, big)
     assert n == 5 and (n - 1) * big <= chunks.COPY_BUDGET_BYTES
-    assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS, 2 * chunks.COPY_BUDGET_BYTES) == 1
-    assert chunks.threads_for(10 * chunks.MIN_OBSERVATIONS) == 64
+    assert chunks.threads_for(many, 2 * chunks.COPY_BUDGET_BYTES) == 1
+    assert chunks.threads_for(many) == 64

@@ -53,7 +53,7 @@ NUMPY_PATHS = ('dense', 'pairs', 'per_delta')
 
 def _split_in_three(monkeypatch: pytest.MonkeyPatch) -> None:
     """Make every problem large enough for the compiled loops to run in three chunks."""
-    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'CHUNK_OBSERVATIONS', 1)
     monkeypatch.setattr(chunks, 'max_threads', lambda: 3)
 
 

@@ -79,5 +79,5 @@ def test_mixed_focal_lengths_initialize_on_one_or_two_threads(
 
     monkeypatch.setattr(chunks, 'max_threads', lambda: threads)
     gt = street_scene(0, n_cams=40, n_points=3000, max_track_length=12).gt
-    assert gt.n_obs >= chunks.MIN_OBSERVATIONS
+    assert gt.n_obs >= 2 * chunks.CHUNK_OBSERVATIONS
     _sweep(gt, ['focal3'], original=False)

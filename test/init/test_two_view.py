@@ -203,7 +203,7 @@ def test_eg_pairs_split_between_threads_are_the_same(monkeypatch: pytest.MonkeyP
     corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
     args = (p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr)
     one, rejected_one = two_view.estimate_eg_pairs(*args)
-    monkeypatch.setattr(chunks, 'MIN_OBSERVATIONS', 0)
+    monkeypatch.setattr(chunks, 'CHUNK_OBSERVATIONS', 1)
     monkeypatch.setattr(chunks, 'max_threads', lambda: 3)
     three, rejected_three = two_view.estimate_eg_pairs(*args)
     assert one.n_pairs > 10 and rejected_three == rejected_one

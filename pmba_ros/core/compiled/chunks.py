@@ -37,10 +37,11 @@ from pmba_ros._typing import FloatArray, IntArray
 
 T = TypeVar('T')
 
-MIN_OBSERVATIONS = 20_000
-"""Problems with fewer observations run on one thread: their loops take a few milliseconds at
-most, and handing half to another thread and summing its copy of the pose blocks saves too
-little of that (a sliding window of a few thousand observations stays on one thread)."""
+CHUNK_OBSERVATIONS = 10_000
+"""The fewest observations a chunk gets: a problem needs twice as many for two threads. A
+sliding window (a few thousand observations) stays on one thread: its loops take a few
+milliseconds, and handing half to another thread and summing its copy of the pose blocks
+would save too little of that."""
 
 
 class _State:
@@ -80,9 +81,8 @@ def threads_for(n_obs: int, copy_bytes: int = 0) -> int:
 
     ``copy_bytes`` is the size of the private copy each chunk after the first needs.
     """
-    if n_obs < MIN_OBSERVATIONS:
-        return 1
-    return max(1, min(max_threads(), 1 + COPY_BUDGET_BYTES // max(copy_bytes, 1)))
+    return max(1, min(max_threads(), n_obs // CHUNK_OBSERVATIONS,
+                      1 + COPY_BUDGET_BYTES // max(copy_bytes, 1)))
 
 
 def bounds(cost: FloatArray, n: int) -> IntArray:
