@@ -85,7 +85,7 @@ def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> I
 def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
                          min_matches: int, *, max_partners: int | None = None,
                          pairs: BoolArray | None = None, max_per_pair: int | None = None,
-                         ) -> PairCorrespondences:
+                         counts: IntArray | None = None) -> PairCorrespondences:
     """Return all camera pairs with at least ``min_matches`` common features and their matches.
 
     Args:
@@ -101,19 +101,21 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
             spread over the pair's correspondences in the order returned without it (the
             sample of :func:`~pmba_ros.init.two_view.sampled_parallax_px`), without holding
             them all at once.
+        counts: :func:`covisibility_counts` of these observations, if the caller has them.
 
     Returns:
         The pairs (sorted by (cam_a, cam_b)) and their correspondences.
     """
-    if pairs is None:
+    if counts is None:
         counts = covisibility_counts(cam_idx, feat_idx, n_cams)
+    if pairs is None:
         pairs = counts >= max(int(min_matches), 1)
         if max_partners is not None:
             a, b = np.nonzero(pairs)
             pairs[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
     selected = np.asarray(pairs, dtype=bool).ravel()
     if max_per_pair is not None:
-        total = covisibility_counts(cam_idx, feat_idx, n_cams).ravel()
+        total = counts.ravel()
         seen = np.zeros(n_cams * n_cams, dtype=np.int64)
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]

@@ -83,14 +83,14 @@ def estimate_pairs(problem: BAProblem, options: InitOptions,
     if k is not None and n_covisible > k * M:
         sample = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, M, 0,
                                                    pairs=candidates,
-                                                   max_per_pair=PARTNER_SAMPLE)
+                                                   max_per_pair=PARTNER_SAMPLE, counts=counts)
         a, b = sample.cam_a, sample.cam_b
         keep = best_partners(M, sample, counts[a, b].astype(float), obs.bearings_c, focal,
                              k, options.min_pair_parallax_px)
         candidates = np.zeros_like(candidates)
         candidates[a[keep], b[keep]] = True
     corr = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, M, 0,
-                                             pairs=candidates)
+                                             pairs=candidates, counts=counts)
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
