@@ -54,7 +54,7 @@ import numpy as np
 from pmba_ros._process import tune_process
 from pmba_ros.backend import estimator, logic
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.io import bags
+from pmba_ros.io import bag_writer
 from pmba_ros.replay import replay, ReplayReport
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
@@ -91,7 +91,7 @@ _BUDGET = (('window solves', estimator, 'solve'),
            ('initialization', estimator.Estimator, '_initialize'),
            ('outputs', logic.BackendLogic, '_outputs'),
            ('tracks parsing', logic.BackendLogic, 'on_tracks'),
-           ('bag writing', bags.BagWriter, 'write'))
+           ('bag writing', bag_writer.BagWriter, 'write'))
 
 
 @contextmanager

@@ -64,7 +64,8 @@ from pmba_ros.io.bag_inputs import (
     select_inputs,
     stamp_ordered,
 )
-from pmba_ros.io.bags import BagMessage, iter_messages, open_writer, ReadStats
+from pmba_ros.io.bag_writer import open_writer
+from pmba_ros.io.bags import BagMessage, iter_messages, ReadStats
 from pmba_ros.io.output_dir import output_lock, remove_outputs
 from pmba_ros.replay_report import collect_stats, ReplayReport
 
@@ -72,7 +73,7 @@ if TYPE_CHECKING:
     from pmba_ros.backend.config import BackendConfig
     from pmba_ros.backend.logic import BackendLogic
     from pmba_ros.eval.trajectory import Trajectory
-    from pmba_ros.io.bags import BagWriter
+    from pmba_ros.io.bag_writer import BagWriter
 
 logger = logging.getLogger(__name__)
 
@@ -316,7 +317,8 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
                        keyframe_kind)
             run.camera_ids = outputs.camera_ids
             damage = ReadStats()
-            stream = iter_messages(bag_paths, topics=list(kinds), damage=damage)
+            stream = iter_messages(bag_paths, topics=list(kinds), damage=damage,
+                                   points_as_arrays=True)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
                 run.feed(stamp, kind, message)
             _check_input(report, damage)

@@ -49,7 +49,7 @@ CORE_RANKS = {
 #: Third-party modules allowed only in some places (top-level or lazy imports alike).
 RESTRICTED = {
     'rclpy': {'node'},
-    'rosbags': {'io.bags', 'backend.msg_backend'},
+    'rosbags': {'io.bags', 'io.bag_writer', 'backend.msg_backend'},
     'mcap': {'io.bags'},
     'mcap_ros2': {'io.bags'},
     'matplotlib': {'plot'},

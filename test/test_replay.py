@@ -331,7 +331,7 @@ def test_kitti00_replay_reports_both_ates(tmp_path: Path) -> None:
 @pytest.mark.usefixtures('stub')
 def test_several_bags_are_merged_in_time(street_bag: Path, tmp_path: Path) -> None:
     """Tracks and keyframe poses recorded into two bags replay like one bag."""
-    from pmba_ros.io.bags import open_writer
+    from pmba_ros.io.bag_writer import open_writer
 
     first, second = tmp_path / 'tracks.mcap', tmp_path / 'poses.mcap'
     with open_writer(first) as a, open_writer(second) as b:

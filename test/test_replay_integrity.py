@@ -33,7 +33,8 @@ from pmba_ros.errors import BagError
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts
-from pmba_ros.io.bags import BagWriter, iter_messages, list_topics, open_writer, ReadStats
+from pmba_ros.io.bag_writer import BagWriter, open_writer
+from pmba_ros.io.bags import iter_messages, list_topics, ReadStats
 from pmba_ros.io.output_dir import output_lock
 from pmba_ros.replay import replay
 from pmba_ros.sim.bag import write_sequence_bag
@@ -147,9 +148,9 @@ def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
     """A bag that breaks after 45 messages: all 45 are processed (the buffer holds 256)."""
     real = replay_mod.iter_messages
 
-    def breaking(paths: Any, topics: Any = None, *,
-                 damage: ReadStats | None = None) -> Iterator[Any]:
-        for i, message in enumerate(real(paths, topics)):
+    def breaking(paths: Any, topics: Any = None, *, damage: ReadStats | None = None,
+                 points_as_arrays: bool = False) -> Iterator[Any]:
+        for i, message in enumerate(real(paths, topics, points_as_arrays=points_as_arrays)):
             if i == 45:
                 assert damage is not None
                 damage.damaged_parts = 1
@@ -169,8 +170,8 @@ def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
 def test_bag_broken_before_any_message_is_an_error(bag: Path, tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """Nothing readable at all stays an error (exit 1), with `complete: false`."""
-    def broken(paths: Any, topics: Any = None, *,
-               damage: ReadStats | None = None) -> Iterator[Any]:
+    def broken(paths: Any, topics: Any = None, *, damage: ReadStats | None = None,
+               points_as_arrays: bool = False) -> Iterator[Any]:
         assert damage is not None
         damage.damaged_parts = 1
         damage.first_damage = 'street.mcap: bag is corrupt or truncated: zstd'

@@ -11,21 +11,17 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Reading and writing recordings with rosbags (no ROS install needed).
+"""Reading recordings with rosbags (no ROS install needed); writing is :mod:`.bag_writer`.
 
 Reading goes through :class:`rosbags.highlevel.AnyReader` (rosbag2 folders, bare ``.mcap`` /
 ``.db3`` storage files, or several ROS 1 ``.bag`` files) with the ROS 2 Jazzy typestore as
-the default for bags without message definitions. Two pitfalls are handled
-(``ros2_notes.md`` §4.4):
+the default for bags without message definitions. The QoS pitfall of
+``ros2_notes.md`` §4.4 is handled:
 
 * **QoS mismatch** (§4.4.6): when the QoS profiles in a folder's ``metadata.yaml`` differ
   from those stored in the storage file, opening the *folder* yields zero messages although
   ``message_count`` is right. :func:`iter_messages` notices a folder that promised messages
   and yielded none, and reads the storage files directly.
-* **Existing outputs** (§4.4.2): the rosbags writer refuses an existing path.
-  :func:`open_writer` writes into a fresh temporary folder and moves the storage file into
-  place when it closes, also when the writing code raises (the MCAP summary is always
-  written, so an interrupted run leaves a readable file).
 
 Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and the problem.
 """
@@ -39,13 +35,11 @@ from functools import lru_cache
 import importlib
 import logging
 from pathlib import Path
-import shutil
 import struct
 from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
-from pmba_ros.io import cdr
-from pmba_ros.io.atomic import deferred_interrupts
+from pmba_ros.io import cdr_decode
 
 logger = logging.getLogger(__name__)
 
@@ -263,7 +257,8 @@ def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]
 
 
 def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None, *,
-                  damage: ReadStats | None = None) -> Iterator[BagMessage]:
+                  damage: ReadStats | None = None,
+                  points_as_arrays: bool = False) -> Iterator[BagMessage]:
     """Yield the messages of one or more recordings in log-time order, deserialized.
 
     A rosbag2 folder that reports messages on the selected topics but yields none (the
@@ -277,6 +272,9 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
             deserialize is skipped, and after a corrupt part of the storage reading resumes
             at the next readable data (found by stepping forward in time from the last good
             message, 1 ms at first and doubling); both are counted here.
+        points_as_arrays: Decode the points of standard ``sensor_msgs/PointCloud`` messages
+            of rosbag2 recordings as one ``(N, 3)`` float32 array (:mod:`.cdr_decode`),
+            several times faster; such messages are for reading, not for serializing again.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.
@@ -288,7 +286,7 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     """
     checked = _check_paths([Path(p) for p in paths])
     expected, produced = 0, 0
-    for message in _iter_all(checked, topics, damage):
+    for message in _iter_all(checked, topics, damage, points_as_arrays):
         produced += 1
         yield message
     if produced or (damage is not None and damage.damaged_parts):
@@ -302,19 +300,20 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
                    'QoS differs from the storage file); reading %s directly', _describe(checked),
                    expected, _describe(files))
-    yield from _iter_all(files, topics, damage)
+    yield from _iter_all(files, topics, damage, points_as_arrays)
 
 
 def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
-              damage: ReadStats | None) -> Iterator[BagMessage]:
+              damage: ReadStats | None, points_as_arrays: bool = False,
+              ) -> Iterator[BagMessage]:
     """Yield the messages of ``paths``, resuming after corrupt parts if ``damage`` is given."""
     if damage is None:
-        yield from _iter_once(paths, topics, None)
+        yield from _iter_once(paths, topics, None, points_as_arrays=points_as_arrays)
         return
     start: int | None = None
     while True:
         last: int | None = None
-        for message in _iter_once(paths, topics, damage, start):
+        for message in _iter_once(paths, topics, damage, start, points_as_arrays):
             last = message.log_time_ns
             yield message
         error, damage._pending = damage._pending, None
@@ -364,7 +363,7 @@ def _readable_from(paths: Sequence[Path], topics: Sequence[str] | None, start: i
 
 def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
                damage: ReadStats | None, start: int | None = None,
-               ) -> Generator[BagMessage, None, None]:
+               points_as_arrays: bool = False) -> Generator[BagMessage, None, None]:
     """Yield the messages of ``paths`` from ``start`` (ns) once (see :func:`iter_messages`)."""
     errors = _reader_errors()
     with _any_reader(paths) as reader:
@@ -373,10 +372,17 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             return
         if damage is not None:
             damage._span = (int(reader.start_time), int(reader.end_time))
+        fast = {}
+        if points_as_arrays and reader.is2:   # the vectorized decoder reads CDR, not ROS 1
+            fast = {c.msgtype: cdr_decode.fast_decoder(reader.typestore, c.msgtype,
+                                                       jazzy_typestore()) for c in conns}
         try:
             for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
+                decode = fast.get(conn.msgtype)
+                msg_obj = decode(raw) if decode is not None else None
                 try:
-                    msg_obj = reader.deserialize(raw, conn.msgtype)
+                    if msg_obj is None:
+                        msg_obj = reader.deserialize(raw, conn.msgtype)
                 except errors as err:
                     msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message '
                            f'on {conn.topic} at {t_ns} ns: {_error_text(err)}')
@@ -417,154 +423,8 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
         yield conn, int(t_ns), raw
 
 
-class BagWriter:
-    """Writes serialized messages to one rosbag2 MCAP recording (Jazzy typestore).
-
-    Use :func:`open_writer` to create one; connections are added on first use of a topic.
-    """
-
-    def __init__(self, writer: Any, typestore: Any) -> None:
-        """Wrap an open rosbags writer."""
-        self._writer = writer
-        self._typestore = typestore
-        self._connections: dict[str, Any] = {}
-        self._encoders: dict[str, cdr.Encoder] = {}
-        self.count = 0
-
-    def write(self, topic: str, msg: Any, log_time_ns: int, *, msgtype: str | None = None,
-              ) -> None:
-        """Serialize and write one message.
-
-        Args:
-            topic: Absolute topic name.
-            msg: A message of the Jazzy typestore.
-            log_time_ns: Log time, ns.
-            msgtype: Message type; default ``msg.__msgtype__``.
-
-        Raises:
-            BagError: If the message does not serialize or the topic changes type.
-        """
-        msgtype = str(msgtype or getattr(msg, '__msgtype__', ''))
-        conn = self._connections.get(topic)
-        if conn is None:
-            try:
-                conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
-            except Exception as err:
-                msg_ = f'cannot add topic {topic!r} of type {msgtype!r}: {err}'
-                raise BagError(msg_) from err
-            self._connections[topic] = conn
-        elif conn.msgtype != msgtype:
-            msg_ = f'topic {topic!r} has type {conn.msgtype}, cannot write a {msgtype}'
-            raise BagError(msg_)
-        try:
-            raw = self._encoders.setdefault(topic, cdr.Encoder()).encode(msg, msgtype)
-            if raw is None:
-                raw = self._typestore.serialize_cdr(msg, msgtype)
-        except Exception as err:
-            msg_ = f'cannot serialize a {msgtype} message for {topic!r}: {err}'
-            raise BagError(msg_) from err
-        self._writer.write(conn, int(log_time_ns), raw)
-        self.count += 1
-
-
-@contextmanager
-def open_writer(path: Path | str, *, overwrite: bool = False,
-                keep_on_error: bool = True) -> Iterator[BagWriter]:
-    """Open a rosbag2 MCAP recording for writing (rosbag2 metadata version 9).
-
-    Chunks are zstd-compressed, as ``ros2 bag record``'s ``zstd_fast`` preset does: the
-    node's growing outputs (path, keyframes, landmarks) repeat from message to message, so a
-    long replay's result bag shrinks several-fold.
-
-    ``path`` ending in ``.mcap`` gives a bare storage file (readable by rosbags, mcap and
-    ``ros2 bag``); any other path gives a rosbag2 folder ``path/`` with ``metadata.yaml``
-    and ``path/<name>.mcap``. The recording is written into a temporary folder beside
-    ``path`` and moved into place when the block ends, normally or by an exception, so the
-    MCAP summary is always written; with ``keep_on_error=False`` an exception discards it
-    instead (a partly written input recording must not pass for a whole one).
-
-    Args:
-        path: Output file (``*.mcap``) or folder.
-        overwrite: Replace an existing output; otherwise an existing path is an error.
-        keep_on_error: Whether to keep what was written when the block raises.
-
-    Yields:
-        The :class:`BagWriter`.
-
-    Raises:
-        BagError: If ``path`` exists (and ``overwrite`` is False) or cannot be written.
-    """
-    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-
-    path = Path(path)
-    bare = path.suffix == '.mcap'
-    if path.exists() and not overwrite:
-        msg = f'{path}: exists already (choose a new path or overwrite it)'
-        raise BagError(msg)
-    tmp = path.with_name(f'.{path.name}.partial')
-    if tmp.exists():
-        shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        tmp.parent.mkdir(parents=True, exist_ok=True)
-        writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        writer.open()
-    except Exception as err:
-        msg = f'{path}: cannot create bag: {err}'
-        raise BagError(msg) from err
-    try:
-        yield BagWriter(writer, jazzy_typestore())
-    except BaseException:
-        # The block's error is the cause to report; a failing close (a full disk fails
-        # both) must not replace it.
-        with deferred_interrupts():
-            try:
-                if keep_on_error:
-                    _finalize(writer, tmp, path, bare)
-                else:
-                    _discard(writer, tmp)
-            except Exception as err:
-                logger.warning('%s: cannot finalize the bag after an error: %s', path, err)
-        raise
-    with deferred_interrupts():
-        _finalize(writer, tmp, path, bare)
-
-
-def _finalize(writer: Any, tmp: Path, path: Path, bare: bool) -> None:
-    """Close the writer (MCAP summary) and move the recording into place."""
-    writer.close()
-    _move_into_place(tmp, path, bare)
-
-
-def _discard(writer: Any, tmp: Path) -> None:
-    """Close the writer and remove the temporary recording."""
-    try:
-        writer.close()
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _move_into_place(tmp: Path, path: Path, bare: bool) -> None:
-    """Move a finished temporary rosbag2 folder to ``path`` (file or folder)."""
-    if path.is_dir():
-        shutil.rmtree(path)
-    elif path.exists():
-        path.unlink()
-    if bare:
-        (tmp / f'{tmp.name}.mcap').replace(path)
-        shutil.rmtree(tmp)
-        return
-    storage = tmp / f'{tmp.name}.mcap'
-    final_storage = tmp / f'{path.name}.mcap'
-    storage.replace(final_storage)
-    meta = tmp / 'metadata.yaml'
-    text = meta.read_text(encoding='utf-8').replace(f'{tmp.name}.mcap', f'{path.name}.mcap')
-    meta.write_text(text, encoding='utf-8')
-    tmp.replace(path)
-
-
-__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'BagWriter', 'ReadStats', 'TopicInfo',
-           'iter_messages', 'jazzy_typestore', 'list_topics', 'open_writer', 'require_topics']
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'ReadStats', 'TopicInfo', 'iter_messages',
+           'iter_serialized', 'jazzy_typestore', 'list_topics', 'require_topics']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,

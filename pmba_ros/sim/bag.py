@@ -51,7 +51,8 @@ from pmba_ros.backend.tracks import LAYOUTS
 from pmba_ros.core import so3
 from pmba_ros.errors import BagError
 from pmba_ros.eval.trajectory import Trajectory, write_tum
-from pmba_ros.io.bags import jazzy_typestore, open_writer
+from pmba_ros.io.bag_writer import open_writer
+from pmba_ros.io.bags import jazzy_typestore
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
 
 if TYPE_CHECKING:

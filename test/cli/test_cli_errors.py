@@ -269,7 +269,7 @@ def test_failed_bag_writing_leaves_no_bag_behind(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     """Disk full while `simulate` writes: one error line, no bag and no `.partial` left."""
-    from pmba_ros.io.bags import BagWriter
+    from pmba_ros.io.bag_writer import BagWriter
 
     real = BagWriter.write
 

@@ -26,7 +26,8 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.cli.main import main
-from pmba_ros.io.bags import jazzy_typestore, open_writer
+from pmba_ros.io.bag_writer import open_writer
+from pmba_ros.io.bags import jazzy_typestore
 import pytest
 
 from ..ros_helpers import domain_id, isolated_env, isolated_node, spin_until, transient_local_qos

@@ -22,11 +22,11 @@ import numpy as np
 from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.backend.outputs import make_pose_stamped
 from pmba_ros.errors import BagError
+from pmba_ros.io.bag_writer import open_writer
 from pmba_ros.io.bags import (
     iter_messages,
     jazzy_typestore,
     list_topics,
-    open_writer,
     require_topics,
 )
 import pytest
