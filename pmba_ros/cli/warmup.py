@@ -29,17 +29,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     del parser
 
 
-def ensure_compiled(stream: TextIO, *, always: bool = False) -> None:
-    """Compile or load the loops, saying so on ``stream`` when it will take a while.
+def ensure_compiled(stream: TextIO, *, verbose: bool = False) -> None:
+    """Compile or load the loops before the work, saying so on ``stream`` when it is long.
+
+    As the node does before it subscribes: a command's own timings (a replay's speed) then
+    measure its work, the first keyframe as the others, not numba setting itself up.
 
     Args:
         stream: Where the messages go (stderr for commands whose output is data).
-        always: Load the loops even when they are already compiled (the ``warmup`` verb).
+        verbose: Also say how long loading already compiled loops took (the ``warmup`` verb);
+            otherwise that is said only when it took over a second.
     """
     from pmba_ros.core import warmup
 
-    if warmup.is_warm() and not always:
-        return
     if not warmup.is_warm():
         print('compiling the solver loops (once per install; expected '
               f'{warmup.expected_compile_text()}) ...', file=stream, flush=True)
@@ -47,7 +49,8 @@ def ensure_compiled(stream: TextIO, *, always: bool = False) -> None:
         print(f'compiled in {seconds:.1f} s', file=stream, flush=True)
         return
     seconds = warmup.warm_up()
-    print(f'solver loops ready ({seconds:.1f} s)', file=stream, flush=True)
+    if verbose or seconds > 1.0:
+        print(f'solver loops ready ({seconds:.1f} s)', file=stream, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,5 +61,5 @@ def run(args: argparse.Namespace) -> int:
     if not compiled_available():
         print('compiled loops off (numba not installed, or PMBA_NUMBA=0): nothing to compile')
         return 0
-    ensure_compiled(sys.stdout, always=True)
+    ensure_compiled(sys.stdout, verbose=True)
     return 0
