@@ -180,8 +180,11 @@ def test_solve_engine_option_gives_the_same_result(tmp_path: Path) -> None:
 def test_solve_threads_option_caps_the_compiled_loops(monkeypatch: pytest.MonkeyPatch) -> None:
     """`--threads N` caps the threads a large problem's loops use; 0 is a usage error."""
     pytest.importorskip('numba')
+    from pmba_ros.core import warmup
     from pmba_ros.core.compiled import chunks
 
+    # The loops load before the verb runs (its tiny problem is one chunk without the patch).
+    monkeypatch.setattr(warmup, 'warm_up', lambda: 0.0)
     monkeypatch.setattr(chunks, 'available_cores', lambda: 4)
     monkeypatch.setattr(chunks, 'CHUNK_OBSERVATIONS', 1)
     used: list[int] = []

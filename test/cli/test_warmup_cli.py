@@ -51,10 +51,16 @@ def test_solve_announces_a_first_compilation_with_its_expected_time(
     assert calls == [1]
 
 
-def test_solve_with_a_warm_cache_says_nothing_about_compiling(
-        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    """Warm cache: no message, no separate warm-up."""
+@pytest.mark.parametrize(('seconds', 'said'), [(0.3, False), (2.5, True)])
+def test_solve_with_a_warm_cache_loads_the_loops_first(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], seconds: float,
+        said: bool) -> None:
+    """Warm cache: the loops are loaded before the work, said only when it takes a while."""
+    calls: list[int] = []
     monkeypatch.setattr(warmup, 'is_warm', lambda: True)
-    monkeypatch.setattr(warmup, 'warm_up', lambda: pytest.fail('warm-up ran'))
+    monkeypatch.setattr(warmup, 'warm_up', lambda: calls.append(1) or seconds)
     assert main(['solve', 'sim:street:0', '--quiet']) == 0
-    assert 'compil' not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert calls == [1]
+    assert 'compil' not in err
+    assert (f'solver loops ready ({seconds:.1f} s)' in err) is said
