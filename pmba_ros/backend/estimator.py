@@ -49,7 +49,7 @@ import time
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.motion import frontend_motion_prior, motion_error, PixelNoise
+from pmba_ros.backend.motion import frontend_motion_prior, motion_error, PixelNoise, RunScale
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
     compensated_parallax_angles,
@@ -108,6 +108,7 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
+        self._run_scale = RunScale()
         self.pixel_noise = PixelNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
@@ -481,10 +482,14 @@ class Estimator:
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""
-        return frontend_motion_prior(
-            self.kf, cams, fixed, self._metric_scale, self.config,
-            follow_map_scale=self.config.mode == 'sliding' and self._rig() is None,
-            pixel_sigma=self.pixel_noise.sigma)
+        follow = self.config.mode == 'sliding' and self._rig() is None
+        # A monocular window's scale wanders; the run's own scale so far is a steadier
+        # reference for it than the initialization's batch (a rig's map is metric, and a
+        # global solve moves the whole run's scale at once).
+        reference = (self._run_scale.scale(self.kf, self._metric_scale) if follow
+                     else self._metric_scale)
+        return frontend_motion_prior(self.kf, cams, fixed, reference, self.config,
+                                     follow_map_scale=follow, pixel_sigma=self.pixel_noise.sigma)
 
     def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
                        moved: IntArray, error_before: float) -> str:

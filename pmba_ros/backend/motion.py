@@ -56,6 +56,58 @@ class PixelNoise:
             self._recent.append(noise_px)
 
 
+class RunScale:
+    """The map <- odom scale of the run so far: the map's path length over the front-end's.
+
+    Over the steps between consecutive optimized keyframes (free or fixed, both with
+    front-end poses). A fixed keyframe does not move again, so the steps between fixed ones
+    are summed once; the window's are summed at each call, which keeps the cost per keyframe
+    flat over a long run.
+    """
+
+    def __init__(self) -> None:
+        """Start with nothing summed."""
+        self._map = 0.0
+        self._odom = 0.0
+        self._done = 1  # the steps (i - 1, i) with i < _done are in the sums
+
+    def scale(self, kf: KeyframeStore, fallback: float) -> float:
+        """Return the map <- odom scale of the run (``fallback`` before any step moved)."""
+        n = kf.n
+        status = kf.status[:n]
+        unsettled = (status == KeyframeStatus.ACTIVE) | (status == KeyframeStatus.COLLECTED)
+        pending = np.flatnonzero(unsettled[self._done - 1:])
+        stop = self._done - 1 + int(pending[0]) if pending.shape[0] else n
+        if stop > self._done:
+            fixed = status[self._done - 1:stop] == KeyframeStatus.FIXED
+            m, o = self._lengths(kf, self._done, stop, fixed)
+            self._map += m
+            self._odom += o
+            self._done = stop
+        window = status[self._done - 1:]
+        optimized = (window == KeyframeStatus.ACTIVE) | (window == KeyframeStatus.FIXED)
+        m, o = self._lengths(kf, self._done, n, optimized)
+        total_map, total_odom = self._map + m, self._odom + o
+        return total_map / total_odom if total_odom > 0 and total_map > 0 else fallback
+
+    @staticmethod
+    def _lengths(kf: KeyframeStore, first: int, stop: int,
+                 usable: BoolArray) -> tuple[float, float]:
+        """Sum the map and odom lengths of the steps (i - 1, i), first <= i < stop.
+
+        ``usable`` flags the keyframes first - 1 .. stop - 1 whose steps may count.
+        """
+        if stop <= first:
+            return 0.0, 0.0
+        i = np.arange(first, stop)
+        ok = usable[1:] & usable[:-1] & kf.has_odom[i] & kf.has_odom[i - 1]
+        i = i[ok]
+        step_map = np.linalg.norm(kf.C_map[i] - kf.C_map[i - 1], axis=1)
+        step_odom = np.linalg.norm(kf.C_odom[i] - kf.C_odom[i - 1], axis=1)
+        good = np.isfinite(step_map) & np.isfinite(step_odom)
+        return float(np.sum(step_map[good])), float(np.sum(step_odom[good]))
+
+
 MIN_PIXEL_SIGMA = 0.1
 """Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
 accuracy ends about there, whatever a noise-free simulation's residuals say."""
@@ -71,14 +123,14 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     both have front-end poses and one is free. A step's length enters as two Gaussian
     factors merged into one:
 
-    * against ``metric_scale``, the map <- odom scale of the initialization (the
-      front-end's metric scale; sigma ``motion_prior_translation_rel``);
+    * against ``metric_scale``, the reference map <- odom scale (the run's, :class:`RunScale`,
+      or the initialization's; sigma ``motion_prior_translation_rel``);
     * with ``follow_map_scale``, against the map's own scale around the step
       (:func:`local_scales` over ``window_size`` steps; sigma ``motion_prior_shape_rel``):
       a front-end's step lengths agree with each other far better than its scale holds.
 
     The second keeps the front-end's local motion and leaves the map's scale to the
-    vision, the first slowly pulls that scale back to the front-end's. As the second also
+    vision, the first slowly pulls that scale back to the run's. As the second also
     holds back changes of the map's scale, it suits a monocular sliding window, whose
     vision sees the scale weakly and step by step, not a stereo rig (a metric map) or a
     global solve (which moves the whole map's scale at once). Weights: one sigma (of the

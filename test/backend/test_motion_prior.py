@@ -20,7 +20,12 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
-from pmba_ros.backend.motion import frontend_motion_prior, local_scales, MIN_PIXEL_SIGMA
+from pmba_ros.backend.motion import (
+    frontend_motion_prior,
+    local_scales,
+    MIN_PIXEL_SIGMA,
+    RunScale,
+)
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.sim.sequence import simulate_sequence
@@ -65,6 +70,31 @@ def test_local_scales_are_nearby_medians_of_solved_steps() -> None:
     np.testing.assert_array_equal(local_scales(short, a, b, t_odom, 0.8, 3), [0.8, 0.8])
     none = np.zeros(0, dtype=np.int64)
     assert local_scales(short, none, none, np.zeros((0, 3)), 0.8, 3).shape == (0,)
+
+
+def test_run_scale_sums_optimized_steps_once_as_keyframes_settle() -> None:
+    """Path-length ratio over free and fixed steps; fixed ones summed once, others skipped."""
+    steps = np.concatenate([np.full(10, 1.2), np.full(10, 0.8), np.full(5, 1.0)])
+    kf = _store(steps)
+    S = KeyframeStatus
+    kf.status[:3] = S.PASSED_THROUGH   # never optimized: steps 1-3 do not count
+    kf.status[12] = S.DEAD_RECKONED    # nor do its two steps
+    run_scale = RunScale()
+    ok = np.array([i for i in range(4, kf.n) if i not in (12, 13)])
+    for fixed_up_to in (3, 8, 12, 20):
+        kf.status[3:fixed_up_to] = np.where(
+            np.arange(3, fixed_up_to) == 12, S.DEAD_RECKONED, S.FIXED)
+        expected = steps[ok - 1].sum() / ok.shape[0]
+        assert RunScale().scale(kf, fallback=-1.0) == pytest.approx(expected)
+        assert run_scale.scale(kf, fallback=-1.0) == pytest.approx(expected)
+    # The window (keyframes 20-25, still free) moves: its steps are summed anew.
+    kf.C_map[20:kf.n, 0] += np.arange(kf.n - 20) * 0.5
+    moved = np.linalg.norm(np.diff(kf.C_map[:kf.n], axis=0), axis=1)[ok - 1].sum() / ok.size
+    assert moved != pytest.approx(expected)
+    assert run_scale.scale(kf, -1.0) == pytest.approx(moved)
+    kf.status[20:kf.n] = S.FIXED
+    assert run_scale.scale(kf, -1.0) == pytest.approx(moved)
+    assert RunScale().scale(KeyframeStore(), fallback=0.7) == 0.7
 
 
 def test_step_length_follows_the_map_scale_with_a_pull_to_the_front_ends() -> None:
