@@ -257,7 +257,7 @@ def _read_point_cloud(msg: Any, layout: str, num_cams: int) -> _Columns | None:
                 'wrong layout? (vins_mono has 5, vins_fusion 6 or more)')
         raise MessageError(msg_)
     ch = np.stack(rows)
-    if isinstance(points_raw, np.ndarray):   # decoded in one piece (io.cdr_decode)
+    if isinstance(points_raw, np.ndarray):   # decoded in one piece (io.cloud_decode)
         xyz = points_raw.astype(np.float64).reshape(-1, 3)
     else:
         xyz = np.array(list(map(_XYZ, points_raw)), dtype=np.float64).reshape(-1, 3)

@@ -39,7 +39,7 @@ import struct
 from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
-from pmba_ros.io import cdr_decode
+from pmba_ros.io import cloud_decode
 
 logger = logging.getLogger(__name__)
 
@@ -52,6 +52,13 @@ def jazzy_typestore() -> Any:
     """Return the pinned ROS 2 Jazzy rosbags typestore (``Stores.LATEST`` is Kilted)."""
     from rosbags.typesys import get_typestore, Stores
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+@lru_cache(maxsize=1)
+def noetic_typestore() -> Any:
+    """Return rosbags' ROS 1 Noetic typestore (the standard ROS 1 message definitions)."""
+    from rosbags.typesys import get_typestore, Stores
+    return get_typestore(Stores.ROS1_NOETIC)
 
 
 class BagMessage(NamedTuple):
@@ -273,8 +280,8 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
             at the next readable data (found by stepping forward in time from the last good
             message, 1 ms at first and doubling); both are counted here.
         points_as_arrays: Decode the points of standard ``sensor_msgs/PointCloud`` messages
-            of rosbag2 recordings as one ``(N, 3)`` float32 array (:mod:`.cdr_decode`),
-            several times faster; such messages are for reading, not for serializing again.
+            as one ``(N, 3)`` float32 array (:mod:`.cloud_decode`), several times faster;
+            such messages are for reading, not for serializing again.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.
@@ -373,9 +380,10 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
         if damage is not None:
             damage._span = (int(reader.start_time), int(reader.end_time))
         fast = {}
-        if points_as_arrays and reader.is2:   # the vectorized decoder reads CDR, not ROS 1
-            fast = {c.msgtype: cdr_decode.fast_decoder(reader.typestore, c.msgtype,
-                                                       jazzy_typestore()) for c in conns}
+        if points_as_arrays:
+            reference = jazzy_typestore() if reader.is2 else noetic_typestore()
+            fast = {c.msgtype: cloud_decode.fast_decoder(reader.typestore, c.msgtype, reference,
+                                                         ros1=not reader.is2) for c in conns}
         try:
             for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
                 decode = fast.get(conn.msgtype)

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The vectorized PointCloud decoder reads what rosbags reads, and leaves misfits to it."""
+"""The vectorized PointCloud decoder reads what rosbags reads (CDR, ROS 1); misfits: rosbags."""
 
 from __future__ import annotations
 
@@ -20,20 +20,21 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend.tracks import parse_tracks
-from pmba_ros.io import cdr_decode
+from pmba_ros.io import cloud_decode
 from pmba_ros.io.bag_writer import open_writer
-from pmba_ros.io.bags import iter_messages, jazzy_typestore
+from pmba_ros.io.bags import iter_messages, jazzy_typestore, noetic_typestore
 import pytest
 
-POINT_CLOUD = cdr_decode.POINT_CLOUD
+POINT_CLOUD = cloud_decode.POINT_CLOUD
 
 
-def _cloud(n: int, n_channels: int, frame: str, sec: int, seed: int) -> Any:
-    store = jazzy_typestore()
+def _cloud(n: int, n_channels: int, frame: str, sec: int, seed: int, store: Any = None) -> Any:
+    store = store or jazzy_typestore()
     types = store.types
     rng = np.random.default_rng(seed)
+    seq = {'seq': seed} if 'seq' in dict(store.fielddefs['std_msgs/msg/Header'][1]) else {}
     header = types['std_msgs/msg/Header'](
-        stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=123), frame_id=frame)
+        **seq, stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=123), frame_id=frame)
     xy = rng.normal(size=(n, 2)).astype(np.float32)
     points = [types['geometry_msgs/msg/Point32'](x=float(x), y=float(y), z=1.0) for x, y in xy]
     channels = [types['sensor_msgs/msg/ChannelFloat32'](
@@ -62,9 +63,25 @@ def test_decodes_what_rosbags_decodes(little_endian: bool, n: int, n_channels: i
     store = jazzy_typestore()
     msg = _cloud(n, n_channels, frame, sec=-7 if n == 3 else 1_700_000_000, seed=n)
     raw = bytes(store.serialize_cdr(msg, POINT_CLOUD, little_endian=little_endian))
-    fast = cdr_decode.decode_point_cloud(raw, store)
+    fast = cloud_decode.decode_point_cloud(raw, store)
     assert fast is not None
     _assert_same(fast, store.deserialize_cdr(raw, POINT_CLOUD))
+
+
+@pytest.mark.parametrize(('n', 'n_channels', 'frame'),
+                         [(0, 0, ''), (1, 5, 'cam0'), (3, 6, 'c'), (40, 7, 'world_ned')])
+def test_decodes_ros1_as_rosbags_does(n: int, n_channels: int, frame: str) -> None:
+    """ROS 1: packed, no encapsulation, strings without NUL, the header's seq."""
+    store = noetic_typestore()
+    msg = _cloud(n, n_channels, frame, sec=1_300_000_000 + n, seed=n, store=store)
+    raw = bytes(store.serialize_ros1(msg, POINT_CLOUD))
+    fast = cloud_decode.decode_point_cloud(raw, store, ros1=True)
+    assert fast is not None
+    slow = store.deserialize_ros1(raw, POINT_CLOUD)
+    _assert_same(fast, slow)
+    assert fast.header.seq == slow.header.seq == n
+    assert cloud_decode.decode_point_cloud(raw[:-1], store, ros1=True) is None
+    assert cloud_decode.decode_point_cloud(raw + b'\x00', store, ros1=True) is None
 
 
 def test_parse_tracks_reads_both_forms_alike() -> None:
@@ -74,7 +91,7 @@ def test_parse_tracks_reads_both_forms_alike() -> None:
     msg.channels[0].values[:] = np.arange(25)
     msg.channels[1].values[:] = 0
     raw = bytes(store.serialize_cdr(msg, POINT_CLOUD))
-    fast = parse_tracks(cdr_decode.decode_point_cloud(raw, store), 'vins_fusion')
+    fast = parse_tracks(cloud_decode.decode_point_cloud(raw, store), 'vins_fusion')
     slow = parse_tracks(store.deserialize_cdr(raw, POINT_CLOUD), 'vins_fusion')
     assert fast.feature_ids.size == 25
     assert np.array_equal(fast.feature_ids, slow.feature_ids)
@@ -87,25 +104,44 @@ def test_misfits_are_left_to_rosbags(cut: int) -> None:
     """Truncated buffers, extra bytes, bad encapsulation and counts past the end give None."""
     store = jazzy_typestore()
     raw = bytes(store.serialize_cdr(_cloud(4, 6, 'cam0', 1, seed=0), POINT_CLOUD))
-    assert cdr_decode.decode_point_cloud(raw[:-cut], store) is None
-    assert cdr_decode.decode_point_cloud(raw + bytes(8 + cut), store) is None
-    assert cdr_decode.decode_point_cloud(b'\x01\x01' + raw[2:], store) is None
+    assert cloud_decode.decode_point_cloud(raw[:-cut], store) is None
+    assert cloud_decode.decode_point_cloud(raw + bytes(8 + cut), store) is None
+    assert cloud_decode.decode_point_cloud(b'\x01\x01' + raw[2:], store) is None
     huge = bytearray(raw)
     huge[4 + 12 + 8:4 + 12 + 12] = (2**31).to_bytes(4, 'little')  # the point count
-    assert cdr_decode.decode_point_cloud(bytes(huge), store) is None
+    assert cloud_decode.decode_point_cloud(bytes(huge), store) is None
 
 
 def test_only_standard_definitions_take_the_fast_path() -> None:
     """A bag defining PointCloud (or a type in it) differently keeps rosbags' decoder."""
     reference = jazzy_typestore()
-    assert cdr_decode.fast_decoder(reference, POINT_CLOUD, reference) is not None
-    assert cdr_decode.fast_decoder(reference, 'sensor_msgs/msg/PointCloud2', reference) is None
+    assert cloud_decode.fast_decoder(reference, POINT_CLOUD, reference) is not None
+    assert cloud_decode.fast_decoder(reference, 'sensor_msgs/msg/PointCloud2', reference) is None
 
     class _Custom:
         def __init__(self) -> None:
             self.fielddefs = dict(reference.fielddefs)
             self.fielddefs['geometry_msgs/msg/Point32'] = ([], [('x', (1, 'float64'))])
-    assert cdr_decode.fast_decoder(_Custom(), POINT_CLOUD, reference) is None
+    assert cloud_decode.fast_decoder(_Custom(), POINT_CLOUD, reference) is None
+
+
+def test_ros1_bag_reading_yields_the_same_tracks(tmp_path: Path) -> None:
+    """A ROS 1 bag's clouds, read with points as arrays, equal rosbags' own decoding."""
+    from rosbags.rosbag1 import Writer
+
+    store = noetic_typestore()
+    clouds = [_cloud(10 + i, 5, 'cam0', i + 1, seed=i, store=store) for i in range(3)]
+    path = tmp_path / 'vins.bag'
+    with Writer(path) as writer:
+        conn = writer.add_connection('/feature_tracker/feature', POINT_CLOUD, typestore=store)
+        for i, msg in enumerate(clouds):
+            writer.write(conn, (i + 1) * 10**9, store.serialize_ros1(msg, POINT_CLOUD))
+    read = [m.msg for m in iter_messages([path], points_as_arrays=True)]
+    assert len(read) == 3
+    for fast, msg in zip(read, clouds, strict=True):
+        assert isinstance(fast.points, np.ndarray)
+        _assert_same(fast, store.deserialize_ros1(store.serialize_ros1(msg, POINT_CLOUD),
+                                                  POINT_CLOUD))
 
 
 @pytest.mark.parametrize('name', ['folder_bag', 'bare.mcap'])
