@@ -103,7 +103,7 @@ class BackendConfig:
         motion_prior_shape_rel: Sigma of that length against the map's own map <- odom scale
             over the ``window_size`` steps around it (the front-end's steps agree with each
             other better than its scale holds), as a fraction of the step; monocular
-            sliding windows only (0: only the length above).
+            solves only, a rig's map being metric (0: only the length above).
         motion_prior_direction_rel: Sigma of that translation across the step (its direction),
             as a fraction of the step.
         motion_prior_rotation_rad: Sigma of its relative rotation, rad (0: none).

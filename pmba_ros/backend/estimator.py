@@ -482,14 +482,16 @@ class Estimator:
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""
-        follow = self.config.mode == 'sliding' and self._rig() is None
+        monocular = self._rig() is None
         # A monocular window's scale wanders; the run's own scale so far is a steadier
         # reference for it than the initialization's batch (a rig's map is metric, and a
-        # global solve moves the whole run's scale at once).
-        reference = (self._run_scale.scale(self.kf, self._metric_scale) if follow
+        # global solve holds the whole run, its scale included).
+        sliding = monocular and self.config.mode == 'sliding'
+        reference = (self._run_scale.scale(self.kf, self._metric_scale) if sliding
                      else self._metric_scale)
         return frontend_motion_prior(self.kf, cams, fixed, reference, self.config,
-                                     follow_map_scale=follow, pixel_sigma=self.pixel_noise.sigma)
+                                     follow_map_scale=monocular,
+                                     pixel_sigma=self.pixel_noise.sigma)
 
     def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
                        moved: IntArray, error_before: float) -> str:
