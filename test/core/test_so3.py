@@ -63,6 +63,9 @@ def test_quaternion_round_trip(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(so3.from_quat_xyzw(q), R, atol=1e-12)
     assert np.all(q[:, 3] >= 0) and np.allclose(np.linalg.norm(q, axis=1), 1.0)
     np.testing.assert_allclose(np.abs(q[:3, :3]), np.eye(3), atol=1e-12)
+    # One matrix takes a scalar path: the very same numbers as the batch, every branch.
+    assert np.array_equal(np.array([so3.to_quat_xyzw(r) for r in R]), q)
+    assert np.array_equal(so3.to_quat_xyzw(np.eye(3)), [0.0, 0.0, 0.0, 1.0])
 
 
 def test_project_returns_nearest_rotation(rng: np.random.Generator) -> None:
