@@ -131,14 +131,14 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
 
     The second keeps the front-end's local motion and leaves the map's scale to the
     vision, the first slowly pulls that scale back to the run's. As the second also
-    holds back changes of the map's scale, it suits monocular solves, whose vision sees the
-    scale weakly and step by step (in global mode too: without it the aerial scenario's
-    RPE was 1.1-2.5x the front-end's), not a stereo rig (a metric map). Weights: one sigma (of the
-    length, of the direction across it ``motion_prior_direction_rel``, each of the step
-    plus a millimetre; ``motion_prior_rotation_rad``) counts as much as one sigma of the
-    tracks' pixel noise, ``pixel_sigma`` (measured by the solves), so that noisy tracks lean
-    more on the front-end and clean ones less; where the front-end gives pose covariances
-    they take over (:func:`covariance_weights`).
+    holds back changes of the map's scale, it suits monocular solves, sliding or global,
+    whose vision sees the scale weakly and step by step, not a stereo rig (a metric map).
+    Weights: one sigma (of the length, of the direction across it
+    ``motion_prior_direction_rel``, each of the step plus a millimetre;
+    ``motion_prior_rotation_rad``) counts as much as one sigma of the tracks' pixel noise,
+    ``pixel_sigma`` (measured by the solves), so that noisy tracks lean more on the
+    front-end and clean ones less; where the front-end gives pose covariances they take
+    over (:func:`covariance_weights`).
     """
     cfg = config
     if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:

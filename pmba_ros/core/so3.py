@@ -164,7 +164,7 @@ def from_quat_xyzw(quat_xyzw: FloatArray) -> FloatArray:
 def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
     """Return unit quaternions (..., 4), (x, y, z, w) with w >= 0, of rotation matrices."""
     R = np.asarray(rotation, dtype=float)
-    if R.shape == (3, 3):   # one pose per output message: scalar arithmetic is ten times faster
+    if R.shape == (3, 3):   # one pose per output message: numpy's per-call cost dominates
         return _one_quat_xyzw(R)
     m = R.reshape(*R.shape[:-2], 9)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = np.moveaxis(m, -1, 0)

@@ -280,8 +280,8 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
             at the next readable data (found by stepping forward in time from the last good
             message, 1 ms at first and doubling); both are counted here.
         points_as_arrays: Decode the points of standard ``sensor_msgs/PointCloud`` messages
-            as one ``(N, 3)`` float32 array (:mod:`.cloud_decode`), several times faster;
-            such messages are for reading, not for serializing again.
+            as one ``(N, 3)`` float32 array (:mod:`.cloud_decode`), without a Python object
+            per point; such messages are for reading, not for serializing again.
 
     Yields:
         :class:`BagMessage` tuples, merged over all bags in log-time order.

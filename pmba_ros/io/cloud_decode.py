@@ -14,9 +14,9 @@
 """Vectorized decoding of the feature tracks of the VINS layouts (ROS 2 CDR and ROS 1).
 
 A ``sensor_msgs/PointCloud`` of a few hundred tracks arrives with every camera frame, and
-rosbags' generated deserializers build one ``Point32`` object per point (a few microseconds
-each). Here the points become one ``(N, 3)`` float32 array read straight from the buffer; the
-header and the channels are the typestore's own classes. :func:`parse_tracks
+rosbags' generated deserializers build one ``Point32`` object per point. Here the points
+become one ``(N, 3)`` float32 array read straight from the buffer; the header and the
+channels are the typestore's own classes. :func:`parse_tracks
 <pmba_ros.backend.tracks.parse_tracks>` reads either form. Anything that does not fit the
 layout exactly (a short buffer, counts past the end, bytes left over) returns None, so that
 rosbags decodes it and reports what is wrong in its own words.

@@ -705,9 +705,9 @@ def test_acceptance_street_sliding(street: SimSequence) -> None:
 def test_acceptance_street_global(street: SimSequence) -> None:
     """Acceptance: global-mode ATE on the street is at most 40 % of the front-end's.
 
-    Global mode re-solves every keyframe over all keyframes, hence ``slow``. (0.35 with the
-    step lengths held to the map's local scale, which global mode needs for its RPE where
-    vision sees the motion weakly; 0.23 without.)
+    Global mode re-solves every keyframe over all keyframes, hence ``slow``. Holding the
+    step lengths to the map's local scale, which global mode needs for its RPE where vision
+    sees the motion weakly, costs some of the street's ATE (docs/benchmarks.md).
     """
     be, fe, path = _acceptance(street, mode='global', max_iterations=1)
     assert [stamp_ns(p.header) for p in path.poses] == street.stamps_ns.tolist()
