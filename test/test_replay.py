@@ -275,6 +275,37 @@ def test_replay_twice_gives_identical_tum_bytes(
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
 
 
+def test_ros1_recording_replays_like_the_rosbag2_one(
+        real_replay: tuple[Path, replay_mod.ReplayReport], street_bag: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The street converted to ROS 1 (as VINS-Mono records): same trajectory, same map.
+
+    Its tracks take the vectorized ROS 1 decoder, not rosbags' per-point one.
+    """
+    from pmba_ros.io import cloud_decode
+    from rosbags.convert.converter import convert
+    from rosbags.typesys import get_typestore, Stores
+
+    ros1 = tmp_path / 'street.bag'
+    convert([street_bag], ros1, 'sqlite3', 9, None, 'file', None,
+            get_typestore(Stores.ROS1_NOETIC), [], [], [], [])
+    decoded: list[bool] = []
+    decode = cloud_decode.decode_point_cloud
+
+    def spy(raw: Any, typestore: Any, *, ros1: bool = False) -> Any:
+        decoded.append(ros1)
+        return decode(raw, typestore, ros1=ros1)
+
+    monkeypatch.setattr(cloud_decode, 'decode_point_cloud', spy)
+    out = tmp_path / 'o'
+    report = replay([ros1], out, gt=groundtruth_path(street_bag))
+    assert report.complete and report.messages_rejected == 0
+    assert decoded and all(decoded) and len(decoded) == report.keyframes_in
+    a, _ = real_replay
+    for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
+        assert (out / name).read_bytes() == (a / name).read_bytes(), name
+
+
 def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(
         real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """Every result message deserializes with the Jazzy typestore and with mcap_ros2."""
