@@ -109,6 +109,7 @@ class Estimator:
         self._failures = 0
         self._metric_scale = 1.0
         self._run_scale = RunScale()
+        self._segment = 0   # the front-end's odom frame (KeyframeStore.segment)
         self.pixel_noise = PixelNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
@@ -143,8 +144,8 @@ class Estimator:
     # --- public update -------------------------------------------------------------------
 
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
-                     obs: KeyframeObs | None, odom_covariance: FloatArray | None = None,
-                     ) -> UpdateInfo:
+                     obs: KeyframeObs | None, odom_covariance: FloatArray | None = None, *,
+                     odom_jumped: bool = False) -> UpdateInfo:
         """Add a keyframe and update the estimate.
 
         Every keyframe with a front-end pose gets a map pose: before the first initialization
@@ -157,24 +158,30 @@ class Estimator:
             obs: Its observations, or None / too few for a keyframe without tracks.
             odom_covariance: The front-end pose's covariance (6, 6: position, rotation; in
                 the odom frame), or None; weighs the motion prior (:meth:`_motion_prior`).
+            odom_jumped: The front-end's frame jumped since the previous keyframe (a
+                relocalization or a reset): this pose starts a new odom segment, the step to
+                it is no motion, and map <- odom is estimated anew.
 
         Returns:
             What the update did.
         """
         self._odom_cov = odom_covariance
+        if odom_jumped and self.kf.n:
+            self._segment += 1
         n_obs = 0 if obs is None else int(obs.ids.shape[0])
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
             if not usable:
                 return self._pass_through(stamp_ns, odom)
-            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED, self._odom_cov)
+            i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.COLLECTED, self._odom_cov,
+                            self._segment)
             if odom is not None:
                 self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
         R0, C0 = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov)
+        i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov, self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = R0, C0
         info = self._refine()
         info.keyframe = i
@@ -193,7 +200,8 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without enough observations or '
                               'front-end pose before initialization')
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH, self._odom_cov)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.PASSED_THROUGH, self._odom_cov,
+                        self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = self._through_map_from_odom(i)
         return UpdateInfo('passed_through', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -314,6 +322,8 @@ class Estimator:
         R, C = res.R_wc, res.centers_w
         # Express the map in the odom frame of the batch (map -> odom starts at identity).
         with_odom = self.kf.has_odom[used]
+        if np.any(with_odom):   # the newest odom frame, if the front-end's jumped meanwhile
+            with_odom &= self.kf.segment[used] == self.kf.segment[used[with_odom][-1]]
         sim = Similarity.identity()
         if np.count_nonzero(with_odom) >= 2:
             sim = estimate_similarity(self.kf.R_odom[used][with_odom],
@@ -376,13 +386,16 @@ class Estimator:
         """
         n = self.kf.n if n is None else n
         prev = n - 1
-        if odom is not None and self.kf.has_odom[prev]:
+        segment = self._segment if n == self.kf.n else int(self.kf.segment[n])
+        # Across a jump of the front-end's frame neither its motion nor map <- odom holds.
+        same_frame = int(self.kf.segment[prev]) == segment
+        if odom is not None and self.kf.has_odom[prev] and same_frame:
             R_po, C_po = self.kf.R_odom[prev], self.kf.C_odom[prev]
             R_rel = R_po.T @ odom[0]
             t_rel = R_po.T @ (odom[1] - C_po)
             R_p, C_p = self.kf.R_map[prev], self.kf.C_map[prev]
             return so3.project(R_p @ R_rel), C_p + self.map_from_odom.scale * R_p @ t_rel
-        if odom is not None:
+        if odom is not None and same_frame:
             R, C = self.map_from_odom.apply_poses(odom[0][None], odom[1][None])
             return R[0], C[0]
         if n >= 2:  # constant velocity
@@ -397,7 +410,8 @@ class Estimator:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without tracks or front-end pose')
         R, C = self._predict(odom)
-        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED, self._odom_cov)
+        i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED, self._odom_cov,
+                        self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = R, C
         return UpdateInfo('dead_reckoned', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
@@ -549,10 +563,15 @@ class Estimator:
         if self.config.mode == 'global':
             active = active[-self.config.window_size:]
         sel = active[self.kf.has_odom[active]]
-        if sel.shape[0] >= 2:
-            self.map_from_odom = estimate_similarity(self.kf.R_map[sel], self.kf.C_map[sel],
-                                                     self.kf.R_odom[sel], self.kf.C_odom[sel],
-                                                     self.map_from_odom.scale)
+        if sel.shape[0] == 0:
+            return
+        # The newest odom frame only; right after a jump, one pose fixes the new frame's
+        # rotation and offset, and the scale stays.
+        newest = sel[self.kf.segment[sel] == self.kf.segment[sel[-1]]]
+        if newest.shape[0] >= 2 or newest.shape[0] < sel.shape[0]:
+            self.map_from_odom = estimate_similarity(
+                self.kf.R_map[newest], self.kf.C_map[newest], self.kf.R_odom[newest],
+                self.kf.C_odom[newest], self.map_from_odom.scale)
 
     # --- accessors ------------------------------------------------------------------------
 

@@ -49,7 +49,7 @@ from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
-from pmba_ros.core import so3
+from pmba_ros.core import so3, sphere
 from pmba_ros.errors import MessageError
 from pmba_ros.eval.trajectory import Trajectory, write_tum
 
@@ -63,6 +63,7 @@ DIAGNOSTICS_TOPIC = '/diagnostics'
 class _Keyframe:
     stamp_ns: int
     pose: KeyframePose | None
+    odom_jumped: bool = False   # the front-end's frame jumped just before this pose
 
 
 class BackendLogic:
@@ -203,7 +204,7 @@ class BackendLogic:
             self._reject('keyframe_pose_jumps', jump)
             return
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
-        self._push_keyframe(_Keyframe(pose.stamp_ns, pose))
+        self._push_keyframe(_Keyframe(pose.stamp_ns, pose, self._pose_check.jumped))
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
@@ -325,7 +326,8 @@ class BackendLogic:
         try:
             obs = self._observations(frame) if frame is not None else None
             info = self.estimator.add_keyframe(
-                kf.stamp_ns, odom, obs, None if kf.pose is None else kf.pose.covariance)
+                kf.stamp_ns, odom, obs, None if kf.pose is None else kf.pose.covariance,
+                odom_jumped=kf.odom_jumped)
         except Exception as err:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)
@@ -395,8 +397,7 @@ class BackendLogic:
         finite = np.all(np.isfinite(xy), axis=1)
         self.count('non_finite_observations', int(np.count_nonzero(~finite)))
         xy = xy[finite]
-        bearings = np.column_stack([xy, np.ones(xy.shape[0])])
-        bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
+        bearings = sphere.normalize(np.column_stack([xy, np.ones(xy.shape[0])]))
         return KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
                            cams[finite] if len(usable) > 1 else None)
 
@@ -585,16 +586,15 @@ class BackendLogic:
         """
         root = Path(directory)
         root.mkdir(parents=True, exist_ok=True)
-        paths = [root / 'pmba_keyframes.tum', root / 'frontend_keyframes.tum']
+        names = ('pmba_keyframes.tum', 'frontend_keyframes.tum', 'pmba_landmarks.ply')
+        paths = [root / name for name in names]
         write_tum(paths[0], self.optimized_trajectory())
         write_tum(paths[1], self.frontend_trajectory())
         pts = self.landmarks()
-        ply = root / 'pmba_landmarks.ply'
         header = ('ply\nformat ascii 1.0\n'
                   f'element vertex {pts.shape[0]}\nproperty float x\nproperty float y\n'
                   'property float z\nend_header\n')
         body = ''.join(f'{x:.6g} {y:.6g} {z:.6g}\n' for x, y, z in pts.tolist())
-        ply.write_text(header + body, encoding='utf-8')
-        paths.append(ply)
+        paths[2].write_text(header + body, encoding='utf-8')
         logger.info('saved %s', ', '.join(str(p) for p in paths))
         return paths

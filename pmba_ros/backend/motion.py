@@ -100,7 +100,7 @@ class RunScale:
         if stop <= first:
             return 0.0, 0.0
         i = np.arange(first, stop)
-        ok = usable[1:] & usable[:-1] & kf.has_odom[i] & kf.has_odom[i - 1]
+        ok = usable[1:] & usable[:-1] & kf.same_odom(i - 1, i)
         i = i[ok]
         step_map = np.linalg.norm(kf.C_map[i] - kf.C_map[i - 1], axis=1)
         step_odom = np.linalg.norm(kf.C_odom[i] - kf.C_odom[i - 1], axis=1)
@@ -145,7 +145,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         return None
     a_loc = np.arange(cams.shape[0] - 1)
     a, b = cams[:-1], cams[1:]
-    ok = kf.has_odom[a] & kf.has_odom[b] & ~(fixed[:-1] & fixed[1:])
+    ok = kf.same_odom(a, b) & ~(fixed[:-1] & fixed[1:])
     a_loc, a, b = a_loc[ok], a[ok], b[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
@@ -239,7 +239,7 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
     """
     b = idx[(idx > 0)]
     a = b - 1
-    ok = kf.has_odom[a] & kf.has_odom[b] & (kf.status[a] != KeyframeStatus.COLLECTED)
+    ok = kf.same_odom(a, b) & (kf.status[a] != KeyframeStatus.COLLECTED)
     a, b = a[ok], b[ok]
     if a.shape[0] == 0:
         return 0.0

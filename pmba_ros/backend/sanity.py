@@ -46,6 +46,8 @@ class PoseJumpCheck:
         min_steps: Accepted steps needed before judging.
         max_rejections: Consecutive rejections after which the new position is accepted.
         history: Recent step speeds kept for the reference (their median).
+        persist_factor: After rejections, an accepted step faster than this many times the
+            reference speed is the front-end's frame having jumped (:attr:`jumped`).
     """
 
     factor: float = 20.0
@@ -53,9 +55,13 @@ class PoseJumpCheck:
     min_steps: int = 3
     max_rejections: int = 5
     history: int = 10
+    persist_factor: float = 3.0
     _last: tuple[int, FloatArray] | None = field(default=None, init=False, repr=False)
     _speeds: deque[float] = field(default_factory=deque, init=False, repr=False)
     _rejected: int = field(default=0, init=False, repr=False)
+    jumped: bool = field(default=False, init=False)
+    """Whether the last accepted position came after rejected ones: the front-end's frame
+    jumped there (a relocalization or a reset), and the step to it is no motion."""
 
     def check(self, stamp_ns: int, position: FloatArray) -> str | None:
         """Return why the keyframe position is a jump, or None if it is accepted.
@@ -65,6 +71,7 @@ class PoseJumpCheck:
             position: Front-end position, shape (3,).
         """
         position = np.asarray(position, dtype=np.float64)
+        self.jumped = False
         if self._last is None:
             self._accept(stamp_ns, position, None)
             return None
@@ -74,6 +81,7 @@ class PoseJumpCheck:
             return None
         step = float(np.linalg.norm(position - last_pos))
         speed = step / dt
+        reference = math.inf
         if len(self._speeds) >= self.min_steps:
             reference = max(float(np.median(self._speeds)), self.min_speed)
             if speed > self.factor * reference and self._rejected < self.max_rejections:
@@ -82,9 +90,12 @@ class PoseJumpCheck:
                         f'({speed:.3g}/s, {speed / reference:.0f}x the recent '
                         f'{reference:.3g}/s); rejected as an outlier')
         if self._rejected:
-            # A jump that persists is the front-end's new reference, not an outlier.
+            # A jump that persists is the front-end's new reference, not an outlier; a
+            # position back near the old track ends a glitch instead.
+            jumped = speed > self.persist_factor * reference
             self._speeds.clear()
             self._accept(stamp_ns, position, None)
+            self.jumped = jumped
             return None
         self._accept(stamp_ns, position, speed)
         return None

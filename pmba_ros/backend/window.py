@@ -83,12 +83,15 @@ class KeyframeStore:
         self.cov_odom = np.zeros((cap, 6, 6))
         self.has_cov = np.zeros(cap, dtype=bool)
         self.status = np.zeros(cap, dtype=np.int8)
+        # The front-end's odom frame: a new segment after each jump it made (relocalization,
+        # reset). Steps between segments are no motion.
+        self.segment = np.zeros(cap, dtype=np.int64)
         self.obs: dict[int, KeyframeObs] = {}
 
     def _grow(self) -> None:
         cap = 2 * self.stamps_ns.shape[0]
         for name in ('stamps_ns', 'R_map', 'C_map', 'R_odom', 'C_odom', 'has_odom', 'cov_odom',
-                     'has_cov', 'status'):
+                     'has_cov', 'status', 'segment'):
             old = getattr(self, name)
             new = np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
             new[:old.shape[0]] = old
@@ -98,12 +101,17 @@ class KeyframeStore:
 
     def add(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
             obs: KeyframeObs | None, status: KeyframeStatus,
-            covariance: FloatArray | None = None) -> int:
-        """Append a keyframe and return its index (``covariance``: of its front-end pose)."""
+            covariance: FloatArray | None = None, segment: int = 0) -> int:
+        """Append a keyframe and return its index.
+
+        ``covariance`` is its front-end pose's, ``segment`` its odom segment (see
+        :meth:`same_odom`).
+        """
         if self.n == self.stamps_ns.shape[0]:
             self._grow()
         i = self.n
         self.stamps_ns[i] = stamp_ns
+        self.segment[i] = segment
         if odom is not None:
             self.R_odom[i], self.C_odom[i] = odom
             self.has_odom[i] = True
@@ -114,6 +122,13 @@ class KeyframeStore:
             self.obs[i] = obs
         self.n += 1
         return i
+
+    def same_odom(self, a: IntArray, b: IntArray) -> BoolArray:
+        """Return which pairs of keyframes (a, b) both have front-end poses in one odom frame.
+
+        Only between those is the front-end's relative pose a motion.
+        """
+        return self.has_odom[a] & self.has_odom[b] & (self.segment[a] == self.segment[b])
 
     def indices(self, status: KeyframeStatus) -> IntArray:
         """Return the indices of the keyframes with ``status``, ascending."""

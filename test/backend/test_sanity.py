@@ -66,6 +66,66 @@ def test_persistent_pose_jump_is_accepted_after_max_rejections() -> None:
     assert [k for k, v in enumerate(verdicts) if v is not None] == [10, 11, 12, 13, 14]
 
 
+def test_jump_flags_a_new_frame_only_when_it_persists() -> None:
+    """``jumped``: set once where a jump is accepted, not where a glitch ends."""
+    glitch, jump, half = PoseJumpCheck(), PoseJumpCheck(), PoseJumpCheck()
+    walk = _walk(20)
+    spike = [(s, p + np.array([1e6, 0, 0]) if k in (10, 11) else p) for k, (s, p) in
+             enumerate(walk)]
+    flags = [(glitch.check(s, p), glitch.jumped)[1] for s, p in spike]
+    assert not any(flags)
+    moved = [(s, p + np.array([500.0, 0, 0]) if k >= 10 else p) for k, (s, p) in enumerate(walk)]
+    flags = [(jump.check(s, p), jump.jumped)[1] for s, p in moved]
+    assert [k for k, f in enumerate(flags) if f] == [15]
+    # 30 m: the second pose after it is under the rejection factor, still a jump.
+    moved = [(s, p + np.array([30.0, 0, 0]) if k >= 10 else p) for k, (s, p) in enumerate(walk)]
+    verdicts, flags = zip(*[(half.check(s, p), half.jumped) for s, p in moved], strict=True)
+    assert [k for k, v in enumerate(verdicts) if v is not None] == [10]
+    assert [k for k, f in enumerate(flags) if f] == [11]
+
+
+@pytest.fixture(scope='module')
+def long_street() -> tuple[SimSequence, float]:
+    """Return a 120-keyframe street and the optimized ATE of its replay without any jump."""
+    from pmba_ros.eval.metrics import ate
+
+    seq = simulate_sequence('street', n_keyframes=120, seed=0)
+    logic, _ = _run(seq)
+    return seq, ate(logic.optimized_trajectory(), seq.gt_trajectory(), 'sim3').rmse
+
+
+@pytest.mark.parametrize(('jump_m', 'yaw_deg', 'at'), [(30.0, 10.0, 70), (200.0, -30.0, 70),
+                                                       (50.0, 20.0, 10)])
+def test_front_end_relocalization_starts_a_new_odom_frame(
+        long_street: tuple[SimSequence, float], jump_m: float, yaw_deg: float,
+        at: int) -> None:
+    """A relocalization of the front-end: the map goes on as without it, TF takes the jump.
+
+    The front-end's frame jumps and turns, before or after the initialization. Before odom
+    segments, a 30 m jump took the map far off.
+    """
+    from pmba_ros.core import so3
+    from pmba_ros.eval.metrics import ate
+
+    seq, ate_without = long_street
+    turn = so3.exp(np.array([0.0, 0.0, np.deg2rad(yaw_deg)]))
+    centers, rotations = seq.centers_odom.copy(), seq.R_wc_odom.copy()
+    centers[at:] = centers[at:] @ turn.T + np.array([jump_m, jump_m / 2, 0.0])
+    rotations[at:] = turn @ rotations[at:]
+    logic, _ = _run(dataclasses.replace(seq, centers_odom=centers, R_wc_odom=rotations))
+    kf = logic.estimator.kf
+    assert int(kf.segment[:kf.n].max()) == 1
+    gt, opt = seq.gt_trajectory(), logic.optimized_trajectory()
+    assert len(opt) >= len(seq) - 5   # the poses rejected before the jump was seen to stay
+    assert ate(opt, gt, 'sim3').rmse <= 1.25 * ate_without
+    last = kf.n - 1
+    T = logic.map_from_odom_at(last)   # REP-105 still holds in the new frame
+    R_o, C_o = logic.frontend_body_poses(np.array([last]))
+    R_m, C_m = logic.body_poses(np.array([last]))
+    np.testing.assert_allclose(T.rotation @ R_o[0], R_m[0], atol=1e-9)
+    np.testing.assert_allclose(T.rotation @ C_o[0] + T.translation, C_m[0], atol=1e-9)
+
+
 def test_start_from_rest_is_not_a_jump() -> None:
     """Standing still and then driving at 10 m/s stays below the floor times the factor."""
     check = PoseJumpCheck()
