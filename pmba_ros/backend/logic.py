@@ -199,12 +199,14 @@ class BackendLogic:
         except Exception as err:
             self._reject('bad_keyframes', err)
             return
-        jump = self._pose_check.check(pose.stamp_ns, pose.position)
+        jump = self._pose_check.check(pose.stamp_ns, pose.position, pose)
         if jump is not None:
             self._reject('keyframe_pose_jumps', jump)
             return
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
-        self._push_keyframe(_Keyframe(pose.stamp_ns, pose, self._pose_check.jumped))
+        for held, jumped in self._pose_check.release():   # and those held while judging a jump
+            self.count('keyframe_poses_recovered', int(held is not pose))
+            self._push_keyframe(_Keyframe(held.stamp_ns, held, jumped))
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
@@ -557,10 +559,9 @@ class BackendLogic:
         Every keyframe with a pose is included; the ones never optimized (before the
         initialization, too few observations) are at their front-end pose through map <- odom.
         """
-        kf = self.estimator.kf
         idx = self.estimator.estimated()
         R, C = self.body_poses(idx)
-        return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
+        return Trajectory(self.estimator.kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def frontend_trajectory(self) -> Trajectory:
         """Return the front-end body poses of the keyframes received (odom frame)."""
@@ -591,9 +592,8 @@ class BackendLogic:
         write_tum(paths[0], self.optimized_trajectory())
         write_tum(paths[1], self.frontend_trajectory())
         pts = self.landmarks()
-        header = ('ply\nformat ascii 1.0\n'
-                  f'element vertex {pts.shape[0]}\nproperty float x\nproperty float y\n'
-                  'property float z\nend_header\n')
+        header = (f'ply\nformat ascii 1.0\nelement vertex {pts.shape[0]}\nproperty float x\n'
+                  'property float y\nproperty float z\nend_header\n')
         body = ''.join(f'{x:.6g} {y:.6g} {z:.6g}\n' for x, y, z in pts.tolist())
         paths[2].write_text(header + body, encoding='utf-8')
         logger.info('saved %s', ', '.join(str(p) for p in paths))

@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 import math
+from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
@@ -59,19 +60,25 @@ class PoseJumpCheck:
     _last: tuple[int, FloatArray] | None = field(default=None, init=False, repr=False)
     _speeds: deque[float] = field(default_factory=deque, init=False, repr=False)
     _rejected: int = field(default=0, init=False, repr=False)
+    _held: list[Any] = field(default_factory=list, init=False, repr=False)
+    _released: list[tuple[Any, bool]] = field(default_factory=list, init=False, repr=False)
     jumped: bool = field(default=False, init=False)
-    """Whether the last accepted position came after rejected ones: the front-end's frame
-    jumped there (a relocalization or a reset), and the step to it is no motion."""
+    """Whether the last accepted position came after rejected ones that persisted: the
+    front-end's frame jumped (a relocalization or a reset), and the step into the new frame
+    is no motion."""
 
-    def check(self, stamp_ns: int, position: FloatArray) -> str | None:
+    def check(self, stamp_ns: int, position: FloatArray, payload: Any = None) -> str | None:
         """Return why the keyframe position is a jump, or None if it is accepted.
 
         Args:
             stamp_ns: Keyframe stamp, ns (increasing; others are accepted unjudged).
             position: Front-end position, shape (3,).
+            payload: The keyframe it belongs to: held while rejected, handed back by
+                :meth:`release` if the jump turns out to persist.
         """
         position = np.asarray(position, dtype=np.float64)
         self.jumped = False
+        self._released = [(payload, False)]
         if self._last is None:
             self._accept(stamp_ns, position, None)
             return None
@@ -86,6 +93,8 @@ class PoseJumpCheck:
             reference = max(float(np.median(self._speeds)), self.min_speed)
             if speed > self.factor * reference and self._rejected < self.max_rejections:
                 self._rejected += 1
+                self._held.append(payload)
+                self._released = []
                 return (f'keyframe pose at {stamp_ns} ns jumps {step:.3g} in {dt:.3g} s '
                         f'({speed:.3g}/s, {speed / reference:.0f}x the recent '
                         f'{reference:.3g}/s); rejected as an outlier')
@@ -93,16 +102,28 @@ class PoseJumpCheck:
             # A jump that persists is the front-end's new reference, not an outlier; a
             # position back near the old track ends a glitch instead.
             jumped = speed > self.persist_factor * reference
+            held = self._held if jumped else []   # in the new frame too, or outliers
             self._speeds.clear()
             self._accept(stamp_ns, position, None)
             self.jumped = jumped
+            self._released = [(p, k == 0 and jumped) for k, p in enumerate([*held, payload])]
             return None
         self._accept(stamp_ns, position, speed)
         return None
 
+    def release(self) -> list[tuple[Any, bool]]:
+        """Return the keyframes the last check accepted, in order, each with its ``jumped``.
+
+        The payload just checked, preceded, where a jump turned out to persist, by the ones
+        rejected while it was judged (they are in the new frame as well; the first of them
+        starts it). Empty after a rejection.
+        """
+        return self._released
+
     def _accept(self, stamp_ns: int, position: FloatArray, speed: float | None) -> None:
         self._last = (stamp_ns, position)
         self._rejected = 0
+        self._held = []
         if speed is not None:
             self._speeds.append(speed)
             while len(self._speeds) > self.history:

@@ -22,7 +22,8 @@ import math
 
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
 INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
-                           'init_failures', 'keyframes_passed_through'})
+                           'init_failures', 'keyframes_passed_through',
+                           'keyframe_poses_recovered'})
 """Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
 
 

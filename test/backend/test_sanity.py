@@ -66,22 +66,30 @@ def test_persistent_pose_jump_is_accepted_after_max_rejections() -> None:
     assert [k for k, v in enumerate(verdicts) if v is not None] == [10, 11, 12, 13, 14]
 
 
-def test_jump_flags_a_new_frame_only_when_it_persists() -> None:
-    """``jumped``: set once where a jump is accepted, not where a glitch ends."""
-    glitch, jump, half = PoseJumpCheck(), PoseJumpCheck(), PoseJumpCheck()
+def _released(check: PoseJumpCheck, poses: list[tuple[int, np.ndarray]],
+              ) -> list[tuple[int, bool]]:
+    """Return (keyframe, jumped) of what ``check`` lets through, in order."""
+    out: list[tuple[int, bool]] = []
+    for k, (stamp, pos) in enumerate(poses):
+        check.check(stamp, pos, k)
+        out += check.release()
+    return out
+
+
+def test_a_persisting_jump_releases_the_held_poses_as_a_new_frame() -> None:
+    """Poses rejected while a jump is judged come back if it persists; a glitch's do not."""
     walk = _walk(20)
     spike = [(s, p + np.array([1e6, 0, 0]) if k in (10, 11) else p) for k, (s, p) in
              enumerate(walk)]
-    flags = [(glitch.check(s, p), glitch.jumped)[1] for s, p in spike]
-    assert not any(flags)
+    assert _released(PoseJumpCheck(), spike) == [(k, False) for k in range(20) if k not in
+                                                 (10, 11)]
     moved = [(s, p + np.array([500.0, 0, 0]) if k >= 10 else p) for k, (s, p) in enumerate(walk)]
-    flags = [(jump.check(s, p), jump.jumped)[1] for s, p in moved]
-    assert [k for k, f in enumerate(flags) if f] == [15]
+    assert _released(PoseJumpCheck(), moved) == [(k, k == 10) for k in range(20)]
     # 30 m: the second pose after it is under the rejection factor, still a jump.
     moved = [(s, p + np.array([30.0, 0, 0]) if k >= 10 else p) for k, (s, p) in enumerate(walk)]
-    verdicts, flags = zip(*[(half.check(s, p), half.jumped) for s, p in moved], strict=True)
-    assert [k for k, v in enumerate(verdicts) if v is not None] == [10]
-    assert [k for k, f in enumerate(flags) if f] == [11]
+    check = PoseJumpCheck()
+    assert _released(check, moved) == [(k, k == 10) for k in range(20)]
+    assert not check.jumped   # the flag is the last check's
 
 
 @pytest.fixture(scope='module')
@@ -116,7 +124,9 @@ def test_front_end_relocalization_starts_a_new_odom_frame(
     kf = logic.estimator.kf
     assert int(kf.segment[:kf.n].max()) == 1
     gt, opt = seq.gt_trajectory(), logic.optimized_trajectory()
-    assert len(opt) >= len(seq) - 5   # the poses rejected before the jump was seen to stay
+    assert len(opt) == len(seq)   # the poses rejected before the jump was seen to stay too
+    assert logic.stats.counters['keyframe_poses_recovered'] == \
+        logic.stats.counters['keyframe_pose_jumps']
     assert ate(opt, gt, 'sim3').rmse <= 1.25 * ate_without
     last = kf.n - 1
     T = logic.map_from_odom_at(last)   # REP-105 still holds in the new frame
