@@ -49,7 +49,15 @@ import time
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.motion import frontend_motion_prior, motion_error, PixelNoise, RunScale
+from pmba_ros.backend.motion import (
+    frontend_motion_prior,
+    inconsistency,
+    JUMP_SIGMAS,
+    motion_error,
+    PixelNoise,
+    RunScale,
+    step_sigmas,
+)
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
     compensated_parallax_angles,
@@ -466,11 +474,15 @@ class Estimator:
                                    loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
-            res = solve(problem, options, feats, pose_prior=self._motion_prior(cams, fixed))
+            prior = self._motion_prior(cams, fixed)
+            res = solve(problem, options, feats, pose_prior=prior)
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)
             return info
+        if prior is not None:
+            self._new_frames_at(cams[prior.b[step_sigmas(prior, res.R_wc, res.centers_w)
+                                             > JUMP_SIGMAS]])
         free = ~res.problem.fixed
         moved = cams[free]
         before = (self.kf.R_map[moved].copy(), self.kf.C_map[moved].copy(), self.map_from_odom)
@@ -478,8 +490,8 @@ class Estimator:
         self.kf.R_map[moved] = res.R_wc[free]
         self.kf.C_map[moved] = res.centers_w[free]
         self._update_similarity()
-        failure = self._inconsistency(res.initial_cost, res.final_cost, before[2].scale,
-                                      moved, error_before)
+        failure = inconsistency(self.kf, self.config, (res.initial_cost, res.final_cost),
+                                (before[2].scale, self.map_from_odom.scale), moved, error_before)
         info.solve_ms = 1e3 * res.time_s
         info.iterations = res.iterations
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost
@@ -494,6 +506,18 @@ class Estimator:
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         return info
 
+    def _new_frames_at(self, keyframes: IntArray) -> None:
+        """Start a new odom segment at each of ``keyframes``: the front-end's frame jumped.
+
+        For jumps too small for :class:`~pmba_ros.backend.sanity.PoseJumpCheck` to see in the
+        poses alone, found where the solved step stays far off the front-end's.
+        """
+        for k in np.sort(keyframes).tolist():
+            self.kf.segment[k:self.kf.n] += 1
+            self._segment += 1
+            logger.warning('front-end step into keyframe %d is %s sigmas off the map: '
+                           'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
+
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""
         monocular = self._rig() is None
@@ -506,31 +530,6 @@ class Estimator:
         return frontend_motion_prior(self.kf, cams, fixed, reference, self.config,
                                      follow_map_scale=monocular,
                                      pixel_sigma=self.pixel_noise.sigma)
-
-    def _inconsistency(self, cost_before: float, cost_after: float, scale_before: float,
-                       moved: IntArray, error_before: float) -> str:
-        """Return why an applied window solve is not trusted ('' if it is).
-
-        Checks: the cost did not increase, the poses are finite, the map <- odom scale did
-        not jump by more than ``fallback_max_scale_jump``, and the window's motion does not
-        disagree with the front-end's by more than ``fallback_max_motion_error`` (relative,
-        median) unless it already did before the solve.
-        """
-        cfg = self.config
-        if not (math.isfinite(cost_after) and cost_after <= cost_before * (1.0 + 1e-9)):
-            return f'cost increased ({cost_before:.6g} -> {cost_after:.6g})'
-        if not (np.all(np.isfinite(self.kf.C_map[moved]))
-                and np.all(np.isfinite(self.kf.R_map[moved]))):
-            return 'non-finite poses'
-        jump = abs(math.log(self.map_from_odom.scale / scale_before))
-        if jump > math.log1p(cfg.fallback_max_scale_jump):
-            return (f'map <- odom scale jumped {scale_before:.4g} -> '
-                    f'{self.map_from_odom.scale:.4g}')
-        error = motion_error(self.kf, moved, self.map_from_odom.scale)
-        if error > cfg.fallback_max_motion_error and error > error_before:
-            return (f'motion differs from the front-end by {100 * error:.0f} % '
-                    f'(before the solve {100 * error_before:.0f} %)')
-        return ''
 
     def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
         """Keep the window's poses from before a rejected solve; re-seed it after repeats.

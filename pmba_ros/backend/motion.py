@@ -108,6 +108,13 @@ class RunScale:
         return float(np.sum(step_map[good])), float(np.sum(step_odom[good]))
 
 
+PRIOR_HUBER_SIGMAS = 5.0
+"""Where a motion-prior factor's cost turns linear, in sigmas of its (6) residuals: beyond the
+noise of any step (chi with 6 degrees of freedom passes 5 once in about 5,000 steps)."""
+
+JUMP_SIGMAS = 30.0
+"""A solved step this many sigmas off the front-end's is no motion of it: its frame jumped."""
+
 MIN_PIXEL_SIGMA = 0.1
 """Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
 accuracy ends about there, whatever a noise-free simulation's residuals say."""
@@ -171,7 +178,13 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     covariance_weights(kf, a, b, metric_scale, config, W_trans, w_rot)
     weight = max(pixel_sigma, MIN_PIXEL_SIGMA)
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom, weight * w_rot,
-                             weight * W_trans)
+                             weight * W_trans, huber=PRIOR_HUBER_SIGMAS * weight)
+
+
+def step_sigmas(prior: RelativePosePrior, R: FloatArray, P: FloatArray) -> FloatArray:
+    """Return how many sigmas each factor's step at poses (R, P) is off the front-end's."""
+    norm = np.linalg.norm(prior.evaluate(R, P).residuals, axis=1)
+    return PRIOR_HUBER_SIGMAS * norm / prior.huber
 
 
 def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray,
@@ -251,3 +264,27 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
         return 0.0
     err = np.linalg.norm(t_map / map_scale - t_odom, axis=1)
     return float(np.median(err[moving] / step[moving]))
+
+
+def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],
+                  scales: tuple[float, float], moved: IntArray, error_before: float) -> str:
+    """Return why an applied window solve is not trusted ('' if it is).
+
+    Checks: the cost did not increase (``costs``: before, after), the poses are finite, the
+    map <- odom scale (``scales``: before, after) did not jump by more than
+    ``fallback_max_scale_jump``, and the window's motion does not disagree with the
+    front-end's by more than ``fallback_max_motion_error`` (relative, median,
+    :func:`motion_error`) unless it already did before the solve (``error_before``).
+    """
+    (cost_before, cost_after), (scale_before, scale) = costs, scales
+    if not (math.isfinite(cost_after) and cost_after <= cost_before * (1.0 + 1e-9)):
+        return f'cost increased ({cost_before:.6g} -> {cost_after:.6g})'
+    if not (np.all(np.isfinite(kf.C_map[moved])) and np.all(np.isfinite(kf.R_map[moved]))):
+        return 'non-finite poses'
+    if abs(math.log(scale / scale_before)) > math.log1p(config.fallback_max_scale_jump):
+        return f'map <- odom scale jumped {scale_before:.4g} -> {scale:.4g}'
+    error = motion_error(kf, moved, scale)
+    if error > config.fallback_max_motion_error and error > error_before:
+        return (f'motion differs from the front-end by {100 * error:.0f} % '
+                f'(before the solve {100 * error_before:.0f} %)')
+    return ''

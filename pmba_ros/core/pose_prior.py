@@ -22,6 +22,9 @@ problem (camera -> world rotations ``R`` and centres ``P``), with the residual
     r_trans = W_trans (R_a^T (P_b - P_a) - t_ab)
 
 for the measured relative rotation ``R_ab`` and translation ``t_ab`` (in the frame of a).
+With a ``huber`` threshold k, a factor's cost is Huber's on the norm of its residual
+(``|r|^2 / 2`` up to k, ``k |r| - k^2 / 2`` beyond) and it enters the normal equations with
+the weight ``min(1, k / |r|)``: a measured step that is no motion pulls with a bounded force.
 They touch only pose columns, so they enter the normal equations after the observations:
 H_aa, H_bb, H_ab and the pose gradient of the covisible pairs (the Schur complement then
 reduces the features as before). The pose increment is the solver's: ``R <- R Exp(dphi)``,
@@ -31,6 +34,7 @@ reduces the features as before). The pose increment is the solver's: ``R <- R Ex
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
@@ -62,6 +66,8 @@ class RelativePosePrior:
         w_rot: Rotation weight (1 / sigma, rad^-1), shape (M,).
         W_trans: Translation weight (square-root information, in the frame of a),
             shape (M, 3, 3).
+        huber: Threshold on the norm of a factor's (6) residuals beyond which its cost grows
+            linearly (inf: least squares).
     """
 
     a: IntArray
@@ -70,6 +76,7 @@ class RelativePosePrior:
     t_ab: FloatArray
     w_rot: FloatArray
     W_trans: FloatArray
+    huber: float = math.inf
 
     def __post_init__(self) -> None:
         """Check shapes and weights.
@@ -93,6 +100,9 @@ class RelativePosePrior:
                 and np.all(self.w_rot >= 0)):
             msg = 'pose prior: weights must be finite (and w_rot >= 0)'
             raise ProblemError(msg)
+        if not self.huber > 0:
+            msg = f'pose prior: the Huber threshold must be > 0, got {self.huber}'
+            raise ProblemError(msg)
 
     def __len__(self) -> int:
         """Return the number of factors."""
@@ -107,14 +117,22 @@ class RelativePosePrior:
         r = np.empty((len(self), 6))
         np.multiply(self.w_rot[:, None], omega, out=r[:, :3])
         np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab, out=r[:, 3:])
-        return PriorEvaluation(r, 0.5 * float(np.sum(r * r)), Ra, RaT_Rb, omega, rel_t)
+        norm = np.sqrt(np.sum(r * r, axis=1))
+        outer = norm > self.huber
+        weights = np.ones(len(self))
+        costs = 0.5 * norm * norm
+        if np.any(outer):
+            k = self.huber
+            weights[outer] = k / norm[outer]
+            costs[outer] = k * norm[outer] - 0.5 * k * k
+        return PriorEvaluation(r, float(np.sum(costs)), Ra, RaT_Rb, omega, rel_t, weights)
 
     def residuals(self, R: FloatArray, P: FloatArray) -> FloatArray:
         """Return the weighted residuals, shape (M, 6): rotation, then translation."""
         return self.evaluate(R, P).residuals
 
     def cost(self, R: FloatArray, P: FloatArray) -> float:
-        """Return 1/2 |r|^2 (the solver's cost convention)."""
+        """Return the factors' cost, 1/2 |r|^2 within the Huber threshold (the solver's)."""
         if len(self) == 0:
             return 0.0
         return self.evaluate(R, P).cost
@@ -205,11 +223,12 @@ class PriorEvaluation:
 
     Attributes:
         residuals: Weighted residuals (M, 6): rotation, then translation.
-        cost: 1/2 |residuals|^2.
+        cost: The factors' cost (1/2 |residuals|^2 within the Huber threshold).
         Ra: Rotations of the poses a (M, 3, 3).
         RaT_Rb: R_a^T R_b (M, 3, 3).
         omega: log(R_ab^T R_a^T R_b) (M, 3).
         rel_t: R_a^T (P_b - P_a) (M, 3).
+        weights: Each factor's weight in the normal equations, min(1, huber / |r|), (M,).
     """
 
     residuals: FloatArray
@@ -218,6 +237,7 @@ class PriorEvaluation:
     RaT_Rb: FloatArray
     omega: FloatArray
     rel_t: FloatArray
+    weights: FloatArray
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,8 +265,9 @@ class PriorAssembly:
         """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
         M = len(self.prior)
         J = self.prior.jacobian(ev)
-        H = (np.swapaxes(J, 1, 2) @ J).reshape(M, 2, 6, 2, 6)
-        grad = np.einsum('mji,mj->mi', J, ev.residuals).reshape(M, 2, 6)
+        w = ev.weights
+        H = (w[:, None, None] * (np.swapaxes(J, 1, 2) @ J)).reshape(M, 2, 6, 2, 6)
+        grad = (w[:, None] * np.einsum('mji,mj->mi', J, ev.residuals)).reshape(M, 2, 6)
         U = eqs.U.copy()
         g = eqs.g_pose.copy()
         np.add.at(U, self.h_pair, H[self.h_factor, self.h_row, :, self.h_col, :])

@@ -122,13 +122,67 @@ def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks(
                                    err_msg=f'pair ({r}, {c})')
 
 
+def test_huber_cost_and_its_gradient_in_the_normal_equations(engine: Engine) -> None:
+    """Huber factors: their cost, and its gradient is the one added to the equations.
+
+    Beyond the threshold k the cost is k|r| - k^2/2 and each factor is weighted k / |r|;
+    the pose gradient added to the equations matches central differences of the cost.
+    """
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    n = 4
+    R = so3.exp(rng.normal(0, 1.0, (n, 3)))
+    P = rng.normal(0, 3.0, (n, 3))
+    a, b = np.array([0, 1, 2]), np.array([1, 2, 3])
+    plain = _prior(R, P, a, b, 7.0, 3.0, noise=0.2)
+    norms = np.linalg.norm(plain.residuals(R, P), axis=1)
+    k = float(np.median(norms))        # one factor within, two beyond (or the reverse)
+    prior = replace(plain, huber=k)
+    ev = prior.evaluate(R, P)
+    inside = norms <= k
+    assert 0 < np.count_nonzero(inside) < len(prior)
+    expected = np.where(inside, 0.5 * norms ** 2, k * norms - 0.5 * k * k)
+    assert ev.cost == pytest.approx(float(np.sum(expected)))
+    np.testing.assert_allclose(ev.weights, np.where(inside, 1.0, k / norms))
+    assert plain.evaluate(R, P).cost == pytest.approx(0.5 * float(np.sum(norms ** 2)))
+
+    cam = np.array([0, 1, 1, 2, 2, 3])
+    feat = np.repeat(np.arange(3), 2)
+    free_block = np.array([-1, 0, 1, 2])
+    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 3, free_block, (),
+                              engine.schur_plan)
+    zero = NormalEquations(np.zeros((st.pair_rows.shape[0], 6, 6)), np.zeros((6, 6, 3)),
+                           np.zeros((3, 3, 3)), np.zeros((3, 6)), np.zeros((3, 3)))
+    g = prior.add_to(st, zero, R, P, free_block).g_pose
+    h = 1e-6
+    for pose in (1, 2, 3):
+        for col in range(6):
+            costs = []
+            for sign in (1.0, -1.0):
+                R_m, P_m = R.copy(), P.copy()
+                d = np.zeros(6)
+                d[col] = sign * h
+                R_m[pose] = R[pose] @ so3.exp(d[:3])
+                P_m[pose] = P[pose] + d[3:]
+                costs.append(prior.cost(R_m, P_m))
+            assert g[free_block[pose], col] == pytest.approx((costs[0] - costs[1]) / (2 * h),
+                                                             rel=1e-5, abs=1e-6)
+
+
 def test_bad_factors_are_rejected() -> None:
-    """A factor of a pose with itself, or a negative weight, is a ProblemError."""
+    """A factor of a pose with itself, a negative weight, a Huber threshold <= 0: errors."""
+    from dataclasses import replace
+
     R, P = np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3))
     with pytest.raises(ProblemError, match='itself'):
         _prior(R, P, np.array([1]), np.array([1]), 1.0, 1.0)
     with pytest.raises(ProblemError, match='weights'):
         _prior(R, P, np.array([0]), np.array([1]), -1.0, 1.0)
+    good = _prior(R, P, np.array([0]), np.array([1]), 1.0, 1.0)
+    for bad in (0.0, -1.0, float('nan')):
+        with pytest.raises(ProblemError, match='Huber'):
+            replace(good, huber=bad)
 
 
 def _window() -> tuple[BAProblem, BAProblem]:
