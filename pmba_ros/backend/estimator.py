@@ -515,7 +515,7 @@ class Estimator:
         for k in np.sort(keyframes).tolist():
             self.kf.segment[k:self.kf.n] += 1
             self._segment += 1
-            logger.warning('front-end step into keyframe %d is %s sigmas off the map: '
+            logger.warning('front-end step into keyframe %d is over %g sigmas off the map: '
                            'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
