@@ -481,8 +481,9 @@ class Estimator:
             logger.warning('%s', info.message)
             return info
         if prior is not None:
-            self._new_frames_at(cams[prior.b[step_sigmas(prior, res.R_wc, res.centers_w)
-                                             > JUMP_SIGMAS]])
+            jumped = cams[prior.b[step_sigmas(prior, res.R_wc, res.centers_w) > JUMP_SIGMAS]]
+            self._new_frames_at(jumped)
+            info.dropped['odom_frame_jumps'] = jumped.shape[0]
         free = ~res.problem.fixed
         moved = cams[free]
         before = (self.kf.R_map[moved].copy(), self.kf.C_map[moved].copy(), self.map_from_odom)
@@ -539,7 +540,7 @@ class Estimator:
         front-end's relative motion, and its features restart from rotations (PMBA Remark 5).
         """
         self._failures += 1
-        info.dropped = {'solve_rollbacks': 1}
+        info.dropped['solve_rollbacks'] = 1
         info.message = f'solve rejected ({reason}): kept the previous poses'
         if self._failures >= self.config.fallback_reinit_after:
             active = self.kf.indices(KeyframeStatus.ACTIVE)

@@ -127,8 +127,10 @@ def test_front_end_relocalization_starts_a_new_odom_frame(
     assert int(kf.segment[:kf.n].max()) == 1
     gt, opt = seq.gt_trajectory(), logic.optimized_trajectory()
     assert len(opt) == len(seq)   # the poses rejected before the jump was seen to stay too
-    assert logic.stats.counters['keyframe_poses_recovered'] == \
-        logic.stats.counters['keyframe_pose_jumps']
+    counters = logic.stats.counters
+    assert counters['keyframe_poses_recovered'] == counters['keyframe_pose_jumps']
+    # Seen in the poses, or, smaller, found by a solve (and counted there).
+    assert (counters['keyframe_pose_jumps'] > 0) != (counters['odom_frame_jumps'] == 1)
     assert ate(opt, gt, 'sim3').rmse <= 1.25 * ate_without
     last = kf.n - 1
     T = logic.map_from_odom_at(last)   # REP-105 still holds in the new frame
