@@ -153,6 +153,8 @@ class _Run:
             handler = functools.partial(self.logic.on_camera_info,
                                         camera_id=self.camera_ids[message.topic])
         before = self._rejections()
+        counters = self.logic.stats.counters
+        recovered = counters['keyframe_poses_recovered']
         try:
             handler(message.msg)
         except MessageError as err:
@@ -162,6 +164,8 @@ class _Run:
                 self._rejected(kind, message, stamp, self.logic.last_error)
             elif kind == 'tracks':
                 self.tracks_accepted += 1
+        # Poses held while a jump of the front-end's frame was judged, used after all.
+        report.messages_rejected -= counters['keyframe_poses_recovered'] - recovered
         self.step()
         if self.progress is not None:
             self.progress(report.messages_in, self.total)

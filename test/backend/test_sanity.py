@@ -140,6 +140,20 @@ def test_front_end_relocalization_starts_a_new_odom_frame(
     np.testing.assert_allclose(T.rotation @ C_o[0] + T.translation, C_m[0], atol=1e-9)
 
 
+def test_replay_of_a_relocalization_uses_every_keyframe(long_street: tuple[SimSequence, float],
+                                                        tmp_path: Path) -> None:
+    """In a bag: the poses held while the jump was judged are not reported as rejected."""
+    seq, _ = long_street
+    centers = seq.centers_odom.copy()
+    centers[70:] += np.array([200.0, 100.0, 0.0])
+    bag = tmp_path / 'reloc.mcap'
+    write_sequence_bag(dataclasses.replace(seq, centers_odom=centers), bag)
+    report = replay([bag], tmp_path / 'o')
+    assert report.counters['keyframe_pose_jumps'] == report.counters[
+        'keyframe_poses_recovered'] > 0
+    assert report.messages_rejected == 0 and report.keyframes_out == len(seq)
+
+
 def test_start_from_rest_is_not_a_jump() -> None:
     """Standing still and then driving at 10 m/s stays below the floor times the factor."""
     check = PoseJumpCheck()
