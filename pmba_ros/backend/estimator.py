@@ -117,7 +117,7 @@ class Estimator:
         self._failures = 0
         self._metric_scale = 1.0
         self._run_scale = RunScale()
-        self._segment = 0   # the front-end's odom frame (KeyframeStore.segment)
+        self._segment = 0   # odom segment of the keyframe being added (as _odom_cov)
         self.pixel_noise = PixelNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
@@ -174,8 +174,8 @@ class Estimator:
             What the update did.
         """
         self._odom_cov = odom_covariance
-        if odom_jumped and self.kf.n:
-            self._segment += 1
+        n = self.kf.n
+        self._segment = (int(self.kf.segment[n - 1]) + int(odom_jumped)) if n else 0
         n_obs = 0 if obs is None else int(obs.ids.shape[0])
         usable = n_obs >= self.config.min_observations
         if self.state != 'tracking':
@@ -515,7 +515,6 @@ class Estimator:
         """
         for k in np.sort(keyframes).tolist():
             self.kf.segment[k:self.kf.n] += 1
-            self._segment += 1
             logger.warning('front-end step into keyframe %d is over %g sigmas off the map: '
                            'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
 

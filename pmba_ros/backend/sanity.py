@@ -48,7 +48,7 @@ class PoseJumpCheck:
         max_rejections: Consecutive rejections after which the new position is accepted.
         history: Recent step speeds kept for the reference (their median).
         persist_factor: After rejections, an accepted step faster than this many times the
-            reference speed is the front-end's frame having jumped (:attr:`jumped`).
+            reference speed is the front-end's frame having jumped (see :meth:`release`).
     """
 
     factor: float = 20.0
@@ -62,10 +62,6 @@ class PoseJumpCheck:
     _rejected: int = field(default=0, init=False, repr=False)
     _held: list[Any] = field(default_factory=list, init=False, repr=False)
     _released: list[tuple[Any, bool]] = field(default_factory=list, init=False, repr=False)
-    jumped: bool = field(default=False, init=False)
-    """Whether the last accepted position came after rejected ones that persisted: the
-    front-end's frame jumped (a relocalization or a reset), and the step into the new frame
-    is no motion."""
 
     def check(self, stamp_ns: int, position: FloatArray, payload: Any = None) -> str | None:
         """Return why the keyframe position is a jump, or None if it is accepted.
@@ -77,7 +73,6 @@ class PoseJumpCheck:
                 :meth:`release` if the jump turns out to persist.
         """
         position = np.asarray(position, dtype=np.float64)
-        self.jumped = False
         self._released = [(payload, False)]
         if self._last is None:
             self._accept(stamp_ns, position, None)
@@ -105,18 +100,18 @@ class PoseJumpCheck:
             held = self._held if jumped else []   # in the new frame too, or outliers
             self._speeds.clear()
             self._accept(stamp_ns, position, None)
-            self.jumped = jumped
             self._released = [(p, k == 0 and jumped) for k, p in enumerate([*held, payload])]
             return None
         self._accept(stamp_ns, position, speed)
         return None
 
     def release(self) -> list[tuple[Any, bool]]:
-        """Return the keyframes the last check accepted, in order, each with its ``jumped``.
+        """Return the keyframes the last check accepted, in order, each with ``jumped``.
 
         The payload just checked, preceded, where a jump turned out to persist, by the ones
-        rejected while it was judged (they are in the new frame as well; the first of them
-        starts it). Empty after a rejection.
+        rejected while it was judged: they are in the front-end's new frame as well (a
+        relocalization or a reset), and the first of them, flagged ``jumped``, starts it (the
+        step into it is no motion). Empty after a rejection.
         """
         return self._released
 
