@@ -71,7 +71,6 @@ from pmba_ros.backend.window import (
     LandmarkStore,
     select_fixed,
     Similarity,
-    thin_tracks,
 )
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
@@ -274,39 +273,33 @@ class Estimator:
         return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
-                       R: FloatArray, C: FloatArray, all_cameras: bool = True,
-                       ) -> tuple[BAProblem, IntArray]:
-        """Build a problem over keyframes ``cams``; returns it and its feature ids.
+                       R: FloatArray, C: FloatArray, refine: bool = True) -> BAProblem:
+        """Build a problem over keyframes ``cams`` (its ``feature_ids`` are the feature ids).
 
-        With configured cameras besides the reference one (and ``all_cameras``) the problem
-        has a :class:`~pmba_ros.core.problem.Rig`: one pose per keyframe (the reference
-        camera's), every camera's observations through its offset. The pixels are nominal
-        (the reference camera's pinhole on each camera's normalized coordinates).
+        A refine's problem uses every camera's observations, with configured cameras besides
+        the reference one through a :class:`~pmba_ros.core.problem.Rig` (one pose per
+        keyframe, the reference camera's), and comes in the solver's feature order; a
+        sliding window's tracks are thinned. The pixels are nominal (the reference camera's
+        pinhole on each camera's normalized coordinates).
         """
-        rig = self._rig() if all_cameras else None
-        local, ids, bearings, xy, camera = gather_observations(
-            self.kf, cams, feature_filter, self.config.camera_id, rig is not None)
-        if self.config.max_observations_per_feature and feature_filter is not None:
-            keep = thin_tracks(ids, local, self.config.max_observations_per_feature)
-            local, ids, bearings, xy = local[keep], ids[keep], bearings[keep], xy[keep]
-            camera = camera[keep]
-        uniq, feat_idx = np.unique(ids, return_inverse=True)
+        rig = self._rig() if refine else None
+        cap = self.config.max_observations_per_feature if feature_filter is not None else 0
+        g = gather_observations(self.kf, cams, feature_filter, self.config.camera_id,
+                                rig is not None, max_per_feature=cap, by_track_length=refine)
+        xy = g.normalized
         pixels = np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
         intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)
-        problem = make_problem(R, C, intr, local, feat_idx.astype(np.int64), pixels,
-                               bearings_c=bearings, fixed=fixed, n_feats=uniq.shape[0],
-                               feature_ids=uniq, camera=None if rig is None else camera,
-                               rig=rig)
-        return problem, uniq
+        return make_problem(R, C, intr, g.local, g.feat_idx, pixels, bearings_c=g.bearings,
+                            fixed=fixed, n_feats=g.feature_ids.shape[0],
+                            feature_ids=g.feature_ids, camera=g.camera, rig=rig)
 
     def _initialize(self, batch: IntArray) -> UpdateInfo:
         from pmba_ros.init.pipeline import global_init, InitOptions
 
         cfg = self.config
         M = batch.shape[0]
-        problem, _ = self._build_problem(batch, np.zeros(M, bool), None,
-                                         np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)),
-                                         all_cameras=False)
+        problem = self._build_problem(batch, np.zeros(M, bool), None,
+                                      np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), False)
         opts = InitOptions(solve_options=SolveOptions(
             param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss(cfg.loss),
             loss_scale_px=cfg.loss_scale_px,
@@ -461,8 +454,8 @@ class Estimator:
             feature_filter = None
         info = UpdateInfo('refine')
         try:
-            problem, _ = self._build_problem(cams, fixed, feature_filter,
-                                             self.kf.R_map[cams], self.kf.C_map[cams])
+            problem = self._build_problem(cams, fixed, feature_filter, self.kf.R_map[cams],
+                                          self.kf.C_map[cams])
             pts = self.features.lookup(problem.feature_ids)
             feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
             if not np.all(ok):

@@ -24,10 +24,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
+from pmba_ros.core.problem import run_order
 
 
 class KeyframeStatus(IntEnum):
@@ -296,38 +298,80 @@ def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
     return float(np.median(compensated_parallax_angles(b1, b2)))
 
 
+class GatheredObservations(NamedTuple):
+    """Observations of some keyframes, sorted by feature, then keyframe (see below).
+
+    Attributes:
+        local: Keyframe of each observation (index into the gathered ``cams``), shape (K,).
+        feat_idx: Feature of each observation (index into ``feature_ids``), shape (K,).
+        feature_ids: Id of each feature, shape (N,).
+        bearings: Unit bearings, shape (K, 3).
+        normalized: Normalized coordinates, shape (K, 2).
+        camera: Front-end camera id of each observation (K,), or None (``all_cameras``
+            False: the reference camera's only).
+    """
+
+    local: IntArray
+    feat_idx: IntArray
+    feature_ids: IntArray
+    bearings: FloatArray
+    normalized: FloatArray
+    camera: IntArray | None
+
+
 def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,
-                        reference: int = 0, all_cameras: bool = True,
-                        ) -> tuple[IntArray, IntArray, FloatArray, FloatArray, IntArray]:
+                        reference: int = 0, all_cameras: bool = True, *,
+                        max_per_feature: int = 0, by_track_length: bool = False,
+                        ) -> GatheredObservations:
     """Concatenate the observations of keyframes ``cams`` (optionally of some features only).
+
+    The observations come sorted by feature, then keyframe (the order of
+    :func:`~pmba_ros.core.problem.make_problem`, which then has nothing to sort): features by
+    id, or with ``by_track_length`` by their number of observations, then id (the order the
+    solver wants, :func:`~pmba_ros.core.normal_equations.feature_order`).
 
     Args:
         store: The keyframes.
-        cams: Keyframes to gather.
+        cams: Keyframes to gather, in time order.
         feature_filter: Feature ids to keep, or None for all.
         reference: The reference camera (of observations without camera ids).
         all_cameras: Every camera's observations (False: the reference camera's only).
-
-    Returns:
-        Local camera index (into ``cams``), feature id, bearing (K, 3), normalized (K, 2) and
-        front-end camera id (K,).
+        max_per_feature: Thin every track to this many observations (:func:`thin_tracks`);
+            0 keeps all.
+        by_track_length: Order the features by their number of observations.
     """
     parts = [store.obs[int(c)] for c in cams]
     if not all_cameras:
         parts = [p.of_camera(reference) for p in parts]
-    local = np.repeat(np.arange(len(parts)), [p.ids.shape[0] for p in parts])
     ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
+    local = np.repeat(np.arange(len(parts), dtype=np.int64), [p.ids.shape[0] for p in parts])
+    sel = (np.flatnonzero(np.isin(ids, feature_filter)) if feature_filter is not None
+           else np.arange(ids.shape[0]))
+    # ``local`` ascends: a stable sort by id orders by feature, then keyframe.
+    sel = sel[np.argsort(ids[sel], kind='stable')]
+    start = _track_starts(ids[sel])
+    if max_per_feature:
+        keep = _thin_sorted(start, max_per_feature)
+        sel, start = sel[keep], start[keep]   # a track's first observation is always kept
+    first = np.flatnonzero(start)
+    feature_ids = ids[sel[first]]
+    counts = np.diff(np.append(first, sel.shape[0]))
+    if by_track_length:
+        perm = np.argsort(counts, kind='stable')
+        index, counts = run_order(counts, perm)
+        sel, feature_ids = sel[index], feature_ids[perm]
+    feat_idx = np.repeat(np.arange(feature_ids.shape[0], dtype=np.int64), counts)
+    camera = None
+    if all_cameras:
+        camera = np.full(ids.shape[0], reference, dtype=np.int64)
+        if any(p.camera is not None for p in parts):
+            camera = np.concatenate([p.camera if p.camera is not None else camera[:p.ids.shape[0]]
+                                     for p in parts]).astype(np.int64)
+        camera = camera[sel]
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
-    camera = np.concatenate(
-        [p.camera if p.camera is not None
-         else np.full(p.ids.shape[0], reference, dtype=np.int64) for p in parts]
-    ) if parts else np.zeros(0, np.int64)
-    if feature_filter is not None:
-        keep = np.isin(ids, feature_filter)
-        local, ids, bearings, pixels = local[keep], ids[keep], bearings[keep], pixels[keep]
-        camera = camera[keep]
-    return local.astype(np.int64), ids, bearings, pixels, camera.astype(np.int64)
+    return GatheredObservations(local[sel], feat_idx, feature_ids, bearings[sel], pixels[sel],
+                                camera)
 
 
 def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntArray,
@@ -363,17 +407,31 @@ def thin_tracks(ids: IntArray, cams: IntArray, cap: int) -> BoolArray:
         Mask of the observations to keep, shape (K,).
     """
     order = np.lexsort((cams, ids))
-    sorted_ids = ids[order]
-    start = np.concatenate([[True], sorted_ids[1:] != sorted_ids[:-1]])
-    first = np.maximum.accumulate(np.where(start, np.arange(ids.shape[0]), 0))
-    rank = np.arange(ids.shape[0]) - first
-    counts = np.bincount(np.cumsum(start) - 1)
-    n = counts[np.cumsum(start) - 1]
+    keep = np.empty(ids.shape[0], dtype=bool)
+    keep[order] = _thin_sorted(_track_starts(ids[order]), cap)
+    return keep
+
+
+def _track_starts(sorted_ids: IntArray) -> BoolArray:
+    """Return where each track of observations sorted by feature id starts, shape (K,)."""
+    start = np.ones(sorted_ids.shape[0], dtype=bool)
+    start[1:] = sorted_ids[1:] != sorted_ids[:-1]
+    return start
+
+
+def _thin_sorted(start: BoolArray, cap: int) -> BoolArray:
+    """Return :func:`thin_tracks`' mask of observations sorted by feature, then time.
+
+    ``start`` flags the first observation of each track (:func:`_track_starts`).
+    """
+    K = start.shape[0]
+    first = np.maximum.accumulate(np.where(start, np.arange(K), 0))
+    rank = np.arange(K) - first
+    track = np.cumsum(start) - 1
+    n = np.bincount(track)[track]
     span = np.maximum(n - 1, 1)
     k = np.rint(rank * (cap - 1) / span)
-    keep_sorted = (n <= cap) | (np.rint(k * span / (cap - 1)) == rank)
-    keep = np.empty(ids.shape[0], dtype=bool)
-    keep[order] = keep_sorted
+    keep: BoolArray = (n <= cap) | (np.rint(k * span / (cap - 1)) == rank)
     return keep
 
 

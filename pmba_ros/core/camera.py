@@ -22,6 +22,7 @@ The engine works on unit bearings ``v = xi(K^-1 [u, v, 1]^T)`` (undistorted).
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 
 import numpy as np
 from pmba_ros._typing import FloatArray
@@ -42,10 +43,18 @@ class Intrinsics:
     @classmethod
     def uniform(cls, n_cams: int, fx: float, fy: float, cx: float, cy: float,
                 k1: float = 0.0, k2: float = 0.0) -> Intrinsics:
-        """Return the same intrinsics repeated for ``n_cams`` cameras."""
-        def full(v: float) -> FloatArray:
-            return np.full(n_cams, float(v))
-        return cls(full(fx), full(fy), full(cx), full(cy), full(k1), full(k2))
+        """Return the same intrinsics repeated for ``n_cams`` cameras.
+
+        Intrinsics are immutable, so equal requests share one instance (a sliding window
+        asks for the same ones at every keyframe).
+        """
+        return _uniform(int(n_cams), float(fx), float(fy), float(cx), float(cy),
+                        float(k1), float(k2))
+
+    @functools.cached_property
+    def median_focal(self) -> float:
+        """Return the median of all focal lengths, fx and fy (px)."""
+        return float(np.median(np.concatenate([self.fx, self.fy])))
 
     def __post_init__(self) -> None:
         """Validate shapes and values."""
@@ -73,6 +82,11 @@ class Intrinsics:
         """Return the intrinsics of the cameras in ``index``."""
         return Intrinsics(self.fx[index], self.fy[index], self.cx[index], self.cy[index],
                           self.k1[index], self.k2[index])
+
+
+@functools.lru_cache(maxsize=16)
+def _uniform(n_cams: int, *values: float) -> Intrinsics:
+    return Intrinsics(*(np.full(n_cams, v) for v in values))
 
 
 def project(h_c: FloatArray, intr: Intrinsics, cam_idx: np.ndarray) -> FloatArray:

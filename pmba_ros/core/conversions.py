@@ -20,6 +20,7 @@ between their world rays.
 
 from __future__ import annotations
 
+from dataclasses import fields
 import logging
 
 import numpy as np
@@ -28,8 +29,10 @@ from pmba_ros.core import residuals, rig, sphere
 from pmba_ros.core.engine import default_engine, Engine
 from pmba_ros.core.problem import (
     BAProblem,
+    Features,
     IdpFeatures,
     ParallaxFeatures,
+    Parameterization,
     XyzFeatures,
 )
 from pmba_ros.errors import ProblemError
@@ -116,6 +119,8 @@ def _coincident_pairs(centers_w: FloatArray) -> IntArray:
     order = np.argsort(centers_w[:, 0], kind='stable')
     x = centers_w[order, 0]
     span = np.searchsorted(x, x + tol, side='right') - np.arange(M) - 1   # later within tol
+    if not span.any():
+        return np.zeros(0, dtype=np.int64)
     first = np.repeat(np.arange(M), span)
     second = first + 1 + (np.arange(first.shape[0]) - np.repeat(np.cumsum(span) - span, span))
     a, b = order[first], order[second]
@@ -126,14 +131,17 @@ def _coincident_pairs(centers_w: FloatArray) -> IntArray:
 
 
 def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
-    """Return the index of the observation of feature j by camera cams[j], shape (N,).
+    """Return the index of the observation of feature j by camera cams[j], shape of ``cams``.
+
+    ``cams`` is (N,), or (N, S) for S cameras of each feature.
 
     Raises:
         ProblemError: If some feature is not observed by its given camera.
     """
     M = problem.n_cams
     keys = problem.obs.feat_idx * M + problem.obs.cam_idx  # sorted: obs are by feature, camera
-    want = np.arange(problem.n_feats) * M + cams
+    first = np.arange(problem.n_feats) * M
+    want = (first if cams.ndim == 1 else first[:, None]) + cams
     k = np.searchsorted(keys, want)
     k = np.minimum(k, keys.shape[0] - 1)
     if keys.shape[0] == 0 or np.any(keys[k] != want):
@@ -141,6 +149,36 @@ def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
         raise ProblemError(msg)
     out: IntArray = k.astype(np.int64)
     return out
+
+
+def check_features(problem: BAProblem, feats: Features, param: Parameterization) -> None:
+    """Raise ProblemError if features do not match the parameterization or problem size."""
+    expected = {Parameterization.PMBA: ParallaxFeatures, Parameterization.XYZ: XyzFeatures,
+                Parameterization.IDP: IdpFeatures}[param]
+    if not isinstance(feats, expected):
+        msg = f'features of type {type(feats).__name__} do not fit param {param.value!r}'
+        raise ProblemError(msg)
+    arrays = {f.name: np.asarray(getattr(feats, f.name)) for f in fields(feats)}
+    for name, arr in arrays.items():
+        if arr.shape[0] != problem.n_feats:
+            msg = f'features.{name}: {arr.shape[0]} rows for {problem.n_feats} features'
+            raise ProblemError(msg)
+        if not np.all(np.isfinite(arr)):
+            msg = f'features.{name}: non-finite values'
+            raise ProblemError(msg)
+    if isinstance(feats, ParallaxFeatures):
+        anchors = np.stack([arrays['main_idx'], arrays['assoc_idx']], axis=1)
+        for name, bad in zip(('main_idx', 'assoc_idx'),
+                             np.any((anchors < 0) | (anchors >= problem.n_cams), axis=0),
+                             strict=True):
+            if bad:
+                msg = f'features.{name}: unknown camera index'
+                raise ProblemError(msg)
+        same = anchors[:, 0] == anchors[:, 1]
+        if np.any(same):
+            msg = f'features: {int(same.sum())} features have main anchor == associate anchor'
+            raise ProblemError(msg)
+        anchor_observations(problem, anchors)
 
 
 def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,
@@ -151,8 +189,7 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
     at zero (pmba.md §3.2). With a rig, v are rig-frame bearings of the anchors' first
     cameras.
     """
-    km = anchor_observations(problem, main_idx)
-    ka = anchor_observations(problem, assoc_idx)
+    km, ka = anchor_observations(problem, np.stack([main_idx, assoc_idx], axis=1)).T
     v = rig.rig_frame_bearings(problem)
     ray_m = np.einsum('nij,nj->ni', R_wc[main_idx], v[km])
     ray_a = np.einsum('nij,nj->ni', R_wc[assoc_idx], v[ka])

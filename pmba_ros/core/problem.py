@@ -302,7 +302,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
 
     # Duplicate (pose, rig camera, feature) observations are inconsistent tracks: keep the
     # first.
-    order = np.lexsort((np.arange(K), rig_cam, cam_idx, feat_idx))
+    order = _feature_camera_order(feat_idx, cam_idx, rig_cam, N, M, len(rig) if rig else 1)
     order = order[keep[order]]
     f_sorted, c_sorted, r_sorted = feat_idx[order], cam_idx[order], rig_cam[order]
     same_pose = np.zeros(order.shape[0], dtype=bool)
@@ -367,6 +367,22 @@ def _rig_cameras(camera: np.ndarray | None, rig: Rig | None, K: int) -> IntArray
         msg = f'observation {k}: unknown rig camera {int(cam[k])} (rig has {len(rig)} cameras)'
         raise ProblemError(msg)
     return cam.astype(np.int64)
+
+
+def _feature_camera_order(feat_idx: IntArray, cam_idx: IntArray, rig_cam: IntArray,
+                          n_feats: int, n_cams: int, n_rig: int) -> IntArray:
+    """Return the stable order of observations by feature, pose, then rig camera.
+
+    The three (validated) indices make one integer key where it cannot overflow; input
+    already in that order (as the back-end builds it) then needs no sort at all.
+    """
+    K = feat_idx.shape[0]
+    if n_feats * n_cams * n_rig >= 2 ** 62:
+        return np.lexsort((np.arange(K), rig_cam, cam_idx, feat_idx))
+    key = (feat_idx * n_cams + cam_idx) * n_rig + rig_cam
+    if np.all(key[1:] > key[:-1]):
+        return np.arange(K)
+    return np.argsort(key, kind='stable')
 
 
 def _count(dropped: dict[str, int], reason: str, count: int) -> None:
@@ -454,16 +470,30 @@ def permute_features(problem: BAProblem, order: IntArray) -> BAProblem:
     """
     # Observations are sorted by feature then camera, so each feature's run moves as a block.
     counts = np.bincount(problem.obs.feat_idx, minlength=problem.n_feats)
-    old_start = np.cumsum(counts) - counts
-    new_counts = counts[order]
-    new_start = np.cumsum(new_counts) - new_counts
-    by_feature = (np.repeat(old_start[order] - new_start, new_counts)
-                  + np.arange(problem.obs.feat_idx.shape[0]))
+    by_feature, new_counts = run_order(counts, order)
     obs = problem.obs.take(by_feature).reindexed(
         np.repeat(np.arange(problem.n_feats), new_counts))
     pts = None if problem.points_w is None else _readonly(problem.points_w[order])
     return replace(problem, obs=obs, points_w=pts,
                    feature_ids=_readonly(problem.feature_ids[order]))
+
+
+def run_order(counts: IntArray, order: IntArray) -> tuple[IntArray, IntArray]:
+    """Return how to reorder consecutive runs of elements, run ``order[j]`` becoming run j.
+
+    Args:
+        counts: Length of each run, shape (R,) (the runs fill the array in turn).
+        order: A permutation of the runs: new index -> old index.
+
+    Returns:
+        The old position of each element in the new order, shape (sum(counts),), and the
+        new runs' lengths ``counts[order]``.
+    """
+    old_start = np.cumsum(counts) - counts
+    new_counts = counts[order]
+    new_start = np.cumsum(new_counts) - new_counts
+    index = np.repeat(old_start[order] - new_start, new_counts) + np.arange(int(counts.sum()))
+    return index, new_counts
 
 
 def take_features(feats: Features, index: IntArray) -> Features:

@@ -24,7 +24,7 @@ parameterizations.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from enum import Enum
 import logging
 import math
@@ -43,8 +43,6 @@ from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePos
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
-    IdpFeatures,
-    ParallaxFeatures,
     Parameterization,
     permute_features,
     subset_features,
@@ -385,11 +383,13 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     if features is None:
         problem, features = initial_features(problem, options.param, engine)
         _check_not_empty(problem)
-    _check_features(problem, features, options.param)
+    conversions.check_features(problem, features, options.param)
     # The normal equations want features ordered by their number of observations; the
-    # solve runs on that order and the result is returned in the caller's.
+    # solve runs on that order and the result is returned in the caller's (a caller that
+    # builds its problems in that order, as the back-end does, saves both permutations).
     order = ne.feature_order(problem.obs.feat_idx, problem.n_feats)
-    solved = permute_features(problem, order)
+    permuted = bool(np.any(order != np.arange(problem.n_feats)))
+    solved = permute_features(problem, order) if permuted else problem
     model: Model[Any] = make_model(options.param, solved,
                                    pixel_weighted=options.pixel_weighted, engine=engine)
     if options.fix_gauge:
@@ -399,13 +399,13 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     else:
         gauge = free_gauge(problem.n_cams, problem.fixed, problem.obs.cam_idx)
     free_block = gauge.free_block()
-    features = take_features(features, order)
+    features = take_features(features, order) if permuted else features
     structure = ne.SchurStructure.build(solved.obs.cam_idx, solved.obs.feat_idx,
                                         model.slots(features), problem.n_feats, free_block,
                                         model.anchor_cols, engine.schur_plan)
     col_mask = gauge.column_mask()
-    focal = float(np.median(np.concatenate([problem.intrinsics.fx, problem.intrinsics.fy])))
-    loss_scale = options.loss_scale_px if model.pixel_residuals else options.loss_scale_px / focal
+    loss_scale = (options.loss_scale_px if model.pixel_residuals
+                  else options.loss_scale_px / problem.intrinsics.median_focal)
 
     # The prior's residuals at a state serve its cost and, once the state is accepted, its
     # linearization; where its blocks go in the equations is found once per solve.
@@ -526,7 +526,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             break
 
     noise_px = noise_scale_px(errors, int(np.count_nonzero(col_mask)) + 3 * problem.n_feats)
-    final_feats = take_features(state.feats, np.argsort(order))
+    final_feats = (take_features(state.feats, np.argsort(order))   # copies: never the caller's
+                   if permuted or state.feats is features else state.feats)
     points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
@@ -568,33 +569,3 @@ def _check_not_empty(problem: BAProblem) -> None:
         msg = ('nothing to solve: no feature is seen by two or more cameras '
                f'(dropped: {dropped})')
         raise ProblemError(msg)
-
-
-def _check_features(problem: BAProblem, feats: Features, param: Parameterization) -> None:
-    """Raise ProblemError if features do not match the parameterization or problem size."""
-    expected = {Parameterization.PMBA: ParallaxFeatures, Parameterization.XYZ: XyzFeatures,
-                Parameterization.IDP: IdpFeatures}[param]
-    if not isinstance(feats, expected):
-        msg = f'features of type {type(feats).__name__} do not fit param {param.value!r}'
-        raise ProblemError(msg)
-    arrays = {f.name: np.asarray(getattr(feats, f.name)) for f in fields(feats)}
-    for name, arr in arrays.items():
-        if arr.shape[0] != problem.n_feats:
-            msg = f'features.{name}: {arr.shape[0]} rows for {problem.n_feats} features'
-            raise ProblemError(msg)
-        if not np.all(np.isfinite(arr)):
-            msg = f'features.{name}: non-finite values'
-            raise ProblemError(msg)
-    if isinstance(feats, ParallaxFeatures):
-        M = problem.n_cams
-        for name in ('main_idx', 'assoc_idx'):
-            idx = arrays[name]
-            if np.any((idx < 0) | (idx >= M)):
-                msg = f'features.{name}: unknown camera index'
-                raise ProblemError(msg)
-        same = feats.main_idx == feats.assoc_idx
-        if np.any(same):
-            msg = f'features: {int(same.sum())} features have main anchor == associate anchor'
-            raise ProblemError(msg)
-        conversions.anchor_observations(problem, feats.main_idx)
-        conversions.anchor_observations(problem, feats.assoc_idx)

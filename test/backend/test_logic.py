@@ -31,6 +31,7 @@ from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.msg_backend import MsgBackend, RosbagsBackend
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.backend.window import (
+    gather_observations,
     KeyframeObs,
     KeyframeStatus,
     KeyframeStore,
@@ -171,6 +172,47 @@ def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
     assert keep[20:24].all() and np.count_nonzero(keep[24:]) == 6 and keep[24] and keep[-1]
     with pytest.raises(ValueError, match='max_observations_per_feature'):
         BackendConfig(max_observations_per_feature=2)
+
+
+@pytest.mark.parametrize('cameras', [False, True])
+def test_gathered_windows_are_thinned_and_in_the_solver_order(cameras: bool) -> None:
+    """Gathering thins as thin_tracks and orders features as the solver does, ids on ties."""
+    from pmba_ros.core.normal_equations import feature_order
+
+    store = KeyframeStore()
+    rng = np.random.default_rng(8)
+    for _ in range(12):
+        ids = rng.choice(60, 30, replace=False)
+        cam = rng.integers(0, 2, ids.shape[0]) if cameras else None
+        store.add(0, None, KeyframeObs(ids, rng.normal(size=(30, 3)), rng.normal(size=(30, 2)),
+                                       cam), KeyframeStatus.ACTIVE)
+    cams = np.arange(12, dtype=np.int64)
+    window = np.arange(5, 55)
+    g = gather_observations(store, cams, window, 1, cameras, max_per_feature=4,
+                            by_track_length=True)
+    # The reference: every observation, filtered, thinned, then sorted by id and keyframe.
+    local = np.repeat(cams, 30)
+    ids = np.concatenate([store.obs[i].ids for i in cams])
+    sel = np.flatnonzero(np.isin(ids, window))
+    sel = sel[thin_tracks(ids[sel], local[sel], 4)]
+    sel = sel[np.lexsort((local[sel], ids[sel]))]
+    uniq, feat = np.unique(ids[sel], return_inverse=True)
+    order = feature_order(feat, uniq.shape[0])
+    np.testing.assert_array_equal(g.feature_ids, uniq[order])
+    assert np.all(np.diff(g.feat_idx) >= 0)
+    assert np.all(np.diff(np.bincount(g.feat_idx)) >= 0)
+    bearings = np.concatenate([store.obs[i].bearings for i in cams])
+    camera = np.concatenate([store.obs[i].camera for i in cams]) if cameras else None
+    for f in range(g.feature_ids.shape[0]):
+        mine = g.feat_idx == f
+        ref = sel[ids[sel] == g.feature_ids[f]]
+        np.testing.assert_array_equal(g.local[mine], local[ref])
+        np.testing.assert_array_equal(g.bearings[mine], bearings[ref])
+        if camera is not None:
+            np.testing.assert_array_equal(g.camera[mine], camera[ref])
+    assert (g.camera is None) != cameras
+    plain = gather_observations(store, cams, None, 1, False)
+    assert np.all(np.diff(plain.feature_ids) > 0) and np.all(np.diff(plain.feat_idx) >= 0)
 
 
 def test_select_fixed_counts_shared_features_and_prefers_recent() -> None:

@@ -88,3 +88,42 @@ def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
             assert (int(main[f]), int(assoc[f])) == pair
     assert not np.any(ok[:4])                 # seen from one place only: no anchor pair
     assert not np.any((np.minimum(main, assoc) == 2) & (np.maximum(main, assoc) == 4) & ok)
+
+
+def test_check_features_names_what_does_not_fit() -> None:
+    """Features of another size, anchors outside the problem or not observing: ProblemError."""
+    from dataclasses import replace
+
+    from pmba_ros.core.problem import Parameterization
+    from pmba_ros.errors import ProblemError
+
+    problem = _uneven(forward_problem(3, n_cams=5, n_points=20), 4)
+    feats = conversions.features_from_rotations(problem, problem.R_wc, *_anchors_of(problem))
+    conversions.check_features(problem, feats, Parameterization.PMBA)
+    both = conversions.anchor_observations(problem, np.stack([feats.main_idx,
+                                                             feats.assoc_idx], axis=1))
+    np.testing.assert_array_equal(both[:, 1],
+                                  conversions.anchor_observations(problem, feats.assoc_idx))
+    n = problem.n_feats
+    unseen = np.where(np.arange(n) == 0, 0, feats.assoc_idx)   # feature 0: cameras 2, 4 only
+    bad = {
+        'do not fit param': (feats, Parameterization.XYZ),
+        'rows for': (replace(feats, theta=feats.theta[1:]), Parameterization.PMBA),
+        'non-finite': (replace(feats, theta=np.where(np.arange(n) == 3, np.nan, feats.theta)),
+                       Parameterization.PMBA),
+        'assoc_idx: unknown camera': (replace(feats, assoc_idx=feats.assoc_idx + 5),
+                                      Parameterization.PMBA),
+        'main anchor == associate': (replace(feats, assoc_idx=feats.main_idx),
+                                     Parameterization.PMBA),
+        'does not observe': (replace(feats, assoc_idx=unseen), Parameterization.PMBA),
+    }
+    for match, (f, param) in bad.items():
+        with pytest.raises(ProblemError, match=match):
+            conversions.check_features(problem, f, param)
+
+
+def _anchors_of(problem):
+    main, assoc, ok = conversions.select_anchors(problem, problem.R_wc,
+                                                 centers_w=problem.centers_w)
+    assert ok.all()
+    return main, assoc

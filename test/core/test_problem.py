@@ -108,3 +108,44 @@ def test_permute_features_renumbers_and_keeps_camera_order() -> None:
                 for f, c, px in zip(p.obs.feat_idx, p.obs.cam_idx, p.obs.pixels, strict=True)}
 
     assert triples(out) == triples(problem)
+
+
+def test_observation_order_is_the_same_sorted_or_not() -> None:
+    """Input already sorted by feature, pose and rig camera gives the problem shuffled input does.
+
+    The sort key falls back to a lexicographic sort where the combined index could overflow.
+    """
+    from pmba_ros.core.problem import _feature_camera_order, Rig
+
+    rng = np.random.default_rng(7)
+    K, M = 300, 6
+    cam, feat, rig_cam = rng.integers(0, M, K), rng.integers(0, 40, K), rng.integers(0, 2, K)
+    rig = Rig(np.tile(np.eye(3), (2, 1, 1)), np.array([[0.0, 0, 0], [0.2, 0, 0]]))
+    R = np.tile(np.eye(3), (M, 1, 1))
+    P = np.column_stack([np.arange(M, dtype=float), np.zeros(M), np.zeros(M)])
+    intr = Intrinsics.uniform(M, 500, 500, 320, 240)
+    pix = rng.uniform(0, 600, (K, 2))
+    shuffled = make_problem(R, P, intr, cam, feat, pix, camera=rig_cam, rig=rig)
+    assert shuffled.dropped['duplicate_observations'] > 0
+    reference = np.lexsort((np.arange(K), rig_cam, cam, feat))
+    np.testing.assert_array_equal(_feature_camera_order(feat, cam, rig_cam, 40, M, 2), reference)
+    np.testing.assert_array_equal(_feature_camera_order(feat, cam, rig_cam, 2 ** 61, M, 2),
+                                  reference)
+    s = reference
+    in_order = make_problem(R, P, intr, cam[s], feat[s], pix[s], camera=rig_cam[s], rig=rig)
+    np.testing.assert_array_equal(_feature_camera_order(feat[s], cam[s], rig_cam[s], 40, M, 2),
+                                  np.arange(K))
+    for name in ('cam_idx', 'feat_idx', 'bearings_c', 'pixels', 'camera'):
+        np.testing.assert_array_equal(getattr(in_order.obs, name), getattr(shuffled.obs, name))
+    assert in_order.dropped == shuffled.dropped
+
+
+def test_uniform_intrinsics_are_shared_and_know_their_median_focal() -> None:
+    """Equal uniform intrinsics are one (read-only) instance; the median focal is numpy's."""
+    a = Intrinsics.uniform(4, 500, 510, 320, 240)
+    assert Intrinsics.uniform(4, 500.0, 510.0, 320.0, 240.0) is a
+    assert Intrinsics.uniform(5, 500, 510, 320, 240) is not a
+    assert not a.fx.flags.writeable
+    intr = Intrinsics(np.array([400.0, 500, 700]), np.array([410.0, 505, 690]), np.zeros(3),
+                      np.zeros(3), np.zeros(3), np.zeros(3))
+    assert intr.median_focal == float(np.median(np.concatenate([intr.fx, intr.fy])))

@@ -329,3 +329,35 @@ def test_noise_estimate_recovers_the_pixel_noise_despite_outliers(noise_px: floa
     for res in (solve(problem), robust):
         assert res.noise_px == pytest.approx(noise_px, rel=0.1)
     assert robust.final_rms_px > 2.0 * noise_px  # the outliers' RMS says nothing of the noise
+
+
+def test_problem_in_the_solver_order_gives_the_same_result() -> None:
+    """Features already ordered by observation count skip the permutations, same numbers.
+
+    With no step taken the result's features are still copies, never the caller's arrays.
+    """
+    from pmba_ros.core import conversions
+    from pmba_ros.core import normal_equations as ne
+    from pmba_ros.core.problem import permute_features, take_features
+
+    scene = street_scene(seed=6, n_cams=8, n_points=120)
+    keep = np.random.default_rng(2).random(scene.start.n_obs) < 0.6
+    obs = scene.start.obs
+    problem = make_problem(scene.start.R_wc, scene.start.centers_w, scene.start.intrinsics,
+                           obs.cam_idx[keep], obs.feat_idx[keep], obs.pixels[keep],
+                           points_w=scene.start.points_w)
+    order = ne.feature_order(problem.obs.feat_idx, problem.n_feats)
+    assert np.any(order != np.arange(problem.n_feats))
+    ordered = permute_features(problem, order)
+    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                            problem.points_w)
+    assert ok.all()
+    options = SolveOptions(max_iterations=3, loss='cauchy')
+    a = solve(problem, options, feats)
+    b = solve(ordered, options, take_features(feats, order))
+    np.testing.assert_array_equal(b.centers_w, a.centers_w)
+    np.testing.assert_array_equal(b.points_w, a.points_w[order])
+    assert [h.cost for h in b.history] == [h.cost for h in a.history]
+    ordered_feats = take_features(feats, order)
+    still = solve(ordered, SolveOptions(max_iterations=0), ordered_feats)
+    assert not np.shares_memory(still.features.theta, ordered_feats.theta)
