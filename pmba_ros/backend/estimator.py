@@ -63,7 +63,6 @@ from pmba_ros.backend.window import (
     compensated_parallax_angles,
     estimate_similarity,
     FeatureMap,
-    finite_rows,
     gather_observations,
     KeyframeObs,
     KeyframeStatus,
@@ -79,6 +78,7 @@ from pmba_ros.core.loss import Loss
 from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
+    finite_rows,
     make_problem,
     Parameterization,
     Rig,

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
-from pmba_ros.core.problem import run_order
+from pmba_ros.core.problem import finite_rows, run_order
 
 
 class KeyframeStatus(IntEnum):
@@ -206,7 +206,7 @@ class LandmarkStore:
 
     def add(self, points: FloatArray) -> None:
         """Add finite points; drop the oldest beyond the capacity."""
-        pts = points[np.all(np.isfinite(points), axis=1)]
+        pts = points[finite_rows(points)]
         if pts.shape[0] == 0 or self.capacity == 0:
             return
         self._chunks.append(pts)
@@ -433,8 +433,3 @@ def _thin_sorted(start: BoolArray, cap: int) -> BoolArray:
     k = np.rint(rank * (cap - 1) / span)
     keep: BoolArray = (n <= cap) | (np.rint(k * span / (cap - 1)) == rank)
     return keep
-
-
-def finite_rows(points: FloatArray) -> BoolArray:
-    """Return the rows of ``points`` (N, 3) that are finite."""
-    return np.all(np.isfinite(points), axis=1)

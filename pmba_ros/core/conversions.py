@@ -30,6 +30,7 @@ from pmba_ros.core.engine import default_engine, Engine
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
+    finite_rows,
     IdpFeatures,
     ParallaxFeatures,
     Parameterization,
@@ -99,8 +100,8 @@ def _swap_far_main(main_idx: IntArray, assoc_idx: IntArray, ok: BoolArray,
                    ) -> tuple[IntArray, IntArray, BoolArray]:
     """Swap the anchors of points over 30 times farther from the main anchor."""
     if points_w is not None and centers_w is not None:
-        d_main = np.linalg.norm(points_w - centers_w[main_idx], axis=1)
-        d_assoc = np.linalg.norm(points_w - centers_w[assoc_idx], axis=1)
+        d_main = sphere.norms(points_w - centers_w[main_idx])
+        d_assoc = sphere.norms(points_w - centers_w[assoc_idx])
         swap = d_main > _SWAP_DEPTH_RATIO * d_assoc
         main_idx, assoc_idx = (np.where(swap, assoc_idx, main_idx),
                                np.where(swap, main_idx, assoc_idx))
@@ -193,7 +194,7 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
     v = rig.rig_frame_bearings(problem)
     ray_m = np.einsum('nij,nj->ni', R_wc[main_idx], v[km])
     ray_a = np.einsum('nij,nj->ni', R_wc[assoc_idx], v[ka])
-    theta = np.arccos(np.clip(np.sum(ray_m * ray_a, axis=1), -1.0, 1.0))
+    theta = np.arccos(np.clip(sphere.dots(ray_m, ray_a), -1.0, 1.0))
     return ParallaxFeatures(theta, v[km].copy(), main_idx.copy(), assoc_idx.copy())
 
 
@@ -216,11 +217,11 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
     d_m = points_w - centers_w[main_idx]
     d_a = points_w - centers_w[assoc_idx]
     n = sphere.normalize(np.einsum('nji,nj->ni', R_wc[main_idx], d_m))
-    cos_t = np.sum(sphere.normalize(d_m) * sphere.normalize(d_a), axis=1)
+    cos_t = sphere.dots(sphere.normalize(d_m), sphere.normalize(d_a))
     theta = np.arccos(np.clip(cos_t, -1.0, 1.0))
     # A point is usable if it is in front of the main anchor and on its measured side.
-    valid = (np.all(np.isfinite(points_w), axis=1) & (n[:, 2] > 0)
-             & (np.sum(n * from_rot.n, axis=1) > 0))
+    valid = (finite_rows(points_w) & (n[:, 2] > 0)
+             & (sphere.dots(n, from_rot.n) > 0))
     n = np.where(valid[:, None], n, from_rot.n)
     theta = np.where(valid, theta, from_rot.theta)
     if np.any(~valid & ok):
@@ -259,7 +260,7 @@ def xyz_to_idp(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
     h = problem.obs.cam_idx[k0]
     p_c = np.einsum('nji,nj->ni', R_wc[h], points_w - centers_w[h])
     bearing = problem.obs.bearings_c[k0]
-    valid = np.all(np.isfinite(points_w), axis=1) & (p_c[:, 2] > 1e-12)
+    valid = finite_rows(points_w) & (p_c[:, 2] > 1e-12)
     # Points behind the anchor start at infinity along the measured bearing.
     ray = np.where(valid[:, None], p_c, bearing)
     ab = ray[:, :2] / ray[:, 2:3]

@@ -41,6 +41,7 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core import sphere
 from pmba_ros.core.camera import Intrinsics, pixels_to_bearings
 from pmba_ros.errors import ProblemError
 
@@ -53,6 +54,17 @@ class Parameterization(str, Enum):
     PMBA = 'pmba'
     XYZ = 'xyz'
     IDP = 'idp'
+
+
+def finite_rows(x: FloatArray) -> BoolArray:
+    """Return the rows of ``x`` (K, C) whose every value is finite, shape (K,).
+
+    ``np.all(np.isfinite(x), axis=1)``, without numpy's slow reduction of a short axis.
+    """
+    out: BoolArray = np.isfinite(x[:, 0]) if x.shape[1] else np.ones(x.shape[0], dtype=bool)
+    for c in range(1, x.shape[1]):
+        out &= np.isfinite(x[:, c])
+    return out
 
 
 def _readonly(arr: np.ndarray) -> np.ndarray:
@@ -283,7 +295,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
             msg = f'points_w: expected shape ({N}, 3), got {points_w.shape}'
             raise ProblemError(msg)
     if bearings_c is None:
-        finite_px = np.all(np.isfinite(pixels), axis=1)
+        finite_px = finite_rows(pixels)
         safe_px = np.where(finite_px[:, None], pixels, 0.0)
         bearings_c = pixels_to_bearings(safe_px, intrinsics, cam_idx)
         bearings_c[~finite_px] = np.nan
@@ -292,12 +304,12 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         if bearings_c.shape != (K, 3):
             msg = f'bearings_c: expected shape ({K}, 3), got {bearings_c.shape}'
             raise ProblemError(msg)
-        norms = np.linalg.norm(bearings_c, axis=1, keepdims=True)
+        norms = sphere.norms(bearings_c)[:, None]
         bearings_c = bearings_c / np.where(norms > 0, norms, np.nan)
 
     rig_cam = _rig_cameras(camera, rig, K)
     dropped: dict[str, int] = {}
-    keep = np.all(np.isfinite(bearings_c), axis=1)
+    keep = finite_rows(bearings_c)
     _count(dropped, 'non_finite_observations', int(np.sum(~keep)))
 
     # Duplicate (pose, rig camera, feature) observations are inconsistent tracks: keep the
@@ -318,7 +330,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     _count(dropped, 'single_observation_features', int(np.sum(counts == 1)))
     _count(dropped, 'unobserved_features', int(np.sum(counts == 0)))
     if points_w is not None:
-        finite_pt = np.all(np.isfinite(points_w), axis=1)
+        finite_pt = finite_rows(points_w)
         _count(dropped, 'non_finite_points', int(np.sum(feat_ok & ~finite_pt)))
         feat_ok &= finite_pt
     n_before = order.shape[0]

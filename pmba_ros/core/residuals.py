@@ -87,8 +87,8 @@ def anchor_terms(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeature
     """
     u = np.einsum('kij,kj->ki', R_wc[feats.main_idx], feats.n)
     t = centers_w[feats.main_idx] - centers_w[feats.assoc_idx]
-    s = np.linalg.norm(so3.cross(t, u), axis=1)
-    c = np.sum(t * u, axis=1)
+    s = sphere.norms(so3.cross(t, u))
+    c = sphere.dots(t, u)
     sin_t, cos_t = np.sin(feats.theta), np.cos(feats.theta)
     return u, t, s, c, sin_t, cos_t, s * cos_t - c * sin_t
 
@@ -104,7 +104,7 @@ def observation_rays(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFea
     j = obs.feat_idx
     d = centers_w[feats.main_idx[j]] - centers_w[obs.cam_idx]
     N = (g[:, None] * u)[j] + sin_t[j, None] * d  # eq. (6)
-    norm = np.maximum(np.linalg.norm(N, axis=1), TINY)
+    norm = np.maximum(sphere.norms(N), TINY)
     N_hat = N / norm[:, None]
     main = _is_main(feats, obs)
     jm = j[main]

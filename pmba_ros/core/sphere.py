@@ -24,10 +24,25 @@ from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 
 
+def dots(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Return a . b of 3-vectors (..., 3), shape (...): ``np.sum(a * b, axis=-1)`` to the bit.
+
+    numpy reduces a last axis of three slowly; this adds the products in its order.
+    """
+    out: FloatArray = a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+    return out
+
+
+def norms(x: FloatArray) -> FloatArray:
+    """Return |x| of 3-vectors (..., 3), shape (...): ``np.linalg.norm(x, axis=-1)`` to the bit."""
+    out: FloatArray = np.sqrt(dots(x, x))
+    return out
+
+
 def normalize(x: FloatArray) -> FloatArray:
-    """Return xi(x) = x / |x| along the last axis (zero vectors stay zero)."""
+    """Return xi(x) = x / |x| of 3-vectors (..., 3) (zero vectors stay zero)."""
     x = np.asarray(x, dtype=float)
-    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    norm = norms(x)[..., None]
     return x / np.where(norm > 0.0, norm, 1.0)
 
 
@@ -44,7 +59,7 @@ def tangent_basis(n: FloatArray) -> FloatArray:
     # e_k x n for the three axes, picked per vector (np.cross is slow on short rows).
     a1 = np.stack([np.choose(k, [zero, z, -y]), np.choose(k, [-z, zero, x]),
                    np.choose(k, [y, -x, zero])], axis=-1)
-    norm = np.linalg.norm(a1, axis=-1, keepdims=True)
+    norm = norms(a1)[..., None]
     a1 /= np.where(norm > 0.0, norm, 1.0)  # n = 0 (a zero baseline's direction) gives A = 0
     return np.stack([a1, so3.cross(n, a1)], axis=-1)
 

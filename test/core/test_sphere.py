@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 from pmba_ros.core import so3, sphere
+import pytest
 
 
 def test_tangent_basis_is_a_rotation(rng: np.random.Generator) -> None:
@@ -58,3 +59,25 @@ def test_tangent_basis_of_zero_vector_is_zero_and_follows_batch_shape() -> None:
     assert A.shape == (2, 4, 3, 2)
     np.testing.assert_array_equal(A, 0.0)
     assert sphere.tangent_basis(np.array([0.0, 0.0, 1.0])).shape == (3, 2)
+
+
+@pytest.mark.parametrize('shape', [(0, 3), (1, 3), (7, 3), (2500, 3), (4, 9, 3)])
+def test_norms_and_dots_are_numpys_to_the_bit(shape: tuple[int, ...]) -> None:
+    """The three-term sums add in numpy's order (it matters: a0 + (a1 + a2) often differs)."""
+    rng = np.random.default_rng(len(shape) * 100 + shape[0])
+    a = rng.normal(size=shape) * rng.lognormal(0, 4, size=shape)
+    b = rng.normal(size=shape)
+    for x in (a, np.asfortranarray(a), np.concatenate([a, b], axis=-1)[..., ::2]):
+        np.testing.assert_array_equal(sphere.norms(x), np.linalg.norm(x, axis=-1))
+        np.testing.assert_array_equal(sphere.dots(x, b), np.sum(x * b, axis=-1))
+
+
+def test_finite_rows_is_all_isfinite_per_row() -> None:
+    """finite_rows equals np.all(np.isfinite(x), axis=1) for any number of columns."""
+    from pmba_ros.core.problem import finite_rows
+
+    rng = np.random.default_rng(4)
+    for cols in (0, 1, 2, 3, 4):
+        x = rng.normal(size=(50, cols))
+        x[rng.random(x.shape) < 0.1] = rng.choice([np.nan, np.inf, -np.inf])
+        np.testing.assert_array_equal(finite_rows(x), np.all(np.isfinite(x), axis=1))
