@@ -95,9 +95,13 @@ def log(rotation: FloatArray) -> FloatArray:
     """Logarithm map: rotation matrix (..., 3, 3) to rotation vector (..., 3), angle in [0, pi]."""
     rotation = np.asarray(rotation, dtype=float)
     trace = rotation[..., 0, 0] + rotation[..., 1, 1] + rotation[..., 2, 2]
-    cos_t = np.clip((trace - 1.0) * 0.5, -1.0, 1.0)
+    # np.clip and np.stack (vee) cost more than the arithmetic on a window's few factors.
+    cos_t = np.minimum(np.maximum((trace - 1.0) * 0.5, -1.0), 1.0)
     theta = np.arccos(cos_t)
-    w = vee(rotation) * 2.0  # = 2 sin(theta) * axis
+    w = np.empty((*rotation.shape[:-2], 3))  # = 2 sin(theta) * axis = 2 vee(rotation)
+    np.subtract(rotation[..., 2, 1], rotation[..., 1, 2], out=w[..., 0])
+    np.subtract(rotation[..., 0, 2], rotation[..., 2, 0], out=w[..., 1])
+    np.subtract(rotation[..., 1, 0], rotation[..., 0, 1], out=w[..., 2])
     sin_t = np.sin(theta)
     small = theta < 1e-5
     near_pi = theta > np.pi - 1e-3
