@@ -48,16 +48,18 @@ class PixelNoise:
     def __init__(self) -> None:
         """Start without an estimate."""
         self._recent: deque[float] = deque(maxlen=self.HISTORY)
+        self._sigma = 1.0   # read at every keyframe (prior, diagnostics), changed by note()
 
     @property
     def sigma(self) -> float:
         """Return the pooled estimate, px."""
-        return float(np.median(self._recent)) if self._recent else 1.0
+        return self._sigma
 
     def note(self, noise_px: float) -> None:
         """Add one solve's estimate (non-finite or non-positive ones are skipped)."""
         if math.isfinite(noise_px) and noise_px > 0:
             self._recent.append(noise_px)
+            self._sigma = float(np.median(self._recent))
 
 
 class RunScale:
