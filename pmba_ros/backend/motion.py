@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections import deque
 import math
+import statistics
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -59,7 +60,7 @@ class PixelNoise:
         """Add one solve's estimate (non-finite or non-positive ones are skipped)."""
         if math.isfinite(noise_px) and noise_px > 0:
             self._recent.append(noise_px)
-            self._sigma = float(np.median(self._recent))
+            self._sigma = float(statistics.median(self._recent))   # np.median's, cheaper
 
 
 class RunScale:

@@ -25,6 +25,7 @@ from pmba_ros.backend.motion import (
     local_scales,
     MIN_PIXEL_SIGMA,
     motion_error,
+    PixelNoise,
     RunScale,
 )
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
@@ -104,6 +105,17 @@ def test_motion_error_is_the_median_relative_error() -> None:
         assert motion_error(kf, idx, 1.3) == np.median(err)
         kf.C_map[1] = np.nan
         assert np.isnan(motion_error(kf, idx, 1.3))
+
+
+def test_pixel_noise_is_np_median_of_the_recent_estimates() -> None:
+    """The pooled estimate equals np.median of the last HISTORY usable ones, odd or even."""
+    noise = PixelNoise()
+    assert noise.sigma == 1.0
+    values = np.random.default_rng(5).uniform(0.2, 3.0, 40)
+    for k, v in enumerate(values):
+        noise.note(float(v))
+        noise.note(-1.0)   # skipped
+        assert noise.sigma == np.median(values[max(0, k + 1 - PixelNoise.HISTORY):k + 1])
 
 
 def test_run_scale_sums_optimized_steps_once_as_keyframes_settle() -> None:
