@@ -23,13 +23,18 @@ from __future__ import annotations
 
 from collections import deque
 import math
+import statistics
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core.pose_prior import RelativePosePrior
+
+
+def _row_norms(x: FloatArray) -> FloatArray:
+    """Return the norms of the rows of ``x`` (N, 3): np.linalg.norm's sums, without its wrapper."""
+    return np.sqrt(np.add.reduce(x * x, axis=1))
 
 
 class PixelNoise:
@@ -44,16 +49,18 @@ class PixelNoise:
     def __init__(self) -> None:
         """Start without an estimate."""
         self._recent: deque[float] = deque(maxlen=self.HISTORY)
+        self._sigma = 1.0   # read at every keyframe (prior, diagnostics), changed by note()
 
     @property
     def sigma(self) -> float:
         """Return the pooled estimate, px."""
-        return float(np.median(self._recent)) if self._recent else 1.0
+        return self._sigma
 
     def note(self, noise_px: float) -> None:
         """Add one solve's estimate (non-finite or non-positive ones are skipped)."""
         if math.isfinite(noise_px) and noise_px > 0:
             self._recent.append(noise_px)
+            self._sigma = float(statistics.median(self._recent))   # np.median's, cheaper
 
 
 class RunScale:
@@ -102,8 +109,8 @@ class RunScale:
         i = np.arange(first, stop)
         ok = usable[1:] & usable[:-1] & kf.same_odom(i - 1, i)
         i = i[ok]
-        step_map = np.linalg.norm(kf.C_map[i] - kf.C_map[i - 1], axis=1)
-        step_odom = np.linalg.norm(kf.C_odom[i] - kf.C_odom[i - 1], axis=1)
+        step_map = _row_norms(kf.C_map[i] - kf.C_map[i - 1])
+        step_odom = _row_norms(kf.C_odom[i] - kf.C_odom[i - 1])
         good = np.isfinite(step_map) & np.isfinite(step_odom)
         return float(np.sum(step_map[good])), float(np.sum(step_odom[good]))
 
@@ -156,13 +163,13 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     a_loc, a, b = a_loc[ok], a[ok], b[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
-    step = np.linalg.norm(t_odom, axis=1)
+    step = _row_norms(t_odom)
     scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
     if cfg.motion_prior_translation_rel > 0:
         info = 1.0 / (cfg.motion_prior_translation_rel * metric_scale * step + 1e-3) ** 2
         if cfg.motion_prior_shape_rel > 0 and follow_map_scale:
-            local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size)
+            local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size, step)
             info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + 1e-3) ** 2
             scale = (info * metric_scale + info_local * local) / (info + info_local)
             info = info + info_local
@@ -183,34 +190,44 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
 
 def step_sigmas(prior: RelativePosePrior, R: FloatArray, P: FloatArray) -> FloatArray:
     """Return how many sigmas each factor's step at poses (R, P) is off the front-end's."""
-    norm = np.linalg.norm(prior.evaluate(R, P).residuals, axis=1)
+    residuals = prior.evaluate(R, P).residuals
+    norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
     return PRIOR_HUBER_SIGMAS * norm / prior.huber
 
 
 def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray,
-                 fallback: float, span: int) -> FloatArray:
+                 fallback: float, span: int, step_odom: FloatArray | None = None) -> FloatArray:
     """Return the map <- odom scale around each step a -> b, shape (M,).
 
     The median of the map / odom length ratios of the solved steps within ``span`` steps
     on either side. The last step, to the newest keyframe, holds only its prediction and
     does not count; ``fallback`` serves where fewer than two solved steps move nearby.
+    ``step_odom``: the lengths of ``t_odom`` if the caller has them.
     """
-    if a.shape[0] == 0:
+    m = a.shape[0]
+    if m == 0:
         return np.zeros(0)
-    step_odom = np.linalg.norm(t_odom, axis=1)
-    step_map = np.linalg.norm(kf.C_map[b] - kf.C_map[a], axis=1)
+    if step_odom is None:
+        step_odom = _row_norms(t_odom)
+    step_map = _row_norms(kf.C_map[b] - kf.C_map[a])
     with np.errstate(divide='ignore', invalid='ignore'):
         ratio = step_map / step_odom
     usable = (step_odom > 1e-6) & np.isfinite(ratio) & (ratio > 0)
     usable[-1:] = False
-    ratio = np.where(usable, ratio, np.nan)
-    windows = sliding_window_view(np.pad(ratio, span, constant_values=np.nan), 2 * span + 1)
+    # Row i: the ratios of steps i - span .. i + span, NaN where unusable or beyond the ends.
+    width = 2 * span + 1
+    padded = np.full(m + 2 * span, np.nan)
+    padded[span:span + m] = np.where(usable, ratio, np.nan)
+    windows = padded[np.arange(m)[:, None] + np.arange(width)]
     # The median of each window's valid ratios: sorting puts the NaNs last (np.nanmedian
     # is several times slower on these small rows).
     ordered = np.sort(windows, axis=1)
-    count = np.count_nonzero(~np.isnan(windows), axis=1)
+    valid = np.zeros(m + 2 * span + 1, dtype=np.intp)
+    np.cumsum(usable, out=valid[span + 1:span + 1 + m])
+    valid[span + 1 + m:] = valid[span + m]
+    count = valid[width:] - valid[:m]
     rows = np.flatnonzero(count >= 2)
-    scales = np.full(ratio.shape[0], fallback)
+    scales = np.full(m, fallback)
     scales[rows] = 0.5 * (ordered[rows, (count[rows] - 1) // 2] + ordered[rows, count[rows] // 2])
     return scales
 
@@ -233,8 +250,8 @@ def covariance_weights(kf: KeyframeStore, a: IntArray, b: IntArray, metric_scale
     R_a = kf.R_odom[a[both]]
     Q_t = np.einsum('nji,njk,nkl->nil', R_a, Q[:, :3, :3], R_a) * metric_scale ** 2
     lam, V = np.linalg.eigh(0.5 * (Q_t + np.swapaxes(Q_t, 1, 2)))
-    q_rot = np.trace(Q[:, 3:, 3:], axis1=1, axis2=2) / 3.0
-    scale = np.max(np.abs(Q), axis=(1, 2))
+    q_rot = (Q[:, 3, 3] + Q[:, 4, 4] + Q[:, 5, 5]) / 3.0   # the trace, without np.trace's wrapper
+    scale = np.abs(Q).reshape(-1, 36).max(axis=1)
     pd = (lam[:, 0] > 1e-12 * scale) & (q_rot > 0)
     if config.motion_prior_translation_rel > 0:
         W = np.einsum('nij,nj,nkj->nik', V, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), V)
@@ -258,12 +275,16 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
         return 0.0
     t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
     t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
-    step = np.linalg.norm(t_odom, axis=1)
+    step = _row_norms(t_odom)
     moving = step > 1e-6
     if not np.any(moving):
         return 0.0
-    err = np.linalg.norm(t_map / map_scale - t_odom, axis=1)
-    return float(np.median(err[moving] / step[moving]))
+    rel = np.sort(_row_norms(t_map / map_scale - t_odom)[moving] / step[moving])
+    # np.median's value (NaN if any is) from the sorted errors, without its wrapper.
+    mid = rel.shape[0] // 2
+    if np.isnan(rel[-1]):
+        return math.nan
+    return float(rel[mid]) if rel.shape[0] % 2 else float(0.5 * (rel[mid - 1] + rel[mid]))
 
 
 def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],

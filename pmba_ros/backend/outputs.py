@@ -65,8 +65,12 @@ def finite_rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
 
 def _unit_quats(quats_xyzw: ArrayLike, what: str = 'quats_xyzw') -> FloatArray:
     """Return (N, 4) quaternions normalized to unit length."""
-    q = finite_rows(quats_xyzw, 4, what)
-    norm = np.linalg.norm(q, axis=1)
+    return _normalized(finite_rows(quats_xyzw, 4, what), what)
+
+
+def _normalized(q: FloatArray, what: str) -> FloatArray:
+    """Return finite (N, 4) quaternions ``q`` over their norms (np.linalg.norm's sums)."""
+    norm = np.sqrt(np.add.reduce(q * q, axis=1))
     if np.any(norm < 1e-9):
         msg = f'{what}: zero-norm quaternion'
         raise MessageError(msg)
@@ -109,19 +113,6 @@ def header_msg(stamp_ns: int, frame_id: str, backend: MsgBackend) -> Any:
                        frame_id=str(frame_id))
 
 
-def _point(backend: MsgBackend, xyz: ArrayLike, type_name: str = 'geometry_msgs/msg/Point',
-           ) -> Any:
-    """Return a Point/Point32/Vector3 message from three numbers."""
-    x, y, z = (float(v) for v in np.asarray(xyz, dtype=np.float64).reshape(3))
-    return backend.new(type_name, x=x, y=y, z=z)
-
-
-def _quat(backend: MsgBackend, quat_xyzw: ArrayLike) -> Any:
-    """Return a ``geometry_msgs/msg/Quaternion`` from (x, y, z, w)."""
-    x, y, z, w = (float(v) for v in np.asarray(quat_xyzw, dtype=np.float64).reshape(4))
-    return backend.new('geometry_msgs/msg/Quaternion', x=x, y=y, z=z, w=w)
-
-
 def _pose_msgs(positions: FloatArray, quats: FloatArray, backend: MsgBackend) -> list[Any]:
     """Return Pose messages of checked (N, 3) positions and unit (N, 4) quaternions.
 
@@ -150,8 +141,11 @@ def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> 
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
     pos = _vec(position, 3, 'position')
-    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])
-    return _pose_msgs(pos[None, :], quat, backend)[0]
+    quat = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :], 'quat_xyzw')
+    (x, y, z), ((qx, qy, qz, qw),) = pos.tolist(), quat.tolist()
+    return backend.msg_class('geometry_msgs/msg/Pose')(
+        position=backend.msg_class('geometry_msgs/msg/Point')(x=x, y=y, z=z),
+        orientation=backend.msg_class('geometry_msgs/msg/Quaternion')(x=qx, y=qy, z=qz, w=qw))
 
 
 # --- back-end outputs ---------------------------------------------------------------------
@@ -227,8 +221,16 @@ def pose_stamped_msgs(stamps_ns: ArrayLike, frame_id: str, positions: ArrayLike,
                f'{stamps.shape[0]} stamps')
         raise MessageError(msg)
     stamped_t = backend.msg_class('geometry_msgs/msg/PoseStamped')
-    return [stamped_t(header=header_msg(t, frame_id, backend), pose=pose)
-            for t, pose in zip(stamps.tolist(), _pose_msgs(pos, quats, backend), strict=True)]
+    header_t = backend.msg_class('std_msgs/msg/Header')
+    time_t = backend.msg_class('builtin_interfaces/msg/Time')
+    frame = str(frame_id)
+    out = []
+    # header_msg's steps with the classes looked up once: a path is rebuilt at every keyframe.
+    for t, pose in zip(stamps.tolist(), _pose_msgs(pos, quats, backend), strict=True):
+        sec, nanosec = divmod(t, 1_000_000_000)
+        out.append(stamped_t(header=header_t(stamp=time_t(sec=sec, nanosec=nanosec),
+                                             frame_id=frame), pose=pose))
+    return out
 
 
 def make_pose_array(stamp_ns: int, frame_id: str, positions: ArrayLike, quats_xyzw: ArrayLike,
@@ -282,24 +284,42 @@ def make_odometry(stamp_ns: int, frame_id: str, child_frame_id: str, position: A
             symmetric, non-zero (6, 6) matrix with a non-negative diagonal.
     """
     cov = np.asarray(covariance, dtype=np.float64)
+    _check_covariance(cov)
+    pose = backend.new('geometry_msgs/msg/PoseWithCovariance',
+                       pose=pose_msg(position, quat_xyzw, backend),
+                       covariance=backend.fixed_f64(cov))
+    vector_t = backend.msg_class('geometry_msgs/msg/Vector3')
+    twist = backend.new(
+        'geometry_msgs/msg/TwistWithCovariance',
+        twist=backend.new('geometry_msgs/msg/Twist', linear=vector_t(x=0.0, y=0.0, z=0.0),
+                          angular=vector_t(x=0.0, y=0.0, z=0.0)),
+        covariance=backend.fixed_f64(np.zeros(36)))
+    return backend.new('nav_msgs/msg/Odometry', header=header_msg(stamp_ns, frame_id, backend),
+                       child_frame_id=str(child_frame_id), pose=pose, twist=twist)
+
+
+_CHECKED_COVARIANCES: dict[bytes, None] = {}
+"""Covariances :func:`_check_covariance` passed (a publisher sends the same one or two)."""
+
+
+def _check_covariance(cov: FloatArray) -> None:
+    """Raise MessageError unless ``cov`` is a usable (6, 6) Odometry covariance.
+
+    Finite, symmetric, non-zero, with a non-negative diagonal; one seen before is not
+    checked again (the checks cost more than the rest of an Odometry).
+    """
+    key = cov.tobytes() if cov.shape == (6, 6) else b''
+    if key in _CHECKED_COVARIANCES:
+        return
     if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
         msg = f'make_odometry: covariance must be a finite (6, 6) matrix, got {cov.shape}'
         raise MessageError(msg)
     if not np.any(cov) or np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T):
         msg = 'make_odometry: covariance must be symmetric, non-zero, with diagonal >= 0'
         raise MessageError(msg)
-    pose = backend.new('geometry_msgs/msg/PoseWithCovariance',
-                       pose=pose_msg(position, quat_xyzw, backend),
-                       covariance=backend.fixed_f64(cov))
-    zero = np.zeros(3)
-    twist = backend.new(
-        'geometry_msgs/msg/TwistWithCovariance',
-        twist=backend.new('geometry_msgs/msg/Twist',
-                          linear=_point(backend, zero, 'geometry_msgs/msg/Vector3'),
-                          angular=_point(backend, zero, 'geometry_msgs/msg/Vector3')),
-        covariance=backend.fixed_f64(np.zeros(36)))
-    return backend.new('nav_msgs/msg/Odometry', header=header_msg(stamp_ns, frame_id, backend),
-                       child_frame_id=str(child_frame_id), pose=pose, twist=twist)
+    if len(_CHECKED_COVARIANCES) >= 16:
+        _CHECKED_COVARIANCES.clear()
+    _CHECKED_COVARIANCES[key] = None
 
 
 def provisional_odometry(pose: KeyframePose, map_from_odom: Rigid | None, map_frame: str,
@@ -343,12 +363,13 @@ def make_tf(stamp_ns: int, parent: str, child: str, translation: ArrayLike,
     Raises:
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
-    quat = _unit_quats(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :])[0]
+    (qx, qy, qz, qw), = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :],
+                                    'quat_xyzw').tolist()
+    x, y, z = _vec(translation, 3, 'translation').tolist()
     transform = backend.new(
         'geometry_msgs/msg/Transform',
-        translation=_point(backend, _vec(translation, 3, 'translation'),
-                           'geometry_msgs/msg/Vector3'),
-        rotation=_quat(backend, quat))
+        translation=backend.new('geometry_msgs/msg/Vector3', x=x, y=y, z=z),
+        rotation=backend.new('geometry_msgs/msg/Quaternion', x=qx, y=qy, z=qz, w=qw))
     stamped = backend.new('geometry_msgs/msg/TransformStamped',
                           header=header_msg(stamp_ns, parent, backend),
                           child_frame_id=str(child), transform=transform)
@@ -390,8 +411,8 @@ def make_diagnostics(stamp_ns: int, name: str, level: str, message: str,
         msg = f'unknown diagnostic level {level!r} (expected {", ".join(DIAGNOSTIC_LEVELS)})'
         raise MessageError(msg)
     status_type = 'diagnostic_msgs/msg/DiagnosticStatus'
-    key_values = [backend.new('diagnostic_msgs/msg/KeyValue', key=str(k), value=_diag_value(v))
-                  for k, v in values.items()]
+    key_value_t = backend.msg_class('diagnostic_msgs/msg/KeyValue')
+    key_values = [key_value_t(key=str(k), value=_diag_value(v)) for k, v in values.items()]
     status = backend.new(status_type, level=backend.constant(status_type, level.upper()),
                          name=str(name), message=str(message), hardware_id=str(hardware_id),
                          values=key_values)

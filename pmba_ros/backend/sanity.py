@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 import math
+import statistics
 from typing import Any
 
 import numpy as np
@@ -85,7 +86,8 @@ class PoseJumpCheck:
         speed = step / dt
         reference = math.inf
         if len(self._speeds) >= self.min_steps:
-            reference = max(float(np.median(self._speeds)), self.min_speed)
+            # np.median's value (finite speeds) at a fraction of its cost per keyframe.
+            reference = max(float(statistics.median(self._speeds)), self.min_speed)
             if speed > self.factor * reference and self._rejected < self.max_rejections:
                 self._rejected += 1
                 self._held.append(payload)

@@ -260,7 +260,9 @@ def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: 
         The similarity a <- b.
     """
     rotation = so3.project(np.einsum('pij,pkj->ik', R_a, R_b))
-    mean_a, mean_b = C_a.mean(axis=0), C_b.mean(axis=0)
+    # np.mean's sum and division, without its wrapper.
+    mean_a = np.add.reduce(C_a, axis=0) / C_a.shape[0]
+    mean_b = np.add.reduce(C_b, axis=0) / C_b.shape[0]
     rb = (C_b - mean_b) @ rotation.T
     denom = float(np.sum(rb * rb))
     scale = float(np.sum((C_a - mean_a) * rb)) / denom if denom > 1e-12 else prior_scale

@@ -95,9 +95,13 @@ def log(rotation: FloatArray) -> FloatArray:
     """Logarithm map: rotation matrix (..., 3, 3) to rotation vector (..., 3), angle in [0, pi]."""
     rotation = np.asarray(rotation, dtype=float)
     trace = rotation[..., 0, 0] + rotation[..., 1, 1] + rotation[..., 2, 2]
-    cos_t = np.clip((trace - 1.0) * 0.5, -1.0, 1.0)
+    # np.clip and np.stack (vee) cost more than the arithmetic on a window's few factors.
+    cos_t = np.minimum(np.maximum((trace - 1.0) * 0.5, -1.0), 1.0)
     theta = np.arccos(cos_t)
-    w = vee(rotation) * 2.0  # = 2 sin(theta) * axis
+    w = np.empty((*rotation.shape[:-2], 3))  # = 2 sin(theta) * axis = 2 vee(rotation)
+    np.subtract(rotation[..., 2, 1], rotation[..., 1, 2], out=w[..., 0])
+    np.subtract(rotation[..., 0, 2], rotation[..., 2, 0], out=w[..., 1])
+    np.subtract(rotation[..., 1, 0], rotation[..., 0, 1], out=w[..., 2])
     sin_t = np.sin(theta)
     small = theta < 1e-5
     near_pi = theta > np.pi - 1e-3
@@ -166,20 +170,31 @@ def to_quat_xyzw(rotation: FloatArray) -> FloatArray:
     R = np.asarray(rotation, dtype=float)
     if R.shape == (3, 3):   # one pose per output message: numpy's per-call cost dominates
         return _one_quat_xyzw(R)
-    m = R.reshape(*R.shape[:-2], 9)
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = np.moveaxis(m, -1, 0)
-    # Shepperd's method: row k of this symmetric matrix is 4 q_k q (order x, y, z, w); the
-    # row with the largest diagonal 4 q_k^2 divides best.
-    K = np.stack([1 + m00 - m11 - m22, m01 + m10, m02 + m20, m21 - m12,
-                  m01 + m10, 1 - m00 + m11 - m22, m12 + m21, m02 - m20,
-                  m02 + m20, m12 + m21, 1 - m00 - m11 + m22, m10 - m01,
-                  m21 - m12, m02 - m20, m10 - m01, 1 + m00 + m11 + m22], axis=-1)
-    K = K.reshape(*R.shape[:-2], 4, 4)
-    k = np.argmax(np.diagonal(K, axis1=-2, axis2=-1), axis=-1)
-    q = np.take_along_axis(K, k[..., None, None], axis=-2)[..., 0, :]
-    q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
-    out: FloatArray = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    m = R.reshape(-1, 9)
+    # Shepperd's method: row k of the symmetric matrix K is 4 q_k q (order x, y, z, w); the
+    # row with the largest diagonal 4 q_k^2 divides best. K's ten distinct entries are
+    # formed column-wise, each by the same additions as written out in _one_quat_xyzw.
+    diagonal = 1.0 + m[:, 0:1] * _DIAGONAL_SIGNS[0]
+    diagonal = diagonal + m[:, 4:5] * _DIAGONAL_SIGNS[1]
+    diagonal = diagonal + m[:, 8:9] * _DIAGONAL_SIGNS[2]
+    off = m[:, _OFF_FIRST] + m[:, _OFF_SECOND] * _OFF_SIGNS
+    entries = np.concatenate([diagonal, off], axis=1)
+    rows = np.arange(m.shape[0])[:, None]
+    q = entries[rows, _K_ENTRIES[np.argmax(diagonal, axis=1)]]
+    q = q * np.where(q[:, 3:4] < 0, -1.0, 1.0)
+    out: FloatArray = (q / np.linalg.norm(q, axis=-1, keepdims=True)).reshape(*R.shape[:-2], 4)
     return out
+
+
+# The ten distinct entries of Shepperd's K: its diagonal 1 +- m00 +- m11 +- m22 (signs by
+# row), then m01 + m10, m02 + m20, m21 - m12, m12 + m21, m02 - m20, m10 - m01 (m flat).
+_DIAGONAL_SIGNS = np.array([[1.0, -1.0, -1.0, 1.0], [-1.0, 1.0, -1.0, 1.0],
+                            [-1.0, -1.0, 1.0, 1.0]])
+_OFF_FIRST = np.array([1, 2, 7, 5, 2, 3])
+_OFF_SECOND = np.array([3, 6, 5, 7, 6, 1])
+_OFF_SIGNS = np.array([1.0, 1.0, -1.0, 1.0, -1.0, -1.0])
+_K_ENTRIES = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
+"""Row k of K as indices into the entries."""
 
 
 def _one_quat_xyzw(R: FloatArray) -> FloatArray:

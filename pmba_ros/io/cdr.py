@@ -29,6 +29,7 @@ the previous message, so a keyframe's output costs the same early and late in a 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 import operator
 import struct
 from typing import Any, cast
@@ -110,6 +111,7 @@ def _encode_pose_array(msg: Any, rows: _Rows) -> bytes:
     return _CDR_LE + bytes(body)
 
 
+@lru_cache(maxsize=16)   # one frame name per topic: the same two layouts at every message
 def _stamped_layout(name_size: int, pose_at: int) -> np.dtype[Any]:
     """Return the layout of a PoseStamped whose frame name takes name_size bytes (NUL too).
 

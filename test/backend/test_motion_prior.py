@@ -24,6 +24,8 @@ from pmba_ros.backend.motion import (
     frontend_motion_prior,
     local_scales,
     MIN_PIXEL_SIGMA,
+    motion_error,
+    PixelNoise,
     RunScale,
 )
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
@@ -70,6 +72,50 @@ def test_local_scales_are_nearby_medians_of_solved_steps() -> None:
     np.testing.assert_array_equal(local_scales(short, a, b, t_odom, 0.8, 3), [0.8, 0.8])
     none = np.zeros(0, dtype=np.int64)
     assert local_scales(short, none, none, np.zeros((0, 3)), 0.8, 3).shape == (0,)
+
+
+@pytest.mark.parametrize('span', [1, 3, 20])
+def test_local_scales_equal_nanmedians_of_padded_windows(span: int) -> None:
+    """The windows' medians are np.nanmedian's, to the bit, with gaps, ends and odd counts."""
+    rng = np.random.default_rng(span)
+    steps = rng.uniform(0.5, 1.5, 30)
+    steps[rng.choice(30, 8, replace=False)] = 0.0   # steps that did not move: unusable
+    kf = _store(steps)
+    a, b, t_odom = _steps(kf)
+    ratio = np.linalg.norm(kf.C_map[b] - kf.C_map[a], axis=1) / np.linalg.norm(t_odom, axis=1)
+    ratio[steps == 0] = np.nan
+    ratio[-1] = np.nan
+    padded = np.concatenate([np.full(span, np.nan), ratio, np.full(span, np.nan)])
+    expected = []
+    for i in range(steps.shape[0]):
+        window = padded[i:i + 2 * span + 1]
+        n_valid = np.count_nonzero(~np.isnan(window))
+        expected.append(np.nanmedian(window) if n_valid >= 2 else 0.7)
+    np.testing.assert_array_equal(local_scales(kf, a, b, t_odom, 0.7, span), expected)
+
+
+def test_motion_error_is_the_median_relative_error() -> None:
+    """np.median's value for odd and even counts, NaN for non-finite poses."""
+    rng = np.random.default_rng(3)
+    for n in (2, 3, 8, 9):
+        kf = _store(rng.uniform(0.5, 1.5, n))
+        idx = np.arange(kf.n)
+        t_map = np.diff(kf.C_map[:kf.n], axis=0) / 1.3
+        err = np.linalg.norm(t_map - np.diff(kf.C_odom[:kf.n], axis=0), axis=1)
+        assert motion_error(kf, idx, 1.3) == np.median(err)
+        kf.C_map[1] = np.nan
+        assert np.isnan(motion_error(kf, idx, 1.3))
+
+
+def test_pixel_noise_is_np_median_of_the_recent_estimates() -> None:
+    """The pooled estimate equals np.median of the last HISTORY usable ones, odd or even."""
+    noise = PixelNoise()
+    assert noise.sigma == 1.0
+    values = np.random.default_rng(5).uniform(0.2, 3.0, 40)
+    for k, v in enumerate(values):
+        noise.note(float(v))
+        noise.note(-1.0)   # skipped
+        assert noise.sigma == np.median(values[max(0, k + 1 - PixelNoise.HISTORY):k + 1])
 
 
 def test_run_scale_sums_optimized_steps_once_as_keyframes_settle() -> None:

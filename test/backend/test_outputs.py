@@ -160,15 +160,20 @@ def test_point_cloud2_named_rejects_bad_columns(backend: Any) -> None:
 
 
 def test_odometry_covariance(backend: Any) -> None:
-    """Odometry carries the pose covariance; invalid covariances are a MessageError."""
-    msg = outputs.make_odometry(T_NS, 'map', 'base_link', [1, 2, 3], QUATS[1], COV, backend)
-    np.testing.assert_array_equal(np.asarray(msg.pose.covariance).reshape(6, 6), COV)
-    assert msg.child_frame_id == 'base_link'
-    assert not np.any(msg.twist.covariance)
-    for bad in (np.zeros((6, 6)), np.eye(3), np.triu(np.ones((6, 6))), -np.eye(6),
-                np.full((6, 6), np.nan)):
-        with pytest.raises(MessageError, match='covariance'):
-            outputs.make_odometry(T_NS, 'map', 'b', [0, 0, 0], [0, 0, 0, 1], bad, backend)
+    """Odometry carries the pose covariance; invalid covariances are a MessageError.
+
+    Also when asked again (valid covariances seen before are not checked again).
+    """
+    for _ in range(2):
+        msg = outputs.make_odometry(T_NS, 'map', 'base_link', [1, 2, 3], QUATS[1], COV,
+                                    backend)
+        np.testing.assert_array_equal(np.asarray(msg.pose.covariance).reshape(6, 6), COV)
+        assert msg.child_frame_id == 'base_link'
+        assert not np.any(msg.twist.covariance)
+        for bad in (np.zeros((6, 6)), np.eye(3), np.triu(np.ones((6, 6))), -np.eye(6),
+                    np.full((6, 6), np.nan)):
+            with pytest.raises(MessageError, match='covariance'):
+                outputs.make_odometry(T_NS, 'map', 'b', [0, 0, 0], [0, 0, 0, 1], bad, backend)
 
 
 def test_tf_message(backend: Any) -> None:

@@ -65,6 +65,8 @@ def test_quaternion_round_trip(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(np.abs(q[:3, :3]), np.eye(3), atol=1e-12)
     # One matrix takes a scalar path: the very same numbers as the batch, every branch.
     assert np.array_equal(np.array([so3.to_quat_xyzw(r) for r in R]), q)
+    assert np.array_equal(so3.to_quat_xyzw(R.reshape(4, 9, 3, 3)), q.reshape(4, 9, 4))
+    assert so3.to_quat_xyzw(np.zeros((0, 3, 3))).shape == (0, 4)
     assert np.array_equal(so3.to_quat_xyzw(np.eye(3)), [0.0, 0.0, 0.0, 1.0])
 
 
