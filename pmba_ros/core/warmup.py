@@ -112,11 +112,21 @@ def warm_up() -> float:
                                 loss=Loss.CAUCHY, max_iterations=2), feats)
     # The global initialization's position steps (init.cls), on the same problem's indices.
     obs = problem.obs
-    linear_rays.ray_normal_matrix(obs.cam_idx, obs.feat_idx, feats.assoc_idx.astype(np.int64),
-                                  feats.main_idx.astype(np.int64),
-                                  np.zeros((problem.n_feats, 2, 3, 3)),
-                                  np.zeros(problem.n_feats), np.zeros((problem.n_obs, 3, 3)),
-                                  problem.n_cams)
+    assoc, main = feats.assoc_idx.astype(np.int64), feats.main_idx.astype(np.int64)
+    coeff, sin_t = np.zeros((problem.n_feats, 2, 3, 3)), np.zeros(problem.n_feats)
+    for cam, feat in ((obs.cam_idx, obs.feat_idx),
+                      (np.array(obs.cam_idx), np.array(obs.feat_idx))):
+        # Read-only indices (the problem's) and writable ones (the CLS's penalty rows).
+        linear_rays.ray_normal_matrix(cam, feat, assoc, main, coeff, sin_t,
+                                      np.zeros((problem.n_obs, 3, 3)), problem.n_cams)
+    ones = np.ones(problem.n_obs)
+    # Writable rays and centres, as init.nls hands them (the problem's arrays are read-only).
+    N, e, _ = linear_rays.ray_errors(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                                     np.array(obs.bearings_c), np.array(problem.centers_w),
+                                     ones, ones)
+    _, y = linear_rays.nls_weights(N, e, ones, ones)
+    linear_rays.ray_gradient(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t, y,
+                             problem.n_cams)
     marker = _marker()
     if marker is not None:
         try:

@@ -164,8 +164,16 @@ class LinearRays:
         H += _scatter_blocks(rows, cols, CtBC.reshape(-1, 3, 3), n_cams)
         return _dense(H)
 
-    def gradient(self, y: FloatArray, n_cams: int) -> FloatArray:
-        """Return sum_k G_k^T y_k over all positions, shape (3M,), for y (K, 3)."""
+    def gradient(self, y: FloatArray, n_cams: int,
+                 engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return sum_k G_k^T y_k over all positions, shape (3M,), for y (K, 3).
+
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.ray_gradient(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t, y,
+                n_cams)
         st = self.sin_t[self.feat]
         g = _sum_by(self.cam, -st[:, None] * y, n_cams)
         Y = _sum_by(self.feat, y, self.anchor_coeff.shape[0])

@@ -57,7 +57,7 @@ def test_warm_up_leaves_nothing_to_compile_for_solves_and_a_replay() -> None:
         'after = signatures()\n'
         'for name in ("_pmba_rays", "_pmba_rows", "_assemble", "_reduce", "_widest_pairs",\n'
         '             "_robust_cost", "_sphere_retract", "_projection_jacobian",\n'
-        '             "_ray_normal_matrix"):\n'
+        '             "_ray_normal_matrix", "_ray_errors", "_nls_weights", "_ray_gradient"):\n'
         '    assert after[name], name\n'
         'from pmba_ros.core.solve import SolveOptions, solve\n'
         'from pmba_ros.sim.scenes import street_scene\n'
