@@ -35,7 +35,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
-from pmba_ros.core.compiled import linear_rays
+from pmba_ros.core.compiled import epipolar, linear_rays
 from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
@@ -127,6 +127,13 @@ def warm_up() -> float:
     _, y = linear_rays.nls_weights(N, e, ones, ones)
     linear_rays.ray_gradient(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t, y,
                              problem.n_cams)
+    # The checks of the EG pairs' models (init.two_view), on gathered (writable) bearings.
+    b = obs.bearings_c[np.arange(problem.n_obs)]
+    seg = np.zeros(problem.n_obs, dtype=np.int64)
+    E, R = np.zeros((1, 3, 3)), np.tile(np.eye(3), (1, 2, 1, 1))
+    epi, _, _, _ = epipolar.epipolar_votes(E, R, np.ones((1, 3)), np.ones(1), b, b, seg)
+    epipolar.rotation_covariances(b, b, seg, epi, 1)
+    epipolar.median_angles(np.eye(3)[None], b, b, seg, epi, 1)
     marker = _marker()
     if marker is not None:
         try:
