@@ -134,6 +134,12 @@ def warm_up() -> float:
     epi, _, _, _ = epipolar.epipolar_votes(E, R, np.ones((1, 3)), np.ones(1), b, b, seg)
     epipolar.rotation_covariances(b, b, seg, epi, 1)
     epipolar.median_angles(np.eye(3)[None], b, b, seg, epi, 1)
+    # refine_translations reads the problem's (read-only) bearings in place.
+    idx, ends = np.arange(problem.n_obs), np.array([0, problem.n_obs])
+    epipolar.epipolar_scatter(np.eye(3)[None], obs.bearings_c, idx, idx, ends)
+    epipolar.translation_votes(np.eye(3)[None], np.ones((1, 3)), obs.bearings_c, idx, idx, ends)
+    linear_rays.linear_ray_values(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                                  problem.centers_w)
     marker = _marker()
     if marker is not None:
         try:

@@ -124,8 +124,16 @@ class LinearRays:
             + np.einsum('nij,nj->ni', self.anchor_coeff[:, 1], centers_w[self.main]))
         return points
 
-    def evaluate(self, centers_w: FloatArray) -> FloatArray:
-        """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3)."""
+    def evaluate(self, centers_w: FloatArray,
+                 engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3).
+
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.linear_ray_values(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t,
+                centers_w)
         return (self.points(centers_w)[self.feat]
                 - self.sin_t[self.feat, None] * centers_w[self.cam])
 

@@ -77,7 +77,7 @@ def _cauchy(sq: FloatArray, f_scale: float | FloatArray) -> tuple[FloatArray, Fl
 
 def _errors(lin: LinearRays, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Return N-bar (K, 3) and e = xi(N-bar) - r (K, 3), eq. (13)."""
-    N = lin.evaluate(P)
+    N = lin.evaluate(P, EngineName.NUMPY)
     norm = np.linalg.norm(N, axis=1, keepdims=True)
     return N, N / np.maximum(norm, 1e-300) - lin.rays  # eq. (13)
 

@@ -478,6 +478,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
 
 
 def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray,
+                        engine: EngineName | str = EngineName.AUTO,
                         ) -> tuple[EGPairs, FloatArray]:
     """Re-estimate every pair's translation direction with the rotations known.
 
@@ -489,6 +490,7 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
         pairs: EG pairs with their inlier correspondences.
         bearings_c: Unit bearings of all observations, shape (K, 3).
         R_wc: Averaged camera -> world rotations, shape (M, 3, 3).
+        engine: The compiled loops (``'auto'``: where numba runs) or the numpy code.
 
     Returns:
         The pairs with R_rel = R_b^T R_a and the new t_rel, and the world-frame unit direction
@@ -498,6 +500,14 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
         pmba.md §4.3 ("relative translation fine-tuning with rotation known").
     """
     R_rel = np.swapaxes(R_wc[pairs.cam_b], 1, 2) @ R_wc[pairs.cam_a]
+    if resolve(engine).name is EngineName.COMPILED:
+        # Bearings are read in place, through the correspondences' observation indices.
+        b = np.ascontiguousarray(bearings_c, dtype=float)
+        S = epipolar.epipolar_scatter(R_rel, b, pairs.obs_a, pairs.obs_b, pairs.offsets)
+        t = np.linalg.eigh(S)[1][:, :, 0]  # smallest eigenvalue
+        votes = epipolar.translation_votes(R_rel, t, b, pairs.obs_a, pairs.obs_b,
+                                           pairs.offsets)
+        return _with_translations(pairs, R_wc, R_rel, t, votes)
     pidx = pairs.pair_index()
     b1, b2 = bearings_c[pairs.obs_a], bearings_c[pairs.obs_b]
     Rb1 = np.einsum('kij,kj->ki', R_rel[pidx], b1)
@@ -511,7 +521,13 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
     _, vecs = np.linalg.eigh(S)
     t = vecs[:, :, 0]  # smallest eigenvalue
     lam1, lam2 = cheirality_depths(R_rel[pidx], t[pidx], b1, b2)
-    votes = np.bincount(pidx, weights=np.sign(lam1) + np.sign(lam2), minlength=pairs.n_pairs)
+    signs = np.bincount(pidx, weights=np.sign(lam1) + np.sign(lam2), minlength=pairs.n_pairs)
+    return _with_translations(pairs, R_wc, R_rel, t, signs.astype(float))
+
+
+def _with_translations(pairs: EGPairs, R_wc: FloatArray, R_rel: FloatArray, t: FloatArray,
+                       votes: FloatArray) -> tuple[EGPairs, FloatArray]:
+    """Return the pairs with R_rel and t (flipped where the depth votes are negative), d_ab."""
     t = t * np.where(votes < 0, -1.0, 1.0)[:, None]
     d_world = np.einsum('pij,pj->pi', R_wc[pairs.cam_b], t)
     new = EGPairs(pairs.cam_a, pairs.cam_b, R_rel, t, pairs.n_inliers, pairs.offsets,

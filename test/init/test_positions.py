@@ -157,6 +157,9 @@ def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
     A = L @ np.swapaxes(L, 1, 2)
     y = rng.normal(size=(K, 3))
     H_ref = np.einsum('kai,kab,kbj->ij', J, A, J)
+    P = rng.normal(size=(M, 3))
+    np.testing.assert_allclose(lin.evaluate(P, engine.name), np.einsum('kai,i->ka', J, P.ravel()),
+                               atol=1e-12)
     np.testing.assert_allclose(lin.normal_matrix(A, M, engine.name), H_ref,
                                atol=1e-10 * np.abs(H_ref).max())
     g_ref = np.einsum('kai,ka->i', J, y)

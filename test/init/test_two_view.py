@@ -278,6 +278,13 @@ def test_eg_pair_engines_agree(engine: Engine) -> None:
         np.testing.assert_array_equal(getattr(out, field), getattr(ref, field))
     for field in ('R_rel', 't_rel', 'parallax_px'):
         np.testing.assert_allclose(getattr(out, field), getattr(ref, field), atol=1e-12)
+    # Translations re-estimated with (slightly wrong) rotations known.
+    R_wc = p.R_wc @ so3.exp(rng.normal(scale=1e-3, size=(p.n_cams, 3)))
+    (ref_pairs, ref_d), (out_pairs, out_d) = (
+        two_view.refine_translations(ref, bearings, R_wc, name)
+        for name in ('numpy', engine.name))
+    np.testing.assert_allclose(out_pairs.t_rel, ref_pairs.t_rel, atol=1e-12)
+    np.testing.assert_allclose(out_d, ref_d, atol=1e-12)
     # The parallaxes on a masked subset are those of the subset, with either engine.
     b1, b2 = bearings[corr.obs_a], bearings[corr.obs_b]
     seg = np.repeat(np.arange(corr.n_pairs), corr.counts())

@@ -183,3 +183,74 @@ def median_angles(R: FloatArray, b1: FloatArray, b2: FloatArray, seg: IntArray,
         msg = 'median_angles: the correspondences must be sorted by pair'
         raise ValueError(msg)
     return out
+
+
+@_jit
+def _rotated_cross(R: Any, b: Any, ia: int, ib: int, p: int) -> tuple[float, ...]:
+    """Return R_p b_ia and (R_p b_ia) x b_ib (einsum's order, as in _epipolar_votes)."""
+    r0 = R[p, 0, 0] * b[ia, 0] + R[p, 0, 2] * b[ia, 2] + R[p, 0, 1] * b[ia, 1]
+    r1 = R[p, 1, 0] * b[ia, 0] + R[p, 1, 2] * b[ia, 2] + R[p, 1, 1] * b[ia, 1]
+    r2 = R[p, 2, 0] * b[ia, 0] + R[p, 2, 2] * b[ia, 2] + R[p, 2, 1] * b[ia, 1]
+    return (r0, r1, r2, r1 * b[ib, 2] - r2 * b[ib, 1], r2 * b[ib, 0] - r0 * b[ib, 2],
+            r0 * b[ib, 1] - r1 * b[ib, 0])
+
+
+@_jit
+def _epipolar_outer(R: Any, b: Any, obs_a: Any, obs_b: Any, offsets: Any, out: Any) -> None:
+    """out_k = m m^T for correspondence k of pair p, m = (R_p b_a) x b_b."""
+    for p in range(offsets.shape[0] - 1):
+        for k in range(offsets[p], offsets[p + 1]):
+            _, _, _, m0, m1, m2 = _rotated_cross(R, b, obs_a[k], obs_b[k], p)
+            m = (m0, m1, m2)
+            for i in range(3):
+                for j in range(3):
+                    out[k, i, j] = m[i] * m[j]
+
+
+@_jit
+def _translation_votes(R: Any, t: Any, b: Any, obs_a: Any, obs_b: Any, offsets: Any,
+                       votes: Any) -> None:
+    """Sum of sign(lambda1) + sign(lambda2) over pair p's correspondences (cheirality_depths)."""
+    for p in range(offsets.shape[0] - 1):
+        t0, t1, t2 = t[p, 0], t[p, 1], t[p, 2]
+        for k in range(offsets[p], offsets[p + 1]):
+            ib = obs_b[k]
+            r0, r1, r2, m0, m1, m2 = _rotated_cross(R, b, obs_a[k], ib, p)
+            mm = max(m0 * m0 + m1 * m1 + m2 * m2, 1e-300)
+            c0 = t1 * b[ib, 2] - t2 * b[ib, 1]
+            c1 = t2 * b[ib, 0] - t0 * b[ib, 2]
+            c2 = t0 * b[ib, 1] - t1 * b[ib, 0]
+            d0 = t1 * r2 - t2 * r1
+            d1 = t2 * r0 - t0 * r2
+            d2 = t0 * r1 - t1 * r0
+            lam1 = -(c0 * m0 + c1 * m1 + c2 * m2) / mm
+            lam2 = -(d0 * m0 + d1 * m1 + d2 * m2) / mm
+            votes[p] += np.sign(lam1) + np.sign(lam2)
+
+
+def epipolar_scatter(R: FloatArray, bearings: FloatArray, obs_a: IntArray, obs_b: IntArray,
+                     offsets: IntArray) -> FloatArray:
+    """Return sum m m^T, m = (R_p b_a) x b_b, over each pair's correspondences, (P, 3, 3).
+
+    ``init.two_view.refine_translations``: correspondence k of pair p (offsets[p] <= k <
+    offsets[p + 1]) joins observations obs_a[k] and obs_b[k] of ``bearings`` (K, 3). The
+    products are compiled, their sums are numpy's (``add.reduceat``, as the reference adds
+    them), so that both engines give the same translations to the last bit.
+    """
+    P = offsets.shape[0] - 1
+    outer = np.empty((obs_a.shape[0], 3, 3))
+    _epipolar_outer(np.ascontiguousarray(R), bearings, obs_a, obs_b, offsets, outer)
+    S = np.zeros((P, 3, 3))
+    nonempty = np.diff(offsets) > 0
+    if outer.shape[0]:
+        S[nonempty] = np.add.reduceat(outer, offsets[:-1][nonempty], axis=0)
+    return S
+
+
+def translation_votes(R: FloatArray, t: FloatArray, bearings: FloatArray, obs_a: IntArray,
+                      obs_b: IntArray, offsets: IntArray) -> FloatArray:
+    """Return each pair's sum of the signs of both depths for (R_p, t_p), shape (P,)."""
+    votes = np.zeros(offsets.shape[0] - 1)
+    _translation_votes(np.ascontiguousarray(R), np.ascontiguousarray(t), bearings, obs_a,
+                       obs_b, offsets, votes)
+    return votes

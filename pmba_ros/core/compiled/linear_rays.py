@@ -114,12 +114,9 @@ def ray_gradient(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray,
 
 
 @_jit
-def _ray_errors(feat: Any, cam: Any, assoc: Any, main: Any, coeff: Any, sin_t: Any,
-                rays: Any, P: Any, f2: Any, w: Any, N: Any, e: Any, w_rho: Any) -> None:
-    """Write N-bar_k(P), e_k = xi(N-bar_k) - r_k and w_k rho(|e_k|^2) (Cauchy) per observation.
-
-    X_j = C_a P_a + C_m P_m once per feature, then N-bar_k = X_j - sin(theta-bar_j) P_i.
-    """
+def _linear_rays(feat: Any, cam: Any, assoc: Any, main: Any, coeff: Any, sin_t: Any, P: Any,
+                 N: Any) -> None:
+    """Write N-bar_k(P) (K, 3): X_j = C_a P_a + C_m P_m once per feature, then X_j - s_j P_i."""
     X = np.empty((coeff.shape[0], 3))
     for j in range(coeff.shape[0]):
         a, m = assoc[j], main[j]
@@ -133,14 +130,31 @@ def _ray_errors(feat: Any, cam: Any, assoc: Any, main: Any, coeff: Any, sin_t: A
     for k in range(feat.shape[0]):
         j, i = feat[k], cam[k]
         s = sin_t[j]
-        n0 = X[j, 0] - s * P[i, 0]
-        n1 = X[j, 1] - s * P[i, 1]
-        n2 = X[j, 2] - s * P[i, 2]
+        for r in range(3):
+            N[k, r] = X[j, r] - s * P[i, r]
+
+
+def linear_ray_values(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray,
+                      coeff: FloatArray, sin_t: FloatArray, centers_w: FloatArray,
+                      ) -> FloatArray:
+    """Return N-bar_k(P), shape (K, 3) (``init.cls.LinearRays.evaluate``)."""
+    N = np.empty((feat.shape[0], 3))
+    _linear_rays(feat, cam, assoc, main, np.ascontiguousarray(coeff), sin_t,
+                 np.array(centers_w, dtype=float), N)
+    return N
+
+
+@_jit
+def _ray_errors(feat: Any, cam: Any, assoc: Any, main: Any, coeff: Any, sin_t: Any,
+                rays: Any, P: Any, f2: Any, w: Any, N: Any, e: Any, w_rho: Any) -> None:
+    """Write N-bar_k(P), e_k = xi(N-bar_k) - r_k and w_k rho(|e_k|^2) (Cauchy) per observation."""
+    _linear_rays(feat, cam, assoc, main, coeff, sin_t, P, N)
+    for k in range(feat.shape[0]):
+        n0, n1, n2 = N[k, 0], N[k, 1], N[k, 2]
         norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-300)
         e0 = n0 / norm - rays[k, 0]
         e1 = n1 / norm - rays[k, 1]
         e2 = n2 / norm - rays[k, 2]
-        N[k, 0], N[k, 1], N[k, 2] = n0, n1, n2
         e[k, 0], e[k, 1], e[k, 2] = e0, e1, e2
         w_rho[k] = w[k] * (f2[k] * np.log1p((e0 * e0 + e1 * e1 + e2 * e2) / f2[k]))
 
@@ -155,7 +169,8 @@ def ray_errors(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray,
     K = feat.shape[0]
     N, e, w_rho = np.empty((K, 3)), np.empty((K, 3)), np.empty(K)
     _ray_errors(feat, cam, assoc, main, np.ascontiguousarray(coeff), sin_t,
-                np.ascontiguousarray(rays), np.ascontiguousarray(centers_w), f2, w, N, e, w_rho)
+                np.ascontiguousarray(rays), np.array(centers_w, dtype=float), f2, w, N, e,
+                w_rho)
     return N, e, w_rho
 
 
