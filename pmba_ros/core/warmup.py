@@ -125,6 +125,9 @@ def warm_up() -> float:
                                      np.array(obs.bearings_c), np.array(problem.centers_w),
                                      ones, ones)
     _, y = linear_rays.nls_weights(N, e, ones, ones)
+    linear_rays.ray_depths(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                           np.array(obs.bearings_c), problem.centers_w)
+    linear_rays.cheirality_row_norms(obs.feat_idx, coeff, sin_t, np.array(obs.bearings_c))
     linear_rays.ray_gradient(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t, y,
                              problem.n_cams)
     # The checks of the EG pairs' models (init.two_view), on gathered (writable) bearings.

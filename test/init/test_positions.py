@@ -160,6 +160,14 @@ def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
     P = rng.normal(size=(M, 3))
     np.testing.assert_allclose(lin.evaluate(P, engine.name), np.einsum('kai,i->ka', J, P.ravel()),
                                atol=1e-12)
+    np.testing.assert_allclose(lin.depths(P, engine.name),
+                               np.sum(lin.rays * lin.evaluate(P, 'numpy'), axis=1), atol=1e-12)
+    # The cheirality rows' blocks; an observer that is also an anchor is not merged here.
+    blocks = (np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 0], lin.rays),
+              np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 1], lin.rays),
+              -lin.sin_t[lin.feat, None] * lin.rays)
+    np.testing.assert_allclose(lin.cheirality_row_norms(engine.name),
+                               sum(np.sum(b * b, axis=1) for b in blocks), rtol=1e-12)
     np.testing.assert_allclose(lin.normal_matrix(A, M, engine.name), H_ref,
                                atol=1e-10 * np.abs(H_ref).max())
     g_ref = np.einsum('kai,ka->i', J, y)

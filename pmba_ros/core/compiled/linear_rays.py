@@ -204,3 +204,49 @@ def nls_weights(N: FloatArray, e: FloatArray, f2: FloatArray, w: FloatArray,
     A, y = np.empty((K, 3, 3)), np.empty((K, 3))
     _nls_weights(N, e, f2, w, A, y)
     return A, y
+
+
+@_jit
+def _ray_depths(feat: Any, cam: Any, assoc: Any, main: Any, coeff: Any, sin_t: Any,
+                rays: Any, P: Any, N: Any, depth: Any) -> None:
+    """Write r_k . N-bar_k(P) (K,), the cheirality rows of the CLS (eq. 14)."""
+    _linear_rays(feat, cam, assoc, main, coeff, sin_t, P, N)
+    for k in range(feat.shape[0]):
+        depth[k] = rays[k, 0] * N[k, 0] + rays[k, 1] * N[k, 1] + rays[k, 2] * N[k, 2]
+
+
+def ray_depths(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray,
+               coeff: FloatArray, sin_t: FloatArray, rays: FloatArray,
+               centers_w: FloatArray) -> FloatArray:
+    """Return r_k . N-bar_k(P), shape (K,) (``init.cls.LinearRays.depths``)."""
+    K = feat.shape[0]
+    N, depth = np.empty((K, 3)), np.empty(K)
+    _ray_depths(feat, cam, assoc, main, np.ascontiguousarray(coeff), sin_t,
+                np.ascontiguousarray(rays), np.array(centers_w, dtype=float), N, depth)
+    return depth
+
+
+@_jit
+def _cheirality_row_norms(feat: Any, coeff: Any, sin_t: Any, rays: Any, out: Any) -> None:
+    """Write |C_a^T r_k|^2 + |C_m^T r_k|^2 + sin^2(theta-bar) |r_k|^2 (K,)."""
+    for k in range(feat.shape[0]):
+        j = feat[k]
+        r0, r1, r2 = rays[k, 0], rays[k, 1], rays[k, 2]
+        total = 0.0
+        for t in range(2):
+            sq = 0.0
+            for i in range(3):
+                v = coeff[j, t, 0, i] * r0 + coeff[j, t, 1, i] * r1 + coeff[j, t, 2, i] * r2
+                sq += v * v
+            total += sq
+        s = sin_t[j]
+        out[k] = total + s * s * (r0 * r0 + r1 * r1 + r2 * r2)
+
+
+def cheirality_row_norms(feat: IntArray, coeff: FloatArray, sin_t: FloatArray,
+                         rays: FloatArray) -> FloatArray:
+    """Return the CLS cheirality rows' squared norms, shape (K,) (``init.cls.LinearRays``)."""
+    out = np.empty(feat.shape[0])
+    _cheirality_row_norms(feat, np.ascontiguousarray(coeff), sin_t, np.ascontiguousarray(rays),
+                          out)
+    return out
