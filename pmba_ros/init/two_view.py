@@ -31,6 +31,7 @@ OpenCV calls loop over pairs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import itertools
 import logging
 
 import numpy as np
@@ -442,9 +443,17 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     front_idx = np.flatnonzero(front)
     front_offsets = np.concatenate([[0], np.cumsum(n_front)])
     todo = np.flatnonzero(n_front >= max(min_inliers, 5))
+    # Threads take the next pair as they finish one (the count's next() is atomic under the
+    # GIL), costliest first: a fixed split leaves a core idle when the other is slowed down,
+    # and the RANSAC's cost is not proportional to the correspondences. Each pair's model is
+    # written to its own row, so the result does not depend on which thread ran it.
+    cost = n_front[todo] if max_sample is None else np.minimum(n_front[todo], max_sample)
+    queue = todo[np.argsort(-cost, kind='stable')]
+    taken = itertools.count()
 
-    def estimate(t: int) -> None:  # one OpenCV call per pair; it runs without the GIL
-        for p in todo[cut[t]:cut[t + 1]]:
+    def estimate(_: int) -> None:  # one OpenCV call per pair; it runs without the GIL
+        while (i := next(taken)) < queue.shape[0]:
+            p = queue[i]
             rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
             rows = rows if max_sample is None else rows[_sample(rows.shape[0], max_sample)]
             model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
@@ -452,13 +461,13 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
             if model is not None:
                 E[p], has_model[p] = model, True
 
-    n_threads = chunks.threads_for(int(np.sum(n_front[todo])))
-    cut = chunks.bounds(n_front[todo].astype(float), n_threads)
-    chunks.run(estimate, n_threads)
+    chunks.run(estimate, chunks.threads_for(int(np.sum(n_front[todo]))))
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
     rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
     sel = front & has_model[seg_all]
-    seg, b1, b2 = seg_all[sel], b1_all[sel], b2_all[sel]
+    # Usually every correspondence is in front and every pair has a model: no copies then.
+    seg, b1, b2 = ((seg_all, b1_all, b2_all) if sel.all()
+                   else (seg_all[sel], b1_all[sel], b2_all[sel]))
     epi, n_epi, R, t, inl, counts = _check_models(E, thresholds, b1, b2, seg, engine)
     # Parallax on the epipolar inliers, before cheirality: without baseline the
     # cheirality test of an arbitrary t drops points at random.
