@@ -35,7 +35,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
-from pmba_ros.core.compiled import linear_rays
+from pmba_ros.core.compiled import epipolar, linear_rays
 from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
@@ -112,11 +112,37 @@ def warm_up() -> float:
                                 loss=Loss.CAUCHY, max_iterations=2), feats)
     # The global initialization's position steps (init.cls), on the same problem's indices.
     obs = problem.obs
-    linear_rays.ray_normal_matrix(obs.cam_idx, obs.feat_idx, feats.assoc_idx.astype(np.int64),
-                                  feats.main_idx.astype(np.int64),
-                                  np.zeros((problem.n_feats, 2, 3, 3)),
-                                  np.zeros(problem.n_feats), np.zeros((problem.n_obs, 3, 3)),
-                                  problem.n_cams)
+    assoc, main = feats.assoc_idx.astype(np.int64), feats.main_idx.astype(np.int64)
+    coeff, sin_t = np.zeros((problem.n_feats, 2, 3, 3)), np.zeros(problem.n_feats)
+    for cam, feat in ((obs.cam_idx, obs.feat_idx),
+                      (np.array(obs.cam_idx), np.array(obs.feat_idx))):
+        # Read-only indices (the problem's) and writable ones (the CLS's penalty rows).
+        linear_rays.ray_normal_matrix(cam, feat, assoc, main, coeff, sin_t,
+                                      np.zeros((problem.n_obs, 3, 3)), problem.n_cams)
+    ones = np.ones(problem.n_obs)
+    # Writable rays and centres, as init.nls hands them (the problem's arrays are read-only).
+    N, e, _ = linear_rays.ray_errors(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                                     np.array(obs.bearings_c), np.array(problem.centers_w),
+                                     ones, ones)
+    _, y = linear_rays.nls_weights(N, e, ones, ones)
+    linear_rays.ray_depths(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                           np.array(obs.bearings_c), problem.centers_w)
+    linear_rays.cheirality_row_norms(obs.feat_idx, coeff, sin_t, np.array(obs.bearings_c))
+    linear_rays.ray_gradient(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t, y,
+                             problem.n_cams)
+    # The checks of the EG pairs' models (init.two_view), on gathered (writable) bearings.
+    b = obs.bearings_c[np.arange(problem.n_obs)]
+    seg = np.zeros(problem.n_obs, dtype=np.int64)
+    E, R = np.zeros((1, 3, 3)), np.tile(np.eye(3), (1, 2, 1, 1))
+    epi, _, _, _ = epipolar.epipolar_votes(E, R, np.ones((1, 3)), np.ones(1), b, b, seg)
+    epipolar.rotation_covariances(b, b, seg, epi, 1)
+    epipolar.median_angles(np.eye(3)[None], b, b, seg, epi, 1)
+    # refine_translations reads the problem's (read-only) bearings in place.
+    idx, ends = np.arange(problem.n_obs), np.array([0, problem.n_obs])
+    epipolar.epipolar_scatter(np.eye(3)[None], obs.bearings_c, idx, idx, ends)
+    epipolar.translation_votes(np.eye(3)[None], np.ones((1, 3)), obs.bearings_c, idx, idx, ends)
+    linear_rays.linear_ray_values(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
+                                  problem.centers_w)
     marker = _marker()
     if marker is not None:
         try:

@@ -124,10 +124,48 @@ class LinearRays:
             + np.einsum('nij,nj->ni', self.anchor_coeff[:, 1], centers_w[self.main]))
         return points
 
-    def evaluate(self, centers_w: FloatArray) -> FloatArray:
-        """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3)."""
+    def evaluate(self, centers_w: FloatArray,
+                 engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return N-bar_k(P) for camera centres (M, 3), shape (K, 3).
+
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.linear_ray_values(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t,
+                centers_w)
         return (self.points(centers_w)[self.feat]
                 - self.sin_t[self.feat, None] * centers_w[self.cam])
+
+    def depths(self, centers_w: FloatArray,
+               engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return r_k . N-bar_k(P) for camera centres (M, 3), shape (K,) (cheirality).
+
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.ray_depths(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t,
+                self.rays, centers_w)
+        depth: FloatArray = np.sum(self.rays * self.evaluate(centers_w, engine), axis=1)
+        return depth
+
+    def cheirality_row_norms(self, engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return |C_a^T r_k|^2 + |C_m^T r_k|^2 + sin^2(theta-bar) |r_k|^2, shape (K,).
+
+        The squared norm of the cheirality row h_k = dN-bar_k/dP^T r_k block by block (an
+        observer that is also an anchor is not merged): the scale of the CLS penalty.
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.cheirality_row_norms(self.feat, self.anchor_coeff,
+                                                             self.sin_t, self.rays)
+        r = self.rays
+        Ct_r = np.einsum('kai,ka->ki', self.anchor_coeff[self.feat, 0], r)
+        Cm_r = np.einsum('kai,ka->ki', self.anchor_coeff[self.feat, 1], r)
+        norm2: FloatArray = (np.sum(Ct_r ** 2, axis=1) + np.sum(Cm_r ** 2, axis=1)
+                             + self.sin_t[self.feat] ** 2 * np.sum(r * r, axis=1))
+        return norm2
 
     def normal_matrix(self, A: FloatArray, n_cams: int,
                       engine: EngineName | str = EngineName.AUTO) -> FloatArray:
@@ -164,8 +202,16 @@ class LinearRays:
         H += _scatter_blocks(rows, cols, CtBC.reshape(-1, 3, 3), n_cams)
         return _dense(H)
 
-    def gradient(self, y: FloatArray, n_cams: int) -> FloatArray:
-        """Return sum_k G_k^T y_k over all positions, shape (3M,), for y (K, 3)."""
+    def gradient(self, y: FloatArray, n_cams: int,
+                 engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return sum_k G_k^T y_k over all positions, shape (3M,), for y (K, 3).
+
+        ``engine`` as in :meth:`normal_matrix`.
+        """
+        if resolve(engine).name is EngineName.COMPILED:
+            return compiled_linear_rays.ray_gradient(
+                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t, y,
+                n_cams)
         st = self.sin_t[self.feat]
         g = _sum_by(self.cam, -st[:, None] * y, n_cams)
         Y = _sum_by(self.feat, y, self.anchor_coeff.shape[0])
@@ -248,8 +294,12 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     r = lin.rays
     rr = r[:, :, None] * r[:, None, :]
     # Rows [r_k]x N-bar_k (eq. 14): weight [r_k]x^T [r_k]x = |r_k|^2 I - r_k r_k^T.
-    cross_w = np.sum(r * r, axis=1)[:, None, None] * np.eye(3) - rr
-    H = lin.normal_matrix(w[:, None, None] * cross_w, n_cams)
+    cross_w = -rr
+    n2 = np.sum(r * r, axis=1)
+    for i in range(3):
+        cross_w[:, i, i] += n2
+    cross_w *= w[:, None, None]
+    H = lin.normal_matrix(cross_w, n_cams)
     # Cheirality rows h_k = dN-bar_k/dP^T r_k: r_k . N-bar_k(P) >= 0.
     # DEVIATION(eq. 14): the printed z(R_i N) >= 0 is read as "predicted ray on the measured
     # side", r_k . N-bar_k >= 0, which is convention-free and linear (pmba.md §8 item 2).
@@ -262,10 +312,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     cf = c[fidx]
     target = float(np.sum(w))
     scale_diag = float(np.mean(np.diag(H)[fidx])) if fidx.size else 1.0
-    Ct_r = np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 0], r)
-    Cm_r = np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 1], r)
-    row_norm2 = (np.sum(Ct_r ** 2, axis=1) + np.sum(Cm_r ** 2, axis=1)
-                 + lin.sin_t[lin.feat] ** 2 * np.sum(r * r, axis=1))
+    row_norm2 = lin.cheirality_row_norms()
     mu = penalty_weight * scale_diag / max(float(np.mean(row_norm2)), 1e-300)
     active = np.zeros(K, dtype=bool)
     p = np.zeros(3 * n_cams)
@@ -291,7 +338,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
             raise InitError(msg)
         p = np.zeros(3 * n_cams)
         p[fidx] = sol[:-1]
-        depth = np.sum(r * lin.evaluate(p.reshape(n_cams, 3)), axis=1)
+        depth = lin.depths(p.reshape(n_cams, 3))
         violated = (depth < 0.0) & (w > 0)
         new_active = active | violated
         if np.array_equal(new_active, active):

@@ -39,6 +39,8 @@ import logging
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
+from pmba_ros.core.compiled import linear_rays as compiled_linear_rays
+from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.init.cls import LinearRays
 import scipy.linalg
 
@@ -75,7 +77,7 @@ def _cauchy(sq: FloatArray, f_scale: float | FloatArray) -> tuple[FloatArray, Fl
 
 def _errors(lin: LinearRays, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Return N-bar (K, 3) and e = xi(N-bar) - r (K, 3), eq. (13)."""
-    N = lin.evaluate(P)
+    N = lin.evaluate(P, EngineName.NUMPY)
     norm = np.linalg.norm(N, axis=1, keepdims=True)
     return N, N / np.maximum(norm, 1e-300) - lin.rays  # eq. (13)
 
@@ -94,6 +96,58 @@ def _evaluate(lin: LinearRays, P: FloatArray, f_scale: float | FloatArray,
     return 0.5 * float(np.sum(w * rho)), N, e
 
 
+def _normal_equations(lin: LinearRays, N: FloatArray, e: FloatArray,
+                      f_scale: float | FloatArray, w: FloatArray, n_cams: int,
+                      ) -> tuple[FloatArray, FloatArray]:
+    """Return the IRLS normal matrix (3M, 3M) and gradient (3M,) of eq. (13) at N-bar, e."""
+    norm = np.maximum(np.linalg.norm(N, axis=1), 1e-150)
+    Nh = N / norm[:, None]
+    # J_N = (I - N^ N^T) / |N| is symmetric, J_N^T J_N = (I - N^ N^T) / |N|^2.
+    proj = np.eye(3)[None] - Nh[:, :, None] * Nh[:, None, :]
+    _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
+    # DEVIATION(eq. 13): Cauchy-weighted (IRLS) instead of plain L2 (pmba.md §8 item 5).
+    wk = w * drho
+    # Unused observations (weight 0) may have N = 0: keep their 0 * inf out.
+    w_n = np.where(wk > 0.0, wk / norm, 0.0)
+    H = lin.normal_matrix((w_n / norm)[:, None, None] * proj, n_cams, EngineName.NUMPY)
+    y = w_n[:, None] * np.einsum('kij,kj->ki', proj, e)
+    return H, lin.gradient(y, n_cams, EngineName.NUMPY)
+
+
+class _Compiled:
+    """The compiled loops of the NLS (:mod:`pmba_ros.core.compiled.linear_rays`).
+
+    They give :func:`_evaluate` and :func:`_normal_equations` to rounding, in one pass over
+    the observations instead of a few dozen numpy calls.
+    """
+
+    def __init__(self, lin: LinearRays, f_scale: float | FloatArray, w: FloatArray) -> None:
+        f = np.asarray(f_scale, dtype=float)
+        self.lin = lin
+        # Writable copies: the loops are compiled (and warmed up) for writable arrays only.
+        self.f2 = np.broadcast_to(f * f, (lin.n_obs,)).copy()
+        self.w = np.array(w, dtype=float)
+
+    def evaluate(self, P: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+        """Return :func:`_evaluate` at P."""
+        lin = self.lin
+        N, e, w_rho = compiled_linear_rays.ray_errors(
+            lin.cam, lin.feat, lin.assoc, lin.main, lin.anchor_coeff, lin.sin_t, lin.rays, P,
+            self.f2, self.w)
+        return 0.5 * float(np.sum(w_rho)), N, e
+
+    def normal_equations(self, N: FloatArray, e: FloatArray, n_cams: int,
+                         ) -> tuple[FloatArray, FloatArray]:
+        """Return :func:`_normal_equations` at N-bar, e."""
+        lin = self.lin
+        A, y = compiled_linear_rays.nls_weights(N, e, self.f2, self.w)
+        H = compiled_linear_rays.ray_normal_matrix(lin.cam, lin.feat, lin.assoc, lin.main,
+                                                   lin.anchor_coeff, lin.sin_t, A, n_cams)
+        g = compiled_linear_rays.ray_gradient(lin.cam, lin.feat, lin.assoc, lin.main,
+                                              lin.anchor_coeff, lin.sin_t, y, n_cams)
+        return H, g
+
+
 def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tuple[int, int]:
     """Return (camera, axis) of the coordinate fixed for the scale: the largest |P_k - P_root|."""
     d = np.abs(centers_w - centers_w[root])
@@ -107,7 +161,8 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
               f_scale: float | FloatArray,
               weights: FloatArray | None = None, cameras: BoolArray | None = None,
               max_iterations: int = 50, function_tolerance: float = 1e-5,
-              step_tolerance: float = 1e-10) -> NlsResult:
+              step_tolerance: float = 1e-10,
+              engine: EngineName | str = EngineName.AUTO) -> NlsResult:
     """Refine camera centres by eq. (13) with a Cauchy loss (LM, dense normal equations).
 
     Args:
@@ -123,6 +178,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
         max_iterations: LM iteration limit.
         function_tolerance: Stop when the relative cost decrease is below this.
         step_tolerance: Stop when the relative step norm is below this.
+        engine: The compiled loops (``'auto'``: where numba runs) or this module's numpy code.
 
     Returns:
         The refined centres and diagnostics.
@@ -141,24 +197,16 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
     k_fix, axis_fix = gauge_coordinate(P, root, cams)
     free[3 * k_fix + axis_fix] = False
     fidx = np.flatnonzero(free)
-    cost, N, e = _evaluate(lin, P, f_scale, w)
+    fast = _Compiled(lin, f_scale, w) if resolve(engine).name is EngineName.COMPILED else None
+    cost, N, e = fast.evaluate(P) if fast is not None else _evaluate(lin, P, f_scale, w)
     initial_cost = cost
     lam = 1e-4
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
-        norm = np.maximum(np.linalg.norm(N, axis=1), 1e-150)
-        Nh = N / norm[:, None]
-        # J_N = (I - N^ N^T) / |N| is symmetric, J_N^T J_N = (I - N^ N^T) / |N|^2.
-        proj = np.eye(3)[None] - Nh[:, :, None] * Nh[:, None, :]
-        _, drho = _cauchy(np.sum(e * e, axis=1), f_scale)
-        # DEVIATION(eq. 13): Cauchy-weighted (IRLS) instead of plain L2 (pmba.md §8 item 5).
-        wk = w * drho
-        # Unused observations (weight 0) may have N = 0: keep their 0 * inf out.
-        w_n = np.where(wk > 0.0, wk / norm, 0.0)
-        H = lin.normal_matrix((w_n / norm)[:, None, None] * proj, M)[np.ix_(fidx, fidx)]
-        y = w_n[:, None] * np.einsum('kij,kj->ki', proj, e)
-        g = lin.gradient(y, M)[fidx]
+        H_all, g_all = (fast.normal_equations(N, e, M) if fast is not None
+                        else _normal_equations(lin, N, e, f_scale, w, M))
+        H, g = H_all[np.ix_(fidx, fidx)], g_all[fidx]
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
         while lam < 1e12:
@@ -170,7 +218,8 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
                 continue
             P_new = P.copy()
             P_new.reshape(-1)[fidx] += step
-            new_cost, N_new, e_new = _evaluate(lin, P_new, f_scale, w)
+            new_cost, N_new, e_new = (fast.evaluate(P_new) if fast is not None
+                                      else _evaluate(lin, P_new, f_scale, w))
             if new_cost < cost:
                 accepted = True
                 break

@@ -31,6 +31,7 @@ OpenCV calls loop over pairs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import itertools
 import logging
 
 import numpy as np
@@ -44,7 +45,8 @@ except ImportError as err:  # pragma: no cover - depends on the installation
 
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
-from pmba_ros.core.compiled import chunks
+from pmba_ros.core.compiled import chunks, epipolar
+from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.init import covisibility
 
 logger = logging.getLogger(__name__)
@@ -181,8 +183,18 @@ def _segment_sums(values: FloatArray, offsets: IntArray) -> FloatArray:
     return out
 
 
+def _procrustes(cov: FloatArray) -> FloatArray:
+    """Return the rotations R (P, 3, 3) that maximise tr(R^T cov) (orthogonal Procrustes)."""
+    U, _, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
+    R: FloatArray = U @ Vt
+    return R
+
+
 def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
-                             n_segments: int) -> FloatArray:
+                             n_segments: int, mask: BoolArray | None = None,
+                             engine: EngineName | str = EngineName.AUTO) -> FloatArray:
     """Return, per segment, the median angle (rad) left between b2 and R b1 by the best R.
 
     R is the orthogonal Procrustes fit (b2 ~ R b1) of each segment (pair) of correspondences.
@@ -192,19 +204,25 @@ def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
     Args:
         b1: Unit bearings in camera 1, shape (C, 3).
         b2: Unit bearings in camera 2, shape (C, 3).
-        segment: Segment (pair) of every correspondence, shape (C,), values < n_segments.
+        segment: Segment (pair) of every correspondence, shape (C,), values < n_segments,
+            sorted.
         n_segments: Number of segments P.
+        mask: Optional correspondences to use, shape (C,) (None: all).
+        engine: The compiled loops (``'auto'``: where numba runs) or the numpy code.
 
     Returns:
         Median angles, shape (P,) (0 for a segment without correspondences).
     """
+    if resolve(engine).name is EngineName.COMPILED:
+        use = np.ones(segment.shape[0], dtype=bool) if mask is None else mask
+        R = _procrustes(epipolar.rotation_covariances(b1, b2, segment, use, n_segments))
+        return epipolar.median_angles(R, b1, b2, segment, use, n_segments)
+    if mask is not None:
+        b1, b2, segment = b1[mask], b2[mask], segment[mask]
     outer = (b2[:, :, None] * b1[:, None, :]).reshape(-1, 9)
     cov = np.stack([np.bincount(segment, weights=outer[:, c], minlength=n_segments)
                     for c in range(9)], axis=1).reshape(n_segments, 3, 3)
-    U, _, Vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
-    R = U @ Vt
+    R = _procrustes(cov.astype(float))
     cosang = np.clip(np.sum(b2 * np.einsum('kij,kj->ki', R[segment], b1), axis=1), -1.0, 1.0)
     return _segment_medians(np.arccos(cosang), segment, n_segments)
 
@@ -261,7 +279,16 @@ def sampson_errors(E: FloatArray, b1: FloatArray, b2: FloatArray) -> FloatArray:
 
 #: Triangulated points farther than this many baselines do not count as cheirality inliers
 #: (OpenCV's recoverPose rule: they carry no information on the translation).
-_MAX_DEPTH_BASELINES = 50.0
+_MAX_DEPTH_BASELINES = epipolar.MAX_DEPTH_BASELINES
+
+
+def _essential_candidates(E: FloatArray) -> tuple[tuple[FloatArray, FloatArray], FloatArray]:
+    """Return the two rotations (P, 3, 3) and the translation (P, 3) (up to sign) of each E."""
+    U, _, Vt = np.linalg.svd(E)
+    U = U * np.where(np.linalg.det(U) < 0.0, -1.0, 1.0)[:, None, None]
+    Vt = Vt * np.where(np.linalg.det(Vt) < 0.0, -1.0, 1.0)[:, None, None]
+    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return (U @ W @ Vt, U @ W.T @ Vt), U[:, :, 2]
 
 
 def decompose_essential(E: FloatArray, b1: FloatArray, b2: FloatArray, segment: IntArray,
@@ -282,12 +309,7 @@ def decompose_essential(E: FloatArray, b1: FloatArray, b2: FloatArray, segment: 
         R_cv (P, 3, 3), unit t_cv (P, 3) and the cheirality inliers (C,) (epipolar inliers
         in front of both cameras).
     """
-    U, _, Vt = np.linalg.svd(E)
-    U = U * np.where(np.linalg.det(U) < 0.0, -1.0, 1.0)[:, None, None]
-    Vt = Vt * np.where(np.linalg.det(Vt) < 0.0, -1.0, 1.0)[:, None, None]
-    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    rotations = (U @ W @ Vt, U @ W.T @ Vt)
-    t = U[:, :, 2]
+    rotations, t = _essential_candidates(E)
     P = E.shape[0]
     best_score = np.full(P, -1)
     R_best = np.zeros((P, 3, 3))
@@ -343,11 +365,38 @@ def _sample(n: int, max_points: int) -> IntArray:
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
+def _check_models(E: FloatArray, thresholds: FloatArray, b1: FloatArray, b2: FloatArray,
+                  seg: IntArray, engine: EngineName | str,
+                  ) -> tuple[BoolArray, IntArray, FloatArray, FloatArray, BoolArray, IntArray]:
+    """Test every correspondence against its pair's model, and choose each pair's (R, t).
+
+    Returns the epipolar inliers (C,) and their count per pair (P,), R_cv (P, 3, 3), t_cv
+    (P, 3), the cheirality inliers (C,) and their count per pair (P,)
+    (:func:`sampson_errors`, :func:`decompose_essential`).
+    """
+    P = E.shape[0]
+    if resolve(engine).name is EngineName.COMPILED:
+        (R0, R1), t0 = _essential_candidates(E)
+        epi, n_epi, good, votes = epipolar.epipolar_votes(
+            E, np.stack([R0, R1], axis=1), t0, thresholds, b1, b2, seg)
+        # The first of the best-voted candidates, in decompose_essential's order.
+        best = np.argmax(votes, axis=1)
+        R = np.where((best < 2)[:, None, None], R0, R1)
+        t = np.where((best % 2 == 0)[:, None], t0, -t0)
+        inl = ((good >> best[seg].astype(np.uint8)) & 1).astype(bool)
+        return epi, n_epi, R, t, inl, votes[np.arange(P), best]
+    epi = sampson_errors(E[seg], b1, b2) <= thresholds[seg]
+    R, t, inl = decompose_essential(E, b1, b2, seg, epi)
+    return (epi, np.bincount(seg[epi], minlength=P), R, t, inl,
+            np.bincount(seg[inl], minlength=P))
+
+
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: covisibility.PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
                       prob: float = 0.999, method: int = cv2.USAC_FAST,
                       max_sample: int | None = None,
+                      engine: EngineName | str = EngineName.AUTO,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
@@ -371,6 +420,8 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         method: OpenCV robust method.
         max_sample: Largest number of a pair's correspondences given to the RANSAC (None:
             all of them).
+        engine: The compiled loops (``'auto'``: where numba runs) or the numpy code, for the
+            tests of the models on all correspondences.
 
     Returns:
         The kept pairs, and counts of rejected pairs by reason.
@@ -392,9 +443,17 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     front_idx = np.flatnonzero(front)
     front_offsets = np.concatenate([[0], np.cumsum(n_front)])
     todo = np.flatnonzero(n_front >= max(min_inliers, 5))
+    # Threads take the next pair as they finish one (the count's next() is atomic under the
+    # GIL), costliest first: a fixed split leaves a core idle when the other is slowed down,
+    # and the RANSAC's cost is not proportional to the correspondences. Each pair's model is
+    # written to its own row, so the result does not depend on which thread ran it.
+    cost = n_front[todo] if max_sample is None else np.minimum(n_front[todo], max_sample)
+    queue = todo[np.argsort(-cost, kind='stable')]
+    taken = itertools.count()
 
-    def estimate(t: int) -> None:  # one OpenCV call per pair; it runs without the GIL
-        for p in todo[cut[t]:cut[t + 1]]:
+    def estimate(_: int) -> None:  # one OpenCV call per pair; it runs without the GIL
+        while (i := next(taken)) < queue.shape[0]:
+            p = queue[i]
             rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
             rows = rows if max_sample is None else rows[_sample(rows.shape[0], max_sample)]
             model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
@@ -402,22 +461,19 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
             if model is not None:
                 E[p], has_model[p] = model, True
 
-    n_threads = chunks.threads_for(int(np.sum(n_front[todo])))
-    cut = chunks.bounds(n_front[todo].astype(float), n_threads)
-    chunks.run(estimate, n_threads)
+    chunks.run(estimate, chunks.threads_for(int(np.sum(n_front[todo]))))
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
     rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
     sel = front & has_model[seg_all]
-    seg, b1, b2 = seg_all[sel], b1_all[sel], b2_all[sel]
-    epi = sampson_errors(E[seg], b1, b2) <= thresholds[seg]
-    R, t, inl = decompose_essential(E, b1, b2, seg, epi)
+    # Usually every correspondence is in front and every pair has a model: no copies then.
+    seg, b1, b2 = ((seg_all, b1_all, b2_all) if sel.all()
+                   else (seg_all[sel], b1_all[sel], b2_all[sel]))
+    epi, n_epi, R, t, inl, counts = _check_models(E, thresholds, b1, b2, seg, engine)
     # Parallax on the epipolar inliers, before cheirality: without baseline the
     # cheirality test of an arbitrary t drops points at random.
-    n_epi = np.bincount(seg[epi], minlength=n_pairs)
-    par_px = rotation_only_parallaxes(b1[epi], b2[epi], seg[epi], n_pairs) * f_pair
+    par_px = rotation_only_parallaxes(b1, b2, seg, n_pairs, epi, engine) * f_pair
     par_px = np.where(n_epi >= 5, par_px, 0.0)
     low = has_model & (par_px < min_parallax_px)
-    counts = np.bincount(seg[inl], minlength=n_pairs)
     few = has_model & ~low & (counts < min_inliers)
     rejected['low_parallax'] += int(np.sum(low))
     rejected['too_few_inliers'] += int(np.sum(few))
@@ -431,6 +487,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
 
 
 def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray,
+                        engine: EngineName | str = EngineName.AUTO,
                         ) -> tuple[EGPairs, FloatArray]:
     """Re-estimate every pair's translation direction with the rotations known.
 
@@ -442,6 +499,7 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
         pairs: EG pairs with their inlier correspondences.
         bearings_c: Unit bearings of all observations, shape (K, 3).
         R_wc: Averaged camera -> world rotations, shape (M, 3, 3).
+        engine: The compiled loops (``'auto'``: where numba runs) or the numpy code.
 
     Returns:
         The pairs with R_rel = R_b^T R_a and the new t_rel, and the world-frame unit direction
@@ -451,6 +509,14 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
         pmba.md §4.3 ("relative translation fine-tuning with rotation known").
     """
     R_rel = np.swapaxes(R_wc[pairs.cam_b], 1, 2) @ R_wc[pairs.cam_a]
+    if resolve(engine).name is EngineName.COMPILED:
+        # Bearings are read in place, through the correspondences' observation indices.
+        b = np.ascontiguousarray(bearings_c, dtype=float)
+        S = epipolar.epipolar_scatter(R_rel, b, pairs.obs_a, pairs.obs_b, pairs.offsets)
+        t = np.linalg.eigh(S)[1][:, :, 0]  # smallest eigenvalue
+        votes = epipolar.translation_votes(R_rel, t, b, pairs.obs_a, pairs.obs_b,
+                                           pairs.offsets)
+        return _with_translations(pairs, R_wc, R_rel, t, votes)
     pidx = pairs.pair_index()
     b1, b2 = bearings_c[pairs.obs_a], bearings_c[pairs.obs_b]
     Rb1 = np.einsum('kij,kj->ki', R_rel[pidx], b1)
@@ -464,7 +530,13 @@ def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray
     _, vecs = np.linalg.eigh(S)
     t = vecs[:, :, 0]  # smallest eigenvalue
     lam1, lam2 = cheirality_depths(R_rel[pidx], t[pidx], b1, b2)
-    votes = np.bincount(pidx, weights=np.sign(lam1) + np.sign(lam2), minlength=pairs.n_pairs)
+    signs = np.bincount(pidx, weights=np.sign(lam1) + np.sign(lam2), minlength=pairs.n_pairs)
+    return _with_translations(pairs, R_wc, R_rel, t, signs.astype(float))
+
+
+def _with_translations(pairs: EGPairs, R_wc: FloatArray, R_rel: FloatArray, t: FloatArray,
+                       votes: FloatArray) -> tuple[EGPairs, FloatArray]:
+    """Return the pairs with R_rel and t (flipped where the depth votes are negative), d_ab."""
     t = t * np.where(votes < 0, -1.0, 1.0)[:, None]
     d_world = np.einsum('pij,pj->pi', R_wc[pairs.cam_b], t)
     new = EGPairs(pairs.cam_a, pairs.cam_b, R_rel, t, pairs.n_inliers, pairs.offsets,

@@ -157,9 +157,51 @@ def test_per_feature_normal_matrix_and_gradient_equal_the_dense_jacobian(
     A = L @ np.swapaxes(L, 1, 2)
     y = rng.normal(size=(K, 3))
     H_ref = np.einsum('kai,kab,kbj->ij', J, A, J)
+    P = rng.normal(size=(M, 3))
+    np.testing.assert_allclose(lin.evaluate(P, engine.name), np.einsum('kai,i->ka', J, P.ravel()),
+                               atol=1e-12)
+    np.testing.assert_allclose(lin.depths(P, engine.name),
+                               np.sum(lin.rays * lin.evaluate(P, 'numpy'), axis=1), atol=1e-12)
+    # The cheirality rows' blocks; an observer that is also an anchor is not merged here.
+    blocks = (np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 0], lin.rays),
+              np.einsum('kai,ka->ki', lin.anchor_coeff[lin.feat, 1], lin.rays),
+              -lin.sin_t[lin.feat, None] * lin.rays)
+    np.testing.assert_allclose(lin.cheirality_row_norms(engine.name),
+                               sum(np.sum(b * b, axis=1) for b in blocks), rtol=1e-12)
     np.testing.assert_allclose(lin.normal_matrix(A, M, engine.name), H_ref,
                                atol=1e-10 * np.abs(H_ref).max())
     g_ref = np.einsum('kai,ka->i', J, y)
-    np.testing.assert_allclose(lin.gradient(y, M), g_ref, atol=1e-10 * np.abs(g_ref).max())
+    np.testing.assert_allclose(lin.gradient(y, M, engine.name), g_ref,
+                               atol=1e-10 * np.abs(g_ref).max())
     # Anchors observe their own features: the i = m and i = a blocks add up.
     assert np.any(lin.cam == lin.main[lin.feat]) and np.any(lin.cam == lin.assoc[lin.feat])
+
+
+def test_nls_engines_agree(engine: Engine) -> None:
+    """The compiled NLS gives the numpy reference's cost, normal equations and positions.
+
+    Per-observation Cauchy scales and weights of 0 (dropped tracks) included.
+    """
+    st = _setup(6, noise_px=0.5)
+    lin, M = st.lin, st.problem.n_cams
+    start = cls.solve_cls(lin, M, st.root).centers_w
+    w = np.ones(lin.n_obs)
+    w[::7] = 0.0
+    f_scale = np.linspace(2.0, 4.0, lin.n_obs) / 500.0
+    cost, N, e = nls._evaluate(lin, start, f_scale, w)
+    H, g = nls._normal_equations(lin, N, e, f_scale, w, M)
+    if engine.name.value == 'compiled':
+        fast = nls._Compiled(lin, f_scale, w)
+        cost_c, N_c, e_c = fast.evaluate(start)
+        assert cost_c == pytest.approx(cost, rel=1e-12)
+        np.testing.assert_allclose(N_c, N, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(e_c, e, rtol=1e-12, atol=1e-15)
+        H_c, g_c = fast.normal_equations(N, e, M)
+        np.testing.assert_allclose(H_c, H, atol=1e-12 * np.abs(H).max())
+        np.testing.assert_allclose(g_c, g, atol=1e-12 * np.abs(g).max())
+    ref = nls.solve_nls(lin, start, st.root, f_scale=f_scale, weights=w, engine='numpy')
+    res = nls.solve_nls(lin, start, st.root, f_scale=f_scale, weights=w, engine=engine.name)
+    assert res.iterations == ref.iterations
+    assert res.final_cost == pytest.approx(ref.final_cost, rel=1e-9)
+    np.testing.assert_allclose(res.centers_w, ref.centers_w,
+                               atol=1e-9 * np.abs(ref.centers_w).max())

@@ -20,6 +20,7 @@ from test.init.scenes import street_scene
 
 import numpy as np
 from pmba_ros.core import so3
+from pmba_ros.core.engine import Engine
 from pmba_ros.init import covisibility, two_view
 import pytest
 
@@ -256,3 +257,50 @@ def test_pair_selection_joins_only_the_pairs_it_tries() -> None:
     assert np.all(pairs.n_inliers <= counts[pairs.cam_a, pairs.cam_b])
     # Inliers come from all shared tracks, not from the ranking's sample.
     assert np.any(pairs.n_inliers > pair_selection.PARTNER_SAMPLE)
+
+
+def test_eg_pair_engines_agree(engine: Engine) -> None:
+    """The compiled model checks give the numpy reference's pairs, inliers and parallaxes.
+
+    Some correspondences are corrupted (epipolar outliers) and some pairs see no baseline.
+    """
+    p = street_scene(4, n_cams=10, n_points=400, noise_px=0.5).gt
+    bearings = p.obs.bearings_c.copy()
+    rng = np.random.default_rng(0)
+    bad = rng.choice(bearings.shape[0], bearings.shape[0] // 20, replace=False)
+    bearings[bad] = bearings[rng.permutation(bad)]
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    args = (bearings, p.intrinsics.fx[p.obs.cam_idx], corr)
+    ref, rejected_ref = two_view.estimate_eg_pairs(*args, min_parallax_px=6.0, engine='numpy')
+    out, rejected = two_view.estimate_eg_pairs(*args, min_parallax_px=6.0, engine=engine.name)
+    assert ref.n_pairs > 10 and rejected == rejected_ref and rejected['low_parallax'] > 0
+    for field in ('cam_a', 'cam_b', 'n_inliers', 'offsets', 'obs_a', 'obs_b'):
+        np.testing.assert_array_equal(getattr(out, field), getattr(ref, field))
+    for field in ('R_rel', 't_rel', 'parallax_px'):
+        np.testing.assert_allclose(getattr(out, field), getattr(ref, field), atol=1e-12)
+    # Translations re-estimated with (slightly wrong) rotations known.
+    R_wc = p.R_wc @ so3.exp(rng.normal(scale=1e-3, size=(p.n_cams, 3)))
+    (ref_pairs, ref_d), (out_pairs, out_d) = (
+        two_view.refine_translations(ref, bearings, R_wc, name)
+        for name in ('numpy', engine.name))
+    np.testing.assert_allclose(out_pairs.t_rel, ref_pairs.t_rel, atol=1e-12)
+    np.testing.assert_allclose(out_d, ref_d, atol=1e-12)
+    # The parallaxes on a masked subset are those of the subset, with either engine.
+    b1, b2 = bearings[corr.obs_a], bearings[corr.obs_b]
+    seg = np.repeat(np.arange(corr.n_pairs), corr.counts())
+    mask = rng.random(seg.shape[0]) < 0.5
+    np.testing.assert_allclose(
+        two_view.rotation_only_parallaxes(b1, b2, seg, corr.n_pairs, mask, engine.name),
+        two_view.rotation_only_parallaxes(b1[mask], b2[mask], seg[mask], corr.n_pairs,
+                                          engine='numpy'), atol=1e-13)
+
+
+def test_compiled_parallaxes_refuse_unsorted_segments() -> None:
+    """The compiled medians walk the correspondences pair by pair: unsorted input is an error."""
+    pytest.importorskip('numba')
+    from pmba_ros.core.compiled import epipolar
+
+    b = np.tile([[0.0, 0.0, 1.0]], (3, 1))
+    with pytest.raises(ValueError, match='sorted'):
+        epipolar.median_angles(np.eye(3)[None].repeat(2, 0), b, b, np.array([1, 0, 1]),
+                               np.ones(3, dtype=bool), 2)
