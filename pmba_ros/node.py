@@ -47,6 +47,7 @@ from pmba_ros._process import tune_process
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.estimator import import_initialization
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
@@ -435,8 +436,7 @@ class PmbaNode:
             'provisional_odometry': self._sent['provisional_odometry'],
             'map_to_odom_sent': self._sent['map_to_odom'], **received_values(received)}
         array = out.make_diagnostics(self.node.get_clock().now().nanoseconds,
-                                     NODE_DIAGNOSTICS_NAME, level, message, values,
-                                     self.backend)
+                                     NODE_DIAGNOSTICS_NAME, level, message, values, self.backend)
         return array.status[0]
 
     def publish_diagnostics(self) -> None:
@@ -564,11 +564,12 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(1) from None
     node = rclpy.create_node(settings.NODE_NAME)
     try:
-        # Before subscribing, so that no message queues behind a first compilation.
+        # Before subscribing, so that no message queues behind a first compilation or import.
         if not warmup.is_warm():
             node.get_logger().info('compiling the solver loops before subscribing (once per '
                                    f'install; expected {warmup.expected_compile_text()})')
         seconds = warmup.warm_up()
+        import_initialization()
         if seconds > 1.0:
             node.get_logger().info(f'solver loops ready in {seconds:.1f} s')
         wrapper = PmbaNode(node)

@@ -42,6 +42,8 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import logging
 import math
 import time
@@ -91,6 +93,12 @@ logger = logging.getLogger(__name__)
 
 STATES = ('collecting', 'waiting_for_parallax', 'tracking')
 _MIN_SHARED_FOR_PARALLAX = 20
+
+
+def import_initialization() -> None:
+    """Import the initialization (and OpenCV, an extra) before input rather than at first use."""
+    with contextlib.suppress(ImportError):   # no OpenCV: the first initialization says so
+        importlib.import_module('pmba_ros.init.pipeline')
 
 
 class Estimator:

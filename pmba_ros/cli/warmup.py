@@ -33,15 +33,18 @@ def ensure_compiled(stream: TextIO, *, verbose: bool = False) -> None:
     """Compile or load the loops before the work, saying so on ``stream`` when it is long.
 
     As the node does before it subscribes: a command's own timings (a replay's speed) then
-    measure its work, the first keyframe as the others, not numba setting itself up.
+    measure its work, the first keyframe as the others, not numba setting itself up or the
+    initialization's modules loading.
 
     Args:
         stream: Where the messages go (stderr for commands whose output is data).
         verbose: Also say how long loading already compiled loops took (the ``warmup`` verb);
             otherwise that is said only when it took over a second.
     """
+    from pmba_ros.backend.estimator import import_initialization
     from pmba_ros.core import warmup
 
+    import_initialization()
     if not warmup.is_warm():
         print('compiling the solver loops (once per install; expected '
               f'{warmup.expected_compile_text()}) ...', file=stream, flush=True)
