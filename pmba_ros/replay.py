@@ -54,7 +54,13 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from pmba_ros._json import dumps_report
+from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.errors import BagError, MessageError
+from pmba_ros.eval.accuracy import accuracy
+from pmba_ros.eval.trajectory import read_trajectory, Trajectory, write_tum
+from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
 from pmba_ros.io.bag_inputs import (
     header_stamp_ns,
@@ -65,14 +71,12 @@ from pmba_ros.io.bag_inputs import (
     stamp_ordered,
 )
 from pmba_ros.io.bag_writer import open_writer
-from pmba_ros.io.bags import BagMessage, iter_messages, ReadStats
+from pmba_ros.io.bags import BagMessage, iter_messages, jazzy_typestore, ReadStats
 from pmba_ros.io.output_dir import output_lock, remove_outputs
+from pmba_ros.plot import pyplot, write_replay_plots
 from pmba_ros.replay_report import collect_stats, ReplayReport
 
 if TYPE_CHECKING:
-    from pmba_ros.backend.config import BackendConfig
-    from pmba_ros.backend.logic import BackendLogic
-    from pmba_ros.eval.trajectory import Trajectory
     from pmba_ros.io.bag_writer import BagWriter
 
 logger = logging.getLogger(__name__)
@@ -106,9 +110,7 @@ def camera_info_from_intrinsics(intrinsics: Sequence[float], stamp_ns: int = 0) 
     Raises:
         MessageError: If the intrinsics are not four positive, finite numbers.
     """
-    from pmba_ros.backend.msg_backend import RosbagsBackend
     from pmba_ros.backend.types import CameraModel
-    from pmba_ros.io.bags import jazzy_typestore
     from pmba_ros.sim.inputs import make_camera_info
 
     values = [float(v) for v in intrinsics]
@@ -210,9 +212,6 @@ class _Run:
 
 def _make_logic(config: BackendConfig) -> BackendLogic:
     """Create the back-end for a replay (deterministic, rosbags messages)."""
-    from pmba_ros.backend.logic import BackendLogic
-    from pmba_ros.backend.msg_backend import RosbagsBackend
-    from pmba_ros.io.bags import jazzy_typestore
     return BackendLogic(config, RosbagsBackend(jazzy_typestore()))
 
 
@@ -247,8 +246,6 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
             before its first readable message (later damage is a warning in the report).
         OSError: If an output cannot be written (a full disk); the report names the cause.
     """
-    from pmba_ros.backend.config import BackendConfig
-
     t_start = time.perf_counter()
     bag_paths = [Path(b) for b in bags]
     out = Path(out_dir)
@@ -257,7 +254,6 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     report = ReplayReport(bags=bag_paths, out_dir=out)
     gt_traj = _read_gt(gt) if gt is not None else None
     if plot:
-        from pmba_ros.plot import pyplot
         pyplot()  # fail before the replay if matplotlib is missing
     inputs, counts = select_inputs(bag_paths, config, intrinsics is not None, report.warnings)
     report.topics = {'tracks': inputs.tracks}
@@ -389,7 +385,6 @@ def _check_input(report: ReplayReport, damage: ReadStats) -> None:
 
 def _read_gt(path: Path | str) -> Trajectory:
     """Read a ground-truth trajectory (format detected)."""
-    from pmba_ros.eval.trajectory import read_trajectory
     return read_trajectory(path)
 
 
@@ -401,11 +396,6 @@ def _write_outputs(logic: BackendLogic | None, report: ReplayReport, out: Path, 
         PmbaError, OSError: If writing fails after a replay that finished (after an error,
             the first error stays the one raised; later ones become warnings).
     """
-    from pmba_ros.eval.accuracy import accuracy
-    from pmba_ros.eval.trajectory import write_tum
-    from pmba_ros.io.ply import write_ply
-    from pmba_ros.plot import write_replay_plots
-
     if logic is None:  # stopped before the back-end existed: only the report
         _dump_report(report, out, outputs.t_start)
         return
@@ -419,7 +409,7 @@ def _write_outputs(logic: BackendLogic | None, report: ReplayReport, out: Path, 
         report.files['optimized_tum'] = out / OPTIMIZED_TUM
         report.keyframes_out = len(optimized)
         points = logic.landmarks()
-        write_atomic(out / LANDMARKS_PLY, lambda tmp: write_ply(tmp, points))
+        write_atomic(out / LANDMARKS_PLY, lambda tmp: ply.write_ply(tmp, points))
         report.files['landmarks_ply'] = out / LANDMARKS_PLY
         if outputs.gt is not None and finished:
             report.accuracy = accuracy(frontend, optimized, outputs.gt, align=outputs.align)
