@@ -24,6 +24,18 @@ import pytest
 if TYPE_CHECKING:
     from pmba_ros.core.engine import Engine
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Size the BLAS pools once, as every program of the package does at start-up.
+
+    Several tests run the CLI in-process, which does it too: without this, a test's numbers
+    would depend on whether such a test ran before it (BLAS' summation order changes with its
+    thread count).
+    """
+    del config
+    from pmba_ros._threads import limit_blas_threads
+    limit_blas_threads()
+
+
 #: The read-only datasets live beside the repository (CI clones it with shared/ next to it).
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
 
