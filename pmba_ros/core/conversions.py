@@ -226,19 +226,20 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
         msg = f'xyz_to_parallax: points of shape {points_w.shape} for {problem.n_feats} features'
         raise ValueError(msg)
     if eng.name is EngineName.COMPILED:   # _point_features in one compiled pass
-        main_idx, assoc_idx, ok, cos_t, n, valid, unseen = compiled_anchor_search.point_features(
-            R_wc, centers_w, points_w, rig.rig_frame_bearings(problem), problem.obs.cam_idx,
-            problem.obs.feat_idx, _admissible(problem, R_wc.shape[0], allowed_pairs),
-            _coincident_pairs(centers_w), _SWAP_DEPTH_RATIO)
+        main_idx, assoc_idx, ok, cos_t, n, _, unseen, n_reinit = (
+            compiled_anchor_search.point_features(
+                R_wc, centers_w, points_w, rig.rig_frame_bearings(problem), problem.obs.cam_idx,
+                problem.obs.feat_idx, _admissible(problem, R_wc.shape[0], allowed_pairs),
+                _SWAP_DEPTH_RATIO))
         if unseen >= 0:
             raise ProblemError(_NOT_OBSERVED)
         theta = np.arccos(cos_t)
     else:
         main_idx, assoc_idx, ok, theta, n, valid = _point_features(
             problem, R_wc, centers_w, points_w, allowed_pairs, eng)
-    if np.any(~valid & ok):
-        logger.info('xyz_to_parallax: %d points re-initialized from rotations',
-                    int(np.sum(~valid & ok)))
+        n_reinit = int(np.sum(~valid & ok))
+    if n_reinit:
+        logger.info('xyz_to_parallax: %d points re-initialized from rotations', n_reinit)
     return ParallaxFeatures(theta, n, main_idx, assoc_idx), ok
 
 

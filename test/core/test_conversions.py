@@ -211,3 +211,25 @@ def test_xyz_to_parallax_needs_anchors_that_observe(engine: Engine) -> None:
     with pytest.raises(ValueError, match='points of shape'):
         conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
                                     np.array(problem.points_w)[1:], engine=engine)
+
+
+def test_compiled_coincident_pairs_are_numpys() -> None:
+    """The compiled pass finds the same camera pairs without baseline, at the boundary too."""
+    pytest.importorskip('numba')
+    from pmba_ros.core.compiled import anchor_search
+
+    rng = np.random.default_rng(6)
+    found = 0
+    for _ in range(300):
+        M = int(rng.integers(1, 20))
+        C = rng.normal(size=(M, 3)) * rng.choice([1e-3, 1.0, 1e3])
+        scale = max(float(np.ptp(C, axis=0).max()) if M > 1 else 0.0, 1.0)
+        for i, j in rng.integers(0, M, (M // 3, 2)):   # near the 1e-9 * scale boundary
+            step = rng.choice([0.0, 0.5, 0.99, 1.0, 1.01]) * 1e-9 * scale
+            C[i] = C[j] + step * rng.normal(size=3) / np.sqrt(3.0)
+        if rng.random() < 0.2:
+            C[:, 0] = np.round(C[:, 0])                  # ties in the sweep's axis
+        expected = np.sort(conversions._coincident_pairs(C))
+        np.testing.assert_array_equal(anchor_search.coincident_keys(C), expected)
+        found += expected.shape[0]
+    assert found > 0

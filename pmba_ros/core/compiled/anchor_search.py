@@ -89,18 +89,60 @@ def _clip_unit(c: float) -> float:
 
 
 @_jit
+def _coincident_keys(centers_w: Any) -> Any:
+    """Return the sorted keys a * M + b (both orders) of camera pairs without baseline.
+
+    conversions._coincident_pairs: its sweep along x, its tolerance and arithmetic.
+    """
+    M = centers_w.shape[0]
+    scale = 0.0
+    if M > 1:
+        for d in range(3):
+            ptp = np.max(centers_w[:, d]) - np.min(centers_w[:, d])
+            scale = ptp if d == 0 or ptp > scale else scale
+    tol = max(scale, 1.0) * 1e-9
+    order = np.argsort(centers_w[:, 0], kind='mergesort')
+    keys = np.empty(0, dtype=np.int64)
+    for sweep in range(2):   # count, then fill
+        count = 0
+        for i in range(M):
+            a = order[i]
+            lim = centers_w[a, 0] + tol
+            for j in range(i + 1, M):
+                b = order[j]
+                if centers_w[b, 0] > lim:
+                    break
+                d0 = centers_w[a, 0] - centers_w[b, 0]
+                d1 = centers_w[a, 1] - centers_w[b, 1]
+                d2 = centers_w[a, 2] - centers_w[b, 2]
+                # numpy's einsum order (see _point_features' rays).
+                if (d0 * d0 + d2 * d2) + d1 * d1 <= tol * tol:
+                    if sweep == 1:
+                        keys[2 * count] = a * M + b
+                        keys[2 * count + 1] = b * M + a
+                    count += 1
+        if sweep == 0:
+            if count == 0:
+                return keys
+            keys = np.empty(2 * count, dtype=np.int64)
+    return np.sort(keys)
+
+
+@_jit
 def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: Any,
-                    feat_idx: Any, allowed: Any, close: Any, M: int, swap_ratio: float,
-                    main_idx: Any, assoc_idx: Any, ok: Any, cos_t: Any, n: Any,
-                    valid: Any) -> int:
+                    feat_idx: Any, allowed: Any, swap_ratio: float, main_idx: Any,
+                    assoc_idx: Any, ok: Any, cos_t: Any, n: Any, valid: Any,
+                    ) -> tuple[int, int]:
     """Anchors, cos(theta), n and validity of each feature from its point, in one pass.
 
     The steps and their arithmetic order are those of conversions.xyz_to_parallax's numpy
-    path: widest pair, depth-ratio swap, the point's ray and parallax, and the rotation-only
-    values where the point is unusable. Returns the first feature whose anchor camera does
-    not observe it (a feature seen from one pose), else -1.
+    path: pairs without baseline, widest pair, depth-ratio swap, the point's ray and parallax,
+    and the rotation-only values where the point is unusable. Returns the first feature whose
+    anchor camera does not observe it (a feature seen from one pose; -1: none), and how many
+    features with an anchor pair took the rotation-only values.
     """
-    K, N = cam_idx.shape[0], points_w.shape[0]
+    K, N, M = cam_idx.shape[0], points_w.shape[0], R_wc.shape[0]
+    close = _coincident_keys(centers_w)
     starts = np.zeros(N + 1, dtype=np.int64)   # the problem's feature_offsets()
     for k in range(K):
         starts[feat_idx[k] + 1] += 1
@@ -114,6 +156,7 @@ def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: A
             # SIMD lanes), so that the pairs' cosines and both engines' fall-backs agree.
             rays[k, i] = ((R_wc[c, i, 0] * v[k, 0] + R_wc[c, i, 2] * v[k, 2])
                           + R_wc[c, i, 1] * v[k, 1])
+    n_reinit = 0
     for f in range(N):
         lo, hi = starts[f], starts[f + 1]
         best, a, b = _widest_pair(rays, cam_idx, lo, hi, allowed, close, M)
@@ -132,7 +175,7 @@ def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: A
         km = _first_observation(cam_idx, lo, hi, m)
         ka = _first_observation(cam_idx, lo, hi, s)
         if km < 0 or ka < 0:
-            return f
+            return f, n_reinit
         # The point's ray in the main anchor's frame, R_m^T (F - P_m), normalized.
         nx = R_wc[m, 0, 0] * mx + R_wc[m, 1, 0] * my + R_wc[m, 2, 0] * mz
         ny = R_wc[m, 0, 1] * mx + R_wc[m, 1, 1] * my + R_wc[m, 2, 1] * mz
@@ -153,8 +196,10 @@ def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: A
             n[f, 0], n[f, 1], n[f, 2] = v[km, 0], v[km, 1], v[km, 2]
             cos = (rays[km, 0] * rays[ka, 0] + rays[km, 1] * rays[ka, 1]
                    + rays[km, 2] * rays[ka, 2])
+            if ok[f]:
+                n_reinit += 1
         cos_t[f] = _clip_unit(cos)
-    return -1
+    return -1, n_reinit
 
 
 def widest_pairs(rays: FloatArray, cam_idx: IntArray, starts: IntArray,
@@ -184,8 +229,8 @@ def _frozen(x: Any, dtype: Any) -> Any:
 
 def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray,
                    v: FloatArray, cam_idx: IntArray, feat_idx: IntArray, allowed: Any,
-                   close: IntArray, swap_ratio: float,
-                   ) -> tuple[IntArray, IntArray, Any, FloatArray, FloatArray, Any, int]:
+                   swap_ratio: float,
+                   ) -> tuple[IntArray, IntArray, Any, FloatArray, FloatArray, Any, int, int]:
     """Return the anchors and features of points (conversions.xyz_to_parallax), in one pass.
 
     Args:
@@ -195,13 +240,14 @@ def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray
         v: Bearings in the pose (rig) frame, shape (K, 3).
         cam_idx: Pose of each observation (sorted by feature, then pose), shape (K,).
         feat_idx: Feature of each observation, shape (K,), values below N.
-        allowed: (M, M) mask of admissible camera pairs, or None (all).
-        close: Keys a * M + b of inadmissible camera pairs.
+        allowed: (M, M) mask of admissible camera pairs, or None (all but those without
+            baseline).
         swap_ratio: Depth ratio above which the anchors are swapped.
 
     Returns:
         main_idx, assoc_idx, ok, clipped cos(theta), n, valid (the point gave theta and n),
-        and the first feature whose anchor camera does not observe it (-1: none).
+        the first feature whose anchor camera does not observe it (-1: none) and the number
+        of features with an anchor pair whose point was not usable.
     """
     N = points_w.shape[0]
     main_idx = np.zeros(N, dtype=np.int64)
@@ -211,9 +257,14 @@ def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray
     cos_t, n = np.empty(N), np.empty((N, 3))
     mask = np.zeros((0, 0), dtype=np.bool_) if allowed is None else allowed
     f64 = np.float64
-    bad = _point_features(_frozen(R_wc, f64), _frozen(centers_w, f64), _frozen(points_w, f64),
-                          _frozen(v, f64), _frozen(cam_idx, np.int64),
-                          _frozen(feat_idx, np.int64), _frozen(mask, np.bool_),
-                          _frozen(np.sort(close), np.int64), R_wc.shape[0], swap_ratio,
-                          main_idx, assoc_idx, ok, cos_t, n, valid)
-    return main_idx, assoc_idx, ok, cos_t, n, valid, int(bad)
+    unseen, n_reinit = _point_features(
+        _frozen(R_wc, f64), _frozen(centers_w, f64), _frozen(points_w, f64), _frozen(v, f64),
+        _frozen(cam_idx, np.int64), _frozen(feat_idx, np.int64), _frozen(mask, np.bool_),
+        swap_ratio, main_idx, assoc_idx, ok, cos_t, n, valid)
+    return main_idx, assoc_idx, ok, cos_t, n, valid, int(unseen), int(n_reinit)
+
+
+def coincident_keys(centers_w: FloatArray) -> IntArray:
+    """Return conversions._coincident_pairs' keys, sorted (the one used by point_features)."""
+    out: IntArray = _coincident_keys(_frozen(centers_w, np.float64))
+    return out
