@@ -26,7 +26,8 @@ import logging
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import residuals, rig, sphere
-from pmba_ros.core.engine import default_engine, Engine
+from pmba_ros.core.compiled import anchor_search as compiled_anchor_search
+from pmba_ros.core.engine import default_engine, Engine, EngineName
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
@@ -86,13 +87,19 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     if centers_w is not None:
         close = _coincident_pairs(centers_w)
     counts = np.bincount(obs.feat_idx, minlength=problem.n_feats)
-    if problem.rig is not None:  # two cameras of one pose have no baseline between anchors
-        other = ~np.eye(R_wc.shape[0], dtype=bool)
-        allowed_pairs = other if allowed_pairs is None else allowed_pairs & other
     main_idx, assoc_idx, ok = (engine or default_engine()).widest_pairs(
         world_rays(problem, R_wc), obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]),
-        allowed_pairs, close, R_wc.shape[0])
+        _admissible(problem, R_wc.shape[0], allowed_pairs), close, R_wc.shape[0])
     return _swap_far_main(main_idx, assoc_idx, ok, centers_w, points_w)
+
+
+def _admissible(problem: BAProblem, n_cams: int,
+                allowed_pairs: BoolArray | None) -> BoolArray | None:
+    """Return the (M, M) mask of camera pairs that may anchor a feature (None: all)."""
+    if problem.rig is not None:  # two cameras of one pose have no baseline between anchors
+        other = ~np.eye(n_cams, dtype=bool)
+        return other if allowed_pairs is None else allowed_pairs & other
+    return allowed_pairs
 
 
 def _swap_far_main(main_idx: IntArray, assoc_idx: IntArray, ok: BoolArray,
@@ -131,6 +138,9 @@ def _coincident_pairs(centers_w: FloatArray) -> IntArray:
     return np.concatenate([a * M + b, b * M + a]).astype(np.int64)
 
 
+_NOT_OBSERVED = 'anchor_observations: an anchor camera does not observe its feature'
+
+
 def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
     """Return the index of the observation of feature j by camera cams[j], shape of ``cams``.
 
@@ -146,8 +156,7 @@ def anchor_observations(problem: BAProblem, cams: IntArray) -> IntArray:
     k = np.searchsorted(keys, want)
     k = np.minimum(k, keys.shape[0] - 1)
     if keys.shape[0] == 0 or np.any(keys[k] != want):
-        msg = 'anchor_observations: an anchor camera does not observe its feature'
-        raise ProblemError(msg)
+        raise ProblemError(_NOT_OBSERVED)
     out: IntArray = k.astype(np.int64)
     return out
 
@@ -205,10 +214,41 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
     """Convert Euclidean points to PMBA features with anchors chosen by :func:`select_anchors`.
 
     n = xi(R_m^T (F - P_m)) and theta = angle(F - P_m, F - P_a). Points that are not finite or
-    lie behind the main anchor fall back to :func:`features_from_rotations` values.
+    lie behind the main anchor fall back to :func:`features_from_rotations` values. The
+    compiled engine does all of it in one pass over the observations, numpy through
+    :func:`select_anchors` and :func:`features_from_rotations`; the results are the same.
 
     Returns:
         The features and ok (N,): False for features without an admissible anchor pair.
+    """
+    eng = engine or default_engine()
+    if points_w.shape != (problem.n_feats, 3):
+        msg = f'xyz_to_parallax: points of shape {points_w.shape} for {problem.n_feats} features'
+        raise ValueError(msg)
+    if eng.name is EngineName.COMPILED:   # _point_features in one compiled pass
+        main_idx, assoc_idx, ok, cos_t, n, _, unseen, n_reinit = (
+            compiled_anchor_search.point_features(
+                R_wc, centers_w, points_w, rig.rig_frame_bearings(problem), problem.obs.cam_idx,
+                problem.obs.feat_idx, _admissible(problem, R_wc.shape[0], allowed_pairs),
+                _SWAP_DEPTH_RATIO))
+        if unseen >= 0:
+            raise ProblemError(_NOT_OBSERVED)
+        theta = np.arccos(cos_t)
+    else:
+        main_idx, assoc_idx, ok, theta, n, valid = _point_features(
+            problem, R_wc, centers_w, points_w, allowed_pairs, eng)
+        n_reinit = int(np.sum(~valid & ok))
+    if n_reinit:
+        logger.info('xyz_to_parallax: %d points re-initialized from rotations', n_reinit)
+    return ParallaxFeatures(theta, n, main_idx, assoc_idx), ok
+
+
+def _point_features(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+                    points_w: FloatArray, allowed_pairs: BoolArray | None, engine: Engine,
+                    ) -> tuple[IntArray, IntArray, BoolArray, FloatArray, FloatArray, BoolArray]:
+    """Return the anchors, ok, theta, n and valid (from the point) of xyz_to_parallax.
+
+    The numpy reference of :func:`pmba_ros.core.compiled.anchor_search.point_features`.
     """
     main_idx, assoc_idx, ok = select_anchors(problem, R_wc, allowed_pairs=allowed_pairs,
                                              centers_w=centers_w, points_w=points_w,
@@ -224,10 +264,7 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
              & (sphere.dots(n, from_rot.n) > 0))
     n = np.where(valid[:, None], n, from_rot.n)
     theta = np.where(valid, theta, from_rot.theta)
-    if np.any(~valid & ok):
-        logger.info('xyz_to_parallax: %d points re-initialized from rotations',
-                    int(np.sum(~valid & ok)))
-    return ParallaxFeatures(theta, n, main_idx, assoc_idx), ok
+    return main_idx, assoc_idx, ok, theta, n, valid
 
 
 def parallax_homogeneous(R_wc: FloatArray, centers_w: FloatArray,

@@ -110,6 +110,8 @@ def warm_up() -> float:
                                            np.asarray(problem.points_w))
     solve(problem, SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
                                 loss=Loss.CAUCHY, max_iterations=2), feats)
+    # The global initialization's anchor search (xyz_to_parallax above has its own pass).
+    conversions.select_anchors(problem, problem.R_wc, centers_w=problem.centers_w)
     # The global initialization's position steps (init.cls), on the same problem's indices.
     obs = problem.obs
     assoc, main = feats.assoc_idx.astype(np.int64), feats.main_idx.astype(np.int64)

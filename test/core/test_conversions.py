@@ -127,3 +127,109 @@ def _anchors_of(problem):
                                                  centers_w=problem.centers_w)
     assert ok.all()
     return main, assoc
+
+
+def _awkward_points(problem, points: np.ndarray, assoc: np.ndarray) -> np.ndarray:
+    """Points with some unusable and some near their associate anchor (depth-ratio swap).
+
+    Rows 0-1 are not finite, 2-3 lie behind every camera, 4 sits on its associate anchor's
+    centre and 5-6 just in front of it.
+    """
+    X = np.array(points)
+    X[0] = np.nan
+    X[1] = [np.inf, 0.0, 1.0]
+    mean = problem.centers_w.mean(axis=0)
+    X[2:4] = 2.0 * mean - X[2:4]
+    for row, ahead in ((4, 0.0), (5, 1e-3), (6, 1e-2)):
+        cam = assoc[row]
+        X[row] = problem.centers_w[cam] + ahead * problem.R_wc[cam][:, 2]
+    return X
+
+
+@pytest.mark.parametrize('case', ['plain', 'restricted', 'rig'])
+def test_xyz_to_parallax_engines_agree(case: str) -> None:
+    """The compiled pass gives the numpy path's anchors, ok and features.
+
+    Unusable points (not finite, behind the camera) take the rotation-only values, points
+    close to a camera swap their anchors, coincident cameras anchor nothing. The floats are
+    the same bits where numpy's products are added in the compiled order (x86-64); the test
+    allows for another order's rounding.
+    """
+    from .helpers import engine_named
+    from .test_rig import rig_problem
+
+    if case == 'rig':
+        problem, X = rig_problem(n_poses=6)
+    else:
+        base = forward_problem(7, n_cams=8, n_points=40)
+        centers = np.array(base.centers_w)
+        centers[4] = centers[2] + 1e-12          # no baseline between cameras 2 and 4
+        problem = _uneven(make_problem(base.R_wc, centers, base.intrinsics, base.obs.cam_idx,
+                                       base.obs.feat_idx, base.obs.pixels), 8)
+        X = np.asarray(base.points_w)[problem.feature_ids]
+    allowed = None
+    if case == 'restricted':
+        allowed = np.random.default_rng(2).random((problem.n_cams,) * 2) < 0.7
+        allowed |= allowed.T
+    _, assoc, _ = conversions.select_anchors(problem, problem.R_wc, allowed_pairs=allowed,
+                                             centers_w=problem.centers_w)
+    points = _awkward_points(problem, X, assoc)
+    out = {}
+    for name in ('numpy', 'compiled'):
+        out[name] = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                                points, allowed_pairs=allowed,
+                                                engine=engine_named(name))
+    (f_np, ok_np), (f_c, ok_c) = out['numpy'], out['compiled']
+    np.testing.assert_array_equal(ok_c, ok_np)
+    np.testing.assert_array_equal(f_c.main_idx, f_np.main_idx)
+    np.testing.assert_array_equal(f_c.assoc_idx, f_np.assoc_idx)
+    np.testing.assert_allclose(f_c.theta, f_np.theta, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(f_c.n, f_np.n, rtol=0.0, atol=1e-12)
+    # The cases above were reached: rotation-only values, swapped anchors.
+    from_rot = conversions.features_from_rotations(problem, problem.R_wc, f_np.main_idx,
+                                                   f_np.assoc_idx)
+    np.testing.assert_array_equal(f_c.theta[:4], from_rot.theta[:4])
+    np.testing.assert_array_equal(f_c.main_idx[4:7], assoc[4:7])
+    assert np.any(ok_np) and (case == 'rig' or not np.all(ok_np))
+
+
+def test_xyz_to_parallax_needs_anchors_that_observe(engine: Engine) -> None:
+    """A feature seen once (not by camera 0) has no anchor observation: ProblemError."""
+    from dataclasses import replace
+
+    from pmba_ros.core.problem import Observations
+    from pmba_ros.errors import ProblemError
+
+    problem = forward_problem(4, n_cams=5, n_points=10)
+    obs = problem.obs
+    keep = (obs.feat_idx != 0) | (obs.cam_idx == 3)
+    one_seen = replace(problem, obs=Observations(obs.cam_idx[keep], obs.feat_idx[keep],
+                                                 obs.bearings_c[keep], obs.pixels[keep]))
+    with pytest.raises(ProblemError, match='does not observe'):
+        conversions.xyz_to_parallax(one_seen, problem.R_wc, problem.centers_w,
+                                    np.array(problem.points_w), engine=engine)
+    with pytest.raises(ValueError, match='points of shape'):
+        conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                    np.array(problem.points_w)[1:], engine=engine)
+
+
+def test_compiled_coincident_pairs_are_numpys() -> None:
+    """The compiled pass finds the same camera pairs without baseline, at the boundary too."""
+    pytest.importorskip('numba')
+    from pmba_ros.core.compiled import anchor_search
+
+    rng = np.random.default_rng(6)
+    found = 0
+    for _ in range(300):
+        M = int(rng.integers(1, 20))
+        C = rng.normal(size=(M, 3)) * rng.choice([1e-3, 1.0, 1e3])
+        scale = max(float(np.ptp(C, axis=0).max()) if M > 1 else 0.0, 1.0)
+        for i, j in rng.integers(0, M, (M // 3, 2)):   # near the 1e-9 * scale boundary
+            step = rng.choice([0.0, 0.5, 0.99, 1.0, 1.01]) * 1e-9 * scale
+            C[i] = C[j] + step * rng.normal(size=3) / np.sqrt(3.0)
+        if rng.random() < 0.2:
+            C[:, 0] = np.round(C[:, 0])                  # ties in the sweep's axis
+        expected = np.sort(conversions._coincident_pairs(C))
+        np.testing.assert_array_equal(anchor_search.coincident_keys(C), expected)
+        found += expected.shape[0]
+    assert found > 0

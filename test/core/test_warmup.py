@@ -60,7 +60,7 @@ def test_warm_up_leaves_nothing_to_compile_for_solves_and_a_replay() -> None:
         '             "_ray_normal_matrix", "_ray_errors", "_nls_weights", "_ray_gradient",\n'
         '             "_epipolar_votes", "_rotation_covariances", "_median_angles",\n'
         '             "_epipolar_outer", "_translation_votes", "_linear_rays", "_ray_depths",\n'
-        '             "_cheirality_row_norms"):\n'
+        '             "_cheirality_row_norms", "_point_features"):\n'
         '    assert after[name], name\n'
         'from pmba_ros.core.solve import SolveOptions, solve\n'
         'from pmba_ros.sim.scenes import street_scene\n'

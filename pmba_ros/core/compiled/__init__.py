@@ -23,7 +23,8 @@ loops visit each observation, feature or observation pair once and write in plac
 - the robust cost and row weights (loss.py);
 - J^T J (U, W, V, g), its Jacobi scaling, V^-1 with the Schur complement and right-hand side,
   the back-substitution and x^T H x (normal_equations.py), and the covisible pose pairs;
-- the widest-pair anchor search (conversions.select_anchors).
+- the widest-pair anchor search (conversions.select_anchors), and with it the PMBA features
+  of points in one pass (conversions.xyz_to_parallax).
 
 On large problems the rows, J^T J and the Schur complement run on every core, features split
 between threads (chunks.py).
