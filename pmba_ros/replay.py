@@ -145,6 +145,9 @@ class _Run:
         self.tracks_accepted = 0
         self.tracks_rejected = 0
         self.first_error: str | None = None
+        self._handlers: dict[str, Callable[[Any], None]] = {
+            'camera_info': logic.on_camera_info, 'tracks': logic.on_tracks,
+            'keyframe': logic.on_keyframe, 'tf': logic.on_tf}
 
     def feed(self, stamp: int, kind: str, message: BagMessage) -> None:
         """Feed one input message, then write whatever the logic produced."""
@@ -155,9 +158,7 @@ class _Run:
         self.last_stamp = max(self.last_stamp, stamp)
         if kind == self.keyframe_kind:
             report.keyframes_in += 1
-        handler: Callable[[Any], None] = {
-            'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
-            'keyframe': self.logic.on_keyframe, 'tf': self.logic.on_tf}[kind]
+        handler: Callable[[Any], None] = self._handlers[kind]
         if message.topic in self.camera_ids:
             handler = functools.partial(self.logic.on_camera_info,
                                         camera_id=self.camera_ids[message.topic])
@@ -182,7 +183,7 @@ class _Run:
     def _rejections(self) -> int:
         """Return the logic's count of rejected input messages."""
         counters = self.logic.stats.counters
-        return sum(counters[name] for name in REJECTION_COUNTERS)
+        return sum(counters.get(name, 0) for name in REJECTION_COUNTERS)
 
     def _rejected(self, kind: str, message: BagMessage, stamp: int, error: str) -> None:
         """Count a rejected input; stop if no tracks message has been usable."""
