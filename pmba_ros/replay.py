@@ -71,7 +71,14 @@ from pmba_ros.io.bag_inputs import (
     stamp_ordered,
 )
 from pmba_ros.io.bag_writer import open_writer
-from pmba_ros.io.bags import BagMessage, iter_messages, jazzy_typestore, ReadStats
+from pmba_ros.io.bags import (
+    BagMessage,
+    iter_messages,
+    jazzy_typestore,
+    open_bags,
+    OpenBags,
+    ReadStats,
+)
 from pmba_ros.io.output_dir import output_lock, remove_outputs
 from pmba_ros.plot import pyplot, write_replay_plots
 from pmba_ros.replay_report import collect_stats, ReplayReport
@@ -138,6 +145,9 @@ class _Run:
         self.tracks_accepted = 0
         self.tracks_rejected = 0
         self.first_error: str | None = None
+        self._handlers: dict[str, Callable[[Any], None]] = {
+            'camera_info': logic.on_camera_info, 'tracks': logic.on_tracks,
+            'keyframe': logic.on_keyframe, 'tf': logic.on_tf}
 
     def feed(self, stamp: int, kind: str, message: BagMessage) -> None:
         """Feed one input message, then write whatever the logic produced."""
@@ -148,9 +158,7 @@ class _Run:
         self.last_stamp = max(self.last_stamp, stamp)
         if kind == self.keyframe_kind:
             report.keyframes_in += 1
-        handler: Callable[[Any], None] = {
-            'camera_info': self.logic.on_camera_info, 'tracks': self.logic.on_tracks,
-            'keyframe': self.logic.on_keyframe, 'tf': self.logic.on_tf}[kind]
+        handler: Callable[[Any], None] = self._handlers[kind]
         if message.topic in self.camera_ids:
             handler = functools.partial(self.logic.on_camera_info,
                                         camera_id=self.camera_ids[message.topic])
@@ -175,7 +183,7 @@ class _Run:
     def _rejections(self) -> int:
         """Return the logic's count of rejected input messages."""
         counters = self.logic.stats.counters
-        return sum(counters[name] for name in REJECTION_COUNTERS)
+        return sum(counters.get(name, 0) for name in REJECTION_COUNTERS)
 
     def _rejected(self, kind: str, message: BagMessage, stamp: int, error: str) -> None:
         """Count a rejected input; stop if no tracks message has been usable."""
@@ -255,7 +263,25 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     gt_traj = _read_gt(gt) if gt is not None else None
     if plot:
         pyplot()  # fail before the replay if matplotlib is missing
-    inputs, counts = select_inputs(bag_paths, config, intrinsics is not None, report.warnings)
+    with open_bags(bag_paths) as opened:
+        inputs, kinds, camera_ids = _select(opened, config, intrinsics is not None, report)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            msg = f'{out}: cannot create output folder: {err}'
+            raise BagError(msg) from err
+        with output_lock(out):
+            remove_outputs(out, OUTPUT_FILES)
+            _run_and_write(config, intrinsics, report, opened, kinds, inputs, out,
+                           _Outputs(gt_traj, plot, align, t_start, camera_ids), progress)
+    return report
+
+
+def _select(bags: OpenBags, config: BackendConfig, camera_given: bool, report: ReplayReport,
+            ) -> tuple[ReplayInputs, dict[str, str], dict[str, int]]:
+    """Return the input topics, their kinds (topic -> kind) and a rig's camera info topics."""
+    inputs, counts = select_inputs(report.bags, config, camera_given, report.warnings,
+                                   bags.topics)
     report.topics = {'tracks': inputs.tracks}
     if inputs.keyframes:
         report.topics['keyframes'] = inputs.keyframes
@@ -268,7 +294,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
         kinds[inputs.camera_info] = 'camera_info'
     for topic in inputs.tf:
         kinds[topic] = 'tf'
-    camera_ids = rig_camera_infos(bag_paths, config, report.warnings, counts)
+    camera_ids = rig_camera_infos(report.bags, config, report.warnings, counts, bags.topics)
     for topic in camera_ids:
         kinds[topic] = 'camera_info'
     if camera_ids:
@@ -276,16 +302,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     if inputs.tf:
         report.topics['tf'] = ', '.join(inputs.tf)
     report.messages_announced = sum(counts.values())
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        msg = f'{out}: cannot create output folder: {err}'
-        raise BagError(msg) from err
-    with output_lock(out):
-        remove_outputs(out, OUTPUT_FILES)
-        _run_and_write(config, intrinsics, report, bag_paths, kinds, inputs, out,
-                       _Outputs(gt_traj, plot, align, t_start, camera_ids), progress)
-    return report
+    return inputs, kinds, camera_ids
 
 
 @dataclass(frozen=True)
@@ -300,7 +317,7 @@ class _Outputs:
 
 
 def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, report: ReplayReport,
-                   bag_paths: list[Path], kinds: dict[str, str], inputs: ReplayInputs, out: Path,
+                   bags: OpenBags, kinds: dict[str, str], inputs: ReplayInputs, out: Path,
                    outputs: _Outputs, progress: ProgressCallback | None) -> None:
     """Feed the bags to a new back-end into the result bag, then write the other outputs."""
     report.files['result_bag'] = out / RESULT_BAG
@@ -317,7 +334,7 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
                        keyframe_kind)
             run.camera_ids = outputs.camera_ids
             damage = ReadStats()
-            stream = iter_messages(bag_paths, topics=list(kinds), damage=damage,
+            stream = iter_messages(bags, topics=list(kinds), damage=damage,
                                    points_as_arrays=True)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
                 run.feed(stamp, kind, message)

@@ -376,10 +376,15 @@ def _finish(stamp_ns: int, frame_id: str, layout: str, num_cams: int, cols: _Col
             finite &= np.isfinite(coords).all(axis=1)
     inexact = finite & cols.inexact
     usable = finite & ~cols.inexact
-    ids = np.floor(np.where(usable, ids_raw, 0.0) + 0.5)
-    cams = np.floor(np.where(usable, cols.cams, 0.0) + 0.5)
-    _check_ids(ids[usable], ids_raw[usable], layout, 'feature ids')
-    _check_ids(cams[usable], cols.cams[usable], layout, 'camera ids')
+    if usable.all():   # the usual message: the masks below would select every row
+        ids, cams = np.floor(ids_raw + 0.5), np.floor(cols.cams + 0.5)
+        _check_ids(ids, ids_raw, layout, 'feature ids')
+        _check_ids(cams, cols.cams, layout, 'camera ids')
+    else:
+        ids = np.floor(np.where(usable, ids_raw, 0.0) + 0.5)
+        cams = np.floor(np.where(usable, cols.cams, 0.0) + 0.5)
+        _check_ids(ids[usable], ids_raw[usable], layout, 'feature ids')
+        _check_ids(cams[usable], cols.cams[usable], layout, 'camera ids')
     out_of_range = usable & (cams >= num_cams)
     if np.any(out_of_range):
         msg_ = (f'layout {layout!r}: camera id {int(cams[out_of_range][0])} >= num_cams '
@@ -422,9 +427,10 @@ def _resolve_duplicates(rows: np.ndarray, keys: np.ndarray, coords: FloatArray,
     """
     order = np.argsort(keys, kind='stable')
     sorted_keys = keys[order]
-    starts = np.r_[True, sorted_keys[1:] != sorted_keys[:-1]]
-    if np.all(starts):
+    differs = sorted_keys[1:] != sorted_keys[:-1]
+    if differs.all():
         return rows, {}
+    starts = np.r_[True, differs]
     group = np.cumsum(starts) - 1
     repeated = np.bincount(group)[group] > 1
     found, previous = (memory.lookup(sorted_keys, normalized) if memory is not None

@@ -200,6 +200,11 @@ class KeyframePose:
         object.__setattr__(self, 'stamp_ns', int(self.stamp_ns))
 
 
+_CAMERA_INFOS: dict[tuple[Any, ...], CameraModel] = {}
+"""CameraInfo fields -> the model :meth:`CameraModel.from_camera_info` made of them."""
+_CAMERA_INFOS_KEPT = 16   # a rig's cameras and a few changes
+
+
 @dataclass(frozen=True, eq=False)
 class CameraModel:
     """Pinhole intrinsics with ROS ``CameraInfo`` distortion.
@@ -292,6 +297,12 @@ class CameraModel:
         except (AttributeError, TypeError, ValueError) as err:
             msg_ = f'expected sensor_msgs/msg/CameraInfo, got {type(msg).__name__}: {err}'
             raise MessageError(msg_) from err
+        # A camera sends the same CameraInfo with every frame: the same fields gave this
+        # (immutable) model before, through the same checks.
+        key = (cls, k.tobytes(), d.tobytes(), model, width, height)
+        known = _CAMERA_INFOS.get(key)
+        if known is not None:
+            return known
         if k.size != 9:
             msg_ = f'CameraInfo.k must have 9 values, got {k.size}'
             raise MessageError(msg_)
@@ -299,8 +310,12 @@ class CameraModel:
             model, d = 'none', np.zeros(0)
         elif model == 'rational_polynomial' and d.size == 8 and not np.any(d[5:]):
             model, d = 'plumb_bob', d[:5]
-        return cls(fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion_model=model, d=d,
-                   width=width, height=height)
+        camera = cls(fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion_model=model, d=d,
+                     width=width, height=height)
+        if len(_CAMERA_INFOS) >= _CAMERA_INFOS_KEPT:
+            _CAMERA_INFOS.clear()
+        _CAMERA_INFOS[key] = camera
+        return camera
 
     def normalize(self, pixels: FloatArray) -> FloatArray:
         """Undistort raw pixels to normalized coordinates ``(x/z, y/z)``.

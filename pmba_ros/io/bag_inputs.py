@@ -24,7 +24,7 @@ from typing import Any, TYPE_CHECKING
 
 from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, tracks_msgtype
 from pmba_ros.errors import BagError, MessageError
-from pmba_ros.io.bags import BagMessage, list_topics
+from pmba_ros.io.bags import BagMessage, list_topics, TopicInfo
 
 if TYPE_CHECKING:
     from pmba_ros.backend.config import BackendConfig
@@ -78,14 +78,17 @@ class ReplayInputs:
 
 
 def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: bool,
-                  warnings: list[str]) -> tuple[ReplayInputs, dict[str, int]]:
+                  warnings: list[str], recorded: dict[str, TopicInfo] | None = None,
+                  ) -> tuple[ReplayInputs, dict[str, int]]:
     """Check the recorded topics against the configuration; return topics and counts.
+
+    ``recorded``: the bags' topics if they were listed already (default: list them).
 
     Raises:
         BagError: If a needed topic is missing.
         MessageError: If the tracks / keyframe topic has a type the layout cannot read.
     """
-    topics = list_topics(bags)
+    topics = list_topics(bags) if recorded is None else recorded
     names = ', '.join(f'{t} [{i.msgtype}]' for t, i in sorted(topics.items())) or 'none'
     where = ', '.join(str(b) for b in bags)
 
@@ -133,16 +136,17 @@ def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: boo
 
 
 def rig_camera_infos(bags: Sequence[Path], config: BackendConfig, warnings: list[str],
-                     counts: dict[str, int]) -> dict[str, int]:
+                     counts: dict[str, int], recorded: dict[str, TopicInfo] | None = None,
+                     ) -> dict[str, int]:
     """Return the recorded ``camera_info_topics`` of a rig: topic -> camera id.
 
     A missing topic leaves its camera unused (its observations are counted as
     ``other_camera_observations``), with a warning. ``counts`` gets each topic's message
-    count.
+    count; ``recorded`` as for :func:`select_inputs`.
     """
     if not config.camera_info_topics:
         return {}
-    topics = list_topics(bags)
+    topics = list_topics(bags) if recorded is None else recorded
     found: dict[str, int] = {}
     for cam, name in enumerate(config.camera_info_topics):
         topic = find_topic(resolve_topic(name), topics)

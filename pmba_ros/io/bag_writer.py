@@ -72,11 +72,12 @@ class BagWriter:
                 msg_ = f'cannot add topic {topic!r} of type {msgtype!r}: {err}'
                 raise BagError(msg_) from err
             self._connections[topic] = conn
+            self._encoders[topic] = cdr.Encoder()
         elif conn.msgtype != msgtype:
             msg_ = f'topic {topic!r} has type {conn.msgtype}, cannot write a {msgtype}'
             raise BagError(msg_)
         try:
-            raw = self._encoders.setdefault(topic, cdr.Encoder()).encode(msg, msgtype)
+            raw = self._encoders[topic].encode(msg, msgtype)
             if raw is None:
                 raw = self._typestore.serialize_cdr(msg, msgtype)
         except Exception as err:

@@ -28,9 +28,10 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 
 from __future__ import annotations
 
-from collections.abc import Generator, Iterator, Sequence
-from contextlib import closing, contextmanager
+from collections.abc import Callable, Generator, Iterator, Sequence
+from contextlib import closing, contextmanager, nullcontext
 from dataclasses import dataclass, field
+import functools
 from functools import lru_cache
 import importlib
 import logging
@@ -228,14 +229,47 @@ def list_topics(paths: Sequence[Path | str]) -> dict[str, TopicInfo]:
     Raises:
         BagError: If a bag is missing or cannot be opened.
     """
-    checked = _check_paths([Path(p) for p in paths])
+    with open_bags(paths) as bags:
+        return bags.topics
+
+
+def _topics_of(reader: Any) -> dict[str, TopicInfo]:
+    """Return the topics of an open reader (counts summed over its bags)."""
     topics: dict[str, TopicInfo] = {}
-    with _any_reader(checked) as reader:
-        for conn in reader.connections:
-            old = topics.get(conn.topic)
-            count = int(conn.msgcount) + (old.count if old else 0)
-            topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, count)
+    for conn in reader.connections:
+        old = topics.get(conn.topic)
+        count = int(conn.msgcount) + (old.count if old else 0)
+        topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, count)
     return topics
+
+
+class OpenBags(NamedTuple):
+    """Recordings opened once for their topics and then their messages (see :func:`open_bags`).
+
+    Attributes:
+        paths: The checked bag paths.
+        reader: The open rosbags reader.
+        topics: Topic name -> :class:`TopicInfo`, as :func:`list_topics` returns them.
+    """
+
+    paths: list[Path]
+    reader: Any
+    topics: dict[str, TopicInfo]
+
+
+@contextmanager
+def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
+    """Open recordings once: their topics now, their messages by :func:`iter_messages` later.
+
+    Opening parses the bags' metadata and message definitions; a replay that lists the topics
+    and then reads the messages needs it only once.
+
+    Raises:
+        BagError: If a bag is missing or cannot be opened.
+    """
+    checked = _check_paths([Path(p) for p in paths])
+    with _any_reader(checked) as reader:
+        yield OpenBags(checked, reader, _topics_of(reader))
 
 
 def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]],
@@ -263,7 +297,8 @@ def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]
             raise BagError(msg)
 
 
-def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = None, *,
+def iter_messages(paths: Sequence[Path | str] | OpenBags,
+                  topics: Sequence[str] | None = None, *,
                   damage: ReadStats | None = None,
                   points_as_arrays: bool = False) -> Iterator[BagMessage]:
     """Yield the messages of one or more recordings in log-time order, deserialized.
@@ -273,7 +308,9 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
     storage files.
 
     Args:
-        paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files.
+        paths: rosbag2 folders or storage files, or ROS 1 ``.bag`` files; or bags opened by
+            :func:`open_bags`, whose reader then reads them (once: reading on after damage,
+            and the QoS fallback, open the bags again).
         topics: Topics to read; None reads all.
         damage: If given, read past damage instead of raising: a message that does not
             deserialize is skipped, and after a corrupt part of the storage reading resumes
@@ -291,14 +328,18 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
             corrupt or truncated (raised when the damaged part is reached; the messages
             before it have been yielded).
     """
-    checked = _check_paths([Path(p) for p in paths])
+    if isinstance(paths, OpenBags):
+        checked, reader, recorded = paths
+    else:
+        checked, reader, recorded = _check_paths([Path(p) for p in paths]), None, None
     expected, produced = 0, 0
-    for message in _iter_all(checked, topics, damage, points_as_arrays):
+    for message in _iter_all(checked, topics, damage, points_as_arrays, reader):
         produced += 1
         yield message
     if produced or (damage is not None and damage.damaged_parts):
         return
-    expected = sum(info.count for name, info in list_topics(checked).items()
+    recorded = list_topics(checked) if recorded is None else recorded
+    expected = sum(info.count for name, info in recorded.items()
                    if topics is None or name in topics)
     folders = [p for p in checked if _storage_files(p)]
     if expected == 0 or not folders:
@@ -311,16 +352,21 @@ def iter_messages(paths: Sequence[Path | str], topics: Sequence[str] | None = No
 
 
 def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
-              damage: ReadStats | None, points_as_arrays: bool = False,
+              damage: ReadStats | None, points_as_arrays: bool = False, reader: Any = None,
               ) -> Iterator[BagMessage]:
-    """Yield the messages of ``paths``, resuming after corrupt parts if ``damage`` is given."""
+    """Yield the messages of ``paths``, resuming after corrupt parts if ``damage`` is given.
+
+    An open ``reader`` of ``paths`` serves the first pass; reading on after damage opens the
+    bags afresh.
+    """
     if damage is None:
-        yield from _iter_once(paths, topics, None, points_as_arrays=points_as_arrays)
+        yield from _iter_once(paths, topics, None, points_as_arrays=points_as_arrays,
+                              reader=reader)
         return
     start: int | None = None
     while True:
         last: int | None = None
-        for message in _iter_once(paths, topics, damage, start, points_as_arrays):
+        for message in _iter_once(paths, topics, damage, start, points_as_arrays, reader):
             last = message.log_time_ns
             yield message
         error, damage._pending = damage._pending, None
@@ -330,6 +376,7 @@ def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
             damage.damaged_parts += 1
             damage.first_damage = damage.first_damage or error
             logger.warning('%s; looking for readable data after it', error)
+        reader = None
         failed = last + 1 if last is not None else (damage._span[0] if start is None else start)
         start = _next_readable(paths, topics, failed, damage._span[1])
         if start is None:
@@ -370,10 +417,14 @@ def _readable_from(paths: Sequence[Path], topics: Sequence[str] | None, start: i
 
 def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
                damage: ReadStats | None, start: int | None = None,
-               points_as_arrays: bool = False) -> Generator[BagMessage, None, None]:
-    """Yield the messages of ``paths`` from ``start`` (ns) once (see :func:`iter_messages`)."""
+               points_as_arrays: bool = False, reader: Any = None,
+               ) -> Generator[BagMessage, None, None]:
+    """Yield the messages of ``paths`` from ``start`` (ns) once (see :func:`iter_messages`).
+
+    ``reader``: an open reader of ``paths`` to use (left open); None opens one.
+    """
     errors = _reader_errors()
-    with _any_reader(paths) as reader:
+    with nullcontext(reader) if reader is not None else _any_reader(paths) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
@@ -384,13 +435,14 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             reference = jazzy_typestore() if reader.is2 else noetic_typestore()
             fast = {c.msgtype: cloud_decode.fast_decoder(reader.typestore, c.msgtype, reference,
                                                          ros1=not reader.is2) for c in conns}
+        deserialize = {c.msgtype: _deserializer(reader, c.msgtype) for c in conns}
         try:
             for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
                 decode = fast.get(conn.msgtype)
                 msg_obj = decode(raw) if decode is not None else None
                 try:
                     if msg_obj is None:
-                        msg_obj = reader.deserialize(raw, conn.msgtype)
+                        msg_obj = deserialize[conn.msgtype](raw)
                 except errors as err:
                     msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message '
                            f'on {conn.topic} at {t_ns} ns: {_error_text(err)}')
@@ -405,6 +457,49 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             if damage is None:
                 raise
             damage._pending = str(err)
+
+
+def _deserializer(reader: Any, msgtype: str) -> Callable[[bytes | memoryview], Any]:
+    """Return ``raw -> message`` for ``msgtype`` of an open reader.
+
+    rosbags builds a reader's typestore from the bag's message definitions at every opening,
+    and generates a type's (de)serializers at its first message. A ROS 2 type defined exactly
+    as in Jazzy, nested types included, is read with the process' Jazzy typestore instead,
+    whose generated code stays (the result bag's writer shares it): the same values, and
+    errors raised as the reader raises them.
+    """
+    jazzy = jazzy_typestore()
+    if not reader.is2 or not _defined_alike(reader.typestore.fielddefs, jazzy.fielddefs,
+                                            msgtype, set()):
+        return functools.partial(reader.deserialize, typ=msgtype)
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.serde import SerdeError
+
+    def deserialize(raw: bytes | memoryview) -> Any:
+        try:
+            return jazzy.deserialize_cdr(raw, msgtype)
+        except SerdeError as err:   # as AnyReader.deserialize converts it
+            raise AnyReaderError(*err.args) from None
+    return deserialize
+
+
+def _defined_alike(defs: dict[str, Any], reference: dict[str, Any], msgtype: str,
+                   seen: set[str]) -> bool:
+    """Return True if ``msgtype`` and the types it nests have the same fields in both."""
+    if msgtype in seen:
+        return True
+    seen.add(msgtype)
+    if msgtype not in defs or defs[msgtype] != reference.get(msgtype):
+        return False
+    nested: list[Any] = [desc for _, desc in defs[msgtype][1]]
+    while nested:
+        item = nested.pop()
+        if isinstance(item, tuple):
+            nested.extend(item)
+        elif isinstance(item, str) and item in defs and \
+                not _defined_alike(defs, reference, item, seen):
+            return False
+    return True
 
 
 class _CorruptStorage(BagError):
@@ -431,8 +526,9 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
         yield conn, int(t_ns), raw
 
 
-__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'ReadStats', 'TopicInfo', 'iter_messages',
-           'iter_serialized', 'jazzy_typestore', 'list_topics', 'require_topics']
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo',
+           'iter_messages', 'iter_serialized', 'jazzy_typestore', 'list_topics', 'open_bags',
+           'require_topics']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,

@@ -456,3 +456,28 @@ def test_trackframe_validates_and_freezes() -> None:
         TrackFrame(0, 'w', [1, 2], [0, 0], [[0.0, 0.0]], None)
     with pytest.raises(MessageError, match='pixels or normalized'):
         TrackFrame(0, 'w', [1], [0], None, None)
+
+
+def test_repeated_camera_info_gives_the_model_it_gave() -> None:
+    """The same CameraInfo fields give the same model again; other fields are judged anew."""
+    def info(k0: float = 400.0, d: tuple[float, ...] = (0.1, 0, 0, 0, 0),
+             model: str = 'plumb_bob') -> SimpleNamespace:
+        return SimpleNamespace(k=np.array([k0, 0, 320, 0, 400, 240, 0, 0, 1.0]),
+                               d=array.array('d', d), distortion_model=model, width=640,
+                               height=480)
+
+    first = CameraModel.from_camera_info(info())
+    again = CameraModel.from_camera_info(info())
+    assert again is first
+    other = CameraModel.from_camera_info(info(410.0))
+    assert other.fx == 410.0 and other is not first
+    assert CameraModel.from_camera_info(info(d=(0.0,) * 5)).distortion_model == 'none'
+    for _ in range(2):   # a rejected message is rejected every time
+        with pytest.raises(MessageError):
+            CameraModel.from_camera_info(info(-1.0))
+        with pytest.raises(MessageError):
+            CameraModel.from_camera_info(info(model='fisheye62'))
+    for i in range(40):   # the memory stays small
+        CameraModel.from_camera_info(info(300.0 + i))
+    from pmba_ros.backend import types
+    assert len(types._CAMERA_INFOS) <= types._CAMERA_INFOS_KEPT

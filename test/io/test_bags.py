@@ -243,3 +243,46 @@ def test_reading_resumes_after_a_corrupt_chunk(tmp_path: Path) -> None:
     assert stamps == sorted(stamps) and stamps[-1] == 39 * 10**8
     assert damage.damaged_parts == 1
     assert 'bad.mcap: bag is corrupt or truncated' in str(damage.first_damage)
+
+
+def test_open_bags_reads_what_paths_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Opened bags list the topics and read the same messages, without opening again."""
+    from pmba_ros.io import bags as bags_mod
+
+    out = tmp_path / 'b.mcap'
+    _write_poses(out)
+    by_path = [repr(m) for m in iter_messages([out])]
+    with bags_mod.open_bags([out]) as opened:
+        assert opened.topics == list_topics([out])
+        opens = []
+        real = bags_mod._any_reader
+        monkeypatch.setattr(bags_mod, '_any_reader', lambda paths: opens.append(1) or real(paths))
+        assert [repr(m) for m in iter_messages(opened)] == by_path
+        assert not opens
+
+
+def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> None:
+    """A type defined as in Jazzy reads as the reader would; others are left to the reader.
+
+    Also when only a nested type differs.
+    """
+    from pmba_ros.io.bags import _deserializer
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    out = tmp_path / 'b.mcap'
+    _write_poses(out, 3)
+    with AnyReader([out], default_typestore=jazzy_typestore()) as reader:
+        (conn,) = reader.connections
+        raws = [raw for _, _, raw in reader.messages()]
+        read = _deserializer(reader, conn.msgtype)
+        assert read.__name__ == 'deserialize'   # the Jazzy typestore's
+        assert [repr(read(raw)) for raw in raws] == \
+            [repr(reader.deserialize(raw, conn.msgtype)) for raw in raws]
+        with pytest.raises(AnyReaderError, match='Invalid or unsupported CDR'):
+            read(b'\x07\x07' + raws[0][2:])
+        point = reader.typestore.fielddefs['geometry_msgs/msg/Point']
+        reader.typestore.fielddefs['geometry_msgs/msg/Point'] = (point[0], point[1][:2])
+        try:
+            assert _deserializer(reader, conn.msgtype).func == reader.deserialize
+        finally:
+            reader.typestore.fielddefs['geometry_msgs/msg/Point'] = point
