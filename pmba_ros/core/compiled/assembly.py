@@ -158,7 +158,7 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
     # Pose blocks are shared between features: each chunk fills its own.
     U = [np.zeros((n_pairs, 6, 6)) for _ in range(n)]
     g_pose = [np.zeros((n_blocks, 6)) for _ in range(n)]
-    cut = chunks.bounds(np.diff(starts), n)
+    cut = chunks.cuts(n, N, lambda: np.diff(starts))
     chunks.run(lambda t: _assemble(E, starts, obs_block, anchor_block, anchor_obs, anchor_lo,
                                    anchor_w, pair_index, U[t], W, V, g_pose[t], g_feat,
                                    int(cut[t]), int(cut[t + 1])), n)
