@@ -343,26 +343,28 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     nb = structure.n_blocks
     free = pose_free.reshape(-1)
     dim = nb * 6
-    rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
-    cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
-    d_idx = np.arange(nb)
     x = np.zeros(dim)
-    if int(free.sum()) <= DENSE_LIMIT:
+    if dim <= DENSE_LIMIT or int(free.sum()) <= DENSE_LIMIT:
         # The upper triangle only (pair blocks have row <= col): LAPACK's potrf/potrs,
         # called directly, read no more; scipy's cho_factor wrapper costs more than a
-        # window's factorization.
-        S = np.zeros((dim, dim))
-        S[rows[:, :, None], cols[:, None, :]] = S_blocks
-        S[d_idx[:, None] * 6 + np.arange(6), d_idx[:, None] * 6 + np.arange(6)] += damp_pose
+        # window's factorization. S is written transposed in C order, which is S in
+        # LAPACK's (Fortran) order: f2py passes it without a copy.
+        S_t = np.zeros((nb, 6, nb, 6))
+        S_t[structure.pair_cols, :, structure.pair_rows, :] = S_blocks.transpose(0, 2, 1)
+        S_t.reshape(-1)[::dim + 1] += damp_pose.reshape(-1)
+        S = S_t.reshape(dim, dim).T
+        all_free = bool(free.all())
         with blas_threads_for(dim):
             factor, info = scipy.linalg.lapack.dpotrf(
-                S if free.all() else S[np.ix_(free, free)], lower=False, clean=False,
+                S if all_free else S[np.ix_(free, free)], lower=False, clean=False,
                 overwrite_a=True)
         if info != 0:
             msg = 'reduced camera system is not positive definite'
             raise ReducedSystemError(msg)
         x[free], _ = scipy.linalg.lapack.dpotrs(factor, rhs.reshape(-1)[free], lower=False)
     else:
+        rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
+        cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
         off = structure.pair_rows != structure.pair_cols
         r_idx = np.broadcast_to(rows[:, :, None], S_blocks.shape)
         c_idx = np.broadcast_to(cols[:, None, :], S_blocks.shape)
