@@ -187,6 +187,8 @@ class SolveResult:
         time_s: Wall time in seconds.
         history: Per-iteration records, starting with the initial state.
         noise_px: Per-axis pixel noise the final errors suggest (see ``noise_scale_px``).
+        prior_residuals: The pose prior's weighted residuals at the result, (M, 6) (M = 0
+            without a prior).
     """
 
     R_wc: FloatArray
@@ -207,6 +209,7 @@ class SolveResult:
     time_s: float
     history: list[IterationRecord] = field(default_factory=list)
     noise_px: float = math.nan
+    prior_residuals: FloatArray = field(default_factory=lambda: np.zeros((0, 6)))
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -532,7 +535,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
-                       time.perf_counter() - t0, history, noise_px)
+                       time.perf_counter() - t0, history, noise_px,
+                       state.prior.residuals if state.prior is not None else np.zeros((0, 6)))
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
