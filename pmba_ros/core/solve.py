@@ -294,23 +294,12 @@ class _Linearized:
         eqs = ne.assemble(structure, lin)
         if prior is not None and state.prior is not None:
             eqs = prior.add_to(eqs, state.prior)
-        d_pose, d_feat = ne.diagonal(structure, eqs)
-        if jacobi:
-            self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
-            self.c_feat = 1.0 / (1.0 + np.sqrt(d_feat))
-        else:
-            self.c_pose = np.ones_like(d_pose)
-            self.c_feat = np.ones_like(d_feat)
-        self.eqs = ne.scale(structure, eqs, self.c_pose, self.c_feat)
-        self.D_pose = np.sqrt(np.clip(d_pose * self.c_pose ** 2, 1e-6, 1e32))
-        self.D_feat = np.sqrt(np.clip(d_feat * self.c_feat ** 2, 1e-6, 1e32))
+        scaled = model.engine.jacobi_scale(structure, eqs, col_mask, jacobi)
+        self.eqs, self.c_pose, self.c_feat = scaled.eqs, scaled.c_pose, scaled.c_feat
+        self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
+        self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
+        self.gradient_max = scaled.gradient_max
         self.col_mask = col_mask
-        g_pose = np.where(col_mask, self.eqs.g_pose, 0.0)
-        self.g_pose = g_pose / self.D_pose
-        self.g_feat = self.eqs.g_feat / self.D_feat
-        self.gradient_max = float(max(
-            np.max(np.abs(np.where(col_mask, eqs.g_pose, 0.0)), initial=0.0),
-            np.max(np.abs(eqs.g_feat), initial=0.0)))
         self.structure = structure
         self.gn: tuple[np.ndarray, np.ndarray] | None = None
         self._cauchy: float | None = None
