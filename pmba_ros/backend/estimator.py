@@ -482,7 +482,7 @@ class Estimator:
             logger.warning('%s', info.message)
             return info
         if prior is not None:
-            jumped = cams[prior.b[step_sigmas(prior, res.R_wc, res.centers_w) > JUMP_SIGMAS]]
+            jumped = cams[prior.b[step_sigmas(prior, res.prior_residuals) > JUMP_SIGMAS]]
             self._new_frames_at(jumped)
             info.dropped['odom_frame_jumps'] = jumped.shape[0]
         free = ~res.problem.fixed

@@ -188,9 +188,12 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                              weight * W_trans, huber=PRIOR_HUBER_SIGMAS * weight)
 
 
-def step_sigmas(prior: RelativePosePrior, R: FloatArray, P: FloatArray) -> FloatArray:
-    """Return how many sigmas each factor's step at poses (R, P) is off the front-end's."""
-    residuals = prior.evaluate(R, P).residuals
+def step_sigmas(prior: RelativePosePrior, residuals: FloatArray) -> FloatArray:
+    """Return how many sigmas each factor's step is off the front-end's.
+
+    ``residuals``: the factors' at the poses in question, ``prior.residuals(R, P)``, or a
+    solve's ``prior_residuals`` at its result.
+    """
     norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
     return PRIOR_HUBER_SIGMAS * norm / prior.huber
 

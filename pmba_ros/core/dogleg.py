@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from pmba_ros._typing import FloatArray
 
 #: Ceres defaults (include/ceres/solver.h).
@@ -53,10 +52,10 @@ def dogleg_step(g: FloatArray, alpha: float, b: FloatArray, radius: float,
         b: Scaled Gauss-Newton step.
         radius: Trust-region radius Delta.
     """
-    b_norm = float(np.linalg.norm(b))
+    b_norm = math.sqrt(float(b.dot(b)))   # np.linalg.norm, unwrapped
     if b_norm <= radius:
         return b.copy(), 'gn'
-    g_norm = float(np.linalg.norm(g))
+    g_norm = math.sqrt(float(g.dot(g)))
     if alpha * g_norm >= radius:
         return -(radius / g_norm) * g, 'cauchy'
     a = -alpha * g

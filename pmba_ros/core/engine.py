@@ -32,7 +32,7 @@ from typing import Protocol
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.core import anchor_search, camera, jit, residuals, sphere
+from pmba_ros.core import anchor_search, camera, jit, normal_equations, residuals, sphere
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.compiled import anchor_search as compiled_anchor_search
 from pmba_ros.core.compiled import assembly as compiled_assembly
@@ -42,7 +42,13 @@ from pmba_ros.core.compiled import residuals as compiled_residuals
 from pmba_ros.core.compiled.plan import CompiledSchurPlan
 from pmba_ros.core.jacobian import Linearization
 from pmba_ros.core.loss import Loss, robust_cost, robust_weights
-from pmba_ros.core.normal_equations import SchurLayout, SchurPlan
+from pmba_ros.core.normal_equations import (
+    NormalEquations,
+    ScaledSystem,
+    SchurLayout,
+    SchurPlan,
+    SchurStructure,
+)
 from pmba_ros.core.numpy_schur import NumpySchurPlan
 from pmba_ros.core.problem import Observations, ParallaxFeatures
 from pmba_ros.core.residuals import RayGeometry
@@ -99,6 +105,10 @@ class Engine(Protocol):
                      ) -> tuple[IntArray, IntArray, BoolArray]:
         """Return :func:`pmba_ros.core.anchor_search.widest_pairs`."""
 
+    def jacobi_scale(self, structure: SchurStructure, eqs: NormalEquations,
+                     col_mask: BoolArray, jacobi: bool) -> ScaledSystem:
+        """Return :func:`pmba_ros.core.normal_equations.jacobi_scale` (W scaled in place)."""
+
     def schur_plan(self, layout: SchurLayout) -> SchurPlan:
         """Return this engine's plan of the normal equations of ``layout``."""
 
@@ -152,6 +162,11 @@ class NumpyEngine:
                      ) -> tuple[IntArray, IntArray, BoolArray]:
         """Return :func:`pmba_ros.core.anchor_search.widest_pairs`."""
         return anchor_search.widest_pairs(rays, cam_idx, starts, allowed, close, n_cams)
+
+    def jacobi_scale(self, structure: SchurStructure, eqs: NormalEquations,
+                     col_mask: BoolArray, jacobi: bool) -> ScaledSystem:
+        """Return :func:`pmba_ros.core.normal_equations.jacobi_scale` (W scaled in place)."""
+        return normal_equations.jacobi_scale(structure, eqs, col_mask, jacobi)
 
     def schur_plan(self, layout: SchurLayout) -> SchurPlan:
         """Return the :class:`~pmba_ros.core.numpy_schur.NumpySchurPlan` of ``layout``."""
@@ -212,6 +227,16 @@ class CompiledEngine:
         """Return :func:`pmba_ros.core.anchor_search.widest_pairs`."""
         return compiled_anchor_search.widest_pairs(rays, cam_idx, starts, allowed, close,
                                                    n_cams)
+
+    def jacobi_scale(self, structure: SchurStructure, eqs: NormalEquations,
+                     col_mask: BoolArray, jacobi: bool) -> ScaledSystem:
+        """Return :func:`pmba_ros.core.normal_equations.jacobi_scale`, U, V and g in one pass."""
+        U, V, g_pose, g_feat, c_pose, c_feat, *rest = compiled_assembly.jacobi_scale(
+            eqs.U, eqs.V, eqs.g_pose, eqs.g_feat, structure.pair_rows, structure.pair_cols,
+            col_mask, jacobi)
+        structure.plan.scale_w(eqs.W, c_pose, c_feat)   # the plan's W layout and arithmetic
+        return ScaledSystem(NormalEquations(U, eqs.W, V, g_pose, g_feat), c_pose, c_feat,
+                            *rest)
 
     def schur_plan(self, layout: SchurLayout) -> SchurPlan:
         """Return the compiled plan, or numpy's above the pair index's size limit.

@@ -77,5 +77,18 @@ def noise_scale_px(errors_px: FloatArray, n_params: int) -> float:
     redundancy = 2 * k - n_params
     if k == 0 or redundancy <= 0:
         return math.nan
-    return (float(np.median(errors_px)) / math.sqrt(2.0 * math.log(2.0))
+    return (median(errors_px) / math.sqrt(2.0 * math.log(2.0))
             * math.sqrt(2.0 * k / redundancy))
+
+
+def median(values: FloatArray) -> float:
+    """Return ``np.median`` of a 1-D array (NaN if one is NaN), without its generic wrapper.
+
+    The same partition and mean of the middle pair, so the same number.
+    """
+    n = values.shape[0]
+    half = n // 2
+    part = np.partition(values, [half - 1, half, n - 1] if n % 2 == 0 else [half, n - 1])
+    if np.isnan(part[-1]):
+        return math.nan
+    return float(part[half] if n % 2 else (part[half - 1] + part[half]) / 2.0)

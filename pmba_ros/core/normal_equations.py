@@ -294,27 +294,64 @@ def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
     return structure.plan.assemble(lin)
 
 
-def diagonal(structure: SchurStructure, eqs: NormalEquations) -> tuple[FloatArray, FloatArray]:
-    """Return diag(J^T J) split into pose (n_blocks, 6) and feature (N, 3) parts."""
+@dataclass(frozen=True, eq=False)
+class ScaledSystem:
+    """The normal equations of the column-scaled Jacobian J diag(c), and what a step reads.
+
+    Attributes:
+        eqs: The scaled equations (their W is the unscaled equations', scaled in place).
+        c_pose, c_feat: Column scales 1 / (1 + sqrt(diag(J^T J))), or ones (no scaling).
+        D_pose, D_feat: Square roots of the scaled diagonal, clipped to [1e-6, 1e32] first:
+            the trust region's ellipsoid.
+        g_pose, g_feat: The scaled gradient over D (zero in the held pose columns).
+        gradient_max: max |J^T r| over the free columns of the unscaled gradient (NaN if one
+            is NaN: such a gradient never stops the solver).
+    """
+
+    eqs: NormalEquations
+    c_pose: FloatArray
+    c_feat: FloatArray
+    D_pose: FloatArray
+    D_feat: FloatArray
+    g_pose: FloatArray
+    g_feat: FloatArray
+    gradient_max: float
+
+
+def jacobi_scale(structure: SchurStructure, eqs: NormalEquations, col_mask: BoolArray,
+                 jacobi: bool) -> ScaledSystem:
+    """Return the Jacobi scaling of ``eqs`` (the numpy engine's; the compiled one agrees).
+
+    Args:
+        structure: Index structure.
+        eqs: Unscaled equations; their W blocks, the largest array, are scaled in place.
+        col_mask: Pose columns that are solved for, shape (n_blocks, 6).
+        jacobi: Scale the columns by 1 / (1 + |J_k|); False: c = 1.
+    """
     diag_pairs = np.flatnonzero(structure.pair_rows == structure.pair_cols)
     d_pose = np.zeros((structure.n_blocks, 6))
     d_pose[structure.pair_rows[diag_pairs]] = np.diagonal(eqs.U[diag_pairs], axis1=1, axis2=2)
-    return d_pose, np.diagonal(eqs.V, axis1=1, axis2=2).copy()
-
-
-def scale(structure: SchurStructure, eqs: NormalEquations, c_pose: FloatArray,
-          c_feat: FloatArray) -> NormalEquations:
-    """Return the equations of the column-scaled Jacobian J diag(c) (Jacobi scaling).
-
-    The W blocks, the largest array, are scaled in place: ``eqs.W`` is consumed.
-    """
+    d_feat = np.diagonal(eqs.V, axis1=1, axis2=2)
+    if jacobi:
+        c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
+        c_feat = 1.0 / (1.0 + np.sqrt(d_feat))
+    else:
+        c_pose = np.ones_like(d_pose)
+        c_feat = np.ones_like(d_feat)
     cp_r = c_pose[structure.pair_rows]
     cp_c = c_pose[structure.pair_cols]
     structure.plan.scale_w(eqs.W, c_pose, c_feat)
-    return NormalEquations(
+    scaled = NormalEquations(
         eqs.U * cp_r[:, :, None] * cp_c[:, None, :], eqs.W,
         eqs.V * c_feat[:, :, None] * c_feat[:, None, :],
         eqs.g_pose * c_pose, eqs.g_feat * c_feat)
+    D_pose = np.sqrt(np.clip(d_pose * c_pose ** 2, 1e-6, 1e32))
+    D_feat = np.sqrt(np.clip(d_feat * c_feat ** 2, 1e-6, 1e32))
+    g_max = np.maximum(np.max(np.abs(np.where(col_mask, eqs.g_pose, 0.0)), initial=0.0),
+                       np.max(np.abs(eqs.g_feat), initial=0.0))
+    return ScaledSystem(scaled, c_pose, c_feat, D_pose, D_feat,
+                        np.where(col_mask, scaled.g_pose, 0.0) / D_pose,
+                        scaled.g_feat / D_feat, float(g_max))
 
 
 def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: FloatArray,
@@ -343,26 +380,28 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     nb = structure.n_blocks
     free = pose_free.reshape(-1)
     dim = nb * 6
-    rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
-    cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
-    d_idx = np.arange(nb)
     x = np.zeros(dim)
-    if int(free.sum()) <= DENSE_LIMIT:
+    if dim <= DENSE_LIMIT or int(free.sum()) <= DENSE_LIMIT:
         # The upper triangle only (pair blocks have row <= col): LAPACK's potrf/potrs,
         # called directly, read no more; scipy's cho_factor wrapper costs more than a
-        # window's factorization.
-        S = np.zeros((dim, dim))
-        S[rows[:, :, None], cols[:, None, :]] = S_blocks
-        S[d_idx[:, None] * 6 + np.arange(6), d_idx[:, None] * 6 + np.arange(6)] += damp_pose
+        # window's factorization. S is written transposed in C order, which is S in
+        # LAPACK's (Fortran) order: f2py passes it without a copy.
+        S_t = np.zeros((nb, 6, nb, 6))
+        S_t[structure.pair_cols, :, structure.pair_rows, :] = S_blocks.transpose(0, 2, 1)
+        S_t.reshape(-1)[::dim + 1] += damp_pose.reshape(-1)
+        S = S_t.reshape(dim, dim).T
+        all_free = bool(free.all())
         with blas_threads_for(dim):
             factor, info = scipy.linalg.lapack.dpotrf(
-                S if free.all() else S[np.ix_(free, free)], lower=False, clean=False,
+                S if all_free else S[np.ix_(free, free)], lower=False, clean=False,
                 overwrite_a=True)
         if info != 0:
             msg = 'reduced camera system is not positive definite'
             raise ReducedSystemError(msg)
         x[free], _ = scipy.linalg.lapack.dpotrs(factor, rhs.reshape(-1)[free], lower=False)
     else:
+        rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
+        cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
         off = structure.pair_rows != structure.pair_cols
         r_idx = np.broadcast_to(rows[:, :, None], S_blocks.shape)
         c_idx = np.broadcast_to(cols[:, None, :], S_blocks.shape)

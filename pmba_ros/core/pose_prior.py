@@ -179,26 +179,22 @@ class RelativePosePrior:
             found = (len(sorted_keys) > 0) & (sorted_keys[pos] == want) & (lo >= 0)
             return np.where(found, order[pos], -1)
 
+        # Every factor's blocks (x, y) in the order they are added: (a, a), (b, b), then
+        # (a, b) where it is a covisible pair (the plans pair every block with itself).
+        M = len(self)
         ba, bb = free_block[self.a], free_block[self.b]
-        factor = np.arange(len(self))
-        # Blocks [side_row, side_col] of each factor's 12x12 J^T J (side 0: pose a, 1: b),
-        # in the order the diagonal blocks of a, of b and the cross blocks are added.
-        parts: list[tuple[IntArray, IntArray, IntArray, IntArray]] = []
-        grads: list[tuple[IntArray, IntArray, IntArray]] = []
-        for side, blocks in ((0, ba), (1, bb)):
-            free = blocks >= 0
-            f = factor[free]
-            parts.append((f, np.full(f.shape, side), np.full(f.shape, side),
-                          pair_of(blocks[free], blocks[free])))
-            grads.append((f, np.full(f.shape, side), blocks[free]))
-        both = (ba >= 0) & (bb >= 0)
-        cross = pair_of(ba[both], bb[both])
-        has = cross >= 0
-        f = factor[both][has]
-        upper = (ba <= bb)[f]   # stored with the lower block index as the row block
-        parts.append((f, np.where(upper, 0, 1), np.where(upper, 1, 0), cross[has]))
-        f_h, row, col, target = (np.concatenate(x) for x in zip(*parts, strict=True))
-        f_g, side_g, block_g = (np.concatenate(x) for x in zip(*grads, strict=True))
+        x, y = np.concatenate([ba, bb, ba]), np.concatenate([ba, bb, bb])
+        target = pair_of(x, y)
+        keep = (x >= 0) & (y >= 0) & (target >= 0)
+        upper = (ba <= bb).astype(np.int64)   # a cross block's row is its lower block
+        sides = np.zeros(2 * M, np.int64)
+        sides[M:] = 1
+        row = np.concatenate([sides, 1 - upper])[keep]
+        col = np.concatenate([sides, upper])[keep]
+        factor = np.tile(np.arange(M), 3)
+        f_h, target = factor[keep], target[keep]
+        grad = x[:2 * M] >= 0
+        f_g, side_g, block_g = factor[:2 * M][grad], sides[grad], x[:2 * M][grad]
         return PriorAssembly(self, f_h, row, col, target, f_g, side_g, block_g)
 
     def add_to(self, structure: SchurStructure, eqs: NormalEquations, R: FloatArray,

@@ -187,6 +187,8 @@ class SolveResult:
         time_s: Wall time in seconds.
         history: Per-iteration records, starting with the initial state.
         noise_px: Per-axis pixel noise the final errors suggest (see ``noise_scale_px``).
+        prior_residuals: The pose prior's weighted residuals at the result, (M, 6) (M = 0
+            without a prior).
     """
 
     R_wc: FloatArray
@@ -207,6 +209,7 @@ class SolveResult:
     time_s: float
     history: list[IterationRecord] = field(default_factory=list)
     noise_px: float = math.nan
+    prior_residuals: FloatArray = field(default_factory=lambda: np.zeros((0, 6)))
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -291,23 +294,12 @@ class _Linearized:
         eqs = ne.assemble(structure, lin)
         if prior is not None and state.prior is not None:
             eqs = prior.add_to(eqs, state.prior)
-        d_pose, d_feat = ne.diagonal(structure, eqs)
-        if jacobi:
-            self.c_pose = 1.0 / (1.0 + np.sqrt(d_pose))
-            self.c_feat = 1.0 / (1.0 + np.sqrt(d_feat))
-        else:
-            self.c_pose = np.ones_like(d_pose)
-            self.c_feat = np.ones_like(d_feat)
-        self.eqs = ne.scale(structure, eqs, self.c_pose, self.c_feat)
-        self.D_pose = np.sqrt(np.clip(d_pose * self.c_pose ** 2, 1e-6, 1e32))
-        self.D_feat = np.sqrt(np.clip(d_feat * self.c_feat ** 2, 1e-6, 1e32))
+        scaled = model.engine.jacobi_scale(structure, eqs, col_mask, jacobi)
+        self.eqs, self.c_pose, self.c_feat = scaled.eqs, scaled.c_pose, scaled.c_feat
+        self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
+        self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
+        self.gradient_max = scaled.gradient_max
         self.col_mask = col_mask
-        g_pose = np.where(col_mask, self.eqs.g_pose, 0.0)
-        self.g_pose = g_pose / self.D_pose
-        self.g_feat = self.eqs.g_feat / self.D_feat
-        self.gradient_max = float(max(
-            np.max(np.abs(np.where(col_mask, eqs.g_pose, 0.0)), initial=0.0),
-            np.max(np.abs(eqs.g_feat), initial=0.0)))
         self.structure = structure
         self.gn: tuple[np.ndarray, np.ndarray] | None = None
         self._cauchy: float | None = None
@@ -332,7 +324,7 @@ class _Linearized:
         Evaluated on the normal equations of the scaled Jacobian, x = d / c.
         """
         x_pose, x_feat = d_pose / self.c_pose, d_feat / self.c_feat
-        g_x = float(np.sum(self.eqs.g_pose * x_pose) + np.sum(self.eqs.g_feat * x_feat))
+        g_x = _sum_products(self.eqs.g_pose, x_pose, self.eqs.g_feat, x_feat)
         return -(g_x + 0.5 * ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat))
 
     def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
@@ -421,11 +413,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
 
     def norm_of(state: _State) -> float:
         """|x| of the parameters (rotations count 1 each), for the parameter tolerance."""
-        return math.sqrt(problem.n_cams + float(np.sum(state.centers_w ** 2))
+        return math.sqrt(problem.n_cams + float(_add(state.centers_w ** 2, axis=None))
                          + model.parameter_norm_sq(state.feats))
 
     def rms_of(err: FloatArray) -> float:
-        return float(np.sqrt(np.mean(err * err))) if err.size else 0.0
+        return math.sqrt(float(_add(err * err, axis=None)) / err.size) if err.size else 0.0
 
     state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
     if not math.isfinite(state.cost):
@@ -476,9 +468,9 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                 break
             continue
         linear_solves += lin_solved
-        step_norm = math.sqrt(float(np.sum(z_pose ** 2) + np.sum(z_feat ** 2)))
+        step_norm = math.sqrt(_sum_products(z_pose, z_pose, z_feat, z_feat))
         d_pose, d_feat = lin.to_delta(z_pose, z_feat)
-        delta_norm = float(math.sqrt(np.sum(d_pose ** 2) + np.sum(d_feat ** 2)))
+        delta_norm = math.sqrt(_sum_products(d_pose, d_pose, d_feat, d_feat))
         if delta_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = TerminationReason.PARAMETER_TOLERANCE
             break
@@ -532,7 +524,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
-                       time.perf_counter() - t0, history, noise_px)
+                       time.perf_counter() - t0, history, noise_px,
+                       state.prior.residuals if state.prior is not None else np.zeros((0, 6)))
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
@@ -557,9 +550,18 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
     if lin.gn is None:
         lin.gn = lin.solve(dogleg.MIN_MU)
         solves = 1
-    norm = math.sqrt(float(np.sum(lin.gn[0] ** 2) + np.sum(lin.gn[1] ** 2)))
+    norm = math.sqrt(_sum_products(lin.gn[0], lin.gn[0], lin.gn[1], lin.gn[1]))
     shrink = min(1.0, radius / norm) if norm > 0 else 1.0
     return lin.gn[0] * shrink, lin.gn[1] * shrink, solves
+
+
+#: np.sum(x) is this reduction behind a generic wrapper: the same sum, for less.
+_add = np.add.reduce
+
+
+def _sum_products(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray) -> float:
+    """Return np.sum(a * b) + np.sum(c * d) (x ** 2 is x * x: squared norms too)."""
+    return float(_add(a * b, axis=None) + _add(c * d, axis=None))
 
 
 def _check_not_empty(problem: BAProblem) -> None:

@@ -37,6 +37,17 @@ def test_bounds_split_the_cost_evenly() -> None:
     np.testing.assert_array_equal(chunks.bounds(np.zeros(0), 3), [0, 0])
 
 
+def test_cuts_form_the_costs_only_for_several_chunks() -> None:
+    """One chunk takes every item without asking for the costs; several split them."""
+    def no_cost() -> np.ndarray:
+        raise AssertionError('costs formed for one chunk')
+
+    np.testing.assert_array_equal(chunks.cuts(1, 7, no_cost), [0, 7])
+    cost = np.arange(1.0, 11.0)
+    np.testing.assert_array_equal(chunks.cuts(3, 10, lambda: cost), chunks.bounds(cost, 3))
+    np.testing.assert_array_equal(chunks.cuts(4, 10), [0, 2, 5, 7, 10])
+
+
 def test_bounds_leave_ranges_empty_when_one_item_carries_the_cost() -> None:
     """One heavy item: the other ranges may be empty, but the split stays a partition."""
     cut = chunks.bounds(np.array([1.0, 1e9, 1.0]), 3)

@@ -15,10 +15,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pmba_ros.core.engine import COMPILED
 from pmba_ros.core.jacobian import Linearization
-from pmba_ros.core.loss import Loss, robust_cost, robust_weights
+from pmba_ros.core.loss import Loss, median, robust_cost, robust_weights
 import pytest
 
 
@@ -69,3 +71,14 @@ def test_robust_weights_are_the_derivative_of_scipys_cost(loss: Loss) -> None:
     weights = robust_weights(np.sqrt(z)[:, None], loss, 2.5)
     # cost = 1/2 rho(z), so d cost / dz = rho'(z) / 2.
     np.testing.assert_allclose(weights ** 2, 2.0 * d_cost, rtol=1e-6)
+
+
+@pytest.mark.parametrize('n', [1, 2, 7, 2500, 2501])
+def test_median_is_numpys(n: int) -> None:
+    """loss.median gives np.median's number, NaN included, without changing its input."""
+    values = np.random.default_rng(n).lognormal(size=n)
+    kept = values.copy()
+    assert median(values) == np.median(values)
+    np.testing.assert_array_equal(values, kept)
+    values[n // 3] = np.nan
+    assert math.isnan(median(values))

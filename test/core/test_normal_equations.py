@@ -255,3 +255,50 @@ def test_problems_over_the_pair_index_limit_take_the_numpy_path(
                               np.full((problem.n_feats, 3), 1e-3),
                               np.ones((st.n_blocks, 6), dtype=bool))
     assert np.all(np.isfinite(x_p)) and np.all(np.isfinite(x_f))
+
+
+@pytest.mark.parametrize('jacobi', [True, False])
+@pytest.mark.parametrize('plan', ['compiled', 'numpy'])
+def test_engines_scale_the_equations_alike(jacobi: bool, plan: str) -> None:
+    """The compiled Jacobi scaling gives numpy's numbers exactly, on either plan.
+
+    The scales are 1 / (1 + |J_k|), the scaled equations those of J diag(c), the held gauge
+    columns carry no gradient, and a NaN gradient gives a NaN maximum.
+    """
+    compiled = engine_named('compiled')
+    problem = _uneven_tracks(forward_problem(4, n_cams=6, n_points=30))
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba', weighted=True, engine=compiled)
+    gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
+                         problem.obs.feat_idx, problem.n_feats)
+    mask = gauge.column_mask()
+    assert not mask.all()
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats),
+                                 problem.n_feats, gauge.free_block(), model.anchor_cols,
+                                 compiled.schur_plan if plan == 'compiled' else NUMPY.schur_plan)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    eqs = ne.assemble(st, lin)
+
+    def fresh() -> ne.NormalEquations:
+        return ne.NormalEquations(eqs.U, eqs.W.copy(), eqs.V, eqs.g_pose, eqs.g_feat)
+
+    ref = NUMPY.jacobi_scale(st, fresh(), mask, jacobi)
+    got = compiled.jacobi_scale(st, fresh(), mask, jacobi)
+    for name in ('c_pose', 'c_feat', 'D_pose', 'D_feat', 'g_pose', 'g_feat', 'gradient_max'):
+        np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
+    for name in ('U', 'W', 'V', 'g_pose', 'g_feat'):
+        np.testing.assert_array_equal(getattr(got.eqs, name), getattr(ref.eqs, name),
+                                      err_msg=name)
+    J = lin.J_feat   # the feature columns' scales, from the Jacobian itself
+    col_norm = np.sqrt(np.add.reduceat((J ** 2).sum(axis=1), st.layout.starts[:-1]))
+    np.testing.assert_allclose(ref.c_feat, 1.0 / (1.0 + col_norm) if jacobi else 1.0,
+                               rtol=1e-12)
+    assert np.all(ref.g_pose[~mask] == 0.0)
+    assert ref.gradient_max == np.abs(np.concatenate(
+        [np.where(mask, eqs.g_pose, 0.0).ravel(), eqs.g_feat.ravel()])).max()
+    g_feat = eqs.g_feat.copy()
+    g_feat[1, 2] = np.nan
+    nan_eqs = ne.NormalEquations(eqs.U, eqs.W.copy(), eqs.V, eqs.g_pose, g_feat)
+    for engine in (NUMPY, compiled):
+        assert np.isnan(engine.jacobi_scale(st, nan_eqs, mask, jacobi).gradient_max)

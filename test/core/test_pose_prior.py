@@ -219,3 +219,6 @@ def test_solve_with_a_prior_follows_it_and_reports_its_cost() -> None:
     err_plain = np.linalg.norm(plain.centers_w - gt.centers_w, axis=1).max()
     assert err < 5e-3 and err < 0.2 * err_plain, (err, err_plain)
     assert strong.cost(res.R_wc, res.centers_w) <= res.final_cost
+    # The result carries the prior's residuals at its poses; without a prior, none.
+    np.testing.assert_array_equal(res.prior_residuals, strong.residuals(res.R_wc, res.centers_w))
+    assert plain.prior_residuals.shape == (0, 6)

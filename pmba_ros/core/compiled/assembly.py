@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import jit
 from pmba_ros.core.compiled import chunks
 from pmba_ros.core.jacobian import ANCHOR_START
@@ -158,7 +158,7 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
     # Pose blocks are shared between features: each chunk fills its own.
     U = [np.zeros((n_pairs, 6, 6)) for _ in range(n)]
     g_pose = [np.zeros((n_blocks, 6)) for _ in range(n)]
-    cut = chunks.bounds(np.diff(starts), n)
+    cut = chunks.cuts(n, N, lambda: np.diff(starts))
     chunks.run(lambda t: _assemble(E, starts, obs_block, anchor_block, anchor_obs, anchor_lo,
                                    anchor_w, pair_index, U[t], W, V, g_pose[t], g_feat,
                                    int(cut[t]), int(cut[t + 1])), n)
@@ -218,6 +218,73 @@ def scale_w(W: FloatArray, feat_idx: IntArray, obs_block: IntArray, c_pose: Floa
             c_feat: FloatArray) -> None:
     """Scale the W blocks in place by their pose and feature column scales."""
     _scale_w(W, feat_idx, obs_block, c_pose, c_feat)
+
+
+@_jit
+def _column_scale(d: float, jacobi: bool) -> tuple[float, float]:
+    """Return the scale c = 1 / (1 + sqrt(d)) of a column (1 without scaling) and D."""
+    c = 1.0 / (1.0 + np.sqrt(d)) if jacobi else 1.0
+    dc = d * (c * c)
+    return c, np.sqrt(1e-6 if dc < 1e-6 else (1e32 if dc > 1e32 else dc))
+
+
+@_jit
+def _jacobi_scale(U: Any, V: Any, g_pose: Any, g_feat: Any, pair_rows: Any, pair_cols: Any,
+                  col_mask: Any, jacobi: bool) -> Any:
+    """Jacobi scaling of U, V and g: the arithmetic of normal_equations.jacobi_scale."""
+    nb, N = g_pose.shape[0], g_feat.shape[0]
+    d_pose = np.zeros((nb, 6))
+    for p in range(U.shape[0]):
+        if pair_rows[p] == pair_cols[p]:
+            for i in range(6):
+                d_pose[pair_rows[p], i] = U[p, i, i]
+    c_pose, D_pose = np.empty((nb, 6)), np.empty((nb, 6))
+    gs_pose, z_pose = np.empty((nb, 6)), np.empty((nb, 6))
+    c_feat, D_feat = np.empty((N, 3)), np.empty((N, 3))
+    gs_feat, z_feat = np.empty((N, 3)), np.empty((N, 3))
+    g_max, nan = 0.0, False
+    for b in range(nb):
+        for i in range(6):
+            c_pose[b, i], D_pose[b, i] = _column_scale(d_pose[b, i], jacobi)
+            gs_pose[b, i] = g_pose[b, i] * c_pose[b, i]
+            free = col_mask[b, i]
+            z_pose[b, i] = (gs_pose[b, i] if free else 0.0) / D_pose[b, i]
+            a = abs(g_pose[b, i]) if free else 0.0
+            nan |= a != a
+            g_max = max(g_max, a)
+    for f in range(N):
+        for i in range(3):
+            c_feat[f, i], D_feat[f, i] = _column_scale(V[f, i, i], jacobi)
+            gs_feat[f, i] = g_feat[f, i] * c_feat[f, i]
+            z_feat[f, i] = gs_feat[f, i] / D_feat[f, i]
+            a = abs(g_feat[f, i])
+            nan |= a != a
+            g_max = max(g_max, a)
+    U_s, V_s = np.empty_like(U), np.empty_like(V)
+    for p in range(U.shape[0]):
+        a, b = pair_rows[p], pair_cols[p]
+        for i in range(6):
+            for m in range(6):
+                U_s[p, i, m] = U[p, i, m] * c_pose[a, i] * c_pose[b, m]
+    for f in range(N):
+        for i in range(3):
+            for m in range(3):
+                V_s[f, i, m] = V[f, i, m] * c_feat[f, i] * c_feat[f, m]
+    return (U_s, V_s, gs_pose, gs_feat, c_pose, c_feat, D_pose, D_feat, z_pose, z_feat,
+            np.nan if nan else g_max)
+
+
+def jacobi_scale(U: FloatArray, V: FloatArray, g_pose: FloatArray, g_feat: FloatArray,
+                 pair_rows: IntArray, pair_cols: IntArray, col_mask: BoolArray, jacobi: bool,
+                 ) -> tuple[Any, ...]:
+    """Return U, V, g_pose, g_feat scaled, c_pose, c_feat, D_pose, D_feat, g / D and max |g|.
+
+    The arithmetic of :func:`pmba_ros.core.normal_equations.jacobi_scale` (the W blocks
+    are the caller's), in one pass.
+    """
+    out: tuple[Any, ...] = _jacobi_scale(U, V, g_pose, g_feat, pair_rows, pair_cols, col_mask,
+                                         bool(jacobi))
+    return out
 
 
 @_jit

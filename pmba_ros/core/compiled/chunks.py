@@ -81,6 +81,8 @@ def threads_for(n_obs: int, copy_bytes: int = 0) -> int:
 
     ``copy_bytes`` is the size of the private copy each chunk after the first needs.
     """
+    if n_obs < 2 * CHUNK_OBSERVATIONS:
+        return 1    # a sliding window's case: no need to ask for the cores
     return max(1, min(max_threads(), n_obs // CHUNK_OBSERVATIONS,
                       1 + COPY_BUDGET_BYTES // max(copy_bytes, 1)))
 
@@ -95,6 +97,18 @@ def bounds(cost: FloatArray, n: int) -> IntArray:
         return np.array([0, total.shape[0]], dtype=np.int64)
     inner = np.searchsorted(total, total[-1] * np.arange(1, n) / n, side='right')
     return np.concatenate([[0], inner, [total.shape[0]]]).astype(np.int64)
+
+
+def cuts(n: int, size: int, cost: Callable[[], FloatArray] | None = None) -> IntArray:
+    """Return n + 1 bounds of chunks of ``size`` items: :func:`bounds` of ``cost()``.
+
+    ``cost`` None: equal numbers of items. With one chunk the costs are not formed.
+    """
+    if n <= 1:
+        return np.array([0, size], dtype=np.int64)
+    if cost is None:
+        return np.linspace(0, size, n + 1).astype(np.int64)
+    return bounds(cost(), n)
 
 
 def run(fn: Callable[[int], T], n: int) -> list[T]:

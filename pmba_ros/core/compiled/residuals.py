@@ -247,7 +247,7 @@ def pmba_rows(obs: Observations, feats: ParallaxFeatures, R_wc: FloatArray, geo:
     rays = geo.N_hat if rays_c is None else rays_c
     K = E.shape[0]
     n = chunks.threads_for(K)
-    cut = np.linspace(0, K, n + 1).astype(np.int64)
+    cut = chunks.cuts(n, K)
     chunks.run(lambda t: _pmba_rows(oa, fa, R_wc, ft, rt, ff, w, rays, E, int(cut[t]),
                                     int(cut[t + 1])), n)
 

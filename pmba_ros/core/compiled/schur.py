@@ -126,6 +126,13 @@ def _reduce(W: Any, V: Any, damp_feat: Any, g_feat: Any, starts: Any, w_block: A
     return -1
 
 
+def _schur_work(starts: IntArray) -> FloatArray:
+    """Return each feature's share of the Schur terms: they grow with its observations squared."""
+    per_feature = np.diff(starts).astype(float)
+    out: FloatArray = per_feature * (per_feature + 1.0)
+    return out
+
+
 def reduce(U: FloatArray, W: FloatArray, V: FloatArray, damp_feat: FloatArray,
            g_pose: FloatArray, g_feat: FloatArray, starts: IntArray, obs_block: IntArray,
            pair_index: IntArray) -> tuple[FloatArray, FloatArray, FloatArray, int]:
@@ -135,9 +142,7 @@ def reduce(U: FloatArray, W: FloatArray, V: FloatArray, damp_feat: FloatArray,
     # Pose blocks are shared between features: chunks after the first fill their own.
     S = [U.copy(), *(np.zeros_like(U) for _ in range(1, n))]
     rhs = [-g_pose, *(np.zeros_like(g_pose) for _ in range(1, n))]
-    # A feature's Schur terms grow with the square of its observations.
-    per_feature = np.diff(starts).astype(float)
-    cut = chunks.bounds(per_feature * (per_feature + 1.0), n)
+    cut = chunks.cuts(n, starts.shape[0] - 1, lambda: _schur_work(starts))
     bad = chunks.run(lambda t: int(_reduce(W, V, damp_feat, g_feat, starts, obs_block,
                                            pair_index, V_inv, S[t], rhs[t], int(cut[t]),
                                            int(cut[t + 1]))), n)
