@@ -24,6 +24,7 @@ import pytest
 if TYPE_CHECKING:
     from pmba_ros.core.engine import Engine
 
+
 def pytest_configure(config: pytest.Config) -> None:
     """Size the BLAS pools once, as every program of the package does at start-up.
 
