@@ -29,6 +29,8 @@ from typing import NamedTuple
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
+from pmba_ros.core.compiled import gather as compiled_gather
+from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.problem import finite_rows, run_order
 
 
@@ -330,7 +332,9 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
     The observations come sorted by feature, then keyframe (the order of
     :func:`~pmba_ros.core.problem.make_problem`, which then has nothing to sort): features by
     id, or with ``by_track_length`` by their number of observations, then id (the order the
-    solver wants, :func:`~pmba_ros.core.normal_equations.feature_order`).
+    solver wants, :func:`~pmba_ros.core.normal_equations.feature_order`); the compiled loop
+    (:mod:`pmba_ros.core.compiled.gather`) orders them where it runs, else
+    :func:`ordered_tracks`.
 
     Args:
         store: The keyframes.
@@ -346,23 +350,11 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
     if not all_cameras:
         parts = [p.of_camera(reference) for p in parts]
     ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
-    local = np.repeat(np.arange(len(parts), dtype=np.int64), [p.ids.shape[0] for p in parts])
-    sel = (np.flatnonzero(np.isin(ids, feature_filter)) if feature_filter is not None
-           else np.arange(ids.shape[0]))
-    # ``local`` ascends: a stable sort by id orders by feature, then keyframe.
-    sel = sel[np.argsort(ids[sel], kind='stable')]
-    start = _track_starts(ids[sel])
-    if max_per_feature:
-        keep = _thin_sorted(start, max_per_feature)
-        sel, start = sel[keep], start[keep]   # a track's first observation is always kept
-    first = np.flatnonzero(start)
-    feature_ids = ids[sel[first]]
-    counts = np.diff(np.append(first, sel.shape[0]))
-    if by_track_length:
-        perm = np.argsort(counts, kind='stable')
-        index, counts = run_order(counts, perm)
-        sel, feature_ids = sel[index], feature_ids[perm]
-    feat_idx = np.repeat(np.arange(feature_ids.shape[0], dtype=np.int64), counts)
+    offsets = np.zeros(len(parts) + 1, dtype=np.int64)
+    np.cumsum(np.array([p.ids.shape[0] for p in parts], dtype=np.int64), out=offsets[1:])
+    order = (compiled_gather.ordered_tracks if compiled_available() else ordered_tracks)
+    sel, local, feat_idx, feature_ids = order(ids, offsets, feature_filter, max_per_feature,
+                                              by_track_length)
     camera = None
     if all_cameras:
         camera = np.full(ids.shape[0], reference, dtype=np.int64)
@@ -372,8 +364,44 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
         camera = camera[sel]
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
-    return GatheredObservations(local[sel], feat_idx, feature_ids, bearings[sel], pixels[sel],
+    return GatheredObservations(local, feat_idx, feature_ids, bearings[sel], pixels[sel],
                                 camera)
+
+
+def ordered_tracks(ids: IntArray, offsets: IntArray, feature_filter: IntArray | None, cap: int,
+                   by_length: bool) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """Return the order of :func:`gather_observations` (numpy; the compiled loop agrees).
+
+    Args:
+        ids: Feature id of each observation, the keyframes' observations one after another.
+        offsets: Where each keyframe's observations start in ``ids``, and their number
+            (P + 1,).
+        feature_filter: Feature ids to keep, or None for all.
+        cap: Thin every track to this many observations (:func:`thin_tracks`); 0 keeps all.
+        by_length: Order the features by their number of observations, then id (else id).
+
+    Returns:
+        The observations kept, in order (indices into ``ids``), their keyframe (index into
+        the P keyframes), their feature (index into the next) and each feature's id.
+    """
+    local = np.repeat(np.arange(offsets.shape[0] - 1, dtype=np.int64), np.diff(offsets))
+    sel = (np.flatnonzero(np.isin(ids, feature_filter)) if feature_filter is not None
+           else np.arange(ids.shape[0]))
+    # ``local`` ascends: a stable sort by id orders by feature, then keyframe.
+    sel = sel[np.argsort(ids[sel], kind='stable')]
+    start = _track_starts(ids[sel])
+    if cap:
+        keep = _thin_sorted(start, cap)
+        sel, start = sel[keep], start[keep]   # a track's first observation is always kept
+    first = np.flatnonzero(start)
+    feature_ids = ids[sel[first]]
+    counts = np.diff(np.append(first, sel.shape[0]))
+    if by_length:
+        perm = np.argsort(counts, kind='stable')
+        index, counts = run_order(counts, perm)
+        sel, feature_ids = sel[index], feature_ids[perm]
+    feat_idx = np.repeat(np.arange(feature_ids.shape[0], dtype=np.int64), counts)
+    return sel, local[sel], feat_idx, feature_ids
 
 
 def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntArray,

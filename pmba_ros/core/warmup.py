@@ -35,7 +35,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
-from pmba_ros.core.compiled import epipolar, linear_rays
+from pmba_ros.core.compiled import epipolar, gather, linear_rays
 from pmba_ros.core.engine import compiled_available
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
@@ -145,6 +145,10 @@ def warm_up() -> float:
     epipolar.translation_votes(np.eye(3)[None], np.ones((1, 3)), obs.bearings_c, idx, idx, ends)
     linear_rays.linear_ray_values(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
                                   problem.centers_w)
+    # The back-end's window gathering (filtered and thinned, and the initialization's).
+    ids, offsets = np.array(obs.feat_idx), np.array([0, problem.n_obs])
+    gather.ordered_tracks(ids, offsets, np.unique(ids), 3, True)
+    gather.ordered_tracks(ids, offsets, None, 0, False)
     marker = _marker()
     if marker is not None:
         try:
