@@ -112,6 +112,10 @@ class Engine(Protocol):
     def schur_plan(self, layout: SchurLayout) -> SchurPlan:
         """Return this engine's plan of the normal equations of ``layout``."""
 
+    def schur_anchors(self, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray,
+                      starts: IntArray) -> tuple[IntArray, IntArray, BoolArray]:
+        """Return :func:`pmba_ros.core.normal_equations.anchors`."""
+
 
 class NumpyEngine:
     """The numpy reference code (batched products and scatter matrices)."""
@@ -171,6 +175,11 @@ class NumpyEngine:
     def schur_plan(self, layout: SchurLayout) -> SchurPlan:
         """Return the :class:`~pmba_ros.core.numpy_schur.NumpySchurPlan` of ``layout``."""
         return NumpySchurPlan.build(layout)
+
+    def schur_anchors(self, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray,
+                      starts: IntArray) -> tuple[IntArray, IntArray, BoolArray]:
+        """Return :func:`pmba_ros.core.normal_equations.anchors`."""
+        return normal_equations.anchors(cam_idx, feat_idx, slot_pose, starts)
 
 
 class CompiledEngine:
@@ -246,6 +255,11 @@ class CompiledEngine:
         if layout.n_blocks > compiled_assembly.MAX_BLOCKS:
             return NumpySchurPlan.build(layout)
         return CompiledSchurPlan.build(layout)
+
+    def schur_anchors(self, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray,
+                      starts: IntArray) -> tuple[IntArray, IntArray, BoolArray]:
+        """Return :func:`pmba_ros.core.normal_equations.anchors`, one pass per slot."""
+        return compiled_assembly.anchors(cam_idx, slot_pose, starts)
 
 
 NUMPY = NumpyEngine()

@@ -62,28 +62,33 @@ def feature_order(feat_idx: IntArray, n_feats: int) -> IntArray:
     return np.argsort(counts, kind='stable')
 
 
-def _anchors(cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, starts: IntArray,
-             ) -> tuple[IntArray, IntArray]:
+def anchors(cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, starts: IntArray,
+            ) -> tuple[IntArray, IntArray, BoolArray]:
     """Return each feature's anchor poses (N, S - 1) and its observation by each, or -1.
 
     An anchor slot names one pose per feature; unused entries are -1, so it is the maximum.
+    Also the errors of each slot (S - 1, 2) that :meth:`SchurLayout.build` raises: it names
+    different poses within a feature; an anchor pose does not observe its feature. The numpy
+    reference of the compiled engine's (:func:`pmba_ros.core.compiled.assembly.anchors`).
     """
     n_feats, n_anchor = starts.shape[0] - 1, slot_pose.shape[1] - 1
     anchor_pose = np.full((n_feats, n_anchor), -1, dtype=np.int64)
     anchor_obs = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+    errors = np.zeros((n_anchor, 2), dtype=bool)
     for s in range(n_anchor):
         col = slot_pose[:, s + 1]
         anchor_pose[:, s] = np.maximum.reduceat(col, starts[:-1])
         per_obs = anchor_pose[feat_idx, s]
-        if np.any((col >= 0) & (col != per_obs)):
-            msg = f'anchor slot {s + 1} names different poses within one feature'
-            raise SolverError(msg)
+        errors[s, 0] = np.any((col >= 0) & (col != per_obs))
         hit = np.flatnonzero(cam_idx == per_obs)
         anchor_obs[feat_idx[hit], s] = hit
-        if np.any((anchor_pose[:, s] >= 0) & (anchor_obs[:, s] < 0)):
-            msg = f'anchor slot {s + 1}: an anchor pose does not observe its feature'
-            raise SolverError(msg)
-    return anchor_pose, anchor_obs
+        errors[s, 1] = np.any((anchor_pose[:, s] >= 0) & (anchor_obs[:, s] < 0))
+    return anchor_pose, anchor_obs, errors
+
+
+#: An engine's :func:`anchors`.
+AnchorSearch = Callable[[IntArray, IntArray, IntArray, IntArray],
+                        tuple[IntArray, IntArray, BoolArray]]
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +126,7 @@ class SchurLayout:
     @classmethod
     def build(cls, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, n_feats: int,
               free_block: IntArray, anchor_cols: tuple[tuple[int, int], ...] = (),
-              ) -> SchurLayout:
+              find_anchors: AnchorSearch = anchors) -> SchurLayout:
         """Build the layout of K observations.
 
         Args:
@@ -133,9 +138,11 @@ class SchurLayout:
             n_feats: Number of features N.
             free_block: Free block of each pose, shape (M,), -1 for fixed poses.
             anchor_cols: Columns (start, stop) of the pose that each anchor slot touches.
+            find_anchors: :func:`anchors` or an engine's equal.
 
         Raises:
-            SolverError: If no pose is free or the observations are not ordered.
+            SolverError: If no pose is free, the observations are not ordered or an anchor
+                slot does not name one observing pose per feature.
         """
         S = slot_pose.shape[1]
         if len(anchor_cols) != S - 1:
@@ -151,7 +158,14 @@ class SchurLayout:
             msg = 'observations must be sorted by feature, features by observation count'
             raise SolverError(msg)
         starts = np.concatenate([[0], np.cumsum(counts)])
-        anchor_pose, anchor_obs = _anchors(cam_idx, feat_idx, slot_pose, starts)
+        anchor_pose, anchor_obs, errors = find_anchors(cam_idx, feat_idx, slot_pose, starts)
+        for s, (mixed, unobserved) in enumerate(errors.tolist(), start=1):
+            if mixed:
+                msg = f'anchor slot {s} names different poses within one feature'
+                raise SolverError(msg)
+            if unobserved:
+                msg = f'anchor slot {s}: an anchor pose does not observe its feature'
+                raise SolverError(msg)
         anchor_block = np.where(anchor_pose >= 0, free_block[np.maximum(anchor_pose, 0)], -1)
         return cls(n_blocks, n_feats, feat_idx, tuple(anchor_cols), starts,
                    free_block[cam_idx], anchor_block, anchor_obs)
@@ -234,16 +248,18 @@ class SchurStructure:
     @classmethod
     def build(cls, cam_idx: IntArray, feat_idx: IntArray, slot_pose: IntArray, n_feats: int,
               free_block: IntArray, anchor_cols: tuple[tuple[int, int], ...],
-              planner: Callable[[SchurLayout], SchurPlan]) -> SchurStructure:
+              planner: Callable[[SchurLayout], SchurPlan],
+              find_anchors: AnchorSearch = anchors) -> SchurStructure:
         """Build the layout (:meth:`SchurLayout.build`, same arguments) and ``planner``'s plan.
 
-        ``planner`` is an engine's ``schur_plan`` (:mod:`pmba_ros.core.engine`).
+        ``planner`` is an engine's ``schur_plan``, ``find_anchors`` :func:`anchors` or an
+        engine's ``schur_anchors`` (:mod:`pmba_ros.core.engine`).
 
         Raises:
             SolverError: If no pose is free or the observations are not ordered.
         """
         layout = SchurLayout.build(cam_idx, feat_idx, slot_pose, n_feats, free_block,
-                                   anchor_cols)
+                                   anchor_cols, find_anchors)
         return cls(layout, planner(layout))
 
     @property

@@ -394,7 +394,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     features = take_features(features, order) if permuted else features
     structure = ne.SchurStructure.build(solved.obs.cam_idx, solved.obs.feat_idx,
                                         model.slots(features), problem.n_feats, free_block,
-                                        model.anchor_cols, engine.schur_plan)
+                                        model.anchor_cols, engine.schur_plan,
+                                        engine.schur_anchors)
     col_mask = gauge.column_mask()
     loss_scale = (options.loss_scale_px if model.pixel_residuals
                   else options.loss_scale_px / problem.intrinsics.median_focal)

@@ -194,6 +194,36 @@ def test_structure_rejects_unordered_features() -> None:
                                 NUMPY.schur_plan)
 
 
+@pytest.mark.parametrize('param', ['pmba', 'idp', 'xyz'])
+def test_engines_find_the_same_anchors(param: str) -> None:
+    """The compiled anchor pass gives numpy's poses, observations and errors."""
+    problem = _uneven_tracks(forward_problem(3, n_cams=6, n_points=30))
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, param)
+    slots = model.slots(feats)
+    counts = np.bincount(problem.obs.feat_idx, minlength=problem.n_feats)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    cam = problem.obs.cam_idx
+    mixed, unobserved = slots.copy(), slots.copy()
+    if slots.shape[1] > 1:
+        f = int(np.flatnonzero(np.maximum.reduceat(slots[:, 1], starts[:-1]) > 0)[0])
+        rows = slots[starts[f]:starts[f + 1], 1]   # two or more: another row keeps the pose
+        mixed[starts[f] + np.argmin(rows), 1] = rows.max() - 1   # a second pose
+        unobserved[starts[4]:starts[5], 1] = problem.n_cams  # a pose that does not observe
+    for case in (slots, mixed, unobserved):
+        want = ne.anchors(cam, problem.obs.feat_idx, case, starts)
+        got = engine_named('compiled').schur_anchors(cam, problem.obs.feat_idx, case, starts)
+        for w, g in zip(want, got, strict=True):
+            np.testing.assert_array_equal(g, w)
+    if slots.shape[1] > 1:
+        assert ne.anchors(cam, problem.obs.feat_idx, mixed, starts)[2][0, 0]
+        assert ne.anchors(cam, problem.obs.feat_idx, unobserved, starts)[2][0, 1]
+        with pytest.raises(SolverError, match='names different poses'):
+            ne.SchurLayout.build(cam, problem.obs.feat_idx, mixed, problem.n_feats,
+                                 np.arange(problem.n_cams), model.anchor_cols)
+
+
 def test_pmba_gauge_has_seven_dimensions() -> None:
     """Without gauge fixing, J^T J of PMBA has exactly 7 zero eigenvalues (Sim(3))."""
     problem = forward_problem(7, n_cams=5, n_points=30, noise_px=0.0)

@@ -169,6 +169,44 @@ def assemble(E: FloatArray, starts: IntArray, obs_block: IntArray, anchor_block:
 
 
 @_jit
+def _anchors(cam_idx: Any, slot_pose: Any, starts: Any, anchor_pose: Any, anchor_obs: Any,
+             errors: Any) -> None:
+    """Fill each feature's anchor poses and observations; flag a slot's errors.
+
+    ``errors[s, 0]``: slot s + 1 names different poses within a feature; ``errors[s, 1]``:
+    an anchor pose does not observe its feature. The last observation by the anchor pose
+    is its observation, as numpy's assignment of repeated indices leaves it.
+    """
+    for s in range(anchor_pose.shape[1]):
+        for f in range(starts.shape[0] - 1):
+            lo, hi = starts[f], starts[f + 1]
+            if hi == lo:   # no observations (the layout rejects such features first)
+                continue
+            pose = slot_pose[lo, s + 1]
+            for k in range(lo + 1, hi):
+                pose = max(pose, slot_pose[k, s + 1])
+            anchor_pose[f, s] = pose
+            for k in range(lo, hi):
+                if slot_pose[k, s + 1] >= 0 and slot_pose[k, s + 1] != pose:
+                    errors[s, 0] = True
+                if cam_idx[k] == pose:
+                    anchor_obs[f, s] = k
+            if pose >= 0 and anchor_obs[f, s] < 0:
+                errors[s, 1] = True
+
+
+def anchors(cam_idx: IntArray, slot_pose: IntArray, starts: IntArray,
+            ) -> tuple[IntArray, IntArray, BoolArray]:
+    """Return :func:`pmba_ros.core.normal_equations.anchors` (which also reads feat_idx)."""
+    n_feats, n_anchor = starts.shape[0] - 1, slot_pose.shape[1] - 1
+    anchor_pose = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+    anchor_obs = np.full((n_feats, n_anchor), -1, dtype=np.int64)
+    errors = np.zeros((n_anchor, 2), dtype=bool)
+    _anchors(cam_idx, slot_pose, starts, anchor_pose, anchor_obs, errors)
+    return anchor_pose, anchor_obs, errors
+
+
+@_jit
 def _covisible(starts: Any, obs_block: Any, pair_index: Any) -> None:
     """Write the numbers of the covisible upper block pairs and the diagonal into pair_index."""
     n = pair_index.shape[0]
