@@ -364,8 +364,9 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
         camera = camera[sel]
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
-    return GatheredObservations(local, feat_idx, feature_ids, bearings[sel], pixels[sel],
-                                camera)
+    # np.take: the rows fancy indexing would copy, for less.
+    return GatheredObservations(local, feat_idx, feature_ids, np.take(bearings, sel, axis=0),
+                                np.take(pixels, sel, axis=0), camera)
 
 
 def ordered_tracks(ids: IntArray, offsets: IntArray, feature_filter: IntArray | None, cap: int,

@@ -173,22 +173,21 @@ def check_features(problem: BAProblem, feats: Features, param: Parameterization)
         if arr.shape[0] != problem.n_feats:
             msg = f'features.{name}: {arr.shape[0]} rows for {problem.n_feats} features'
             raise ProblemError(msg)
-        if not np.all(np.isfinite(arr)):
+        # Integer arrays are finite: only the floating ones are looked at.
+        if arr.dtype.kind not in 'iub' and not np.isfinite(arr).all():
             msg = f'features.{name}: non-finite values'
             raise ProblemError(msg)
     if isinstance(feats, ParallaxFeatures):
-        anchors = np.stack([arrays['main_idx'], arrays['assoc_idx']], axis=1)
-        for name, bad in zip(('main_idx', 'assoc_idx'),
-                             np.any((anchors < 0) | (anchors >= problem.n_cams), axis=0),
-                             strict=True):
-            if bad:
+        main, assoc = arrays['main_idx'], arrays['assoc_idx']
+        for name, idx in (('main_idx', main), ('assoc_idx', assoc)):
+            if idx.shape[0] and (idx.min() < 0 or idx.max() >= problem.n_cams):
                 msg = f'features.{name}: unknown camera index'
                 raise ProblemError(msg)
-        same = anchors[:, 0] == anchors[:, 1]
-        if np.any(same):
+        same = main == assoc
+        if same.any():
             msg = f'features: {int(same.sum())} features have main anchor == associate anchor'
             raise ProblemError(msg)
-        anchor_observations(problem, anchors)
+        anchor_observations(problem, np.stack([main, assoc], axis=1))
 
 
 def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntArray,

@@ -254,7 +254,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         msg = (f'poses: expected R_wc (M,3,3) and centers_w (M,3), got {R_wc.shape}, '
                f'{centers_w.shape}')
         raise ProblemError(msg)
-    if not (np.all(np.isfinite(R_wc)) and np.all(np.isfinite(centers_w))):
+    if not (np.isfinite(R_wc).all() and np.isfinite(centers_w).all()):
         finite = np.isfinite(R_wc).all(axis=(1, 2)) & np.isfinite(centers_w).all(axis=1)
         bad = np.flatnonzero(~finite)
         msg = f'poses: non-finite values in pose(s) {bad[:10].tolist()}'
@@ -279,12 +279,12 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     feat_idx = feat_idx.astype(np.int64)
     N = int(feat_idx.max()) + 1 if n_feats is None and K else int(n_feats or 0)
     bad_cam = (cam_idx < 0) | (cam_idx >= M)
-    if np.any(bad_cam):
+    if bad_cam.any():
         k = int(np.flatnonzero(bad_cam)[0])
         msg = f'observation {k}: unknown camera index {int(cam_idx[k])} (problem has {M} cameras)'
         raise ProblemError(msg)
     bad_feat = (feat_idx < 0) | (feat_idx >= N)
-    if np.any(bad_feat):
+    if bad_feat.any():
         k = int(np.flatnonzero(bad_feat)[0])
         msg = (f'observation {k}: unknown feature index {int(feat_idx[k])} '
                f'(problem has {N} features)')
@@ -310,28 +310,40 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     rig_cam = _rig_cameras(camera, rig, K)
     dropped: dict[str, int] = {}
     keep = finite_rows(bearings_c)
-    _count(dropped, 'non_finite_observations', int(np.sum(~keep)))
+    n_finite = int(np.count_nonzero(keep))
+    _count(dropped, 'non_finite_observations', K - n_finite)
 
-    # Duplicate (pose, rig camera, feature) observations are inconsistent tracks: keep the
-    # first.
-    order = _feature_camera_order(feat_idx, cam_idx, rig_cam, N, M, len(rig) if rig else 1)
-    order = order[keep[order]]
-    f_sorted, c_sorted, r_sorted = feat_idx[order], cam_idx[order], rig_cam[order]
-    same_pose = np.zeros(order.shape[0], dtype=bool)
-    same_pose[1:] = (f_sorted[1:] == f_sorted[:-1]) & (c_sorted[1:] == c_sorted[:-1])
-    dup = same_pose.copy()
-    dup[1:] &= r_sorted[1:] == r_sorted[:-1]
-    _count(dropped, 'duplicate_observations', int(np.sum(dup)))
-    order, same_pose = order[~dup], same_pose[~dup]
-
-    # Features need two observing poses (an associate anchor with a baseline), pmba.md §3.3.
-    counts = np.bincount(feat_idx[order[~same_pose]], minlength=N)
+    n_rig = len(rig) if rig else 1
+    order = _feature_camera_order(feat_idx, cam_idx, rig_cam, N, M, n_rig)
+    if order is None and n_finite == K:
+        # In order, keys strictly increasing: no duplicates, and a pose observes a feature
+        # twice only through two rig cameras. Features need two observing poses (an
+        # associate anchor with a baseline), pmba.md §3.3.
+        observer = feat_idx
+        if n_rig > 1:
+            observer = feat_idx[np.concatenate([[True], (feat_idx[1:] != feat_idx[:-1])
+                                                | (cam_idx[1:] != cam_idx[:-1])])]
+        counts = np.bincount(observer, minlength=N)
+        order = np.arange(K)
+    else:
+        order = np.arange(K) if order is None else order
+        # Duplicate (pose, rig camera, feature) observations are inconsistent tracks: keep
+        # the first.
+        order = order[keep[order]]
+        f_sorted, c_sorted, r_sorted = feat_idx[order], cam_idx[order], rig_cam[order]
+        same_pose = np.zeros(order.shape[0], dtype=bool)
+        same_pose[1:] = (f_sorted[1:] == f_sorted[:-1]) & (c_sorted[1:] == c_sorted[:-1])
+        dup = same_pose.copy()
+        dup[1:] &= r_sorted[1:] == r_sorted[:-1]
+        _count(dropped, 'duplicate_observations', int(np.count_nonzero(dup)))
+        order, same_pose = order[~dup], same_pose[~dup]
+        counts = np.bincount(feat_idx[order[~same_pose]], minlength=N)   # as above
     feat_ok = counts >= 2
-    _count(dropped, 'single_observation_features', int(np.sum(counts == 1)))
-    _count(dropped, 'unobserved_features', int(np.sum(counts == 0)))
+    _count(dropped, 'single_observation_features', int(np.count_nonzero(counts == 1)))
+    _count(dropped, 'unobserved_features', int(np.count_nonzero(counts == 0)))
     if points_w is not None:
         finite_pt = finite_rows(points_w)
-        _count(dropped, 'non_finite_points', int(np.sum(feat_ok & ~finite_pt)))
+        _count(dropped, 'non_finite_points', int(np.count_nonzero(feat_ok & ~finite_pt)))
         feat_ok &= finite_pt
     n_before = order.shape[0]
     order = order[feat_ok[feat_idx[order]]]
@@ -350,12 +362,14 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         if fixed_arr.shape != (M,):
             msg = f'fixed: expected shape ({M},), got {fixed_arr.shape}'
             raise ProblemError(msg)
+    # np.take: the rows fancy indexing would copy, for less.
     obs = Observations(_readonly(cam_idx[order]), _readonly(new_index[feat_idx[order]]),
-                       _readonly(bearings_c[order]), _readonly(pixels[order]),
+                       _readonly(np.take(bearings_c, order, axis=0)),
+                       _readonly(np.take(pixels, order, axis=0)),
                        None if rig is None else _readonly(rig_cam[order]))
     pts = None if points_w is None else _readonly(points_w[feat_ok])
     return BAProblem(_readonly(R_wc.copy()), _readonly(centers_w.copy()), intrinsics, obs,
-                     int(np.sum(feat_ok)), pts, _readonly(fixed_arr.copy()),
+                     int(np.count_nonzero(feat_ok)), pts, _readonly(fixed_arr.copy()),
                      _readonly(ids[feat_ok].astype(np.int64)),
                      {k: v for k, v in dropped.items() if v}, rig)
 
@@ -382,18 +396,19 @@ def _rig_cameras(camera: np.ndarray | None, rig: Rig | None, K: int) -> IntArray
 
 
 def _feature_camera_order(feat_idx: IntArray, cam_idx: IntArray, rig_cam: IntArray,
-                          n_feats: int, n_cams: int, n_rig: int) -> IntArray:
+                          n_feats: int, n_cams: int, n_rig: int) -> IntArray | None:
     """Return the stable order of observations by feature, pose, then rig camera.
 
     The three (validated) indices make one integer key where it cannot overflow; input
-    already in that order (as the back-end builds it) then needs no sort at all.
+    already in that order (as the back-end builds it) then needs no sort at all: None, for
+    keys strictly increasing (no two observations share all three).
     """
     K = feat_idx.shape[0]
     if n_feats * n_cams * n_rig >= 2 ** 62:
         return np.lexsort((np.arange(K), rig_cam, cam_idx, feat_idx))
     key = (feat_idx * n_cams + cam_idx) * n_rig + rig_cam
-    if np.all(key[1:] > key[:-1]):
-        return np.arange(K)
+    if (key[1:] > key[:-1]).all():
+        return None
     return np.argsort(key, kind='stable')
 
 

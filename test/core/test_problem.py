@@ -134,10 +134,44 @@ def test_observation_order_is_the_same_sorted_or_not() -> None:
     s = reference
     in_order = make_problem(R, P, intr, cam[s], feat[s], pix[s], camera=rig_cam[s], rig=rig)
     np.testing.assert_array_equal(_feature_camera_order(feat[s], cam[s], rig_cam[s], 40, M, 2),
-                                  np.arange(K))
+                                  np.arange(K))   # duplicates: not strictly in order
     for name in ('cam_idx', 'feat_idx', 'bearings_c', 'pixels', 'camera'):
         np.testing.assert_array_equal(getattr(in_order.obs, name), getattr(shuffled.obs, name))
     assert in_order.dropped == shuffled.dropped
+
+
+@pytest.mark.parametrize('n_rig', [1, 2])
+def test_strictly_ordered_input_gives_the_problem_of_shuffled_input(n_rig: int) -> None:
+    """Observations without duplicates, in order (the back-end's): the same problem.
+
+    Single-observation features, and with a rig features seen by two cameras of one pose
+    only, are dropped and counted as from shuffled input.
+    """
+    from pmba_ros.core.problem import _feature_camera_order, Rig
+
+    rng = np.random.default_rng(3)
+    K, M = 400, 6
+    cam, feat, rig_cam = rng.integers(0, M, K), rng.integers(0, 90, K), rng.integers(0, n_rig, K)
+    key = (feat * M + cam) * n_rig + rig_cam
+    _, first = np.unique(key, return_index=True)   # one observation per key, in key order
+    cam, feat, rig_cam = cam[first], feat[first], rig_cam[first]
+    rig = Rig(np.tile(np.eye(3), (2, 1, 1)), np.array([[0.0, 0, 0], [0.2, 0, 0]]))
+    camera, rig = (rig_cam, rig) if n_rig > 1 else (None, None)
+    R = np.tile(np.eye(3), (M, 1, 1))
+    P = np.column_stack([np.arange(M, dtype=float), np.zeros(M), np.zeros(M)])
+    intr = Intrinsics.uniform(M, 500, 500, 320, 240)
+    pix = rng.uniform(0, 600, (first.shape[0], 2))
+    assert _feature_camera_order(feat, cam, rig_cam, 90, M, n_rig) is None
+    in_order = make_problem(R, P, intr, cam, feat, pix, camera=camera, rig=rig)
+    s = rng.permutation(first.shape[0])
+    shuffled = make_problem(R, P, intr, cam[s], feat[s], pix[s],
+                            camera=None if camera is None else camera[s], rig=rig)
+    assert in_order.dropped == shuffled.dropped
+    assert in_order.dropped['single_observation_features'] > 0
+    assert in_order.n_feats == shuffled.n_feats
+    for name in ('cam_idx', 'feat_idx', 'bearings_c', 'pixels', 'camera'):
+        np.testing.assert_array_equal(getattr(in_order.obs, name), getattr(shuffled.obs, name))
+    np.testing.assert_array_equal(in_order.feature_ids, shuffled.feature_ids)
 
 
 def test_uniform_intrinsics_are_shared_and_know_their_median_focal() -> None:
