@@ -438,7 +438,7 @@ class Estimator:
         if active.shape[0] > K:
             self.kf.status[active[:-K]] = KeyframeStatus.FIXED
             active = active[-K:]
-        window_ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active]))
+        window_ids = self.kf.observed_ids(active)
         _, points = self.features.pop_except(window_ids)
         self.landmarks.add(points)
         self.kf.forget_observations_before(int(active[0]) - self.config.fixed_lookback)

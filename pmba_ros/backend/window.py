@@ -138,6 +138,10 @@ class KeyframeStore:
         """Return the indices of the keyframes with ``status``, ascending."""
         return np.flatnonzero(self.status[:self.n] == status).astype(np.int64)
 
+    def observed_ids(self, indices: IntArray) -> IntArray:
+        """Return the sorted distinct feature ids that keyframes ``indices`` observe."""
+        return unique_ids(np.concatenate([self.obs[int(i)].ids for i in indices]))
+
     def forget_observations_before(self, index: int) -> None:
         """Drop the stored observations of keyframes older than ``index``."""
         for i in [i for i in self.obs if i < index]:
@@ -175,15 +179,17 @@ class FeatureMap:
         ids = np.asarray(ids, dtype=np.int64)
         all_ids = np.concatenate([self.ids, ids])
         all_pts = np.concatenate([self.points, points])
-        # Keep the last occurrence of every id (the update).
+        # Keep the last occurrence of every id (the update): the first of the reversed ids
+        # in a stable sort, as np.unique(return_index=True) finds it.
         rev_ids = all_ids[::-1]
-        uniq, first = np.unique(rev_ids, return_index=True)
-        self.ids = uniq
+        order = np.argsort(rev_ids, kind='stable')
+        first = order[_run_starts(rev_ids[order])]
+        self.ids = rev_ids[first]
         self.points = all_pts[::-1][first]
 
     def pop_except(self, keep_ids: IntArray) -> tuple[IntArray, FloatArray]:
         """Remove every feature not in ``keep_ids``; return the removed ids and points."""
-        keep = np.isin(self.ids, keep_ids)
+        keep = is_in(self.ids, keep_ids)
         removed = (self.ids[~keep], self.points[~keep])
         self.ids, self.points = self.ids[keep], self.points[keep]
         return removed
@@ -390,7 +396,7 @@ def ordered_tracks(ids: IntArray, offsets: IntArray, feature_filter: IntArray | 
            else np.arange(ids.shape[0]))
     # ``local`` ascends: a stable sort by id orders by feature, then keyframe.
     sel = sel[np.argsort(ids[sel], kind='stable')]
-    start = _track_starts(ids[sel])
+    start = _run_starts(ids[sel])
     if cap:
         keep = _thin_sorted(start, cap)
         sel, start = sel[keep], start[keep]   # a track's first observation is always kept
@@ -439,21 +445,46 @@ def thin_tracks(ids: IntArray, cams: IntArray, cap: int) -> BoolArray:
     """
     order = np.lexsort((cams, ids))
     keep = np.empty(ids.shape[0], dtype=bool)
-    keep[order] = _thin_sorted(_track_starts(ids[order]), cap)
+    keep[order] = _thin_sorted(_run_starts(ids[order]), cap)
     return keep
 
 
-def _track_starts(sorted_ids: IntArray) -> BoolArray:
-    """Return where each track of observations sorted by feature id starts, shape (K,)."""
-    start = np.ones(sorted_ids.shape[0], dtype=bool)
-    start[1:] = sorted_ids[1:] != sorted_ids[:-1]
+def unique_ids(ids: IntArray) -> IntArray:
+    """Return np.unique(ids) of integer ids by a sort (numpy's hash table costs more here)."""
+    ordered = np.sort(ids)
+    out: IntArray = ordered[_run_starts(ordered)]
+    return out
+
+
+def is_in(values: IntArray, keys: IntArray) -> BoolArray:
+    """Return np.isin(values, keys) of integers; by binary search where both ascend.
+
+    Ascending values make the search's branches predictable; numpy's table serves
+    unordered ones better.
+    """
+    if (keys.shape[0] == 0 or not (keys[1:] >= keys[:-1]).all()
+            or not (values[1:] >= values[:-1]).all()):
+        out: BoolArray = np.isin(values, keys)
+        return out
+    pos = np.minimum(np.searchsorted(keys, values), keys.shape[0] - 1)
+    found: BoolArray = keys[pos] == values
+    return found
+
+
+def _run_starts(ordered: IntArray) -> BoolArray:
+    """Return where each run of equal values of a sorted array starts, shape (K,).
+
+    Of ids sorted by feature: where each track of observations starts.
+    """
+    start = np.ones(ordered.shape[0], dtype=bool)
+    np.not_equal(ordered[1:], ordered[:-1], out=start[1:])
     return start
 
 
 def _thin_sorted(start: BoolArray, cap: int) -> BoolArray:
     """Return :func:`thin_tracks`' mask of observations sorted by feature, then time.
 
-    ``start`` flags the first observation of each track (:func:`_track_starts`).
+    ``start`` flags the first observation of each track (:func:`_run_starts`).
     """
     K = start.shape[0]
     first = np.maximum.accumulate(np.where(start, np.arange(K), 0))

@@ -55,3 +55,28 @@ def test_track_order_of_no_observations() -> None:
         for order in (window.ordered_tracks, compiled_gather.ordered_tracks):
             out = order(ids, offsets, None, 14, True)
             assert all(a.shape == (0,) for a in out)
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_unique_ids_and_membership_are_numpys(seed: int) -> None:
+    """unique_ids is np.unique, is_in np.isin (keys sorted or not, empty or not)."""
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(-5, 200, int(rng.integers(0, 300)))
+    np.testing.assert_array_equal(window.unique_ids(ids), np.unique(ids))
+    assert window.unique_ids(ids).dtype == np.unique(ids).dtype
+    for keys in (np.unique(rng.integers(0, 200, 50)), rng.integers(0, 200, 50),
+                 np.zeros(0, np.int64), np.array([7, 7, 9])):
+        for values in (ids, np.sort(ids)):
+            np.testing.assert_array_equal(window.is_in(values, keys), np.isin(values, keys))
+
+
+def test_feature_map_keeps_the_last_update_of_each_id() -> None:
+    """upsert: ids sorted and distinct, an id given twice takes its last point."""
+    fmap = window.FeatureMap()
+    fmap.upsert(np.array([5, 2, 9]), np.arange(9.0).reshape(3, 3))
+    fmap.upsert(np.array([9, 4, 9, 2]), 10.0 + np.arange(12.0).reshape(4, 3))
+    np.testing.assert_array_equal(fmap.ids, [2, 4, 5, 9])
+    np.testing.assert_array_equal(fmap.points[:, 0], [19.0, 13.0, 0.0, 16.0])
+    removed, _ = fmap.pop_except(np.array([4, 9]))
+    np.testing.assert_array_equal(removed, [2, 5])
+    np.testing.assert_array_equal(fmap.ids, [4, 9])
