@@ -43,6 +43,9 @@ from pmba_ros.core.normal_equations import NormalEquations, SchurStructure
 from pmba_ros.errors import ProblemError
 
 
+_add = np.add.reduce
+
+
 def right_jacobian_inverse(omega: FloatArray) -> FloatArray:
     """Return J_r^-1 of SO(3) at rotation vectors ``omega`` (M, 3), shape (M, 3, 3)."""
     theta = np.linalg.norm(omega, axis=1)
@@ -117,15 +120,16 @@ class RelativePosePrior:
         r = np.empty((len(self), 6))
         np.multiply(self.w_rot[:, None], omega, out=r[:, :3])
         np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab, out=r[:, 3:])
-        norm = np.sqrt(np.sum(r * r, axis=1))
+        # np.sum's reductions (np.add.reduce) without its wrapper: the same sums.
+        norm = np.sqrt(_add(r * r, axis=1))
         outer = norm > self.huber
         weights = np.ones(len(self))
         costs = 0.5 * norm * norm
-        if np.any(outer):
+        if outer.any():
             k = self.huber
             weights[outer] = k / norm[outer]
             costs[outer] = k * norm[outer] - 0.5 * k * k
-        return PriorEvaluation(r, float(np.sum(costs)), Ra, RaT_Rb, omega, rel_t, weights)
+        return PriorEvaluation(r, float(_add(costs)), Ra, RaT_Rb, omega, rel_t, weights)
 
     def residuals(self, R: FloatArray, P: FloatArray) -> FloatArray:
         """Return the weighted residuals, shape (M, 6): rotation, then translation."""
