@@ -42,7 +42,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.normal_equations import NormalEquations, SchurStructure
 from pmba_ros.errors import ProblemError
 
-
+#: np.sum(x) is this reduction behind a generic wrapper: the same sums, for less.
 _add = np.add.reduce
 
 
