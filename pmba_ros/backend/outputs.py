@@ -40,6 +40,7 @@ DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
 """Levels accepted by :func:`make_diagnostics`."""
 
 _NUMPY_TO_POINTFIELD = {np.dtype(code): dt for dt, code in POINTFIELD_DTYPES.items()}
+_FLOAT32 = _NUMPY_TO_POINTFIELD[np.dtype('f4')]
 
 
 # --- small pieces -------------------------------------------------------------------------
@@ -465,11 +466,19 @@ def make_point_cloud2_named(stamp_ns: int, frame_id: str, columns: Mapping[str, 
     for name, col in cols.items():
         rec[name] = col
     is_dense = all(np.all(np.isfinite(c)) for c in cols.values() if c.dtype.kind == 'f')
+    return _point_cloud2(stamp_ns, frame_id, fields, n_pts, offset, rec, is_dense, big_endian,
+                         backend)
+
+
+def _point_cloud2(stamp_ns: int, frame_id: str, fields: list[Any], n_pts: int,
+                  point_step: int, records: np.ndarray, is_dense: bool, big_endian: bool,
+                  backend: MsgBackend) -> Any:
+    """Return an unorganized PointCloud2 of packed, C-contiguous ``records``."""
     return backend.new('sensor_msgs/msg/PointCloud2',
                        header=header_msg(stamp_ns, frame_id, backend), height=1,
                        width=int(n_pts), fields=fields, is_bigendian=bool(big_endian),
-                       point_step=int(offset), row_step=int(offset * n_pts),
-                       data=backend.seq_u8(rec.tobytes()), is_dense=bool(is_dense))
+                       point_step=int(point_step), row_step=int(point_step * n_pts),
+                       data=backend.seq_u8(records), is_dense=bool(is_dense))
 
 
 def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
@@ -488,9 +497,14 @@ def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
     Raises:
         MessageError: If ``points`` is not (N, 3).
     """
-    pts = float_rows(points, 3, 'make_point_cloud2_xyz: points').astype(np.float32)
-    return make_point_cloud2_named(stamp_ns, frame_id,
-                                   {'x': pts[:, 0], 'y': pts[:, 1], 'z': pts[:, 2]}, backend)
+    # C-ordered rows of three little-endian float32 are the packed x, y, z records of
+    # make_point_cloud2_named's three columns, without its record array.
+    pts = float_rows(points, 3, 'make_point_cloud2_xyz: points').astype('<f4', order='C')
+    field_type = backend.msg_class('sensor_msgs/msg/PointField')
+    fields = [field_type(name=name, offset=4 * i, datatype=_FLOAT32, count=1)
+              for i, name in enumerate('xyz')]
+    return _point_cloud2(stamp_ns, frame_id, fields, pts.shape[0], 12, pts,
+                         bool(np.isfinite(pts).all()), False, backend)
 
 
 __all__ = [

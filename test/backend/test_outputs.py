@@ -150,6 +150,21 @@ def test_point_cloud2_xyz_layout(backend: Any) -> None:
     assert (empty.width, len(empty.data)) == (0, 0)
 
 
+@pytest.mark.parametrize('n', [0, 1, 5])
+def test_point_cloud2_xyz_equals_the_named_columns(backend: Any, n: int) -> None:
+    """The xyz cloud is the named cloud of its float32 columns (non-finite, F-ordered too)."""
+    rng = np.random.default_rng(n)
+    points = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-3, 40, size=(n, 3))
+    if n > 1:
+        points[1, 2] = np.nan
+    for pts in (points, np.asfortranarray(points), np.abs(points) + 1.0):
+        f32 = np.asarray(pts, np.float64).astype(np.float32)
+        named = outputs.make_point_cloud2_named(T_NS, 'map', {
+            'x': f32[:, 0], 'y': f32[:, 1], 'z': f32[:, 2]}, backend)
+        xyz = outputs.make_point_cloud2_xyz(T_NS, 'map', pts, backend)
+        assert backend.serialize(xyz) == backend.serialize(named)
+
+
 def test_point_cloud2_named_rejects_bad_columns(backend: Any) -> None:
     """Columns of unequal length or without a PointField type are a MessageError."""
     with pytest.raises(MessageError, match='different lengths'):
