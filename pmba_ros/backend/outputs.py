@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+import math
 from typing import Any
 
 import numpy as np
@@ -46,13 +47,27 @@ _FLOAT32 = _NUMPY_TO_POINTFIELD[np.dtype('f4')]
 # --- small pieces -------------------------------------------------------------------------
 
 
-def _vec(value: ArrayLike, n: int, what: str) -> FloatArray:
-    """Return ``value`` as a finite float64 vector of length ``n``."""
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        msg = f'{what}: expected {n} finite values, got {arr.tolist()}'
+def _floats(value: ArrayLike, n: int, what: str) -> list[float]:
+    """Return ``value`` as ``n`` finite floats (one pose's values: no numpy per value)."""
+    values: list[float] = np.asarray(value, dtype=np.float64).reshape(-1).tolist()
+    if len(values) != n or not all(map(math.isfinite, values)):
+        msg = f'{what}: expected {n} finite values, got {values}'
         raise MessageError(msg)
-    return arr
+    return values
+
+
+def _unit_quat(quat_xyzw: ArrayLike, what: str) -> list[float]:
+    """Return one quaternion over its norm: :func:`_normalized` of one row, the same bits.
+
+    The sum of squares runs left to right, as numpy's reduction of a row of four does (the
+    tests compare the two bitwise).
+    """
+    x, y, z, w = _floats(quat_xyzw, 4, what)
+    norm = math.sqrt(((x * x + y * y) + z * z) + w * w)
+    if norm < 1e-9:
+        msg = f'{what}: zero-norm quaternion'
+        raise MessageError(msg)
+    return [x / norm, y / norm, z / norm, w / norm]
 
 
 def finite_rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
@@ -141,9 +156,8 @@ def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> 
     Raises:
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
-    pos = _vec(position, 3, 'position')
-    quat = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :], 'quat_xyzw')
-    (x, y, z), ((qx, qy, qz, qw),) = pos.tolist(), quat.tolist()
+    x, y, z = _floats(position, 3, 'position')
+    qx, qy, qz, qw = _unit_quat(quat_xyzw, 'quat_xyzw')
     return backend.msg_class('geometry_msgs/msg/Pose')(
         position=backend.msg_class('geometry_msgs/msg/Point')(x=x, y=y, z=z),
         orientation=backend.msg_class('geometry_msgs/msg/Quaternion')(x=qx, y=qy, z=qz, w=qw))
@@ -364,9 +378,8 @@ def make_tf(stamp_ns: int, parent: str, child: str, translation: ArrayLike,
     Raises:
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
-    (qx, qy, qz, qw), = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :],
-                                    'quat_xyzw').tolist()
-    x, y, z = _vec(translation, 3, 'translation').tolist()
+    qx, qy, qz, qw = _unit_quat(quat_xyzw, 'quat_xyzw')
+    x, y, z = _floats(translation, 3, 'translation')
     transform = backend.new(
         'geometry_msgs/msg/Transform',
         translation=backend.new('geometry_msgs/msg/Vector3', x=x, y=y, z=z),

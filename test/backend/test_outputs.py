@@ -201,6 +201,24 @@ def test_tf_message(backend: Any) -> None:
         outputs.make_tf(T_NS, 'map', 'odom', [1, 2, 3], [0, 0, np.nan, 1], backend)
 
 
+def test_one_pose_is_checked_and_normalized_as_the_rows_are(backend: Any) -> None:
+    """One pose's scalar path gives the bits of the row path and refuses what it refuses."""
+    rng = np.random.default_rng(7)
+    quats = rng.normal(size=(20000, 4)) * 10.0 ** rng.integers(-6, 7, size=(20000, 1))
+    rows = outputs._unit_quats(quats)
+    for q, row in zip(quats, rows, strict=True):
+        assert np.array(outputs._unit_quat(q, 'q')).tobytes() == row.tobytes()
+    for bad, match in (([0, 0, 0, 0], 'zero-norm'), ([0, 0, np.inf, 1], 'finite'),
+                       ([0, 0, 1], 'expected 4')):
+        with pytest.raises(MessageError, match=match):
+            outputs.pose_msg([1, 2, 3], bad, backend)
+    for bad in ([1, 2], [1, 2, np.nan], [[1, 2, 3, 4]]):
+        with pytest.raises(MessageError, match='position'):
+            outputs.pose_msg(bad, [0, 0, 0, 1], backend)
+        with pytest.raises(MessageError, match='translation'):
+            outputs.make_tf(T_NS, 'map', 'odom', bad, [0, 0, 0, 1], backend)
+
+
 def test_diagnostics(backend: Any) -> None:
     """Diagnostics map the level names to the constants and the values to strings."""
     msg = outputs.make_diagnostics(T_NS, 'pmba', 'error', 'diverged',
