@@ -99,7 +99,9 @@ class _Packed:
 
     def pack(self, objs: list[Any], key: object, fresh: list[int], size: int,
              pack: Callable[[bytearray, int, Any], None]) -> memoryview:
-        """Pack ``objs[i]`` (``pack(buffer, offset, obj)``, ``size`` bytes) at the places fresh.
+        """Pack the objects at the places ``fresh``, each into ``size`` bytes by ``pack``.
+
+        ``pack`` is called with the buffer, the element's byte offset and the object.
 
         Returns:
             The bytes of all ``objs``' elements (a view, valid until the next call).
