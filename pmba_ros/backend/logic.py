@@ -376,14 +376,16 @@ class BackendLogic:
         coordinates in the message, or its CameraInfo). Observations of other cameras are
         counted as ``other_camera_observations``, with a warning naming the camera.
         """
-        ref = self.config.camera_id
-        usable = {ref: self.camera}
-        for cam in np.unique(frame.camera_ids).tolist():
+        ref, usable = self.config.camera_id, {self.config.camera_id: self.camera}
+        present = np.unique(frame.camera_ids).tolist()
+        for cam in present:
             if cam != ref and self._rig_camera(int(cam), frame) is not None:
                 usable[int(cam)] = self.cameras.others.get(int(cam))
-        sel = np.isin(frame.camera_ids, list(usable))
-        self.count('other_camera_observations', int(np.count_nonzero(~sel)))
+        # The usual frame: every observation's camera counts, nothing to select.
+        every = usable.keys() >= set(present)
+        sel = slice(None) if every else np.isin(frame.camera_ids, list(usable))
         cams = frame.camera_ids[sel]
+        self.count('other_camera_observations', frame.camera_ids.shape[0] - cams.shape[0])
         models = {c: m for c, m in usable.items() if m is not None}
         if frame.normalized is not None:
             xy = frame.normalized[sel]
@@ -483,13 +485,11 @@ class BackendLogic:
         return result
 
     def _odometry(self, i: int) -> Any:
-        kf = self.estimator.kf
         cfg = self.config
-        optimized = bool(self.estimator.optimized(np.array([i]))[0])
-        cov = cfg.odometry_covariance(optimized=optimized)
+        cov = cfg.odometry_covariance(optimized=bool(self.estimator.optimized(np.array([i]))[0]))
         R, C = self.body_poses(np.array([i]))
-        return out.make_odometry(int(kf.stamps_ns[i]), cfg.map_frame, self._base_frame,
-                                 C[0], so3.to_quat_xyzw(R[0]), cov, self.backend)
+        return out.make_odometry(int(self.estimator.kf.stamps_ns[i]), cfg.map_frame,
+                                 self._base_frame, C[0], so3.to_quat_xyzw(R[0]), cov, self.backend)
 
     def map_from_odom_at(self, i: int) -> Rigid:
         """REP-105: T_map_odom = T_map_body (back-end) * T_odom_body (front-end)^-1 at i."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+import math
 from typing import Any
 
 import numpy as np
@@ -40,18 +41,33 @@ DIAGNOSTIC_LEVELS = ('ok', 'warn', 'error', 'stale')
 """Levels accepted by :func:`make_diagnostics`."""
 
 _NUMPY_TO_POINTFIELD = {np.dtype(code): dt for dt, code in POINTFIELD_DTYPES.items()}
+_FLOAT32 = _NUMPY_TO_POINTFIELD[np.dtype('f4')]
 
 
 # --- small pieces -------------------------------------------------------------------------
 
 
-def _vec(value: ArrayLike, n: int, what: str) -> FloatArray:
-    """Return ``value`` as a finite float64 vector of length ``n``."""
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        msg = f'{what}: expected {n} finite values, got {arr.tolist()}'
+def _floats(value: ArrayLike, n: int, what: str) -> list[float]:
+    """Return ``value`` as ``n`` finite floats (one pose's values: no numpy per value)."""
+    values: list[float] = np.asarray(value, dtype=np.float64).reshape(-1).tolist()
+    if len(values) != n or not all(map(math.isfinite, values)):
+        msg = f'{what}: expected {n} finite values, got {values}'
         raise MessageError(msg)
-    return arr
+    return values
+
+
+def _unit_quat(quat_xyzw: ArrayLike, what: str) -> list[float]:
+    """Return one quaternion over its norm: :func:`_normalized` of one row, the same bits.
+
+    The sum of squares runs left to right, as numpy's reduction of a row of four does (the
+    tests compare the two bitwise).
+    """
+    x, y, z, w = _floats(quat_xyzw, 4, what)
+    norm = math.sqrt(((x * x + y * y) + z * z) + w * w)
+    if norm < 1e-9:
+        msg = f'{what}: zero-norm quaternion'
+        raise MessageError(msg)
+    return [x / norm, y / norm, z / norm, w / norm]
 
 
 def finite_rows(value: ArrayLike, n_cols: int, what: str) -> FloatArray:
@@ -140,9 +156,8 @@ def pose_msg(position: ArrayLike, quat_xyzw: ArrayLike, backend: MsgBackend) -> 
     Raises:
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
-    pos = _vec(position, 3, 'position')
-    quat = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :], 'quat_xyzw')
-    (x, y, z), ((qx, qy, qz, qw),) = pos.tolist(), quat.tolist()
+    x, y, z = _floats(position, 3, 'position')
+    qx, qy, qz, qw = _unit_quat(quat_xyzw, 'quat_xyzw')
     return backend.msg_class('geometry_msgs/msg/Pose')(
         position=backend.msg_class('geometry_msgs/msg/Point')(x=x, y=y, z=z),
         orientation=backend.msg_class('geometry_msgs/msg/Quaternion')(x=qx, y=qy, z=qz, w=qw))
@@ -363,9 +378,8 @@ def make_tf(stamp_ns: int, parent: str, child: str, translation: ArrayLike,
     Raises:
         MessageError: On wrong shapes, non-finite values or a zero quaternion.
     """
-    (qx, qy, qz, qw), = _normalized(_vec(quat_xyzw, 4, 'quat_xyzw')[None, :],
-                                    'quat_xyzw').tolist()
-    x, y, z = _vec(translation, 3, 'translation').tolist()
+    qx, qy, qz, qw = _unit_quat(quat_xyzw, 'quat_xyzw')
+    x, y, z = _floats(translation, 3, 'translation')
     transform = backend.new(
         'geometry_msgs/msg/Transform',
         translation=backend.new('geometry_msgs/msg/Vector3', x=x, y=y, z=z),
@@ -465,11 +479,19 @@ def make_point_cloud2_named(stamp_ns: int, frame_id: str, columns: Mapping[str, 
     for name, col in cols.items():
         rec[name] = col
     is_dense = all(np.all(np.isfinite(c)) for c in cols.values() if c.dtype.kind == 'f')
+    return _point_cloud2(stamp_ns, frame_id, fields, n_pts, offset, rec, is_dense, big_endian,
+                         backend)
+
+
+def _point_cloud2(stamp_ns: int, frame_id: str, fields: list[Any], n_pts: int,
+                  point_step: int, records: np.ndarray, is_dense: bool, big_endian: bool,
+                  backend: MsgBackend) -> Any:
+    """Return an unorganized PointCloud2 of packed, C-contiguous ``records``."""
     return backend.new('sensor_msgs/msg/PointCloud2',
                        header=header_msg(stamp_ns, frame_id, backend), height=1,
                        width=int(n_pts), fields=fields, is_bigendian=bool(big_endian),
-                       point_step=int(offset), row_step=int(offset * n_pts),
-                       data=backend.seq_u8(rec.tobytes()), is_dense=bool(is_dense))
+                       point_step=int(point_step), row_step=int(point_step * n_pts),
+                       data=backend.seq_u8(records), is_dense=bool(is_dense))
 
 
 def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
@@ -488,9 +510,14 @@ def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
     Raises:
         MessageError: If ``points`` is not (N, 3).
     """
-    pts = float_rows(points, 3, 'make_point_cloud2_xyz: points').astype(np.float32)
-    return make_point_cloud2_named(stamp_ns, frame_id,
-                                   {'x': pts[:, 0], 'y': pts[:, 1], 'z': pts[:, 2]}, backend)
+    # C-ordered rows of three little-endian float32 are the packed x, y, z records of
+    # make_point_cloud2_named's three columns, without its record array.
+    pts = float_rows(points, 3, 'make_point_cloud2_xyz: points').astype('<f4', order='C')
+    field_type = backend.msg_class('sensor_msgs/msg/PointField')
+    fields = [field_type(name=name, offset=4 * i, datatype=_FLOAT32, count=1)
+              for i, name in enumerate('xyz')]
+    return _point_cloud2(stamp_ns, frame_id, fields, pts.shape[0], 12, pts,
+                         bool(np.isfinite(pts).all()), False, backend)
 
 
 __all__ = [

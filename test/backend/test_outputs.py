@@ -150,6 +150,21 @@ def test_point_cloud2_xyz_layout(backend: Any) -> None:
     assert (empty.width, len(empty.data)) == (0, 0)
 
 
+@pytest.mark.parametrize('n', [0, 1, 5])
+def test_point_cloud2_xyz_equals_the_named_columns(backend: Any, n: int) -> None:
+    """The xyz cloud is the named cloud of its float32 columns (non-finite, F-ordered too)."""
+    rng = np.random.default_rng(n)
+    points = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-3, 40, size=(n, 3))
+    if n > 1:
+        points[1, 2] = np.nan
+    for pts in (points, np.asfortranarray(points), np.abs(points) + 1.0):
+        f32 = np.asarray(pts, np.float64).astype(np.float32)
+        named = outputs.make_point_cloud2_named(T_NS, 'map', {
+            'x': f32[:, 0], 'y': f32[:, 1], 'z': f32[:, 2]}, backend)
+        xyz = outputs.make_point_cloud2_xyz(T_NS, 'map', pts, backend)
+        assert backend.serialize(xyz) == backend.serialize(named)
+
+
 def test_point_cloud2_named_rejects_bad_columns(backend: Any) -> None:
     """Columns of unequal length or without a PointField type are a MessageError."""
     with pytest.raises(MessageError, match='different lengths'):
@@ -184,6 +199,24 @@ def test_tf_message(backend: Any) -> None:
     assert (tf.transform.translation.x, tf.transform.rotation.w) == (1.0, 1.0)
     with pytest.raises(MessageError, match='quat_xyzw'):
         outputs.make_tf(T_NS, 'map', 'odom', [1, 2, 3], [0, 0, np.nan, 1], backend)
+
+
+def test_one_pose_is_checked_and_normalized_as_the_rows_are(backend: Any) -> None:
+    """One pose's scalar path gives the bits of the row path and refuses what it refuses."""
+    rng = np.random.default_rng(7)
+    quats = rng.normal(size=(20000, 4)) * 10.0 ** rng.integers(-6, 7, size=(20000, 1))
+    rows = outputs._unit_quats(quats)
+    for q, row in zip(quats, rows, strict=True):
+        assert np.array(outputs._unit_quat(q, 'q')).tobytes() == row.tobytes()
+    for bad, match in (([0, 0, 0, 0], 'zero-norm'), ([0, 0, np.inf, 1], 'finite'),
+                       ([0, 0, 1], 'expected 4')):
+        with pytest.raises(MessageError, match=match):
+            outputs.pose_msg([1, 2, 3], bad, backend)
+    for bad in ([1, 2], [1, 2, np.nan], [[1, 2, 3, 4]]):
+        with pytest.raises(MessageError, match='position'):
+            outputs.pose_msg(bad, [0, 0, 0, 1], backend)
+        with pytest.raises(MessageError, match='translation'):
+            outputs.make_tf(T_NS, 'map', 'odom', bad, [0, 0, 0, 1], backend)
 
 
 def test_diagnostics(backend: Any) -> None:

@@ -83,3 +83,51 @@ def test_encoder_reuses_unchanged_poses_and_reads_the_rest() -> None:
     odd = stamped[:4] + _poses(1, 'odom', backend, seed=7)
     mixed = backend.new('nav_msgs/msg/Path', header=header, poses=odd)
     assert encoder.encode(mixed, 'nav_msgs/msg/Path') is None
+
+
+def test_encoder_keeps_its_buffer_right_through_any_sequence_of_messages() -> None:
+    """Every message's bytes equal rosbags' bytes, whatever came before.
+
+    Random growth, shrinking, moved and replaced poses, other frames, mixed frames (rosbags'
+    path) and a message that fails to encode.
+    """
+    store = jazzy_typestore()
+    backend = RosbagsBackend(store)
+    rng = np.random.default_rng(3)
+    encoder = cdr.Encoder()
+    frames = ['map', 'odo', 'world', 'm']
+    frame = 'map'
+    stamped = _poses(3, frame, backend, seed=0)
+    for step in range(120):
+        op = rng.integers(0, 8)
+        if op == 0:
+            frame = frames[rng.integers(0, len(frames))]
+            stamped = _poses(int(rng.integers(0, 40)), frame, backend, seed=step)
+        elif op == 1:
+            stamped = stamped[:int(rng.integers(0, len(stamped) + 1))]
+        elif op == 2 and len(stamped) > 1:
+            i, j = rng.choice(len(stamped), 2, replace=False)
+            stamped[i], stamped[j] = stamped[j], stamped[i]
+        else:
+            stamped = list(stamped)
+            for i in rng.choice(len(stamped), min(len(stamped), 3), replace=False):
+                stamped[i] = _poses(1, frame, backend, seed=1000 + step)[0]
+            stamped += _poses(int(rng.integers(0, 30)), frame, backend, seed=2000 + step)
+        header = header_msg(step * 10**8, frames[step % len(frames)] * (step % 3), backend)
+        array = backend.new('geometry_msgs/msg/PoseArray', header=header,
+                            poses=[p.pose for p in stamped])
+        assert encoder.encode(array, 'geometry_msgs/msg/PoseArray') == bytes(
+            store.serialize_cdr(array, 'geometry_msgs/msg/PoseArray'))
+        if step % 23 == 7 and stamped:   # a pose that cannot be read: nothing half-written
+            unreadable = [*_poses(len(stamped), frame, backend, step), object()]
+            broken = backend.new('nav_msgs/msg/Path', header=header, poses=unreadable)
+            with pytest.raises(AttributeError):
+                encoder.encode(broken, 'nav_msgs/msg/Path')
+        path = backend.new('nav_msgs/msg/Path', header=header, poses=stamped)
+        assert encoder.encode(path, 'nav_msgs/msg/Path') == bytes(
+            store.serialize_cdr(path, 'nav_msgs/msg/Path'))
+        if step % 17 == 5 and stamped:   # another frame: rosbags' path
+            other = _poses(1, 'map' if frame != 'map' else 'odo', backend, step)
+            for odd in (other + stamped[1:], stamped[:-1] + other):
+                mixed = backend.new('nav_msgs/msg/Path', header=header, poses=odd)
+                assert encoder.encode(mixed, 'nav_msgs/msg/Path') is None
