@@ -60,6 +60,7 @@ from pmba_ros.backend.motion import (
     RunScale,
     step_sigmas,
 )
+from pmba_ros.backend.sanity import CostMonitor
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
     compensated_parallax_angles,
@@ -128,6 +129,7 @@ class Estimator:
         self.pixel_noise = PixelNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
+        self._cost = CostMonitor()
 
     def set_rig_camera(self, camera: int, rotation: FloatArray, translation: FloatArray) -> None:
         """Use observations of front-end camera ``camera`` (other than ``camera_id``).
@@ -239,8 +241,7 @@ class Estimator:
             if np.any(~keep_pose):
                 info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
-            return UpdateInfo('collect', keyframe=i, message=self.last_message,
-                              dropped=info_drop)
+            return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
         count = self._well_conditioned_features(batch)
         if count < cfg.init_min_features:
             self.state = 'waiting_for_parallax'
@@ -248,8 +249,7 @@ class Estimator:
                                  f'{cfg.init_min_parallax_px:g} px of parallax, need '
                                  f'{cfg.init_min_features}, over {batch.shape[0]} keyframes')
             self._next_init_attempt = self.kf.n + cfg.init_retry_every
-            return UpdateInfo('collect', keyframe=i, message=self.last_message,
-                              dropped=info_drop)
+            return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
         info = self._initialize(batch)
         info.keyframe = i
         info.dropped = info_drop
@@ -336,8 +336,7 @@ class Estimator:
         sim = Similarity.identity()
         if np.count_nonzero(with_odom) >= 2:
             sim = estimate_similarity(self.kf.R_odom[used][with_odom],
-                                      self.kf.C_odom[used][with_odom], R[with_odom],
-                                      C[with_odom])
+                                      self.kf.C_odom[used][with_odom], R[with_odom], C[with_odom])
         R, C = sim.apply_poses(R, C)
         self.kf.R_map[used], self.kf.C_map[used] = R, C
         fids = problem.feature_ids[result.feature_index]
@@ -355,6 +354,7 @@ class Estimator:
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
+        self._cost.check(res.final_cost, res.problem.n_obs)   # the refines' reference
         info = UpdateInfo('init', solve_ms=1e3 * (time.perf_counter() - t0),
                           iterations=res.iterations, cost_before=res.initial_cost,
                           cost_after=res.final_cost, n_cams=res.problem.n_cams,
@@ -494,6 +494,8 @@ class Estimator:
         self._update_similarity()
         failure = inconsistency(self.kf, self.config, (res.initial_cost, res.final_cost),
                                 (before[2].scale, self.map_from_odom.scale), moved, error_before)
+        if not failure and (failure := self._cost.check(res.final_cost, res.problem.n_obs) or ''):
+            info.dropped['cost_explosions'] = 1   # garbage tracks: a fit to them is not kept
         info.solve_ms = 1e3 * res.time_s
         info.iterations = res.iterations
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost

@@ -45,7 +45,7 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
-from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.sanity import PoseJumpCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
@@ -100,7 +100,6 @@ class BackendLogic:
         self._counters_at_diag: Counter[str] = Counter()
         self._track_memory = TrackMemory()
         self._pose_check = PoseJumpCheck()
-        self._cost_monitor = CostMonitor()
         self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------
@@ -339,10 +338,8 @@ class BackendLogic:
         self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
         if self.estimator.state == 'tracking':
             self._stats.map_scale.append(self.estimator.map_from_odom.scale)
-        if info.kind in ('refine', 'init'):
-            explosion = self._cost_monitor.check(info.cost_after, info.n_obs)
-            if explosion is not None:
-                self._reject('cost_explosions', explosion)
+        if info.dropped.get('cost_explosions'):   # counted with the update's drops
+            self.last_error = f'cost_explosions: {info.message}'
         self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))
         self._last_info = info
 

@@ -13,14 +13,16 @@
 # limitations under the License.
 """Plausibility checks of the front-end's inputs and of the solves, across messages.
 
-Two monitors with a little memory, used by :class:`~pmba_ros.backend.logic.BackendLogic`:
+Two monitors with a little memory:
 
-* :class:`PoseJumpCheck` rejects a keyframe pose that jumps far beyond the recent motion (a
-  front-end glitch of 1e6 m for a few keyframes must not be followed). A jump that persists
-  for :attr:`PoseJumpCheck.max_rejections` keyframes is taken as the front-end's new truth
-  (a relocalization) and accepted.
-* :class:`CostMonitor` flags a solve whose cost per observation rises far above the lowest
-  of its recent history (garbage tracks: random, thinned or merged ids).
+* :class:`PoseJumpCheck` (in :class:`~pmba_ros.backend.logic.BackendLogic`) rejects a
+  keyframe pose that jumps far beyond the recent motion (a front-end glitch of 1e6 m for a
+  few keyframes must not be followed). A jump that persists for
+  :attr:`PoseJumpCheck.max_rejections` keyframes is taken as the front-end's new truth (a
+  relocalization) and accepted.
+* :class:`CostMonitor` (in the estimator) flags a solve whose cost per observation rises far
+  above the lowest of its recent history (garbage tracks: random, thinned or merged ids); the
+  estimator keeps the poses from before such a solve.
 
 Both only judge; the caller counts and reports (diagnostics level WARN, replay warnings).
 """
@@ -29,12 +31,15 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+import logging
 import math
 import statistics
 from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -131,6 +136,10 @@ class PoseJumpCheck:
 class CostMonitor:
     """Flag solves whose cost per observation explodes relative to their history.
 
+    Flagged solves are not remembered, so a stretch of inconsistent tracks is judged against
+    the solves before it, however long it lasts; only ``history`` flagged solves in a row are
+    taken as the new normal (tracks that got noisier for good, not garbage).
+
     Attributes:
         factor: A solve is flagged when its cost per observation exceeds ``factor`` times
             the lowest of the last ``history`` solves.
@@ -140,6 +149,7 @@ class CostMonitor:
     factor: float = 10.0
     history: int = 50
     _costs: deque[float] = field(default_factory=deque, init=False, repr=False)
+    _flagged: list[float] = field(default_factory=list, init=False, repr=False)
 
     def check(self, cost: float, n_obs: int) -> str | None:
         """Record a solve; return a description if its cost exploded, else None."""
@@ -149,10 +159,17 @@ class CostMonitor:
         if not math.isfinite(per_obs):
             return f'solve cost {cost:g} over {n_obs} observations is not finite'
         best = min(self._costs) if self._costs else None
+        if best is not None and best > 0 and per_obs > self.factor * best:
+            self._flagged.append(per_obs)
+            if len(self._flagged) < self.history:
+                return (f'cost per observation {per_obs:.4g} is {per_obs / best:.0f}x the '
+                        f'lowest of the recent solves ({best:.4g}): inconsistent tracks?')
+            self._costs.clear()
+            per_obs = min(self._flagged)
+            logger.warning('solve costs stayed above %gx their history for %d solves: taken '
+                           'as the new normal', self.factor, self.history)
+        self._flagged.clear()
         self._costs.append(per_obs)
         while len(self._costs) > self.history:
             self._costs.popleft()
-        if best is not None and best > 0 and per_obs > self.factor * best:
-            return (f'cost per observation {per_obs:.4g} is {per_obs / best:.0f}x the lowest '
-                    f'of the recent solves ({best:.4g}): inconsistent tracks?')
         return None
