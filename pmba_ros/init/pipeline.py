@@ -385,6 +385,16 @@ def _register(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
                                      min_points=options.register_min_points, max_px=max_px)
 
 
+def _behind_an_observer(problem: BAProblem, feats: ParallaxFeatures) -> BoolArray:
+    """Return the features (N,) whose predicted ray points away from a measured bearing."""
+    X, w = conversions.parallax_homogeneous(problem.R_wc, problem.centers_w, feats)
+    obs = problem.obs
+    N = X[obs.feat_idx] - w[obs.feat_idx, None] * problem.centers_w[obs.cam_idx]
+    bearing_w = np.einsum('kij,kj->ki', problem.R_wc[obs.cam_idx], obs.bearings_c)
+    behind = np.einsum('ki,ki->k', N, bearing_w) < 0.0
+    return np.bincount(obs.feat_idx[behind], minlength=problem.n_feats) > 0
+
+
 def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
             ) -> tuple[ParallaxFeatures, BoolArray]:
     """Swap anchors of features whose triangle is only valid the other way round."""
@@ -505,6 +515,13 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     # wrong finite depth, between the cameras, and the BA can stall there.
     f_main = np.sqrt(init_problem.intrinsics.fx * init_problem.intrinsics.fy)[feats.main_idx]
     low = feats.theta < options.theta_floor_px / f_main
+    # A start that puts a feature behind one of its observers is a saddle of the ray error
+    # (the error is at its largest, its gradient vanishes, and the first step cannot predict
+    # the cost it removes): the BA spends its iterations there. Near-collinear features (the
+    # ray along the anchor baseline) get there from a noise-level theta-bar that passes the
+    # floor: sin(alpha - theta) ~ 0 puts the point a few baselines away. At infinity every
+    # observer sees it along n-bar, in front.
+    low |= _behind_an_observer(init_problem, feats)
     feats = ParallaxFeatures(np.where(low, 0.0, feats.theta), feats.n, feats.main_idx,
                              feats.assoc_idx)
     result = solve(init_problem, options.solve_options, feats)
