@@ -348,7 +348,7 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
         feature_filter: Feature ids to keep, or None for all.
         reference: The reference camera (of observations without camera ids).
         all_cameras: Every camera's observations (False: the reference camera's only).
-        max_per_feature: Thin every track to this many observations (:func:`thin_tracks`);
+        max_per_feature: Thin every track to this many observations (:func:`_thin_sorted`);
             0 keeps all.
         by_track_length: Order the features by their number of observations.
     """
@@ -384,7 +384,7 @@ def ordered_tracks(ids: IntArray, offsets: IntArray, feature_filter: IntArray | 
         offsets: Where each keyframe's observations start in ``ids``, and their number
             (P + 1,).
         feature_filter: Feature ids to keep, or None for all.
-        cap: Thin every track to this many observations (:func:`thin_tracks`); 0 keeps all.
+        cap: Thin every track to this many observations (:func:`_thin_sorted`); 0 keeps all.
         by_length: Order the features by their number of observations, then id (else id).
 
     Returns:
@@ -428,27 +428,6 @@ def select_fixed(store: KeyframeStore, candidates: IntArray, window_feats: IntAr
     return np.sort(chosen).astype(np.int64)
 
 
-def thin_tracks(ids: IntArray, cams: IntArray, cap: int) -> BoolArray:
-    """Keep at most ``cap`` observations per feature, evenly spread over its track.
-
-    The first and the last (newest) observation of every feature are always kept. The Schur
-    complement's cost grows with the square of a feature's observation count, and the
-    interior observations of long, low-parallax tracks add little.
-
-    Args:
-        ids: Feature id of each observation, shape (K,).
-        cams: Camera (time order) of each observation, shape (K,).
-        cap: Largest number of observations per feature (>= 2).
-
-    Returns:
-        Mask of the observations to keep, shape (K,).
-    """
-    order = np.lexsort((cams, ids))
-    keep = np.empty(ids.shape[0], dtype=bool)
-    keep[order] = _thin_sorted(_run_starts(ids[order]), cap)
-    return keep
-
-
 def unique_ids(ids: IntArray) -> IntArray:
     """Return np.unique(ids) of integer ids by a sort (numpy's hash table costs more here)."""
     ordered = np.sort(ids)
@@ -482,9 +461,12 @@ def _run_starts(ordered: IntArray) -> BoolArray:
 
 
 def _thin_sorted(start: BoolArray, cap: int) -> BoolArray:
-    """Return :func:`thin_tracks`' mask of observations sorted by feature, then time.
+    """Keep at most ``cap`` (>= 2) observations per track, evenly spread over it.
 
-    ``start`` flags the first observation of each track (:func:`_run_starts`).
+    The observations are sorted by feature, then time; ``start`` flags the first of each
+    track (:func:`_run_starts`). A track's first and last (newest) observation are always
+    kept. The Schur complement's cost grows with the square of a feature's observation
+    count, and the interior observations of long, low-parallax tracks add little.
     """
     K = start.shape[0]
     first = np.maximum.accumulate(np.where(start, np.arange(K), 0))

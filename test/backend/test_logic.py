@@ -36,7 +36,6 @@ from pmba_ros.backend.window import (
     KeyframeStatus,
     KeyframeStore,
     select_fixed,
-    thin_tracks,
 )
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
@@ -163,10 +162,36 @@ def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
         BackendConfig.from_params(params)
 
 
+def thin_tracks(ids: np.ndarray, cams: np.ndarray, cap: int) -> np.ndarray:
+    """Return the mask of observations thinning keeps, track by track (the test's reference).
+
+    Of a track of n > cap observations in time order, rank r is kept where
+    rint(rint(r (cap - 1) / (n - 1)) (n - 1) / (cap - 1)) == r: ``cap`` ranks, both ends.
+    """
+    keep = np.zeros(ids.shape[0], dtype=bool)
+    for feature in np.unique(ids):
+        track = np.flatnonzero(ids == feature)
+        track = track[np.argsort(cams[track], kind='stable')]
+        n = track.shape[0]
+        for r, k in enumerate(track):
+            step = np.rint(r * (cap - 1) / max(n - 1, 1))
+            keep[k] = n <= cap or np.rint(step * max(n - 1, 1) / (cap - 1)) == r
+    return keep
+
+
 def test_thin_tracks_keeps_ends_and_caps_counts() -> None:
     """Thinning keeps a long track's first and last observation and caps its length."""
     ids = np.array([5] * 20 + [3] * 4 + [7] * 9)
     cams = np.concatenate([np.arange(20), np.arange(4), np.arange(9)])
+    store = KeyframeStore()
+    for c in range(20):
+        here = cams == c
+        store.add(0, None, KeyframeObs(ids[here], np.ones((int(here.sum()), 3)),
+                                       np.zeros((int(here.sum()), 2))), KeyframeStatus.ACTIVE)
+    g = gather_observations(store, np.arange(20, dtype=np.int64), None, 0, False,
+                            max_per_feature=6)
+    order = np.lexsort((cams, ids))   # the gathered order: by feature, then keyframe
+    np.testing.assert_array_equal(g.local, cams[order][thin_tracks(ids, cams, 6)[order]])
     keep = thin_tracks(ids, cams, 6)
     np.testing.assert_array_equal(cams[:20][keep[:20]], [0, 4, 8, 11, 15, 19])
     assert keep[20:24].all() and np.count_nonzero(keep[24:]) == 6 and keep[24] and keep[-1]
