@@ -22,6 +22,13 @@ frames share (``VO_stereo_factors00s.txt`` stores each in its observing camera's
 Horn's method on the points within 30 m, refit on the 60 % closest) and prints that step's
 length over the ground truth's, beside the VO's. No optimization is involved: it shows the
 metric scale the images themselves give, which a stereo back-end can only follow.
+
+A second table checks the right image against the left one and the ground truth: each
+landmark seen from at least four frames spanning 3 m is triangulated from its left-image
+rays at the ground-truth poses, and the disparity that depth predicts is compared with the
+measured one (uL - uR), per block of six frames and per depth band. A ratio that holds
+across depths is a scale the two sources disagree on, not a disparity offset: no
+image-only method can see it.
 """
 
 from __future__ import annotations
@@ -50,6 +57,48 @@ def stereo_step(a: np.ndarray, b: np.ndarray) -> float:
     err = np.linalg.norm(b - (a @ rot.T + t), axis=1)
     keep = err <= np.percentile(err, 60)
     return float(np.linalg.norm(horn(a[keep], b[keep])[1]))
+
+
+def gt_disparity_ratios(factors: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Return rows (frame, depth, measured / GT-predicted disparity) of the tracked landmarks."""
+    calib = np.loadtxt(SHARED / 'kitti00_stereo_vo' / 'VO_calibration00s.txt')
+    f, cx, cy, baseline = calib[0], calib[3], calib[4], calib[5]
+    cam, lmk = factors[:, 0].astype(int), factors[:, 1].astype(int)
+    rays = np.stack([(factors[:, 2] - cx) / f, (factors[:, 4] - cy) / f,
+                     np.ones(cam.shape[0])], axis=1)
+    rays_w = np.einsum('nij,nj->ni', gt[cam, :, :3], rays)
+    rays_w /= np.linalg.norm(rays_w, axis=1, keepdims=True)
+    centers = gt[cam, :, 3]
+    rows = []
+    order = np.argsort(lmk, kind='stable')
+    for idx in np.split(order, np.flatnonzero(np.diff(lmk[order])) + 1):
+        span = np.ptp(centers[idx], axis=0)
+        if idx.shape[0] < 4 or np.linalg.norm(span) < 3.0:
+            continue
+        # Least squares over the rays: sum (I - d d^T) (X - c) = 0.
+        proj = np.eye(3) - np.einsum('ni,nj->nij', rays_w[idx], rays_w[idx])
+        point = np.linalg.solve(proj.sum(axis=0), np.einsum('nij,nj->i', proj, centers[idx]))
+        depth = np.einsum('nji,nj->ni', gt[cam[idx], :, :3], point - centers[idx])[:, 2]
+        good = depth > 0
+        measured = factors[idx[good], 2] - factors[idx[good], 3]
+        rows.append(np.stack([cam[idx[good]], depth[good],
+                              measured * depth[good] / (f * baseline)], axis=1))
+    return np.concatenate(rows)
+
+
+def print_disparity_table(ratios: np.ndarray, n: int) -> None:
+    """Print the median measured / GT-predicted disparity per frame block and depth band."""
+    bands = ((5.0, 15.0), (15.0, 30.0), (30.0, 60.0))
+    print('\nmeasured / GT-predicted disparity (left tracks triangulated at the GT poses)')
+    print(f'{"frames":>10}' + ''.join(f'{f"{lo:.0f}-{hi:.0f} m":>12}' for lo, hi in bands))
+    for first in range(0, n, 6):
+        block = (ratios[:, 0] >= first) & (ratios[:, 0] < first + 6)
+        cells = []
+        for lo, hi in bands:
+            sel = block & (ratios[:, 1] >= lo) & (ratios[:, 1] < hi)
+            cells.append(f'{np.median(ratios[sel, 2]):>12.3f}' if np.count_nonzero(sel) >= 20
+                         else f'{"-":>12}')
+        print(f'{first:>4} -{min(first + 5, n - 1):>3}' + ''.join(cells))
 
 
 def main() -> int:
@@ -83,6 +132,7 @@ def main() -> int:
     for label, rows in (('frames 0-12', slice(0, 12)), ('all', slice(None))):
         print(f'median over {label}: VO / GT {np.median(step_vo[rows] / step_gt[rows]):.3f}, '
               f'stereo / GT {np.nanmedian(step_stereo[rows] / step_gt[rows]):.3f}')
+    print_disparity_table(gt_disparity_ratios(factors, gt), n)
     return 0
 
 
