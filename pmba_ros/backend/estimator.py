@@ -53,6 +53,7 @@ from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.motion import (
     frontend_motion_prior,
+    FrontendNoise,
     inconsistency,
     JUMP_SIGMAS,
     motion_error,
@@ -127,6 +128,7 @@ class Estimator:
         self._run_scale = RunScale()
         self._segment = 0   # odom segment of the keyframe being added (as _odom_cov)
         self.pixel_noise = PixelNoise()
+        self.frontend_noise = FrontendNoise()
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
         self._cost = CostMonitor()
@@ -223,12 +225,9 @@ class Estimator:
         return UpdateInfo('passed_through', keyframe=i,
                           message='keyframe with too few observations: front-end pose')
 
-    def _collected(self) -> IntArray:
-        return self.kf.indices(KeyframeStatus.COLLECTED)
-
     def _maybe_initialize(self, i: int) -> UpdateInfo:
         cfg = self.config
-        batch = self._collected()
+        batch = self.kf.indices(KeyframeStatus.COLLECTED)
         info_drop: dict[str, int] = {}
         if batch.shape[0] > cfg.init_max_batch:
             dropped = batch[:batch.shape[0] - cfg.init_max_batch]
@@ -237,7 +236,7 @@ class Estimator:
             self.kf.status[dropped[~keep_pose]] = KeyframeStatus.DISCARDED
             for j in dropped:
                 self.kf.obs.pop(int(j), None)
-            batch = self._collected()
+            batch = self.kf.indices(KeyframeStatus.COLLECTED)
             if np.any(~keep_pose):
                 info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
@@ -361,7 +360,6 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
-        cfg = self.config
         if cfg.motion_prior_translation_rel > 0 or cfg.motion_prior_rotation_rad > 0:
             # The initialization used vision alone; where near features are few its local
             # motion is noisier than the front-end's. One refine of the whole batch with the
@@ -471,9 +469,8 @@ class Estimator:
                 pts = self.features.lookup(problem.feature_ids)
                 feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
             options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
-                                   loss=Loss(cfg.loss),
-                                   loss_scale_px=cfg.loss_scale_px,
-                                   max_iterations=cfg.max_iterations,
+                                   loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
+                                   max_iterations=cfg.max_iterations, prior_leverage=True,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
             prior = self._motion_prior(cams, fixed)
             res = solve(problem, options, feats, pose_prior=prior)
@@ -504,6 +501,8 @@ class Estimator:
             return self._fall_back(info, failure)
         self._failures = 0
         self.pixel_noise.note(res.noise_px)
+        if prior is not None:
+            self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage)
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
@@ -528,11 +527,11 @@ class Estimator:
         # reference for it than the initialization's batch (a rig's map is metric, and a
         # global solve holds the whole run, its scale included).
         sliding = monocular and self.config.mode == 'sliding'
-        reference = (self._run_scale.scale(self.kf, self._metric_scale) if sliding
-                     else self._metric_scale)
-        return frontend_motion_prior(self.kf, cams, fixed, reference, self.config,
+        ref = self._run_scale.scale(self.kf, self._metric_scale) if sliding else self._metric_scale
+        return frontend_motion_prior(self.kf, cams, fixed, ref, self.config,
                                      follow_map_scale=monocular,
-                                     pixel_sigma=self.pixel_noise.sigma)
+                                     pixel_sigma=self.pixel_noise.sigma,
+                                     noise_factors=self.frontend_noise.factors)
 
     def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
         """Keep the window's poses from before a rejected solve; re-seed it after repeats.

@@ -533,6 +533,8 @@ class BackendLogic:
             'init_attempts': self.estimator.init_attempts,
             'tracks_noise_px': round(self.estimator.pixel_noise.sigma, 4) if state == 'tracking'
             else 'not measured before the initialization',
+            'frontend_noise_factors': ' '.join(
+                f'{k:.3g}' for k in self.estimator.frontend_noise.factors),
             'extrinsic_source': self.cameras.extrinsic_source or 'none',
             'cameras_used': ','.join(str(c) for c in sorted(
                 [self.config.camera_id, *self.cameras.rig])),

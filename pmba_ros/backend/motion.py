@@ -115,6 +115,72 @@ class RunScale:
         return float(np.sum(step_map[good])), float(np.sum(step_odom[good]))
 
 
+class FrontendNoise:
+    """How the front-end's motion noise compares with the prior's sigmas.
+
+    Helmert's variance components: at a solve's result, a prior residual whose leverage is
+    h (its share of the fit, ``SolveResult.prior_leverage``) keeps 1 - h of its variance,
+    its redundancy. Over the recent solves, the squared residuals over their summed
+    redundancy estimate the variance factor of each group, in units of the pixel noise the
+    prior was weighed against: rotation, translation along the step (its length) and
+    across it (its direction). A front-end noisier than the parameters say has its sigmas
+    grown by the square roots (:attr:`factors`), whatever front-end it is; 1 until the
+    solves hold enough redundancy.
+    """
+
+    HISTORY = 25
+    MIN_REDUNDANCY = 10.0
+    LIMITS = (1.0, 50.0)
+
+    def __init__(self) -> None:
+        """Start at the parameters' sigmas."""
+        self._recent: deque[FloatArray] = deque(maxlen=self.HISTORY)
+        self._factors = (1.0, 1.0, 1.0)
+
+    @property
+    def factors(self) -> tuple[float, float, float]:
+        """Return the factors applied to the rotation, step-length and step-direction sigmas.
+
+        The estimates within ``LIMITS``: the parameters are the most a front-end is
+        trusted, as its errors beyond white step noise (a heading bias, a drifting
+        scale) do not show in its steps one by one; a noisier one is trusted less. (Below
+        1 an estimate is not followed by the weights, which Helmert's estimate assumes:
+        it is not reported.)
+        """
+        return self._factors
+
+    def note(self, prior: RelativePosePrior, residuals: FloatArray,
+             leverage: FloatArray) -> None:
+        """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
+
+        The prior was built with the current :attr:`factors`. Factors beyond the Huber
+        threshold (a step that is no motion) and factors without a leverage do not count.
+        """
+        norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
+        keep = (norm <= prior.huber) & np.all(np.isfinite(leverage), axis=(1, 2))
+        e, hat = residuals[keep], leverage[keep]
+        t = prior.t_ab[keep]
+        along = t / np.maximum(np.sqrt(np.add.reduce(t * t, axis=1)), 1e-12)[:, None]
+        e_along = np.einsum('mi,mi->m', e[:, 3:], along)
+        h_along = np.einsum('mi,mij,mj->m', along, hat[:, 3:, 3:], along)
+        h_trans = hat[:, 3, 3] + hat[:, 4, 4] + hat[:, 5, 5]
+        squares = np.array([np.add.reduce(e[:, :3] ** 2, axis=None),
+                            np.add.reduce(e_along ** 2),
+                            np.add.reduce(e[:, 3:] ** 2, axis=None)
+                            - np.add.reduce(e_along ** 2)])
+        redundancy = np.array([3.0 * e.shape[0] - np.add.reduce(hat[:, 0, 0] + hat[:, 1, 1]
+                                                                + hat[:, 2, 2]),
+                               e.shape[0] - np.add.reduce(h_along),
+                               2.0 * e.shape[0] - np.add.reduce(h_trans - h_along)])
+        # In units of the pixel noise the prior was weighed against (its huber / sigmas).
+        unit = np.array(self._factors) * PRIOR_HUBER_SIGMAS / prior.huber
+        self._recent.append(np.stack([squares * unit ** 2, redundancy]))
+        pooled = np.add.reduce(np.array(self._recent), axis=0)
+        if np.all(pooled[1] >= self.MIN_REDUNDANCY):
+            k = np.clip(np.sqrt(pooled[0] / pooled[1]), *self.LIMITS)
+            self._factors = (float(k[0]), float(k[1]), float(k[2]))
+
+
 PRIOR_HUBER_SIGMAS = 5.0
 """Where a motion-prior factor's cost turns linear, in sigmas of its (6) residuals: beyond the
 noise of any step (chi with 6 degrees of freedom passes 5 once in about 5,000 steps)."""
@@ -129,8 +195,9 @@ accuracy ends about there, whatever a noise-free simulation's residuals say."""
 
 def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                           metric_scale: float, config: BackendConfig, *,
-                          follow_map_scale: bool = True,
-                          pixel_sigma: float = 1.0) -> RelativePosePrior | None:
+                          follow_map_scale: bool = True, pixel_sigma: float = 1.0,
+                          noise_factors: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                          ) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
@@ -152,7 +219,8 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     ``motion_prior_rotation_rad``) counts as much as one sigma of the tracks' pixel noise,
     ``pixel_sigma`` (measured by the solves), so that noisy tracks lean more on the
     front-end and clean ones less; where the front-end gives pose covariances they take
-    over (:func:`covariance_weights`).
+    over (:func:`covariance_weights`). ``noise_factors`` multiply the rotation, step
+    length and step direction sigmas (:class:`FrontendNoise`).
     """
     cfg = config
     if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
@@ -164,6 +232,8 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
     step = _row_norms(t_odom)
+    along = t_odom / np.maximum(step, 1e-12)[:, None]
+    P_along = np.einsum('mi,mj->mij', along, along)
     scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
     if cfg.motion_prior_translation_rel > 0:
@@ -175,8 +245,6 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
             info = info + info_local
         # Square-root information: along the step (its length: the scale) and across it
         # (its direction, which a front-end measures much better).
-        along = t_odom / np.maximum(step, 1e-12)[:, None]
-        P_along = np.einsum('mi,mj->mij', along, along)
         w_dir = 1.0 / (cfg.motion_prior_direction_rel * scale * step + 1e-3)
         W_trans = (np.sqrt(info)[:, None, None] * P_along
                    + w_dir[:, None, None] * (np.eye(3) - P_along))
@@ -184,8 +252,12 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                     if cfg.motion_prior_rotation_rad > 0 else 0.0)
     covariance_weights(kf, a, b, metric_scale, config, W_trans, w_rot)
     weight = max(pixel_sigma, MIN_PIXEL_SIGMA)
-    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom, weight * w_rot,
-                             weight * W_trans, huber=PRIOR_HUBER_SIGMAS * weight)
+    k_rot, k_along, k_across = noise_factors
+    if k_along != 1.0 or k_across != 1.0:
+        W_trans = (P_along / k_along + (np.eye(3) - P_along) / k_across) @ W_trans
+    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom,
+                             (weight / k_rot) * w_rot, weight * W_trans,
+                             huber=PRIOR_HUBER_SIGMAS * weight)
 
 
 def step_sigmas(prior: RelativePosePrior, residuals: FloatArray) -> FloatArray:

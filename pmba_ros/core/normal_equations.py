@@ -389,31 +389,13 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
     Raises:
         ReducedSystemError: If S or a feature block is not positive definite.
     """
-    S_blocks, rhs, V_inv = structure.plan.reduce(eqs, damp_feat)
-    if not np.all(np.isfinite(V_inv)):
-        msg = 'singular feature block'
-        raise ReducedSystemError(msg)
+    S_blocks, rhs, V_inv = _reduced(structure, eqs, damp_feat)
     nb = structure.n_blocks
     free = pose_free.reshape(-1)
     dim = nb * 6
     x = np.zeros(dim)
     if dim <= DENSE_LIMIT or int(free.sum()) <= DENSE_LIMIT:
-        # The upper triangle only (pair blocks have row <= col): LAPACK's potrf/potrs,
-        # called directly, read no more; scipy's cho_factor wrapper costs more than a
-        # window's factorization. S is written transposed in C order, which is S in
-        # LAPACK's (Fortran) order: f2py passes it without a copy.
-        S_t = np.zeros((nb, 6, nb, 6))
-        S_t[structure.pair_cols, :, structure.pair_rows, :] = S_blocks.transpose(0, 2, 1)
-        S_t.reshape(-1)[::dim + 1] += damp_pose.reshape(-1)
-        S = S_t.reshape(dim, dim).T
-        all_free = bool(free.all())
-        with blas_threads_for(dim):
-            factor, info = scipy.linalg.lapack.dpotrf(
-                S if all_free else S[np.ix_(free, free)], lower=False, clean=False,
-                overwrite_a=True)
-        if info != 0:
-            msg = 'reduced camera system is not positive definite'
-            raise ReducedSystemError(msg)
+        factor = _dense_cholesky(structure, S_blocks, damp_pose, free)
         x[free], _ = scipy.linalg.lapack.dpotrs(factor, rhs.reshape(-1)[free], lower=False)
     else:
         rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
@@ -440,6 +422,69 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
     return x_pose, structure.plan.back_substitute(eqs, V_inv, x_pose)
+
+
+def _reduced(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,
+             ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return the plan's S blocks, right-hand side and V^-1, checking the feature blocks."""
+    S_blocks, rhs, V_inv = structure.plan.reduce(eqs, damp_feat)
+    if not np.all(np.isfinite(V_inv)):
+        msg = 'singular feature block'
+        raise ReducedSystemError(msg)
+    return S_blocks, rhs, V_inv
+
+
+def _dense_cholesky(structure: SchurStructure, S_blocks: FloatArray, damp_pose: FloatArray,
+                    free: BoolArray) -> FloatArray:
+    """Return the upper Cholesky factor of S + diag(damp) on the free columns.
+
+    The upper triangle only (pair blocks have row <= col): LAPACK's potrf, called directly,
+    reads no more; scipy's cho_factor wrapper costs more than a window's factorization. S
+    is written transposed in C order, which is S in LAPACK's (Fortran) order: f2py passes
+    it without a copy.
+    """
+    nb = structure.n_blocks
+    dim = nb * 6
+    S_t = np.zeros((nb, 6, nb, 6))
+    S_t[structure.pair_cols, :, structure.pair_rows, :] = S_blocks.transpose(0, 2, 1)
+    S_t.reshape(-1)[::dim + 1] += damp_pose.reshape(-1)
+    S = S_t.reshape(dim, dim).T
+    with blas_threads_for(dim):
+        factor, info = scipy.linalg.lapack.dpotrf(
+            S if bool(free.all()) else S[np.ix_(free, free)], lower=False, clean=False,
+            overwrite_a=True)
+    if info != 0:
+        msg = 'reduced camera system is not positive definite'
+        raise ReducedSystemError(msg)
+    return np.asarray(factor)
+
+
+def pose_covariance(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,
+                    pose_free: BoolArray) -> FloatArray:
+    """Return the poses' covariance S^-1 (features marginalized), shape (n_blocks * 6,) * 2.
+
+    In the variables of ``eqs`` (scaled, if scaling is used); the rows and columns of held
+    pose columns are zero.
+
+    Raises:
+        ReducedSystemError: If S or a feature block is not positive definite, or S is
+            larger than ``DENSE_LIMIT`` (its inverse is dense).
+    """
+    free = pose_free.reshape(-1)
+    dim = structure.n_blocks * 6
+    if int(free.sum()) > DENSE_LIMIT:
+        msg = f'a covariance of {int(free.sum())} pose columns is not formed'
+        raise ReducedSystemError(msg)
+    S_blocks, _, _ = _reduced(structure, eqs, damp_feat)
+    factor = _dense_cholesky(structure, S_blocks, np.zeros((structure.n_blocks, 6)), free)
+    inverse, info = scipy.linalg.lapack.dpotri(factor, lower=False)
+    if info != 0:
+        msg = 'reduced camera system is singular'
+        raise ReducedSystemError(msg)
+    upper = np.triu(inverse)
+    cov = np.zeros((dim, dim))
+    cov[np.ix_(free, free)] = upper + np.triu(upper, 1).T
+    return cov
 
 
 def quadratic_form(structure: SchurStructure, eqs: NormalEquations, x_pose: FloatArray,

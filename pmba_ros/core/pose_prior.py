@@ -154,6 +154,28 @@ class RelativePosePrior:
         J[:, 3:, 9:] = W_RaT
         return J
 
+    def hat_blocks(self, ev: PriorEvaluation, cov: FloatArray,
+                   free_block: IntArray) -> FloatArray:
+        """Return each factor's block of the hat matrix J Sigma J^T, shape (M, 6, 6).
+
+        ``cov``: the poses' covariance (n_blocks * 6 square, a solver's block order),
+        ``free_block``: pose -> block (-1: held, no covariance). J is the factor's
+        Jacobian at ``ev`` with its Huber weight. The diagonal holds the residuals'
+        leverages: 1 - leverage is the share of a residual's variance it keeps at the fit
+        (its redundancy).
+        """
+        dim = cov.shape[0]
+        padded = np.zeros((dim + 1, dim + 1))   # the last row and column: held poses
+        padded[:dim, :dim] = cov
+
+        def columns(pose: IntArray) -> IntArray:
+            block = free_block[pose][:, None]
+            return np.where(block >= 0, 6 * block + np.arange(6), dim)
+
+        idx = np.concatenate([columns(self.a), columns(self.b)], axis=1)
+        J = np.sqrt(ev.weights)[:, None, None] * self.jacobian(ev)
+        return np.asarray(J @ padded[idx[:, :, None], idx[:, None, :]] @ np.swapaxes(J, 1, 2))
+
     def jacobians(self, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Return d r / d [dphi_a, dP_a] and d r / d [dphi_b, dP_b], each (M, 6, 6)."""
         J = self.jacobian(self.evaluate(R, P))

@@ -104,6 +104,8 @@ class SolveOptions:
         engine: ``'numpy'``, ``'compiled'`` (numba loops) or ``'auto'``: compiled where numba
             is installed and ``PMBA_NUMBA`` is not 0 (:mod:`pmba_ros.core.engine`). Both give
             the same iterates to rounding.
+        prior_leverage: With a pose prior, also return each of its residuals' leverage
+            (``SolveResult.prior_leverage``); costs one inversion of the reduced system.
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -120,6 +122,7 @@ class SolveOptions:
     pixel_weighted: bool = True
     fix_gauge: bool = False
     engine: EngineName = EngineName.AUTO
+    prior_leverage: bool = False
 
     def __post_init__(self) -> None:
         """Coerce enum strings and validate ranges."""
@@ -189,6 +192,9 @@ class SolveResult:
         noise_px: Per-axis pixel noise the final errors suggest (see ``noise_scale_px``).
         prior_residuals: The pose prior's weighted residuals at the result, (M, 6) (M = 0
             without a prior).
+        prior_leverage: With ``options.prior_leverage``, the prior's blocks of the hat matrix
+            at the last linearization, (M, 6, 6) (:meth:`RelativePosePrior.hat_blocks`),
+            NaN where not computed.
     """
 
     R_wc: FloatArray
@@ -210,6 +216,7 @@ class SolveResult:
     history: list[IterationRecord] = field(default_factory=list)
     noise_px: float = math.nan
     prior_residuals: FloatArray = field(default_factory=lambda: np.zeros((0, 6)))
+    prior_leverage: FloatArray = field(default_factory=lambda: np.zeros((0, 6, 6)))
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -299,6 +306,7 @@ class _Linearized:
         self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
         self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
         self.gradient_max = scaled.gradient_max
+        self.prior_evaluation = state.prior
         self.col_mask = col_mask
         self.structure = structure
         self.gn: tuple[np.ndarray, np.ndarray] | None = None
@@ -332,6 +340,16 @@ class _Linearized:
         y_pose, y_feat = ne.solve_schur(self.structure, self.eqs, mu * self.D_pose ** 2,
                                         mu * self.D_feat ** 2, self.col_mask)
         return y_pose * self.D_pose, y_feat * self.D_feat
+
+    def pose_covariance(self) -> FloatArray | None:
+        """Return the poses' covariance here, C Sigma_y C (y = d / c); None if S is singular."""
+        try:
+            cov = ne.pose_covariance(self.structure, self.eqs, dogleg.MIN_MU * self.D_feat ** 2,
+                                     self.col_mask)
+        except ne.ReducedSystemError:
+            return None
+        c = self.c_pose.reshape(-1)
+        return cov * c[:, None] * c[None, :]
 
 
 def _retract(model: Model[Any], state: _State, free_block: np.ndarray, d_pose: FloatArray,
@@ -439,6 +457,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     invalid = 0
     termination = TerminationReason.MAX_ITERATIONS
     lin: _Linearized | None = None
+    last_lin: _Linearized | None = None
     rms = initial_rms
     it = 0
     while True:
@@ -451,8 +470,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             termination = TerminationReason.MAX_TIME
             break
         if lin is None:
-            lin = _Linearized(model, structure, state, options.loss, loss_scale,
-                              options.jacobi_scaling, col_mask, prior)
+            lin = last_lin = _Linearized(model, structure, state, options.loss, loss_scale,
+                                         options.jacobi_scaling, col_mask, prior)
             if lin.gradient_max <= options.gradient_tolerance:
                 termination = TerminationReason.GRADIENT_TOLERANCE
                 break
@@ -522,11 +541,17 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     final_feats = (take_features(state.feats, np.argsort(order))   # copies: never the caller's
                    if permuted or state.feats is features else state.feats)
     points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
+    leverage = np.full((len(factors) if factors is not None else 0, 6, 6), np.nan)
+    if options.prior_leverage and factors is not None and last_lin is not None:
+        cov = last_lin.pose_covariance()
+        if cov is not None and last_lin.prior_evaluation is not None:
+            leverage = factors.hat_blocks(last_lin.prior_evaluation, cov, free_block)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
                        time.perf_counter() - t0, history, noise_px,
-                       state.prior.residuals if state.prior is not None else np.zeros((0, 6)))
+                       state.prior.residuals if state.prior is not None else np.zeros((0, 6)),
+                       leverage)
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,

@@ -22,14 +22,21 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.motion import (
     frontend_motion_prior,
+    FrontendNoise,
     local_scales,
     MIN_PIXEL_SIGMA,
     motion_error,
     PixelNoise,
+    PRIOR_HUBER_SIGMAS,
     RunScale,
 )
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.core import so3
+from pmba_ros.core.conversions import xyz_to_parallax
+from pmba_ros.core.pose_prior import RelativePosePrior
+from pmba_ros.core.solve import solve, SolveOptions
 from pmba_ros.eval.metrics import ate, rpe
+from pmba_ros.sim.scenes import street_scene
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 
@@ -231,3 +238,78 @@ def test_global_mode_keeps_the_local_motion_where_vision_sees_it_weakly() -> Non
     assert len(opt) == len(seq)
     assert rpe(opt, gt, align='sim3').rmse <= rpe(fe, gt, align='sim3').rmse
     assert ate(opt, gt, 'sim3').rmse <= ate(fe, gt, 'sim3').rmse
+
+
+@pytest.mark.parametrize('true_over_parameters', [0.3, 2.5])
+def test_frontend_noise_measures_the_steps_noise_against_the_parameters(
+        true_over_parameters: float) -> None:
+    """A front-end's noise over the prior's sigmas is found; a better one is not followed.
+
+    Windows whose prior is measured with noise ``true_over_parameters`` times the sigmas its
+    weights assume: a noisier front-end's ratio is recovered, rotation and translation
+    apart; a better one is not trusted more than the parameters say (factors 1).
+
+    The prior is rebuilt with the factors after each solve, as the back-end does.
+    """
+    sigma_rot, sigma_t, noise_px = 2e-3, 5e-3, 0.5
+    noise = FrontendNoise()
+    options = SolveOptions(max_iterations=20, prior_leverage=True)
+    for seed in range(12):
+        scene = street_scene(seed=seed, n_cams=10, n_points=150, noise_px=noise_px,
+                             pos_noise_m=0.02, rot_noise_deg=0.1)
+        gt, start = scene.gt, scene.start
+        fixed = np.arange(start.n_cams) < 2
+        start = start.with_poses(np.where(fixed[:, None, None], gt.R_wc, start.R_wc),
+                                 np.where(fixed[:, None], gt.centers_w, start.centers_w))
+        start = type(start)(**{**start.__dict__, 'fixed': fixed})
+        rng = np.random.default_rng(100 + seed)
+        a, b = np.arange(start.n_cams - 1), np.arange(1, start.n_cams)
+        R_ab = np.einsum('mji,mjk->mik', gt.R_wc[a], gt.R_wc[b]) @ so3.exp(
+            rng.normal(0, true_over_parameters * sigma_rot, (a.size, 3)))
+        t_ab = (np.einsum('mji,mj->mi', gt.R_wc[a], gt.centers_w[b] - gt.centers_w[a])
+                + rng.normal(0, true_over_parameters * sigma_t, (a.size, 3)))
+        for _ in range(3):
+            used = noise.factors
+            # One sigma counts as one sigma of the pixel noise; the translation sigma is
+            # isotropic, so the step-length and direction factors apply alike.
+            W = np.tile(np.eye(3) * noise_px / sigma_t, (a.size, 1, 1))
+            along = t_ab / np.linalg.norm(t_ab, axis=1, keepdims=True)
+            P = np.einsum('mi,mj->mij', along, along)
+            W = (P / used[1] + (np.eye(3) - P) / used[2]) @ W
+            prior = RelativePosePrior(a, b, R_ab, t_ab,
+                                      np.full(a.size, noise_px / sigma_rot / used[0]), W,
+                                      huber=PRIOR_HUBER_SIGMAS * noise_px)
+            feats, _ = xyz_to_parallax(start, start.R_wc, start.centers_w,
+                                       np.asarray(start.points_w))
+            res = solve(start, options, feats, pose_prior=prior)
+            noise.note(prior, res.prior_residuals, res.prior_leverage)
+    np.testing.assert_allclose(noise.factors, max(true_over_parameters, 1.0), rtol=0.2)
+    if true_over_parameters < 1:
+        assert noise.factors == (1.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize(('scenario', 'n'), [('street', 60), ('loop', 60)])
+def test_a_noisier_front_end_is_measured_and_trusted_less(
+        scenario: str, n: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A front-end 5x noisier than the default simulation (``drift=0.1``).
+
+    The solves find it noisier than the parameters (factors > 1, in the diagnostics), and
+    the local motion gets better than with the parameters' sigmas kept.
+    """
+    seq = simulate_sequence(scenario, n_keyframes=n, seed=0, drift=0.1)
+    gt = seq.gt_trajectory()
+
+    def optimized_rpe() -> tuple[float, list[tuple[str, Any]], BackendLogic]:
+        logic = BackendLogic(config(), BACKEND)
+        outputs = run(logic, seq)
+        return rpe(logic.optimized_trajectory(), gt, align='sim3').rmse, outputs, logic
+
+    adaptive, outputs, logic = optimized_rpe()
+    factors = [float(k) for k in
+               diag_values(last(outputs, DIAGNOSTICS_TOPIC))['frontend_noise_factors'].split()]
+    assert factors == pytest.approx(list(logic.estimator.frontend_noise.factors), rel=1e-2)
+    assert min(factors) > 1.5, factors
+    monkeypatch.setattr(FrontendNoise, 'LIMITS', (1.0, 1.0))
+    kept, _, _ = optimized_rpe()
+    assert adaptive < 0.8 * kept, (adaptive, kept)
+    assert adaptive < rpe(seq.odom_trajectory(), gt, align='sim3').rmse

@@ -146,6 +146,19 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
                                rtol=1e-6, atol=1e-9)
 
 
+def _held_pose_system(problem, model, feats, free_block, engine):
+    """Return the structure, linearization, equations and dense Jacobian of held poses."""
+    slots = model.slots(feats)
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
+                                 problem.n_feats, free_block, model.anchor_cols,
+                                 engine.schur_plan)
+    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
+    slot_block = np.where(slots >= 0, free_block[np.maximum(slots, 0)], -1)
+    J = _dense_jacobian(lin.J_pose(), lin.J_feat, slot_block, problem.obs.feat_idx,
+                        st.n_blocks, problem.n_feats)
+    return st, lin, ne.assemble(st, lin), J
+
+
 @pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])
 @pytest.mark.parametrize('schur_products', SCHUR_PATHS)
 @pytest.mark.parametrize('seed', [1, 2])
@@ -166,22 +179,52 @@ def test_schur_with_fixed_poses_equals_dense_solve(param: str, schur_products: s
     fixed = rng.permutation(7)[:3]
     free_block = np.full(7, -1)
     free_block[np.setdiff1d(np.arange(7), fixed)] = np.arange(4)
-    slots = model.slots(feats)
-    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, slots,
-                                 problem.n_feats, free_block, model.anchor_cols,
-                                 engine.schur_plan)
-    lin = model.linearize(problem.R_wc, problem.centers_w, feats)
-    eqs = ne.assemble(st, lin)
+    st, lin, eqs, J = _held_pose_system(problem, model, feats, free_block, engine)
     damp_p = np.full((st.n_blocks, 6), 1e-3)
     damp_f = np.full((problem.n_feats, 3), 1e-3)
     x_p, x_f = ne.solve_schur(st, eqs, damp_p, damp_f, np.ones((st.n_blocks, 6), dtype=bool))
-    slot_block = np.where(slots >= 0, free_block[np.maximum(slots, 0)], -1)
-    J = _dense_jacobian(lin.J_pose(), lin.J_feat, slot_block, problem.obs.feat_idx,
-                        st.n_blocks, problem.n_feats)
     H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
     x = np.linalg.solve(H, -J.T @ lin.residuals.ravel())
     np.testing.assert_allclose(np.concatenate([x_p.ravel(), x_f.ravel()]), x,
                                rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize('schur_products', ['dense', 'compiled'])
+def test_pose_covariance_is_the_pose_block_of_the_dense_inverse(
+        schur_products: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """S^-1 with the features marginalized: the pose rows of (J^T J)^-1; held poses zero."""
+    engine = _select_path(schur_products, monkeypatch)
+    problem = forward_problem(4, n_cams=6, n_points=30)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba', weighted=True, engine=engine)
+    st, _, eqs, J = _held_pose_system(problem, model, feats, np.array([-1, 0, 1, 2, 3, 4]),
+                                      engine)
+    mask = np.ones((st.n_blocks, 6), dtype=bool)
+    mask[0, 3] = False   # one more held column, as a gauge would hold
+    cov = ne.pose_covariance(st, eqs, np.zeros((problem.n_feats, 3)), mask)
+    free = np.concatenate([mask.ravel(), np.ones(3 * problem.n_feats, dtype=bool)])
+    want = np.zeros((free.shape[0], free.shape[0]))
+    want[np.ix_(free, free)] = np.linalg.inv((J.T @ J)[np.ix_(free, free)])
+    dim = 6 * st.n_blocks
+    np.testing.assert_allclose(cov, want[:dim, :dim], rtol=1e-6,
+                               atol=1e-9 * np.abs(want[:dim, :dim]).max())
+    assert not np.any(cov[3]) and not np.any(cov[:, 3])
+
+
+def test_pose_covariance_refuses_a_singular_system() -> None:
+    """Poses no feature pins (a free gauge) make S singular: a ReducedSystemError."""
+    problem = forward_problem(4, n_cams=4, n_points=20)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'xyz')
+    st = ne.SchurStructure.build(problem.obs.cam_idx, problem.obs.feat_idx, model.slots(feats),
+                                 problem.n_feats, np.arange(4), model.anchor_cols,
+                                 NUMPY.schur_plan)
+    eqs = ne.assemble(st, model.linearize(problem.R_wc, problem.centers_w, feats))
+    with pytest.raises(ne.ReducedSystemError):
+        ne.pose_covariance(st, eqs, np.zeros((problem.n_feats, 3)),
+                           np.ones((4, 6), dtype=bool))
 
 
 def test_structure_rejects_unordered_features() -> None:

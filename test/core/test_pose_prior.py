@@ -222,3 +222,49 @@ def test_solve_with_a_prior_follows_it_and_reports_its_cost() -> None:
     # The result carries the prior's residuals at its poses; without a prior, none.
     np.testing.assert_array_equal(res.prior_residuals, strong.residuals(res.R_wc, res.centers_w))
     assert plain.prior_residuals.shape == (0, 6)
+
+
+def test_prior_leverage_is_the_fit_share_of_each_residual() -> None:
+    """A leverage h is d(fit)/d(measurement): moving a measurement moves its residual by 1 - h.
+
+    Checked by re-solving with one measurement moved (rotation and translation rows, a
+    factor between free poses and one next to a held pose), against the hat-matrix
+    diagonal the solve reports; a factor between held poses has none.
+    """
+    start, gt = _window()
+    n = start.n_cams
+    a, b = np.arange(n - 1), np.arange(1, n)
+    prior = _prior(gt.R_wc, gt.centers_w, a, b, 300.0, 30.0, noise=0.003, seed=1)
+    tight = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
+                         max_iterations=50, function_tolerance=1e-14,
+                         gradient_tolerance=1e-14, parameter_tolerance=1e-14,
+                         prior_leverage=True)
+    feats, _ = xyz_to_parallax(start, start.R_wc, start.centers_w, np.asarray(start.points_w))
+    first = solve(start, tight, feats, pose_prior=prior)
+    at = start.with_poses(first.R_wc, first.centers_w)
+    res = solve(at, tight, first.features, pose_prior=prior)
+    hat = res.prior_leverage
+    assert hat.shape == (n - 1, 6, 6)
+    np.testing.assert_allclose(hat, np.swapaxes(hat, 1, 2), atol=1e-12)
+    assert not np.any(hat[0])   # poses 0 and 1 are held
+    lev = np.diagonal(hat, axis1=1, axis2=2)
+    assert np.all((lev[1:] > 0) & (lev[1:] < 1))
+    eps = 1e-4
+    for m, row in [(1, 2), (3, 0), (3, 4), (7, 5)]:
+        R_ab, t_ab = prior.R_ab.copy(), prior.t_ab.copy()
+        if row < 3:   # r_rot = w log(R_ab^T R_a^T R_b): R_ab Exp(-d) adds w d to it
+            d = np.zeros(3)
+            d[row] = eps / prior.w_rot[m]
+            R_ab[m] = R_ab[m] @ so3.exp(-d)
+        else:
+            t_ab[m] -= np.linalg.solve(prior.W_trans[m], np.eye(3)[row - 3] * eps)
+        moved = replace(prior, R_ab=R_ab, t_ab=t_ab)
+        start_r = moved.residuals(res.R_wc, res.centers_w)[m, row]
+        refit = solve(at.with_poses(res.R_wc, res.centers_w), tight, res.features,
+                      pose_prior=moved)
+        kept = (refit.prior_residuals[m, row] - res.prior_residuals[m, row]) / (
+            start_r - res.prior_residuals[m, row])
+        assert 1.0 - kept == pytest.approx(lev[m, row], rel=0.02, abs=1e-4), (m, row)
+    # Without the option, nothing is formed.
+    plain = solve(at, replace(tight, prior_leverage=False), first.features, pose_prior=prior)
+    assert np.all(np.isnan(plain.prior_leverage))
