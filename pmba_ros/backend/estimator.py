@@ -470,8 +470,9 @@ class Estimator:
                 feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
             options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
                                    loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
-                                   max_iterations=cfg.max_iterations, prior_leverage=True,
-                                   max_time_s=math.inf if cfg.deterministic else cfg.max_time_s)
+                                   max_iterations=cfg.max_iterations,
+                                   max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
+                                   prior_leverage=self.frontend_noise.wants_sample())
             prior = self._motion_prior(cams, fixed)
             res = solve(problem, options, feats, pose_prior=prior)
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:

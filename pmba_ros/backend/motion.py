@@ -131,11 +131,20 @@ class FrontendNoise:
     HISTORY = 25
     MIN_REDUNDANCY = 10.0
     LIMITS = (1.0, 50.0)
+    EVERY = 3
+    """Solves per sample: consecutive windows share most of their steps, and a leverage
+    costs an inversion of the reduced system."""
 
     def __init__(self) -> None:
         """Start at the parameters' sigmas."""
         self._recent: deque[FloatArray] = deque(maxlen=self.HISTORY)
         self._factors = (1.0, 1.0, 1.0)
+        self._asked = 0
+
+    def wants_sample(self) -> bool:
+        """Return whether the next solve should return its prior's leverage (one in EVERY)."""
+        self._asked += 1
+        return self._asked % self.EVERY == 1 or self.EVERY == 1
 
     @property
     def factors(self) -> tuple[float, float, float]:
@@ -158,6 +167,8 @@ class FrontendNoise:
         """
         norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
         keep = (norm <= prior.huber) & np.all(np.isfinite(leverage), axis=(1, 2))
+        if not np.any(keep):
+            return
         e, hat = residuals[keep], leverage[keep]
         t = prior.t_ab[keep]
         along = t / np.maximum(np.sqrt(np.add.reduce(t * t, axis=1)), 1e-12)[:, None]

@@ -375,6 +375,17 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
                 ) -> tuple[FloatArray, FloatArray]:
     """Solve (H + diag(damp)) x = -g by the Schur complement on the poses.
 
+    See :func:`solve_schur_factored` (which also returns the factor of S).
+    """
+    x_pose, x_feat, _ = solve_schur_factored(structure, eqs, damp_pose, damp_feat, pose_free)
+    return x_pose, x_feat
+
+
+def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
+                         damp_pose: FloatArray, damp_feat: FloatArray, pose_free: BoolArray,
+                         ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Solve (H + diag(damp)) x = -g by the Schur complement on the poses.
+
     Args:
         structure: Index structure.
         eqs: Normal equations (already scaled, if scaling is used).
@@ -384,12 +395,15 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
             are held at zero.
 
     Returns:
-        x_pose (n_blocks, 6) and x_feat (N, 3).
+        x_pose (n_blocks, 6), x_feat (N, 3) and the upper Cholesky factor of the damped S
+        on the free columns (None where S was solved as a sparse matrix), for
+        :func:`covariance_from_factor`.
 
     Raises:
         ReducedSystemError: If S or a feature block is not positive definite.
     """
     S_blocks, rhs, V_inv = _reduced(structure, eqs, damp_feat)
+    factor = None
     nb = structure.n_blocks
     free = pose_free.reshape(-1)
     dim = nb * 6
@@ -421,7 +435,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
         msg = 'reduced camera system solve produced non-finite values'
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
-    return x_pose, structure.plan.back_substitute(eqs, V_inv, x_pose)
+    return x_pose, structure.plan.back_substitute(eqs, V_inv, x_pose), factor
 
 
 def _reduced(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,
@@ -460,11 +474,12 @@ def _dense_cholesky(structure: SchurStructure, S_blocks: FloatArray, damp_pose: 
 
 
 def pose_covariance(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,
-                    pose_free: BoolArray) -> FloatArray:
+                    pose_free: BoolArray, factor: FloatArray | None = None) -> FloatArray:
     """Return the poses' covariance S^-1 (features marginalized), shape (n_blocks * 6,) * 2.
 
     In the variables of ``eqs`` (scaled, if scaling is used); the rows and columns of held
-    pose columns are zero.
+    pose columns are zero. ``factor``: S's Cholesky factor if a solve made it
+    (:func:`solve_schur_factored`, undamped), which saves forming S again.
 
     Raises:
         ReducedSystemError: If S or a feature block is not positive definite, or S is
@@ -475,9 +490,20 @@ def pose_covariance(structure: SchurStructure, eqs: NormalEquations, damp_feat: 
     if int(free.sum()) > DENSE_LIMIT:
         msg = f'a covariance of {int(free.sum())} pose columns is not formed'
         raise ReducedSystemError(msg)
-    S_blocks, _, _ = _reduced(structure, eqs, damp_feat)
-    factor = _dense_cholesky(structure, S_blocks, np.zeros((structure.n_blocks, 6)), free)
-    inverse, info = scipy.linalg.lapack.dpotri(factor, lower=False)
+    if factor is None:
+        S_blocks, _, _ = _reduced(structure, eqs, damp_feat)
+        factor = _dense_cholesky(structure, S_blocks, np.zeros((structure.n_blocks, 6)), free)
+    return covariance_from_factor(factor, free, dim)
+
+
+def covariance_from_factor(factor: FloatArray, free: BoolArray, dim: int) -> FloatArray:
+    """Return S^-1 from the upper Cholesky factor of S on the ``free`` columns (dim square).
+
+    Raises:
+        ReducedSystemError: If the factor is singular.
+    """
+    with blas_threads_for(dim):
+        inverse, info = scipy.linalg.lapack.dpotri(factor, lower=False)
     if info != 0:
         msg = 'reduced camera system is singular'
         raise ReducedSystemError(msg)

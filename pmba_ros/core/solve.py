@@ -26,7 +26,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-import logging
 import math
 import time
 from typing import Any
@@ -50,8 +49,6 @@ from pmba_ros.core.problem import (
     XyzFeatures,
 )
 from pmba_ros.errors import ProblemError, SolverError
-
-logger = logging.getLogger(__name__)
 
 
 class SolverKind(str, Enum):
@@ -104,8 +101,7 @@ class SolveOptions:
         engine: ``'numpy'``, ``'compiled'`` (numba loops) or ``'auto'``: compiled where numba
             is installed and ``PMBA_NUMBA`` is not 0 (:mod:`pmba_ros.core.engine`). Both give
             the same iterates to rounding.
-        prior_leverage: With a pose prior, also return each of its residuals' leverage
-            (``SolveResult.prior_leverage``); costs one inversion of the reduced system.
+        prior_leverage: Also return the pose prior's leverages (``SolveResult.prior_leverage``).
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -310,6 +306,7 @@ class _Linearized:
         self.col_mask = col_mask
         self.structure = structure
         self.gn: tuple[np.ndarray, np.ndarray] | None = None
+        self.factor: FloatArray | None = None
         self._cauchy: float | None = None
 
     def cauchy_alpha(self) -> float:
@@ -337,19 +334,24 @@ class _Linearized:
 
     def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
         """Solve (J~^T J~ + mu D^2) y = -J~^T r and return the scaled step b = D y."""
-        y_pose, y_feat = ne.solve_schur(self.structure, self.eqs, mu * self.D_pose ** 2,
-                                        mu * self.D_feat ** 2, self.col_mask)
+        y_pose, y_feat, factor = ne.solve_schur_factored(
+            self.structure, self.eqs, mu * self.D_pose ** 2, mu * self.D_feat ** 2, self.col_mask)
+        if mu == dogleg.MIN_MU:   # S itself, to rounding: a covariance needs no new one
+            self.factor = factor
         return y_pose * self.D_pose, y_feat * self.D_feat
 
-    def pose_covariance(self) -> FloatArray | None:
-        """Return the poses' covariance here, C Sigma_y C (y = d / c); None if S is singular."""
+    def prior_leverage(self, factors: RelativePosePrior, free_block: np.ndarray) -> FloatArray:
+        """Return the prior's hat-matrix blocks (Sigma: C Sigma_y C, y = d/c); NaN if singular."""
+        ev = self.prior_evaluation
         try:
             cov = ne.pose_covariance(self.structure, self.eqs, dogleg.MIN_MU * self.D_feat ** 2,
-                                     self.col_mask)
+                                     self.col_mask, self.factor)
         except ne.ReducedSystemError:
-            return None
+            ev = None
+        if ev is None:
+            return np.full((len(factors), 6, 6), np.nan)
         c = self.c_pose.reshape(-1)
-        return cov * c[:, None] * c[None, :]
+        return factors.hat_blocks(ev, cov * c[:, None] * c[None, :], free_block)
 
 
 def _retract(model: Model[Any], state: _State, free_block: np.ndarray, d_pose: FloatArray,
@@ -543,9 +545,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     points = conversions.to_xyz(state.R_wc, state.centers_w, final_feats)
     leverage = np.full((len(factors) if factors is not None else 0, 6, 6), np.nan)
     if options.prior_leverage and factors is not None and last_lin is not None:
-        cov = last_lin.pose_covariance()
-        if cov is not None and last_lin.prior_evaluation is not None:
-            leverage = factors.hat_blocks(last_lin.prior_evaluation, cov, free_block)
+        leverage = last_lin.prior_leverage(factors, free_block)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
