@@ -450,14 +450,14 @@ class Estimator:
             older = np.array(sorted(i for i in self.kf.obs if i < active[0]), dtype=np.int64)
             fixed_kf = select_fixed(self.kf, older, window_ids, cfg.max_fixed_keyframes)
             cams = np.concatenate([fixed_kf, active])
-            fixed = np.concatenate([np.ones(fixed_kf.shape[0], bool),
-                                    np.zeros(active.shape[0], bool)])
+            fixed = np.arange(cams.shape[0]) < fixed_kf.shape[0]   # the fixed ones come first
             feature_filter: IntArray | None = window_ids
+            sampled = self.frontend_noise.wants_sample()
         else:
             cams = np.array(sorted(i for i in self.kf.obs), dtype=np.int64)
             fixed = np.zeros(cams.shape[0], bool)
             fixed[0] = True
-            feature_filter = None
+            feature_filter, sampled = None, False
         info = UpdateInfo('refine')
         try:
             problem = self._build_problem(cams, fixed, feature_filter, self.kf.R_map[cams],
@@ -472,7 +472,7 @@ class Estimator:
                                    loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
-                                   prior_leverage=self.frontend_noise.wants_sample())
+                                   prior_leverage=sampled)
             prior = self._motion_prior(cams, fixed)
             res = solve(problem, options, feats, pose_prior=prior)
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:

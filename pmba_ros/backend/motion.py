@@ -132,8 +132,9 @@ class FrontendNoise:
     MIN_REDUNDANCY = 10.0
     LIMITS = (1.0, 50.0)
     EVERY = 3
-    """Solves per sample: consecutive windows share most of their steps, and a leverage
-    costs an inversion of the reduced system."""
+    """Window solves per sample: consecutive windows share most of their steps, and a
+    leverage costs an inversion of the reduced system (a global solve's too much: the
+    back-end samples sliding windows only)."""
 
     def __init__(self) -> None:
         """Start at the parameters' sigmas."""
