@@ -200,6 +200,12 @@ noise of any step (chi with 6 degrees of freedom passes 5 once in about 5,000 st
 JUMP_SIGMAS = 30.0
 """A solved step this many sigmas off the front-end's is no motion of it: its frame jumped."""
 
+STEP_FLOOR_REL = 1e-3
+"""Each translation sigma of the prior holds this share of the window's typical step (its
+median moving step): a standstill step keeps a finite weight, and the floor scales with the
+scene, as a map's units are the scene's (a fixed length would weigh a handheld camera's
+centimetre steps far below a car's metre steps)."""
+
 MIN_PIXEL_SIGMA = 0.1
 """Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
 accuracy ends about there, whatever a noise-free simulation's residuals say."""
@@ -227,7 +233,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     holds back changes of the map's scale, it suits monocular solves, sliding or global,
     whose vision sees the scale weakly and step by step, not a stereo rig (a metric map).
     Weights: one sigma (of the length, of the direction across it
-    ``motion_prior_direction_rel``, each of the step plus a millimetre;
+    ``motion_prior_direction_rel``, each of the step plus :data:`STEP_FLOOR_REL` of a typical one;
     ``motion_prior_rotation_rad``) counts as much as one sigma of the tracks' pixel noise,
     ``pixel_sigma`` (measured by the solves), so that noisy tracks lean more on the
     front-end and clean ones less; where the front-end gives pose covariances they take
@@ -248,16 +254,19 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     P_along = np.einsum('mi,mj->mij', along, along)
     scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
+    moving = np.sort(step[step > 0])   # its middle element: a median without np.median's cost
+    floor = STEP_FLOOR_REL * metric_scale * (float(moving[moving.size // 2]) if moving.size
+                                             else 1.0)
     if cfg.motion_prior_translation_rel > 0:
-        info = 1.0 / (cfg.motion_prior_translation_rel * metric_scale * step + 1e-3) ** 2
+        info = 1.0 / (cfg.motion_prior_translation_rel * metric_scale * step + floor) ** 2
         if cfg.motion_prior_shape_rel > 0 and follow_map_scale:
             local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size, step)
-            info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + 1e-3) ** 2
+            info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + floor) ** 2
             scale = (info * metric_scale + info_local * local) / (info + info_local)
             info = info + info_local
         # Square-root information: along the step (its length: the scale) and across it
         # (its direction, which a front-end measures much better).
-        w_dir = 1.0 / (cfg.motion_prior_direction_rel * scale * step + 1e-3)
+        w_dir = 1.0 / (cfg.motion_prior_direction_rel * scale * step + floor)
         W_trans = (np.sqrt(info)[:, None, None] * P_along
                    + w_dir[:, None, None] * (np.eye(3) - P_along))
     w_rot = np.full(a.shape[0], 1.0 / cfg.motion_prior_rotation_rad
