@@ -164,7 +164,9 @@ class FrontendNoise:
         """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
 
         The prior was built with the current :attr:`factors`. Factors beyond the Huber
-        threshold (a step that is no motion) and factors without a leverage do not count.
+        threshold (a step that is no motion) and factors without a leverage do not count;
+        a front-end far noisier than the sigmas is therefore found over several samples, its
+        larger steps counting as the factors grow.
         """
         norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
         keep = (norm <= prior.huber) & np.all(np.isfinite(leverage), axis=(1, 2))

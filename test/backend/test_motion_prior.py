@@ -357,3 +357,23 @@ def test_a_standstill_step_weighs_by_the_typical_step() -> None:
                                       follow_map_scale=False)
     assert big_prior is not None
     np.testing.assert_allclose(big_prior.W_trans, prior.W_trans / 100.0)
+
+
+def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
+    """No leverage (a singular window) or a step beyond the Huber threshold (a jump): unused."""
+    M = 30
+    rng = np.random.default_rng(0)
+    t_ab = np.tile([1.0, 0.0, 0.0], (M, 1))
+    prior = RelativePosePrior(np.arange(M), np.arange(1, M + 1), np.tile(np.eye(3), (M, 1, 1)),
+                              t_ab, np.ones(M), np.tile(np.eye(3), (M, 1, 1)),
+                              huber=PRIOR_HUBER_SIGMAS)
+    noise = FrontendNoise()
+    wild = rng.normal(0.0, 1.6, (M, 6))   # 1.6 sigmas per residual, within the threshold
+    noise.note(prior, wild, np.full((M, 6, 6), np.nan))
+    assert noise.factors == (1.0, 1.0, 1.0)
+    jumps = np.zeros((M, 6))
+    jumps[:, 3] = 100.0   # every step far beyond the threshold
+    noise.note(prior, jumps, np.zeros((M, 6, 6)))
+    assert noise.factors == (1.0, 1.0, 1.0)
+    noise.note(prior, wild, np.zeros((M, 6, 6)))   # now counted: no leverage, all redundancy
+    assert min(noise.factors) > 1.3
