@@ -163,13 +163,13 @@ class FrontendNoise:
              leverage: FloatArray) -> None:
         """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
 
-        The prior was built with the current :attr:`factors`. Factors beyond the Huber
-        threshold (a step that is no motion) and factors without a leverage do not count;
-        a front-end far noisier than the sigmas is therefore found over several samples, its
-        larger steps counting as the factors grow.
+        The prior was built with the current :attr:`factors`. Factors more than
+        :data:`JUMP_SIGMAS` off (a step that is no motion) and factors without a leverage do
+        not count. Those beyond the Huber threshold do: a front-end far noisier than the
+        sigmas has most of its steps there until the factors have grown.
         """
-        norm = np.sqrt(np.add.reduce(residuals * residuals, axis=1))
-        keep = (norm <= prior.huber) & np.all(np.isfinite(leverage), axis=(1, 2))
+        keep = ((step_sigmas(prior, residuals) <= JUMP_SIGMAS)
+                & np.all(np.isfinite(leverage), axis=(1, 2)))
         if not np.any(keep):
             return
         e, hat = residuals[keep], leverage[keep]

@@ -24,6 +24,7 @@ from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.motion import (
     frontend_motion_prior,
     FrontendNoise,
+    JUMP_SIGMAS,
     local_scales,
     MIN_PIXEL_SIGMA,
     motion_error,
@@ -360,7 +361,11 @@ def test_a_standstill_step_weighs_by_the_typical_step() -> None:
 
 
 def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
-    """No leverage (a singular window) or a step beyond the Huber threshold (a jump): unused."""
+    """No leverage (a singular window) or a step JUMP_SIGMAS off (a jump): not counted.
+
+    Steps beyond the Huber threshold but short of a jump count: a front-end 3x noisier than
+    the sigmas is found from one window, though most of its steps lie beyond 5 sigmas.
+    """
     M = 30
     rng = np.random.default_rng(0)
     t_ab = np.tile([1.0, 0.0, 0.0], (M, 1))
@@ -368,12 +373,13 @@ def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
                               t_ab, np.ones(M), np.tile(np.eye(3), (M, 1, 1)),
                               huber=PRIOR_HUBER_SIGMAS)
     noise = FrontendNoise()
-    wild = rng.normal(0.0, 1.6, (M, 6))   # 1.6 sigmas per residual, within the threshold
+    wild = rng.normal(0.0, 3.0, (M, 6))   # 3 sigmas per residual: most beyond 5 in norm
     noise.note(prior, wild, np.full((M, 6, 6), np.nan))
     assert noise.factors == (1.0, 1.0, 1.0)
     jumps = np.zeros((M, 6))
-    jumps[:, 3] = 100.0   # every step far beyond the threshold
+    jumps[:, 3] = JUMP_SIGMAS + 1.0   # every step just over a jump (weights of 1: sigmas)
     noise.note(prior, jumps, np.zeros((M, 6, 6)))
     assert noise.factors == (1.0, 1.0, 1.0)
     noise.note(prior, wild, np.zeros((M, 6, 6)))   # now counted: no leverage, all redundancy
-    assert min(noise.factors) > 1.3
+    assert np.mean(np.linalg.norm(wild, axis=1) > PRIOR_HUBER_SIGMAS) > 0.5
+    np.testing.assert_allclose(noise.factors, 3.0, rtol=0.2)
