@@ -56,6 +56,10 @@ class ReplayReport:
         keyframes_in: Keyframe messages read.
         keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
         map_scale: Scale of map <- odom after each keyframe since the initialization.
+        measured_noise: At the end, the tracks' pixel noise (``tracks_px``) and the factors
+            on the front-end's rotation, step-length and step-direction sigmas
+            (``frontend_factors``, >= 1: noisier than the parameters); empty if the
+            back-end never initialized.
         keyframes_not_optimized: Of those, keyframes at their front-end pose through
             map <- odom (before the initialization, too few observations).
         solve_ms: Solve time per keyframe solve, ms.
@@ -92,6 +96,7 @@ class ReplayReport:
     keyframes_out: int = 0
     keyframes_not_optimized: int = 0
     map_scale: list[float] = field(default_factory=list)
+    measured_noise: dict[str, Any] = field(default_factory=dict)
     solve_ms: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
@@ -141,6 +146,7 @@ class ReplayReport:
             'keyframes_out': self.keyframes_out,
             'keyframes_not_optimized': self.keyframes_not_optimized,
             'map_from_odom_scale': [round(float(v), 6) for v in self.map_scale],
+            'measured_noise': to_jsonable(self.measured_noise),
             'messages_in': self.messages_in,
             'messages_rejected': self.messages_rejected,
             'messages_out': self.messages_out,
@@ -188,6 +194,10 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     report.counters['keyframes_processed'] = stats.keyframes
     report.keyframes_not_optimized = stats.not_optimized
     report.map_scale = [float(v) for v in stats.map_scale]
+    if stats.noise is not None:
+        tracks_px, factors = stats.noise
+        report.measured_noise = {'tracks_px': tracks_px,
+                                 'frontend_factors': [round(k, 4) for k in factors]}
     fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
                  'reinitializations': 'window re-initializations from the front-end'}
     for name, what in fallbacks.items():

@@ -264,6 +264,16 @@ def test_small_simulated_replay_improves_on_frontend(
     assert len(report.iterations) == len(report.solve_ms)
 
 
+def test_report_gives_the_measured_noise(
+        real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
+    """The tracks' pixel noise (simulated: 0.5 px) and the front-end's factors, in report.json."""
+    out, _ = real_replay
+    noise = json.loads((out / 'report.json').read_text())['measured_noise']
+    assert noise['tracks_px'] == pytest.approx(0.5, rel=0.15)
+    # The simulator's default front-end is within the parameters' sigmas.
+    assert noise['frontend_factors'] == [1.0, 1.0, 1.0]
+
+
 def test_replay_twice_gives_identical_tum_bytes(
         real_replay: tuple[Path, replay_mod.ReplayReport], street_bag: Path,
         tmp_path: Path) -> None:

@@ -334,10 +334,11 @@ class BackendLogic:
             self._reject('internal_errors', err)
             info = status.UpdateInfo('error', message=str(err))
         self._stats.record_update(info)
-        idx = self.estimator.estimated()
-        self._stats.not_optimized = int(np.count_nonzero(~self.estimator.optimized(idx)))
-        if self.estimator.state == 'tracking':
-            self._stats.map_scale.append(self.estimator.map_from_odom.scale)
+        est = self.estimator
+        self._stats.not_optimized = int(np.count_nonzero(~est.optimized(est.estimated())))
+        if est.state == 'tracking':
+            self._stats.map_scale.append(est.map_from_odom.scale)
+            self._stats.noise = (est.pixel_noise.sigma, est.frontend_noise.factors)
         if info.dropped.get('cost_explosions'):   # counted with the update's drops
             self.last_error = f'cost_explosions: {info.message}'
         self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))

@@ -74,6 +74,8 @@ class BackendStats:
         not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
         map_scale: Scale of the map <- odom similarity after each keyframe since the
             initialization (a monocular map drifting in scale against odom shows here).
+        noise: Since the initialization, the tracks' pixel noise and the factors on the
+            front-end's rotation, step-length and step-direction sigmas (>= 1).
     """
 
     solve_ms: list[float] = field(default_factory=list)
@@ -85,6 +87,7 @@ class BackendStats:
     keyframes: int = 0
     not_optimized: int = 0
     map_scale: list[float] = field(default_factory=list)
+    noise: tuple[float, tuple[float, float, float]] | None = None
 
     def count(self, reason: str, n: int = 1) -> None:
         """Count ``n`` events under ``reason`` (a reason is listed once it has happened)."""
