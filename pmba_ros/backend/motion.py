@@ -178,10 +178,9 @@ class FrontendNoise:
         e_along = np.einsum('mi,mi->m', e[:, 3:], along)
         h_along = np.einsum('mi,mij,mj->m', along, hat[:, 3:, 3:], along)
         h_trans = hat[:, 3, 3] + hat[:, 4, 4] + hat[:, 5, 5]
-        squares = np.array([np.add.reduce(e[:, :3] ** 2, axis=None),
-                            np.add.reduce(e_along ** 2),
-                            np.add.reduce(e[:, 3:] ** 2, axis=None)
-                            - np.add.reduce(e_along ** 2)])
+        along_sq = np.add.reduce(e_along ** 2)
+        squares = np.array([np.add.reduce(e[:, :3] ** 2, axis=None), along_sq,
+                            np.add.reduce(e[:, 3:] ** 2, axis=None) - along_sq])
         redundancy = np.array([3.0 * e.shape[0] - np.add.reduce(hat[:, 0, 0] + hat[:, 1, 1]
                                                                 + hat[:, 2, 2]),
                                e.shape[0] - np.add.reduce(h_along),

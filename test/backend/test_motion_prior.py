@@ -264,7 +264,7 @@ def test_frontend_noise_measures_the_steps_noise_against_the_parameters(
         fixed = np.arange(start.n_cams) < 2
         start = start.with_poses(np.where(fixed[:, None, None], gt.R_wc, start.R_wc),
                                  np.where(fixed[:, None], gt.centers_w, start.centers_w))
-        start = type(start)(**{**start.__dict__, 'fixed': fixed})
+        start = replace(start, fixed=fixed)
         rng = np.random.default_rng(100 + seed)
         a, b = np.arange(start.n_cams - 1), np.arange(1, start.n_cams)
         R_ab = np.einsum('mji,mjk->mik', gt.R_wc[a], gt.R_wc[b]) @ so3.exp(
