@@ -97,9 +97,10 @@ class BackendConfig:
         init_max_iterations: Iteration budget of the initialization's BA.
         motion_prior_translation_rel: Sigma of the length of the front-end's keyframe-to-keyframe
             translation against the map <- odom scale of the run so far (monocular sliding
-            windows; otherwise the initialization's), as a fraction of the step (the
-            relative-motion prior of each window solve; one sigma weighs as one sigma of the
-            tracks' pixel noise, measured by the solves; 0: no translation prior).
+            windows; otherwise the initialization's) on a long run (early in one it grows,
+            ``motion.RUN_SCALE_SPAN``), as a fraction of the step (the relative-motion prior of
+            each window solve; one sigma weighs as one sigma of the tracks' pixel noise,
+            measured by the solves; 0: no translation prior).
         motion_prior_shape_rel: Sigma of that length against the map's own map <- odom scale
             over the ``window_size`` steps around it (the front-end's steps agree with each
             other better than its scale holds), as a fraction of the step; monocular
@@ -188,7 +189,7 @@ class BackendConfig:
     init_max_batch: int = 60
     init_max_iterations: int = 100
     max_observations_per_feature: int = 14
-    motion_prior_translation_rel: float = 0.07
+    motion_prior_translation_rel: float = 0.045
     motion_prior_shape_rel: float = 0.01
     motion_prior_direction_rel: float = 0.005
     motion_prior_rotation_rad: float = 0.0005

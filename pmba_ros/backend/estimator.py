@@ -524,15 +524,15 @@ class Estimator:
     def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
         """Return the front-end's motion between the problem's keyframes as a prior."""
         monocular = self._rig() is None
-        # A monocular window's scale wanders; the run's own scale so far is a steadier
-        # reference for it than the initialization's batch (a rig's map is metric, and a
-        # global solve holds the whole run, its scale included).
+        # A monocular window's scale wanders; the run's own scale so far is a steadier reference
+        # for it than the initialization's (a rig's map is metric; a global solve holds the run).
         sliding = monocular and self.config.mode == 'sliding'
         ref = self._run_scale.scale(self.kf, self._metric_scale) if sliding else self._metric_scale
         return frontend_motion_prior(self.kf, cams, fixed, ref, self.config,
                                      follow_map_scale=monocular,
                                      pixel_sigma=self.pixel_noise.sigma,
-                                     noise_factors=self.frontend_noise.factors)
+                                     noise_factors=self.frontend_noise.factors,
+                                     run_steps=self._run_scale.steps if sliding else self.kf.n)
 
     def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
         """Keep the window's poses from before a rejected solve; re-seed it after repeats.

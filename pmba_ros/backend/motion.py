@@ -76,7 +76,10 @@ class RunScale:
         """Start with nothing summed."""
         self._map = 0.0
         self._odom = 0.0
+        self._steps = 0
         self._done = 1  # the steps (i - 1, i) with i < _done are in the sums
+        self.steps = 0
+        """The number of steps the last :meth:`scale` summed."""
 
     def scale(self, kf: KeyframeStore, fallback: float) -> float:
         """Return the map <- odom scale of the run (``fallback`` before any step moved)."""
@@ -87,32 +90,35 @@ class RunScale:
         stop = self._done - 1 + int(pending[0]) if pending.shape[0] else n
         if stop > self._done:
             fixed = status[self._done - 1:stop] == KeyframeStatus.FIXED
-            m, o = self._lengths(kf, self._done, stop, fixed)
+            m, o, count = self._lengths(kf, self._done, stop, fixed)
             self._map += m
             self._odom += o
+            self._steps += count
             self._done = stop
         window = status[self._done - 1:]
         optimized = (window == KeyframeStatus.ACTIVE) | (window == KeyframeStatus.FIXED)
-        m, o = self._lengths(kf, self._done, n, optimized)
+        m, o, count = self._lengths(kf, self._done, n, optimized)
         total_map, total_odom = self._map + m, self._odom + o
+        self.steps = self._steps + count
         return total_map / total_odom if total_odom > 0 and total_map > 0 else fallback
 
     @staticmethod
     def _lengths(kf: KeyframeStore, first: int, stop: int,
-                 usable: BoolArray) -> tuple[float, float]:
-        """Sum the map and odom lengths of the steps (i - 1, i), first <= i < stop.
+                 usable: BoolArray) -> tuple[float, float, int]:
+        """Sum the map and odom lengths of the steps (i - 1, i), first <= i < stop, and count them.
 
         ``usable`` flags the keyframes first - 1 .. stop - 1 whose steps may count.
         """
         if stop <= first:
-            return 0.0, 0.0
+            return 0.0, 0.0, 0
         i = np.arange(first, stop)
         ok = usable[1:] & usable[:-1] & kf.same_odom(i - 1, i)
         i = i[ok]
         step_map = _row_norms(kf.C_map[i] - kf.C_map[i - 1])
         step_odom = _row_norms(kf.C_odom[i] - kf.C_odom[i - 1])
         good = np.isfinite(step_map) & np.isfinite(step_odom)
-        return float(np.sum(step_map[good])), float(np.sum(step_odom[good]))
+        return (float(np.sum(step_map[good])), float(np.sum(step_odom[good])),
+                int(np.count_nonzero(good)))
 
 
 class FrontendNoise:
@@ -207,6 +213,13 @@ median moving step): a standstill step keeps a finite weight, and the floor scal
 scene, as a map's units are the scene's (a fixed length would weigh a handheld camera's
 centimetre steps far below a car's metre steps)."""
 
+RUN_SCALE_SPAN = 200
+"""Steps over which a front-end's scale error stays correlated. Its scale over n steps of a
+run is an average of n / span independent samples of that error, so a step's length is held to
+the reference scale with the variance ``motion_prior_translation_rel**2 * (1 + span / n)``:
+loosely early in a run, where that scale is itself uncertain, and more tightly on a long one,
+where a window's vision lets the map's scale wander further than the front-end's strays."""
+
 MIN_PIXEL_SIGMA = 0.1
 """Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
 accuracy ends about there, whatever a noise-free simulation's residuals say."""
@@ -216,7 +229,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                           metric_scale: float, config: BackendConfig, *,
                           follow_map_scale: bool = True, pixel_sigma: float = 1.0,
                           noise_factors: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                          ) -> RelativePosePrior | None:
+                          run_steps: int = 0) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
@@ -224,7 +237,8 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     factors merged into one:
 
     * against ``metric_scale``, the reference map <- odom scale (the run's, :class:`RunScale`,
-      or the initialization's; sigma ``motion_prior_translation_rel``);
+      or the initialization's; sigma ``motion_prior_translation_rel``, grown over the first
+      ``run_steps`` as :data:`RUN_SCALE_SPAN` says, not at all when 0);
     * with ``follow_map_scale``, against the map's own scale around the step
       (:func:`local_scales` over ``window_size`` steps; sigma ``motion_prior_shape_rel``):
       a front-end's step lengths agree with each other far better than its scale holds.
@@ -259,7 +273,10 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     floor = STEP_FLOOR_REL * metric_scale * (float(moving[moving.size // 2]) if moving.size
                                              else 1.0)
     if cfg.motion_prior_translation_rel > 0:
-        info = 1.0 / (cfg.motion_prior_translation_rel * metric_scale * step + floor) ** 2
+        rel = cfg.motion_prior_translation_rel
+        if run_steps > 0:
+            rel *= math.sqrt(1.0 + RUN_SCALE_SPAN / run_steps)
+        info = 1.0 / (rel * metric_scale * step + floor) ** 2
         if cfg.motion_prior_shape_rel > 0 and follow_map_scale:
             local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size, step)
             info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + floor) ** 2

@@ -30,6 +30,7 @@ from pmba_ros.backend.motion import (
     motion_error,
     PixelNoise,
     PRIOR_HUBER_SIGMAS,
+    RUN_SCALE_SPAN,
     RunScale,
     STEP_FLOOR_REL,
 )
@@ -143,6 +144,7 @@ def test_run_scale_sums_optimized_steps_once_as_keyframes_settle() -> None:
         expected = steps[ok - 1].sum() / ok.shape[0]
         assert RunScale().scale(kf, fallback=-1.0) == pytest.approx(expected)
         assert run_scale.scale(kf, fallback=-1.0) == pytest.approx(expected)
+        assert run_scale.steps == ok.shape[0]
     # The window (keyframes 20-25, still free) moves: its steps are summed anew.
     kf.C_map[20:kf.n, 0] += np.arange(kf.n - 20) * 0.5
     moved = np.linalg.norm(np.diff(kf.C_map[:kf.n], axis=0), axis=1)[ok - 1].sum() / ok.size
@@ -171,6 +173,25 @@ def test_step_length_follows_the_map_scale_with_a_pull_to_the_front_ends() -> No
         assert plain is not None
         np.testing.assert_allclose(plain.t_ab[:, 0], 1.0)
         np.testing.assert_allclose(plain.W_trans[:, 0, 0], np.sqrt(info_abs))
+
+
+def test_step_length_is_held_to_the_run_scale_more_tightly_as_the_run_grows() -> None:
+    """Sigma rel * sqrt(1 + span / n) over n summed steps; the plain rel without a run."""
+    kf = _store(np.full(12, 1.0))
+    cams, fixed = np.arange(kf.n), np.zeros(kf.n, dtype=bool)
+    cfg = BackendConfig(motion_prior_shape_rel=0.0)
+    rel = cfg.motion_prior_translation_rel
+    along = []
+    for steps in (0, RUN_SCALE_SPAN // 4, RUN_SCALE_SPAN, 100 * RUN_SCALE_SPAN):
+        prior = frontend_motion_prior(kf, cams, fixed, 1.0, cfg, run_steps=steps)
+        assert prior is not None
+        grown = rel * np.sqrt(1.0 + RUN_SCALE_SPAN / steps) if steps else rel
+        np.testing.assert_allclose(prior.W_trans[:, 0, 0], 1.0 / (grown + 1e-3))
+        along.append(float(prior.W_trans[0, 0, 0]))
+    assert along[1] < along[2] < along[3] < along[0] * 1.01
+    # The step's direction is not the run scale's business.
+    direction = 1.0 / (cfg.motion_prior_direction_rel + 1e-3)
+    np.testing.assert_allclose(prior.W_trans[:, 1, 1], direction)
 
 
 @pytest.mark.parametrize(('scenario', 'seed'), [('aerial', 0), ('aerial', 2), ('loop', 0)])
