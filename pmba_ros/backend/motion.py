@@ -237,8 +237,8 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     factors merged into one:
 
     * against ``metric_scale``, the reference map <- odom scale (the run's, :class:`RunScale`,
-      or the initialization's; sigma ``motion_prior_translation_rel``, grown over the first
-      ``run_steps`` as :data:`RUN_SCALE_SPAN` says, not at all when 0);
+      or the initialization's; sigma ``motion_prior_translation_rel``, grown as
+      :data:`RUN_SCALE_SPAN` says for a run of ``run_steps`` steps, not at all for 0);
     * with ``follow_map_scale``, against the map's own scale around the step
       (:func:`local_scales` over ``window_size`` steps; sigma ``motion_prior_shape_rel``):
       a front-end's step lengths agree with each other far better than its scale holds.
