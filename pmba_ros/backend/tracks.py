@@ -52,6 +52,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 import logging
+import math
 from operator import attrgetter
 from typing import Any
 
@@ -87,6 +88,10 @@ FLOAT32_EXACT_IDS = float(2 ** 24)
 FLOAT64_EXACT_IDS = float(2 ** 53)
 _Z_TOL = 1e-3
 _XYZ = attrgetter('x', 'y', 'z')
+_QUAT_NORM2_TOL = 1e-2
+"""A keyframe quaternion whose squared norm is off 1 by more is no rotation but a damaged
+message (tf2 ignores such transforms with the same tolerance); normalizing it would turn it
+into some other, wrong rotation."""
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -467,7 +472,7 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
 
     Raises:
         MessageError: If the kind is unknown, the message is of another type, or the pose
-            has non-finite values or a zero-norm quaternion.
+            has non-finite values or a quaternion that is not of unit norm.
     """
     if kind not in KEYFRAME_KINDS:
         msg_ = f'unknown keyframe kind {kind!r} (expected one of {", ".join(KEYFRAME_KINDS)})'
@@ -486,6 +491,12 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
         want = 'nav_msgs/msg/Odometry' if kind == 'odometry' else 'geometry_msgs/msg/PoseStamped'
         msg_ = f'keyframe kind {kind!r} expects {want}, got {_type_name(msg)}'
         raise MessageError(msg_) from err
+    with np.errstate(over='ignore', invalid='ignore'):
+        norm2 = float(np.dot(quat_xyzw, quat_xyzw))
+    if math.isfinite(norm2) and norm2 > 0 and abs(norm2 - 1.0) > _QUAT_NORM2_TOL:
+        msg_ = (f'keyframe pose at {stamp_ns} ns has a quaternion of norm '
+                f'{math.sqrt(norm2):.4g}, not a rotation (a unit quaternion is required)')
+        raise MessageError(msg_)
     return KeyframePose(stamp_ns=stamp_ns, frame_id=frame_id, child_frame_id=child,
                         position=np.array(position, dtype=np.float64),
                         quat_xyzw=np.array(quat_xyzw, dtype=np.float64),

@@ -428,6 +428,19 @@ def test_keyframe_rejects_bad_quaternion(backend: Any, quat: list[float]) -> Non
         parse_keyframe(msg, 'pose_stamped')
 
 
+@pytest.mark.parametrize('w', [5.0, 0.0, 1e30, 0.99])
+def test_keyframe_rejects_a_quaternion_off_unit_norm(backend: Any, w: float) -> None:
+    """A quaternion whose squared norm is off 1 by over 0.01 (tf2's limit) is refused."""
+    msg = outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1], backend)
+    msg.pose.orientation.x, msg.pose.orientation.w = 0.3, w
+    with pytest.raises(MessageError, match='not a rotation'):
+        parse_keyframe(msg, 'pose_stamped')
+    # Float32 rounding or a slightly drifted integration: normalized and taken.
+    q = np.array([0.3, 0.0, 0.0, np.sqrt(1 - 0.09)]) * 1.004
+    msg.pose.orientation.x, msg.pose.orientation.w = q[0], q[3]
+    np.testing.assert_allclose(parse_keyframe(msg, 'pose_stamped').quat_xyzw, q / 1.004)
+
+
 def test_keyframe_wrong_kind_or_type_raises(backend: Any) -> None:
     """A keyframe of the wrong message type or an unknown kind is a MessageError."""
     msg = outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1], backend)
