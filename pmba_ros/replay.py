@@ -107,7 +107,8 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
                                 'bad_tf', 'keyframe_stamp_not_increasing', 'stale_tracks',
-                                'keyframe_pose_jumps'})
+                                'keyframe_pose_jumps', 'keyframe_stamp_leaps',
+                                'track_stamp_leaps'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
 
@@ -213,6 +214,7 @@ class _Run:
 
     def finish(self) -> None:
         """Run the logic's last pending work and check that the tracks were usable."""
+        self.logic.end_of_input()
         self.step()
         if self.tracks_rejected and not self.tracks_accepted:
             self._raise_all_rejected()

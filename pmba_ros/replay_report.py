@@ -35,6 +35,10 @@ SUSPECT_COUNTERS = {
     'ambiguous_duplicate_observations': 'repeated feature ids without a previous observation '
                                         '(every copy dropped)',
     'keyframe_pose_jumps': 'keyframe poses rejected: they jump far beyond the recent motion',
+    'keyframe_stamp_leaps': 'keyframe poses dropped: stamped far ahead of the next one (a '
+                            'clock glitch)',
+    'track_stamp_leaps': 'tracks messages dropped: stamped far ahead of the next one (a clock '
+                         'glitch)',
     'cost_explosions': 'solves whose cost per observation exploded relative to their '
                        'history (inconsistent tracks?)',
 }

@@ -72,6 +72,9 @@ class StubLogic:
         self.poses.append(pose)
         self.pending.append(pose)
 
+    def end_of_input(self) -> None:
+        """Hold nothing back (the stub judges no stamps)."""
+
     def step(self) -> list[tuple[str, Any]]:
         """Emit a path and a TF per queued keyframe."""
         out = []

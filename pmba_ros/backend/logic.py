@@ -45,13 +45,14 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
-from pmba_ros.backend.sanity import PoseJumpCheck
+from pmba_ros.backend.results import save_results
+from pmba_ros.backend.sanity import PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
 from pmba_ros.core import so3, sphere
 from pmba_ros.errors import MessageError
-from pmba_ros.eval.trajectory import Trajectory, write_tum
+from pmba_ros.eval.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -100,6 +101,8 @@ class BackendLogic:
         self._counters_at_diag: Counter[str] = Counter()
         self._track_memory = TrackMemory()
         self._pose_check = PoseJumpCheck()
+        self._track_stamps = StampLeapCheck('track_stamp_leaps')
+        self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps')
         self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------
@@ -174,6 +177,10 @@ class BackendLogic:
         self.count('dropped_observations', frame.dropped)
         for reason, n in frame.drop_reasons.items():
             self.count(reason, n)
+        for taken in self._track_stamps.admit(frame.stamp_ns, frame, self._reject):
+            self._take_tracks(taken)
+
+    def _take_tracks(self, frame: TrackFrame) -> None:
         if frame.stamp_ns <= self._last_kf_stamp:
             self.count('stale_tracks')
             return
@@ -198,6 +205,10 @@ class BackendLogic:
         except Exception as err:
             self._reject('bad_keyframes', err)
             return
+        for taken in self._keyframe_stamps.admit(pose.stamp_ns, pose, self._reject):
+            self._take_keyframe_pose(taken)
+
+    def _take_keyframe_pose(self, pose: KeyframePose) -> None:
         jump = self._pose_check.check(pose.stamp_ns, pose.position, pose)
         if jump is not None:
             self._reject('keyframe_pose_jumps', jump)
@@ -206,6 +217,13 @@ class BackendLogic:
         for held, jumped in self._pose_check.release():   # and those held while judging a jump
             self.count('keyframe_poses_recovered', int(held is not pose))
             self._push_keyframe(_Keyframe(held.stamp_ns, held, jumped))
+
+    def end_of_input(self) -> None:
+        """Take the messages held for a judgement of their stamps (no later one will come)."""
+        for frame in self._track_stamps.flush():
+            self._take_tracks(frame)
+        for pose in self._keyframe_stamps.flush():
+            self._take_keyframe_pose(pose)
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
@@ -575,26 +593,6 @@ class BackendLogic:
         return self.estimator.landmark_points()
 
     def save(self, directory: str | os.PathLike[str]) -> list[Path]:
-        """Write the trajectories (TUM) and the landmarks (ASCII PLY) into ``directory``.
-
-        Returns:
-            The written files: ``pmba_keyframes.tum``, ``frontend_keyframes.tum`` and
-            ``pmba_landmarks.ply``.
-
-        Raises:
-            OSError: If the directory cannot be created.
-            pmba_ros.errors.FormatError: If a file cannot be written.
-        """
-        root = Path(directory)
-        root.mkdir(parents=True, exist_ok=True)
-        names = ('pmba_keyframes.tum', 'frontend_keyframes.tum', 'pmba_landmarks.ply')
-        paths = [root / name for name in names]
-        write_tum(paths[0], self.optimized_trajectory())
-        write_tum(paths[1], self.frontend_trajectory())
-        pts = self.landmarks()
-        header = (f'ply\nformat ascii 1.0\nelement vertex {pts.shape[0]}\nproperty float x\n'
-                  'property float y\nproperty float z\nend_header\n')
-        body = ''.join(f'{x:.6g} {y:.6g} {z:.6g}\n' for x, y, z in pts.tolist())
-        paths[2].write_text(header + body, encoding='utf-8')
-        logger.info('saved %s', ', '.join(str(p) for p in paths))
-        return paths
+        """Write the trajectories and the landmarks into ``directory`` (:func:`save_results`)."""
+        return save_results(directory, self.optimized_trajectory(), self.frontend_trajectory(),
+                            self.landmarks())

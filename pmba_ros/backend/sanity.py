@@ -30,6 +30,7 @@ Both only judge; the caller counts and reports (diagnostics level WARN, replay w
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import logging
 import math
@@ -130,6 +131,68 @@ class PoseJumpCheck:
             self._speeds.append(speed)
             while len(self._speeds) > self.history:
                 self._speeds.popleft()
+
+
+@dataclass
+class StampLeapCheck:
+    """Hold a message whose stamp leaps far past the recent rate until the next one judges it.
+
+    A single message stamped far in the future (a clock glitch) would otherwise make every
+    later one look out of order and be dropped for the rest of the run. The next message
+    decides: stamped after the held one, time really jumped (a front-end that paused) and
+    both pass, the held one late by a message; stamped before it, the held one is dropped.
+
+    Attributes:
+        reason: What a dropped message is counted as (``reject``'s first argument).
+        factor: A stamp step beyond ``factor`` times the median of the recent ones leaps.
+        min_steps: Steps needed before judging.
+        history: Recent stamp steps kept for the median.
+    """
+
+    reason: str
+    factor: float = 20.0
+    min_steps: int = 3
+    history: int = 10
+    _last_ns: int | None = field(default=None, init=False, repr=False)
+    _steps: deque[int] = field(default_factory=deque, init=False, repr=False)
+    _held: tuple[int, Any] | None = field(default=None, init=False, repr=False)
+
+    def admit(self, stamp_ns: int, payload: Any,
+              reject: Callable[[str, str], None]) -> list[Any]:
+        """Return the payloads to take now, in order; a held one dropped goes to ``reject``.
+
+        Empty while ``payload`` is held. Stamps that do not increase pass unjudged (the
+        caller rejects them as before).
+        """
+        taken: list[Any] = []
+        if self._held is not None:
+            held_ns, held = self._held
+            self._held = None
+            if stamp_ns > held_ns:   # time did jump: the held one starts the new stretch
+                taken.append(held)
+                self._last_ns = held_ns
+            else:
+                leap_s = (held_ns - (self._last_ns or 0)) * 1e-9
+                reject(self.reason, f'message stamped {held_ns} ns, {leap_s:.3g} s after its '
+                       f'predecessor, followed by one at {stamp_ns} ns: dropped as a bad stamp')
+        last = self._last_ns
+        if last is not None and stamp_ns > last:
+            step = stamp_ns - last
+            if (len(self._steps) >= self.min_steps
+                    and step > self.factor * statistics.median(self._steps)):
+                self._held = (stamp_ns, payload)
+                return taken
+            self._steps.append(step)
+            while len(self._steps) > self.history:
+                self._steps.popleft()
+        if last is None or stamp_ns > last:
+            self._last_ns = stamp_ns
+        return [*taken, payload]
+
+    def flush(self) -> list[Any]:
+        """Return the held payload (if any) without judging it: the input has ended."""
+        held, self._held = self._held, None
+        return [] if held is None else [held[1]]
 
 
 @dataclass

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
-from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck
+from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.status import BackendStats
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.io.bags import iter_messages
@@ -216,6 +216,70 @@ def test_front_end_pose_jump_is_not_followed(street: SimSequence) -> None:
     assert logic.stats.counters['keyframe_pose_jumps'] == 3
     assert np.abs(logic.optimized_trajectory().positions_xyz).max() < 1e3
     assert _warned(outputs, 'keyframe_pose_jumps')
+
+
+def _stamp_leap_run(stamps: list[int]) -> tuple[list[int], list[str]]:
+    """Feed ``stamps`` (payload = stamp) then end the input; return what was taken, dropped."""
+    check, taken, dropped = StampLeapCheck('leaps'), [], []
+    for stamp in stamps:
+        taken += check.admit(stamp, stamp, lambda reason, why: dropped.append(f'{reason}: {why}'))
+    return taken + check.flush(), dropped
+
+
+def test_stamp_leap_is_held_then_dropped_or_taken_by_the_next_stamp() -> None:
+    """A far-future stamp waits for the next: before it, dropped; after it, both taken."""
+    steady = [k * STEP_NS for k in range(6)]
+    glitch = 1000 * 10 ** 9
+    taken, dropped = _stamp_leap_run([*steady, glitch, 6 * STEP_NS, 7 * STEP_NS])
+    assert taken == [*steady, 6 * STEP_NS, 7 * STEP_NS]
+    assert len(dropped) == 1 and dropped[0].startswith('leaps: ') and str(glitch) in dropped[0]
+    # A front-end that paused for 100 s: nothing is lost, the leap is late by one message.
+    paused = [*steady, glitch, glitch + STEP_NS]
+    assert _stamp_leap_run(paused) == (paused, [])
+    # The last message of the input is never judged, only handed back at its end.
+    assert _stamp_leap_run([*steady, glitch]) == ([*steady, glitch], [])
+    # Repeated or older stamps pass unjudged (the caller rejects them); so do the first steps.
+    assert _stamp_leap_run([*steady, 2 * STEP_NS, 6 * STEP_NS]) == (
+        [*steady, 2 * STEP_NS, 6 * STEP_NS], [])
+    assert _stamp_leap_run([0, STEP_NS, glitch]) == ([0, STEP_NS, glitch], [])
+
+
+@pytest.mark.parametrize('where', ['keyframe', 'tracks', 'both'])
+def test_one_far_future_stamp_does_not_end_the_run(street: SimSequence, where: str) -> None:
+    """A message stamped 1,000 s ahead is dropped, not every later keyframe as out of order."""
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    for i in range(len(street)):
+        tracks, pose = tracks_msg(street, i), keyframe_msg(street, i)
+        if i == 20:
+            for msg, part in ((tracks, 'tracks'), (pose, 'keyframe')):
+                if where in (part, 'both'):
+                    msg.header.stamp.sec += 1000
+        logic.on_tracks(tracks)
+        logic.step()
+        logic.on_keyframe(pose)
+        logic.step()
+    counters = logic.stats.counters
+    assert counters['keyframe_stamp_leaps'] == (where != 'tracks')
+    assert counters['track_stamp_leaps'] == (where != 'keyframe')
+    assert counters['keyframe_stamp_not_increasing'] == 0
+    kept = len(street) - (where != 'tracks')
+    assert len(logic.optimized_trajectory()) == kept
+    assert logic.state == 'tracking'
+
+
+def test_a_pause_of_the_front_end_loses_nothing(street: SimSequence) -> None:
+    """Stamps 100 s later from keyframe 20 on (a front-end that paused): every keyframe out."""
+    shift = np.where(np.arange(len(street)) >= 20, 100 * 10 ** 9, 0)
+    frames = [dataclasses.replace(f, stamp_ns=f.stamp_ns + int(d))
+              for f, d in zip(street.frames, shift, strict=True)]
+    paused = dataclasses.replace(street, stamps_ns=street.stamps_ns + shift, frames=frames)
+    logic, _ = _run(paused)
+    logic.end_of_input()
+    logic.step()
+    assert len(logic.optimized_trajectory()) == len(street)
+    assert not (logic.stats.counters['keyframe_stamp_leaps']
+                + logic.stats.counters['track_stamp_leaps'])
 
 
 def _random_tracks_after(street: SimSequence, first: int, seed: int) -> list[TrackFrame]:
