@@ -106,7 +106,8 @@ class PoseJumpCheck:
             # position back near the old track ends a glitch instead.
             jumped = speed > self.persist_factor * reference
             held = self._held if jumped else []   # in the new frame too, or outliers
-            self._speeds.clear()
+            # The step out of a glitch or into a new frame is no speed; the recent speeds
+            # still are, and judge the next poses (a second glitch right after the first).
             self._accept(stamp_ns, position, None)
             self._released = [(p, k == 0 and jumped) for k, p in enumerate([*held, payload])]
             return None

@@ -57,6 +57,16 @@ def test_pose_spike_of_three_keyframes_is_rejected_then_followed_again() -> None
     assert 'rejected as an outlier' in str(verdicts[10])
 
 
+def test_a_second_spike_right_after_the_first_is_rejected_too() -> None:
+    """The recent speeds outlive a glitch: a spike two keyframes after another is judged."""
+    check = PoseJumpCheck()
+    poses = _walk(20)
+    for k, offset in ((10, 1e12), (13, -1e30)):
+        poses[k] = (poses[k][0], poses[k][1] + np.array([0.0, offset, 0.0]))
+    verdicts = [check.check(stamp, pos) for stamp, pos in poses]
+    assert [k for k, v in enumerate(verdicts) if v is not None] == [10, 13]
+
+
 def test_persistent_pose_jump_is_accepted_after_max_rejections() -> None:
     """A jump that stays (a relocalization) becomes the new reference."""
     check = PoseJumpCheck(max_rejections=5)
