@@ -92,7 +92,7 @@ class BackendLogic:
         self._tracks: deque[TrackFrame] = deque()
         self._pending: deque[_Keyframe] = deque()
         self._last_kf_stamp = -1
-        self._newest_input_ns = -1
+        self._newest_input_ns, self._input_ended = -1, False
         self._odom_frame = self.config.odom_frame or 'odom'
         self._base_frame = self.config.base_frame or 'base_link'
         self._published = out.PoseMessageCache()
@@ -219,7 +219,8 @@ class BackendLogic:
             self._push_keyframe(_Keyframe(held.stamp_ns, held, jumped))
 
     def end_of_input(self) -> None:
-        """Take the messages held for a judgement of their stamps (no later one will come)."""
+        """Take what waits for later input (held stamps, keyframes missing tracks): none comes."""
+        self._input_ended = True
         for frame in self._track_stamps.flush():
             self._take_tracks(frame)
         for pose in self._keyframe_stamps.flush():
@@ -307,7 +308,7 @@ class BackendLogic:
     def _match(self, stamp_ns: int) -> tuple[TrackFrame | None, bool]:
         """Return (tracks of the keyframe or None, whether the keyframe can be processed)."""
         tol = round(self.config.stamp_tolerance_s * 1e9)
-        timed_out = self._newest_input_ns > stamp_ns + round(
+        timed_out = self._input_ended or self._newest_input_ns > stamp_ns + round(
             self.config.association_timeout_s * 1e9)
         best, best_dt = None, tol + 1
         for frame in self._tracks:

@@ -292,6 +292,27 @@ def test_a_pause_of_the_front_end_loses_nothing(street: SimSequence) -> None:
                 + logic.stats.counters['track_stamp_leaps'])
 
 
+def test_keyframes_waiting_for_tracks_are_processed_at_the_end_of_input(
+        street: SimSequence) -> None:
+    """The tracks of keyframe 35 are unreadable: the keyframes behind it wait, then come out."""
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    for i in range(len(street)):
+        tracks = tracks_msg(street, i)
+        if i == 35:
+            tracks.channels = tracks.channels[:2]
+        logic.on_tracks(tracks)
+        logic.step()
+        logic.on_keyframe(keyframe_msg(street, i))
+        logic.step()
+    assert logic.stats.counters['bad_tracks'] == 1
+    assert len(logic.optimized_trajectory()) == 35   # within the association timeout
+    logic.end_of_input()
+    logic.step()
+    assert len(logic.optimized_trajectory()) == len(street)
+    assert logic.stats.counters['keyframes_without_tracks'] == 1
+
+
 def _random_tracks_after(street: SimSequence, first: int, seed: int) -> list[TrackFrame]:
     """Return the street's frames with random pixels from keyframe ``first`` on."""
     rng = np.random.default_rng(seed)
