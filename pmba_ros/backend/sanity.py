@@ -13,18 +13,21 @@
 # limitations under the License.
 """Plausibility checks of the front-end's inputs and of the solves, across messages.
 
-Two monitors with a little memory:
+Monitors with a little memory:
 
 * :class:`PoseJumpCheck` (in :class:`~pmba_ros.backend.logic.BackendLogic`) rejects a
   keyframe pose that jumps far beyond the recent motion (a front-end glitch of 1e6 m for a
   few keyframes must not be followed). A jump that persists for
   :attr:`PoseJumpCheck.max_rejections` keyframes is taken as the front-end's new truth (a
   relocalization) and accepted.
+* :class:`StampLeapCheck` (in :class:`~pmba_ros.backend.logic.BackendLogic`, one per input
+  stream) holds a message stamped far past the recent rate until the next one shows whether
+  time jumped or the stamp was bad.
 * :class:`CostMonitor` (in the estimator) flags a solve whose cost per observation rises far
   above the lowest of its recent history (garbage tracks: random, thinned or merged ids); the
   estimator keeps the poses from before such a solve.
 
-Both only judge; the caller counts and reports (diagnostics level WARN, replay warnings).
+They only judge; the caller counts and reports (diagnostics level WARN, replay warnings).
 """
 
 from __future__ import annotations
