@@ -210,12 +210,11 @@ class BackendLogic:
 
     def _take_keyframe_pose(self, pose: KeyframePose) -> None:
         jump = self._pose_check.check(pose.stamp_ns, pose.position, pose)
-        if jump is not None:
+        if jump is not None:   # this pose, or a first one held with it: then the others go on
             self._reject('keyframe_pose_jumps', jump)
-            return
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
-        for held, jumped in self._pose_check.release():   # and those held while judging a jump
-            self.count('keyframe_poses_recovered', int(held is not pose))
+        for held, jumped, recovered in self._pose_check.release():   # and any held before
+            self.count('keyframe_poses_recovered', int(recovered))
             self._push_keyframe(_Keyframe(held.stamp_ns, held, jumped))
 
     def end_of_input(self) -> None:
@@ -225,6 +224,8 @@ class BackendLogic:
             self._take_tracks(frame)
         for pose in self._keyframe_stamps.flush():
             self._take_keyframe_pose(pose)
+        for held, _, _ in self._pose_check.flush():   # the first poses, too few to judge
+            self._push_keyframe(_Keyframe(held.stamp_ns, held))
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp

@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+import itertools
 import logging
 import math
 import statistics
@@ -54,7 +55,9 @@ class PoseJumpCheck:
         factor: A step is a jump when its speed exceeds ``factor`` times the reference speed.
         min_speed: Floor of the reference speed (odom units per second), so a front-end that
             starts from rest is not judged against a speed near zero.
-        min_steps: Accepted steps needed before judging.
+        min_steps: Steps needed before judging: the first ``min_steps + 1`` poses are held
+            and judged against each other (a first pose far off has no history to be judged
+            by, and would otherwise become the reference itself).
         max_rejections: Consecutive rejections after which the new position is accepted.
         history: Recent step speeds kept for the reference (their median).
         persist_factor: After rejections, an accepted step faster than this many times the
@@ -71,7 +74,10 @@ class PoseJumpCheck:
     _speeds: deque[float] = field(default_factory=deque, init=False, repr=False)
     _rejected: int = field(default=0, init=False, repr=False)
     _held: list[Any] = field(default_factory=list, init=False, repr=False)
-    _released: list[tuple[Any, bool]] = field(default_factory=list, init=False, repr=False)
+    _released: list[tuple[Any, bool, bool]] = field(default_factory=list, init=False,
+                                                    repr=False)
+    _first: list[tuple[int, FloatArray, Any]] = field(default_factory=list, init=False,
+                                                      repr=False)
 
     def check(self, stamp_ns: int, position: FloatArray, payload: Any = None) -> str | None:
         """Return why the keyframe position is a jump, or None if it is accepted.
@@ -83,10 +89,9 @@ class PoseJumpCheck:
                 :meth:`release` if the jump turns out to persist.
         """
         position = np.asarray(position, dtype=np.float64)
-        self._released = [(payload, False)]
+        self._released = [(payload, False, False)]
         if self._last is None:
-            self._accept(stamp_ns, position, None)
-            return None
+            return self._judge_first(stamp_ns, position, payload)
         last_ns, last_pos = self._last
         dt = (stamp_ns - last_ns) * 1e-9
         if dt <= 0:
@@ -112,20 +117,58 @@ class PoseJumpCheck:
             # The step out of a glitch or into a new frame is no speed; the recent speeds
             # still are, and judge the next poses (a second glitch right after the first).
             self._accept(stamp_ns, position, None)
-            self._released = [(p, k == 0 and jumped) for k, p in enumerate([*held, payload])]
+            self._released = [(p, k == 0 and jumped, p is not payload)
+                              for k, p in enumerate([*held, payload])]
             return None
         self._accept(stamp_ns, position, speed)
         return None
 
-    def release(self) -> list[tuple[Any, bool]]:
-        """Return the keyframes the last check accepted, in order, each with ``jumped``.
+    def release(self) -> list[tuple[Any, bool, bool]]:
+        """Return what the last check accepted, in order: ``(payload, jumped, recovered)``.
 
         The payload just checked, preceded, where a jump turned out to persist, by the ones
-        rejected while it was judged: they are in the front-end's new frame as well (a
-        relocalization or a reset), and the first of them, flagged ``jumped``, starts it (the
-        step into it is no motion). Empty after a rejection.
+        rejected while it was judged (``recovered``): they are in the front-end's new frame as
+        well (a relocalization or a reset), and the first of them, flagged ``jumped``, starts
+        it (the step into it is no motion). Empty after a rejection and while the first poses
+        are held; then the ones they kept.
         """
         return self._released
+
+    def flush(self) -> list[tuple[Any, bool, bool]]:
+        """Return the first poses still held, unjudged, as :meth:`release` would: input ended."""
+        first, self._first = self._first, []
+        return [(p, False, False) for _, _, p in first]
+
+    def _judge_first(self, stamp_ns: int, position: FloatArray, payload: Any) -> str | None:
+        """Hold the first poses, then keep those that agree with at least one other."""
+        self._released = []
+        if self._first and stamp_ns <= self._first[-1][0]:
+            return (f'keyframe pose at {stamp_ns} ns is not after the one at '
+                    f'{self._first[-1][0]} ns; rejected')
+        self._first.append((stamp_ns, position, payload))
+        if len(self._first) <= self.min_steps:
+            return None
+        stamps = np.array([s for s, _, _ in self._first], dtype=np.float64) * 1e-9
+        P = np.array([p for _, p, _ in self._first])
+        with np.errstate(over='ignore', invalid='ignore'):
+            gaps = np.linalg.norm(P[:, None] - P[None], axis=2)
+            speeds = gaps / np.maximum(np.abs(stamps[:, None] - stamps[None]), 1e-9)
+        pairs = np.sort(speeds[np.triu_indices(len(P), 1)])
+        # The lower median: a far-off pose spoils the pairs it is in, under half of them.
+        reference = max(float(pairs[(pairs.shape[0] - 1) // 2]), self.min_speed)
+        agree = speeds <= self.factor * reference
+        np.fill_diagonal(agree, False)
+        kept = np.flatnonzero(agree.any(axis=1))
+        first, self._first = self._first, []
+        for i in kept:
+            self._accept(first[i][0], first[i][1], None)
+        self._speeds.extend(float(speeds[a, b]) for a, b in itertools.pairwise(kept))
+        self._released = [(first[i][2], False, False) for i in kept]
+        if kept.shape[0] == len(first):
+            return None
+        off = [first[i][0] for i in range(len(first)) if i not in set(kept.tolist())]
+        return (f'keyframe pose(s) at {off} ns far off the other first poses (recent speed '
+                f'{reference:.3g}/s); rejected as outliers')
 
     def _accept(self, stamp_ns: int, position: FloatArray, speed: float | None) -> None:
         self._last = (stamp_ns, position)

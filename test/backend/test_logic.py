@@ -494,7 +494,7 @@ def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
     """Pixel-only tracks wait for the CameraInfo; normalized ones need none."""
     logic = BackendLogic(config(feature_layout='per_point'), BACKEND)
     outputs: list[tuple[str, Any]] = []
-    for i in range(3):  # OpenVINS style: pixels only, x_n = y_n = 0
+    for i in range(4):  # OpenVINS style: pixels only, x_n = y_n = 0
         f = street.frames[i]
         pixels_only = TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids, f.pixels,
                                  None)
@@ -505,12 +505,12 @@ def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
     assert diag_values(last(outputs, DIAGNOSTICS_TOPIC))['camera_info_received'] == 'false'
     logic.on_camera_info(camera_info_msg(street))
     outputs += logic.step()
-    assert logic.stats.keyframes == 3
+    assert logic.stats.keyframes == 4
     # Tracks with normalized coordinates do not need a CameraInfo.
     logic2 = BackendLogic(config(), BACKEND)
-    for _ in feed(logic2, street, range(3)):
+    for _ in feed(logic2, street, range(4)):
         pass
-    assert logic2.stats.keyframes == 3
+    assert logic2.stats.keyframes == 4
 
 
 def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:

@@ -67,6 +67,29 @@ def test_a_second_spike_right_after_the_first_is_rejected_too() -> None:
     assert [k for k, v in enumerate(verdicts) if v is not None] == [10, 13]
 
 
+@pytest.mark.parametrize('bad', [0, 1, 3])
+def test_a_first_pose_far_off_is_judged_by_the_next_ones(bad: int) -> None:
+    """The first four poses are held and judged against each other; the far one is dropped."""
+    poses = _walk(12)
+    poses[bad] = (poses[bad][0], poses[bad][1] + np.array([0.0, 1e30, 0.0]))
+    check = PoseJumpCheck()
+    verdicts = [check.check(stamp, pos, k) for k, (stamp, pos) in enumerate(poses[:3])]
+    assert verdicts == [None] * 3 and check.release() == []   # held, not yet judged
+    verdict = check.check(*poses[3], 3)
+    assert verdict is not None and f'[{poses[bad][0]}]' in verdict
+    assert [k for k, _, _ in check.release()] == [k for k in range(4) if k != bad]
+    # After them the recent speeds judge as usual.
+    assert _released(check, [(s, p) for s, p in poses[4:]]) == [(k, False) for k in range(8)]
+    assert check.check(poses[-1][0] + STEP_NS, poses[-1][1] + 1e6) is not None
+
+
+def test_first_poses_from_rest_or_too_few_are_all_kept() -> None:
+    """A start from rest is no outlier; fewer than four poses come back at the end of input."""
+    rest = [(k * STEP_NS, np.array([max(0.0, k - 1.5) * 2.0, 0.0, 0.0])) for k in range(6)]
+    assert _released(PoseJumpCheck(), rest) == [(k, False) for k in range(6)]
+    assert _released(PoseJumpCheck(), _walk(2)) == [(0, False), (1, False)]
+
+
 def test_persistent_pose_jump_is_accepted_after_max_rejections() -> None:
     """A jump that stays (a relocalization) becomes the new reference."""
     check = PoseJumpCheck(max_rejections=5)
@@ -82,8 +105,8 @@ def _released(check: PoseJumpCheck, poses: list[tuple[int, np.ndarray]],
     out: list[tuple[int, bool]] = []
     for k, (stamp, pos) in enumerate(poses):
         check.check(stamp, pos, k)
-        out += check.release()
-    return out
+        out += [(p, jumped) for p, jumped, _ in check.release()]
+    return out + [(p, jumped) for p, jumped, _ in check.flush()]
 
 
 def test_a_persisting_jump_releases_the_held_poses_as_a_new_frame() -> None:
@@ -216,6 +239,18 @@ def _warned(outputs: list[tuple[str, Any]], counter: str) -> list[dict[str, str]
     """Return the diagnostics values of WARN messages that show ``counter``."""
     return [diag_values(m) for t, m in outputs if t == DIAGNOSTICS_TOPIC
             and m.status[0].level == 1 and f'count.{counter}' in diag_values(m)]
+
+
+def test_a_first_pose_far_off_does_not_spoil_the_run(street: SimSequence) -> None:
+    """The first keyframe pose 1e30 m off: dropped, and the other keyframes as without it."""
+    centers = street.centers_odom.copy()
+    centers[0, 0] = 1e30
+    logic, outputs = _run(dataclasses.replace(street, centers_odom=centers))
+    assert logic.stats.counters['keyframe_pose_jumps'] == 1
+    opt = logic.optimized_trajectory()
+    assert len(opt) == len(street) - 1 and np.abs(opt.positions_xyz).max() < 1e3
+    assert logic.state == 'tracking' and not logic.stats.counters['reinitializations']
+    assert _warned(outputs, 'keyframe_pose_jumps')
 
 
 def test_front_end_pose_jump_is_not_followed(street: SimSequence) -> None:
