@@ -188,6 +188,9 @@ class StampLeapCheck:
     later one look out of order and be dropped for the rest of the run. The next message
     decides: stamped after the held one, time really jumped (a front-end that paused) and
     both pass, the held one late by a message; stamped before it, the held one is dropped.
+    The first ``min_steps + 1`` messages, with no rate yet to judge by, are held and judged
+    together: one that leaps past the others although it came before some of them is
+    dropped, and the rest pass in stamp order.
 
     Attributes:
         reason: What a dropped message is counted as (``reject``'s first argument).
@@ -203,6 +206,7 @@ class StampLeapCheck:
     _last_ns: int | None = field(default=None, init=False, repr=False)
     _steps: deque[int] = field(default_factory=deque, init=False, repr=False)
     _held: tuple[int, Any] | None = field(default=None, init=False, repr=False)
+    _first: list[tuple[int, Any]] = field(default_factory=list, init=False, repr=False)
 
     def admit(self, stamp_ns: int, payload: Any,
               reject: Callable[[str, str], None]) -> list[Any]:
@@ -211,6 +215,8 @@ class StampLeapCheck:
         Empty while ``payload`` is held. Stamps that do not increase pass unjudged (the
         caller rejects them as before).
         """
+        if self._last_ns is None:
+            return self._judge_first(stamp_ns, payload, reject)
         taken: list[Any] = []
         if self._held is not None:
             held_ns, held = self._held
@@ -237,9 +243,33 @@ class StampLeapCheck:
         return [*taken, payload]
 
     def flush(self) -> list[Any]:
-        """Return the held payload (if any) without judging it: the input has ended."""
+        """Return the held payloads (if any) without judging them: the input has ended."""
         held, self._held = self._held, None
-        return [] if held is None else [held[1]]
+        first, self._first = sorted(self._first, key=lambda m: m[0]), []
+        return [p for _, p in first] + ([] if held is None else [held[1]])
+
+    def _judge_first(self, stamp_ns: int, payload: Any,
+                     reject: Callable[[str, str], None]) -> list[Any]:
+        """Hold the first messages; then drop those that leap ahead of ones they came before."""
+        self._first.append((stamp_ns, payload))
+        if len(self._first) <= self.min_steps:
+            return []
+        order = sorted(range(len(self._first)), key=lambda k: self._first[k][0])
+        stamps = np.array([self._first[k][0] for k in order], dtype=np.int64)
+        steps = np.diff(stamps)
+        moving = steps[steps > 0]
+        leap = int(np.argmax(steps)) + 1
+        # Sorted by stamp, a glitch stamped ahead sits after the leap yet arrived earlier.
+        if (moving.shape[0] and steps[leap - 1] > self.factor * float(np.median(moving))
+                and min(order[leap:]) < max(order[:leap])):
+            for k in order[leap:]:
+                reject(self.reason, f'message stamped {self._first[k][0]} ns, ahead of ones '
+                       f'that came after it (up to {stamps[leap - 1]} ns): dropped as a bad stamp')
+            order, stamps = order[:leap], stamps[:leap]
+        first, self._first = self._first, []
+        self._last_ns = int(stamps[-1])
+        self._steps.extend(int(v) for v in np.diff(stamps) if v > 0)
+        return [first[k][1] for k in order]
 
 
 @dataclass

@@ -289,14 +289,30 @@ def test_stamp_leap_is_held_then_dropped_or_taken_by_the_next_stamp() -> None:
     assert _stamp_leap_run([0, STEP_NS, glitch]) == ([0, STEP_NS, glitch], [])
 
 
+def test_the_first_stamps_are_judged_together() -> None:
+    """No rate yet: the first four are held; one stamped ahead of later arrivals is dropped."""
+    glitch = 1000 * 10 ** 9
+    steady = [k * STEP_NS for k in range(1, 7)]
+    taken, dropped = _stamp_leap_run([glitch, *steady])
+    assert taken == steady and len(dropped) == 1 and str(glitch) in dropped[0]
+    # In arrival order a leap among them is a pause; out of order, they pass sorted.
+    paused = [0, STEP_NS, glitch, glitch + STEP_NS, glitch + 2 * STEP_NS]
+    assert _stamp_leap_run(paused) == (paused, [])
+    assert _stamp_leap_run([STEP_NS, 0, *steady[1:]]) == ([0, *steady], [])
+    check = StampLeapCheck('leaps')
+    assert check.admit(STEP_NS, 'a', print) == [] and check.flush() == ['a']
+
+
+@pytest.mark.parametrize('bad', [0, 20])
 @pytest.mark.parametrize('where', ['keyframe', 'tracks', 'both'])
-def test_one_far_future_stamp_does_not_end_the_run(street: SimSequence, where: str) -> None:
+def test_one_far_future_stamp_does_not_end_the_run(street: SimSequence, where: str,
+                                                   bad: int) -> None:
     """A message stamped 1,000 s ahead is dropped, not every later keyframe as out of order."""
     logic = BackendLogic(config(), BACKEND)
     logic.on_camera_info(camera_info_msg(street))
     for i in range(len(street)):
         tracks, pose = tracks_msg(street, i), keyframe_msg(street, i)
-        if i == 20:
+        if i == bad:
             for msg, part in ((tracks, 'tracks'), (pose, 'keyframe')):
                 if where in (part, 'both'):
                     msg.header.stamp.sec += 1000
