@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections import Counter, deque
 from dataclasses import dataclass
 import logging
-import os
 from pathlib import Path
 import time
 from typing import Any
@@ -39,7 +38,7 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
-from pmba_ros.backend import status
+from pmba_ros.backend import status, tracks
 from pmba_ros.backend.cameras import frame_id_of, FrontendCameras
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
@@ -47,7 +46,6 @@ from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.results import save_results
 from pmba_ros.backend.sanity import PoseJumpCheck, StampLeapCheck
-from pmba_ros.backend.tracks import parse_camera_info, parse_keyframe, parse_tracks, TrackMemory
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
 from pmba_ros.core import so3, sphere
@@ -99,7 +97,7 @@ class BackendLogic:
         self._last_info = status.UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
-        self._track_memory = TrackMemory()
+        self._track_memory = tracks.TrackMemory()
         self._pose_check = PoseJumpCheck()
         self._track_stamps = StampLeapCheck('track_stamp_leaps')
         self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps')
@@ -125,7 +123,7 @@ class BackendLogic:
                 None: the reference camera ``camera_id``.
         """
         try:
-            camera = parse_camera_info(msg)
+            camera = tracks.parse_camera_info(msg)
         except Exception as err:
             self._reject('bad_camera_info', err)
             return
@@ -169,13 +167,12 @@ class BackendLogic:
             self.count('dropped_while_paused')
             return
         try:
-            frame = parse_tracks(msg, self.config.feature_layout, self.config.num_cams,
-                                 self._track_memory)
+            frame = tracks.parse_tracks(msg, self.config.feature_layout, self.config.num_cams,
+                                        self._track_memory)
         except Exception as err:
             self._reject('bad_tracks', err)
             return
-        self.count('dropped_observations', frame.dropped)
-        for reason, n in frame.drop_reasons.items():
+        for reason, n in [('dropped_observations', frame.dropped), *frame.drop_reasons.items()]:
             self.count(reason, n)
         for taken in self._track_stamps.admit(frame.stamp_ns, frame, self._reject):
             self._take_tracks(taken)
@@ -201,9 +198,12 @@ class BackendLogic:
             self.count('ignored_keyframe_messages')
             return
         try:
-            pose = parse_keyframe(msg, self.config.keyframe_type)
+            pose = tracks.parse_keyframe(msg, self.config.keyframe_type)
         except Exception as err:
             self._reject('bad_keyframes', err)
+            stamp = tracks.stamp_of(msg)   # its tracks still count, as a keyframe without a pose
+            if stamp is not None and self._pose_check.idle() and self._keyframe_stamps.fits(stamp):
+                self._push_keyframe(_Keyframe(stamp, None))
             return
         for taken in self._keyframe_stamps.admit(pose.stamp_ns, pose, self._reject):
             self._take_keyframe_pose(taken)
@@ -594,7 +594,7 @@ class BackendLogic:
         """Return the map's landmarks in map_frame, shape (N, 3)."""
         return self.estimator.landmark_points()
 
-    def save(self, directory: str | os.PathLike[str]) -> list[Path]:
+    def save(self, directory: Path | str) -> list[Path]:
         """Write the trajectories and the landmarks into ``directory`` (:func:`save_results`)."""
         return save_results(directory, self.optimized_trajectory(), self.frontend_trajectory(),
                             self.landmarks())

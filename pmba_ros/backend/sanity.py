@@ -134,6 +134,10 @@ class PoseJumpCheck:
         """
         return self._released
 
+    def idle(self) -> bool:
+        """Return True when no pose is held (past the first poses, no jump being judged)."""
+        return self._last is not None and not self._first and not self._held
+
     def flush(self) -> list[tuple[Any, bool, bool]]:
         """Return the first poses still held, unjudged, as :meth:`release` would: input ended."""
         first, self._first = self._first, []
@@ -241,6 +245,14 @@ class StampLeapCheck:
         if last is None or stamp_ns > last:
             self._last_ns = stamp_ns
         return [*taken, payload]
+
+    def fits(self, stamp_ns: int) -> bool:
+        """Return True if ``stamp_ns`` would pass now, neither held nor out of order."""
+        last = self._last_ns
+        if last is None or self._held is not None or stamp_ns <= last:
+            return False
+        return (len(self._steps) < self.min_steps
+                or stamp_ns - last <= self.factor * statistics.median(self._steps))
 
     def flush(self) -> list[Any]:
         """Return the held payloads (if any) without judging them: the input has ended."""

@@ -128,6 +128,14 @@ def _header(msg: Any) -> tuple[int, str]:
         raise MessageError(msg_) from err
 
 
+def stamp_of(msg: Any) -> int | None:
+    """Return the header stamp of a message in ns, or None if it has no usable one."""
+    try:
+        return stamp_to_ns(msg.header.stamp)
+    except (AttributeError, MessageError, OverflowError):
+        return None
+
+
 def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
                  memory: TrackMemory | None = None) -> TrackFrame:
     """Parse a front-end feature message into a :class:`TrackFrame`.

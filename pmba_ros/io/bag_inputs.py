@@ -22,7 +22,7 @@ import logging
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
-from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, tracks_msgtype
+from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, stamp_of, tracks_msgtype
 from pmba_ros.errors import BagError, MessageError
 from pmba_ros.io.bags import BagMessage, list_topics, TopicInfo
 
@@ -162,12 +162,9 @@ def rig_camera_infos(bags: Sequence[Path], config: BackendConfig, warnings: list
 
 
 def header_stamp_ns(msg: Any, fallback: int) -> int:
-    """Return a message's header stamp in ns (``fallback`` if it has no header)."""
-    try:
-        stamp = msg.header.stamp
-        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    except AttributeError:
-        return fallback
+    """Return a message's header stamp in ns (``fallback`` if it has no usable header)."""
+    stamp = stamp_of(msg)
+    return fallback if stamp is None else stamp
 
 
 def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],

@@ -329,6 +329,42 @@ def test_one_far_future_stamp_does_not_end_the_run(street: SimSequence, where: s
     assert logic.state == 'tracking'
 
 
+@pytest.mark.parametrize('bad', [1, 30])
+def test_an_unusable_keyframe_pose_keeps_its_tracks(street: SimSequence, bad: int) -> None:
+    """A NaN pose: its keyframe is taken without a pose, unless first poses are being judged."""
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    for i in range(len(street)):
+        pose = keyframe_msg(street, i)
+        if i == bad:
+            pose.pose.pose.position.x = float('nan')
+        logic.on_tracks(tracks_msg(street, i))
+        logic.step()
+        logic.on_keyframe(pose)
+        logic.step()
+    counters = logic.stats.counters
+    assert counters['bad_keyframes'] == 1 and counters['keyframe_stamp_not_increasing'] == 0
+    opt, fe = logic.optimized_trajectory(), logic.frontend_trajectory()
+    assert len(fe) == len(street) - 1
+    # Keyframe 1 arrives while the first four poses are held: its tracks cannot wait for them.
+    assert len(opt) == len(street) - (bad == 1)
+    assert (street.stamps_ns[bad] * 1e-9 in opt.stamps_s.tolist()) == (bad != 1)
+    assert logic.state == 'tracking'
+
+
+def test_checks_say_when_a_stamp_fits_and_nothing_is_held() -> None:
+    """``fits`` / ``idle``: what a keyframe without a pose may rely on."""
+    stamps, poses = StampLeapCheck('leaps'), PoseJumpCheck()
+    assert not stamps.fits(0) and not poses.idle()   # nothing seen yet
+    for stamp, pos in _walk(5):
+        stamps.admit(stamp, stamp, print)
+        poses.check(stamp, pos)
+    assert stamps.fits(5 * STEP_NS) and not stamps.fits(4 * STEP_NS)
+    assert not stamps.fits(1000 * 10 ** 9) and poses.idle()
+    poses.check(5 * STEP_NS, np.array([1e6, 0.0, 0.0]))   # a jump being judged
+    assert not poses.idle()
+
+
 def test_a_pause_of_the_front_end_loses_nothing(street: SimSequence) -> None:
     """Stamps 100 s later from keyframe 20 on (a front-end that paused): every keyframe out."""
     shift = np.where(np.arange(len(street)) >= 20, 100 * 10 ** 9, 0)
