@@ -76,7 +76,7 @@ class RunScale:
         """Start with nothing summed."""
         self._map = 0.0
         self._odom = 0.0
-        self._steps = 0
+        self._fixed_steps = 0   # the steps in the sums
         self._done = 1  # the steps (i - 1, i) with i < _done are in the sums
         self.steps = 0
         """The number of steps the last :meth:`scale` summed."""
@@ -93,13 +93,13 @@ class RunScale:
             m, o, count = self._lengths(kf, self._done, stop, fixed)
             self._map += m
             self._odom += o
-            self._steps += count
+            self._fixed_steps += count
             self._done = stop
         window = status[self._done - 1:]
         optimized = (window == KeyframeStatus.ACTIVE) | (window == KeyframeStatus.FIXED)
         m, o, count = self._lengths(kf, self._done, n, optimized)
         total_map, total_odom = self._map + m, self._odom + o
-        self.steps = self._steps + count
+        self.steps = self._fixed_steps + count
         return total_map / total_odom if total_odom > 0 and total_map > 0 else fallback
 
     @staticmethod

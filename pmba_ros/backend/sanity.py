@@ -170,7 +170,7 @@ class PoseJumpCheck:
         self._released = [(first[i][2], False, False) for i in kept]
         if kept.shape[0] == len(first):
             return None
-        off = [first[i][0] for i in range(len(first)) if i not in set(kept.tolist())]
+        off = [first[i][0] for i in np.setdiff1d(np.arange(len(first)), kept)]
         return (f'keyframe pose(s) at {off} ns far off the other first poses (recent speed '
                 f'{reference:.3g}/s); rejected as outliers')
 
