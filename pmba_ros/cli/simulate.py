@@ -19,6 +19,7 @@ Usage examples::
     pmba simulate --scenario loop --keyframes 300 --layout named --out loop.mcap
     pmba simulate --format bal --scenario street --out street.txt     # for `pmba solve`
     pmba simulate --format bal --scenario table3 --seed 1 --out table3.txt
+    pmba simulate --stop 60:100 --keyframes 300 --out stop_bag   # at rest for 100 keyframes
 
 A bag (``--format bag``, the default) holds VINS-layout ``PointCloud`` tracks (``PointCloud2``
 with ``--layout named``), drifting ``Odometry`` keyframe poses, ``CameraInfo`` and the ground
@@ -28,8 +29,8 @@ to ``BAG/groundtruth.tum`` (``<stem>_groundtruth.tum`` beside a ``.mcap`` file).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pmba_ros.cli.argtypes import (
     non_negative_float,
@@ -38,9 +39,6 @@ from pmba_ros.cli.argtypes import (
     positive_int,
 )
 from pmba_ros.errors import PmbaError
-
-if TYPE_CHECKING:
-    import argparse
 
 _BAG_SCENARIOS = ('street', 'aerial', 'loop', 'rotation')
 _BAL_SCENARIOS = ('street', 'table3')
@@ -80,7 +78,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='bag: 2 writes a stereo rig (EuRoC cam1 beside cam0, its '
                         'observations as camera 1, a second CameraInfo topic '
                         '/camera1/camera_info and its transform on /tf_static)')
+    parser.add_argument('--stop', type=_stop, metavar='FIRST:COUNT',
+                        help='bag: at rest for COUNT keyframes from keyframe FIRST, slowing '
+                        'down and speeding up over 30 keyframes on either side (a car at a '
+                        'traffic light)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
+
+
+def _stop(text: str) -> tuple[int, int]:
+    """Parse ``FIRST:COUNT`` of ``--stop``."""
+    first, sep, count = text.partition(':')
+    try:
+        values = (int(first), int(count))
+    except ValueError:
+        values = (-1, 0)
+    if not sep or values[0] < 0 or values[1] < 1:
+        msg = f'expected FIRST:COUNT with FIRST >= 0 and COUNT >= 1, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return values
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         seq = simulate_sequence(args.scenario, n_keyframes=args.keyframes, seed=args.seed,
-                                noise_px=args.noise_px, drift=args.drift, rate_hz=args.rate_hz)
+                                noise_px=args.noise_px, drift=args.drift, rate_hz=args.rate_hz,
+                                stop=args.stop)
     except ValueError as err:
         raise PmbaError(str(err)) from err
     extrinsic = EUROC_CAM0 if args.extrinsic == 'euroc' else None

@@ -67,6 +67,9 @@ _MIN_DEPTH_M = 0.5
 _FAR_RANGE_M = (50.0, 1000.0)
 _PLUMB_BOB_D = (-0.05, 0.01, 0.0, 0.0, 0.0)
 
+STOP_RAMP = 30
+"""Keyframes over which the platform slows to a stop and speeds up again."""
+
 
 @dataclass(frozen=True, eq=False)
 class SimSequence:
@@ -119,7 +122,8 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
                       speed_mps: float | None = None, features_per_keyframe: int = 15,
                       max_track_length: int = 40, distortion: str = 'plumb_bob',
                       image_size: tuple[int, int] = (640, 480), focal_px: float = 400.0,
-                      start_ns: int = 1_000_000_000) -> SimSequence:
+                      start_ns: int = 1_000_000_000,
+                      stop: tuple[int, int] | None = None) -> SimSequence:
     """Simulate a keyframe sequence of a scenario.
 
     Args:
@@ -136,6 +140,9 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
         image_size: Image width and height, px.
         focal_px: Focal length, px (principal point at the image centre).
         start_ns: Stamp of the first keyframe, ns.
+        stop: (first, count): the platform is at rest for ``count`` keyframes from keyframe
+            ``first``, slowing down over the :data:`STOP_RAMP` keyframes before and speeding
+            up over those after (a car at a traffic light, a drone hovering).
 
     Returns:
         The sequence.
@@ -157,7 +164,7 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
     default_speed = {'street': 10.0, 'aerial': 5.0, 'loop': 8.0, 'rotation': 0.0}[scenario]
     speed = default_speed if speed_mps is None else float(speed_mps)
     t_s = np.arange(n_keyframes) / rate_hz
-    R_wc, centers = _trajectory(scenario, t_s, speed)
+    R_wc, centers = _trajectory(scenario, _motion_time(n_keyframes, rate_hz, stop), speed)
     stamps = start_ns + np.round(t_s * 1e9).astype(np.int64)
 
     points, frames = _tracks(rng, scenario, R_wc, centers, camera, stamps, noise_px,
@@ -165,6 +172,25 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
     R_odom, c_odom = _drifted(rng, R_wc, centers, drift)
     return SimSequence(scenario, stamps, R_wc, centers, R_odom, c_odom, frames, camera,
                        points, float(noise_px), float(drift))
+
+
+def _motion_time(n: int, rate_hz: float, stop: tuple[int, int] | None) -> FloatArray:
+    """Return the time along the scenario's path at each keyframe: t, or slowed by ``stop``."""
+    if stop is None:
+        return np.arange(n) / rate_hz
+    first, count = stop
+    if first < 0 or count < 1:
+        msg = f'simulate_sequence: stop {stop} needs first >= 0 and count >= 1'
+        raise ValueError(msg)
+    i = np.arange(n)
+    rate = np.ones(n)   # of path time per keyframe interval after keyframe i
+    down = (i >= first - STOP_RAMP) & (i < first)
+    rate[down] = (first - i[down]) / STOP_RAMP
+    last = first + count - 1   # the last keyframe at rest
+    rate[(i >= first) & (i < last)] = 0.0
+    up = (i >= last) & (i < last + STOP_RAMP)
+    rate[up] = (i[up] - last + 1) / STOP_RAMP
+    return np.concatenate([[0.0], np.cumsum(rate[:-1])]) / rate_hz
 
 
 def _camera(distortion: str, image_size: tuple[int, int], focal_px: float) -> CameraModel:
@@ -271,8 +297,14 @@ def _tracks(rng: np.random.Generator, scenario: str, R_wc: FloatArray, centers: 
     alive = np.zeros(total, dtype=bool)
     n_total = 0
     frames: list[TrackFrame] = []
+    # A feature's age counts the keyframes that moved: at rest a tracker keeps its features
+    # and has no new ones to add.
+    moved = np.ones(F, dtype=bool)
+    moved[1:] = (np.any(centers[1:] != centers[:-1], axis=1)
+                 | np.any(R_wc[1:] != R_wc[:-1], axis=(1, 2)))
+    moves = np.cumsum(moved) - 1
     for i in range(F):
-        n_new = per_kf * (10 if i == 0 else 1)
+        n_new = per_kf * (10 if i == 0 else int(moved[i]))
         px = np.column_stack([rng.uniform(0.05, 0.95, n_new) * width,
                               rng.uniform(0.05, 0.95, n_new) * height])
         xy = camera.normalize(px)
@@ -282,7 +314,7 @@ def _tracks(rng: np.random.Generator, scenario: str, R_wc: FloatArray, centers: 
         depth = _ray_depths(rng, scenario, centers[i], rays_w)
         new = slice(n_total, n_total + n_new)
         points[new] = centers[i] + depth[:, None] * rays_w
-        birth[new] = i
+        birth[new] = moves[i]
         life[new] = rng.integers(max(2, max_len // 4), max_len + 1, n_new)
         alive[new] = True
         n_total += n_new
@@ -294,7 +326,7 @@ def _tracks(rng: np.random.Generator, scenario: str, R_wc: FloatArray, centers: 
         vis &= ((pix_true[:, 0] >= 0) & (pix_true[:, 0] < width) & (pix_true[:, 1] >= 0)
                 & (pix_true[:, 1] < height) & np.all(np.isfinite(pix_true), axis=1))
         alive[idx[~vis]] = False
-        alive[idx[i - birth[idx] >= life[idx] - 1]] = False  # this is their last keyframe
+        alive[idx[moves[i] - birth[idx] >= life[idx] - 1]] = False  # their last keyframe
         ids = idx[vis]
         pix = pix_true[vis] + rng.normal(0.0, noise_px, (ids.size, 2)) if noise_px else \
             pix_true[vis]

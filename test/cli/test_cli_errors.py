@@ -68,6 +68,17 @@ def test_out_of_range_solve_options_are_usage_errors(argv: list[str], needle: st
     assert needle in err and 'Traceback' not in err
 
 
+@pytest.mark.parametrize('stop', ['60', '60:0', '-1:5', 'a:b'])
+def test_simulate_stop_needs_first_and_count(tmp_path: Path, stop: str,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """`simulate --stop` takes FIRST:COUNT (COUNT >= 1): else a usage error, nothing written."""
+    with pytest.raises(SystemExit) as exc:
+        main(['simulate', f'--stop={stop}', '--out', str(tmp_path / 'bag')])
+    assert exc.value.code == 2
+    assert 'argument --stop: expected FIRST:COUNT' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(('argv', 'needle'), [
     (['--first-frame', '-5'], 'argument --first-frame: must be >= 0, got -5'),
     (['--stride', '0'], 'argument --stride: must be >= 1, got 0'),

@@ -20,8 +20,10 @@ from pathlib import Path
 import subprocess
 import sys
 
+import numpy as np
 from pmba_ros import replay as replay_mod
 from pmba_ros.cli.main import main
+from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.bags import list_topics
 from pmba_ros.io.bal import read_bal
 import pytest
@@ -60,6 +62,15 @@ def test_simulate_named_layout_writes_pointcloud2(tmp_path: Path) -> None:
     out = tmp_path / 'named.mcap'
     assert main(['simulate', '--keyframes', '5', '--layout', 'named', '--out', str(out)]) == 0
     assert list_topics([out])['/features'].msgtype == 'sensor_msgs/msg/PointCloud2'
+
+
+def test_simulate_stop_holds_the_ground_truth_still(tmp_path: Path) -> None:
+    """--stop 40:5: keyframes 40-44 at one place in the ground truth, moving before and after."""
+    out = tmp_path / 'stop'
+    assert main(['simulate', '--keyframes', '80', '--stop', '40:5', '--out', str(out)]) == 0
+    gt = read_tum(out / 'groundtruth.tum')
+    step = np.linalg.norm(np.diff(gt.positions_xyz, axis=0), axis=1)
+    assert np.all(step[40:44] == 0.0) and np.all(step[:39] > 0) and np.all(step[44:] > 0)
 
 
 @pytest.mark.parametrize('scenario', ['street', 'table3'])

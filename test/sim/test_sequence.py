@@ -119,6 +119,22 @@ def test_rotation_scenario_has_no_baseline() -> None:
     assert np.max(np.rad2deg(so3.angle(seq.R_wc_gt[0], seq.R_wc_gt))) > 10.0
 
 
+def test_a_stop_holds_still_and_keeps_its_features() -> None:
+    """At rest the pose holds and the tracker keeps its features; it slows and speeds up."""
+    plain = simulate_sequence('street', 120, seed=4)
+    seq = simulate_sequence('street', 120, seed=4, stop=(40, 30))
+    np.testing.assert_array_equal(seq.centers_gt[:10], plain.centers_gt[:10])
+    np.testing.assert_array_equal(seq.centers_gt[40:70], np.tile(seq.centers_gt[40], (30, 1)))
+    np.testing.assert_array_equal(seq.R_wc_gt[40:70], np.tile(seq.R_wc_gt[40], (30, 1, 1)))
+    step = np.linalg.norm(np.diff(seq.centers_gt, axis=0), axis=1)
+    assert np.all(np.diff(step[10:40]) < 0) and np.all(np.diff(step[69:99]) > 0)
+    assert step[39] < 0.05 * step[0] and step[99] == pytest.approx(step[0], rel=0.01)
+    for f in seq.frames[42:70]:   # keyframe 40 still moved: tracks ended there
+        np.testing.assert_array_equal(f.feature_ids, seq.frames[41].feature_ids)
+    assert not np.array_equal(seq.frames[41].pixels, seq.frames[42].pixels)  # new noise
+    np.testing.assert_allclose(seq.centers_odom[40:70], np.tile(seq.centers_odom[40], (30, 1)))
+
+
 @pytest.mark.parametrize('distortion', ['none', 'plumb_bob', 'equidistant'])
 def test_distortion_models(distortion: str) -> None:
     """Each distortion model's normalized coordinates map back onto the pixels."""
@@ -130,7 +146,8 @@ def test_distortion_models(distortion: str) -> None:
 
 @pytest.mark.parametrize('kwargs', [{'scenario': 'city'}, {'n_keyframes': 1},
                                     {'noise_px': -1.0}, {'rate_hz': 0.0},
-                                    {'distortion': 'fisheye'}, {'max_track_length': 1}])
+                                    {'distortion': 'fisheye'}, {'max_track_length': 1},
+                                    {'stop': (-1, 5)}, {'stop': (10, 0)}])
 def test_invalid_arguments(kwargs: dict[str, object]) -> None:
     """Unknown scenarios, distortions or counts are a ValueError naming the argument."""
     with pytest.raises(ValueError, match=r'simulate_sequence|scenario|distortion'):
