@@ -61,6 +61,7 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
                    centers_w: FloatArray | None = None,
                    points_w: FloatArray | None = None,
                    engine: Engine | None = None,
+                   min_baseline: float = 0.0,
                    ) -> tuple[IntArray, IntArray, BoolArray]:
     """Pick main and associate anchors of every feature: its maximum-parallax observer pair.
 
@@ -75,9 +76,10 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
         allowed_pairs: Optional (M, M) symmetric mask of camera pairs that may anchor a
             feature (PMBA: epipolar-geometry pairs only).
         centers_w: Optional camera centres (M, 3): pairs closer than 1e-9 of the scene size
-            are not anchors (zero baseline, pmba.md §3.3).
+            or ``min_baseline`` are not anchors (zero baseline, pmba.md §3.3).
         points_w: Optional points (N, 3) for the depth-ratio swap.
         engine: The engine that searches the pairs (default: :func:`default_engine`).
+        min_baseline: With ``centers_w``, the shortest anchor baseline, in its units.
 
     Returns:
         main_idx (N,), assoc_idx (N,) and ok (N,): False where no admissible pair exists.
@@ -85,7 +87,7 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
     obs = problem.obs
     close = np.zeros(0, dtype=np.int64)
     if centers_w is not None:
-        close = _coincident_pairs(centers_w)
+        close = _coincident_pairs(centers_w, min_baseline)
     counts = np.bincount(obs.feat_idx, minlength=problem.n_feats)
     main_idx, assoc_idx, ok = (engine or default_engine()).widest_pairs(
         world_rays(problem, R_wc), obs.cam_idx, np.concatenate([[0], np.cumsum(counts)]),
@@ -115,15 +117,16 @@ def _swap_far_main(main_idx: IntArray, assoc_idx: IntArray, ok: BoolArray,
     return main_idx, assoc_idx, ok
 
 
-def _coincident_pairs(centers_w: FloatArray) -> IntArray:
+def _coincident_pairs(centers_w: FloatArray, min_baseline: float = 0.0) -> IntArray:
     """Keys a * M + b (both orders) of camera pairs closer than 1e-9 of the scene size.
 
-    Such pairs have no baseline (pmba.md §3.3). A sweep along x finds the candidates in
-    O(M log M); they are usually none.
+    Such pairs have no baseline (pmba.md §3.3); nor, for a caller that sets
+    ``min_baseline``, do pairs closer than that. A sweep along x finds the candidates in
+    O(M log M); they are usually few.
     """
     M = centers_w.shape[0]
     scale = float(np.ptp(centers_w, axis=0).max()) if M > 1 else 0.0
-    tol = max(scale, 1.0) * 1e-9
+    tol = max(max(scale, 1.0) * 1e-9, min_baseline)
     order = np.argsort(centers_w[:, 0], kind='stable')
     x = centers_w[order, 0]
     span = np.searchsorted(x, x + tol, side='right') - np.arange(M) - 1   # later within tol
@@ -208,7 +211,7 @@ def features_from_rotations(problem: BAProblem, R_wc: FloatArray, main_idx: IntA
 
 def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
                     points_w: FloatArray, *, allowed_pairs: BoolArray | None = None,
-                    engine: Engine | None = None,
+                    engine: Engine | None = None, min_baseline: float = 0.0,
                     ) -> tuple[ParallaxFeatures, BoolArray]:
     """Convert Euclidean points to PMBA features with anchors chosen by :func:`select_anchors`.
 
@@ -229,13 +232,13 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
             compiled_anchor_search.point_features(
                 R_wc, centers_w, points_w, rig.rig_frame_bearings(problem), problem.obs.cam_idx,
                 problem.obs.feat_idx, _admissible(problem, R_wc.shape[0], allowed_pairs),
-                _SWAP_DEPTH_RATIO))
+                _SWAP_DEPTH_RATIO, min_baseline))
         if unseen >= 0:
             raise ProblemError(_NOT_OBSERVED)
         theta = np.arccos(cos_t)
     else:
         main_idx, assoc_idx, ok, theta, n, valid = _point_features(
-            problem, R_wc, centers_w, points_w, allowed_pairs, eng)
+            problem, R_wc, centers_w, points_w, allowed_pairs, eng, min_baseline)
         n_reinit = int(np.sum(~valid & ok))
     if n_reinit:
         logger.info('xyz_to_parallax: %d points re-initialized from rotations', n_reinit)
@@ -244,6 +247,7 @@ def xyz_to_parallax(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
 
 def _point_features(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
                     points_w: FloatArray, allowed_pairs: BoolArray | None, engine: Engine,
+                    min_baseline: float,
                     ) -> tuple[IntArray, IntArray, BoolArray, FloatArray, FloatArray, BoolArray]:
     """Return the anchors, ok, theta, n and valid (from the point) of xyz_to_parallax.
 
@@ -251,7 +255,7 @@ def _point_features(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
     """
     main_idx, assoc_idx, ok = select_anchors(problem, R_wc, allowed_pairs=allowed_pairs,
                                              centers_w=centers_w, points_w=points_w,
-                                             engine=engine)
+                                             engine=engine, min_baseline=min_baseline)
     from_rot = features_from_rotations(problem, R_wc, main_idx, assoc_idx)
     d_m = points_w - centers_w[main_idx]
     d_a = points_w - centers_w[assoc_idx]

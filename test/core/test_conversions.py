@@ -90,6 +90,38 @@ def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
     assert not np.any((np.minimum(main, assoc) == 2) & (np.maximum(main, assoc) == 4) & ok)
 
 
+def test_min_baseline_keeps_close_cameras_from_anchoring(engine: Engine) -> None:
+    """Pairs closer than ``min_baseline`` anchor nothing, in both passes; the rest as before.
+
+    Cameras 2 and 4 sit 1 mm apart (a standstill's solved poses): above the scene tolerance,
+    so they anchor features without ``min_baseline``; with 1 cm they do not, and the features
+    seen from those two only have no pair.
+    """
+    base = forward_problem(3, n_cams=7, n_points=30)
+    centers = np.array(base.centers_w)
+    centers[4] = centers[2] + np.array([1e-3, 0.0, 0.0])
+    problem = _uneven(make_problem(base.R_wc, centers, base.intrinsics, base.obs.cam_idx,
+                                   base.obs.feat_idx, base.obs.pixels), 3)
+    _, _, ok_any = conversions.select_anchors(problem, problem.R_wc,
+                                              centers_w=problem.centers_w, engine=engine)
+    assert np.all(ok_any[:4])
+    main, assoc, ok = conversions.select_anchors(problem, problem.R_wc,
+                                                 centers_w=problem.centers_w, engine=engine,
+                                                 min_baseline=0.01)
+    expected = _brute_force(problem, problem.R_wc, problem.centers_w, 0.01)
+    for f, pair in expected.items():
+        assert bool(ok[f]) == (pair is not None)
+        if pair is not None:
+            assert (int(main[f]), int(assoc[f])) == pair
+    assert not np.any(ok[:4]) and np.count_nonzero(ok) > 20
+    feats, ok_x = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                              np.asarray(base.points_w)[problem.feature_ids],
+                                              engine=engine, min_baseline=0.01)
+    np.testing.assert_array_equal(ok_x, ok)
+    np.testing.assert_array_equal(feats.main_idx[ok], main[ok])
+    np.testing.assert_array_equal(feats.assoc_idx[ok], assoc[ok])
+
+
 def test_check_features_names_what_does_not_fit() -> None:
     """Features of another size, anchors outside the problem or not observing: ProblemError."""
     from dataclasses import replace
@@ -232,4 +264,7 @@ def test_compiled_coincident_pairs_are_numpys() -> None:
         expected = np.sort(conversions._coincident_pairs(C))
         np.testing.assert_array_equal(anchor_search.coincident_keys(C), expected)
         found += expected.shape[0]
+        baseline = float(rng.choice([0.0, 1e-6, 1e-2, 1.0])) * scale
+        np.testing.assert_array_equal(anchor_search.coincident_keys(C, baseline),
+                                      np.sort(conversions._coincident_pairs(C, baseline)))
     assert found > 0

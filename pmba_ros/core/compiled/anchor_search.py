@@ -89,7 +89,7 @@ def _clip_unit(c: float) -> float:
 
 
 @_jit
-def _coincident_keys(centers_w: Any) -> Any:
+def _coincident_keys(centers_w: Any, min_baseline: float) -> Any:
     """Return the sorted keys a * M + b (both orders) of camera pairs without baseline.
 
     conversions._coincident_pairs: its sweep along x, its tolerance and arithmetic.
@@ -100,7 +100,7 @@ def _coincident_keys(centers_w: Any) -> Any:
         for d in range(3):
             ptp = np.max(centers_w[:, d]) - np.min(centers_w[:, d])
             scale = ptp if d == 0 or ptp > scale else scale
-    tol = max(scale, 1.0) * 1e-9
+    tol = max(max(scale, 1.0) * 1e-9, min_baseline)
     order = np.argsort(centers_w[:, 0], kind='mergesort')
     keys = np.empty(0, dtype=np.int64)
     for sweep in range(2):   # count, then fill
@@ -130,8 +130,8 @@ def _coincident_keys(centers_w: Any) -> Any:
 
 @_jit
 def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: Any,
-                    feat_idx: Any, allowed: Any, swap_ratio: float, main_idx: Any,
-                    assoc_idx: Any, ok: Any, cos_t: Any, n: Any, valid: Any,
+                    feat_idx: Any, allowed: Any, swap_ratio: float, min_baseline: float,
+                    main_idx: Any, assoc_idx: Any, ok: Any, cos_t: Any, n: Any, valid: Any,
                     ) -> tuple[int, int]:
     """Anchors, cos(theta), n and validity of each feature from its point, in one pass.
 
@@ -142,7 +142,7 @@ def _point_features(R_wc: Any, centers_w: Any, points_w: Any, v: Any, cam_idx: A
     features with an anchor pair took the rotation-only values.
     """
     K, N, M = cam_idx.shape[0], points_w.shape[0], R_wc.shape[0]
-    close = _coincident_keys(centers_w)
+    close = _coincident_keys(centers_w, min_baseline)
     starts = np.zeros(N + 1, dtype=np.int64)   # the problem's feature_offsets()
     for k in range(K):
         starts[feat_idx[k] + 1] += 1
@@ -229,7 +229,7 @@ def _frozen(x: Any, dtype: Any) -> Any:
 
 def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray,
                    v: FloatArray, cam_idx: IntArray, feat_idx: IntArray, allowed: Any,
-                   swap_ratio: float,
+                   swap_ratio: float, min_baseline: float = 0.0,
                    ) -> tuple[IntArray, IntArray, Any, FloatArray, FloatArray, Any, int, int]:
     """Return the anchors and features of points (conversions.xyz_to_parallax), in one pass.
 
@@ -243,6 +243,7 @@ def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray
         allowed: (M, M) mask of admissible camera pairs, or None (all but those without
             baseline).
         swap_ratio: Depth ratio above which the anchors are swapped.
+        min_baseline: Pairs closer than this are not anchors either.
 
     Returns:
         main_idx, assoc_idx, ok, clipped cos(theta), n, valid (the point gave theta and n),
@@ -260,11 +261,11 @@ def point_features(R_wc: FloatArray, centers_w: FloatArray, points_w: FloatArray
     unseen, n_reinit = _point_features(
         _frozen(R_wc, f64), _frozen(centers_w, f64), _frozen(points_w, f64), _frozen(v, f64),
         _frozen(cam_idx, np.int64), _frozen(feat_idx, np.int64), _frozen(mask, np.bool_),
-        swap_ratio, main_idx, assoc_idx, ok, cos_t, n, valid)
+        swap_ratio, float(min_baseline), main_idx, assoc_idx, ok, cos_t, n, valid)
     return main_idx, assoc_idx, ok, cos_t, n, valid, int(unseen), int(n_reinit)
 
 
-def coincident_keys(centers_w: FloatArray) -> IntArray:
+def coincident_keys(centers_w: FloatArray, min_baseline: float = 0.0) -> IntArray:
     """Return conversions._coincident_pairs' keys, sorted (the one used by point_features)."""
-    out: IntArray = _coincident_keys(_frozen(centers_w, np.float64))
+    out: IntArray = _coincident_keys(_frozen(centers_w, np.float64), float(min_baseline))
     return out
