@@ -19,12 +19,13 @@ State machine:
     Keyframes are stored until ``init_batch_size`` have arrived and the batch has enough
     well-conditioned features: at least ``init_min_features`` whose rotation-compensated
     parallax between two of its keyframes is ``init_min_parallax_px`` or more
-    (:meth:`Estimator._well_conditioned_features`; PMBA needs some near features, not a
-    high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the batch. A failure
-    (pure rotation, too few pairs) moves to ``waiting_for_parallax`` and is retried every
-    ``init_retry_every`` keyframes; the batch keeps at most ``init_max_batch`` keyframes (older
-    ones keep their front-end pose). Until then every keyframe with a front-end pose is
-    published at that pose (map = odom), flagged as not optimized (:meth:`Estimator.optimized`).
+    (:func:`~pmba_ros.backend.window.well_conditioned_features`; PMBA needs some near
+    features, not a high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the
+    batch. A failure (pure rotation, too few pairs) moves to ``waiting_for_parallax`` and is
+    retried every ``init_retry_every`` keyframes; the batch keeps at most ``init_max_batch``
+    keyframes (older ones keep their front-end pose). Until then every keyframe with a
+    front-end pose is published at that pose (map = odom), flagged as not optimized
+    (:meth:`Estimator.optimized`).
 ``tracking``
     The map is expressed in the front-end's odom frame at initialization (similarity fit of
     the batch, so map -> odom starts at identity). Each new keyframe starts from the previous
@@ -52,6 +53,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.motion import (
+    ANCHOR_BASELINE_REL,
     frontend_motion_prior,
     FrontendNoise,
     inconsistency,
@@ -60,11 +62,11 @@ from pmba_ros.backend.motion import (
     PixelNoise,
     RunScale,
     step_sigmas,
+    typical_step,
 )
 from pmba_ros.backend.sanity import CostMonitor
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
-    compensated_parallax_angles,
     estimate_similarity,
     FeatureMap,
     gather_observations,
@@ -74,6 +76,7 @@ from pmba_ros.backend.window import (
     LandmarkStore,
     select_fixed,
     Similarity,
+    well_conditioned_features,
 )
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
@@ -84,6 +87,7 @@ from pmba_ros.core.problem import (
     BAProblem,
     finite_rows,
     make_problem,
+    ParallaxFeatures,
     Parameterization,
     Rig,
     subset_features,
@@ -94,7 +98,6 @@ from pmba_ros.errors import InitError, PmbaError
 logger = logging.getLogger(__name__)
 
 STATES = ('collecting', 'waiting_for_parallax', 'tracking')
-_MIN_SHARED_FOR_PARALLAX = 20
 
 
 def import_initialization() -> None:
@@ -241,7 +244,9 @@ class Estimator:
                 info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
-        count = self._well_conditioned_features(batch)
+        count = well_conditioned_features(
+            self.kf, batch, cfg.init_min_parallax_px / math.sqrt(self.fx * self.fy),
+            cfg.camera_id)
         if count < cfg.init_min_features:
             self.state = 'waiting_for_parallax'
             self.last_message = (f'waiting for parallax: {count} features with >= '
@@ -253,31 +258,6 @@ class Estimator:
         info.keyframe = i
         info.dropped = info_drop
         return info
-
-    def _well_conditioned_features(self, batch: IntArray) -> int:
-        """Return the most features with enough parallax between two keyframes of the batch.
-
-        A feature counts when its rotation-compensated parallax (the angle left after the
-        best rotation between the two keyframes' bearings) is at least
-        ``init_min_parallax_px``. PMBA does not need most features to have parallax (far
-        ones constrain the rotations), only enough near ones to fix the structure; the median
-        of a street's mostly far features can stay below any threshold for hundreds of
-        keyframes. The pairs are the batch's first keyframe with every later one and every
-        keyframe with the last, so features born inside the batch count too.
-        """
-        threshold = self.config.init_min_parallax_px / math.sqrt(self.fx * self.fy)
-        first, newest = int(batch[0]), int(batch[-1])
-        pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
-        best = 0
-        ref = self.config.camera_id
-        for a, b in pairs:
-            obs_a, obs_b = self.kf.obs[a].of_camera(ref), self.kf.obs[b].of_camera(ref)
-            shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
-            if shared.shape[0] < max(_MIN_SHARED_FOR_PARALLAX, best):
-                continue
-            angles = compensated_parallax_angles(obs_a.bearings[ia], obs_b.bearings[ib])
-            best = max(best, int(np.count_nonzero(angles >= threshold)))
-        return best
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
                        R: FloatArray, C: FloatArray, refine: bool = True) -> BAProblem:
@@ -463,17 +443,19 @@ class Estimator:
             problem = self._build_problem(cams, fixed, feature_filter, self.kf.R_map[cams],
                                           self.kf.C_map[cams])
             pts = self.features.lookup(problem.feature_ids)
-            feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
+            step = typical_step(self._run_scale, problem.centers_w)
+            feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts,
+                                        min_baseline=ANCHOR_BASELINE_REL * step)
             if not np.all(ok):
                 problem = subset_features(problem, ok, 'features_without_anchor_baseline')
-                pts = self.features.lookup(problem.feature_ids)
-                feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, pts)
+                feats = ParallaxFeatures(feats.theta[ok], feats.n[ok], feats.main_idx[ok],
+                                         feats.assoc_idx[ok])
             options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
                                    loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
                                    prior_leverage=sampled)
-            prior = self._motion_prior(cams, fixed)
+            prior = self._motion_prior(cams, fixed, step)
             res = solve(problem, options, feats, pose_prior=prior)
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'
@@ -521,18 +503,24 @@ class Estimator:
             logger.warning('front-end step into keyframe %d is over %g sigmas off the map: '
                            'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
 
-    def _motion_prior(self, cams: IntArray, fixed: BoolArray) -> RelativePosePrior | None:
-        """Return the front-end's motion between the problem's keyframes as a prior."""
+    def _motion_prior(self, cams: IntArray, fixed: BoolArray,
+                      step: float) -> RelativePosePrior | None:
+        """Return the front-end's motion between the problem's keyframes as a prior.
+
+        ``step``: the map's typical step (:func:`~pmba_ros.backend.motion.typical_step`).
+        """
         monocular = self._rig() is None
         # A monocular window's scale wanders; the run's own scale so far is a steadier reference
         # for it than the initialization's (a rig's map is metric; a global solve holds the run).
         sliding = monocular and self.config.mode == 'sliding'
-        ref = self._run_scale.scale(self.kf, self._metric_scale) if sliding else self._metric_scale
+        run = self._run_scale.scale(self.kf, self._metric_scale)   # its path serves every mode
+        ref = run if sliding else self._metric_scale
         return frontend_motion_prior(self.kf, cams, fixed, ref, self.config,
                                      follow_map_scale=monocular,
                                      pixel_sigma=self.pixel_noise.sigma,
                                      noise_factors=self.frontend_noise.factors,
-                                     run_steps=self._run_scale.steps if sliding else self.kf.n)
+                                     run_steps=self._run_scale.steps if sliding else self.kf.n,
+                                     typical=step)
 
     def _fall_back(self, info: UpdateInfo, reason: str) -> UpdateInfo:
         """Keep the window's poses from before a rejected solve; re-seed it after repeats.

@@ -80,6 +80,8 @@ class RunScale:
         self._done = 1  # the steps (i - 1, i) with i < _done are in the sums
         self.steps = 0
         """The number of steps the last :meth:`scale` summed."""
+        self.path = 0.0
+        """The map's length of those steps."""
 
     def scale(self, kf: KeyframeStore, fallback: float) -> float:
         """Return the map <- odom scale of the run (``fallback`` before any step moved)."""
@@ -99,7 +101,7 @@ class RunScale:
         optimized = (window == KeyframeStatus.ACTIVE) | (window == KeyframeStatus.FIXED)
         m, o, count = self._lengths(kf, self._done, n, optimized)
         total_map, total_odom = self._map + m, self._odom + o
-        self.steps = self._fixed_steps + count
+        self.steps, self.path = self._fixed_steps + count, total_map
         return total_map / total_odom if total_odom > 0 and total_map > 0 else fallback
 
     @staticmethod
@@ -208,10 +210,12 @@ JUMP_SIGMAS = 30.0
 """A solved step this many sigmas off the front-end's is no motion of it: its frame jumped."""
 
 STEP_FLOOR_REL = 1e-3
-"""Each translation sigma of the prior holds this share of the window's typical step (its
-median moving step): a standstill step keeps a finite weight, and the floor scales with the
+"""Each translation sigma of the prior holds this share of the run's typical step
+(:func:`typical_step`): a standstill step keeps a finite weight, and the floor scales with the
 scene, as a map's units are the scene's (a fixed length would weigh a handheld camera's
-centimetre steps far below a car's metre steps)."""
+centimetre steps far below a car's metre steps). The run's, not the window's: slowing to a
+stop, a window's steps shrink to nothing, and a floor that shrank with them would take the
+solve's millimetres for a jump of the front-end's frame."""
 
 RUN_SCALE_SPAN = 200
 """Steps over which a front-end's scale error stays correlated. Its scale over n steps of a
@@ -219,6 +223,13 @@ run is an average of n / span independent samples of that error, so a step's len
 the reference scale with the variance ``motion_prior_translation_rel**2 * (1 + span / n)``:
 loosely early in a run, where that scale is itself uncertain, and more tightly on a long one,
 where a window's vision lets the map's scale wander further than the front-end's strays."""
+
+ANCHOR_BASELINE_REL = 0.01
+"""Camera pairs closer than this share of the run's typical step anchor no feature. Standing
+still, keyframes sit within the solve's noise of each other: a feature seen only from there
+has no parallax, and anchored on such a pair its angle fits that noise and puts its point
+at the camera, where every later observer sees it wrong. Such features wait, out of the
+solve, for a keyframe with a baseline."""
 
 MIN_PIXEL_SIGMA = 0.1
 """Pixel noise below which tracks are not trusted more: a feature tracker's sub-pixel
@@ -229,7 +240,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                           metric_scale: float, config: BackendConfig, *,
                           follow_map_scale: bool = True, pixel_sigma: float = 1.0,
                           noise_factors: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                          run_steps: int = 0) -> RelativePosePrior | None:
+                          run_steps: int = 0, typical: float = 0.0) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
@@ -248,7 +259,9 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     holds back changes of the map's scale, it suits monocular solves, sliding or global,
     whose vision sees the scale weakly and step by step, not a stereo rig (a metric map).
     Weights: one sigma (of the length, of the direction across it
-    ``motion_prior_direction_rel``, each of the step plus :data:`STEP_FLOOR_REL` of a typical one;
+    ``motion_prior_direction_rel``, each of the step plus :data:`STEP_FLOOR_REL` of a typical one,
+    ``typical`` (:func:`typical_step`; 0: the median moving front-end step of ``cams`` in map
+    units);
     ``motion_prior_rotation_rad``) counts as much as one sigma of the tracks' pixel noise,
     ``pixel_sigma`` (measured by the solves), so that noisy tracks lean more on the
     front-end and clean ones less; where the front-end gives pose covariances they take
@@ -269,9 +282,10 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     P_along = np.einsum('mi,mj->mij', along, along)
     scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
-    moving = np.sort(step[step > 0])   # its middle element: a median without np.median's cost
-    floor = STEP_FLOOR_REL * metric_scale * (float(moving[moving.size // 2]) if moving.size
-                                             else 1.0)
+    if typical <= 0:
+        moving = np.sort(step[step > 0])   # its middle element: np.median without its cost
+        typical = metric_scale * (float(moving[moving.size // 2]) if moving.size else 1.0)
+    floor = STEP_FLOOR_REL * typical
     if cfg.motion_prior_translation_rel > 0:
         rel = cfg.motion_prior_translation_rel
         if run_steps > 0:
@@ -297,6 +311,20 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom,
                              (weight / k_rot) * w_rot, weight * W_trans,
                              huber=PRIOR_HUBER_SIGMAS * weight)
+
+
+def typical_step(run: RunScale, centers: FloatArray) -> float:
+    """Return the map's typical keyframe step for a problem whose camera centres are ``centers``.
+
+    The run's mean map step (:class:`RunScale`); before the run has one, the problem's
+    median moving step (0 without one). The run's holds through a standstill of any length,
+    where the window's steps are all noise.
+    """
+    if run.steps and run.path > 0:
+        return run.path / run.steps
+    steps = _row_norms(np.diff(centers, axis=0))
+    moving = steps[steps > 0]
+    return float(np.median(moving)) if moving.size else 0.0
 
 
 def step_sigmas(prior: RelativePosePrior, residuals: FloatArray) -> FloatArray:

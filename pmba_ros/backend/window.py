@@ -308,6 +308,35 @@ def rotation_compensated_parallax(b1: FloatArray, b2: FloatArray) -> float:
     return float(np.median(compensated_parallax_angles(b1, b2)))
 
 
+MIN_SHARED_FOR_PARALLAX = 20
+"""Keyframe pairs sharing fewer features do not count their parallax."""
+
+
+def well_conditioned_features(store: KeyframeStore, batch: IntArray, threshold: float,
+                              camera: int) -> int:
+    """Return the most features with enough parallax between two keyframes of the batch.
+
+    A feature counts when its rotation-compensated parallax (the angle left after the
+    best rotation between the two keyframes' bearings) is at least ``threshold`` (rad), in
+    camera ``camera``'s observations. PMBA does not need most features to have parallax (far
+    ones constrain the rotations), only enough near ones to fix the structure; the median
+    of a street's mostly far features can stay below any threshold for hundreds of
+    keyframes. The pairs are the batch's first keyframe with every later one and every
+    keyframe with the last, so features born inside the batch count too.
+    """
+    first, newest = int(batch[0]), int(batch[-1])
+    pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
+    best = 0
+    for a, b in pairs:
+        obs_a, obs_b = store.obs[a].of_camera(camera), store.obs[b].of_camera(camera)
+        shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
+        if shared.shape[0] < max(MIN_SHARED_FOR_PARALLAX, best):
+            continue
+        angles = compensated_parallax_angles(obs_a.bearings[ia], obs_b.bearings[ib])
+        best = max(best, int(np.count_nonzero(angles >= threshold)))
+    return best
+
+
 class GatheredObservations(NamedTuple):
     """Observations of some keyframes, sorted by feature, then keyframe (see below).
 

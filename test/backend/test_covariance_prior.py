@@ -38,7 +38,7 @@ def _prior(covariances: list[np.ndarray | None]) -> tuple[RelativePosePrior, np.
         est.kf.add(i, (R[i], np.array([1.0 * i, 0.1 * i, 0.0])), None, KeyframeStatus.ACTIVE,
                    cov)
     n = len(covariances)
-    prior = est._motion_prior(np.arange(n), np.zeros(n, dtype=bool))
+    prior = est._motion_prior(np.arange(n), np.zeros(n, dtype=bool), step=0.0)
     assert prior is not None
     return prior, R
 
