@@ -559,9 +559,12 @@ class Estimator:
         # rotation and offset, and the scale stays.
         newest = sel[self.kf.segment[sel] == self.kf.segment[sel[-1]]]
         if newest.shape[0] >= 2 or newest.shape[0] < sel.shape[0]:
+            # Keyframes within a step of each other (a stop) do not measure the scale.
+            step = typical_step(self._run_scale, self.kf.C_map[newest])
             self.map_from_odom = estimate_similarity(
                 self.kf.R_map[newest], self.kf.C_map[newest], self.kf.R_odom[newest],
-                self.kf.C_odom[newest], self.map_from_odom.scale)
+                self.kf.C_odom[newest], self.map_from_odom.scale,
+                min_spread=step / self.map_from_odom.scale)
 
     # --- accessors ------------------------------------------------------------------------
 

@@ -250,12 +250,13 @@ class Similarity:
 
 
 def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: FloatArray,
-                        prior_scale: float = 1.0) -> Similarity:
+                        prior_scale: float = 1.0, min_spread: float = 0.0) -> Similarity:
     """Estimate S with pose_a ~ S pose_b from corresponding poses (rotations and centres).
 
     The rotation is the chordal mean of R_a R_b^T (well conditioned even for collinear
     centres), then scale and translation are the least-squares fit of the centres. With less
-    than 1e-6 of centre spread the scale is ``prior_scale``.
+    than 1e-6 of centre spread, or an RMS spread of C_b below ``min_spread``, the scale is
+    ``prior_scale``.
 
     Args:
         R_a: Rotations of the poses in frame a, shape (P, 3, 3).
@@ -263,6 +264,7 @@ def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: 
         R_b: Rotations of the same poses in frame b, shape (P, 3, 3).
         C_b: Centres of the same poses in frame b, shape (P, 3).
         prior_scale: Scale used when the centres do not determine it.
+        min_spread: The RMS distance of C_b from its mean below which they do not.
 
     Returns:
         The similarity a <- b.
@@ -273,7 +275,8 @@ def estimate_similarity(R_a: FloatArray, C_a: FloatArray, R_b: FloatArray, C_b: 
     mean_b = np.add.reduce(C_b, axis=0) / C_b.shape[0]
     rb = (C_b - mean_b) @ rotation.T
     denom = float(np.sum(rb * rb))
-    scale = float(np.sum((C_a - mean_a) * rb)) / denom if denom > 1e-12 else prior_scale
+    spread = max(1e-12, C_b.shape[0] * min_spread * min_spread)
+    scale = float(np.sum((C_a - mean_a) * rb)) / denom if denom > spread else prior_scale
     if not np.isfinite(scale) or scale <= 0:
         scale = prior_scale
     return Similarity(scale, rotation, mean_a - scale * rotation @ mean_b)

@@ -35,7 +35,7 @@ from pmba_ros.backend.motion import (
     STEP_FLOOR_REL,
     typical_step,
 )
-from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.backend.window import estimate_similarity, KeyframeStatus, KeyframeStore
 from pmba_ros.core import so3
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.pose_prior import RelativePosePrior
@@ -421,6 +421,23 @@ def test_a_stop_neither_breaks_the_map_nor_is_taken_for_frame_jumps(scenario: st
     assert len(opt) == 160
     assert ate(opt, gt, 'sim3').rmse < 0.8 * ate(fe, gt, 'sim3').rmse
     assert rpe(opt, gt, align='sim3').rmse < 0.9 * rpe(fe, gt, align='sim3').rmse
+    # Near rest the window's centres do not measure map <- odom's scale: it holds (it
+    # jumped by 2-3 % per keyframe when fitted to them).
+    scales = np.log(np.array(logic.stats.map_scale))
+    assert np.max(np.abs(np.diff(scales))) < 0.015
+
+
+def test_similarity_keeps_its_scale_where_the_centres_barely_spread() -> None:
+    """Centres within ``min_spread`` (RMS, frame b) keep ``prior_scale``; others fit it."""
+    rng = np.random.default_rng(3)
+    R = so3.exp(rng.normal(0.0, 0.1, (6, 3)))
+    C_b = rng.normal(size=(6, 3))
+    C_a = 2.0 * C_b + 1.0
+    spread = float(np.sqrt(np.mean(np.sum((C_b - C_b.mean(axis=0)) ** 2, axis=1))))
+    assert estimate_similarity(R, C_a, R, C_b, 0.5).scale == pytest.approx(2.0)
+    assert estimate_similarity(R, C_a, R, C_b, 0.5, min_spread=0.99 * spread).scale == \
+        pytest.approx(2.0)
+    assert estimate_similarity(R, C_a, R, C_b, 0.5, min_spread=1.01 * spread).scale == 0.5
 
 
 def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
