@@ -23,14 +23,55 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
-from pmba_ros.backend.types import CameraModel
+from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.backend.window import KeyframeObs
+from pmba_ros.core import sphere
+from pmba_ros.errors import MessageError
 
 
 def frame_id_of(msg: Any) -> str:
     """Return a message's header ``frame_id`` ('' without one)."""
     return str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
+
+
+def frame_observations(frame: TrackFrame, usable: dict[int, CameraModel | None],
+                       ) -> tuple[KeyframeObs, int, int]:
+    """Return the unit bearings of a frame's finite observations by the ``usable`` cameras.
+
+    ``usable`` maps each camera id to use (the reference one always) to its intrinsics (None:
+    no CameraInfo yet, which tracks with normalized coordinates do not need). Also returns
+    how many observations were by other cameras and how many were not finite.
+
+    Raises:
+        MessageError: Tracks without normalized coordinates, and a camera without intrinsics.
+    """
+    present = np.unique(frame.camera_ids).tolist()
+    # The usual frame: every observation's camera counts, nothing to select.
+    every = usable.keys() >= set(present)
+    sel = slice(None) if every else np.isin(frame.camera_ids, list(usable))
+    cams = frame.camera_ids[sel]
+    models = {c: m for c, m in usable.items() if m is not None}
+    if frame.normalized is not None:
+        xy = frame.normalized[sel]
+    elif frame.pixels is not None and all(c in models for c in np.unique(cams).tolist()):
+        pixels = frame.pixels[sel]
+        xy = np.empty_like(pixels)
+        for cam in np.unique(cams).tolist():
+            on = cams == cam
+            xy[on] = models[cam].normalize(pixels[on])
+    else:
+        msg = 'tracks without normalized coordinates need a CameraInfo'
+        raise MessageError(msg)
+    finite = np.all(np.isfinite(xy), axis=1)
+    xy = xy[finite]
+    bearings = sphere.normalize(np.column_stack([xy, np.ones(xy.shape[0])]))
+    obs = KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
+                      cams[finite] if len(usable) > 1 else None)
+    return (obs, frame.camera_ids.shape[0] - cams.shape[0],
+            int(np.count_nonzero(~finite)))
 
 
 class FrontendCameras:

@@ -39,7 +39,7 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend import status, tracks
-from pmba_ros.backend.cameras import frame_id_of, FrontendCameras
+from pmba_ros.backend.cameras import frame_id_of, frame_observations, FrontendCameras
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
@@ -48,8 +48,7 @@ from pmba_ros.backend.results import save_results
 from pmba_ros.backend.sanity import PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
-from pmba_ros.core import so3, sphere
-from pmba_ros.errors import MessageError
+from pmba_ros.core import so3
 from pmba_ros.eval.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -387,41 +386,20 @@ class BackendLogic:
         return cams.extrinsic  # type: ignore[return-value]
 
     def _observations(self, frame: TrackFrame) -> KeyframeObs:
-        """Return the unit bearings of the finite observations of every configured camera.
+        """Return the observations of the reference camera and the usable others.
 
-        The reference camera ``camera_id`` always counts; another camera once its offset
-        is known (:meth:`_rig_camera`) and its tracks can be normalized (normalized
-        coordinates in the message, or its CameraInfo). Observations of other cameras are
-        counted as ``other_camera_observations``, with a warning naming the camera.
+        Another camera counts once its offset is known (:meth:`_rig_camera`); the others'
+        observations are counted as ``other_camera_observations`` (see
+        :func:`~pmba_ros.backend.cameras.frame_observations`).
         """
         ref, usable = self.config.camera_id, {self.config.camera_id: self.camera}
-        present = np.unique(frame.camera_ids).tolist()
-        for cam in present:
+        for cam in np.unique(frame.camera_ids).tolist():
             if cam != ref and self._rig_camera(int(cam), frame) is not None:
                 usable[int(cam)] = self.cameras.others.get(int(cam))
-        # The usual frame: every observation's camera counts, nothing to select.
-        every = usable.keys() >= set(present)
-        sel = slice(None) if every else np.isin(frame.camera_ids, list(usable))
-        cams = frame.camera_ids[sel]
-        self.count('other_camera_observations', frame.camera_ids.shape[0] - cams.shape[0])
-        models = {c: m for c, m in usable.items() if m is not None}
-        if frame.normalized is not None:
-            xy = frame.normalized[sel]
-        elif frame.pixels is not None and all(c in models for c in np.unique(cams).tolist()):
-            pixels = frame.pixels[sel]
-            xy = np.empty_like(pixels)
-            for cam in np.unique(cams).tolist():
-                on = cams == cam
-                xy[on] = models[cam].normalize(pixels[on])
-        else:
-            msg = 'tracks without normalized coordinates need a CameraInfo'
-            raise MessageError(msg)
-        finite = np.all(np.isfinite(xy), axis=1)
-        self.count('non_finite_observations', int(np.count_nonzero(~finite)))
-        xy = xy[finite]
-        bearings = sphere.normalize(np.column_stack([xy, np.ones(xy.shape[0])]))
-        return KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
-                           cams[finite] if len(usable) > 1 else None)
+        obs, other, non_finite = frame_observations(frame, usable)
+        self.count('other_camera_observations', other)
+        self.count('non_finite_observations', non_finite)
+        return obs
 
     def _rig_camera(self, cam: int, frame: TrackFrame) -> Rigid | None:
         """Return camera ``cam``'s pose in the reference camera's frame, or None (unusable).
