@@ -167,11 +167,11 @@ class PmbaNode:
                                      qos_overriding_options=overrides),
             *self._subscribe_camera_infos(overrides),
         ]
-        if cfg.keyframe_source == 'keyframe_topic':
-            self.subscriptions.append(node.create_subscription(
-                _msg_type(KEYFRAME_MSGTYPES[cfg.keyframe_type]), cfg.keyframe_topic,
-                self._on_keyframe, input_qos(cfg.keyframe_qos, cfg),
-                qos_overriding_options=overrides))
+        # With keyframe_source 'tracks' the poses are an optional stream, sampled at the tracks.
+        self.subscriptions.append(node.create_subscription(
+            _msg_type(KEYFRAME_MSGTYPES[cfg.keyframe_type]), cfg.keyframe_topic,
+            self._on_keyframe, input_qos(cfg.keyframe_qos, cfg),
+            qos_overriding_options=overrides))
         self.subscriptions.extend(self._subscribe_tf())
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),

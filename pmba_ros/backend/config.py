@@ -130,8 +130,9 @@ class BackendConfig:
             qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
             (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else identity.
         keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
-        keyframe_source: 'keyframe_topic' or 'tracks' (every tracks message is a keyframe
-            without front-end pose).
+        keyframe_source: 'keyframe_topic' (each keyframe pose is a keyframe) or 'tracks'
+            (every tracks message is a keyframe; its front-end pose is sampled from the
+            ``keyframe_topic`` poses, a stream at any rate, where they come).
         features_topic: Input tracks topic (relative, remappable).
         keyframe_topic: Input keyframe pose topic.
         camera_info_topic: Input CameraInfo topic (of camera ``camera_id``).

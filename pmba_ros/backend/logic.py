@@ -44,6 +44,7 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
+from pmba_ros.backend.pose_stream import PoseStream
 from pmba_ros.backend.results import save_results
 from pmba_ros.backend.sanity import PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
@@ -83,6 +84,8 @@ class BackendLogic:
         self._paused = False
         self.last_error = ''
         self.cameras = FrontendCameras(config)
+        # The poses are a stream sampled at the tracks' stamps, not keyframes (read-only).
+        self._stream_mode = config.keyframe_source == 'tracks'
         self._init_buffers()
 
     def _init_buffers(self) -> None:
@@ -100,6 +103,7 @@ class BackendLogic:
         self._pose_check = PoseJumpCheck()
         self._track_stamps = StampLeapCheck('track_stamp_leaps')
         self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps')
+        self._pose_stream = PoseStream(10 * self.config.buffer_size)
         self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------
@@ -185,7 +189,7 @@ class BackendLogic:
             self._tracks.popleft()
             self.count('tracks_buffer_overflow')
         self._tracks.append(frame)
-        if self.config.keyframe_source == 'tracks':
+        if self._stream_mode:
             self._push_keyframe(_Keyframe(frame.stamp_ns, None))
 
     def on_keyframe(self, msg: Any) -> None:
@@ -193,15 +197,13 @@ class BackendLogic:
         if self._paused:
             self.count('dropped_while_paused')
             return
-        if self.config.keyframe_source != 'keyframe_topic':
-            self.count('ignored_keyframe_messages')
-            return
         try:
             pose = tracks.parse_keyframe(msg, self.config.keyframe_type)
         except Exception as err:
             self._reject('bad_keyframes', err)
             stamp = tracks.stamp_of(msg)   # its tracks still count, as a keyframe without a pose
-            if stamp is not None and self._pose_check.idle() and self._keyframe_stamps.fits(stamp):
+            if (stamp is not None and self._pose_check.idle() and not self._stream_mode
+                    and self._keyframe_stamps.fits(stamp)):
                 self._push_keyframe(_Keyframe(stamp, None))
             return
         for taken in self._keyframe_stamps.admit(pose.stamp_ns, pose, self._reject):
@@ -214,7 +216,13 @@ class BackendLogic:
         self._newest_input_ns = max(self._newest_input_ns, pose.stamp_ns)
         for held, jumped, recovered in self._pose_check.release():   # and any held before
             self.count('keyframe_poses_recovered', int(recovered))
-            self._push_keyframe(_Keyframe(held.stamp_ns, held, jumped))
+            self._take_pose(held, jumped)
+
+    def _take_pose(self, pose: KeyframePose, jumped: bool = False) -> None:
+        if self._stream_mode:
+            self._pose_stream.add(pose, jumped)
+        else:
+            self._push_keyframe(_Keyframe(pose.stamp_ns, pose, jumped))
 
     def end_of_input(self) -> None:
         """Take what waits for later input (held stamps, keyframes missing tracks): none comes."""
@@ -224,7 +232,7 @@ class BackendLogic:
         for pose in self._keyframe_stamps.flush():
             self._take_keyframe_pose(pose)
         for held, _, _ in self._pose_check.flush():   # the first poses, too few to judge
-            self._push_keyframe(_Keyframe(held.stamp_ns, held))
+            self._take_pose(held)
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
@@ -290,6 +298,14 @@ class BackendLogic:
         while self._pending and not self._paused:
             kf = self._pending[0]
             frame, ready = self._match(kf.stamp_ns)
+            if ready and self._stream_mode:   # its pose: the stream's at its stamp
+                pose, ready, jumped = self._pose_stream.sample(
+                    kf.stamp_ns, self._timed_out(kf.stamp_ns)   # or no pose held or come
+                    or not (self._pose_stream.count or self._pose_check.holding()
+                            or self._keyframe_stamps.holding()))
+                kf = _Keyframe(kf.stamp_ns, pose, jumped)
+                if ready and pose is None and self._pose_stream.count:
+                    self.count('keyframes_without_pose')
             if not ready:
                 break
             self._pending.popleft()
@@ -305,11 +321,15 @@ class BackendLogic:
             self._reject('output_errors', err)
         return []
 
+    def _timed_out(self, stamp_ns: int) -> bool:
+        """Return whether input for ``stamp_ns`` can no longer come."""
+        return self._input_ended or self._newest_input_ns > stamp_ns + round(
+            self.config.association_timeout_s * 1e9)
+
     def _match(self, stamp_ns: int) -> tuple[TrackFrame | None, bool]:
         """Return (tracks of the keyframe or None, whether the keyframe can be processed)."""
         tol = round(self.config.stamp_tolerance_s * 1e9)
-        timed_out = self._input_ended or self._newest_input_ns > stamp_ns + round(
-            self.config.association_timeout_s * 1e9)
+        timed_out = self._timed_out(stamp_ns)
         best, best_dt = None, tol + 1
         for frame in self._tracks:
             dt = abs(frame.stamp_ns - stamp_ns)
@@ -336,6 +356,7 @@ class BackendLogic:
         if frame is not None and frame in self._tracks:
             self._tracks.remove(frame)
         self._last_kf_stamp = kf.stamp_ns
+        self._pose_stream.forget_before(kf.stamp_ns)
         odom = None
         if kf.pose is not None:
             T_bc = self._resolve_extrinsic(kf.pose, frame)

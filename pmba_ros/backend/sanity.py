@@ -138,6 +138,10 @@ class PoseJumpCheck:
         """Return True when no pose is held (past the first poses, no jump being judged)."""
         return self._last is not None and not self._first and not self._held
 
+    def holding(self) -> bool:
+        """Return True while poses are held (the first ones, or a jump being judged)."""
+        return bool(self._first or self._held)
+
     def flush(self) -> list[tuple[Any, bool, bool]]:
         """Return the first poses still held, unjudged, as :meth:`release` would: input ended."""
         first, self._first = self._first, []
@@ -245,6 +249,10 @@ class StampLeapCheck:
         if last is None or stamp_ns > last:
             self._last_ns = stamp_ns
         return [*taken, payload]
+
+    def holding(self) -> bool:
+        """Return True while messages are held (the first ones, or one stamped far ahead)."""
+        return self._held is not None or bool(self._first)
 
     def fits(self, stamp_ns: int) -> bool:
         """Return True if ``stamp_ns`` would pass now, neither held nor out of order."""

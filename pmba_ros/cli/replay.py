@@ -52,6 +52,7 @@ if TYPE_CHECKING:
 
 _LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
 _KEYFRAME_TYPES = ('odometry', 'pose_stamped')
+_KEYFRAME_SOURCES = ('keyframe_topic', 'tracks')
 _MODES = ('global', 'sliding')
 
 INCOMPLETE_INPUT = 3
@@ -59,7 +60,7 @@ INCOMPLETE_INPUT = 3
 
 _OVERRIDES = {'tracks_topic': 'features_topic', 'tracks_layout': 'feature_layout',
               'keyframes_topic': 'keyframe_topic', 'keyframes_type': 'keyframe_type',
-              'mode': 'mode'}
+              'keyframes_from': 'keyframe_source', 'mode': 'mode'}
 """Command-line option (dest) -> BackendConfig field."""
 
 
@@ -102,6 +103,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f'keyframe pose topic ({node_default("keyframe_topic")})')
     group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=argparse.SUPPRESS,
                        help=f'keyframe pose message type ({node_default("keyframe_type")})')
+    group.add_argument('--keyframes-from', choices=_KEYFRAME_SOURCES, default=argparse.SUPPRESS,
+                       help='keyframe_topic: each keyframe pose is a keyframe; tracks: each '
+                       'tracks message is, its pose sampled from the keyframe topic (an '
+                       'odometry stream at any rate) where recorded '
+                       f'({node_default("keyframe_source")})')
     camera = group.add_mutually_exclusive_group()
     camera.add_argument('--camera-info-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                         action='append',

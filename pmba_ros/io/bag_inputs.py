@@ -107,9 +107,11 @@ def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: boo
         msg = (f'{where}: tracks topic {tracks!r} has type {topics[tracks].msgtype}, but layout '
                f'{layout!r} reads {accepted} (wrong --tracks-layout?)')
         raise MessageError(msg)
-    keyframes = None
     if config.keyframe_source == 'keyframe_topic':
-        keyframes = need('keyframes', config.keyframe_topic)
+        keyframes: str | None = need('keyframes', config.keyframe_topic)
+    else:   # keyframes from the tracks; their poses from this stream where it was recorded
+        keyframes = find_topic(resolve_topic(config.keyframe_topic), topics)
+    if keyframes is not None:
         accepted = KEYFRAME_MSGTYPES[config.keyframe_type]
         if topics[keyframes].msgtype != accepted:
             msg = (f'{where}: keyframes topic {keyframes!r} has type '

@@ -353,16 +353,22 @@ def test_an_unusable_keyframe_pose_keeps_its_tracks(street: SimSequence, bad: in
 
 
 def test_checks_say_when_a_stamp_fits_and_nothing_is_held() -> None:
-    """``fits`` / ``idle``: what a keyframe without a pose may rely on."""
+    """``fits`` / ``idle`` / ``holding``: what a keyframe without a pose may rely on."""
     stamps, poses = StampLeapCheck('leaps'), PoseJumpCheck()
     assert not stamps.fits(0) and not poses.idle()   # nothing seen yet
-    for stamp, pos in _walk(5):
+    assert not stamps.holding() and not poses.holding()
+    for i, (stamp, pos) in enumerate(_walk(5)):
         stamps.admit(stamp, stamp, print)
         poses.check(stamp, pos)
+        if i < 2:   # the first ones wait to be judged together
+            assert stamps.holding() and poses.holding()
     assert stamps.fits(5 * STEP_NS) and not stamps.fits(4 * STEP_NS)
     assert not stamps.fits(1000 * 10 ** 9) and poses.idle()
+    assert not stamps.holding() and not poses.holding()
     poses.check(5 * STEP_NS, np.array([1e6, 0.0, 0.0]))   # a jump being judged
-    assert not poses.idle()
+    assert not poses.idle() and poses.holding()
+    stamps.admit(1000 * 10 ** 9, 0, print)   # far ahead: held until the next one
+    assert stamps.holding()
 
 
 def test_a_pause_of_the_front_end_loses_nothing(street: SimSequence) -> None:

@@ -105,6 +105,29 @@ def test_replay_prints_table_and_outputs(sim_bag: Path, tmp_path: Path,
     assert report['keyframes_in'] == 20
 
 
+def test_replay_keyframes_from_tracks_samples_the_pose_topic(sim_bag: Path,
+                                                             tmp_path: Path) -> None:
+    """--keyframes-from tracks: keyframes from the tracks, poses from the recorded pose topic.
+
+    The simulated poses are stamped as the tracks, so the result is the default replay's; with
+    a bag lacking the pose topic each keyframe is taken without a front-end pose.
+    """
+    outs = {}
+    for name, extra in (('default', []), ('tracks', ['--keyframes-from', 'tracks'])):
+        outs[name] = tmp_path / name
+        assert main(['replay', str(sim_bag), '--out', str(outs[name]), '--quiet',
+                     *extra]) == 0
+    report = json.loads((outs['tracks'] / 'report.json').read_text())
+    assert report['topics']['keyframes'] == '/keyframe_pose' and report['keyframes_out'] == 20
+    a, b = (read_tum(outs[n] / 'keyframes_optimized.tum') for n in ('default', 'tracks'))
+    np.testing.assert_allclose(b.positions_xyz, a.positions_xyz, atol=1e-6)
+    assert len(read_tum(outs['tracks'] / 'keyframes_frontend.tum')) == 20
+    assert main(['replay', str(sim_bag), '--out', str(tmp_path / 'none'), '--quiet',
+                 '--keyframes-from', 'tracks', '--keyframes-topic', '/absent']) == 0
+    frontend = (tmp_path / 'none' / 'keyframes_frontend.tum').read_text().splitlines()
+    assert [line for line in frontend if not line.startswith('#')] == []
+
+
 @pytest.mark.usefixtures('stub')
 def test_replay_quiet_prints_nothing(sim_bag: Path, tmp_path: Path,
                                      capsys: pytest.CaptureFixture[str]) -> None:
