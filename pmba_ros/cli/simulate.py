@@ -82,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='bag: at rest for COUNT keyframes from keyframe FIRST, slowing '
                         'down and speeding up over 30 keyframes on either side (a car at a '
                         'traffic light)')
+    parser.add_argument('--turn', type=float, default=0.0, metavar='DEG',
+                        help='bag, with --stop: turn on the spot while at rest, by up to DEG '
+                        'about the vertical and back')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output')
 
 
@@ -123,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         seq = simulate_sequence(args.scenario, n_keyframes=args.keyframes, seed=args.seed,
                                 noise_px=args.noise_px, drift=args.drift, rate_hz=args.rate_hz,
-                                stop=args.stop)
+                                stop=args.stop, turn_deg=args.turn)
     except ValueError as err:
         raise PmbaError(str(err)) from err
     extrinsic = EUROC_CAM0 if args.extrinsic == 'euroc' else None

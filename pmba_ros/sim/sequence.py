@@ -123,7 +123,8 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
                       max_track_length: int = 40, distortion: str = 'plumb_bob',
                       image_size: tuple[int, int] = (640, 480), focal_px: float = 400.0,
                       start_ns: int = 1_000_000_000,
-                      stop: tuple[int, int] | None = None) -> SimSequence:
+                      stop: tuple[int, int] | None = None,
+                      turn_deg: float = 0.0) -> SimSequence:
     """Simulate a keyframe sequence of a scenario.
 
     Args:
@@ -143,6 +144,8 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
         stop: (first, count): the platform is at rest for ``count`` keyframes from keyframe
             ``first``, slowing down over the :data:`STOP_RAMP` keyframes before and speeding
             up over those after (a car at a traffic light, a drone hovering).
+        turn_deg: With ``stop``, the platform turns on the spot while at rest: about the
+            world's vertical by up to this angle and back (a robot looking around).
 
     Returns:
         The sequence.
@@ -165,6 +168,14 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
     speed = default_speed if speed_mps is None else float(speed_mps)
     t_s = np.arange(n_keyframes) / rate_hz
     R_wc, centers = _trajectory(scenario, _motion_time(n_keyframes, rate_hz, stop), speed)
+    if turn_deg and stop is None:
+        msg = 'simulate_sequence: turn_deg needs a stop to turn in'
+        raise ValueError(msg)
+    if stop is not None and turn_deg:
+        k = np.arange(n_keyframes) - stop[0]
+        at_rest = (k >= 0) & (k < stop[1])
+        yaw = np.where(at_rest, np.deg2rad(turn_deg) * np.sin(np.pi * k / stop[1]), 0.0)
+        R_wc = np.einsum('kij,kjl->kil', so3.exp(np.outer(yaw, _WORLD_UP)), R_wc)
     stamps = start_ns + np.round(t_s * 1e9).astype(np.int64)
 
     points, frames = _tracks(rng, scenario, R_wc, centers, camera, stamps, noise_px,

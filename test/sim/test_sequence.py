@@ -135,6 +135,21 @@ def test_a_stop_holds_still_and_keeps_its_features() -> None:
     np.testing.assert_allclose(seq.centers_odom[40:70], np.tile(seq.centers_odom[40], (30, 1)))
 
 
+def test_a_stop_can_turn_on_the_spot() -> None:
+    """turn_deg: at rest the camera yaws out to the angle and back; elsewhere as without."""
+    still = simulate_sequence('street', 120, seed=4, stop=(40, 30))
+    seq = simulate_sequence('street', 120, seed=4, stop=(40, 30), turn_deg=60.0)
+    np.testing.assert_array_equal(seq.centers_gt, still.centers_gt)
+    np.testing.assert_array_equal(seq.R_wc_gt[:40], still.R_wc_gt[:40])
+    np.testing.assert_array_equal(seq.R_wc_gt[70:], still.R_wc_gt[70:])
+    turned = np.rad2deg(so3.angle(still.R_wc_gt[40:70], seq.R_wc_gt[40:70]))
+    assert turned[15] == pytest.approx(60.0) and turned[0] == pytest.approx(0.0, abs=1e-5)
+    assert seq.frames[50].feature_ids.shape != still.frames[50].feature_ids.shape or \
+        not np.array_equal(seq.frames[50].feature_ids, still.frames[50].feature_ids)
+    with pytest.raises(ValueError, match='turn_deg needs a stop'):
+        simulate_sequence('street', 20, turn_deg=30.0)
+
+
 @pytest.mark.parametrize('distortion', ['none', 'plumb_bob', 'equidistant'])
 def test_distortion_models(distortion: str) -> None:
     """Each distortion model's normalized coordinates map back onto the pixels."""
