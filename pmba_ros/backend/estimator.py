@@ -333,7 +333,6 @@ class Estimator:
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
-        self._cost.check(res.final_cost, res.problem.n_obs)   # the refines' reference
         info = UpdateInfo('init', solve_ms=1e3 * (time.perf_counter() - t0),
                           iterations=res.iterations, cost_before=res.initial_cost,
                           cost_after=res.final_cost, n_cams=res.problem.n_cams,
