@@ -56,6 +56,7 @@ from pmba_ros.backend.motion import (
     ANCHOR_BASELINE_REL,
     frontend_motion_prior,
     FrontendNoise,
+    in_odom_frame,
     inconsistency,
     JUMP_SIGMAS,
     motion_error,
@@ -299,6 +300,9 @@ class Estimator:
 
             cv2.setRNGSeed(cfg.seed)
             result = global_init(problem, opts)
+            used = batch[result.camera_index]
+            R, C, sim = in_odom_frame(self.kf, used, result.solve.R_wc, result.solve.centers_w,
+                                      cfg.fallback_max_motion_error)
         except (InitError, PmbaError, np.linalg.LinAlgError, ValueError) as err:
             self.state = 'waiting_for_parallax'
             self.last_message = f'waiting for parallax: initialization failed: {err}'
@@ -306,17 +310,6 @@ class Estimator:
             logger.info('%s', self.last_message)
             return UpdateInfo('init_failed', message=self.last_message)
         res = result.solve
-        used = batch[result.camera_index]
-        R, C = res.R_wc, res.centers_w
-        # Express the map in the odom frame of the batch (map -> odom starts at identity).
-        with_odom = self.kf.has_odom[used]
-        if np.any(with_odom):   # the newest odom frame, if the front-end's jumped meanwhile
-            with_odom &= self.kf.segment[used] == self.kf.segment[used[with_odom][-1]]
-        sim = Similarity.identity()
-        if np.count_nonzero(with_odom) >= 2:
-            sim = estimate_similarity(self.kf.R_odom[used][with_odom],
-                                      self.kf.C_odom[used][with_odom], R[with_odom], C[with_odom])
-        R, C = sim.apply_poses(R, C)
         self.kf.R_map[used], self.kf.C_map[used] = R, C
         fids = problem.feature_ids[result.feature_index]
         points = sim.scale * res.points_w @ sim.rotation.T + sim.translation
@@ -460,10 +453,14 @@ class Estimator:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)
             return info
-        if prior is not None:
-            jumped = cams[prior.b[step_sigmas(prior, res.prior_residuals) > JUMP_SIGMAS]]
-            self._new_frames_at(jumped)
-            info.dropped['odom_frame_jumps'] = jumped.shape[0]
+        # The front-end's frame jumped where a solved step stays far off its step (jumps too
+        # small for the pose check): a new odom segment starts there, before map <- odom is
+        # re-estimated. A solve rolled back is no evidence of a jump: the segments stay.
+        segments = self.kf.segment[:self.kf.n].copy()
+        jumped = np.zeros(0, dtype=np.int64) if prior is None else cams[
+            prior.b[step_sigmas(prior, res.prior_residuals) > JUMP_SIGMAS]]
+        for k in np.sort(jumped).tolist():
+            self.kf.segment[k:self.kf.n] += 1
         free = ~res.problem.fixed
         moved = cams[free]
         before = (self.kf.R_map[moved].copy(), self.kf.C_map[moved].copy(), self.map_from_odom)
@@ -480,8 +477,13 @@ class Estimator:
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost
         if failure:
             self.kf.R_map[moved], self.kf.C_map[moved], self.map_from_odom = before
+            self.kf.segment[:segments.shape[0]] = segments
             return self._fall_back(info, failure)
         self._failures = 0
+        for k in jumped.tolist():
+            logger.warning('front-end step into keyframe %d is over %g sigmas off the map: '
+                           'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
+        info.dropped['odom_frame_jumps'] = jumped.shape[0]
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage)
@@ -490,17 +492,6 @@ class Estimator:
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         return info
-
-    def _new_frames_at(self, keyframes: IntArray) -> None:
-        """Start a new odom segment at each of ``keyframes``: the front-end's frame jumped.
-
-        For jumps too small for :class:`~pmba_ros.backend.sanity.PoseJumpCheck` to see in the
-        poses alone, found where the solved step stays far off the front-end's.
-        """
-        for k in np.sort(keyframes).tolist():
-            self.kf.segment[k:self.kf.n] += 1
-            logger.warning('front-end step into keyframe %d is over %g sigmas off the map: '
-                           'its frame jumped; a new odom segment starts there', k, JUMP_SIGMAS)
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray,
                       step: float) -> RelativePosePrior | None:

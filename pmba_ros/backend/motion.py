@@ -28,8 +28,14 @@ import statistics
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.backend.window import (
+    estimate_similarity,
+    KeyframeStatus,
+    KeyframeStore,
+    Similarity,
+)
 from pmba_ros.core.pose_prior import RelativePosePrior
+from pmba_ros.errors import InitError
 
 
 def _row_norms(x: FloatArray) -> FloatArray:
@@ -417,6 +423,14 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
         return 0.0
     t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
     t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
+    return step_error(t_map, t_odom, map_scale)
+
+
+def step_error(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> float:
+    """Median of |t_map / map_scale - t_odom| / |t_odom| over the moving steps (0: none).
+
+    ``t_map``, ``t_odom``: the same steps (N, 3), each in its earlier keyframe's frame.
+    """
     step = _row_norms(t_odom)
     moving = step > 1e-6
     if not np.any(moving):
@@ -427,6 +441,36 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
     if np.isnan(rel[-1]):
         return math.nan
     return float(rel[mid]) if rel.shape[0] % 2 else float(0.5 * (rel[mid - 1] + rel[mid]))
+
+
+def in_odom_frame(kf: KeyframeStore, used: IntArray, R_wc: FloatArray, centers_w: FloatArray,
+                  max_error: float) -> tuple[FloatArray, FloatArray, Similarity]:
+    """Return initialized poses of keyframes ``used`` in the odom frame, and odom <- init.
+
+    The map is expressed in the newest odom frame among them (map -> odom starts at
+    identity), by a similarity fit of the keyframes with front-end poses.
+
+    Raises:
+        InitError: If their steps disagree with the front-end's by more than ``max_error``
+            (median, relative, :func:`step_error`): the initialization fitted something else
+            than the scene (wrong tracks).
+    """
+    with_odom = kf.has_odom[used]
+    if np.any(with_odom):   # the newest odom frame, if the front-end's jumped meanwhile
+        with_odom &= kf.segment[used] == kf.segment[used[with_odom][-1]]
+    sim = Similarity.identity()
+    if np.count_nonzero(with_odom) >= 2:
+        sim = estimate_similarity(kf.R_odom[used][with_odom], kf.C_odom[used][with_odom],
+                                  R_wc[with_odom], centers_w[with_odom])
+    R, C = sim.apply_poses(R_wc, centers_w)
+    idx, R_i, C_i = used[with_odom], R[with_odom], C[with_odom]
+    R_o, C_o = kf.R_odom[idx], kf.C_odom[idx]
+    error = step_error(np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1]),
+                       np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1]), 1.0)
+    if error > max_error:
+        msg = f"its steps disagree with the front-end's by {100 * error:.0f} %"
+        raise InitError(msg)
+    return R, C, sim
 
 
 def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],

@@ -24,6 +24,7 @@ from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.motion import (
     frontend_motion_prior,
     FrontendNoise,
+    in_odom_frame,
     JUMP_SIGMAS,
     local_scales,
     MIN_PIXEL_SIGMA,
@@ -429,6 +430,28 @@ def test_a_stop_neither_breaks_the_map_nor_is_taken_for_frame_jumps(scenario: st
     # jumped by 2-3 % per keyframe when fitted to them).
     scales = np.log(np.array(logic.stats.map_scale))
     assert np.max(np.abs(np.diff(scales))) < 0.015
+
+
+def test_an_initialization_is_put_in_the_odom_frame_if_its_steps_agree() -> None:
+    """Poses of a scaled, turned, shifted frame come out as the front-end's.
+
+    Scrambled ones are an InitError naming the disagreement.
+    """
+    from pmba_ros.errors import InitError
+
+    kf = _store(np.full(7, 1.0))
+    kf.C_odom[:kf.n, 1] = 0.3 * np.sin(np.arange(kf.n))   # not collinear
+    used = np.arange(kf.n)
+    R_s = so3.exp(np.array([0.1, -0.2, 0.3]))
+    R_init = np.einsum('ij,njk->nik', R_s, kf.R_odom[used])
+    C_init = 2.5 * kf.C_odom[used] @ R_s.T + np.array([1.0, 2.0, 3.0])
+    R, C, sim = in_odom_frame(kf, used, R_init, C_init, 0.5)
+    np.testing.assert_allclose(C, kf.C_odom[used], atol=1e-9)
+    np.testing.assert_allclose(R, kf.R_odom[used], atol=1e-9)
+    assert sim.scale == pytest.approx(1 / 2.5)
+    scrambled = C_init[[0, 3, 1, 5, 2, 6, 4, 7]]
+    with pytest.raises(InitError, match="disagree with the front-end's by"):
+        in_odom_frame(kf, used, R_init, scrambled, 0.5)
 
 
 def test_similarity_keeps_its_scale_where_the_centres_barely_spread() -> None:
