@@ -257,7 +257,7 @@ class Estimator:
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
         info = self._initialize(batch)
         info.keyframe = i
-        info.dropped = info_drop
+        info.dropped.update(info_drop)
         return info
 
     def _build_problem(self, cams: IntArray, fixed: np.ndarray, feature_filter: IntArray | None,
@@ -301,8 +301,8 @@ class Estimator:
             cv2.setRNGSeed(cfg.seed)
             result = global_init(problem, opts)
             used = batch[result.camera_index]
-            R, C, sim = in_odom_frame(self.kf, used, result.solve.R_wc, result.solve.centers_w,
-                                      cfg.fallback_max_motion_error)
+            R, C, sim, worst = in_odom_frame(self.kf, used, result.solve.R_wc,
+                                             result.solve.centers_w, cfg.fallback_max_motion_error)
         except (InitError, PmbaError, np.linalg.LinAlgError, ValueError) as err:
             self.state = 'waiting_for_parallax'
             self.last_message = f'waiting for parallax: initialization failed: {err}'
@@ -332,6 +332,12 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
+        if worst > cfg.fallback_max_motion_error:
+            # Some of its steps are far off the front-end's (wrong tracks it fitted): the
+            # window starts from the front-end's motion, and the solves bring the vision in.
+            self._reseed_window()
+            info.dropped['reinitializations'] = 1
+            info.message += "; steps off the front-end's: re-seeded from it"
         if cfg.motion_prior_translation_rel > 0 or cfg.motion_prior_rotation_rad > 0:
             # The initialization used vision alone; where near features are few its local
             # motion is noisier than the front-end's. One refine of the whole batch with the
@@ -523,19 +529,26 @@ class Estimator:
         info.dropped['solve_rollbacks'] = 1
         info.message = f'solve rejected ({reason}): kept the previous poses'
         if self._failures >= self.config.fallback_reinit_after:
-            active = self.kf.indices(KeyframeStatus.ACTIVE)
-            for i in active[active > 0]:
-                odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None
-                self.kf.R_map[i], self.kf.C_map[i] = self._predict(odom, int(i))
-            ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active
-                                            if int(i) in self.kf.obs]))
-            self.features.upsert(ids, np.full((ids.shape[0], 3), np.nan))
-            self._update_similarity()
+            self._reseed_window()
             self._failures = 0
             info.dropped['reinitializations'] = 1
             info.message += '; window re-initialized from the front-end'
         logger.warning('%s', info.message)
         return info
+
+    def _reseed_window(self) -> None:
+        """Re-predict each free keyframe from its predecessor with the front-end's motion.
+
+        The window's features restart from rotations (PMBA Remark 5).
+        """
+        active = self.kf.indices(KeyframeStatus.ACTIVE)
+        for i in active[active > 0]:
+            odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None
+            self.kf.R_map[i], self.kf.C_map[i] = self._predict(odom, int(i))
+        ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active
+                                        if int(i) in self.kf.obs]))
+        self.features.upsert(ids, np.full((ids.shape[0], 3), np.nan))
+        self._update_similarity()
 
     def _update_similarity(self) -> None:
         """Re-estimate map <- odom from the free keyframes with front-end poses."""

@@ -444,11 +444,13 @@ def step_error(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> float
 
 
 def in_odom_frame(kf: KeyframeStore, used: IntArray, R_wc: FloatArray, centers_w: FloatArray,
-                  max_error: float) -> tuple[FloatArray, FloatArray, Similarity]:
-    """Return initialized poses of keyframes ``used`` in the odom frame, and odom <- init.
+                  max_error: float) -> tuple[FloatArray, FloatArray, Similarity, float]:
+    """Return initialized poses in the odom frame, odom <- init, and their worst step error.
 
-    The map is expressed in the newest odom frame among them (map -> odom starts at
-    identity), by a similarity fit of the keyframes with front-end poses.
+    The poses of keyframes ``used``: the map is expressed in the newest odom frame among them
+    (map -> odom starts at identity), by a similarity fit of the keyframes with front-end
+    poses. The worst step error is the largest relative error of their steps against the
+    front-end's.
 
     Raises:
         InitError: If their steps disagree with the front-end's by more than ``max_error``
@@ -465,12 +467,17 @@ def in_odom_frame(kf: KeyframeStore, used: IntArray, R_wc: FloatArray, centers_w
     R, C = sim.apply_poses(R_wc, centers_w)
     idx, R_i, C_i = used[with_odom], R[with_odom], C[with_odom]
     R_o, C_o = kf.R_odom[idx], kf.C_odom[idx]
-    error = step_error(np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1]),
-                       np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1]), 1.0)
+    t_map = np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1])
+    t_odom = np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1])
+    error = step_error(t_map, t_odom, 1.0)
     if error > max_error:
         msg = f"its steps disagree with the front-end's by {100 * error:.0f} %"
         raise InitError(msg)
-    return R, C, sim
+    step = _row_norms(t_odom)
+    moving = step > 1e-6
+    worst = float(np.max(_row_norms(t_map - t_odom)[moving] / step[moving])) if np.any(
+        moving) else 0.0
+    return R, C, sim, worst
 
 
 def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],

@@ -38,7 +38,7 @@ from pmba_ros.backend.window import (
     select_fixed,
 )
 from pmba_ros.core import so3
-from pmba_ros.eval.metrics import ate
+from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.ply import read_ply
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
@@ -624,8 +624,6 @@ def test_wrong_observations_do_not_spoil_the_initialization(seed: int) -> None:
     A non-robust initialization BA left the batch's first keyframes a metre off, and
     the RPE at 4.5x and 23x the front-end's.
     """
-    from pmba_ros.eval.metrics import rpe
-
     seq = _with_outliers(simulate_sequence('street', n_keyframes=200, seed=seed), 0.1, seed)
     logic = BackendLogic(config(), BACKEND)
     run(logic, seq)
@@ -652,20 +650,26 @@ def test_wrong_observations_are_not_taken_for_exploding_costs() -> None:
     assert ate(opt, gt, 'sim3').rmse < 0.15 * ate(fe, gt, 'sim3').rmse
 
 
-def test_an_initialization_the_front_end_contradicts_is_tried_again() -> None:
-    """20 % wrong observations: the first initialization's steps are 100 % off the front-end's.
+@pytest.mark.parametrize(('seed', 'attempts'), [(1, 1), (2, 2)])
+def test_an_initialization_the_front_end_contradicts_is_not_followed(seed: int,
+                                                                     attempts: int) -> None:
+    """20 % wrong observations: initializations off the front-end's steps are not followed.
 
-    Taken, its map was off in scale and shape: every later solve left a step over 30 sigmas
-    off the front-end's (19 odom-frame jumps), ATE 11.8x and RPE 109x the front-end's.
+    Seed 2's first initialization is 100 % off (median step): it is tried again. Seed 1's,
+    and seed 2's second, have steps several times off here and there: the window starts
+    from the front-end's motion. Taken as they were: seed 2, 19 odom-frame jumps, ATE 11.8x
+    and RPE 109x the front-end's; seed 1 RPE 4.8x, from the initialized keyframes.
     """
-    seq = _with_outliers(simulate_sequence('street', n_keyframes=200, seed=2), 0.2, 2)
+    seq = _with_outliers(simulate_sequence('street', n_keyframes=200, seed=seed), 0.2, seed)
     logic = BackendLogic(config(), BACKEND)
     run(logic, seq)
-    assert logic.estimator.init_attempts == 2 and logic.state == 'tracking'
-    assert not logic.stats.counters.get('odom_frame_jumps')
+    assert logic.estimator.init_attempts == attempts and logic.state == 'tracking'
+    counters = logic.stats.counters
+    assert counters['reinitializations'] == 1 and not counters.get('odom_frame_jumps')
     gt, fe, opt = seq.gt_trajectory(), seq.odom_trajectory(), logic.optimized_trajectory()
     assert len(opt) == len(seq)
-    assert ate(opt, gt, 'sim3').rmse < 1.5 * ate(fe, gt, 'sim3').rmse
+    assert ate(opt, gt, 'sim3').rmse < 0.5 * ate(fe, gt, 'sim3').rmse
+    assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
 
 
 def test_initialization_gate_counts_features_not_the_median() -> None:
@@ -714,8 +718,6 @@ def test_motion_prior_keeps_the_front_end_motion_where_vision_is_weak() -> None:
 
     The map's scale against odom is reported for every keyframe and stays near the first one.
     """
-    from pmba_ros.eval.metrics import rpe
-
     seq = simulate_sequence('aerial', n_keyframes=60, seed=0)
     gt = seq.gt_trajectory()
     result = {}

@@ -445,10 +445,14 @@ def test_an_initialization_is_put_in_the_odom_frame_if_its_steps_agree() -> None
     R_s = so3.exp(np.array([0.1, -0.2, 0.3]))
     R_init = np.einsum('ij,njk->nik', R_s, kf.R_odom[used])
     C_init = 2.5 * kf.C_odom[used] @ R_s.T + np.array([1.0, 2.0, 3.0])
-    R, C, sim = in_odom_frame(kf, used, R_init, C_init, 0.5)
+    R, C, sim, worst = in_odom_frame(kf, used, R_init, C_init, 0.5)
     np.testing.assert_allclose(C, kf.C_odom[used], atol=1e-9)
     np.testing.assert_allclose(R, kf.R_odom[used], atol=1e-9)
-    assert sim.scale == pytest.approx(1 / 2.5)
+    assert sim.scale == pytest.approx(1 / 2.5) and worst < 1e-9
+    one_off = C_init.copy()
+    one_off[4] += 2.5 * np.array([0.0, 3.0, 0.0])   # one pose 3 steps aside: two steps off
+    _, _, _, worst = in_odom_frame(kf, used, R_init, one_off, 0.5)
+    assert worst > 2.0
     scrambled = C_init[[0, 3, 1, 5, 2, 6, 4, 7]]
     with pytest.raises(InitError, match="disagree with the front-end's by"):
         in_odom_frame(kf, used, R_init, scrambled, 0.5)
