@@ -21,11 +21,12 @@ State machine:
     parallax between two of its keyframes is ``init_min_parallax_px`` or more
     (:func:`~pmba_ros.backend.window.well_conditioned_features`; PMBA needs some near
     features, not a high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the
-    batch. A failure (pure rotation, too few pairs) moves to ``waiting_for_parallax`` and is
-    retried every ``init_retry_every`` keyframes; the batch keeps at most ``init_max_batch``
-    keyframes (older ones keep their front-end pose). Until then every keyframe with a
-    front-end pose is published at that pose (map = odom), flagged as not optimized
-    (:meth:`Estimator.optimized`).
+    batch. A failure (pure rotation, too few pairs, steps that disagree with the front-end's)
+    moves to ``waiting_for_parallax`` and is retried every ``init_retry_every`` keyframes;
+    the batch keeps at most ``init_max_batch`` keyframes (older ones keep their front-end
+    pose). Until then every keyframe with a front-end pose is published at that pose (map =
+    odom), flagged as not optimized (:meth:`Estimator.optimized`). An initialization with
+    only some steps that far off starts its window from the front-end's motion.
 ``tracking``
     The map is expressed in the front-end's odom frame at initialization (similarity fit of
     the batch, so map -> odom starts at identity). Each new keyframe starts from the previous
