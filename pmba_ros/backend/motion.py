@@ -139,12 +139,18 @@ class FrontendNoise:
     prior was weighed against: rotation, translation along the step (its length) and
     across it (its direction). A front-end noisier than the parameters say has its sigmas
     grown by the square roots (:attr:`factors`), whatever front-end it is; 1 until the
-    solves hold enough redundancy.
+    solves hold enough redundancy. Steps far beyond the others (:attr:`TRIM`) are left out:
+    with wrong tracks in its window a solve leaves a few steps far off, which are not the
+    front-end's noise (summed in, they raised the factors to 3.2 with 5 % wrong observations
+    and left the vision more weight than it deserved).
     """
 
     HISTORY = 25
     MIN_REDUNDANCY = 10.0
     LIMITS = (1.0, 50.0)
+    TRIM = 20.0
+    """Steps whose squared residual over redundancy exceeds this many times the median of
+    their group's are left out of the estimate (see :meth:`note`)."""
     EVERY = 3
     """Window solves per sample: consecutive windows share most of their steps, and a
     leverage costs an inversion of the reduced system (a global solve's too much: the
@@ -192,19 +198,23 @@ class FrontendNoise:
         e_along = np.einsum('mi,mi->m', e[:, 3:], along)
         h_along = np.einsum('mi,mij,mj->m', along, hat[:, 3:, 3:], along)
         h_trans = hat[:, 3, 3] + hat[:, 4, 4] + hat[:, 5, 5]
-        along_sq = np.add.reduce(e_along ** 2)
-        squares = np.array([np.add.reduce(e[:, :3] ** 2, axis=None), along_sq,
-                            np.add.reduce(e[:, 3:] ** 2, axis=None) - along_sq])
-        redundancy = np.array([3.0 * e.shape[0] - np.add.reduce(hat[:, 0, 0] + hat[:, 1, 1]
-                                                                + hat[:, 2, 2]),
-                               e.shape[0] - np.add.reduce(h_along),
-                               2.0 * e.shape[0] - np.add.reduce(h_trans - h_along)])
-        # In units of the pixel noise the prior was weighed against (its huber / sigmas).
+        # Each step's squared residual per group (rotation, along, across) and redundancy,
+        # in units of the pixel noise the prior was weighed against (its huber / sigmas).
         unit = np.array(self._factors) * PRIOR_HUBER_SIGMAS / prior.huber
-        self._recent.append(np.stack([squares * unit ** 2, redundancy]))
-        pooled = np.add.reduce(np.array(self._recent), axis=0)
-        if np.all(pooled[1] >= self.MIN_REDUNDANCY):
-            k = np.clip(np.sqrt(pooled[0] / pooled[1]), *self.LIMITS)
+        e_rot, e_trans = np.add.reduce(e[:, :3] ** 2, axis=1), np.add.reduce(e[:, 3:] ** 2, axis=1)
+        squares = np.column_stack([e_rot, e_along ** 2, e_trans - e_along ** 2]) * unit ** 2
+        redundancy = np.column_stack([3.0 - (hat[:, 0, 0] + hat[:, 1, 1] + hat[:, 2, 2]),
+                                      1.0 - h_along, 2.0 - (h_trans - h_along)])
+        self._recent.append(np.stack([squares, redundancy]))
+        q, r = np.concatenate(list(self._recent), axis=1)
+        # Steps far beyond the others (TRIM times their median ratio) are ones a solve got
+        # wrong (wrong tracks in its window), not the front-end's noise; a Gaussian step is
+        # there once in hundreds, so the sum of the rest stays Helmert's estimate.
+        ratio = q / np.maximum(r, 1e-12)
+        kept = ratio <= self.TRIM * np.median(ratio, axis=0)
+        q, r = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
+        if np.all(r >= self.MIN_REDUNDANCY):
+            k = np.clip(np.sqrt(q / r), *self.LIMITS)
             self._factors = (float(k[0]), float(k[1]), float(k[2]))
 
 

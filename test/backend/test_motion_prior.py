@@ -471,6 +471,32 @@ def test_similarity_keeps_its_scale_where_the_centres_barely_spread() -> None:
     assert estimate_similarity(R, C_a, R, C_b, 0.5, min_spread=1.01 * spread).scale == 0.5
 
 
+def test_frontend_noise_is_not_raised_by_steps_a_solve_got_wrong() -> None:
+    """A few steps 25 sigmas off (wrong tracks in their windows) among Gaussian ones.
+
+    Summed in, 5 % of them took the factors to 2.5 for a front-end as the parameters say;
+    beyond TRIM times the median ratio they are left out, and a front-end 2x noisier is still
+    found.
+    """
+    M = 40
+    rng = np.random.default_rng(3)
+    t_ab = np.tile([1.0, 0.0, 0.0], (M, 1))
+    prior = RelativePosePrior(np.arange(M), np.arange(1, M + 1), np.tile(np.eye(3), (M, 1, 1)),
+                              t_ab, np.ones(M), np.tile(np.eye(3), (M, 1, 1)),
+                              huber=PRIOR_HUBER_SIGMAS)
+    for true_sigma in (1.0, 2.0):
+        noise = FrontendNoise()
+        for _ in range(10):
+            e = rng.normal(0.0, true_sigma, (M, 6))
+            e[:2] = 25.0 / np.sqrt(6.0)   # two steps in 40: 25 sigmas in norm, short of a jump
+            # The back-end weighs the next prior with the factors: rotation, along the step
+            # (x here), across it.
+            k_rot, k_along, k_across = noise.factors
+            noise.note(prior, e / np.array([k_rot] * 3 + [k_along] + [k_across] * 2),
+                       np.zeros((M, 6, 6)))
+        np.testing.assert_allclose(noise.factors, true_sigma, rtol=0.15)
+
+
 def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
     """No leverage (a singular window) or a step JUMP_SIGMAS off (a jump): not counted.
 
