@@ -199,9 +199,11 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     without = report.counters.get('keyframes_without_tracks', 0)
     if 2 * without > stats.keyframes > 0:
         report.warnings.append(
-            f'{without} of {stats.keyframes} keyframe poses found no tracks: if the keyframe '
-            'topic is a pose stream faster than the tracks, --keyframes-from tracks (parameter '
-            'keyframe_source: tracks) takes the keyframes from the tracks and samples it there')
+            f'{without} of {stats.keyframes} keyframe poses found no tracks within '
+            'stamp_tolerance_s: if the keyframe topic is a pose stream faster than the tracks, '
+            '--keyframes-from tracks (parameter keyframe_source: tracks) takes the keyframes '
+            'from the tracks and samples it there; if the two are stamped apart, that also '
+            'interpolates, or raise stamp_tolerance_s')
     report.keyframes_not_optimized = stats.not_optimized
     report.map_scale = [float(v) for v in stats.map_scale]
     if stats.noise is not None:
