@@ -471,6 +471,13 @@ def test_similarity_keeps_its_scale_where_the_centres_barely_spread() -> None:
     assert estimate_similarity(R, C_a, R, C_b, 0.5, min_spread=1.01 * spread).scale == 0.5
 
 
+def _unit_prior(M: int) -> RelativePosePrior:
+    """Return M unit-weight factors of 1 m steps along x, without rotation."""
+    return RelativePosePrior(np.arange(M), np.arange(1, M + 1), np.tile(np.eye(3), (M, 1, 1)),
+                             np.tile([1.0, 0.0, 0.0], (M, 1)), np.ones(M),
+                             np.tile(np.eye(3), (M, 1, 1)), huber=PRIOR_HUBER_SIGMAS)
+
+
 def test_frontend_noise_is_not_raised_by_steps_a_solve_got_wrong() -> None:
     """A few steps 25 sigmas off (wrong tracks in their windows) among Gaussian ones.
 
@@ -480,10 +487,7 @@ def test_frontend_noise_is_not_raised_by_steps_a_solve_got_wrong() -> None:
     """
     M = 40
     rng = np.random.default_rng(3)
-    t_ab = np.tile([1.0, 0.0, 0.0], (M, 1))
-    prior = RelativePosePrior(np.arange(M), np.arange(1, M + 1), np.tile(np.eye(3), (M, 1, 1)),
-                              t_ab, np.ones(M), np.tile(np.eye(3), (M, 1, 1)),
-                              huber=PRIOR_HUBER_SIGMAS)
+    prior = _unit_prior(M)
     for true_sigma in (1.0, 2.0):
         noise = FrontendNoise()
         for _ in range(10):
@@ -505,10 +509,7 @@ def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
     """
     M = 30
     rng = np.random.default_rng(0)
-    t_ab = np.tile([1.0, 0.0, 0.0], (M, 1))
-    prior = RelativePosePrior(np.arange(M), np.arange(1, M + 1), np.tile(np.eye(3), (M, 1, 1)),
-                              t_ab, np.ones(M), np.tile(np.eye(3), (M, 1, 1)),
-                              huber=PRIOR_HUBER_SIGMAS)
+    prior = _unit_prior(M)
     noise = FrontendNoise()
     wild = rng.normal(0.0, 3.0, (M, 6))   # 3 sigmas per residual: most beyond 5 in norm
     noise.note(prior, wild, np.full((M, 6, 6), np.nan))
