@@ -387,3 +387,57 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
     finally:
         wrapper.close()
         driver.destroy_node()
+
+
+def test_keyframes_from_tracks_take_their_poses_from_a_faster_stream(
+        ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
+    """keyframe_source 'tracks': the pose topic, at 5x the tracks' rate, is sampled at them.
+
+    Every tracks message is a keyframe with the stream's pose at its stamp (map -> odom is
+    sent, as it is only with front-end poses); the poses between them are no keyframes.
+    """
+    from geometry_msgs.msg import TransformStamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, PointCloud
+
+    context, executor = ros
+    # Published far faster than real time, the two topics may arrive more than the default
+    # association_timeout_s of stamps apart.
+    node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
+        Parameter('keyframe_source', value='tracks'), Parameter('init_batch_size', value=10),
+        Parameter('deterministic', value=True), Parameter('association_timeout_s', value=30.0)])
+    wrapper = PmbaNode(node, start_worker=False)
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    executor.add_node(node)
+    executor.add_node(driver)
+    backend = RclpyBackend()
+    pubs = [driver.create_publisher(PointCloud, 'features', RELIABLE),
+            driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE),
+            driver.create_publisher(CameraInfo, 'camera_info', RELIABLE)]
+    got: list[Any] = []
+    driver.create_subscription(TransformStamped, MAP_TO_ODOM_TOPIC, got.append, RELIABLE)
+    try:
+        assert spin_until(executor, lambda: min(p.get_subscription_count() for p in pubs) > 0)
+        pubs[2].publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+        for i in range(len(seq)):
+            pubs[0].publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
+            j = min(i + 1, len(seq) - 1)
+            for k in range(5 if j > i else 1):   # straight between keyframes, 5 per interval
+                a = k / 5
+                R = seq.R_wc_odom[i] @ so3.exp(a * so3.log(seq.R_wc_odom[i].T @ seq.R_wc_odom[j]))
+                stamp = int(seq.stamps_ns[i] + a * (seq.stamps_ns[j] - seq.stamps_ns[i]))
+                pubs[1].publish(out.make_odometry(
+                    stamp, 'odom', 'camera', (1 - a) * seq.centers_odom[i]
+                    + a * seq.centers_odom[j], so3.to_quat_xyzw(R), np.eye(6) * 1e-3, backend))
+            executor.spin_once(timeout_sec=0.005)
+        logic = wrapper.logic
+        assert spin_until(executor, lambda: wrapper.process_pending() >= 0
+                          and logic.stats.keyframes == len(seq), timeout_s=60.0)
+        assert logic.state == 'tracking' and len(logic.optimized_trajectory()) == len(seq)
+        np.testing.assert_allclose(logic.frontend_trajectory().positions_xyz,
+                                   seq.centers_odom, atol=1e-9)
+        assert not logic.stats.counters.get('keyframes_without_tracks')
+        assert spin_until(executor, lambda: bool(got))   # only with front-end poses
+    finally:
+        wrapper.close()
+        driver.destroy_node()
