@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -107,6 +108,16 @@ class StubLogic:
         return np.zeros((0, 3))
 
 
+def _recorded_paths(bag: Path) -> list[Any]:
+    """Return the result bag's /pmba/path messages, in order."""
+    from rosbags.rosbag2 import Reader
+
+    ts = jazzy_typestore()
+    with Reader(bag) as reader:
+        return [ts.deserialize_cdr(raw, conn.msgtype) for conn, _, raw in reader.messages()
+                if conn.topic == '/pmba/path']
+
+
 @pytest.fixture
 def stub(monkeypatch: pytest.MonkeyPatch) -> None:
     """Replace the back-end with :class:`StubLogic`."""
@@ -156,8 +167,13 @@ def test_replay_writes_all_outputs(street_bag: Path, tmp_path: Path) -> None:
     assert report.keyframes_in == 60
     assert report.messages_in == 180
     topics = list_topics([out / 'result.mcap'])
-    assert topics['/pmba/path'].count == 60
-    assert topics['/tf'].msgtype == 'tf2_msgs/msg/TFMessage'
+    assert topics['/tf'].count == 60 and topics['/tf'].msgtype == 'tf2_msgs/msg/TFMessage'
+    # The paths, each holding the run so far, from 5 % of growth to 5 %, and the last.
+    paths = _recorded_paths(out / 'result.mcap')
+    assert len(paths) == topics['/pmba/path'].count and 30 <= len(paths) < 60
+    sizes = [len(p.poses) for p in paths]
+    assert sizes[:20] == list(range(1, 21)) and sizes[-1] == 60
+    assert all(b >= 1.05 * a for a, b in itertools.pairwise(sizes[19:-1]))
     assert len(read_tum(out / 'keyframes_frontend.tum')) == 60
     points, _ = read_ply(out / 'landmarks.ply')
     assert points.shape == (0, 3)
@@ -222,7 +238,7 @@ def test_gt_without_overlap_is_one_evaluation_error(street_bag: Path, tmp_path: 
     with pytest.raises(EvaluationError, match='ground truth vs frontend keyframes'):
         replay([street_bag], out, gt=shifted)
     assert len(read_tum(out / 'keyframes_optimized.tum')) == 60
-    assert list_topics([out / 'result.mcap'])['/pmba/path'].count == 60
+    assert len(_recorded_paths(out / 'result.mcap')[-1].poses) == 60
 
 
 @pytest.mark.usefixtures('stub')
