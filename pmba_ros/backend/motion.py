@@ -437,16 +437,26 @@ def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
 
 
 def step_error(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> float:
-    """Median of |t_map / map_scale - t_odom| / |t_odom| over the moving steps (0: none).
+    """Median of :func:`relative_step_errors` (0 without a moving step)."""
+    return _median(relative_step_errors(t_map, t_odom, map_scale))
+
+
+def relative_step_errors(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> FloatArray:
+    """Return |t_map / map_scale - t_odom| / |t_odom| of the moving steps.
 
     ``t_map``, ``t_odom``: the same steps (N, 3), each in its earlier keyframe's frame.
     """
     step = _row_norms(t_odom)
     moving = step > 1e-6
-    if not np.any(moving):
+    out: FloatArray = _row_norms(t_map / map_scale - t_odom)[moving] / step[moving]
+    return out
+
+
+def _median(values: FloatArray) -> float:
+    """Return np.median's value (NaN if any is; 0 for none), without its wrapper's cost."""
+    if values.shape[0] == 0:
         return 0.0
-    rel = np.sort(_row_norms(t_map / map_scale - t_odom)[moving] / step[moving])
-    # np.median's value (NaN if any is) from the sorted errors, without its wrapper.
+    rel = np.sort(values)
     mid = rel.shape[0] // 2
     if np.isnan(rel[-1]):
         return math.nan
@@ -477,17 +487,13 @@ def in_odom_frame(kf: KeyframeStore, used: IntArray, R_wc: FloatArray, centers_w
     R, C = sim.apply_poses(R_wc, centers_w)
     idx, R_i, C_i = used[with_odom], R[with_odom], C[with_odom]
     R_o, C_o = kf.R_odom[idx], kf.C_odom[idx]
-    t_map = np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1])
-    t_odom = np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1])
-    error = step_error(t_map, t_odom, 1.0)
+    rel = relative_step_errors(np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1]),
+                               np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1]), 1.0)
+    error = _median(rel)
     if error > max_error:
         msg = f"its steps disagree with the front-end's by {100 * error:.0f} %"
         raise InitError(msg)
-    step = _row_norms(t_odom)
-    moving = step > 1e-6
-    worst = float(np.max(_row_norms(t_map - t_odom)[moving] / step[moving])) if np.any(
-        moving) else 0.0
-    return R, C, sim, worst
+    return R, C, sim, float(rel.max()) if rel.shape[0] else 0.0
 
 
 def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],

@@ -136,7 +136,7 @@ class PoseJumpCheck:
 
     def idle(self) -> bool:
         """Return True when no pose is held (past the first poses, no jump being judged)."""
-        return self._last is not None and not self._first and not self._held
+        return self._last is not None and not self.holding()
 
     def holding(self) -> bool:
         """Return True while poses are held (the first ones, or a jump being judged)."""
