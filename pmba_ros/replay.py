@@ -47,7 +47,7 @@ SIGINT / SIGTERM wait while the outputs are written.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 import functools
 import logging
@@ -83,6 +83,7 @@ from pmba_ros.io.bags import (
     ReadStats,
 )
 from pmba_ros.io.output_dir import output_lock, remove_outputs
+from pmba_ros.io.recorded_formats import fit_to_recording
 from pmba_ros.plot import pyplot, write_replay_plots
 from pmba_ros.replay_report import collect_stats, ReplayReport
 
@@ -267,7 +268,8 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
            config: BackendConfig | None = None, *,
            gt: Path | str | None = None, plot: bool = False,
            progress: ProgressCallback | None = None,
-           intrinsics: Sequence[float] | None = None, align: str = 'sim3') -> ReplayReport:
+           intrinsics: Sequence[float] | None = None, align: str = 'sim3',
+           chosen: Collection[str] = ()) -> ReplayReport:
     """Run the back-end over recorded front-end topics and write the results.
 
     Args:
@@ -280,6 +282,9 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
         progress: Called as ``progress(done, total)`` after each input message.
         intrinsics: ``(fx, fy, cx, cy)`` to use instead of the bag's CameraInfo.
         align: Alignment of the trajectories onto the ground truth ('sim3', 'se3', 'none').
+        chosen: ``config`` fields the user chose, kept even where they cannot read the
+            recording; the others follow it (keyframe type, track layout, camera count and
+            a rig's CameraInfo topics: :func:`pmba_ros.io.recorded_formats.fit_to_recording`).
 
     Returns:
         The report (also written to ``out_dir/report.json``).
@@ -304,6 +309,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     if plot:
         pyplot()  # fail before the replay if matplotlib is missing
     with open_bags(bag_paths) as opened:
+        config = fit_to_recording(opened, config, report.warnings, chosen)
         inputs, kinds, camera_ids = _select(opened, config, intrinsics is not None, report)
         try:
             out.mkdir(parents=True, exist_ok=True)

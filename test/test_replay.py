@@ -33,6 +33,7 @@ from pmba_ros.eval.trajectory import read_tum, Trajectory, write_tum
 from pmba_ros.io.bag_inputs import resolve_topic, stamp_ordered
 from pmba_ros.io.bags import iter_messages, jazzy_typestore, list_topics
 from pmba_ros.io.ply import read_ply
+from pmba_ros.io.recorded_formats import PEEK_MESSAGES
 from pmba_ros.replay import replay
 from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
@@ -197,21 +198,32 @@ def test_missing_topic_is_one_bag_error(street_bag: Path, tmp_path: Path) -> Non
 
 
 @pytest.mark.usefixtures('stub')
-def test_wrong_layout_type_is_one_message_error(street_bag: Path, tmp_path: Path) -> None:
-    """A PointCloud topic replayed as 'named' (PointCloud2) is refused before reading."""
-    config = BackendConfig(feature_layout='named')
-    with pytest.raises(MessageError, match='wrong --tracks-layout'):
-        replay([street_bag], tmp_path / 'o', config)
+@pytest.mark.parametrize('layout', ['named', 'vins_mono', 'per_point'])
+def test_tracks_are_read_in_the_recorded_layout(street_bag: Path, tmp_path: Path,
+                                                layout: str) -> None:
+    """A layout that cannot read the recording gives way to the one that can, with a warning."""
+    report = replay([street_bag], tmp_path / 'o', BackendConfig(feature_layout=layout))
+    assert report.complete and report.messages_rejected == 0 and report.keyframes_out == 60
+    assert f"tracks are not in layout {layout!r} but in 'vins_fusion'" in report.warnings[0]
 
 
 @pytest.mark.usefixtures('stub')
-def test_wrong_layout_channels_is_one_message_error(street_bag: Path, tmp_path: Path) -> None:
-    """VINS-Fusion tracks read as VINS-Mono are all rejected: one error, valid result bag."""
+def test_chosen_layout_of_another_type_is_one_message_error(street_bag: Path,
+                                                            tmp_path: Path) -> None:
+    """A PointCloud topic replayed as the chosen 'named' (PointCloud2) is refused first."""
+    config = BackendConfig(feature_layout='named')
+    with pytest.raises(MessageError, match='wrong --tracks-layout'):
+        replay([street_bag], tmp_path / 'o', config, chosen={'feature_layout'})
+
+
+@pytest.mark.usefixtures('stub')
+def test_chosen_layout_channels_is_one_message_error(street_bag: Path, tmp_path: Path) -> None:
+    """VINS-Fusion tracks read as the chosen VINS-Mono: all rejected, one error, a result bag."""
     config = BackendConfig(feature_layout='vins_mono')
     out = tmp_path / 'o'
     with pytest.raises(MessageError, match=r'tracks messages rejected and none accepted '
                                            r'\(wrong --tracks-layout\?\); first error'):
-        replay([street_bag], out, config)
+        replay([street_bag], out, config, chosen={'feature_layout'})
     assert sum(1 for _ in iter_messages([out / 'result.mcap'])) >= 0
     report = json.loads((out / 'report.json').read_text())
     assert report['complete'] is False
@@ -329,7 +341,9 @@ def test_ros1_recording_replays_like_the_rosbag2_one(
     out = tmp_path / 'o'
     report = replay([ros1], out, gt=groundtruth_path(street_bag))
     assert report.complete and report.messages_rejected == 0
-    assert decoded and all(decoded) and len(decoded) == report.keyframes_in
+    # Every keyframe's tracks once, and the first ones again where the replay checks their layout.
+    peeked = min(PEEK_MESSAGES, report.keyframes_in)
+    assert decoded and all(decoded) and len(decoded) == report.keyframes_in + peeked
     a, _ = real_replay
     for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
         assert (out / name).read_bytes() == (a / name).read_bytes(), name

@@ -23,6 +23,7 @@ import numpy as np
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.types import TrackFrame
 from pmba_ros.core import so3
+from pmba_ros.errors import MessageError
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.bags import iter_messages, list_topics
@@ -122,3 +123,19 @@ def test_pixel_only_tracks_use_each_cameras_camera_info(tmp_path: Path) -> None:
     assert '1' in data['extrinsic']['rig_cameras']
     # A CameraInfo applied to the wrong camera leaves the front-end's poses (ratio 1).
     assert report.accuracy is not None and report.accuracy['ate_ratio'] < 0.35
+
+
+def test_stereo_recording_replays_as_a_rig_without_options(stereo_bag: Path,
+                                                           tmp_path: Path) -> None:
+    """With the defaults (one camera), the recording's camera ids and CameraInfo make the rig."""
+    explicit, found = tmp_path / 'explicit', tmp_path / 'found'
+    replay([stereo_bag], explicit, BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS))
+    report = replay([stereo_bag], found)
+    assert report.complete and report.messages_rejected == 0
+    assert any('num_cams 2, camera info topics /camera_info, /camera1/camera_info' in w
+               for w in report.warnings)
+    for name in ('keyframes_optimized.tum', 'landmarks.ply'):
+        assert (found / name).read_bytes() == (explicit / name).read_bytes(), name
+    # A camera the user chose stays chosen: the second camera's ids are then an error.
+    with pytest.raises(MessageError, match='camera id 1 >= num_cams 1'):
+        replay([stereo_bag], tmp_path / 'chosen', chosen={'num_cams'})

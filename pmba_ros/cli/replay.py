@@ -98,11 +98,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--tracks-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'feature tracks topic ({node_default("features_topic")})')
     group.add_argument('--tracks-layout', choices=_LAYOUTS, default=argparse.SUPPRESS,
-                       help=f'track message layout ({node_default("feature_layout")})')
+                       help=f'track message layout ({node_default("feature_layout")}; '
+                            'unless given, the one the recording fits)')
     group.add_argument('--keyframes-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'keyframe pose topic ({node_default("keyframe_topic")})')
     group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=argparse.SUPPRESS,
-                       help=f'keyframe pose message type ({node_default("keyframe_type")})')
+                       help=f'keyframe pose message type ({node_default("keyframe_type")}; '
+                            'unless given, the recorded one)')
     group.add_argument('--keyframes-from', choices=_KEYFRAME_SOURCES, default=argparse.SUPPRESS,
                        help='keyframe_topic: each keyframe pose is a keyframe; tracks: each '
                        'tracks message is, its pose sampled from the keyframe topic (an '
@@ -112,7 +114,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     camera.add_argument('--camera-info-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                         action='append',
                         help=f'CameraInfo topic ({node_default("camera_info_topic")}); '
-                        'repeat it for a multi-camera rig, in camera-id order')
+                        'repeat it for a multi-camera rig, in camera-id order (unless given, '
+                        "a rig's are the recorded ones, the reference camera's first)")
     camera.add_argument('--intrinsics', default=argparse.SUPPRESS, metavar='FX,FY,CX,CY',
                         help='pinhole intrinsics (px) instead of a CameraInfo topic')
     algo = parser.add_argument_group('back-end')
@@ -171,6 +174,14 @@ def build_config(args: argparse.Namespace) -> Any:
         problem = ' '.join(str(err).split())
         msg = f'--params {params}: not valid YAML: {problem}'
         raise PmbaError(msg) from err
+
+
+def _chosen(args: argparse.Namespace) -> set[str]:
+    """Return the config fields given on the command line (a replay keeps them as given)."""
+    chosen = {field for opt, field in _OVERRIDES.items() if getattr(args, opt, None) is not None}
+    if getattr(args, 'camera_info_topic', None):
+        chosen.add('num_cams')
+    return chosen
 
 
 def _camera_info_changes(config: Any, topics: list[str] | None) -> dict[str, Any]:
@@ -249,7 +260,8 @@ def run(args: argparse.Namespace) -> int:
     previous = _interrupt_on_sigterm()
     try:
         report = replay(bags, args.out, config, gt=gt, plot=plot,
-                        progress=bar, intrinsics=intrinsics, align=args.align)
+                        progress=bar, intrinsics=intrinsics, align=args.align,
+                        chosen=_chosen(args))
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

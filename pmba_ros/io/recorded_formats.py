@@ -1,0 +1,170 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Fit a replay's input settings to what a recording holds.
+
+A live node has to be told its front-end's message formats; a recording shows them. Where
+the configured keyframe type, track layout or camera count cannot read a recording and
+exactly one other setting can, a replay takes that one and says so in its warnings: the
+configured settings stay wherever they read the recording, so nothing that parses is ever
+read another way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import replace
+import logging
+from typing import Any, TYPE_CHECKING
+
+from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, LAYOUTS, parse_tracks, tracks_msgtype
+from pmba_ros.errors import BagError, MessageError
+from pmba_ros.io.bag_inputs import CAMERA_INFO_TYPES, find_topic, resolve_topic
+from pmba_ros.io.bags import iter_messages, OpenBags
+
+if TYPE_CHECKING:
+    from pmba_ros.backend.config import BackendConfig
+    from pmba_ros.backend.types import TrackFrame
+
+logger = logging.getLogger(__name__)
+
+__all__ = ['MAX_CAMERAS', 'PEEK_MESSAGES', 'fit_to_recording']
+
+PEEK_MESSAGES = 20
+"""Tracks messages (with observations) a layout must read to fit a recording."""
+
+MAX_CAMERAS = 8
+"""Largest rig a recording's camera ids may announce; larger ids are no camera channel."""
+
+_UNBOUNDED_CAMERAS = 1 << 20
+"""Camera count for reading ids before the rig's size is known (vins_mono needs the real one)."""
+
+
+def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
+                     chosen: Collection[str] = ()) -> BackendConfig:
+    """Return ``config`` with the input settings the recording needs.
+
+    Settings named in ``chosen`` (the user's explicit choices) are kept as they are.
+
+    * ``keyframe_type`` follows the keyframe topic's message type;
+    * ``feature_layout``: if the configured layout cannot read the first
+      :data:`PEEK_MESSAGES` tracks messages with observations and exactly one other layout
+      of the topic's message type can, that one;
+    * ``num_cams`` grows to the camera ids of those messages (layouts with a camera
+      channel), and a rig's ``camera_info_topics`` are taken from the recorded CameraInfo
+      topics where they name one topic per camera (see :func:`_rig_camera_infos`).
+
+    Each change is logged and appended to ``warnings``.
+    """
+    changes: dict[str, Any] = {}
+    topics = bags.topics
+    keyframes = find_topic(resolve_topic(config.keyframe_topic), topics)
+    if keyframes is not None:
+        kind = {t: k for k, t in KEYFRAME_MSGTYPES.items()}.get(topics[keyframes].msgtype)
+        if kind is not None and kind != config.keyframe_type and 'keyframe_type' not in chosen:
+            changes['keyframe_type'] = kind
+            _note(warnings, f'keyframes topic {keyframes!r} holds {topics[keyframes].msgtype}: '
+                            f'read as keyframe_type {kind!r}, not {config.keyframe_type!r}')
+    tracks = find_topic(resolve_topic(config.features_topic), topics)
+    if tracks is None:
+        return replace(config, **changes) if changes else config   # select_inputs says so
+    sample = _peek(bags, tracks)
+    layout = config.feature_layout if 'feature_layout' in chosen else _fitting_layout(
+        sample, topics[tracks].msgtype, config, warnings)
+    if layout != config.feature_layout:
+        changes['feature_layout'] = layout
+    cameras = _camera_count(sample, layout, config.num_cams)
+    if cameras > config.num_cams and 'num_cams' not in chosen:
+        changes['num_cams'] = cameras
+        rig = _rig_camera_infos(bags, config, cameras)
+        text = (f'tracks topic {tracks!r} holds camera ids up to {cameras - 1}: num_cams '
+                f'{cameras}')
+        if rig:
+            changes['camera_info_topics'] = rig
+            changes['camera_info_topic'] = rig[config.camera_id]
+            text += f', camera info topics {", ".join(rig)} in camera-id order'
+        else:
+            text += ('; no CameraInfo topic per camera recorded (give --camera-info-topic '
+                     'once per camera id): only the reference camera is used')
+        _note(warnings, text)
+    return replace(config, **changes) if changes else config
+
+
+def _note(warnings: list[str], text: str) -> None:
+    logger.warning('%s', text)
+    warnings.append(text)
+
+
+def _peek(bags: OpenBags, topic: str) -> list[object]:
+    """Return the first tracks messages with observations (fewer on a damaged recording)."""
+    sample: list[object] = []
+    try:
+        for message in iter_messages(bags, topics=[topic], points_as_arrays=True):
+            msg = message.msg
+            if len(getattr(msg, 'points', ())) or getattr(msg, 'width', 0):
+                sample.append(msg)
+                if len(sample) >= PEEK_MESSAGES:
+                    break
+    except BagError:   # damage is the replay's to report, where it reads the recording
+        pass
+    return sample
+
+
+def _reads(sample: list[object], layout: str, num_cams: int) -> list[TrackFrame] | None:
+    """Return the frames ``layout`` reads from every message of ``sample``, else None."""
+    cams = num_cams if layout == 'vins_mono' else _UNBOUNDED_CAMERAS
+    try:
+        return [parse_tracks(msg, layout, cams) for msg in sample]
+    except MessageError:
+        return None
+
+
+def _fitting_layout(sample: list[object], msgtype: str, config: BackendConfig,
+                    warnings: list[str]) -> str:
+    """Return the configured layout if it reads ``sample``, else the one other that does."""
+    configured = config.feature_layout
+    if not sample or _reads(sample, configured, config.num_cams) is not None:
+        return configured
+    fits = [layout for layout in LAYOUTS if layout != configured
+            and tracks_msgtype(layout) == msgtype
+            and _reads(sample, layout, config.num_cams) is not None]
+    if len(fits) != 1:
+        return configured   # none or several: the replay's errors name the mismatch
+    _note(warnings, f'tracks are not in layout {configured!r} but in {fits[0]!r}: read as '
+                    f'{fits[0]!r} (set --tracks-layout to choose)')
+    return fits[0]
+
+
+def _camera_count(sample: list[object], layout: str, num_cams: int) -> int:
+    """Return the cameras the sampled tracks use (at least ``num_cams``)."""
+    if layout == 'vins_mono':   # its ids encode num_cams; they cannot tell it
+        return num_cams
+    frames = _reads(sample, layout, num_cams) or []
+    top = max((int(f.camera_ids.max()) for f in frames if f.camera_ids.size), default=-1)
+    return top + 1 if num_cams <= top < MAX_CAMERAS else num_cams
+
+
+def _rig_camera_infos(bags: OpenBags, config: BackendConfig, cameras: int) -> tuple[str, ...]:
+    """Return one recorded CameraInfo topic per camera id, or () where that is ambiguous.
+
+    The configured ``camera_info_topic`` is the reference camera's where it was recorded
+    and the others follow in name order; without it, the recorded ones in name order (a
+    ``cam0`` / ``cam1`` naming). Any other count of CameraInfo topics names no rig.
+    """
+    if config.camera_info_topics or config.camera_id != 0:
+        return ()
+    infos = sorted(t for t, i in bags.topics.items() if i.msgtype in CAMERA_INFO_TYPES)
+    reference = find_topic(resolve_topic(config.camera_info_topic), infos)
+    if reference is not None:
+        infos = [reference, *(t for t in infos if t != reference)]
+    return tuple(infos) if len(infos) == cameras else ()
