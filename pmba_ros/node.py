@@ -14,22 +14,20 @@
 
 """The ROS 2 node ``pmba_node``: the only module that imports rclpy (lazily, in functions).
 
-Wiring only: parameters (with descriptors; the run-time ones applied by an on-set callback) ->
-:class:`~pmba_ros.backend.config.BackendConfig`, subscriptions (tracks, keyframe poses,
-CameraInfo; QoS per input, ``qos_overrides`` honoured), publishers (path, keyframes, landmarks
-with a transient-local QoS, odometry, ``pmba/map_to_odom``, ``/diagnostics``), map -> odom on TF
-(tf2_ros, else a plain ``/tf`` publisher, else off with a warning) and the services ``~/reset``
-(std_srvs/Trigger), ``~/pause`` (std_srvs/SetBool) and ``~/save`` (std_srvs/Trigger).
+Wiring only: parameters (with descriptors; run-time ones applied by an on-set callback) ->
+:class:`~pmba_ros.backend.config.BackendConfig`; subscriptions (tracks, keyframe poses,
+CameraInfo; QoS per input, ``qos_overrides`` honoured; type and QoS mismatches reported);
+publishers (path, keyframes, transient-local landmarks, odometry, ``pmba/map_to_odom``,
+``/diagnostics``); map -> odom on TF (tf2_ros, else a plain ``/tf`` publisher, else off with a
+warning); services ``~/reset``, ``~/save`` (std_srvs/Trigger) and ``~/pause`` (SetBool).
 
-The callbacks only enqueue messages into a bounded queue (drops are counted in the diagnostics);
-a worker thread feeds :class:`~pmba_ros.backend.logic.BackendLogic` and publishes its outputs,
-so solving never blocks the executor. Outputs never wait for a solve: a keyframe pose is
-published on ``odometry_topic`` as it arrives (the front-end pose mapped through the newest map
-<- odom, identity before the first initialization) and again, corrected, when the worker has
-optimized it; map -> odom is re-sent at ``tf_rate_hz`` and the diagnostics at 1 Hz. Back-end
-``logging`` goes to the node's logger (and /rosout); the engine's per-solve INFO lines
-(``pmba_ros.core``, ``pmba_ros.init``) only at ``--log-level debug``. Run with ``ros2 run
-pmba_ros pmba_node --ros-args --params-file config/pmba.yaml``.
+Callbacks only enqueue into a bounded queue (drops are counted); a worker thread feeds
+:class:`~pmba_ros.backend.logic.BackendLogic` and publishes its outputs, so solving never
+blocks the executor. A keyframe pose is published on ``odometry_topic`` as it arrives (through
+the newest map <- odom) and again when optimized; map -> odom is re-sent at ``tf_rate_hz``,
+diagnostics at 1 Hz. Back-end ``logging`` goes to the node's logger (and /rosout), the
+engine's per-solve lines only at ``--log-level debug``. Run with ``ros2 run pmba_ros
+pmba_node --ros-args --params-file config/pmba.yaml``.
 """
 
 from __future__ import annotations
@@ -49,10 +47,11 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import import_initialization
 from pmba_ros.backend.extrinsics import Rigid
+from pmba_ros.backend.input_check import InputCheck
 from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.msg_backend import NodeMsgBackend, RclpyBackend
-from pmba_ros.backend.parameters import parameter_descriptions, parameter_descriptor
+from pmba_ros.backend.parameters import declare_config
 from pmba_ros.backend.status import node_level_and_message, received_values
 from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, parse_keyframe, tracks_msgtype
 from pmba_ros.backend.worker import LogicWorker
@@ -76,27 +75,7 @@ def _msg_type(name: str) -> Any:
     return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
 
 
-# --- parameters ---------------------------------------------------------------------------
-
-
-def declare_config(node: Any) -> BackendConfig:
-    """Declare every :class:`BackendConfig` field as a parameter and build the config.
-
-    Raises:
-        ValueError: If a parameter value is invalid (the message names the parameter).
-        rclpy.exceptions.InvalidParameterValueException: If a value is out of its range.
-    """
-    defaults = BackendConfig()
-    descriptions = parameter_descriptions()
-    backend = RclpyBackend()
-    values = {}
-    for f in fields(BackendConfig):
-        value = node.declare_parameter(
-            f.name, getattr(defaults, f.name),
-            parameter_descriptor(f.name, descriptions.get(f.name, ''), backend)).value
-        # An empty list in a parameter file has no type: rclpy leaves such a parameter unset.
-        values[f.name] = getattr(defaults, f.name) if value is None else value
-    return BackendConfig.from_params(values)
+# --- input QoS ----------------------------------------------------------------------------
 
 
 def input_qos(preset: str, config: BackendConfig) -> Any:
@@ -160,18 +139,14 @@ class PmbaNode:
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              history=HistoryPolicy.KEEP_LAST)
+        self.inputs = InputCheck()
         self.subscriptions = [
-            node.create_subscription(_msg_type(tracks_msgtype(cfg.feature_layout)),
-                                     cfg.features_topic, self._enqueuer('tracks'),
-                                     input_qos(cfg.features_qos, cfg),
-                                     qos_overriding_options=overrides),
+            self._subscribe('tracks', tracks_msgtype(cfg.feature_layout), cfg.features_topic,
+                            self._enqueuer('tracks'), cfg.features_qos, overrides),
             *self._subscribe_camera_infos(overrides),
-        ]
-        # With keyframe_source 'tracks' the poses are an optional stream, sampled at the tracks.
-        self.subscriptions.append(node.create_subscription(
-            _msg_type(KEYFRAME_MSGTYPES[cfg.keyframe_type]), cfg.keyframe_topic,
-            self._on_keyframe, input_qos(cfg.keyframe_qos, cfg),
-            qos_overriding_options=overrides))
+            # With keyframe_source 'tracks' the poses are an optional stream, sampled there.
+            self._subscribe('keyframe', KEYFRAME_MSGTYPES[cfg.keyframe_type], cfg.keyframe_topic,
+                            self._on_keyframe, cfg.keyframe_qos, overrides)]
         self.subscriptions.extend(self._subscribe_tf())
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),
@@ -300,14 +275,23 @@ class PmbaNode:
         """
         cfg = self.config
         topics = cfg.camera_info_topics or (cfg.camera_info_topic,)
-        subs = []
-        for cam, topic in enumerate(topics):
-            kind = ('camera_info' if not cfg.camera_info_topics or cam == cfg.camera_id
-                    else f'camera_info.{cam}')
-            subs.append(self.node.create_subscription(
-                _msg_type('sensor_msgs/msg/CameraInfo'), topic, self._enqueuer(kind),
-                input_qos(cfg.camera_info_qos, cfg), qos_overriding_options=overrides))
-        return subs
+        kinds = [('camera_info' if not cfg.camera_info_topics or cam == cfg.camera_id
+                  else f'camera_info.{cam}') for cam in range(len(topics))]
+        return [self._subscribe(kind, 'sensor_msgs/msg/CameraInfo', topic, self._enqueuer(kind),
+                                cfg.camera_info_qos, overrides)
+                for kind, topic in zip(kinds, topics, strict=True)]
+
+    def _subscribe(self, kind: str, msgtype: str, topic: str, callback: Any, preset: str,
+                   overrides: Any) -> Any:
+        """Subscribe to an input, watched by :attr:`inputs` for type and QoS mismatches."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        events = SubscriptionEventCallbacks(incompatible_qos=self.inputs.incompatible_qos(kind))
+        sub = self.node.create_subscription(
+            _msg_type(msgtype), topic, callback, input_qos(preset, self.config),
+            qos_overriding_options=overrides, event_callbacks=events)
+        self.inputs.watch(kind, sub.topic_name, msgtype)
+        return sub
 
     def _enqueuer(self, kind: str) -> Any:
         def callback(msg: Any) -> None:
@@ -427,9 +411,12 @@ class PmbaNode:
         received = self.worker.received()
         tf_off = (self.tf_mode if self.config.publish_tf and self.tf_mode.startswith('off')
                   else None)
-        level, message = node_level_and_message(age, last_input >= 0,
-                                                self.config.stale_input_s, tf_off,
-                                                MAP_TO_ODOM_TOPIC)
+        problems = self.inputs.problems(received, lambda topic: [
+            i.topic_type for i in self.node.get_publishers_info_by_topic(topic)])
+        for problem in self.inputs.new(problems):
+            self.node.get_logger().warning(problem)
+        level, message = node_level_and_message(age, last_input >= 0, self.config.stale_input_s,
+                                                tf_off, MAP_TO_ODOM_TOPIC, problems)
         values: dict[str, str | float] = {
             'tf': self.tf_mode, 'input_age_s': round(age, 3),
             'queue_length': self.worker.queue_length(),

@@ -441,3 +441,40 @@ def test_keyframes_from_tracks_take_their_poses_from_a_faster_stream(
     finally:
         wrapper.close()
         driver.destroy_node()
+
+
+def test_publishers_the_inputs_cannot_match_are_named(
+        ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """A best-effort tracks publisher and a PoseStamped keyframe publisher, over DDS: one WARN.
+
+    The keyframe publisher lives in a second context (its own DDS participant), as a front-end
+    process would: one participant refuses a second type on a topic.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import PointCloud
+
+    context, executor = ros
+    wrapper, driver = start(context, executor, publish_tf=False)
+    got: list[Any] = []
+    driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
+    driver.create_publisher(PointCloud, 'features', QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    other = Context()
+    rclpy.init(context=other, domain_id=context.get_domain_id())
+    front_end = rclpy.create_node('front_end', context=other)
+    front_end.create_publisher(PoseStamped, 'keyframe_pose', RELIABLE)
+
+    def warned() -> bool:
+        return any('keyframe_pose is published as geometry_msgs/msg/PoseStamped' in s.message
+                   and 'reliability; set features_qos' in s.message
+                   for s in statuses(got, 'pmba_ros: node'))
+    try:
+        assert spin_until(executor, warned, 10.0)
+        status = next(s for s in statuses(got, 'pmba_ros: node') if 'PoseStamped' in s.message)
+        assert status.level == status.WARN
+    finally:
+        front_end.destroy_node()
+        rclpy.shutdown(context=other)
+        wrapper.close()
+        driver.destroy_node()

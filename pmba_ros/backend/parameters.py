@@ -15,13 +15,14 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 import inspect
 import re
 from typing import Any
 
 from pmba_ros.backend import config as settings
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.msg_backend import MsgBackend
+from pmba_ros.backend.msg_backend import MsgBackend, RclpyBackend
 
 _INT_MAX = 2**31 - 1
 
@@ -73,4 +74,25 @@ def parameter_descriptor(name: str, description: str, backend: MsgBackend) -> An
     return desc
 
 
-__all__ = ['RUNTIME_PARAMETERS', 'parameter_descriptions', 'parameter_descriptor']
+def declare_config(node: Any) -> BackendConfig:
+    """Declare every :class:`BackendConfig` field as a parameter and build the config.
+
+    Raises:
+        ValueError: If a parameter value is invalid (the message names the parameter).
+        rclpy.exceptions.InvalidParameterValueException: If a value is out of its range.
+    """
+    defaults = BackendConfig()
+    descriptions = parameter_descriptions()
+    backend = RclpyBackend()
+    values = {}
+    for f in fields(BackendConfig):
+        value = node.declare_parameter(
+            f.name, getattr(defaults, f.name),
+            parameter_descriptor(f.name, descriptions.get(f.name, ''), backend)).value
+        # An empty list in a parameter file has no type: rclpy leaves such a parameter unset.
+        values[f.name] = getattr(defaults, f.name) if value is None else value
+    return BackendConfig.from_params(values)
+
+
+__all__ = ['RUNTIME_PARAMETERS', 'declare_config', 'parameter_descriptions',
+           'parameter_descriptor']

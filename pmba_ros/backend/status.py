@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import math
 
@@ -162,7 +162,8 @@ def counter_values(counters: Counter[str]) -> dict[str, str | float]:
 
 
 def node_level_and_message(input_age_s: float, any_input: bool, stale_input_s: float,
-                           tf_off: str | None, map_to_odom_topic: str) -> tuple[str, str]:
+                           tf_off: str | None, map_to_odom_topic: str,
+                           input_problems: Sequence[str] = ()) -> tuple[str, str]:
     """Return the node's own diagnostics level and message.
 
     Args:
@@ -171,12 +172,16 @@ def node_level_and_message(input_age_s: float, any_input: bool, stale_input_s: f
         stale_input_s: Input age from which the input counts as stale.
         tf_off: Why map -> odom is not sent on TF although ``publish_tf`` asks for it, or None.
         map_to_odom_topic: The topic map -> odom goes to instead.
+        input_problems: Why inputs receive nothing although their topics have publishers
+            (:class:`~pmba_ros.backend.input_check.InputCheck`).
 
     Returns:
-        ``(level, message)``: 'warn' for stale input or TF off, else 'ok'.
+        ``(level, message)``: 'warn' for stale input, input problems or TF off, else 'ok'.
     """
     level, message = 'ok', 'receiving input'
-    if input_age_s > stale_input_s:
+    if input_problems:
+        level, message = 'warn', '; '.join(input_problems)
+    elif input_age_s > stale_input_s:
         level = 'warn'
         what = 'no input for' if any_input else 'no input received in'
         message = f'{what} {input_age_s:.1f} s (check the topics, remaps and QoS)'

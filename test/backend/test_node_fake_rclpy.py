@@ -156,6 +156,12 @@ class Subscription:
     topic: str
     callback: Callable[[Any], None]
     qos: QoSProfile
+    events: Any = None
+
+    @property
+    def topic_name(self) -> str:
+        """Return the topic resolved in the root namespace."""
+        return self.topic if self.topic.startswith('/') else f'/{self.topic}'
 
 
 @dataclass
@@ -203,6 +209,7 @@ class Node:
         self.timers: list[Any] = []
         self.logger = Logger()
         self.destroyed = False
+        self.graph: dict[str, list[str]] = {}
 
     def declare_parameter(self, name: str, value: Any = None, descriptor: Any = None,
                           ignore_override: bool = False) -> Parameter:
@@ -227,7 +234,8 @@ class Node:
                             raw: bool = False) -> Subscription:
         """Create subscription."""
         assert isinstance(qos_profile, QoSProfile | int)
-        sub = Subscription(msg_type, topic, callback, qos_profile)  # type: ignore[arg-type]
+        sub = Subscription(msg_type, topic, callback, qos_profile,  # type: ignore[arg-type]
+                           event_callbacks)
         self.subscriptions.append(sub)
         return sub
 
@@ -249,6 +257,10 @@ class Node:
         srv = Service(srv_type, srv_name, callback)
         self.services.append(srv)
         return srv
+
+    def get_publishers_info_by_topic(self, topic_name: str) -> list[Any]:
+        """Return the publishers of ``graph`` (topic -> message types)."""
+        return [types.SimpleNamespace(topic_type=t) for t in self.graph.get(topic_name, [])]
 
     def get_logger(self) -> Logger:
         """Get logger."""
@@ -376,6 +388,8 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
     overriding_mod = types.ModuleType('rclpy.qos_overriding_options')
     overriding_mod.QoSOverridingOptions = types.SimpleNamespace(  # type: ignore[attr-defined]
         with_default_policies=lambda: 'default policies')
+    events_mod = types.ModuleType('rclpy.event_handler')
+    events_mod.SubscriptionEventCallbacks = types.SimpleNamespace  # type: ignore[attr-defined]
     exc_mod = types.ModuleType('rclpy.exceptions')
     exc_mod.ParameterException = ParameterException  # type: ignore[attr-defined]
     rcl_mod = types.ModuleType('rcl_interfaces.msg')
@@ -386,6 +400,7 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
     srv_mod.SetBool = _set_bool()  # type: ignore[attr-defined]
     modules |= {'rclpy.node': node_mod, 'rclpy.qos': qos_mod, 'rclpy.executors': exec_mod,
                 'rclpy.qos_overriding_options': overriding_mod, 'rclpy.exceptions': exc_mod,
+                'rclpy.event_handler': events_mod,
                 'rcl_interfaces': types.ModuleType('rcl_interfaces'),
                 'rcl_interfaces.msg': rcl_mod,
                 'tf2_ros': None, 'std_srvs': types.ModuleType('std_srvs'),
@@ -523,3 +538,28 @@ def test_no_tf_subscription_with_extrinsics_given(fake_ros: FakeRclpy) -> None:
     wrapper = make(fake_ros, camera_extrinsics=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     topics = {s.topic for s in fake_ros.created[0].subscriptions}
     assert wrapper.config.camera_extrinsics and not topics & {'/tf_static', '/tf'}
+
+
+def test_silent_inputs_name_their_mismatch(fake_ros: FakeRclpy, seq: SimSequence) -> None:
+    """A publisher of another type or with incompatible QoS: one WARN naming the parameter."""
+    wrapper = make(fake_ros, deterministic=True)
+    node = fake_ros.created[0]
+    node.graph = {'/keyframe_pose': ['geometry_msgs/msg/PoseStamped'],
+                  '/features': ['sensor_msgs/msg/PointCloud']}
+    features = next(s for s in node.subscriptions if s.topic == 'features')
+    features.events.incompatible_qos(types.SimpleNamespace(
+        total_count=1, last_policy_kind=types.SimpleNamespace(name='RMW_QOS_POLICY_RELIABILITY')))
+    status = wrapper.node_status()
+    assert status.level == status.WARN
+    assert ('/keyframe_pose is published as geometry_msgs/msg/PoseStamped, read as '
+            'nav_msgs/msg/Odometry (set keyframe_type)') in status.message
+    assert '/features: a publisher offers QoS' in status.message
+    assert 'reliability; set features_qos' in status.message
+    warned = [line for level, line in node.logger.lines if level == 'warning']
+    wrapper.node_status()
+    assert [line for level, line in node.logger.lines if level == 'warning'] == warned
+    assert len(warned) == 2   # each problem logged once
+    # Once an input receives, its mismatch is no longer the reason it is silent.
+    features.callback(tracks_msg(seq, 0))
+    assert wrapper.process_pending() == 1
+    assert '/features' not in wrapper.node_status().message
