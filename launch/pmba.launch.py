@@ -18,26 +18,8 @@
     ros2 launch pmba_ros pmba.launch.py frontend:=openvins use_sim_time:=true
     ros2 launch pmba_ros pmba.launch.py frontend:=vins_mono params_file:=/path/my.yaml
 
-Pairings (topics as the front-ends publish them; see docs/ros2_notes.md §3.1):
-
-``vins_mono``
-    VINS-Mono's tracker output ``/feature_tracker/feature`` (layout ``vins_mono``: five
-    unnamed channels, id*NUM_OF_CAM+cam first) and ``/vins_estimator/keyframe_pose``
-    (Odometry). Tracks carry normalized coordinates: no CameraInfo needed.
-``vins_fusion``
-    VINS-Fusion runs its tracker inside the estimator, so the tracks come from
-    ``/vins_estimator/keyframe_point`` (layout ``per_point``: one channel
-    ``[x_n, y_n, u, v, id]`` per point, same stamp as the keyframe pose) and
-    ``/vins_estimator/keyframe_pose`` (Odometry).
-``vins_fusion_ros2``
-    The ROS 2 port (zinuok/VINS-Fusion-ROS2) publishes the same without a namespace:
-    ``/keyframe_point``, ``/keyframe_pose``.
-``openvins``
-    ``/ov_msckf/loop_feats`` (layout ``per_point``, raw pixels only: needs the intrinsics),
-    ``/ov_msckf/loop_pose`` (Odometry) and ``/ov_msckf/loop_intrinsics`` (CameraInfo).
-    OpenVINS publishes these only while something subscribes.
-
-``PAIRINGS`` below is plain data (the test suite checks it without ROS installed).
+Pairings (parameters and remappings per front-end, the topics as each publishes them):
+``pmba_ros.backend.frontends.PAIRINGS``.
 """
 
 import os
@@ -47,32 +29,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-
-PAIRINGS = {
-    'vins_mono': {
-        'parameters': {'feature_layout': 'vins_mono', 'keyframe_type': 'odometry',
-                       'num_cams': 1},
-        'remappings': [('features', '/feature_tracker/feature'),
-                       ('keyframe_pose', '/vins_estimator/keyframe_pose')],
-    },
-    'vins_fusion': {
-        'parameters': {'feature_layout': 'per_point', 'keyframe_type': 'odometry'},
-        'remappings': [('features', '/vins_estimator/keyframe_point'),
-                       ('keyframe_pose', '/vins_estimator/keyframe_pose')],
-    },
-    'vins_fusion_ros2': {
-        'parameters': {'feature_layout': 'per_point', 'keyframe_type': 'odometry'},
-        'remappings': [('features', '/keyframe_point'),
-                       ('keyframe_pose', '/keyframe_pose')],
-    },
-    'openvins': {
-        'parameters': {'feature_layout': 'per_point', 'keyframe_type': 'odometry',
-                       'camera_info_qos': 'reliable'},
-        'remappings': [('features', '/ov_msckf/loop_feats'),
-                       ('keyframe_pose', '/ov_msckf/loop_pose'),
-                       ('camera_info', '/ov_msckf/loop_intrinsics')],
-    },
-}
+from pmba_ros.backend.frontends import PAIRINGS
 
 
 def _node(context, *args, **kwargs):

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.frontends import PAIRINGS
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,13 +35,9 @@ EXPECTED_LAYOUTS = {'vins_mono': 'vins_mono', 'vins_fusion': 'per_point',
 
 
 def pairings() -> dict[str, Any]:
-    """Return the launch file's PAIRINGS literal."""
-    tree = ast.parse(LAUNCH.read_text(encoding='utf-8'))
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and any(
-                isinstance(t, ast.Name) and t.id == 'PAIRINGS' for t in node.targets):
-            return dict(ast.literal_eval(node.value))
-    pytest.fail('launch/pmba.launch.py has no PAIRINGS literal')
+    """Return the pairings the launch file uses (it imports them from the package)."""
+    assert 'from pmba_ros.backend.frontends import PAIRINGS' in LAUNCH.read_text(encoding='utf-8')
+    return PAIRINGS
 
 
 def test_launch_file_compiles_and_is_installed() -> None:

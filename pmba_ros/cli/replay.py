@@ -180,7 +180,7 @@ def _chosen(args: argparse.Namespace) -> set[str]:
     """Return the config fields given on the command line (a replay keeps them as given)."""
     chosen = {field for opt, field in _OVERRIDES.items() if getattr(args, opt, None) is not None}
     if getattr(args, 'camera_info_topic', None):
-        chosen.add('num_cams')
+        chosen |= {'num_cams', 'camera_info_topic'}
     return chosen
 
 

@@ -13,24 +13,26 @@
 # limitations under the License.
 """Fit a replay's input settings to what a recording holds.
 
-A live node has to be told its front-end's message formats; a recording shows them. Where
-the configured keyframe type, track layout or camera count cannot read a recording and
-exactly one other setting can, a replay takes that one and says so in its warnings: the
-configured settings stay wherever they read the recording, so nothing that parses is ever
-read another way.
+A live node has to be told its front-end's topics and message formats; a recording shows
+them. Where the configured tracks topic was not recorded but a known front-end's topics were
+(:data:`~pmba_ros.backend.frontends.PAIRINGS`), and where the configured keyframe type, track
+layout or camera count cannot read a recording and exactly one other setting can, a replay
+takes that one and says so in its warnings: the configured settings stay wherever they read
+the recording, so nothing that parses is ever read another way.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import replace
 import logging
 from typing import Any, TYPE_CHECKING
 
+from pmba_ros.backend.frontends import PAIRINGS
 from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, LAYOUTS, parse_tracks, tracks_msgtype
 from pmba_ros.errors import BagError, MessageError
 from pmba_ros.io.bag_inputs import CAMERA_INFO_TYPES, find_topic, resolve_topic
-from pmba_ros.io.bags import iter_messages, OpenBags
+from pmba_ros.io.bags import iter_messages, OpenBags, TopicInfo
 
 if TYPE_CHECKING:
     from pmba_ros.backend.config import BackendConfig
@@ -56,6 +58,9 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
 
     Settings named in ``chosen`` (the user's explicit choices) are kept as they are.
 
+    * the input topics are a known front-end's where the tracks topic was not recorded
+      (:func:`_front_end_topics`);
+
     * ``keyframe_type`` follows the keyframe topic's message type;
     * ``feature_layout``: if the configured layout cannot read the first
       :data:`PEEK_MESSAGES` tracks messages with observations and exactly one other layout
@@ -66,8 +71,9 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
 
     Each change is logged and appended to ``warnings``.
     """
-    changes: dict[str, Any] = {}
     topics = bags.topics
+    config = _front_end_topics(topics, config, warnings, chosen)
+    changes: dict[str, Any] = {}
     keyframes = find_topic(resolve_topic(config.keyframe_topic), topics)
     if keyframes is not None:
         kind = {t: k for k, t in KEYFRAME_MSGTYPES.items()}.get(topics[keyframes].msgtype)
@@ -98,6 +104,40 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
                      'once per camera id): only the reference camera is used')
         _note(warnings, text)
     return replace(config, **changes) if changes else config
+
+
+_INPUTS = {'features': 'features_topic', 'keyframe_pose': 'keyframe_topic',
+           'camera_info': 'camera_info_topic'}
+"""The node's input topic names (the pairings' remapping sources) -> their config fields."""
+
+
+def _front_end_topics(topics: Mapping[str, TopicInfo], config: BackendConfig,
+                      warnings: list[str], chosen: Collection[str]) -> BackendConfig:
+    """Return ``config`` reading a known front-end's topics if its own tracks are not recorded.
+
+    The first pairing whose tracks topic is recorded, with its keyframe topic where the
+    keyframes come from one, gives the input topics and its layout and keyframe type
+    (checked against the messages afterwards like any configured ones). Topics in ``chosen``
+    stay.
+    """
+    if 'features_topic' in chosen or find_topic(resolve_topic(config.features_topic), topics):
+        return config
+    need_poses = config.keyframe_source == 'keyframe_topic'
+    for name, pairing in PAIRINGS.items():
+        remap = {_INPUTS[src]: dst for src, dst in pairing['remappings']}
+        if find_topic(remap['features_topic'], topics) is None or (
+                need_poses and find_topic(remap['keyframe_topic'], topics) is None):
+            continue
+        changes = {field: topic for field, topic in remap.items()
+                   if field not in chosen and find_topic(topic, topics) is not None}
+        changes |= {field: value for field, value in pairing['parameters'].items()
+                    if field in ('feature_layout', 'keyframe_type') and field not in chosen}
+        _note(warnings, f'tracks topic {resolve_topic(config.features_topic)!r} is not '
+                        f"recorded; reading {name}'s topics: "
+                        + ', '.join(f'{remap[f]}' for f in _INPUTS.values() if f in changes)
+                        + ' (set --tracks-topic to choose)')
+        return replace(config, **changes)
+    return config
 
 
 def _note(warnings: list[str], text: str) -> None:

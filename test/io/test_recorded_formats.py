@@ -20,9 +20,11 @@ from pathlib import Path
 
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.errors import BagError
 from pmba_ros.io.bags import jazzy_typestore, open_bags, OpenBags, TopicInfo
 from pmba_ros.io.recorded_formats import _fitting_layout, _rig_camera_infos, fit_to_recording
-from pmba_ros.sim.bag import write_sequence_bag
+from pmba_ros.replay import replay
+from pmba_ros.sim.bag import SimTopics, write_sequence_bag
 from pmba_ros.sim.inputs import make_tracks
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
@@ -107,3 +109,38 @@ def test_configured_rig_is_kept() -> None:
     """Configured rig topics are not replaced by the recorded ones."""
     config = BackendConfig(num_cams=2, camera_info_topics=('/a', '/b'))
     assert _rig_camera_infos(_recorded('/cam0/camera_info', '/cam1/camera_info'), config, 2) == ()
+
+
+@pytest.mark.parametrize(('frontend', 'layout', 'topics'), [
+    ('openvins', 'per_point', SimTopics(tracks='/ov_msckf/loop_feats',
+                                        keyframes='/ov_msckf/loop_pose',
+                                        camera_info='/ov_msckf/loop_intrinsics')),
+    ('vins_mono', 'vins_mono', SimTopics(tracks='/feature_tracker/feature',
+                                         keyframes='/vins_estimator/keyframe_pose')),
+])
+def test_a_front_ends_recording_replays_without_options(tmp_path: Path, frontend: str,
+                                                        layout: str, topics: SimTopics) -> None:
+    """A front-end's own topic names are found; the result is the explicit replay's."""
+    seq = simulate_sequence('street', n_keyframes=30, seed=6)
+    bag = tmp_path / 'bag'
+    write_sequence_bag(seq, bag, layout=layout, topics=topics)
+    explicit = BackendConfig(features_topic=topics.tracks, keyframe_topic=topics.keyframes,
+                             camera_info_topic=topics.camera_info, feature_layout=layout)
+    replay([bag], tmp_path / 'explicit', explicit)
+    report = replay([bag], tmp_path / 'found')
+    assert report.complete and report.keyframes_out == 30 and report.messages_rejected == 0
+    found = f"reading {frontend}'s topics: {topics.tracks}, {topics.keyframes}"
+    assert found in report.warnings[0]
+    assert report.topics['camera_info'] == topics.camera_info
+    for name in ('keyframes_optimized.tum', 'landmarks.ply'):
+        assert ((tmp_path / 'found' / name).read_bytes()
+                == (tmp_path / 'explicit' / name).read_bytes()), name
+
+
+def test_chosen_tracks_topic_is_not_replaced(tmp_path: Path) -> None:
+    """A tracks topic given on the command line that is not recorded stays an error."""
+    seq = simulate_sequence('street', n_keyframes=4, seed=6)
+    topics = SimTopics(tracks='/ov_msckf/loop_feats', keyframes='/ov_msckf/loop_pose')
+    write_sequence_bag(seq, tmp_path / 'bag', layout='per_point', topics=topics)
+    with pytest.raises(BagError, match="tracks topic '/features' is not in the bag"):
+        replay([tmp_path / 'bag'], tmp_path / 'o', chosen={'features_topic'})
