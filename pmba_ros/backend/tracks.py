@@ -164,17 +164,35 @@ def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
     if int(num_cams) < 1:
         msg_ = f'num_cams must be >= 1, got {num_cams}'
         raise MessageError(msg_)
-    stamp_ns, frame_id = _header(msg)
-    if layout == 'named':
-        cols = _read_named(msg)
-    else:
-        cols = _read_point_cloud(msg, layout, int(num_cams))
-    if cols is None:
-        return TrackFrame.empty(stamp_ns, frame_id)
-    frame = _finish(stamp_ns, frame_id, layout, int(num_cams), cols, memory)
+    try:
+        frame = _parse(msg, layout, int(num_cams), memory)
+    except MessageError as err:
+        fits = [other for other in LAYOUTS if other != layout
+                and _parses(msg, other, int(num_cams))]
+        if len(fits) != 1:
+            raise
+        msg_ = f'{err}; it parses in layout {fits[0]!r}: set feature_layout'
+        raise MessageError(msg_) from err
     if memory is not None:
         memory.remember(frame, int(num_cams))
     return frame
+
+
+def _parse(msg: Any, layout: str, num_cams: int, memory: TrackMemory | None) -> TrackFrame:
+    stamp_ns, frame_id = _header(msg)
+    cols = _read_named(msg) if layout == 'named' else _read_point_cloud(msg, layout, num_cams)
+    if cols is None:
+        return TrackFrame.empty(stamp_ns, frame_id)
+    return _finish(stamp_ns, frame_id, layout, num_cams, cols, memory)
+
+
+def _parses(msg: Any, layout: str, num_cams: int) -> bool:
+    """Return whether ``msg`` reads in ``layout`` (for the hint of a message that does not)."""
+    try:
+        _parse(msg, layout, num_cams, None)
+    except MessageError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)

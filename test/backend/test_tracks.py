@@ -271,9 +271,10 @@ def test_per_point_data_fed_to_vins_fusion_raises(backend: Any, n_pts: int) -> N
                                                ('vins_mono', 'named'),
                                                ('named', 'vins_fusion')])
 def test_other_layout_mixups_raise(backend: Any, written: str, read: str) -> None:
-    """Tracks read with another layout's reader are a 'wrong layout' MessageError."""
+    """Another layout's reader: a 'wrong layout' MessageError naming the layout that reads it."""
     frame = random_frame(np.random.default_rng(5), written, 1, k=12)
-    with pytest.raises(MessageError, match='wrong layout'):
+    with pytest.raises(MessageError, match=f"wrong layout.*it parses in layout '{written}': "
+                                           'set feature_layout'):
         parse_tracks(make_tracks(frame, written, backend), read)
 
 
