@@ -60,7 +60,6 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
 
     * the input topics are a known front-end's where the tracks topic was not recorded
       (:func:`_front_end_topics`);
-
     * ``keyframe_type`` follows the keyframe topic's message type;
     * ``feature_layout``: if the configured layout cannot read the first
       :data:`PEEK_MESSAGES` tracks messages with observations and exactly one other layout
@@ -134,7 +133,7 @@ def _front_end_topics(topics: Mapping[str, TopicInfo], config: BackendConfig,
                     if field in ('feature_layout', 'keyframe_type') and field not in chosen}
         _note(warnings, f'tracks topic {resolve_topic(config.features_topic)!r} is not '
                         f"recorded; reading {name}'s topics: "
-                        + ', '.join(f'{remap[f]}' for f in _INPUTS.values() if f in changes)
+                        + ', '.join(remap[f] for f in _INPUTS.values() if f in changes)
                         + ' (set --tracks-topic to choose)')
         return replace(config, **changes)
     return config
