@@ -20,6 +20,7 @@ Usage examples::
     pmba simulate --format bal --scenario street --out street.txt     # for `pmba solve`
     pmba simulate --format bal --scenario table3 --seed 1 --out table3.txt
     pmba simulate --stop 60:100 --keyframes 300 --out stop_bag   # at rest for 100 keyframes
+    pmba simulate --frontend openvins --out ov_bag     # OpenVINS's topics and track layout
 
 A bag (``--format bag``, the default) holds VINS-layout ``PointCloud`` tracks (``PointCloud2``
 with ``--layout named``), drifting ``Odometry`` keyframe poses, ``CameraInfo`` and the ground
@@ -31,7 +32,9 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from pmba_ros.backend.frontends import PAIRINGS
 from pmba_ros.cli.argtypes import (
     non_negative_float,
     non_negative_int,
@@ -39,6 +42,9 @@ from pmba_ros.cli.argtypes import (
     positive_int,
 )
 from pmba_ros.errors import PmbaError
+
+if TYPE_CHECKING:
+    from pmba_ros.sim.bag import SimTopics
 
 _BAG_SCENARIOS = ('street', 'aerial', 'loop', 'rotation')
 _BAL_SCENARIOS = ('street', 'table3')
@@ -62,8 +68,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='random seed')
     parser.add_argument('--out', required=True, type=Path, metavar='BAG|FILE',
                         help='bag folder or .mcap file (bag), or problem file (bal)')
-    parser.add_argument('--layout', choices=_LAYOUTS, default='vins_fusion',
-                        help='track layout (named = PointCloud2 with named fields)')
+    parser.add_argument('--layout', choices=_LAYOUTS, default=None,
+                        help='track layout (named = PointCloud2 with named fields; default: '
+                        "the front-end's, else vins_fusion)")
+    parser.add_argument('--frontend', choices=sorted(PAIRINGS), default=None,
+                        help="bag: on this front-end's topics, in its track layout (the "
+                        'pairings of launch/pmba.launch.py); default: the topics the node '
+                        'reads by default')
     parser.add_argument('--noise-px', type=non_negative_float, default=0.5, metavar='PX',
                         help='pixel noise standard deviation')
     parser.add_argument('--drift', type=non_negative_float, default=0.02,
@@ -137,16 +148,39 @@ def run(args: argparse.Namespace) -> int:
         seq = add_camera(seq, T_c0c1, camera_id=1, seed=args.seed + 1)
         rig = [EUROC_CAM1 if extrinsic is not None else T_c0c1]
         extrinsic = extrinsic or Rigid.identity()
-    info = write_sequence_bag(seq, args.out, layout=args.layout, overwrite=args.overwrite,
-                              extrinsic=extrinsic, rig_extrinsics=rig)
+    layout, topics = _front_end(args.frontend, args.layout)
+    info = write_sequence_bag(seq, args.out, layout=layout, overwrite=args.overwrite,
+                              extrinsic=extrinsic, rig_extrinsics=rig, topics=topics)
     print(f'wrote {info.bag}: {args.scenario}, {info.n_keyframes} keyframes '
           f'({info.duration_s:.1f} s), {info.n_observations} observations, '
           f'{info.n_messages} messages')
     print(f'ground truth: {info.groundtruth_tum}')
     if args.cameras == 2:
-        print('replay it with: pmba replay BAG --camera-info-topic /camera_info '
-              '--camera-info-topic /camera1/camera_info')
+        print('a metric map: evaluate its replay with --align se3')
+    if args.frontend is not None:
+        print(f'the node on its topics: ros2 launch pmba_ros pmba.launch.py '
+              f'frontend:={args.frontend}, then pmba play {args.out}')
     return 0
+
+
+def _front_end(frontend: str | None, layout: str | None) -> tuple[str, SimTopics | None]:
+    """Return the track layout and topics of ``--frontend`` / ``--layout``.
+
+    Raises:
+        PmbaError: If ``--layout`` is not the front-end's.
+    """
+    from pmba_ros.sim.bag import SimTopics
+
+    if frontend is None:
+        return layout or 'vins_fusion', None
+    pairing = PAIRINGS[frontend]
+    own = pairing['parameters']['feature_layout']
+    if layout not in (None, own):
+        msg = f'--frontend {frontend} publishes layout {own}, not --layout {layout}'
+        raise PmbaError(msg)
+    remap = dict(pairing['remappings'])
+    return own, SimTopics(tracks=remap['features'], keyframes=remap['keyframe_pose'],
+                          camera_info=remap.get('camera_info', SimTopics.camera_info))
 
 
 def _run_bal(args: argparse.Namespace) -> int:

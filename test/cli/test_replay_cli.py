@@ -22,6 +22,7 @@ import sys
 
 import numpy as np
 from pmba_ros import replay as replay_mod
+from pmba_ros.backend.frontends import PAIRINGS
 from pmba_ros.cli.main import main
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.bags import list_topics
@@ -300,3 +301,28 @@ def test_sigterm_leaves_a_readable_result_bag(tmp_path: Path) -> None:
     topics = list_topics([out / 'result.mcap'])
     assert 0 < topics['/pmba/path'].count < 200
     assert json.loads((out / 'report.json').read_text())['complete'] is False
+
+
+@pytest.mark.usefixtures('stub')
+@pytest.mark.parametrize('frontend', sorted(PAIRINGS))
+def test_front_end_recordings_replay_without_options(tmp_path: Path, frontend: str) -> None:
+    """`simulate --frontend F` writes F's topics and layout; `replay` finds both by itself."""
+    bag = tmp_path / 'bag'
+    assert main(['simulate', '--frontend', frontend, '--keyframes', '12', '--out',
+                 str(bag)]) == 0
+    remap = dict(PAIRINGS[frontend]['remappings'])
+    assert list_topics([bag])[remap['features']].msgtype == 'sensor_msgs/msg/PointCloud'
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'o'), '--quiet']) == 0
+    report = json.loads((tmp_path / 'o' / 'report.json').read_text())
+    assert report['topics']['tracks'] == remap['features']
+    assert report['topics']['keyframes'] == remap['keyframe_pose']
+    assert report['keyframes_out'] == 12 and report['messages_rejected'] == 0
+
+
+def test_simulate_refuses_a_layout_the_front_end_does_not_publish(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--layout must agree with --frontend: one error line."""
+    assert main(['simulate', '--frontend', 'openvins', '--layout', 'named', '--out',
+                 str(tmp_path / 'b')]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['error: --frontend openvins publishes layout per_point, not --layout named']
