@@ -493,11 +493,13 @@ class Estimator:
         info.dropped['odom_frame_jumps'] = jumped.shape[0]
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
-            self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage)
+            self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
+        if jumped.size:   # this solve was pulled by the factors across the jump: again without
+            info.solve_ms += self._refine(slide=slide).solve_ms
         return info
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray,
@@ -516,6 +518,7 @@ class Estimator:
                                      follow_map_scale=monocular,
                                      pixel_sigma=self.pixel_noise.sigma,
                                      noise_factors=self.frontend_noise.factors,
+                                     white_noise=self.frontend_noise.white,
                                      run_steps=self._run_scale.steps if sliding else self.kf.n,
                                      typical=step)
 

@@ -34,7 +34,7 @@ from pmba_ros.backend.window import (
     KeyframeStore,
     Similarity,
 )
-from pmba_ros.core.pose_prior import RelativePosePrior
+from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges
 from pmba_ros.errors import InitError
 
 
@@ -151,6 +151,11 @@ class FrontendNoise:
     TRIM = 20.0
     """Steps whose squared residual over redundancy exceeds this many times the median of
     their group's are left out of the estimate (see :meth:`note`)."""
+    MOVING = 0.5
+    """Steps shorter than this share of the run's typical step do not count in :attr:`white`:
+    near rest a step's sigma is the floor (:data:`STEP_FLOOR_REL`), against which a noise
+    proportional to the step vanishes; counted, a stop drove the estimate to a fifth and the
+    step-change factors, five times too stiff, past what the vision could follow."""
     EVERY = 3
     """Window solves per sample: consecutive windows share most of their steps, and a
     leverage costs an inversion of the reduced system (a global solve's too much: the
@@ -160,6 +165,7 @@ class FrontendNoise:
         """Start at the parameters' sigmas."""
         self._recent: deque[FloatArray] = deque(maxlen=self.HISTORY)
         self._factors = (1.0, 1.0, 1.0)
+        self._white: tuple[float, float, float] | None = None
         self._asked = 0
 
     def wants_sample(self) -> bool:
@@ -179,14 +185,24 @@ class FrontendNoise:
         """
         return self._factors
 
+    @property
+    def white(self) -> tuple[float, float, float] | None:
+        """Return the estimates themselves, below 1 as well (None until there are some).
+
+        The scatter of single steps: the front-end's white step noise, which the step-change
+        factors weigh in (:func:`frontend_motion_prior`).
+        """
+        return self._white
+
     def note(self, prior: RelativePosePrior, residuals: FloatArray,
-             leverage: FloatArray) -> None:
+             leverage: FloatArray, typical: float = 0.0) -> None:
         """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
 
         The prior was built with the current :attr:`factors`. Factors more than
         :data:`JUMP_SIGMAS` off (a step that is no motion) and factors without a leverage do
         not count. Those beyond the Huber threshold do: a front-end far noisier than the
-        sigmas has most of its steps there until the factors have grown.
+        sigmas has most of its steps there until the factors have grown. :attr:`white` counts
+        only steps of at least :attr:`MOVING` times ``typical`` (the run's typical step).
         """
         keep = ((step_sigmas(prior, residuals) <= JUMP_SIGMAS)
                 & np.all(np.isfinite(leverage), axis=(1, 2)))
@@ -205,17 +221,28 @@ class FrontendNoise:
         squares = np.column_stack([e_rot, e_along ** 2, e_trans - e_along ** 2]) * unit ** 2
         redundancy = np.column_stack([3.0 - (hat[:, 0, 0] + hat[:, 1, 1] + hat[:, 2, 2]),
                                       1.0 - h_along, 2.0 - (h_trans - h_along)])
-        self._recent.append(np.stack([squares, redundancy]))
-        q, r = np.concatenate(list(self._recent), axis=1)
+        moving = np.sqrt(np.add.reduce(t * t, axis=1)) >= self.MOVING * typical
+        self._recent.append(np.stack([squares, redundancy,
+                                      np.broadcast_to(moving[:, None], squares.shape)]))
+        q, r, moved = np.concatenate(list(self._recent), axis=1)
         # Steps far beyond the others (TRIM times their median ratio) are ones a solve got
         # wrong (wrong tracks in its window), not the front-end's noise; a Gaussian step is
         # there once in hundreds, so the sum of the rest stays Helmert's estimate.
         ratio = q / np.maximum(r, 1e-12)
         kept = ratio <= self.TRIM * np.median(ratio, axis=0)
-        q, r = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
-        if np.all(r >= self.MIN_REDUNDANCY):
-            k = np.clip(np.sqrt(q / r), *self.LIMITS)
+        q_all, r_all = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
+        if np.all(r_all >= self.MIN_REDUNDANCY):
+            k = np.clip(np.sqrt(q_all / r_all), *self.LIMITS)
             self._factors = (float(k[0]), float(k[1]), float(k[2]))
+        moving = moved[:, 0] > 0
+        if not np.any(moving):
+            return
+        q, r, ratio = q[moving], r[moving], ratio[moving]
+        kept = ratio <= self.TRIM * np.median(ratio, axis=0)   # among the moving steps alone
+        q_moving, r_moving = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
+        if np.all(r_moving >= self.MIN_REDUNDANCY):
+            white = np.sqrt(q_moving / r_moving)
+            self._white = (float(white[0]), float(white[1]), float(white[2]))
 
 
 PRIOR_HUBER_SIGMAS = 5.0
@@ -256,6 +283,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
                           metric_scale: float, config: BackendConfig, *,
                           follow_map_scale: bool = True, pixel_sigma: float = 1.0,
                           noise_factors: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                          white_noise: tuple[float, float, float] | None = None,
                           run_steps: int = 0, typical: float = 0.0) -> RelativePosePrior | None:
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
@@ -282,7 +310,9 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     ``pixel_sigma`` (measured by the solves), so that noisy tracks lean more on the
     front-end and clean ones less; where the front-end gives pose covariances they take
     over (:func:`covariance_weights`). ``noise_factors`` multiply the rotation, step
-    length and step direction sigmas (:class:`FrontendNoise`).
+    length and step direction sigmas (:class:`FrontendNoise`). Where ``white_noise`` (the
+    measured scatter of single steps, :attr:`FrontendNoise.white`) is below them, consecutive
+    steps are also joined by step-change factors (:func:`step_changes`).
     """
     cfg = config
     if cfg.motion_prior_translation_rel <= 0 and cfg.motion_prior_rotation_rad <= 0:
@@ -324,9 +354,65 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     k_rot, k_along, k_across = noise_factors
     if k_along != 1.0 or k_across != 1.0:
         W_trans = (P_along / k_along + (np.eye(3) - P_along) / k_across) @ W_trans
-    return RelativePosePrior(a_loc, a_loc + 1, R_ab, scale[:, None] * t_odom,
-                             (weight / k_rot) * w_rot, weight * W_trans,
-                             huber=PRIOR_HUBER_SIGMAS * weight)
+    w_rot, W_trans = (weight / k_rot) * w_rot, weight * W_trans
+    t_ab = scale[:, None] * t_odom
+    changes = None if white_noise is None else step_changes(
+        a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
+        cfg.motion_prior_translation_rel)
+    return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans,
+                             huber=PRIOR_HUBER_SIGMAS * weight, changes=changes)
+
+
+def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: FloatArray,
+                 W_trans: FloatArray, factors: tuple[float, float, float],
+                 white: tuple[float, float, float], scale_rel: float) -> StepChanges | None:
+    """Return the step-change factors of consecutive prior factors (steps a -> a + 1).
+
+    The step factors hold each step to ``factors`` (k) times the parameters' sigmas; the
+    front-end's single steps scatter only ``white`` (w) times them. What the step factors
+    leave of the white noise's information is, per step and part (rotation, length,
+    direction), ``k^2 / w^2 - 1`` times theirs (none where w >= k): its covariance S. The
+    change of the error from step ab to step bc has the covariance S_ab + S_bc, and
+    independent factors on consecutive changes count its fastest component twice: each
+    change factor gets the covariance 2 (S_ab + S_bc). A drift that stays over a step
+    cancels in the change, so these factors follow a front-end far better than the
+    parameters without carrying its drift into the map; near a stop, where the steps' sigmas
+    differ a hundredfold, the larger one sets the change's. The measured steps are scaled to
+    the map by a scale known to ``scale_rel`` (relative): where the step changes (speeding
+    up, turning) that uncertainty moves the change's target, ``scale_rel (t_bc - t_ab)``,
+    and adds to its covariance; without it, stiff factors held the map to a scale taken at
+    a stop.
+
+    Args:
+        a: First pose of each step factor (consecutive steps: a[i + 1] == a[i] + 1).
+        t_ab: The measured steps in map units, (M, 3).
+        P_along: Projections onto each step's direction, (M, 3, 3).
+        w_rot: The step factors' rotation weights, (M,).
+        W_trans: Their translation weights, (M, 3, 3).
+        factors: :attr:`FrontendNoise.factors`.
+        white: :attr:`FrontendNoise.white`.
+        scale_rel: Relative sigma of the scale the steps were brought to the map with.
+    """
+    k, w = np.asarray(factors), np.asarray(white)
+    gain = np.sqrt(np.maximum(k * k / np.maximum(w * w, 1e-12) - 1.0, 0.0))
+    # Not the newest step yet: a jump of the front-end's frame arrives there, and the solve
+    # that finds it should not be pulled by more than the step's own factor.
+    first = np.flatnonzero(a[1:-1] == a[:-2] + 1)
+    if not np.any(gain) or first.size == 0:
+        return None
+    # Per step, the square-root information the white noise adds, and its covariance.
+    E = (gain[1] * P_along + gain[2] * (np.eye(3) - P_along)) @ W_trans
+    info = np.swapaxes(E, 1, 2) @ E
+    ridge = 1e-12 * np.max(np.trace(info, axis1=1, axis2=2), initial=1.0)
+    S = np.linalg.inv(info + ridge * np.eye(3))
+    d = t_ab[first + 1] - t_ab[first]
+    L = np.linalg.cholesky(2.0 * (S[first] + S[first + 1])
+                           + scale_rel ** 2 * np.einsum('mi,mj->mij', d, d))
+    W = np.linalg.inv(L)   # W (2 (S_ab + S_bc)) W^T = I
+    var_rot = 1.0 / np.maximum((gain[0] * w_rot) ** 2, 1e-300)
+    w_change = np.where(gain[0] > 0, 1.0 / np.sqrt(2.0 * (var_rot[first] + var_rot[first + 1])),
+                        0.0)
+    return StepChanges(first, w_change, W)
 
 
 def typical_step(run: RunScale, centers: FloatArray) -> float:

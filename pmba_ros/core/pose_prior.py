@@ -29,11 +29,21 @@ They touch only pose columns, so they enter the normal equations after the obser
 H_aa, H_bb, H_ab and the pose gradient of the covisible pairs (the Schur complement then
 reduces the features as before). The pose increment is the solver's: ``R <- R Exp(dphi)``,
 ``P <- P + dP``, columns [dphi, dP].
+
+A front-end's step errors are white noise plus a drift (a heading bias, a slowly changing
+scale) that single steps do not show. Factors weighted to the white noise alone would carry
+the drift into the map; :class:`StepChanges` holds the white noise's own information: factors
+on the change of the step error from one step to the next (steps a -> b and b -> c),
+
+    r_change = D (e_bc - e_ab),   e = [log(R_ab^T R_a^T R_b), R_a^T (P_b - P_a) - t_ab],
+
+in which a drift that stays over a step cancels (``D``: a diagonal rotation weight and a 3x3
+translation weight).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -71,6 +81,8 @@ class RelativePosePrior:
             shape (M, 3, 3).
         huber: Threshold on the norm of a factor's (6) residuals beyond which its cost grows
             linearly (inf: least squares).
+        changes: Factors on the change of the step error between consecutive factors
+            (:class:`StepChanges`), with the same Huber threshold; None: none.
     """
 
     a: IntArray
@@ -80,6 +92,7 @@ class RelativePosePrior:
     w_rot: FloatArray
     W_trans: FloatArray
     huber: float = math.inf
+    changes: StepChanges | None = None
 
     def __post_init__(self) -> None:
         """Check shapes and weights.
@@ -106,6 +119,9 @@ class RelativePosePrior:
         if not self.huber > 0:
             msg = f'pose prior: the Huber threshold must be > 0, got {self.huber}'
             raise ProblemError(msg)
+        if self.changes is not None and not self.changes.fits(self):
+            msg = 'pose prior: step changes must join consecutive factors (b of one = a of next)'
+            raise ProblemError(msg)
 
     def __len__(self) -> int:
         """Return the number of factors."""
@@ -121,15 +137,12 @@ class RelativePosePrior:
         np.multiply(self.w_rot[:, None], omega, out=r[:, :3])
         np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab, out=r[:, 3:])
         # np.sum's reductions (np.add.reduce) without its wrapper: the same sums.
-        norm = np.sqrt(_add(r * r, axis=1))
-        outer = norm > self.huber
-        weights = np.ones(len(self))
-        costs = 0.5 * norm * norm
-        if outer.any():
-            k = self.huber
-            weights[outer] = k / norm[outer]
-            costs[outer] = k * norm[outer] - 0.5 * k * k
-        return PriorEvaluation(r, float(_add(costs)), Ra, RaT_Rb, omega, rel_t, weights)
+        weights, cost = _huber(r, self.huber)
+        ev = PriorEvaluation(r, cost, Ra, RaT_Rb, omega, rel_t, weights)
+        if self.changes is None or not len(self.changes):
+            return ev
+        changes = self.changes.evaluate(self, ev)
+        return replace(ev, cost=cost + changes.cost, changes=changes)
 
     def residuals(self, R: FloatArray, P: FloatArray) -> FloatArray:
         """Return the weighted residuals, shape (M, 6): rotation, then translation."""
@@ -143,16 +156,7 @@ class RelativePosePrior:
 
     def jacobian(self, ev: PriorEvaluation) -> FloatArray:
         """Return d r / d [dphi_a, dP_a, dphi_b, dP_b] at an evaluation, shape (M, 6, 12)."""
-        M = len(self)
-        J = np.zeros((M, 6, 12))
-        rot = self.w_rot[:, None, None] * right_jacobian_inverse(ev.omega)
-        J[:, :3, :3] = -rot @ np.swapaxes(ev.RaT_Rb, 1, 2)
-        J[:, :3, 6:9] = rot
-        W_RaT = self.W_trans @ np.swapaxes(ev.Ra, 1, 2)
-        J[:, 3:, :3] = self.W_trans @ so3.hat(ev.rel_t)
-        J[:, 3:, 3:6] = -W_RaT
-        J[:, 3:, 9:] = W_RaT
-        return J
+        return _weighted(self.w_rot, self.W_trans, step_error_jacobian(ev))
 
     def hat_blocks(self, ev: PriorEvaluation, cov: FloatArray,
                    free_block: IntArray) -> FloatArray:
@@ -184,7 +188,7 @@ class RelativePosePrior:
     def bind(self, structure: SchurStructure, free_block: IntArray) -> PriorAssembly:
         """Return where the factors' J^T J and J^T r blocks go in a problem's equations.
 
-        Fixed poses contribute no columns. A cross block H_ab is added where (a, b) is a
+        Fixed poses contribute no columns. A cross block is added where its two poses are a
         covisible pair of the structure (consecutive keyframes of a window are); elsewhere
         only the diagonal blocks are (a block-Jacobi approximation of the factor).
 
@@ -192,36 +196,13 @@ class RelativePosePrior:
             structure: The problem's Schur structure.
             free_block: Pose -> block index (-1 for fixed poses).
         """
-        nb = structure.n_blocks
-        keys = structure.pair_rows.astype(np.int64) * nb + structure.pair_cols
-        order = np.argsort(keys)
-        sorted_keys = keys[order]
-
-        def pair_of(x: IntArray, y: IntArray) -> IntArray:
-            """Upper pair index of blocks (x, y), -1 if not a pair."""
-            lo, hi = np.minimum(x, y), np.maximum(x, y)
-            want = lo.astype(np.int64) * nb + hi
-            pos = np.minimum(np.searchsorted(sorted_keys, want), max(len(sorted_keys) - 1, 0))
-            found = (len(sorted_keys) > 0) & (sorted_keys[pos] == want) & (lo >= 0)
-            return np.where(found, order[pos], -1)
-
-        # Every factor's blocks (x, y) in the order they are added: (a, a), (b, b), then
-        # (a, b) where it is a covisible pair (the plans pair every block with itself).
-        M = len(self)
-        ba, bb = free_block[self.a], free_block[self.b]
-        x, y = np.concatenate([ba, bb, ba]), np.concatenate([ba, bb, bb])
-        target = pair_of(x, y)
-        keep = (x >= 0) & (y >= 0) & (target >= 0)
-        upper = (ba <= bb).astype(np.int64)   # a cross block's row is its lower block
-        sides = np.zeros(2 * M, np.int64)
-        sides[M:] = 1
-        row = np.concatenate([sides, 1 - upper])[keep]
-        col = np.concatenate([sides, upper])[keep]
-        factor = np.tile(np.arange(M), 3)
-        f_h, target = factor[keep], target[keep]
-        grad = x[:2 * M] >= 0
-        f_g, side_g, block_g = factor[:2 * M][grad], sides[grad], x[:2 * M][grad]
-        return PriorAssembly(self, f_h, row, col, target, f_g, side_g, block_g)
+        steps = FactorBlocks.bind(structure, free_block, np.stack([self.a, self.b], axis=1))
+        changes = None
+        if self.changes is not None and len(self.changes):
+            first = self.changes.first
+            poses = np.stack([self.a[first], self.b[first], self.b[first + 1]], axis=1)
+            changes = FactorBlocks.bind(structure, free_block, poses)
+        return PriorAssembly(self, steps, changes)
 
     def add_to(self, structure: SchurStructure, eqs: NormalEquations, R: FloatArray,
                P: FloatArray, free_block: IntArray) -> NormalEquations:
@@ -251,6 +232,7 @@ class PriorEvaluation:
         omega: log(R_ab^T R_a^T R_b) (M, 3).
         rel_t: R_a^T (P_b - P_a) (M, 3).
         weights: Each factor's weight in the normal equations, min(1, huber / |r|), (M,).
+        changes: The step-change factors' evaluation (None without them).
     """
 
     residuals: FloatArray
@@ -260,21 +242,23 @@ class PriorEvaluation:
     omega: FloatArray
     rel_t: FloatArray
     weights: FloatArray
+    changes: ChangeEvaluation | None = None
 
 
 @dataclass(frozen=True, eq=False)
-class PriorAssembly:
-    """A prior bound to one problem's Schur structure (:meth:`RelativePosePrior.bind`).
+class FactorBlocks:
+    """Where the blocks of factors over k poses go in one problem's normal equations.
 
     Attributes:
-        prior: The factors.
-        h_factor, h_row, h_col, h_pair: Block (h_row, h_col) of factor h_factor's J^T J
-            (side 0: pose a, 1: pose b) is added to the upper pair block h_pair of U.
-        g_factor, g_side, g_block: Side g_side of factor g_factor's J^T r is added to the
+        k: Poses per factor.
+        h_factor, h_row, h_col, h_pair: Block (h_row, h_col) of factor h_factor's J^T J (rows
+            and columns: the factor's poses, in its order) is added to the upper pair block
+            h_pair of U.
+        g_factor, g_side, g_block: Pose g_side of factor g_factor's J^T r is added to the
             gradient of pose block g_block.
     """
 
-    prior: RelativePosePrior
+    k: int
     h_factor: IntArray
     h_row: IntArray
     h_col: IntArray
@@ -283,15 +267,155 @@ class PriorAssembly:
     g_side: IntArray
     g_block: IntArray
 
-    def add_to(self, eqs: NormalEquations, ev: PriorEvaluation) -> NormalEquations:
-        """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
-        M = len(self.prior)
-        J = self.prior.jacobian(ev)
-        w = ev.weights
-        H = (w[:, None, None] * (np.swapaxes(J, 1, 2) @ J)).reshape(M, 2, 6, 2, 6)
-        grad = (w[:, None] * np.einsum('mji,mj->mi', J, ev.residuals)).reshape(M, 2, 6)
-        U = eqs.U.copy()
-        g = eqs.g_pose.copy()
+    @classmethod
+    def bind(cls, structure: SchurStructure, free_block: IntArray,
+             poses: IntArray) -> FactorBlocks:
+        """Return the blocks of factors over ``poses`` (M, k) (as RelativePosePrior.bind)."""
+        nb = structure.n_blocks
+        keys = structure.pair_rows.astype(np.int64) * nb + structure.pair_cols
+        order = np.argsort(keys)
+        sorted_keys = keys[order]
+        M, k = poses.shape
+        blocks = free_block[poses]
+        # Every (i <= j) pose pair of every factor; a pair block's row is its lower block.
+        i, j = np.triu_indices(k)
+        x, y = blocks[:, i].T.ravel(), blocks[:, j].T.ravel()
+        lo, hi = np.minimum(x, y), np.maximum(x, y)
+        want = lo.astype(np.int64) * nb + hi
+        pos = np.minimum(np.searchsorted(sorted_keys, want), max(len(sorted_keys) - 1, 0))
+        keep = (len(sorted_keys) > 0) & (sorted_keys[pos] == want) & (lo >= 0)
+        upper = np.repeat(i, M), np.repeat(j, M)
+        swap = x > y
+        row = np.where(swap, upper[1], upper[0])[keep]
+        col = np.where(swap, upper[0], upper[1])[keep]
+        factor = np.tile(np.arange(M), i.size)[keep]
+        free = blocks >= 0
+        g_factor, g_side = np.nonzero(free)
+        return cls(k, factor, row, col, order[pos[keep]], g_factor, g_side, blocks[free])
+
+    def add(self, U: FloatArray, g: FloatArray, J: FloatArray, r: FloatArray,
+            w: FloatArray) -> None:
+        """Add the weighted J^T J and J^T r of factors with Jacobians J (M, d, 6k) to U and g."""
+        M, k = J.shape[0], self.k
+        H = (w[:, None, None] * (np.swapaxes(J, 1, 2) @ J)).reshape(M, k, 6, k, 6)
+        grad = (w[:, None] * np.einsum('mji,mj->mi', J, r)).reshape(M, k, 6)
         np.add.at(U, self.h_pair, H[self.h_factor, self.h_row, :, self.h_col, :])
         np.add.at(g, self.g_block, grad[self.g_factor, self.g_side])
+
+
+@dataclass(frozen=True, eq=False)
+class PriorAssembly:
+    """A prior bound to one problem's Schur structure (:meth:`RelativePosePrior.bind`).
+
+    Attributes:
+        prior: The factors.
+        steps: Blocks of the step factors (poses a, b).
+        changes: Blocks of the step-change factors (poses a, b, c), or None.
+    """
+
+    prior: RelativePosePrior
+    steps: FactorBlocks
+    changes: FactorBlocks | None = None
+
+    def add_to(self, eqs: NormalEquations, ev: PriorEvaluation) -> NormalEquations:
+        """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
+        U = eqs.U.copy()
+        g = eqs.g_pose.copy()
+        self.steps.add(U, g, self.prior.jacobian(ev), ev.residuals, ev.weights)
+        if self.changes is not None and ev.changes is not None and self.prior.changes:
+            J = self.prior.changes.jacobian(ev)
+            self.changes.add(U, g, J, ev.changes.residuals, ev.changes.weights)
         return NormalEquations(U, eqs.W, eqs.V, g, eqs.g_feat)
+
+
+@dataclass(frozen=True, eq=False)
+class StepChanges:
+    """Factors on the change of the step error between consecutive factors of a prior.
+
+    Factor i joins the prior's factors ``first[i]`` (a -> b) and ``first[i] + 1`` (b -> c);
+    its residual is ``[w_rot (e_bc - e_ab)_rot, W_trans (e_bc - e_ab)_trans]`` with the
+    unweighted step errors e (see the module docstring).
+
+    Attributes:
+        first: The first factor of each pair, shape (M,).
+        w_rot: Rotation weight, shape (M,).
+        W_trans: Translation weight (square-root information), shape (M, 3, 3).
+    """
+
+    first: IntArray
+    w_rot: FloatArray
+    W_trans: FloatArray
+
+    def __len__(self) -> int:
+        """Return the number of factors."""
+        return int(self.first.shape[0])
+
+    def fits(self, prior: RelativePosePrior) -> bool:
+        """Return whether each pair is two consecutive factors of ``prior``, weights finite."""
+        M, n = len(self), len(prior)
+        shapes = self.w_rot.shape == (M,) and self.W_trans.shape == (M, 3, 3)
+        if not shapes or (M and (self.first.min() < 0 or self.first.max() + 1 >= n)):
+            return False
+        return bool(np.all(prior.b[self.first] == prior.a[self.first + 1])
+                    and np.all(np.isfinite(self.w_rot)) and np.all(np.isfinite(self.W_trans)))
+
+    def evaluate(self, prior: RelativePosePrior, ev: PriorEvaluation) -> ChangeEvaluation:
+        """Return the factors at the prior's evaluation ``ev``."""
+        e = np.concatenate([ev.omega, ev.rel_t - prior.t_ab], axis=1)
+        d = e[self.first + 1] - e[self.first]
+        r = np.empty_like(d)
+        np.multiply(self.w_rot[:, None], d[:, :3], out=r[:, :3])
+        np.einsum('mij,mj->mi', self.W_trans, d[:, 3:], out=r[:, 3:])
+        weights, cost = _huber(r, prior.huber)
+        return ChangeEvaluation(r, cost, weights)
+
+    def jacobian(self, ev: PriorEvaluation) -> FloatArray:
+        """Return d r / d [a, b, c] (each [dphi, dP]) at the prior's evaluation, (M, 6, 18)."""
+        E = step_error_jacobian(ev)
+        E_ab, E_bc = E[self.first], E[self.first + 1]
+        J = np.concatenate([-E_ab[:, :, :6], E_bc[:, :, :6] - E_ab[:, :, 6:], E_bc[:, :, 6:]],
+                           axis=2)
+        return _weighted(self.w_rot, self.W_trans, J)
+
+
+@dataclass(frozen=True, eq=False)
+class ChangeEvaluation:
+    """The step-change factors at one pose estimate: residuals (M, 6), cost, Huber weights."""
+
+    residuals: FloatArray
+    cost: float
+    weights: FloatArray
+
+
+def step_error_jacobian(ev: PriorEvaluation) -> FloatArray:
+    """Return d e / d [dphi_a, dP_a, dphi_b, dP_b] of the unweighted step errors, (M, 6, 12)."""
+    M = ev.omega.shape[0]
+    E = np.zeros((M, 6, 12))
+    Jr_inv = right_jacobian_inverse(ev.omega)
+    E[:, :3, :3] = -Jr_inv @ np.swapaxes(ev.RaT_Rb, 1, 2)
+    E[:, :3, 6:9] = Jr_inv
+    RaT = np.swapaxes(ev.Ra, 1, 2)
+    E[:, 3:, :3] = so3.hat(ev.rel_t)
+    E[:, 3:, 3:6] = -RaT
+    E[:, 3:, 9:] = RaT
+    return E
+
+
+def _weighted(w_rot: FloatArray, W_trans: FloatArray, E: FloatArray) -> FloatArray:
+    """Return the rows of E (M, 6, n) weighted: rotation rows by w_rot, translation by W_trans."""
+    J = np.empty_like(E)
+    np.multiply(w_rot[:, None, None], E[:, :3], out=J[:, :3])
+    np.matmul(W_trans, E[:, 3:], out=J[:, 3:])
+    return J
+
+
+def _huber(r: FloatArray, huber: float) -> tuple[FloatArray, float]:
+    """Return each factor's weight min(1, huber / |r|) and the factors' Huber cost."""
+    norm = np.sqrt(_add(r * r, axis=1))
+    outer = norm > huber
+    weights = np.ones(r.shape[0])
+    costs = 0.5 * norm * norm
+    if outer.any():
+        weights[outer] = huber / norm[outer]
+        costs[outer] = huber * norm[outer] - 0.5 * huber * huber
+    return weights, float(_add(costs))

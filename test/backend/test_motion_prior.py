@@ -33,6 +33,7 @@ from pmba_ros.backend.motion import (
     PRIOR_HUBER_SIGMAS,
     RUN_SCALE_SPAN,
     RunScale,
+    step_changes,
     STEP_FLOOR_REL,
     typical_step,
 )
@@ -312,6 +313,12 @@ def test_frontend_noise_measures_the_steps_noise_against_the_parameters(
     np.testing.assert_allclose(noise.factors, max(true_over_parameters, 1.0), rtol=0.2)
     if true_over_parameters < 1:
         assert noise.factors == (1.0, 1.0, 1.0)
+    # The measured scatter itself, below 1 as well (there the solves' own error adds to it).
+    assert noise.white is not None
+    if true_over_parameters >= 1:
+        np.testing.assert_allclose(noise.white, noise.factors)
+    else:
+        assert max(noise.white) < 0.7, noise.white
 
 
 @pytest.mark.parametrize(('scenario', 'n'), [('street', 60), ('loop', 60)])
@@ -521,3 +528,89 @@ def test_frontend_noise_skips_what_it_cannot_weigh() -> None:
     noise.note(prior, wild, np.zeros((M, 6, 6)))   # now counted: no leverage, all redundancy
     assert np.mean(np.linalg.norm(wild, axis=1) > PRIOR_HUBER_SIGMAS) > 0.5
     np.testing.assert_allclose(noise.factors, 3.0, rtol=0.2)
+
+
+def test_white_noise_counts_the_steps_of_a_moving_platform() -> None:
+    """Steps shorter than MOVING typical steps (a stop: their sigma is the floor) do not count.
+
+    Counted, their near-zero residuals pulled the white estimate to a fraction of the
+    moving steps' scatter.
+    """
+    M = 40
+    rng = np.random.default_rng(7)
+    prior = _unit_prior(M)
+    short = np.arange(M) % 2 == 0
+    prior = replace(prior, t_ab=np.where(short[:, None], 0.1 * prior.t_ab, prior.t_ab))
+    e = rng.normal(0.0, 0.5, (M, 6)) * np.where(short, 0.05, 1.0)[:, None]
+    white = []
+    for typical in (1.0, 0.0):   # 0: every step counts
+        noise = FrontendNoise()
+        for _ in range(4):
+            noise.note(prior, e, np.zeros((M, 6, 6)), typical)
+        assert noise.white is not None and noise.factors == (1.0, 1.0, 1.0)
+        white.append(noise.white)
+    np.testing.assert_allclose(white[0], 0.5, rtol=0.25)
+    assert max(white[1]) < 0.35, white[1]
+
+
+def _weighted_steps(lengths: list[float]) -> tuple[np.ndarray, ...]:
+    """Return a, t_ab, P_along, w_rot, W_trans of steps along x (weights: 1 / (1 % of it))."""
+    t = np.outer(lengths, [1.0, 0.0, 0.0])
+    P = np.tile(np.diag([1.0, 0.0, 0.0]), (len(lengths), 1, 1))
+    W = np.stack([np.eye(3) / (0.01 * n) for n in lengths])
+    return np.arange(len(lengths)), t, P, np.full(len(lengths), 2000.0), W
+
+
+def test_step_changes_add_what_the_step_factors_leave_of_the_white_noise() -> None:
+    """Equal steps, a front-end half as noisy as the weights: 3 / 4 of a step's information.
+
+    The white noise leaves (4 - 1) times the step factor's information per step, 2 (S + S)
+    per change makes that 3 / 4; a front-end as noisy as its weights gets none.
+    """
+    a, t, P, w_rot, W = _weighted_steps([1.0, 1.0, 1.0, 1.0])
+    changes = step_changes(a, t, P, w_rot, W, (1.0, 1.0, 1.0), (0.5, 0.5, 0.5), 0.0)
+    # Not the newest step (3) yet: the solve that finds a jump there is not pulled by these.
+    assert changes is not None and changes.first.tolist() == [0, 1]
+    np.testing.assert_allclose(changes.w_rot, np.sqrt(0.75) * w_rot[:2])
+    info = np.swapaxes(changes.W_trans, 1, 2) @ changes.W_trans
+    np.testing.assert_allclose(info, 0.75 * np.swapaxes(W[:2], 1, 2) @ W[:2], rtol=1e-6)
+    assert step_changes(a, t, P, w_rot, W, (1.0, 1.0, 1.0), (1.0, 1.2, 1.0), 0.0) is None
+
+
+def test_step_changes_near_a_stop_and_while_speeding_up() -> None:
+    """Next to a standstill step the moving step sets the change's covariance.
+
+    A change of step (speeding up) adds the scale's uncertainty along it.
+    """
+    a, t, P, w_rot, W = _weighted_steps([1.0, 0.001, 2.0, 2.0])
+    changes = step_changes(a, t, P, w_rot, W, (1.0, 1.0, 1.0), (0.5, 0.5, 0.5), 0.0)
+    assert changes is not None
+    sigma = 1.0 / np.linalg.norm(changes.W_trans, axis=2)   # per axis (diagonal here)
+    # 2 (S_ab + S_bc), S = (1 %)^2 l^2 / 3: the longer step's sets it to within 1e-6.
+    np.testing.assert_allclose(sigma[0], 0.01 * np.sqrt(2.0 / 3.0), rtol=1e-5)
+    np.testing.assert_allclose(sigma[1], 0.02 * np.sqrt(2.0 / 3.0), rtol=1e-5)
+    scaled = step_changes(a, t, P, w_rot, W, (1.0, 1.0, 1.0), (0.5, 0.5, 0.5), 0.045)
+    assert scaled is not None
+    along = 1.0 / np.linalg.norm(scaled.W_trans, axis=2)[:, 0]
+    # The change of step (0.999 m, 1.999 m) times 4.5 % adds in quadrature along x only.
+    np.testing.assert_allclose(along, np.hypot(sigma[:, 0], 0.045 * np.array([0.999, 1.999])),
+                               rtol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(scaled.W_trans, axis=2)[:, 1:],
+                               np.linalg.norm(changes.W_trans, axis=2)[:, 1:])
+
+
+def test_a_front_end_better_than_the_parameters_is_followed() -> None:
+    """A front-end 4x less noisy than the default simulation (``drift=0.005``), 200 keyframes.
+
+    Its steps' scatter is measured below the parameters and the step-change factors weigh it
+    in: the local motion beats the front-end's (before them, 1.6x it) without its drift.
+    """
+    seq = simulate_sequence('street', n_keyframes=200, seed=0, drift=0.005)
+    gt = seq.gt_trajectory()
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, seq)
+    noise = logic.estimator.frontend_noise
+    assert noise.white is not None and max(noise.white) < 0.5
+    opt, fe = logic.optimized_trajectory(), seq.odom_trajectory()
+    assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
+    assert ate(opt, gt, 'sim3').rmse < 0.5 * ate(fe, gt, 'sim3').rmse

@@ -23,7 +23,7 @@ from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.engine import Engine
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.normal_equations import NormalEquations, SchurStructure
-from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse
+from pmba_ros.core.pose_prior import RelativePosePrior, right_jacobian_inverse, StepChanges
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import ProblemError
@@ -268,3 +268,109 @@ def test_prior_leverage_is_the_fit_share_of_each_residual() -> None:
     # Without the option, nothing is formed.
     plain = solve(at, replace(tight, prior_leverage=False), first.features, pose_prior=prior)
     assert np.all(np.isnan(plain.prior_leverage))
+
+
+def _chain(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, RelativePosePrior]:
+    """Return poses 0..n-1 and noisy step factors i -> i+1 with step changes between them."""
+    rng = np.random.default_rng(seed)
+    R = so3.exp(rng.normal(0, 1.0, (n, 3)))
+    P = rng.normal(0, 3.0, (n, 3))
+    a = np.arange(n - 1)
+    steps = _prior(R, P, a, a + 1, 7.0, 3.0, noise=0.2, seed=seed)
+    first = np.arange(n - 2)
+    W = rng.normal(0, 1.0, (first.size, 3, 3)) + 4.0 * np.eye(3)
+    changes = StepChanges(first, rng.uniform(1.0, 9.0, first.size), W)
+    return R, P, replace(steps, changes=changes)
+
+
+def test_step_change_jacobians_match_central_differences() -> None:
+    """The change factors' 6x18 Jacobian (poses a, b, c) against central differences."""
+    R, P, prior = _chain(5, 3)
+    assert prior.changes is not None
+    ev = prior.evaluate(R, P)
+    J = prior.changes.jacobian(ev)
+    poses = np.stack([prior.a[prior.changes.first], prior.b[prior.changes.first],
+                      prior.b[prior.changes.first + 1]], axis=1)
+    h = 1e-6
+    for m in range(len(prior.changes)):
+        for side in range(3):
+            for col in range(6):
+                out = []
+                for sign in (1.0, -1.0):
+                    d = np.zeros(6)
+                    d[col] = sign * h
+                    R_m, P_m = R.copy(), P.copy()
+                    R_m[poses[m, side]] = R[poses[m, side]] @ so3.exp(d[:3])
+                    P_m[poses[m, side]] = P[poses[m, side]] + d[3:]
+                    changes = prior.evaluate(R_m, P_m).changes
+                    assert changes is not None
+                    out.append(changes.residuals[m])
+                np.testing.assert_allclose(J[m, :, 6 * side + col], (out[0] - out[1]) / (2 * h),
+                                           atol=2e-6, err_msg=f'factor {m} pose {side} {col}')
+
+
+def test_step_changes_cancel_an_error_that_stays() -> None:
+    """Steps all off by the same body-frame error: the step factors see it, the changes not."""
+    rng = np.random.default_rng(4)
+    n = 6
+    R = np.tile(so3.exp(rng.normal(0, 0.5, (1, 3))), (n, 1, 1))   # a straight drive
+    P = np.outer(np.arange(n), [1.0, 0.2, 0.0])
+    a = np.arange(n - 1)
+    t_ab = np.einsum('mji,mj->mi', R[a], P[a + 1] - P[a]) - np.array([0.03, -0.01, 0.02])
+    R_ab = np.einsum('mji,mjk->mik', R[a], R[a + 1]) @ so3.exp(np.array([[0.0, 0.0, 0.01]]))
+    first = np.arange(n - 2)
+    prior = RelativePosePrior(a, a + 1, R_ab, t_ab, np.full(n - 1, 100.0),
+                              np.tile(100.0 * np.eye(3), (n - 1, 1, 1)),
+                              changes=StepChanges(first, np.full(n - 2, 100.0),
+                                                  np.tile(100.0 * np.eye(3), (n - 2, 1, 1))))
+    ev = prior.evaluate(R, P)
+    assert ev.changes is not None
+    assert np.abs(ev.residuals).max() > 0.9
+    np.testing.assert_allclose(ev.changes.residuals, 0.0, atol=1e-9)
+    assert ev.cost == pytest.approx(0.5 * float(np.sum(ev.residuals ** 2)))
+
+
+def test_step_changes_enter_the_normal_equations(engine: Engine) -> None:
+    """add_to adds the change factors' J^T J and J^T r too (every pair covisible here)."""
+    R, P, prior = _chain(5, 5)
+    assert prior.changes is not None
+    cam = np.array([0, 1, 2, 3, 4, 0, 2, 4, 1, 3])
+    feat = np.array([0, 0, 0, 0, 0, 1, 1, 1, 1, 1])
+    free_block = np.array([-1, 0, 1, 2, 3])
+    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 2, free_block, (),
+                              engine.schur_plan)
+    n_pairs = st.pair_rows.shape[0]
+    zero = NormalEquations(np.zeros((n_pairs, 6, 6)), np.zeros((10, 6, 3)), np.zeros((2, 3, 3)),
+                           np.zeros((4, 6)), np.zeros((2, 3)))
+    eqs = prior.add_to(st, zero, R, P, free_block)
+    ev = prior.evaluate(R, P)
+    assert ev.changes is not None
+    rows = []
+    for J_f, poses, r in ((prior.jacobian(ev), np.stack([prior.a, prior.b], axis=1),
+                           ev.residuals),
+                          (prior.changes.jacobian(ev),
+                           np.stack([prior.a[:-1], prior.b[:-1], prior.b[1:]], axis=1),
+                           ev.changes.residuals)):
+        for m in range(J_f.shape[0]):
+            dense = np.zeros((6, 24))
+            for side, pose in enumerate(poses[m]):
+                if free_block[pose] >= 0:
+                    block = free_block[pose]
+                    dense[:, 6 * block:6 * block + 6] = J_f[m, :, 6 * side:6 * side + 6]
+            rows.append((dense, r[m]))
+    J = np.concatenate([d for d, _ in rows])
+    res = np.concatenate([r for _, r in rows])
+    H = (J.T @ J).reshape(4, 6, 4, 6)
+    np.testing.assert_allclose(eqs.g_pose.ravel(), J.T @ res, rtol=1e-10, atol=1e-8)
+    for p, (r, c) in enumerate(zip(st.pair_rows, st.pair_cols, strict=True)):
+        np.testing.assert_allclose(eqs.U[p], H[r, :, c, :], rtol=1e-10, atol=1e-8)
+
+
+def test_step_changes_must_join_consecutive_factors() -> None:
+    """A change pair whose factors do not share a pose is a clear ProblemError."""
+    _, _, prior = _chain(5, 6)
+    skip = replace(prior, a=np.array([0, 1, 3, 3]), b=np.array([1, 2, 4, 4]), changes=None)
+    with pytest.raises(ProblemError, match='consecutive factors'):
+        replace(skip, changes=prior.changes)
+    with pytest.raises(ProblemError, match='consecutive factors'):
+        replace(prior, changes=StepChanges(np.array([3]), np.ones(1), np.eye(3)[None]))
