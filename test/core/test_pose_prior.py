@@ -80,6 +80,18 @@ def test_jacobians_match_central_differences() -> None:
             np.testing.assert_allclose(J[:, :, col], num, atol=2e-6, err_msg=f'{sel} col {col}')
 
 
+def _empty_equations(engine: Engine, cam: np.ndarray, feat: np.ndarray, free_block: np.ndarray,
+                     ) -> tuple[SchurStructure, NormalEquations]:
+    """Return the Schur structure of observations (cam, feat) and zero equations on it."""
+    n_feats, n_free = int(feat.max()) + 1, int(free_block.max()) + 1
+    st = SchurStructure.build(cam, feat, free_block[cam][:, None], n_feats, free_block, (),
+                              engine.schur_plan)
+    zero = NormalEquations(np.zeros((st.pair_rows.shape[0], 6, 6)),
+                           np.zeros((cam.size, 6, 3)), np.zeros((n_feats, 3, 3)),
+                           np.zeros((n_free, 6)), np.zeros((n_feats, 3)))
+    return st, zero
+
+
 def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks(
         engine: Engine) -> None:
     """add_to adds J^T J and J^T r of the stacked factors to the structure's blocks.
@@ -93,14 +105,9 @@ def test_add_to_places_the_factors_normal_equations_in_the_covisible_blocks(
     P = rng.normal(0, 3.0, (n, 3))
     a, b = np.array([0, 1, 2, 3, 3]), np.array([1, 2, 3, 1, 4])
     prior = _prior(R, P, a, b, 7.0, 3.0, noise=0.2)
-    cam = np.array([0, 1, 1, 2, 2, 3, 3, 4])
-    feat = np.repeat(np.arange(4), 2)
     free_block = np.array([-1, 0, 1, 2, 3])
-    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 4, free_block, (),
-                              engine.schur_plan)
-    n_pairs = st.pair_rows.shape[0]
-    zero = NormalEquations(np.zeros((n_pairs, 6, 6)), np.zeros((8, 6, 3)), np.zeros((4, 3, 3)),
-                           np.zeros((4, 6)), np.zeros((4, 3)))
+    st, zero = _empty_equations(engine, np.array([0, 1, 1, 2, 2, 3, 3, 4]),
+                                np.repeat(np.arange(4), 2), free_block)
     eqs = prior.add_to(st, zero, R, P, free_block)
 
     Ja, Jb = prior.jacobians(R, P)
@@ -334,14 +341,9 @@ def test_step_changes_enter_the_normal_equations(engine: Engine) -> None:
     """add_to adds the change factors' J^T J and J^T r too (every pair covisible here)."""
     R, P, prior = _chain(5, 5)
     assert prior.changes is not None
-    cam = np.array([0, 1, 2, 3, 4, 0, 2, 4, 1, 3])
-    feat = np.array([0, 0, 0, 0, 0, 1, 1, 1, 1, 1])
     free_block = np.array([-1, 0, 1, 2, 3])
-    st = SchurStructure.build(cam, feat, free_block[cam][:, None], 2, free_block, (),
-                              engine.schur_plan)
-    n_pairs = st.pair_rows.shape[0]
-    zero = NormalEquations(np.zeros((n_pairs, 6, 6)), np.zeros((10, 6, 3)), np.zeros((2, 3, 3)),
-                           np.zeros((4, 6)), np.zeros((2, 3)))
+    st, zero = _empty_equations(engine, np.array([0, 1, 2, 3, 4, 0, 2, 4, 1, 3]),
+                                np.repeat(np.arange(2), 5), free_block)
     eqs = prior.add_to(st, zero, R, P, free_block)
     ev = prior.evaluate(R, P)
     assert ev.changes is not None
