@@ -152,10 +152,9 @@ class FrontendNoise:
     """Steps whose squared residual over redundancy exceeds this many times the median of
     their group's are left out of the estimate (see :meth:`note`)."""
     MOVING = 0.5
-    """Steps shorter than this share of the run's typical step do not count in :attr:`white`:
-    near rest a step's sigma is the floor (:data:`STEP_FLOOR_REL`), against which a noise
-    proportional to the step vanishes; counted, a stop drove the estimate to a fifth and the
-    step-change factors, five times too stiff, past what the vision could follow."""
+    """Steps shorter than this share of the typical step do not count in :attr:`white`: near
+    rest a step's sigma is the floor, against which its noise vanishes (a stop drove it to a
+    fifth)."""
     EVERY = 3
     """Window solves per sample: consecutive windows share most of their steps, and a
     leverage costs an inversion of the reduced system (a global solve's too much: the
@@ -368,20 +367,15 @@ def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: Floa
                  white: tuple[float, float, float], scale_rel: float) -> StepChanges | None:
     """Return the step-change factors of consecutive prior factors (steps a -> a + 1).
 
-    The step factors hold each step to ``factors`` (k) times the parameters' sigmas; the
-    front-end's single steps scatter only ``white`` (w) times them. What the step factors
-    leave of the white noise's information is, per step and part (rotation, length,
-    direction), ``k^2 / w^2 - 1`` times theirs (none where w >= k): its covariance S. The
-    change of the error from step ab to step bc has the covariance S_ab + S_bc, and
-    independent factors on consecutive changes count its fastest component twice: each
-    change factor gets the covariance 2 (S_ab + S_bc). A drift that stays over a step
-    cancels in the change, so these factors follow a front-end far better than the
-    parameters without carrying its drift into the map; near a stop, where the steps' sigmas
-    differ a hundredfold, the larger one sets the change's. The measured steps are scaled to
-    the map by a scale known to ``scale_rel`` (relative): where the step changes (speeding
-    up, turning) that uncertainty moves the change's target, ``scale_rel (t_bc - t_ab)``,
-    and adds to its covariance; without it, stiff factors held the map to a scale taken at
-    a stop.
+    The step factors hold each step to ``factors`` (k) times the parameters' sigmas; single
+    steps scatter ``white`` (w) times them. The step factors leave, per step and part
+    (rotation, length, direction), ``k^2 / w^2 - 1`` times their information (none where
+    w >= k): covariance S. A change of the error from step ab to bc has S_ab + S_bc, and
+    independent factors on consecutive changes count its fastest component twice: 2 (S_ab +
+    S_bc). A drift that stays over a step cancels in the change; near a stop the larger
+    step's S sets it. The steps are brought to the map by a scale known to ``scale_rel``:
+    where the step changes (speeding up, turning), ``scale_rel (t_bc - t_ab)`` adds to the
+    covariance (stiff factors had held the map to a scale taken at a stop).
 
     Args:
         a: First pose of each step factor (consecutive steps: a[i + 1] == a[i] + 1).
