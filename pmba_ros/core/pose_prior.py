@@ -321,9 +321,11 @@ class PriorAssembly:
         """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
         U = eqs.U.copy()
         g = eqs.g_pose.copy()
-        self.steps.add(U, g, self.prior.jacobian(ev), ev.residuals, ev.weights)
-        if self.changes is not None and ev.changes is not None and self.prior.changes:
-            J = self.prior.changes.jacobian(ev)
+        E = step_error_jacobian(ev)   # both kinds of factor are built from it
+        prior = self.prior
+        self.steps.add(U, g, _weighted(prior.w_rot, prior.W_trans, E), ev.residuals, ev.weights)
+        if self.changes is not None and ev.changes is not None and prior.changes:
+            J = prior.changes.jacobian(ev, E)
             self.changes.add(U, g, J, ev.changes.residuals, ev.changes.weights)
         return NormalEquations(U, eqs.W, eqs.V, g, eqs.g_feat)
 
@@ -369,9 +371,12 @@ class StepChanges:
         weights, cost = _huber(r, prior.huber)
         return ChangeEvaluation(r, cost, weights)
 
-    def jacobian(self, ev: PriorEvaluation) -> FloatArray:
-        """Return d r / d [a, b, c] (each [dphi, dP]) at the prior's evaluation, (M, 6, 18)."""
-        E = step_error_jacobian(ev)
+    def jacobian(self, ev: PriorEvaluation, E: FloatArray | None = None) -> FloatArray:
+        """Return d r / d [a, b, c] (each [dphi, dP]) at the prior's evaluation, (M, 6, 18).
+
+        ``E``: the prior's :func:`step_error_jacobian` at ``ev``, where the caller has it.
+        """
+        E = step_error_jacobian(ev) if E is None else E
         E_ab, E_bc = E[self.first], E[self.first + 1]
         J = np.concatenate([-E_ab[:, :, :6], E_bc[:, :, :6] - E_ab[:, :, 6:], E_bc[:, :, 6:]],
                            axis=2)
