@@ -60,10 +60,12 @@ class ReplayReport:
         keyframes_in: Keyframe messages read.
         keyframes_out: Keyframes in the optimized trajectory (every keyframe with a pose).
         map_scale: Scale of map <- odom after each keyframe since the initialization.
-        measured_noise: At the end, the tracks' pixel noise (``tracks_px``) and the factors
+        measured_noise: At the end, the tracks' pixel noise (``tracks_px``), the factors
             on the front-end's rotation, step-length and step-direction sigmas
-            (``frontend_factors``, >= 1: noisier than the parameters); empty if the
-            back-end never initialized.
+            (``frontend_factors``, >= 1: noisier than the parameters) and the measured
+            scatter of its single steps against them (``frontend_white``, below 1: the
+            step-change factors weigh it in; null until measured); empty if the back-end
+            never initialized.
         keyframes_not_optimized: Of those, keyframes at their front-end pose through
             map <- odom (before the initialization, too few observations).
         solve_ms: Solve time per keyframe solve, ms.
@@ -207,9 +209,11 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     report.keyframes_not_optimized = stats.not_optimized
     report.map_scale = [float(v) for v in stats.map_scale]
     if stats.noise is not None:
-        tracks_px, factors = stats.noise
+        tracks_px, factors, white = stats.noise
         report.measured_noise = {'tracks_px': tracks_px,
-                                 'frontend_factors': [round(k, 4) for k in factors]}
+                                 'frontend_factors': [round(k, 4) for k in factors],
+                                 'frontend_white': None if white is None
+                                 else [round(w, 4) for w in white]}
     fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
                  'reinitializations': 'window re-initializations from the front-end'}
     for name, what in fallbacks.items():

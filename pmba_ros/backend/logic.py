@@ -378,7 +378,8 @@ class BackendLogic:
         self._stats.not_optimized = int(np.count_nonzero(~est.optimized(est.estimated())))
         if est.state == 'tracking':
             self._stats.map_scale.append(est.map_from_odom.scale)
-            self._stats.noise = (est.pixel_noise.sigma, est.frontend_noise.factors)
+            noise = est.frontend_noise
+            self._stats.noise = (est.pixel_noise.sigma, noise.factors, noise.white)
         if info.dropped.get('cost_explosions'):   # counted with the update's drops
             self.last_error = f'cost_explosions: {info.message}'
         self._stats.update_ms.append(1e3 * (time.perf_counter() - t0))

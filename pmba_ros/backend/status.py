@@ -20,6 +20,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import math
 
+Factors = tuple[float, float, float]
+"""Rotation, step-length and step-direction factors of the front-end's motion prior."""
+
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
 INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
                            'init_failures', 'keyframes_passed_through',
@@ -74,8 +77,9 @@ class BackendStats:
         not_optimized: Keyframes in the outputs at their front-end pose (never optimized).
         map_scale: Scale of the map <- odom similarity after each keyframe since the
             initialization (a monocular map drifting in scale against odom shows here).
-        noise: Since the initialization, the tracks' pixel noise and the factors on the
-            front-end's rotation, step-length and step-direction sigmas (>= 1).
+        noise: Since the initialization, the tracks' pixel noise, the factors on the
+            front-end's rotation, step-length and step-direction sigmas (>= 1) and the
+            measured scatter of its single steps (``FrontendNoise.white``; None until known).
     """
 
     solve_ms: list[float] = field(default_factory=list)
@@ -87,7 +91,7 @@ class BackendStats:
     keyframes: int = 0
     not_optimized: int = 0
     map_scale: list[float] = field(default_factory=list)
-    noise: tuple[float, tuple[float, float, float]] | None = None
+    noise: tuple[float, Factors, Factors | None] | None = None
 
     def count(self, reason: str, n: int = 1) -> None:
         """Count ``n`` events under ``reason`` (a reason is listed once it has happened)."""
