@@ -149,8 +149,8 @@ class FrontendNoise:
     MIN_REDUNDANCY = 10.0
     LIMITS = (1.0, 50.0)
     TRIM = 20.0
-    """Steps whose squared residual over redundancy exceeds this many times the median of
-    their group's are left out of the estimate (see :meth:`note`)."""
+    """Steps beyond this many times their group's median squared residual over redundancy
+    are left out of the estimates."""
     MOVING = 0.5
     """Steps shorter than this share of the typical step do not count in :attr:`white`: near
     rest a step's sigma is the floor, against which its noise vanishes (a stop drove it to a
@@ -224,24 +224,21 @@ class FrontendNoise:
         self._recent.append(np.stack([squares, redundancy,
                                       np.broadcast_to(moving[:, None], squares.shape)]))
         q, r, moved = np.concatenate(list(self._recent), axis=1)
-        # Steps far beyond the others (TRIM times their median ratio) are ones a solve got
-        # wrong (wrong tracks in its window), not the front-end's noise; a Gaussian step is
-        # there once in hundreds, so the sum of the rest stays Helmert's estimate.
-        ratio = q / np.maximum(r, 1e-12)
-        kept = ratio <= self.TRIM * np.median(ratio, axis=0)
-        q_all, r_all = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
-        if np.all(r_all >= self.MIN_REDUNDANCY):
-            k = np.clip(np.sqrt(q_all / r_all), *self.LIMITS)
+        k = self._estimate(q, r)
+        if k is not None:
+            k = np.clip(k, *self.LIMITS)
             self._factors = (float(k[0]), float(k[1]), float(k[2]))
         moving = moved[:, 0] > 0
-        if not np.any(moving):
-            return
-        q, r, ratio = q[moving], r[moving], ratio[moving]
-        kept = ratio <= self.TRIM * np.median(ratio, axis=0)   # among the moving steps alone
-        q_moving, r_moving = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
-        if np.all(r_moving >= self.MIN_REDUNDANCY):
-            white = np.sqrt(q_moving / r_moving)
+        white = self._estimate(q[moving], r[moving]) if np.any(moving) else None
+        if white is not None:
             self._white = (float(white[0]), float(white[1]), float(white[2]))
+
+    def _estimate(self, q: FloatArray, r: FloatArray) -> FloatArray | None:
+        """Return Helmert's factors of squares q, redundancies r (n, 3) within TRIM; None: few."""
+        ratio = q / np.maximum(r, 1e-12)
+        kept = ratio <= self.TRIM * np.median(ratio, axis=0)
+        q, r = np.add.reduce(q * kept, axis=0), np.add.reduce(r * kept, axis=0)
+        return np.sqrt(q / r) if np.all(r >= self.MIN_REDUNDANCY) else None
 
 
 PRIOR_HUBER_SIGMAS = 5.0

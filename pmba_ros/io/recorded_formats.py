@@ -84,11 +84,14 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
     if tracks is None:
         return replace(config, **changes) if changes else config   # select_inputs says so
     sample = _peek(bags, tracks)
-    layout = config.feature_layout if 'feature_layout' in chosen else _fitting_layout(
-        sample, topics[tracks].msgtype, config, warnings)
+    if 'feature_layout' in chosen:
+        layout, frames = config.feature_layout, _reads(sample, config.feature_layout,
+                                                       config.num_cams)
+    else:
+        layout, frames = _fitting_layout(sample, topics[tracks].msgtype, config, warnings)
     if layout != config.feature_layout:
         changes['feature_layout'] = layout
-    cameras = _camera_count(sample, layout, config.num_cams)
+    cameras = _camera_count(frames or [], layout, config.num_cams)
     if cameras > config.num_cams and 'num_cams' not in chosen:
         changes['num_cams'] = cameras
         rig = _rig_camera_infos(bags, config, cameras)
@@ -169,26 +172,30 @@ def _reads(sample: list[object], layout: str, num_cams: int) -> list[TrackFrame]
 
 
 def _fitting_layout(sample: list[object], msgtype: str, config: BackendConfig,
-                    warnings: list[str]) -> str:
-    """Return the configured layout if it reads ``sample``, else the one other that does."""
+                    warnings: list[str]) -> tuple[str, list[TrackFrame] | None]:
+    """Return the configured layout if it reads ``sample``, else the one other that does.
+
+    With the frames it read (None: it reads none of them, or there was no sample).
+    """
     configured = config.feature_layout
-    if not sample or _reads(sample, configured, config.num_cams) is not None:
-        return configured
-    fits = [layout for layout in LAYOUTS if layout != configured
+    frames = _reads(sample, configured, config.num_cams)
+    if not sample or frames is not None:
+        return configured, frames
+    fits = [(layout, read) for layout in LAYOUTS if layout != configured
             and tracks_msgtype(layout) == msgtype
-            and _reads(sample, layout, config.num_cams) is not None]
+            and (read := _reads(sample, layout, config.num_cams)) is not None]
     if len(fits) != 1:
-        return configured   # none or several: the replay's errors name the mismatch
-    _note(warnings, f'tracks are not in layout {configured!r} but in {fits[0]!r}: read as '
-                    f'{fits[0]!r} (set --tracks-layout to choose)')
-    return fits[0]
+        return configured, None   # none or several: the replay's errors name the mismatch
+    layout, frames = fits[0]
+    _note(warnings, f'tracks are not in layout {configured!r} but in {layout!r}: read as '
+                    f'{layout!r} (set --tracks-layout to choose)')
+    return layout, frames
 
 
-def _camera_count(sample: list[object], layout: str, num_cams: int) -> int:
+def _camera_count(frames: list[TrackFrame], layout: str, num_cams: int) -> int:
     """Return the cameras the sampled tracks use (at least ``num_cams``)."""
     if layout == 'vins_mono':   # its ids encode num_cams; they cannot tell it
         return num_cams
-    frames = _reads(sample, layout, num_cams) or []
     top = max((int(f.camera_ids.max()) for f in frames if f.camera_ids.size), default=-1)
     return top + 1 if num_cams <= top < MAX_CAMERAS else num_cams
 

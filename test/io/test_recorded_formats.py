@@ -83,8 +83,9 @@ def test_tracks_no_layout_reads_keep_the_configuration() -> None:
     msg = make_tracks(seq.frames[0], 'vins_fusion', RosbagsBackend(jazzy_typestore()))
     garbled = replace(msg, channels=msg.channels[:3])
     warnings: list[str] = []
-    layout = _fitting_layout([garbled], 'sensor_msgs/msg/PointCloud', BackendConfig(), warnings)
-    assert layout == 'vins_fusion' and warnings == []
+    layout, frames = _fitting_layout([garbled], 'sensor_msgs/msg/PointCloud',
+                                     BackendConfig(), warnings)
+    assert layout == 'vins_fusion' and frames is None and warnings == []
 
 
 def _recorded(*infos: str) -> OpenBags:
