@@ -324,7 +324,7 @@ class PriorAssembly:
         E = step_error_jacobian(ev)   # both kinds of factor are built from it
         prior = self.prior
         self.steps.add(U, g, _weighted(prior.w_rot, prior.W_trans, E), ev.residuals, ev.weights)
-        if self.changes is not None and ev.changes is not None and prior.changes:
+        if self.changes is not None and ev.changes is not None and prior.changes is not None:
             J = prior.changes.jacobian(ev, E)
             self.changes.add(U, g, J, ev.changes.residuals, ev.changes.weights)
         return NormalEquations(U, eqs.W, eqs.V, g, eqs.g_feat)
