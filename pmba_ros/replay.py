@@ -258,6 +258,11 @@ class _Run:
                 growing.held = None
         if self.tracks_rejected and not self.tracks_accepted:
             self._raise_all_rejected()
+        if not self.tracks_rejected and not self.tracks_accepted:
+            # An empty topic exits 0 with the front-end's poses as the result: say so.
+            self.report.warnings.append(
+                f'no tracks message on {self.report.topics.get("tracks")!r}: nothing was '
+                "optimized, the keyframes are the front-end's")
 
 
 def _make_logic(config: BackendConfig) -> BackendLogic:
