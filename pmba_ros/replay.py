@@ -387,6 +387,9 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
                        keyframe_kind)
             run.camera_ids = outputs.camera_ids
             damage = ReadStats()
+            if bags.damage:   # parts that could not be opened: read around, reported as damage
+                damage.damaged_parts = len(bags.damage)
+                damage.first_damage = bags.damage[0]
             stream = iter_messages(bags, topics=list(kinds), damage=damage,
                                    points_as_arrays=True)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
