@@ -60,7 +60,7 @@ SUSPECT_COUNTERS = {
 }
 """Back-end counters of suspect input, each worth a warning in the report."""
 
-IDENTITY_EXTRINSIC = ("no body -> camera extrinsic (parameter camera_extrinsics, TF from the "
+IDENTITY_EXTRINSIC = ('no body -> camera extrinsic (parameter camera_extrinsics, TF from the '
                       "keyframe poses' child_frame_id to the camera's frame_id, or equal "
                       'frames): the keyframe poses were taken as camera poses, right only if '
                       'the front-end publishes camera poses')

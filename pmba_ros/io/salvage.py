@@ -125,8 +125,8 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     return Salvaged(dest, messages, damage)
 
 
-def readable_parts(paths: list[Path], error: BagError, stack: ExitStack,
-                    ) -> tuple[list[Path], tuple[str, ...]]:
+def readable_parts(paths: list[Path], error: BagError,
+                   stack: ExitStack) -> tuple[list[Path], tuple[str, ...]]:
     """Return the storage files of ``paths`` that open, damaged MCAP files' readable copies.
 
     The copies go to a temporary folder that ``stack`` removes.
