@@ -72,6 +72,7 @@ from pmba_ros.io.bag_inputs import (
     rig_camera_infos,
     select_inputs,
     stamp_ordered,
+    static_transforms,
 )
 from pmba_ros.io.bag_writer import open_writer
 from pmba_ros.io.bags import (
@@ -257,6 +258,11 @@ class _Run:
                 growing.held = None
         if self.tracks_rejected and not self.tracks_accepted:
             self._raise_all_rejected()
+        if not self.tracks_rejected and not self.tracks_accepted:
+            # An empty topic exits 0 with the front-end's poses as the result: say so.
+            self.report.warnings.append(
+                f'no tracks message on {self.report.topics.get("tracks")!r}: nothing was '
+                "optimized, the keyframes are the front-end's")
 
 
 def _make_logic(config: BackendConfig) -> BackendLogic:
@@ -374,12 +380,16 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
         logic = _make_logic(config)
         if intrinsics is not None:
             logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
+        _give_static_transforms(logic, bags, inputs.tf)
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
             run = _Run(logic, writer, report, progress, report.messages_announced,
                        keyframe_kind)
             run.camera_ids = outputs.camera_ids
             damage = ReadStats()
+            if bags.damage:   # parts that could not be opened: read around, reported as damage
+                damage.damaged_parts = len(bags.damage)
+                damage.first_damage = bags.damage[0]
             stream = iter_messages(bags, topics=list(kinds), damage=damage,
                                    points_as_arrays=True)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):
@@ -399,6 +409,19 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
                                    f'{run.first_error}')
         with deferred_interrupts():
             _write_outputs(logic, report, out, outputs, finished)
+
+
+def _give_static_transforms(logic: BackendLogic, bags: OpenBags, tf_topics: Sequence[str],
+                            ) -> None:
+    """Give the back-end every static transform of the recording before its first message.
+
+    They pass again in stamp order, where a bad one is counted (here it is skipped).
+    """
+    for msg in static_transforms(bags, tf_topics):
+        try:
+            logic.cameras.tf_tree.add_message(msg)
+        except MessageError:
+            continue
 
 
 def _describe_error(err: BaseException) -> str:

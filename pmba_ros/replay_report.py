@@ -41,8 +41,30 @@ SUSPECT_COUNTERS = {
                          'glitch)',
     'cost_explosions': 'solves whose cost per observation exploded relative to their '
                        'history (inconsistent tracks?)',
+    # Input accepted and then not used, or used another way than the recording meant: only
+    # a counter before, so a replay that lost a rig's second camera, or the tracks of the
+    # keyframes before the CameraInfo, said nothing of it.
+    'other_camera_observations': 'observations by cameras other than the reference one not '
+                                 'used: no CameraInfo or no body -> camera transform for '
+                                 'their camera (camera_info_topics, camera_extrinsics or TF)',
+    'tracks_without_camera_info': "keyframes' tracks (pixels only) not used: no CameraInfo "
+                                  'had arrived for them',
+    'keyframes_without_pose': 'keyframes the pose stream gave no pose (none within 0.5 s on '
+                              'either side, or a jump of its frame between): taken without one',
+    'odom_frame_jumps': "front-end steps found far off the map's by the solve: a new odom "
+                        'segment starts at each',
+    'keyframe_buffer_overflow': 'keyframe poses dropped: more than buffer_size waited for '
+                                'their tracks',
+    'tracks_buffer_overflow': 'tracks messages dropped: more than buffer_size waited for '
+                              'their keyframe',
 }
 """Back-end counters of suspect input, each worth a warning in the report."""
+
+IDENTITY_EXTRINSIC = ('no body -> camera extrinsic (parameter camera_extrinsics, TF from the '
+                      "keyframe poses' child_frame_id to the camera's frame_id, or equal "
+                      'frames): the keyframe poses were taken as camera poses, right only if '
+                      'the front-end publishes camera poses')
+"""The warning of ``extrinsic_unknown``: the front-end's poses may be its IMU's."""
 
 
 @dataclass
@@ -220,6 +242,8 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {what}')
     cameras = logic.cameras
+    if report.counters.get('extrinsic_unknown'):
+        report.warnings.append(IDENTITY_EXTRINSIC)
     if cameras.extrinsic is not None:
         report.extrinsic = {'source': cameras.extrinsic_source,
                             'body_to_camera': [round(v, 9) for v in cameras.extrinsic.to_flat()]}

@@ -189,6 +189,26 @@ def test_replay_writes_all_outputs(street_bag: Path, tmp_path: Path) -> None:
 
 
 @pytest.mark.usefixtures('stub')
+def test_empty_tracks_topic_is_a_warning(street_bag: Path, tmp_path: Path) -> None:
+    """A tracks topic recorded without a message: the front-end's poses, and a warning."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    typestore = jazzy_typestore()
+    bag = tmp_path / 'no_tracks'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {'/features': writer.add_connection('/features', 'sensor_msgs/msg/PointCloud',
+                                                    typestore=typestore)}
+        for m in iter_messages([street_bag], topics=['/keyframe_pose']):
+            conn = conns.get(m.topic) or writer.add_connection(m.topic, m.msgtype,
+                                                               typestore=typestore)
+            conns[m.topic] = conn
+            writer.write(conn, m.log_time_ns, typestore.serialize_cdr(m.msg, m.msgtype))
+    report = replay([bag], tmp_path / 'o')
+    assert report.complete and report.keyframes_in == 60
+    assert "no tracks message on '/features': nothing was optimized" in report.warnings[-1]
+
+
+@pytest.mark.usefixtures('stub')
 def test_missing_topic_is_one_bag_error(street_bag: Path, tmp_path: Path) -> None:
     """A tracks topic that is not recorded names the topic and what is recorded."""
     config = BackendConfig(features_topic='/feature_tracker/feature')

@@ -22,7 +22,8 @@ import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.eval.metrics import ate
 from pmba_ros.eval.trajectory import read_tum
-from pmba_ros.io.bags import list_topics
+from pmba_ros.io.bag_writer import open_writer
+from pmba_ros.io.bags import iter_messages, list_topics
 from pmba_ros.replay import replay
 from pmba_ros.sim.bag import EUROC_CAM0, groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
@@ -67,3 +68,31 @@ def test_pure_rotation_replay_passes_the_front_end_through(tmp_path: Path) -> No
     assert report.accuracy is not None
     assert any('aligned by the first pose' in note for note in report.accuracy['notes'])
     assert report.accuracy['ate_optimized_m'] == report.accuracy['ate_frontend_m']
+
+
+def test_static_transform_recorded_after_the_first_keyframe_is_used(tmp_path: Path) -> None:
+    """/tf_static logged and stamped a second into the run still gives the extrinsic.
+
+    It holds at every time; before, the extrinsic was fixed at the first keyframe pose as
+    the identity (with no warning) and the run's RPE tripled.
+    """
+    seq = simulate_sequence('street', n_keyframes=30, seed=2)
+    bag = tmp_path / 'bag'
+    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0)
+    late = tmp_path / 'late.mcap'
+    messages = list(iter_messages([bag]))
+    shift = 1_000_000_000
+    with open_writer(late) as writer:
+        for m in sorted(messages, key=lambda m: m.log_time_ns + shift * (m.topic == '/tf_static')):
+            if m.topic == '/tf_static':
+                for transform in m.msg.transforms:
+                    transform.header.stamp.sec += 1
+                writer.write(m.topic, m.msg, m.log_time_ns + shift)
+            else:
+                writer.write(m.topic, m.msg, m.log_time_ns)
+    replay([late], tmp_path / 'out')
+    data = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert data['extrinsic']['source'] == 'tf'
+    np.testing.assert_allclose(data['extrinsic']['body_to_camera'], EUROC_CAM0.to_flat(),
+                               atol=1e-8)
+    assert 'extrinsic_unknown' not in data['counters']

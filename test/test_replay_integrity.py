@@ -291,3 +291,46 @@ def test_sigint_storm_leaves_a_consistent_folder(bag: Path, tmp_path: Path,
                 assert Path(data['files'][key]).exists()
     if 'result.mcap' in names:
         list_topics([out / 'result.mcap'])  # finalized: readable
+
+
+def _rechunked(src: Path, dst: Path, chunk_size: int) -> None:
+    """Copy an MCAP file with chunks of ``chunk_size`` bytes (a long recording has many)."""
+    from mcap.records import Channel, Header, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    with src.open('rb') as stream, dst.open('wb') as out:
+        writer = Writer(out, chunk_size=chunk_size)
+        ids: dict[tuple[str, int], int] = {}
+        for rec in StreamReader(stream).records:
+            if isinstance(rec, Header):
+                writer.start(rec.profile, rec.library)
+            elif isinstance(rec, Schema) and ('s', rec.id) not in ids:
+                ids['s', rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and ('c', rec.id) not in ids:
+                ids['c', rec.id] = writer.register_channel(
+                    rec.topic, rec.message_encoding, ids['s', rec.schema_id], rec.metadata)
+            elif isinstance(rec, Message):
+                writer.add_message(ids['c', rec.channel_id], rec.log_time, rec.data,
+                                   rec.publish_time, rec.sequence)
+        writer.finish()
+
+
+def test_truncated_recording_keeps_the_keyframes_before_the_cut(bag: Path,
+                                                                tmp_path: Path) -> None:
+    """A recorder killed mid-run: the keyframes before the cut are replayed, damage reported.
+
+    Before, the file without its index was refused whole ("File end magic is invalid").
+    """
+    chunked = tmp_path / 'chunked.mcap'
+    _rechunked(bag, chunked, 4096)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(chunked.read_bytes()[: chunked.stat().st_size * 6 // 10])
+    out = tmp_path / 'o'
+    report = replay([cut], out)
+    data = json.loads((out / 'report.json').read_text())
+    assert not data['complete'] and not data['input_complete'] and data['damaged_parts'] == 1
+    assert 'cut.mcap: cannot be opened' in data['read_error']
+    assert 'the rest of the file is lost' in data['read_error']
+    assert N_KF // 3 < report.keyframes_out < N_KF
+    assert len(read_tum(out / 'keyframes_frontend.tum')) == report.keyframes_out

@@ -24,7 +24,14 @@ from typing import Any, TYPE_CHECKING
 
 from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, stamp_of, tracks_msgtype
 from pmba_ros.errors import BagError, MessageError
-from pmba_ros.io.bags import BagMessage, list_topics, TopicInfo
+from pmba_ros.io.bags import (
+    BagMessage,
+    iter_messages,
+    list_topics,
+    OpenBags,
+    ReadStats,
+    TopicInfo,
+)
 
 if TYPE_CHECKING:
     from pmba_ros.backend.config import BackendConfig
@@ -35,6 +42,7 @@ CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
 TF_TOPICS = ('/tf_static', '/tf')
 """Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
 TF_TYPES = ('tf2_msgs/msg/TFMessage',)
+STATIC_TF_TOPIC = '/tf_static'
 
 REORDER_BUFFER = 256
 """Messages held back to sort the log-time stream into header-stamp order."""
@@ -161,6 +169,22 @@ def rig_camera_infos(bags: Sequence[Path], config: BackendConfig, warnings: list
             logger.warning(text)
             warnings.append(text)
     return found
+
+
+def static_transforms(bags: OpenBags, tf_topics: Sequence[str]) -> Iterator[Any]:
+    """Yield the recorded static transform messages (``/tf_static``), in log-time order.
+
+    A static transform holds at every time (tf2 keeps it forever), but the extrinsic is
+    fixed at the first keyframe pose: a ``/tf_static`` recorded after it (a recording
+    started before the robot's state publisher, a static publisher started late) left a
+    whole run with the identity as its body -> camera transform, silently. Damage is read
+    past here; the replay's pass reports it.
+    """
+    static = [t for t in tf_topics if t.lstrip('/') == STATIC_TF_TOPIC.lstrip('/')]
+    if not static:
+        return
+    for message in iter_messages(bags, topics=static, damage=ReadStats()):
+        yield message.msg
 
 
 def header_stamp_ns(msg: Any, fallback: int) -> int:

@@ -29,7 +29,7 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 from __future__ import annotations
 
 from collections.abc import Callable, Generator, Iterator, Sequence
-from contextlib import closing, contextmanager, nullcontext
+from contextlib import closing, contextmanager, ExitStack, nullcontext
 from dataclasses import dataclass, field
 import functools
 from functools import lru_cache
@@ -247,14 +247,16 @@ class OpenBags(NamedTuple):
     """Recordings opened once for their topics and then their messages (see :func:`open_bags`).
 
     Attributes:
-        paths: The checked bag paths.
+        paths: The checked bag paths (a damaged MCAP file's readable copy in its place).
         reader: The open rosbags reader.
         topics: Topic name -> :class:`TopicInfo`, as :func:`list_topics` returns them.
+        damage: What could not be opened, and what was read instead (see :func:`open_bags`).
     """
 
     paths: list[Path]
     reader: Any
     topics: dict[str, TopicInfo]
+    damage: tuple[str, ...] = ()
 
 
 @contextmanager
@@ -264,12 +266,24 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
     Opening parses the bags' metadata and message definitions; a replay that lists the topics
     and then reads the messages needs it only once.
 
+    Recordings that cannot be opened whole are read file by file: an MCAP file without its
+    index (a recorder killed mid-run) by its messages up to the damage
+    (:func:`~pmba_ros.io.salvage.salvage_mcap`), a rosbag2 folder whose ``metadata.yaml``
+    lists a missing file by the files there are. ``damage`` then says what was lost.
+
     Raises:
-        BagError: If a bag is missing or cannot be opened.
+        BagError: If a bag is missing or cannot be opened, not even in part.
     """
     checked = _check_paths([Path(p) for p in paths])
-    with _any_reader(checked) as reader:
-        yield OpenBags(checked, reader, _topics_of(reader))
+    with ExitStack() as stack:
+        damage: tuple[str, ...] = ()
+        try:
+            reader = stack.enter_context(_any_reader(checked))
+        except BagError as err:
+            from pmba_ros.io.salvage import readable_parts
+            checked, damage = readable_parts(checked, err, stack)
+            reader = stack.enter_context(_any_reader(checked))
+        yield OpenBags(checked, reader, _topics_of(reader), damage)
 
 
 def require_topics(topics: dict[str, TopicInfo], wanted: dict[str, Sequence[str]],
@@ -329,7 +343,7 @@ def iter_messages(paths: Sequence[Path | str] | OpenBags,
             before it have been yielded).
     """
     if isinstance(paths, OpenBags):
-        checked, reader, recorded = paths
+        checked, reader, recorded = paths.paths, paths.reader, paths.topics
     else:
         checked, reader, recorded = _check_paths([Path(p) for p in paths]), None, None
     expected, produced = 0, 0

@@ -103,6 +103,22 @@ def test_associate_pairs_nearest_stamps_within_tolerance(rng: np.random.Generato
     np.testing.assert_array_equal(est_a.positions_xyz, ref_a.positions_xyz)
 
 
+@pytest.mark.parametrize('shuffled', ['est', 'ref', 'both'])
+def test_associate_pairs_poses_in_time_order(rng: np.random.Generator, shuffled: str) -> None:
+    """Files out of time order give the metrics of the sorted ones (RPE pairs neighbours)."""
+    ref = random_trajectory(rng, 60)
+    est = perturbed(ref.take(np.arange(5, 45)), rng, 0.01)
+    order = np.random.default_rng(7).permutation
+    est_s = est.take(order(len(est))) if shuffled in ('est', 'both') else est
+    ref_s = ref.take(order(len(ref))) if shuffled in ('ref', 'both') else ref
+    want, got = evaluate(est, ref), evaluate(est_s, ref_s)
+    for metric in ('ate', 'rpe'):
+        assert got[metric].rmse == pytest.approx(want[metric].rmse, rel=1e-9)
+    est_a, ref_a = associate(est_s, ref_s)
+    assert np.all(np.diff(est_a.stamps_s) > 0)
+    np.testing.assert_array_equal(est_a.stamps_s, ref_a.stamps_s)
+
+
 def test_associate_applies_offset_to_estimate(rng: np.random.Generator) -> None:
     """A constant clock offset is compensated; returned stamps stay unshifted."""
     ref = random_trajectory(rng, 40)

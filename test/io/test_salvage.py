@@ -1,0 +1,102 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Recordings that cannot be opened whole are read in the parts that can."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.outputs import make_pose_stamped
+from pmba_ros.errors import BagError
+from pmba_ros.io.bags import iter_messages, jazzy_typestore, open_bags
+import pytest
+
+
+def write_chunked(path: Path, n: int, topic: str = '/gt', t0: int = 0) -> None:
+    """Write ``n`` PoseStamped messages 0.1 s apart into many small MCAP chunks.
+
+    ``ros2 bag record`` closes a chunk every 768 KiB: a long recording has many.
+    """
+    from mcap.writer import Writer
+
+    typestore = jazzy_typestore()
+    backend = RosbagsBackend(typestore)
+    msgdef = typestore.generate_msgdef('geometry_msgs/msg/PoseStamped', ros_version=2)[0]
+    with path.open('wb') as out:
+        writer = Writer(out, chunk_size=512)
+        writer.start(profile='ros2', library='test')
+        schema = writer.register_schema('geometry_msgs/msg/PoseStamped', 'ros2msg',
+                                        msgdef.encode())
+        channel = writer.register_channel(topic, 'cdr', schema)
+        for i in range(n):
+            stamp = t0 + i * 10**8
+            msg = make_pose_stamped(stamp, 'map', np.array([i, 0.0, 0.0]),
+                                    np.array([0.0, 0.0, 0.0, 1.0]), backend)
+            raw = typestore.serialize_cdr(msg, 'geometry_msgs/msg/PoseStamped')
+            writer.add_message(channel, stamp, bytes(raw), stamp)
+        writer.finish()
+
+
+def _xs(opened: object) -> list[float]:
+    return [m.msg.pose.position.x for m in iter_messages(opened)]  # type: ignore[arg-type]
+
+
+def test_truncated_mcap_is_read_up_to_the_damage(tmp_path: Path) -> None:
+    """A file without its index (a recorder killed) gives its messages before the cut."""
+    whole = tmp_path / 'whole.mcap'
+    write_chunked(whole, 200)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 6 // 10])
+    with pytest.raises(BagError, match='cannot open bag'):
+        list(iter_messages([cut]))   # reading without open_bags stays strict
+    with open_bags([cut]) as opened:
+        xs = _xs(opened)
+        assert len(opened.damage) == 1 and str(cut) in opened.damage[0]
+        assert 'the rest of the file is lost' in opened.damage[0]
+        assert opened.topics['/gt'].count == len(xs)
+    assert 80 < len(xs) < 200 and xs == list(range(len(xs)))
+
+
+def test_nothing_readable_stays_the_open_error(tmp_path: Path) -> None:
+    """A cut inside the first chunk leaves no message: the error names the file."""
+    whole = tmp_path / 'whole.mcap'
+    write_chunked(whole, 20)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(whole.read_bytes()[:300])
+    with pytest.raises(BagError, match=r'cut\.mcap: cannot open bag'), open_bags([cut]):
+        pass
+
+
+def test_folder_listing_a_missing_file_reads_the_others(tmp_path: Path) -> None:
+    """A split recording with a part gone: the parts there are, and the damage named."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    typestore = jazzy_typestore()
+    backend = RosbagsBackend(typestore)
+    bag = tmp_path / 'split'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/gt', 'geometry_msgs/msg/PoseStamped', typestore=typestore)
+        for i in range(5):
+            msg = make_pose_stamped(i * 10**8, 'map', np.array([i, 0.0, 0.0]),
+                                    np.array([0.0, 0.0, 0.0, 1.0]), backend)
+            writer.write(conn, i * 10**8, typestore.serialize_cdr(msg, conn.msgtype))
+    meta = bag / 'metadata.yaml'
+    meta.write_text(meta.read_text().replace('- split.mcap', '- split.mcap\n  - split_1.mcap'))
+    with pytest.raises(BagError, match='missing'):
+        list(iter_messages([bag]))
+    with open_bags([bag]) as opened:
+        assert _xs(opened) == [0.0, 1.0, 2.0, 3.0, 4.0]
+        assert len(opened.damage) == 1 and 'split_1.mcap' in opened.damage[0]
