@@ -125,7 +125,7 @@ class SimTopics:
         camera_info: Intrinsics.
         groundtruth: Ground-truth poses (PoseStamped).
         world_frame: Front-end world (odom) frame.
-        body_frame: Odometry child frame.
+        body_frame: Odometry child frame (with an extrinsic; else the camera frame).
         camera_frame: Camera optical frame (tracks, CameraInfo).
     """
 
@@ -244,6 +244,9 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
         q_gt = so3.to_quat_xyzw(R_gt)
     points_w = np.asarray(seq.points_w, dtype=np.float64)
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
+    # Without an extrinsic the poses are the camera's: their child frame says so, as a
+    # monocular front-end publishing camera poses does (no body -> camera warning).
+    pose_frame = topics.body_frame if cameras else topics.camera_frame
     n_obs = 0
     with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
         for c, T_bc in enumerate(cameras if n_kf else []):
@@ -272,7 +275,7 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
                                  backend, max(1, len(cameras)), landmarks_xyz=landmarks)
             writer.write(topics.tracks, tracks, stamp + TRACKS_LATENCY_NS)
             writer.write(topics.keyframes,
-                         make_odometry(stamp, topics.world_frame, topics.body_frame,
+                         make_odometry(stamp, topics.world_frame, pose_frame,
                                        c_odom[i], q_odom[i], odom_cov, backend),
                          stamp + KEYFRAME_LATENCY_NS)
         n_messages = writer.count
