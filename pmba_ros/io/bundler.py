@@ -107,9 +107,18 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)
     n_cams, n_points = int(values[0]), int(values[1])
+    if n_cams < 0 or n_points < 0:
+        msg = f'{path}: negative count in "num_cameras num_points" = "{n_cams} {n_points}"'
+        raise FormatError(msg)
     pos = 2 + 15 * n_cams
     if values.size < pos:
         msg = f'{path}: truncated file: {n_cams} cameras need {15 * n_cams} values'
+        raise FormatError(msg)
+    # Every point takes at least 7 values: a damaged count is refused before the point
+    # arrays are allocated (1e10 points asked for 224 GiB).
+    if values.size - pos < 7 * n_points:
+        msg = (f'{path}: truncated file: {n_points} points need at least {7 * n_points} '
+               f'values after the cameras, found {values.size - pos}')
         raise FormatError(msg)
     cameras = values[2:pos].reshape(n_cams, 15)
     xyz = np.empty((n_points, 3))

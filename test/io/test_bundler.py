@@ -132,6 +132,11 @@ def test_unregistered_cameras_are_left_out_and_written_back(
     ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n3 0 0 1 1\n',
      'point 0: view list'),
     ('# Bundle file v0.3\n1 x\n', 'non-numeric'),
+    # Damaged counts: a MemoryError (224 GiB asked for) and ValueErrors before.
+    ('# Bundle file v0.3\n1 10000000000\n' + '1 0 0 ' * 5 + '\n',
+     'truncated file: 10000000000 points need'),
+    ('# Bundle file v0.3\n1 -5\n' + '1 0 0 ' * 5 + '\n', 'negative count'),
+    ('# Bundle file v0.3\n-3 2\n', 'negative count'),
 ])
 def test_malformed_files_are_reported(tmp_path: Path, text: str, match: str) -> None:
     """Errors name the file and what is wrong."""
