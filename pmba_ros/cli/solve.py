@@ -312,7 +312,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         write_text_atomic(args.report, dumps_report(out_report))
     if args.out:
-        _write_outputs(args.out, results, out_report, args.plot)
+        _write_outputs(args.out, results, out_report, args.plot,
+                       [None if i is None else i.camera_index for i in inits])
         source = Path(args.problem)
         fmt = args.format
         if fmt == 'auto' and not args.problem.startswith('sim:'):
@@ -344,13 +345,21 @@ def _table(results: list[SolveResult]) -> str:
 
 
 def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any],
-                   plot: bool) -> None:
+                   plot: bool, camera_index: list[np.ndarray | None]) -> None:
+    """Write TUM poses, points, the plot and the report of each result into ``out``.
+
+    ``camera_index`` holds, per result, the input camera of each solved camera (None: the
+    cameras are the input's, in order).
+    """
     out.mkdir(parents=True, exist_ok=True)
-    for r in results:
+    for r, index in zip(results, camera_index, strict=True):
         stem = f'{r.options.param.value}_{r.options.solver.value}'
         q = so3.to_quat_xyzw(r.R_wc)
-        rows = np.column_stack([np.arange(r.R_wc.shape[0], dtype=float), r.centers_w, q])
-        # TUM files need stamps: a problem file has none, so the camera index stands in.
+        # TUM files need stamps: a problem file has none, so the input camera index stands
+        # in. A global initialization solves a subset (the largest view-graph component):
+        # numbering its cameras 0.. would label each pose with another camera's index.
+        stamps = np.arange(r.R_wc.shape[0]) if index is None else np.asarray(index)
+        rows = np.column_stack([stamps.astype(float), r.centers_w, q])
         finite = np.all(np.isfinite(r.points_w), axis=1)
         with atomic_open(out / f'poses_{stem}.tum') as fh:
             np.savetxt(fh, rows, fmt='%.9g')

@@ -63,12 +63,16 @@ def select_anchors(problem: BAProblem, R_wc: FloatArray, *,
                    engine: Engine | None = None,
                    min_baseline: float = 0.0,
                    ) -> tuple[IntArray, IntArray, BoolArray]:
-    """Pick main and associate anchors of every feature: its maximum-parallax observer pair.
+    """Pick main and associate anchors of every feature: its widest well-conditioned pair.
 
     ParallaxBA's rule (pmba.md §3.1) approximates the pair of observations with the largest
-    angle between their world rays; this takes that pair exactly, with the later camera as
-    main anchor. With known positions, pairs without baseline are excluded; with known points,
-    the anchors are swapped when the point is over 30 times farther from the main anchor.
+    angle between their world rays; this takes the pair whose angle has the largest sine
+    (smallest |cos|), with the later camera as main anchor: the same pair below 90 degrees,
+    and not a pair near 180 degrees, where the point lies between its anchors and the BA is
+    as ill-conditioned as at zero parallax (DEVIATION, see
+    :mod:`pmba_ros.core.anchor_search`). With known positions, pairs without baseline are
+    excluded; with known points, the anchors are swapped when the point is over 30 times
+    farther from the main anchor.
 
     Args:
         problem: The problem (observations sorted by feature).

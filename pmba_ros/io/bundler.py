@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
@@ -106,9 +107,18 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)
     n_cams, n_points = int(values[0]), int(values[1])
+    if n_cams < 0 or n_points < 0:
+        msg = f'{path}: negative count in "num_cameras num_points" = "{n_cams} {n_points}"'
+        raise FormatError(msg)
     pos = 2 + 15 * n_cams
     if values.size < pos:
         msg = f'{path}: truncated file: {n_cams} cameras need {15 * n_cams} values'
+        raise FormatError(msg)
+    # Every point takes at least 7 values: a damaged count is refused before the point
+    # arrays are allocated (1e10 points asked for 224 GiB).
+    if values.size - pos < 7 * n_points:
+        msg = (f'{path}: truncated file: {n_points} points need at least {7 * n_points} '
+               f'values after the cameras, found {values.size - pos}')
         raise FormatError(msg)
     cameras = values[2:pos].reshape(n_cams, 15)
     xyz = np.empty((n_points, 3))
@@ -148,16 +158,25 @@ def to_problem(model: BundlerModel) -> tuple[BAProblem, IntArray]:
     ``feature_ids`` are the point indices in the file.
 
     Raises:
-        FormatError: If no camera is registered or the data are inconsistent.
+        FormatError: If no camera is registered, a focal length is negative or not finite, a
+            registered camera's R is not a rotation, or the data are inconsistent.
     """
-    registered = np.flatnonzero(model.cameras[:, 0] > 0)
+    f_all = model.cameras[:, 0]
+    # Bundler marks an unregistered camera by f = 0; a negative or non-finite f is no camera
+    # at all, and leaving it out as unregistered would hide a damaged file.
+    bad_f = np.flatnonzero(~(f_all >= 0))
+    if bad_f.size:
+        msg = (f'Bundler file: camera {int(bad_f[0])} has focal length {f_all[bad_f[0]]:g}; '
+               'expected f > 0 (registered) or f = 0 (not registered)')
+        raise FormatError(msg)
+    registered = np.flatnonzero(f_all > 0)
     if registered.size == 0:
         msg = 'Bundler file: no registered camera (every focal length is 0)'
         raise FormatError(msg)
     new = np.full(model.cameras.shape[0], -1, dtype=np.int64)
     new[registered] = np.arange(registered.size)
     cams = model.cameras[registered]
-    R = cams[:, 3:12].reshape(-1, 3, 3)
+    R = _rotations(cams[:, 3:12].reshape(-1, 3, 3), registered)
     t = cams[:, 12:15]
     R_wc = np.swapaxes(_FLIP @ R, 1, 2)
     centers = -np.einsum('mji,mj->mi', R, t)
@@ -176,6 +195,37 @@ def to_problem(model: BundlerModel) -> tuple[BAProblem, IntArray]:
         msg = f'Bundler file: {err}'
         raise FormatError(msg) from err
     return problem, registered
+
+
+_ROTATION_TOL = 1e-3
+"""Largest accepted ``|R^T R - I|`` entry (or ``|det R - 1|``) of a stored rotation."""
+
+
+def _rotations(R: FloatArray, file_cams: IntArray) -> FloatArray:
+    """Return the stored rotations (C, 3, 3) projected onto SO(3), after checking them.
+
+    The file stores R as nine printed numbers: orthonormal to their digits, which the
+    projection restores. The solvers take R as a rotation and never re-orthonormalize it, so
+    a matrix far from one (zeros, a scaled or mirrored matrix) would be solved as a wrong
+    camera without a word: it is refused instead.
+
+    Raises:
+        FormatError: Naming the first registered camera whose R is not a rotation.
+    """
+    finite = np.all(np.isfinite(R), axis=(1, 2))
+    safe = np.where(finite[:, None, None], R, 0.0)
+    ortho_err = np.abs(np.swapaxes(safe, 1, 2) @ safe - np.eye(3)).max(axis=(1, 2))
+    det_err = np.abs(np.linalg.det(safe) - 1.0)
+    bad = np.flatnonzero(finite & ((ortho_err > _ROTATION_TOL) | (det_err > _ROTATION_TOL)))
+    if bad.size:
+        k = int(bad[0])
+        msg = (f'Bundler file: camera {int(file_cams[k])} has a rotation that is not a '
+               f'rotation matrix (|R^T R - I| = {ortho_err[k]:.3g}, det R = '
+               f'{np.linalg.det(safe[k]):.3g})')
+        raise FormatError(msg)
+    # Non-finite rows are left to make_problem, which names the pose.
+    out: FloatArray = np.where(finite[:, None, None], so3.project(safe), R)
+    return out
 
 
 def updated(model: BundlerModel, cameras: IntArray, R_wc: FloatArray, centers_w: FloatArray,

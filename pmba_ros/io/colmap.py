@@ -314,6 +314,17 @@ class _Reader:
         self.pos += size
         return out
 
+    def count(self, record_bytes: int, what: str) -> int:
+        """Read a record count that the rest of the file can hold (records >= record_bytes)."""
+        # A damaged count is refused before it sizes an array (2**40 points: 8 TiB).
+        (count,) = self.take('Q')
+        left = len(self.data) - self.pos
+        if count * record_bytes > left:
+            msg = (f'{self.path}: truncated file or bad count: {count} {what} need at least '
+                   f'{count * record_bytes} bytes, {left} left after byte {self.pos}')
+            raise FormatError(msg)
+        return int(count)
+
     def string(self) -> str:
         end = self.data.find(b'\0', self.pos)
         if end < 0:
@@ -326,9 +337,9 @@ class _Reader:
 
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
     r = _Reader(path)
-    (count,) = r.take('Q')
+    count = r.count(24, 'cameras')        # id, model, width, height
     cams = {}
-    for _ in range(int(count)):
+    for _ in range(count):
         cid, mid, w, h = r.take('iiQQ')
         if mid not in MODELS:
             msg = f'{path}: camera {cid} has unknown model id {mid}'
@@ -341,9 +352,9 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
 
 def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
     r = _Reader(path)
-    (count,) = r.take('Q')
+    count = r.count(73, 'images')         # id, pose, camera id, name's NUL, point count
     images = {}
-    for _ in range(int(count)):
+    for _ in range(count):
         (iid,) = r.take('i')
         pose = r.array('<f8', 7)
         (cid,) = r.take('i')
@@ -359,8 +370,7 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
 def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
                                           list[IntArray]]:
     r = _Reader(path)
-    (count,) = r.take('Q')
-    n = int(count)
+    n = r.count(51, 'points')             # id, xyz, rgb, error, track length
     ids = np.empty(n, dtype=np.int64)
     xyz = np.empty((n, 3))
     rgb = np.empty((n, 3), dtype=np.uint8)

@@ -21,6 +21,8 @@ import subprocess
 import sys
 
 from pmba_ros.cli.main import main
+from pmba_ros.core.camera import Intrinsics
+from pmba_ros.core.problem import BAProblem
 import pytest
 
 REPORT_KEYS = {'param', 'solver', 'converged', 'iterations', 'linear_solves', 'initial_cost',
@@ -198,3 +200,41 @@ def test_solve_threads_option_caps_the_compiled_loops(monkeypatch: pytest.Monkey
     assert used and set(used) == {3}
     with pytest.raises(SystemExit):
         main(['solve', 'sim:table3', '--threads', '0'])
+
+
+def test_global_init_poses_keep_the_input_camera_index(tmp_path: Path) -> None:
+    """TUM stamps after `--init global` are the input cameras, not 0.. of the solved subset.
+
+    The file holds two unconnected scenes, the smaller first: the global initialization
+    solves the larger one only, whose poses used to be written as cameras 0, 1, ...
+    """
+    import numpy as np
+    from pmba_ros.core.problem import make_problem
+    from pmba_ros.io.bal import write_bal
+    from pmba_ros.sim.scenes import street_scene
+    small = street_scene(2, n_cams=4, n_points=60).gt
+    large = street_scene(1).gt
+    shift = np.array([1e3, 0.0, 0.0])        # far apart, no common point
+    both = make_problem(
+        np.concatenate([small.R_wc, large.R_wc]),
+        np.concatenate([small.centers_w, large.centers_w + shift]),
+        _stack_intrinsics(small, large),
+        np.concatenate([small.obs.cam_idx, large.obs.cam_idx + small.n_cams]),
+        np.concatenate([small.obs.feat_idx, large.obs.feat_idx + small.n_feats]),
+        np.concatenate([small.obs.pixels, large.obs.pixels]),
+        points_w=np.concatenate([small.points_w, large.points_w + shift]))
+    write_bal(tmp_path / 'two.txt', both)
+    assert main(['solve', str(tmp_path / 'two.txt'), '--init', 'global', '--quiet',
+                 '--out', str(tmp_path / 'out')]) == 0
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert report['init']['summary']['cameras_left_out'] == list(range(small.n_cams))
+    rows = np.loadtxt(tmp_path / 'out' / 'poses_pmba_dogleg.tum', ndmin=2)
+    np.testing.assert_array_equal(rows[:, 0], small.n_cams + np.arange(large.n_cams))
+
+
+def _stack_intrinsics(a: BAProblem, b: BAProblem) -> Intrinsics:
+    """Return the intrinsics of a's cameras followed by b's."""
+    import numpy as np
+    fields = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2')
+    return Intrinsics(*(np.concatenate([getattr(a.intrinsics, f), getattr(b.intrinsics, f)])
+                        for f in fields))

@@ -19,6 +19,7 @@ import itertools
 
 import numpy as np
 from pmba_ros.core import conversions
+from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.engine import Engine
 from pmba_ros.core.problem import make_problem
 import pytest
@@ -41,7 +42,7 @@ def _uneven(problem, seed: int):
 
 
 def _brute_force(problem, R_wc, centers_w, tol, allowed=None):
-    """Widest admissible observer pair per feature by enumeration (first in pair order)."""
+    """Admissible observer pair of smallest |cos| per feature by enumeration (first in order)."""
     rays = conversions.world_rays(problem, R_wc)
     out = {}
     for f in range(problem.n_feats):
@@ -53,7 +54,7 @@ def _brute_force(problem, R_wc, centers_w, tol, allowed=None):
                 continue
             if allowed is not None and not allowed[c1, c2]:
                 continue
-            cos = float(rays[k1] @ rays[k2])
+            cos = abs(float(rays[k1] @ rays[k2]))
             if cos < best_cos:
                 best, best_cos = (int(c2), int(c1)), cos
         out[f] = best
@@ -88,6 +89,33 @@ def test_select_anchors_takes_the_widest_admissible_pair(restricted: bool,
             assert (int(main[f]), int(assoc[f])) == pair
     assert not np.any(ok[:4])                 # seen from one place only: no anchor pair
     assert not np.any((np.minimum(main, assoc) == 2) & (np.maximum(main, assoc) == 4) & ok)
+
+
+def test_select_anchors_prefers_a_right_angle_to_a_near_opposite_pair(engine: Engine) -> None:
+    """Anchors of a point between cameras: the pair of largest sin(parallax), not angle.
+
+    Camera 0 and 2 face each other across the point (170 degrees of parallax: the point lies
+    between them and w = sin(theta) ~ 0, which stalled the BA); camera 1 sees it at about 90
+    degrees to both. The widest angle was (2, 0); the well-conditioned pair involves camera 1.
+    """
+    R_wc, centers = [], []
+    for azimuth in np.deg2rad([0.0, 95.0, 170.0]):
+        c = 10.0 * np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+        z = -c / np.linalg.norm(c)                         # looking at the origin
+        x = np.cross([0.0, 0.0, 1.0], z)
+        R_wc.append(np.column_stack([x, np.cross(z, x), z]))
+        centers.append(c)
+    R, C = np.array(R_wc), np.array(centers)
+    point = np.array([0.1, 0.2, 0.3])
+    bearings = np.einsum('mji,mj->mi', R, point - C)
+    intr = Intrinsics(*(np.full(3, v) for v in (800.0, 800.0, 0.0, 0.0, 0.0, 0.0)))
+    problem = make_problem(R, C, intr, np.arange(3), np.zeros(3, dtype=np.int64), np.zeros((3, 2)),
+                           bearings_c=bearings)
+    main, assoc, ok = conversions.select_anchors(problem, R, engine=engine)
+    assert ok[0]
+    assert 1 in (int(main[0]), int(assoc[0]))
+    rays = conversions.world_rays(problem, R)
+    assert abs(float(rays[main[0]] @ rays[assoc[0]])) < 0.2
 
 
 def test_min_baseline_keeps_close_cameras_from_anchoring(engine: Engine) -> None:

@@ -132,6 +132,11 @@ def test_unregistered_cameras_are_left_out_and_written_back(
     ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n3 0 0 1 1\n',
      'point 0: view list'),
     ('# Bundle file v0.3\n1 x\n', 'non-numeric'),
+    # Damaged counts: a MemoryError (224 GiB asked for) and ValueErrors before.
+    ('# Bundle file v0.3\n1 10000000000\n' + '1 0 0 ' * 5 + '\n',
+     'truncated file: 10000000000 points need'),
+    ('# Bundle file v0.3\n1 -5\n' + '1 0 0 ' * 5 + '\n', 'negative count'),
+    ('# Bundle file v0.3\n-3 2\n', 'negative count'),
 ])
 def test_malformed_files_are_reported(tmp_path: Path, text: str, match: str) -> None:
     """Errors name the file and what is wrong."""
@@ -140,3 +145,55 @@ def test_malformed_files_are_reported(tmp_path: Path, text: str, match: str) -> 
     with pytest.raises(FormatError, match=match) as info:
         bundler.read_bundler(path)
     assert 'bad.out' in str(info.value)
+
+
+@pytest.mark.parametrize(('scale_row', 'factor', 'match'), [
+    (0, 0.0, 'camera 1 has a rotation that is not a rotation matrix'),   # a row of zeros
+    (None, 2.0, 'camera 1 has a rotation that is not a rotation matrix'),  # scaled R
+    (2, -1.0, 'camera 1 has a rotation that is not a rotation matrix'),  # mirrored, det -1
+])
+def test_registered_camera_whose_r_is_not_a_rotation_is_refused(
+        tmp_path: Path, centred: BAProblem, scale_row: int | None, factor: float,
+        match: str) -> None:
+    """Check a damaged R is refused by name, not solved as a wrong camera.
+
+    The solvers never re-orthonormalize R: a zero R used to 'converge' at tens of pixels.
+    """
+    model = bundler.read_bundler(_write(tmp_path, _bundle_text(centred)))
+    cams = model.cameras.copy()
+    rows = slice(3, 12) if scale_row is None else slice(3 + 3 * scale_row, 6 + 3 * scale_row)
+    cams[1, rows] *= factor
+    with pytest.raises(FormatError, match=match):
+        bundler.to_problem(bundler.BundlerModel(cams, *_fields_after_cameras(model)))
+
+
+def test_printed_rotations_are_projected_onto_so3(tmp_path: Path, centred: BAProblem) -> None:
+    """R printed to 6 digits (orthonormal to about 1e-6) is read as the nearest rotation."""
+    model = bundler.read_bundler(_write(tmp_path, _bundle_text(centred)))
+    cams = model.cameras.copy()
+    cams[:, 3:12] = np.round(cams[:, 3:12], 6)
+    problem, _ = bundler.to_problem(bundler.BundlerModel(cams, *_fields_after_cameras(model)))
+    RtR = np.swapaxes(problem.R_wc, 1, 2) @ problem.R_wc
+    np.testing.assert_allclose(RtR, np.broadcast_to(np.eye(3), RtR.shape), atol=1e-14)
+    np.testing.assert_allclose(problem.R_wc, centred.R_wc, atol=2e-6)
+
+
+def test_negative_focal_length_is_refused_not_left_out(tmp_path: Path,
+                                                       centred: BAProblem) -> None:
+    """Check f < 0 (0 marks an unregistered camera) is an error, not a silent drop."""
+    model = bundler.read_bundler(_write(tmp_path, _bundle_text(centred)))
+    cams = model.cameras.copy()
+    cams[2, 0] = -cams[2, 0]
+    with pytest.raises(FormatError, match='camera 2 has focal length -'):
+        bundler.to_problem(bundler.BundlerModel(cams, *_fields_after_cameras(model)))
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / 'bundle.out'
+    path.write_text(text)
+    return path
+
+
+def _fields_after_cameras(model: bundler.BundlerModel) -> tuple[np.ndarray, ...]:
+    return (model.xyz, model.rgb, model.view_offsets, model.view_cam, model.view_key,
+            model.view_xy)

@@ -145,7 +145,19 @@ def test_truncated_binary_file_is_reported(tmp_path: Path, scene_problem: BAProb
     colmap.write_colmap(tmp_path, colmap.from_problem(scene_problem), binary=True)
     data = (tmp_path / 'points3D.bin').read_bytes()
     (tmp_path / 'points3D.bin').write_bytes(data[:len(data) // 2])
-    with pytest.raises(FormatError, match=r'points3D\.bin: truncated file at byte'):
+    with pytest.raises(FormatError, match=r'points3D\.bin: truncated file'):
+        colmap.read_colmap(tmp_path)
+
+
+@pytest.mark.parametrize('name', ['cameras.bin', 'images.bin', 'points3D.bin'])
+def test_damaged_binary_count_is_reported_before_allocating(
+        tmp_path: Path, scene_problem: BAProblem, name: str) -> None:
+    """A record count of 2**40 is a FormatError, not an 8 TiB MemoryError."""
+    colmap.write_colmap(tmp_path, colmap.from_problem(scene_problem), binary=True)
+    data = (tmp_path / name).read_bytes()
+    (tmp_path / name).write_bytes((2 ** 40).to_bytes(8, 'little') + data[8:])
+    with pytest.raises(FormatError, match=name.replace('.', r'\.') + ': truncated file or bad '
+                       'count: 1099511627776'):
         colmap.read_colmap(tmp_path)
 
 

@@ -31,7 +31,7 @@ _jit = jit.jit
 @_jit
 def _widest_pair(rays: Any, cam_idx: Any, lo: int, hi: int, allowed: Any, close: Any,
                  M: int) -> tuple[float, int, int]:
-    """Return the smallest admissible ray cosine of observations lo..hi and its pair (a < b).
+    """Return the smallest admissible |ray cosine| of observations lo..hi and its pair (a < b).
 
     The first such pair in row-major order, as numpy's argmin; (2.0, lo, lo) without one.
     """
@@ -47,7 +47,8 @@ def _widest_pair(rays: Any, cam_idx: Any, lo: int, hi: int, allowed: Any, close:
                 pos = np.searchsorted(close, key)
                 if pos < close.shape[0] and close[pos] == key:
                     continue
-            cos = rays[a, 0] * rays[b, 0] + rays[a, 1] * rays[b, 1] + rays[a, 2] * rays[b, 2]
+            cos = abs(rays[a, 0] * rays[b, 0] + rays[a, 1] * rays[b, 1]
+                      + rays[a, 2] * rays[b, 2])    # |cos|, as the numpy reference
             if cos < best:
                 best, best_a, best_b = cos, a, b
     return best, best_a, best_b
@@ -56,7 +57,7 @@ def _widest_pair(rays: Any, cam_idx: Any, lo: int, hi: int, allowed: Any, close:
 @_jit
 def _widest_pairs(rays: Any, cam_idx: Any, starts: Any, allowed: Any, close: Any, M: int,
                   main_idx: Any, assoc_idx: Any, ok: Any) -> None:
-    """Find each feature's admissible observation pair of smallest ray cosine.
+    """Find each feature's admissible observation pair of smallest |ray cosine|.
 
     The later observation's camera is the main anchor.
     """
