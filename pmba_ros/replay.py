@@ -119,7 +119,7 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
                                 'bad_tf', 'keyframe_stamp_not_increasing', 'stale_tracks',
                                 'keyframe_pose_jumps', 'keyframe_stamp_leaps',
-                                'track_stamp_leaps'})
+                                'track_stamp_leaps', 'duplicate_keyframe_poses'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
 
