@@ -119,7 +119,7 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
                                 'bad_tf', 'keyframe_stamp_not_increasing', 'stale_tracks',
                                 'keyframe_pose_jumps', 'keyframe_stamp_leaps',
-                                'track_stamp_leaps'})
+                                'track_stamp_leaps', 'duplicate_keyframe_poses'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
 
@@ -272,7 +272,8 @@ def _make_logic(config: BackendConfig) -> BackendLogic:
 
 def replay(bags: Sequence[Path | str], out_dir: Path | str,
            config: BackendConfig | None = None, *,
-           gt: Path | str | None = None, plot: bool = False,
+           gt: Path | str | None = None, gt_times: Path | str | None = None,
+           plot: bool = False,
            progress: ProgressCallback | None = None,
            intrinsics: Sequence[float] | None = None, align: str = 'sim3',
            chosen: Collection[str] = ()) -> ReplayReport:
@@ -284,6 +285,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
         config: A :class:`~pmba_ros.backend.config.BackendConfig` (default: the node's
             defaults); ``deterministic`` is forced on.
         gt: Ground-truth trajectory file (TUM, EuRoC CSV or KITTI) for the accuracy block.
+        gt_times: KITTI ``times.txt`` of a KITTI ``gt`` (its stamps, s).
         plot: Also write PNG plots (needs matplotlib).
         progress: Called as ``progress(done, total)`` after each input message.
         intrinsics: ``(fx, fy, cx, cy)`` to use instead of the bag's CameraInfo.
@@ -298,8 +300,9 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     Raises:
         BagError: If a bag is missing, unreadable, corrupt or lacks a needed topic.
         MessageError: If the tracks do not fit the configured layout.
-        FormatError: If the ground-truth file cannot be read.
-        EvaluationError: If the ground truth has no stamps overlapping the keyframes.
+        FormatError: If the ground-truth file (or its times) cannot be read.
+        EvaluationError: If the ground truth has no stamps overlapping the keyframes, or is
+            a KITTI file without times against keyframes stamped in seconds.
         PmbaError: If plotting was asked for without matplotlib.
         BagError: Also if another replay is writing into ``out_dir``, or the bag is damaged
             before its first readable message (later damage is a warning in the report).
@@ -311,7 +314,7 @@ def replay(bags: Sequence[Path | str], out_dir: Path | str,
     config = BackendConfig() if config is None else config
     config = replace(config, deterministic=True)
     report = ReplayReport(bags=bag_paths, out_dir=out)
-    gt_traj = _read_gt(gt) if gt is not None else None
+    gt_traj = read_trajectory(gt, times=gt_times) if gt is not None else None
     if plot:
         pyplot()  # fail before the replay if matplotlib is missing
     with open_bags(bag_paths) as opened:
@@ -469,11 +472,6 @@ def _check_input(report: ReplayReport, damage: ReadStats) -> None:
     report.warnings.extend(found)
 
 
-def _read_gt(path: Path | str) -> Trajectory:
-    """Read a ground-truth trajectory (format detected)."""
-    return read_trajectory(path)
-
-
 def _write_outputs(logic: BackendLogic | None, report: ReplayReport, out: Path, outputs: _Outputs,
                    finished: bool) -> None:
     """Write TUM, PLY, accuracy, plots and report.json last (also after an error).
@@ -498,7 +496,8 @@ def _write_outputs(logic: BackendLogic | None, report: ReplayReport, out: Path, 
         write_atomic(out / LANDMARKS_PLY, lambda tmp: ply.write_ply(tmp, points))
         report.files['landmarks_ply'] = out / LANDMARKS_PLY
         if outputs.gt is not None and finished:
-            report.accuracy = accuracy(frontend, optimized, outputs.gt, align=outputs.align)
+            report.accuracy = accuracy(frontend, optimized, outputs.gt, align=outputs.align,
+                                       warnings=report.warnings)
         if outputs.plot and finished:
             for name, path in write_replay_plots(out, frontend, optimized, outputs.gt, report,
                                                  outputs.align).items():

@@ -35,6 +35,8 @@ SUSPECT_COUNTERS = {
     'ambiguous_duplicate_observations': 'repeated feature ids without a previous observation '
                                         '(every copy dropped)',
     'keyframe_pose_jumps': 'keyframe poses rejected: they jump far beyond the recent motion',
+    'duplicate_keyframe_poses': 'keyframe poses dropped: stamped like one received before (a '
+                                'repeated message; the first copy kept)',
     'keyframe_stamp_leaps': 'keyframe poses dropped: stamped far ahead of the next one (a '
                             'clock glitch)',
     'track_stamp_leaps': 'tracks messages dropped: stamped far ahead of the next one (a clock '

@@ -21,6 +21,7 @@ ROS 2 parameter file's ``{node_name: {ros__parameters: {...}}}`` nesting, and
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 import math
 import os
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
-from pmba_ros.backend.extrinsics import extrinsics_from_params
+from pmba_ros.backend.extrinsics import EXTRINSIC_VALUES, extrinsics_from_params
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
 
 MODES = ('sliding', 'global')
@@ -121,7 +122,8 @@ class BackendConfig:
         min_observations: Keyframes with fewer observations are not optimized (their pose
             comes from the front-end through the map <- odom similarity).
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
-        num_cams: Front-end camera count (VINS ``NUM_OF_CAM``).
+        num_cams: Front-end camera count (VINS ``NUM_OF_CAM``); not given, the count that
+            ``camera_extrinsics`` or ``camera_info_topics`` list, else 1.
         camera_id: Reference camera: the keyframe poses are solved in its frame, and its
             CameraInfo is ``camera_info_topic``. Other cameras' observations are used once
             their CameraInfo (``camera_info_topics``) and extrinsic are known (a rig: the
@@ -294,16 +296,24 @@ class BackendConfig:
             msg = f'parameter camera_info_topics={topics!r}: expected a list of topic names'
             raise ValueError(msg)
         object.__setattr__(self, 'camera_info_topics', tuple(topics))
-        if self.camera_info_topics and len(self.camera_info_topics) != self.num_cams:
-            msg = (f'parameter camera_info_topics: {len(self.camera_info_topics)} topics for '
-                   f'num_cams={self.num_cams} (one per camera id, or none)')
-            raise ValueError(msg)
         try:
             flat = tuple(float(v) for v in self.camera_extrinsics)
         except (TypeError, ValueError) as err:
             msg = f'parameter camera_extrinsics: expected a list of numbers ({err})'
             raise ValueError(msg) from err
         object.__setattr__(self, 'camera_extrinsics', flat)
+        n_topics = len(self.camera_info_topics)
+        if n_topics and flat and len(flat) != EXTRINSIC_VALUES * n_topics:
+            # Checked first: each list's own error would ask for another num_cams.
+            msg = (f'parameters camera_extrinsics ({len(flat)} values, {EXTRINSIC_VALUES} per '
+                   f'camera) and camera_info_topics ({n_topics} topics) must list the same '
+                   'cameras, one entry per camera id')
+            raise ValueError(msg)
+        if n_topics and n_topics != self.num_cams:
+            msg = (f'parameter camera_info_topics: {n_topics} topics for num_cams='
+                   f'{self.num_cams}: set num_cams: {n_topics} (one topic per camera id), or '
+                   'leave camera_info_topics empty for camera_info_topic alone')
+            raise ValueError(msg)
         extrinsics_from_params(flat, self.num_cams)
         for name in ('publish_tf', 'deterministic'):
             if not isinstance(getattr(self, name), bool):
@@ -331,7 +341,10 @@ class BackendConfig:
         if unknown:
             msg = f'unknown parameter(s) {unknown}; known: {sorted(known)}'
             raise ValueError(msg)
-        return cls(**{k: v for k, v in flat.items() if k in known})
+        values = {k: v for k, v in flat.items() if k in known}
+        if 'num_cams' not in values:   # as the node declares it: the lists' count by default
+            values['num_cams'] = implied_num_cams(values) or _DEFAULTS['num_cams']
+        return cls(**values)
 
     @classmethod
     def from_yaml(cls, path: str | os.PathLike[str]) -> BackendConfig:
@@ -362,6 +375,43 @@ class BackendConfig:
     def to_params(self) -> dict[str, Any]:
         """Return the flat parameter dict (the node declares these; sequences as lists)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+
+_DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(BackendConfig)}
+"""Each parameter's default (a slotted dataclass has no class attributes to read them from)."""
+
+
+def implied_num_cams(params: Mapping[str, Any]) -> int | None:
+    """Return the camera count that ``camera_extrinsics`` and ``camera_info_topics`` list.
+
+    A stereo rig's 14 extrinsic values, or its two CameraInfo topics, made a parameter
+    file without ``num_cams: 2`` fail with ``num_cams=1``: ``num_cams`` defaults to this
+    count (the node declares it so, and :meth:`BackendConfig.from_params` takes it), and
+    one given explicitly is checked against the lists.
+
+    Args:
+        params: Parameter values by name (either list may be missing).
+
+    Returns:
+        The count, or None if neither list has entries, an extrinsic count is not a multiple
+        of 7, or the lists disagree (the config's validation then names the problem).
+    """
+    n_values, n_topics = (_length(params.get(name))
+                          for name in ('camera_extrinsics', 'camera_info_topics'))
+    if n_values % EXTRINSIC_VALUES:
+        return None
+    counts = {n for n in (n_values // EXTRINSIC_VALUES, n_topics) if n}
+    return counts.pop() if len(counts) == 1 else None
+
+
+def _length(value: Any) -> int:
+    """Return the number of entries of a list parameter (rclpy gives arrays; 0 if none)."""
+    if value is None or isinstance(value, str | bytes):
+        return 0
+    try:
+        return len(value)
+    except TypeError:
+        return 0
 
 
 def _unnest(params: dict[str, Any]) -> dict[str, Any]:

@@ -116,8 +116,11 @@ def extrinsics_from_params(values: Sequence[float], num_cams: int) -> list[Rigid
     if not flat:
         return None
     if len(flat) != EXTRINSIC_VALUES * num_cams:
+        cameras, rest = divmod(len(flat), EXTRINSIC_VALUES)
+        fix = (f'set num_cams: {cameras}, or give {EXTRINSIC_VALUES * num_cams} values'
+               if not rest else f'{len(flat)} is not a multiple of {EXTRINSIC_VALUES}')
         msg = (f'parameter camera_extrinsics: expected {EXTRINSIC_VALUES} values (x, y, z, qx, '
-               f'qy, qz, qw) per camera for num_cams={num_cams}, got {len(flat)}')
+               f'qy, qz, qw) per camera for num_cams={num_cams}, got {len(flat)}: {fix}')
         raise ValueError(msg)
     out = []
     for cam in range(num_cams):

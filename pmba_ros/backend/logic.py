@@ -46,7 +46,7 @@ from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.pose_stream import PoseStream
 from pmba_ros.backend.results import save_results
-from pmba_ros.backend.sanity import PoseJumpCheck, StampLeapCheck
+from pmba_ros.backend.sanity import DUPLICATE_POSES, PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
 from pmba_ros.core import so3
@@ -102,7 +102,8 @@ class BackendLogic:
         self._track_memory = tracks.TrackMemory()
         self._pose_check = PoseJumpCheck()
         self._track_stamps = StampLeapCheck('track_stamp_leaps')
-        self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps')
+        self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps',
+                                               repeat_reason=DUPLICATE_POSES)
         self._pose_stream = PoseStream(10 * self.config.buffer_size)
         self.cameras.forget_extrinsics()
 
@@ -557,8 +558,7 @@ class BackendLogic:
             'frontend_noise_factors': ' '.join(
                 f'{k:.3g}' for k in self.estimator.frontend_noise.factors),
             'extrinsic_source': self.cameras.extrinsic_source or 'none',
-            'cameras_used': ','.join(str(c) for c in sorted(
-                [self.config.camera_id, *self.cameras.rig])),
+            'cameras_used': ','.join(map(str, sorted([self.config.camera_id, *self.cameras.rig]))),
         }
         if not cfg.deterministic:
             values['solve_ms'] = info.solve_ms

@@ -21,7 +21,7 @@ import re
 from typing import Any
 
 from pmba_ros.backend import config as settings
-from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.config import BackendConfig, implied_num_cams
 from pmba_ros.backend.msg_backend import MsgBackend, RclpyBackend
 
 _INT_MAX = 2**31 - 1
@@ -84,13 +84,19 @@ def declare_config(node: Any) -> BackendConfig:
     defaults = BackendConfig()
     descriptions = parameter_descriptions()
     backend = RclpyBackend()
-    values = {}
-    for f in fields(BackendConfig):
+    values: dict[str, Any] = {}
+    # num_cams last: its default is the count camera_extrinsics / camera_info_topics list,
+    # so a stereo rig's lists need no num_cams: 2 beside them, and the parameter still
+    # reports the count in use (one set in the file wins, and is checked against them).
+    names = sorted((f.name for f in fields(BackendConfig)), key=lambda n: n == 'num_cams')
+    for name in names:
+        default = getattr(defaults, name)
+        if name == 'num_cams':
+            default = implied_num_cams(values) or default
         value = node.declare_parameter(
-            f.name, getattr(defaults, f.name),
-            parameter_descriptor(f.name, descriptions.get(f.name, ''), backend)).value
+            name, default, parameter_descriptor(name, descriptions.get(name, ''), backend)).value
         # An empty list in a parameter file has no type: rclpy leaves such a parameter unset.
-        values[f.name] = getattr(defaults, f.name) if value is None else value
+        values[name] = default if value is None else value
     return BackendConfig.from_params(values)
 
 

@@ -22,7 +22,8 @@ Monitors with a little memory:
   relocalization) and accepted.
 * :class:`StampLeapCheck` (in :class:`~pmba_ros.backend.logic.BackendLogic`, one per input
   stream) holds a message stamped far past the recent rate until the next one shows whether
-  time jumped or the stamp was bad.
+  time jumped or the stamp was bad, and can drop a message stamped like a recent one (a
+  repeat: the same keyframe pose published or recorded twice).
 * :class:`CostMonitor` (in the estimator) flags a solve whose cost per observation rises far
   above the lowest of its recent history (garbage tracks: random, thinned or merged ids); the
   estimator keeps the poses from before such a solve.
@@ -45,6 +46,9 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 
 logger = logging.getLogger(__name__)
+
+DUPLICATE_POSES = 'duplicate_keyframe_poses'
+"""Counter of keyframe poses dropped as repeats (:attr:`StampLeapCheck.repeat_reason`)."""
 
 
 @dataclass
@@ -200,17 +204,29 @@ class StampLeapCheck:
     together: one that leaps past the others although it came before some of them is
     dropped, and the rest pass in stamp order.
 
+    With ``repeat_reason``, a message stamped like one of the last ``repeats_kept`` admitted
+    is dropped under that reason before any of this, and the first copy kept: a keyframe
+    pose published twice was partly counted as a pose jump (a repeat among the first poses
+    is "not after" its original) and partly as a stamp not increasing, and a repeat of a
+    pose held as a jump counted towards the jump's persistence.
+
     Attributes:
         reason: What a dropped message is counted as (``reject``'s first argument).
         factor: A stamp step beyond ``factor`` times the median of the recent ones leaps.
         min_steps: Steps needed before judging.
         history: Recent stamp steps kept for the median.
+        repeat_reason: What a repeated stamp is counted as; '' lets repeats pass unjudged.
+        repeats_kept: Recent stamps a repeat is looked for among (a message recorded twice
+            comes right after itself; merged bags a few messages later).
     """
 
     reason: str
     factor: float = 20.0
     min_steps: int = 3
     history: int = 10
+    repeat_reason: str = ''
+    repeats_kept: int = 32
+    _recent: deque[int] = field(default_factory=deque, init=False, repr=False)
     _last_ns: int | None = field(default=None, init=False, repr=False)
     _steps: deque[int] = field(default_factory=deque, init=False, repr=False)
     _held: tuple[int, Any] | None = field(default=None, init=False, repr=False)
@@ -220,9 +236,17 @@ class StampLeapCheck:
               reject: Callable[[str, str], None]) -> list[Any]:
         """Return the payloads to take now, in order; a held one dropped goes to ``reject``.
 
-        Empty while ``payload`` is held. Stamps that do not increase pass unjudged (the
-        caller rejects them as before).
+        Empty while ``payload`` is held, and for a repeat (``repeat_reason``). Other stamps
+        that do not increase pass unjudged (the caller rejects them as before).
         """
+        if self.repeat_reason:
+            if stamp_ns in self._recent:
+                reject(self.repeat_reason, f'message stamped {stamp_ns} ns like one received '
+                       'before: a repeat, dropped (the first copy is kept)')
+                return []
+            self._recent.append(stamp_ns)
+            if len(self._recent) > self.repeats_kept:
+                self._recent.popleft()
         if self._last_ns is None:
             return self._judge_first(stamp_ns, payload, reject)
         taken: list[Any] = []

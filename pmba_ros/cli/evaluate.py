@@ -18,6 +18,7 @@ Usage examples::
     pmba evaluate est.txt groundtruth.txt                      # TUM vs TUM, Sim(3) alignment
     pmba evaluate V102.txt V102_groundtruth.csv --align se3    # TUM vs EuRoC CSV
     pmba evaluate orb.txt gt.txt --format kitti --gt-format kitti --report result.json
+    pmba evaluate est.tum 00.txt --gt-times times.txt          # TUM vs KITTI with its times
 
 The numbers equal ``evo_ape`` / ``evo_rpe`` with the default translation-part metric
 (``-a`` for se3, ``-as`` for sim3; RPE with ``--delta N --delta_unit f --all_pairs``).
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from pmba_ros.eval.metrics import EvalResult
+    from pmba_ros.eval.trajectory import Trajectory
 
 _FORMATS = ('auto', 'tum', 'euroc', 'kitti')
 _ALIGN_MODES = ('se3', 'sim3', 'none')
@@ -53,9 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('est', metavar='EST', help='estimated trajectory file')
     parser.add_argument('gt', metavar='GT', help='ground-truth trajectory file')
     parser.add_argument('--format', dest='est_format', choices=_FORMATS, default='auto',
-                        help='format of EST (KITTI files get index stamps)')
+                        help='format of EST (KITTI files get index stamps unless --times)')
     parser.add_argument('--gt-format', choices=_FORMATS, default='auto',
                         help='format of GT')
+    parser.add_argument('--times', type=Path, default=None, metavar='FILE',
+                        help='times.txt of a KITTI EST: its stamps (s), one line per pose')
+    parser.add_argument('--gt-times', type=Path, default=None, metavar='FILE',
+                        help='times.txt of a KITTI GT: its stamps (s), one line per pose')
     parser.add_argument('--align', choices=_ALIGN_MODES, default='sim3',
                         help='alignment of EST onto GT before the errors')
     parser.add_argument('--max-diff', type=non_negative_float, default=0.01, metavar='S',
@@ -82,18 +88,21 @@ def run(args: argparse.Namespace) -> int:
         EvaluationError: If the trajectories cannot be associated or aligned.
         PmbaError: If the report cannot be written.
     """
-    from pmba_ros.eval.metrics import evaluate
+    from pmba_ros.eval.metrics import association_warning, evaluate
     from pmba_ros.eval.trajectory import read_trajectory
 
     if args.report is not None:
         _prepare_report(args.report)
-    est = read_trajectory(args.est, args.est_format)
-    gt = read_trajectory(args.gt, args.gt_format)
-    warnings = _length_warnings(args, len(est), len(gt))
+    est = read_trajectory(args.est, args.est_format, times=getattr(args, 'times', None))
+    gt = read_trajectory(args.gt, args.gt_format, times=getattr(args, 'gt_times', None))
+    warnings = _length_warnings(est, gt)
     for text in warnings:
         print(f'warning: {text}', file=sys.stderr)
     results = evaluate(est, gt, align=args.align, max_diff_s=args.max_diff, delta=args.delta,
                        offset_s=args.t_offset)
+    if text := association_warning(est, gt, args.max_diff, args.t_offset):
+        print(f'warning: {text}', file=sys.stderr)
+        warnings.append(text)
     print(format_table(results, n_est=len(est), n_gt=len(gt)))
     if args.report is not None:
         report = {
@@ -128,13 +137,10 @@ def _prepare_report(path: Path) -> None:
         raise PmbaError(msg) from err
 
 
-def _length_warnings(args: argparse.Namespace, n_est: int, n_gt: int) -> list[str]:
+def _length_warnings(est: Trajectory, gt: Trajectory) -> list[str]:
     """Warn when KITTI files (matched line by line: no stamps) differ in length."""
-    from pmba_ros.eval.trajectory import detect_format
-
-    formats = [fmt if fmt != 'auto' else detect_format(path)
-               for fmt, path in ((args.est_format, args.est), (args.gt_format, args.gt))]
-    if formats != ['kitti', 'kitti'] or n_est == n_gt:
+    n_est, n_gt = len(est), len(gt)
+    if not (est.index_stamps and gt.index_stamps) or n_est == n_gt:
         return []
     text = (f'EST has {n_est} poses and GT {n_gt}: KITTI files have no stamps, so poses are '
             f'matched by line number and only the first {min(n_est, n_gt)} are compared; '

@@ -124,6 +124,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluation = parser.add_argument_group('evaluation and output')
     evaluation.add_argument('--gt', type=Path, default=argparse.SUPPRESS, metavar='FILE',
                             help='ground truth (TUM, EuRoC CSV or KITTI) for ATE / RPE')
+    evaluation.add_argument('--gt-times', type=Path, default=argparse.SUPPRESS, metavar='FILE',
+                            help='times.txt of a KITTI --gt (its stamps, s; a KITTI file '
+                            'without them matches only keyframes stamped 0, 1, 2, ...)')
     evaluation.add_argument('--align', choices=('sim3', 'se3', 'none'), default='sim3',
                             help='alignment onto the ground truth')
     evaluation.add_argument('--plot', action='store_true', default=argparse.SUPPRESS,
@@ -246,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
     """
     from pmba_ros.replay import replay
 
-    opts = {name: getattr(args, name, None) for name in ('intrinsics', 'gt')}
+    opts = {name: getattr(args, name, None) for name in ('intrinsics', 'gt', 'gt_times')}
     quiet, plot = bool(getattr(args, 'quiet', False)), bool(getattr(args, 'plot', False))
     config = build_config(args)
     intrinsics = _parse_intrinsics(opts['intrinsics'])
@@ -259,7 +262,7 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar(sys.stderr) if not quiet and sys.stderr.isatty() else None
     previous = _interrupt_on_sigterm()
     try:
-        report = replay(bags, args.out, config, gt=gt, plot=plot,
+        report = replay(bags, args.out, config, gt=gt, gt_times=opts['gt_times'], plot=plot,
                         progress=bar, intrinsics=intrinsics, align=args.align,
                         chosen=_chosen(args))
     finally:

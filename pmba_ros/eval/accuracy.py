@@ -19,7 +19,7 @@ import logging
 from typing import Any, TYPE_CHECKING
 
 from pmba_ros.errors import EvaluationError
-from pmba_ros.eval.metrics import evaluate
+from pmba_ros.eval.metrics import association_warning, evaluate
 
 if TYPE_CHECKING:
     from pmba_ros.eval.trajectory import Trajectory
@@ -28,7 +28,8 @@ logger = logging.getLogger(__name__)
 
 
 def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
-             align: str = 'sim3', max_diff_s: float = 0.01) -> dict[str, Any]:
+             align: str = 'sim3', max_diff_s: float = 0.01,
+             warnings: list[str] | None = None) -> dict[str, Any]:
     """Return ATE / RPE of the front-end and optimized keyframes against ground truth.
 
     Args:
@@ -37,6 +38,8 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
         gt: Ground truth.
         align: Alignment mode for both ('sim3', 'se3' or 'none').
         max_diff_s: Largest stamp difference for association, s.
+        warnings: Appended to: one line per trajectory of which few keyframes found a
+            ground-truth pose (:func:`~pmba_ros.eval.metrics.association_warning`).
 
     Returns:
         ``ate_frontend_m``, ``ate_optimized_m``, ``ate_ratio`` (optimized / front-end),
@@ -45,7 +48,8 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
         optimized entries are None if the back-end optimized no keyframe.
 
     Raises:
-        EvaluationError: If a trajectory has no stamps overlapping the ground truth.
+        EvaluationError: If a trajectory has no stamps overlapping the ground truth, or
+            one of them is a KITTI file without times and the other is not.
     """
     results = {}
     for name, traj in (('frontend', frontend), ('optimized', optimized)):
@@ -58,6 +62,11 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
             hint = ' (try --align none)' if 'degenerate' in str(err) and align != 'none' else ''
             msg = f'ground truth vs {name} keyframes: {err}{hint}'
             raise EvaluationError(msg) from err
+        if text := association_warning(traj, gt, max_diff_s):
+            text = f'ground truth vs {name} keyframes: {text}'
+            logger.warning('%s', text)
+            if warnings is not None:
+                warnings.append(text)
     ate_f = results['frontend']['ate'].rmse
     opt = results.get('optimized')
     ate_o = opt['ate'].rmse if opt is not None else None

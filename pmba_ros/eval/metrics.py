@@ -62,6 +62,19 @@ ALIGN_MODES: tuple[str, ...] = ('se3', 'sim3', 'none')
 MIN_MATCHES = 3
 """Fewest associated poses an evaluation accepts (Umeyama needs 3 non-collinear points)."""
 
+MIN_MATCHED_FRACTION = 0.5
+"""Share of the poses that should find a partner, below which :func:`association_warning` warns.
+
+Of the sparser trajectory's poses inside the other's time span. A ground truth at the
+estimate's rate or faster on the same clock matches every pose (the simulated bags, EuRoC's
+200 Hz, TUM's 100 Hz), up to gaps of the motion capture. Stamps that do not belong together
+(another clock, a rate that does not fit, KITTI pose numbers against seconds) match where
+two happen to lie within ``max_diff_s``: about ``2 max_diff_s f`` of the poses against the
+other trajectory's rate ``f``, under half for any rate below 25 Hz at the 0.01 s default (a
+KITTI file's pose numbers matched 4 of 40 keyframes at 10 Hz). The result then holds a
+chance selection of the poses, and says nothing of the others.
+"""
+
 
 def _readonly(arr: np.ndarray) -> np.ndarray:
     """Return a float64 copy of ``arr`` that cannot be written to."""
@@ -217,6 +230,7 @@ def associate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01,
     if not max_diff_s >= 0.0:
         msg = f'max_diff_s must be >= 0, got {max_diff_s}'
         raise EvaluationError(msg)
+    _check_index_stamps(est, ref)
     if len(est) > len(ref):
         idx_ref, idx_est = match_stamps(ref.stamps_s, est.stamps_s, max_diff_s, offset_s)
     else:
@@ -233,6 +247,70 @@ def associate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01,
     # true value on a shuffled estimate). Sorted input keeps its order (stable sort).
     order = np.argsort(est.stamps_s[idx_est], kind='stable')
     return est.take(idx_est[order]), ref.take(idx_ref[order])
+
+
+def _check_index_stamps(est: Trajectory, ref: Trajectory) -> None:
+    """Refuse to match pose numbers (a KITTI file without times) with stamps in seconds.
+
+    Pose numbers 0, 1, 2, ... meet a 10 Hz estimate's seconds at every tenth keyframe, so
+    an ATE over those few came out without a warning. Both sides numbered (two KITTI files,
+    or an estimate stamped with its pose numbers, whole numbers) compare pose i with pose i.
+
+    Raises:
+        EvaluationError: If exactly one side has index stamps and the other's stamps are
+            not all whole numbers; the message says how to give the KITTI file its times.
+    """
+    for numbered, other, name, other_name, option in (
+            (ref, est, 'the ground truth', 'the estimate', '--gt-times'),
+            (est, ref, 'the estimate', 'the ground truth', '--times')):
+        if not numbered.index_stamps or other.index_stamps:
+            continue
+        stamps = other.stamps_s
+        if np.all(np.abs(stamps - np.round(stamps)) <= 1e-6):
+            continue
+        msg = (f'{name} is a KITTI file without stamps (its poses are numbered 0, 1, 2, ...) '
+               f'but {other_name} has stamps in seconds ({_span(other)}): they would match '
+               'only where a stamp falls on a whole number, by accident. Give the KITTI '
+               f'file its times.txt ({option} FILE) or use a trajectory with stamps (TUM, '
+               'EuRoC CSV)')
+        raise EvaluationError(msg)
+
+
+def association_warning(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01,
+                        offset_s: float = 0.0) -> str:
+    """Return a warning when few poses find a partner in the other trajectory ('' if not).
+
+    Counted as :func:`associate` matches: the poses of the trajectory with fewer poses (the
+    estimate on a tie) that lie inside the other's time span, of which fewer than
+    :data:`MIN_MATCHED_FRACTION` found a stamp within ``max_diff_s`` (see there why).
+    Poses outside the other's span (a ground truth that covers part of the run) are not
+    counted against it.
+
+    Args:
+        est: Estimated trajectory.
+        ref: Reference trajectory.
+        max_diff_s: Largest accepted stamp difference (s).
+        offset_s: Offset added to the estimate's stamps for matching (s).
+
+    Returns:
+        One line naming the counts and what to check, or ''.
+    """
+    if len(est) > len(ref):
+        short, long_, name = ref.stamps_s, est.stamps_s + offset_s, 'reference'
+    else:
+        short, long_, name = est.stamps_s + offset_s, ref.stamps_s, 'estimated'
+    if short.size == 0 or long_.size == 0:
+        return ''
+    inside = int(np.count_nonzero((short >= long_.min() - max_diff_s)
+                                  & (short <= long_.max() + max_diff_s)))
+    matched = match_stamps(short, long_, max_diff_s)[0].size
+    if inside < MIN_MATCHES or matched >= MIN_MATCHED_FRACTION * inside:
+        return ''
+    return (f"only {matched} of the {inside} {name} poses inside the other trajectory's "
+            f'time span have a stamp within {max_diff_s:g} s there ({100 * matched / inside:.0f} '
+            f'%, fewer than {100 * MIN_MATCHED_FRACTION:.0f} %): the result covers a chance '
+            'selection of the poses; check that both are stamped on the same clock (time '
+            'offset), --max-diff against their rates, and the gaps of the ground truth')
 
 
 def _span(traj: Trajectory) -> str:

@@ -73,11 +73,15 @@ class Trajectory:
         stamps_s: Timestamps in seconds, shape (N,).
         positions_xyz: Positions of the body in the world frame, shape (N, 3).
         R_wc: Body -> world rotations, shape (N, 3, 3).
+        index_stamps: The stamps are pose numbers 0, 1, 2, ..., not times (a KITTI file read
+            without its times): they match another trajectory's stamps only if those are
+            pose numbers too (:func:`pmba_ros.eval.metrics.associate` checks this).
     """
 
     stamps_s: FloatArray
     positions_xyz: FloatArray
     R_wc: FloatArray
+    index_stamps: bool = False
 
     def __post_init__(self) -> None:
         """Validate shapes and finiteness and freeze copies of the arrays.
@@ -114,7 +118,8 @@ class Trajectory:
     def take(self, index: np.ndarray | Sequence[int]) -> Trajectory:
         """Return the poses selected by an integer or boolean index, as a new trajectory."""
         idx = np.asarray(index)
-        return Trajectory(self.stamps_s[idx], self.positions_xyz[idx], self.R_wc[idx])
+        return Trajectory(self.stamps_s[idx], self.positions_xyz[idx], self.R_wc[idx],
+                          self.index_stamps)
 
 
 # --------------------------------------------------------------------------------------------
@@ -263,7 +268,7 @@ def _kitti_from_text(path: str | os.PathLike[str], text: str,
     logger.debug('Read %d KITTI poses from %s', n, path)
     if project_to_so3:
         rotations = so3.project(rotations)
-    return Trajectory(stamps_s, pose[:, :, 3], rotations)
+    return Trajectory(stamps_s, pose[:, :, 3], rotations, index_stamps=stamps is None)
 
 
 def read_tum(path: str | os.PathLike[str]) -> Trajectory:
@@ -314,6 +319,7 @@ def read_kitti(path: str | os.PathLike[str],
     Args:
         path: File to read.
         stamps: Timestamps in seconds, shape (N,); None uses the pose index 0, 1, 2, ...
+            (and marks the trajectory's ``index_stamps``).
         project_to_so3: Project each rotation block onto SO(3) (SVD).
 
     Returns:
@@ -361,20 +367,40 @@ def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
     raise FormatError(msg)
 
 
-def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto') -> Trajectory:
+def read_times(path: str | os.PathLike[str]) -> FloatArray:
+    """Read a KITTI ``times.txt``: one time in seconds per line, one line per pose.
+
+    Args:
+        path: File to read.
+
+    Returns:
+        The times, shape (N,).
+
+    Raises:
+        FormatError: If the file cannot be read or a line is not exactly one finite number.
+    """
+    mat, _ = _parse_matrix(path, _read_text(path), delimiter=None, n_cols=1, exact=True,
+                           what='times')
+    return mat[:, 0]
+
+
+def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto', *,
+                    times: str | os.PathLike[str] | None = None) -> Trajectory:
     """Read a trajectory in any supported format.
 
     Args:
         path: File to read.
-        fmt: One of :data:`FORMATS`; ``'auto'`` uses :func:`detect_format`. KITTI files get
-            index stamps.
+        fmt: One of :data:`FORMATS`; ``'auto'`` uses :func:`detect_format`.
+        times: KITTI ``times.txt`` with the stamps of a KITTI file (:func:`read_times`);
+            without it KITTI files get index stamps (``index_stamps``).
 
     Returns:
         The trajectory.
 
     Raises:
-        FormatError: If ``fmt`` is unknown, the format cannot be detected, or the file is
-            malformed.
+        FormatError: If ``fmt`` is unknown, the format cannot be detected, the file is
+            malformed, or ``times`` is given for a format with stamps of its own or does not
+            have one line per pose.
     """
     if fmt not in FORMATS:
         msg = f'unknown trajectory format {fmt!r}; expected one of {", ".join(FORMATS)}'
@@ -382,11 +408,17 @@ def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto') -> Trajecto
     text = _read_text(path)
     if fmt == 'auto':
         fmt = detect_format(path, text)
+    if times is not None and fmt != 'kitti':
+        # Silently ignoring them would leave the user believing the times were used.
+        msg = (f'{times}: times are for a KITTI file (no stamps), but {path} is '
+               f'{"TUM" if fmt == "tum" else "EuRoC CSV"} with stamps of its own')
+        raise FormatError(msg)
     if fmt == 'tum':
         return _tum_from_text(path, text)
     if fmt == 'euroc':
         return _euroc_from_text(path, text)
-    return _kitti_from_text(path, text, None)
+    stamps = read_times(times) if times is not None else None
+    return _kitti_from_text(path, text, stamps)
 
 
 def write_tum(path: str | os.PathLike[str], traj: Trajectory) -> None:

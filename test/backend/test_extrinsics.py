@@ -15,10 +15,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.core import so3
@@ -29,6 +31,7 @@ from pmba_ros.sim.bag import EUROC_CAM0
 from pmba_ros.sim.inputs import make_camera_info
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
+import yaml
 
 from .test_logic import BACKEND, camera_info_msg, config, diag_values, last, tracks_msg
 
@@ -73,6 +76,33 @@ def test_extrinsics_from_params() -> None:
         extrinsics_from_params([0.0] * 7, 1)
     with pytest.raises(ValueError, match='camera_extrinsics'):
         config(camera_extrinsics=[1.0, 2.0])
+
+
+def test_a_rig_parameter_file_needs_no_num_cams(tmp_path: Path) -> None:
+    """A stereo rig's extrinsics or CameraInfo topics without num_cams: num_cams 2.
+
+    Before, a parameter file with 14 camera_extrinsics values failed with num_cams=1.
+    """
+    flat = EUROC_CAM0.to_flat() + Rigid.identity().to_flat()
+    path = tmp_path / 'params.yaml'
+
+    def read(**params: Any) -> BackendConfig:
+        path.write_text(yaml.safe_dump({'pmba_node': {'ros__parameters': params}}))
+        return BackendConfig.from_yaml(path)
+
+    assert read(camera_extrinsics=flat).num_cams == 2
+    assert read(camera_info_topics=['/cam0/info', '/cam1/info']).num_cams == 2
+    assert read(camera_extrinsics=flat, camera_info_topics=['/a', '/b'], camera_id=1).num_cams == 2
+    assert read().num_cams == 1 and read(camera_extrinsics=flat[:7]).num_cams == 1
+    # Given, num_cams is checked; the error says what to set.
+    with pytest.raises(ValueError, match='got 14: set num_cams: 2, or give 21 values'):
+        read(camera_extrinsics=flat, num_cams=3)
+    with pytest.raises(ValueError, match='2 topics for num_cams=1: set num_cams: 2'):
+        BackendConfig(camera_info_topics=('/a', '/b'))
+    with pytest.raises(ValueError, match='got 15: 15 is not a multiple of 7'):
+        read(camera_extrinsics=[*flat, 0.0])
+    with pytest.raises(ValueError, match='must list the same cameras'):
+        read(camera_extrinsics=flat, camera_info_topics=['/a', '/b', '/c'])
 
 
 def test_transform_tree_lookup_through_a_common_ancestor() -> None:

@@ -21,6 +21,7 @@ determinism, bounded memory in sliding mode, and the 200-keyframe street accepta
 from __future__ import annotations
 
 from collections.abc import Iterator
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -476,15 +477,22 @@ def test_tracks_of_non_keyframes_are_normal(street: SimSequence) -> None:
 
 
 def test_stamps_going_backwards(street: SimSequence) -> None:
-    """Keyframes and tracks older than the last keyframe are rejected and counted."""
+    """Keyframes and tracks older than the last keyframe are rejected and counted.
+
+    A pose stamped like one received before is a repeat (``duplicate_keyframe_poses``).
+    """
     logic = BackendLogic(config(), BACKEND)
     outputs = run(logic, street, 22)
-    logic.on_keyframe(keyframe_msg(street, 10))
+    older = dataclasses.replace(street, stamps_ns=street.stamps_ns - 50_000_000)
+    logic.on_keyframe(keyframe_msg(older, 10))
+    logic.on_keyframe(keyframe_msg(older, 20))
     logic.on_tracks(tracks_msg(street, 12))
+    logic.on_keyframe(keyframe_msg(street, 10))  # received before
     logic.on_keyframe(keyframe_msg(street, 21))  # same stamp again
     outputs += logic.step()
     counts = _counts(logic, outputs)
     assert counts['count.keyframe_stamp_not_increasing'] == '2'
+    assert counts['count.duplicate_keyframe_poses'] == '2'
     assert counts['count.stale_tracks'] == '1'
     outputs += [o for outs in feed(logic, street, range(22, 24)) for o in outs]
     assert len(logic.optimized_trajectory()) == 24

@@ -540,6 +540,21 @@ def test_no_tf_subscription_with_extrinsics_given(fake_ros: FakeRclpy) -> None:
     assert wrapper.config.camera_extrinsics and not topics & {'/tf_static', '/tf'}
 
 
+def test_a_rig_s_lists_declare_num_cams(fake_ros: FakeRclpy) -> None:
+    """Two cameras' extrinsics and no num_cams: the parameter is declared 2, not refused.
+
+    Before, ``num_cams`` was declared 1 and the 14 values failed the start; one set
+    explicitly still wins and is checked against them, with the value to set.
+    """
+    stereo = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.11, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    wrapper = make(fake_ros, camera_extrinsics=stereo)
+    assert wrapper.config.num_cams == 2
+    assert fake_ros.created[0].get_parameter('num_cams').value == 2
+    assert make(fake_ros, camera_info_topics=['/a', '/b', '/c']).config.num_cams == 3
+    with pytest.raises(ValueError, match='per camera for num_cams=1, got 14: set num_cams: 2'):
+        make(fake_ros, camera_extrinsics=stereo, num_cams=1)
+
+
 def test_silent_inputs_name_their_mismatch(fake_ros: FakeRclpy, seq: SimSequence) -> None:
     """A publisher of another type or with incompatible QoS: one WARN naming the parameter."""
     wrapper = make(fake_ros, deterministic=True)

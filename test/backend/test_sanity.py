@@ -221,8 +221,9 @@ def street() -> SimSequence:
     return simulate_sequence('street', n_keyframes=40, seed=0)
 
 
-def _run(seq: SimSequence, frames: list[TrackFrame] | None = None,
+def _run(seq: SimSequence, frames: list[TrackFrame] | None = None, repeated: tuple[int, ...] = (),
          ) -> tuple[BackendLogic, list[tuple[str, Any]]]:
+    """Feed ``seq``; the keyframe poses of ``repeated`` twice (a front-end's repeat)."""
     logic = BackendLogic(config(), BACKEND)
     logic.on_camera_info(camera_info_msg(seq))
     outputs: list[tuple[str, Any]] = []
@@ -230,8 +231,9 @@ def _run(seq: SimSequence, frames: list[TrackFrame] | None = None,
         frame = frames[i] if frames is not None else None
         logic.on_tracks(tracks_msg(seq, i, frame=frame))
         outputs += logic.step()
-        logic.on_keyframe(keyframe_msg(seq, i))
-        outputs += logic.step()
+        for _ in range(2 if i in repeated else 1):
+            logic.on_keyframe(keyframe_msg(seq, i))
+            outputs += logic.step()
     return logic, outputs
 
 
@@ -261,6 +263,42 @@ def test_front_end_pose_jump_is_not_followed(street: SimSequence) -> None:
     assert logic.stats.counters['keyframe_pose_jumps'] == 3
     assert np.abs(logic.optimized_trajectory().positions_xyz).max() < 1e3
     assert _warned(outputs, 'keyframe_pose_jumps')
+
+
+def test_repeated_keyframe_poses_are_duplicates_not_jumps(street: SimSequence) -> None:
+    """Poses published twice: counted as duplicates, and the run is the one without them.
+
+    Repeats among the first poses (1), of a pose held as a jump (25) and of a plain one
+    (30). Before, the first counted as a pose jump, the second as a second jump (towards
+    the jump's persistence) and the third as a stamp not increasing.
+    """
+    centers = street.centers_odom.copy()
+    centers[25] += 1e6
+    spiked = dataclasses.replace(street, centers_odom=centers)
+    clean, _ = _run(spiked)
+    logic, outputs = _run(spiked, repeated=(1, 25, 30))
+    counters = logic.stats.counters
+    assert counters['duplicate_keyframe_poses'] == 3
+    assert _warned(outputs, 'duplicate_keyframe_poses')
+    assert counters['keyframe_pose_jumps'] == clean.stats.counters['keyframe_pose_jumps'] == 1
+    assert not counters['keyframe_stamp_not_increasing']
+    for ours, theirs in ((logic.optimized_trajectory(), clean.optimized_trajectory()),
+                         (logic.frontend_trajectory(), clean.frontend_trajectory())):
+        np.testing.assert_array_equal(ours.stamps_s, theirs.stamps_s)
+        np.testing.assert_array_equal(ours.positions_xyz, theirs.positions_xyz)
+
+
+def test_a_repeat_of_a_stamp_leap_keeps_the_first_copy() -> None:
+    """A repeat of a message held as a leap is the repeat, not the next message judging it."""
+    check, taken, dropped = StampLeapCheck('leaps', repeat_reason='repeats'), [], []
+    glitch = 1000 * 10 ** 9
+    for stamp, payload in [*((k * STEP_NS, k) for k in range(6)), (glitch, 'first'),
+                           (glitch, 'copy'), (glitch + STEP_NS, 7), (3 * STEP_NS, 'old')]:
+        taken += check.admit(stamp, payload, lambda reason, why: dropped.append(reason))
+    assert taken == [0, 1, 2, 3, 4, 5, 'first', 7] and dropped == ['repeats', 'repeats']
+    # Without repeat_reason, repeats pass unjudged, as before.
+    repeated = [0, STEP_NS, STEP_NS, 2 * STEP_NS]
+    assert _stamp_leap_run(repeated)[0] == repeated
 
 
 def _stamp_leap_run(stamps: list[int]) -> tuple[list[int], list[str]]:

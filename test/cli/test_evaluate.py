@@ -152,3 +152,44 @@ def test_run_on_tum_vs_euroc_pair(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.run(parse(argv)) == 0
     out = capsys.readouterr().out
     assert 'matched 798 of 807 estimated / 16702 ground-truth poses' in out
+
+
+def _kitti_gt(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """Write a 40-pose ground truth as TUM stamped 0.0, 0.1, ... and as KITTI + times.txt."""
+    rng = np.random.default_rng(11)
+    n = 40
+    gt = Trajectory(0.1 * np.arange(n), np.cumsum(rng.normal(scale=0.1, size=(n, 3)), axis=0),
+                    so3.exp(np.cumsum(rng.normal(scale=0.05, size=(n, 3)), axis=0)))
+    write_tum(tmp_path / 'est.tum', gt)
+    rows = np.concatenate([gt.R_wc, gt.positions_xyz[:, :, None]], axis=2).reshape(n, 12)
+    np.savetxt(tmp_path / 'gt.kitti', rows)
+    np.savetxt(tmp_path / 'times.txt', gt.stamps_s)
+    return tmp_path / 'est.tum', tmp_path / 'gt.kitti', tmp_path / 'times.txt'
+
+
+def test_kitti_gt_without_times_against_stamps_is_an_error(tmp_path: Path) -> None:
+    """A KITTI GT against a 10 Hz estimate needs its times (before: 4 of 40 matched, an ATE)."""
+    est, gt, times = _kitti_gt(tmp_path)
+    with pytest.raises(EvaluationError, match=r'KITTI file without stamps.*--gt-times FILE'):
+        cli.run(parse([str(est), str(gt)]))
+    report = tmp_path / 'r.json'
+    assert cli.run(parse([str(est), str(gt), '--gt-times', str(times),
+                          '--report', str(report)])) == 0
+    result = json.loads(report.read_text())
+    assert result['ate']['n_matched'] == 40 and result['warnings'] == []
+    with pytest.raises(FormatError, match='times are for a KITTI file'):
+        cli.run(parse([str(est), str(gt), '--times', str(times)]))
+
+
+def test_few_matched_poses_warn(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An estimate of which few poses find a ground-truth stamp: a warning, in the report."""
+    est = _kitti_gt(tmp_path)[0]
+    traj = read_trajectory(est)
+    shifted = Trajectory(traj.stamps_s + np.where(np.arange(40) % 5 == 0, 0.0, 0.04),
+                         traj.positions_xyz, traj.R_wc)
+    write_tum(tmp_path / 'shifted.tum', shifted)
+    report = tmp_path / 'r.json'
+    assert cli.run(parse([str(tmp_path / 'shifted.tum'), str(est),
+                          '--report', str(report)])) == 0
+    assert 'warning: only 8 of the 39 estimated poses' in capsys.readouterr().err
+    assert json.loads(report.read_text())['warnings'][0].startswith('only 8 of the 39')

@@ -106,6 +106,29 @@ def test_replay_prints_table_and_outputs(sim_bag: Path, tmp_path: Path,
     assert report['keyframes_in'] == 20
 
 
+@pytest.mark.usefixtures('stub')
+def test_replay_kitti_gt_needs_its_times(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """A KITTI ground truth without times is an error naming --gt-times; with them, all match.
+
+    Before, 4 of 40 keyframes at 10 Hz met the pose numbers and an ATE was printed.
+    """
+    bag = tmp_path / 'street40'
+    assert main(['simulate', '--keyframes', '40', '--out', str(bag)]) == 0
+    gt = read_tum(bag / 'groundtruth.tum')
+    kitti, times = tmp_path / 'gt.kitti', tmp_path / 'times.txt'
+    np.savetxt(kitti, np.concatenate([gt.R_wc, gt.positions_xyz[:, :, None]], axis=2)
+               .reshape(-1, 12))
+    np.savetxt(times, gt.stamps_s)
+    out = tmp_path / 'out'
+    assert main(['replay', str(bag), '--out', str(out), '--gt', str(kitti), '--quiet']) == 1
+    assert '--gt-times FILE' in capsys.readouterr().err
+    assert main(['replay', str(bag), '--out', str(out), '--gt', str(kitti),
+                 '--gt-times', str(times), '--quiet']) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['accuracy']['matched_frontend'] == 40 and report['warnings'] == []
+
+
 def test_replay_keyframes_from_tracks_samples_the_pose_topic(sim_bag: Path,
                                                              tmp_path: Path) -> None:
     """--keyframes-from tracks: keyframes from the tracks, poses from the recorded pose topic.

@@ -26,6 +26,7 @@ from pmba_ros.errors import EvaluationError
 from pmba_ros.eval.align import apply_alignment, UmeyamaResult
 from pmba_ros.eval.metrics import (
     associate,
+    association_warning,
     ate,
     EvalResult,
     evaluate,
@@ -149,6 +150,51 @@ def test_metrics_raise_on_fewer_than_three_matches(rng: np.random.Generator) -> 
         ate(est, ref)
     with pytest.raises(EvaluationError, match='only 2 associated poses'):
         rpe(est, ref)
+
+
+def _numbered(traj: Trajectory) -> Trajectory:
+    """Return ``traj`` as a KITTI file without times reads it: stamps 0, 1, 2, ..."""
+    return Trajectory(np.arange(len(traj), dtype=np.float64), traj.positions_xyz, traj.R_wc,
+                      index_stamps=True)
+
+
+def test_kitti_pose_numbers_against_seconds_are_refused(rng: np.random.Generator) -> None:
+    """A KITTI ground truth without times against a 10 Hz estimate from 0 s is an error.
+
+    Before, stamps 0.0, 1.0, 2.0, 3.0 of 40 met pose numbers 0-3 and an ATE was printed.
+    """
+    est = random_trajectory(rng, 40, t0=0.0, dt=0.1)
+    gt = _numbered(est)
+    with pytest.raises(EvaluationError, match=r'ground truth is a KITTI file without stamps'
+                       r'.*--gt-times FILE'):
+        evaluate(est, gt)
+    with pytest.raises(EvaluationError, match=r'the estimate is a KITTI file.*--times FILE'):
+        ate(gt, est)
+
+
+def test_kitti_pose_numbers_match_pose_numbers(rng: np.random.Generator) -> None:
+    """Both numbered, or an estimate stamped with whole numbers: pose i against pose i."""
+    traj = random_trajectory(rng, 12, t0=0.0, dt=1.0)
+    gt = _numbered(traj)
+    assert evaluate(_numbered(traj), gt)['ate'].n_matched == 12
+    assert evaluate(traj, gt)['ate'].n_matched == 12  # a TUM file of pose numbers
+    assert gt.take([1, 2]).index_stamps
+
+
+def test_association_warning_below_half_of_the_poses(rng: np.random.Generator) -> None:
+    """Few of the overlapping poses matched: a warning; all matched, or a short GT: none."""
+    gt = random_trajectory(rng, 41, t0=0.0, dt=0.1)
+    assert association_warning(gt, gt) == ''
+    assert association_warning(gt.take(np.arange(10, 20)), gt) == ''  # GT covers more
+    assert association_warning(gt, gt.take(np.arange(10, 20))) == ''  # GT covers part
+    first = gt.take(np.arange(40))
+    shifted = Trajectory(first.stamps_s + np.where(np.arange(40) % 4 == 0, 0.0, 0.05),
+                         first.positions_xyz, first.R_wc)
+    text = association_warning(shifted, gt)
+    assert text.startswith('only 10 of the 40 estimated poses inside') and '(25 %' in text
+    assert association_warning(shifted, gt, offset_s=-0.05) == ''  # 30 of 39 inside
+    assert association_warning(shifted, gt, max_diff_s=0.05) == ''
+    assert association_warning(gt, shifted).startswith('only 10 of the 40 reference poses')
 
 
 # --------------------------------------------------------------------------------------------
