@@ -53,14 +53,12 @@ import time
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.consistency import in_odom_frame, inconsistency, motion_error
 from pmba_ros.backend.motion import (
     ANCHOR_BASELINE_REL,
     frontend_motion_prior,
     FrontendNoise,
-    in_odom_frame,
-    inconsistency,
     JUMP_SIGMAS,
-    motion_error,
     PixelNoise,
     RunScale,
     step_sigmas,

@@ -11,12 +11,13 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The front-end's motion as information: the relative-pose prior and the consistency check.
+"""The front-end's motion as information: the relative-pose prior and what it is weighed by.
 
 A window solve must not make the local motion worse than the front-end's (issue #12): the
 front-end's keyframe-to-keyframe motion enters the solve as a weak prior
-(:func:`frontend_motion_prior`), and each applied solve is compared with it
-(:func:`motion_error`).
+(:func:`frontend_motion_prior`), weighed by the noise the solves measure
+(:class:`PixelNoise`, :class:`FrontendNoise`); each applied solve is then checked against
+it (:mod:`pmba_ros.backend.consistency`).
 """
 
 from __future__ import annotations
@@ -28,17 +29,11 @@ import statistics
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.window import (
-    estimate_similarity,
-    KeyframeStatus,
-    KeyframeStore,
-    Similarity,
-)
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges
-from pmba_ros.errors import InitError
 
 
-def _row_norms(x: FloatArray) -> FloatArray:
+def row_norms(x: FloatArray) -> FloatArray:
     """Return the norms of the rows of ``x`` (N, 3): np.linalg.norm's sums, without its wrapper."""
     return np.sqrt(np.add.reduce(x * x, axis=1))
 
@@ -122,8 +117,8 @@ class RunScale:
         i = np.arange(first, stop)
         ok = usable[1:] & usable[:-1] & kf.same_odom(i - 1, i)
         i = i[ok]
-        step_map = _row_norms(kf.C_map[i] - kf.C_map[i - 1])
-        step_odom = _row_norms(kf.C_odom[i] - kf.C_odom[i - 1])
+        step_map = row_norms(kf.C_map[i] - kf.C_map[i - 1])
+        step_odom = row_norms(kf.C_odom[i] - kf.C_odom[i - 1])
         good = np.isfinite(step_map) & np.isfinite(step_odom)
         return (float(np.sum(step_map[good])), float(np.sum(step_odom[good])),
                 int(np.count_nonzero(good)))
@@ -198,13 +193,15 @@ class FrontendNoise:
         """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
 
         The prior was built with the current :attr:`factors`. Factors more than
-        :data:`JUMP_SIGMAS` off (a step that is no motion) and factors without a leverage do
-        not count. Those beyond the Huber threshold do: a front-end far noisier than the
-        sigmas has most of its steps there until the factors have grown. :attr:`white` counts
-        only steps of at least :attr:`MOVING` times ``typical`` (the run's typical step).
+        :data:`JUMP_SIGMAS` off (a step that is no motion), factors without a leverage and
+        factors without a weight (the anchors of the step-change factors) do not count.
+        Those beyond the Huber threshold do: a front-end far noisier than the sigmas has
+        most of its steps there until the factors have grown. :attr:`white` counts only
+        steps of at least :attr:`MOVING` times ``typical`` (the run's typical step).
         """
         keep = ((step_sigmas(prior, residuals) <= JUMP_SIGMAS)
-                & np.all(np.isfinite(leverage), axis=(1, 2)))
+                & np.all(np.isfinite(leverage), axis=(1, 2))
+                & ((prior.w_rot > 0) | np.any(prior.W_trans != 0, axis=(1, 2))))
         if not np.any(keep):
             return
         e, hat = residuals[keep], leverage[keep]
@@ -315,11 +312,17 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         return None
     a_loc = np.arange(cams.shape[0] - 1)
     a, b = cams[:-1], cams[1:]
-    ok = kf.same_odom(a, b) & ~(fixed[:-1] & fixed[1:])
-    a_loc, a, b = a_loc[ok], a[ok], b[ok]
+    both_fixed = fixed[:-1] & fixed[1:]
+    # The fixed step just before the free ones, its error a constant of the solve, anchors
+    # their step-change factors: the front-end's drift carries over the window's start,
+    # where the window's scale otherwise restarts free (weak where tracks are short).
+    anchor = both_fixed & np.append(~both_fixed[1:], False) & (b == a + 1)
+    anchor[:-1] &= b[:-1] + 1 == b[1:]
+    ok = kf.same_odom(a, b) & (~both_fixed | anchor)
+    a_loc, a, b, anchor = a_loc[ok], a[ok], b[ok], anchor[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
-    step = _row_norms(t_odom)
+    step = row_norms(t_odom)
     along = t_odom / np.maximum(step, 1e-12)[:, None]
     P_along = np.einsum('mi,mj->mij', along, along)
     scale = np.full(a.shape[0], metric_scale)
@@ -355,6 +358,12 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     changes = None if white_noise is None else step_changes(
         a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
         cfg.motion_prior_translation_rel)
+    if changes is None:
+        keep = ~anchor
+        a_loc, R_ab, t_ab, w_rot, W_trans = (a_loc[keep], R_ab[keep], t_ab[keep], w_rot[keep],
+                                             W_trans[keep])
+    else:   # an anchor is only the reference of its change factor: no step factor
+        w_rot[anchor], W_trans[anchor] = 0.0, 0.0
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans,
                              huber=PRIOR_HUBER_SIGMAS * weight, changes=changes)
 
@@ -415,7 +424,7 @@ def typical_step(run: RunScale, centers: FloatArray) -> float:
     """
     if run.steps and run.path > 0:
         return run.path / run.steps
-    steps = _row_norms(np.diff(centers, axis=0))
+    steps = row_norms(np.diff(centers, axis=0))
     moving = steps[steps > 0]
     return float(np.median(moving)) if moving.size else 0.0
 
@@ -443,8 +452,8 @@ def local_scales(kf: KeyframeStore, a: IntArray, b: IntArray, t_odom: FloatArray
     if m == 0:
         return np.zeros(0)
     if step_odom is None:
-        step_odom = _row_norms(t_odom)
-    step_map = _row_norms(kf.C_map[b] - kf.C_map[a])
+        step_odom = row_norms(t_odom)
+    step_map = row_norms(kf.C_map[b] - kf.C_map[a])
     with np.errstate(divide='ignore', invalid='ignore'):
         ratio = step_map / step_odom
     usable = (step_odom > 1e-6) & np.isfinite(ratio) & (ratio > 0)
@@ -493,105 +502,3 @@ def covariance_weights(kf: KeyframeStore, a: IntArray, b: IntArray, metric_scale
         W_trans[both[pd]] = W[pd]
     if config.motion_prior_rotation_rad > 0:
         w_rot[both[pd]] = 1.0 / np.sqrt(q_rot[pd])
-
-
-def motion_error(kf: KeyframeStore, idx: IntArray, map_scale: float) -> float:
-    """Median relative error of the map's keyframe-to-keyframe translations vs odom's.
-
-    Over the keyframes ``idx`` (each with its predecessor), the map's relative translation
-    in the earlier keyframe's frame, divided by the map <- odom scale ``map_scale``, is
-    compared with the front-end's; the error is relative to the front-end's step length.
-    """
-    b = idx[(idx > 0)]
-    a = b - 1
-    ok = kf.same_odom(a, b) & (kf.status[a] != KeyframeStatus.COLLECTED)
-    a, b = a[ok], b[ok]
-    if a.shape[0] == 0:
-        return 0.0
-    t_map = np.einsum('nji,nj->ni', kf.R_map[a], kf.C_map[b] - kf.C_map[a])
-    t_odom = np.einsum('nji,nj->ni', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
-    return step_error(t_map, t_odom, map_scale)
-
-
-def step_error(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> float:
-    """Median of :func:`relative_step_errors` (0 without a moving step)."""
-    return _median(relative_step_errors(t_map, t_odom, map_scale))
-
-
-def relative_step_errors(t_map: FloatArray, t_odom: FloatArray, map_scale: float) -> FloatArray:
-    """Return |t_map / map_scale - t_odom| / |t_odom| of the moving steps.
-
-    ``t_map``, ``t_odom``: the same steps (N, 3), each in its earlier keyframe's frame.
-    """
-    step = _row_norms(t_odom)
-    moving = step > 1e-6
-    out: FloatArray = _row_norms(t_map / map_scale - t_odom)[moving] / step[moving]
-    return out
-
-
-def _median(values: FloatArray) -> float:
-    """Return np.median's value (NaN if any is; 0 for none), without its wrapper's cost."""
-    if values.shape[0] == 0:
-        return 0.0
-    rel = np.sort(values)
-    mid = rel.shape[0] // 2
-    if np.isnan(rel[-1]):
-        return math.nan
-    return float(rel[mid]) if rel.shape[0] % 2 else float(0.5 * (rel[mid - 1] + rel[mid]))
-
-
-def in_odom_frame(kf: KeyframeStore, used: IntArray, R_wc: FloatArray, centers_w: FloatArray,
-                  max_error: float) -> tuple[FloatArray, FloatArray, Similarity, float]:
-    """Return initialized poses in the odom frame, odom <- init, and their worst step error.
-
-    The poses of keyframes ``used``: the map is expressed in the newest odom frame among them
-    (map -> odom starts at identity), by a similarity fit of the keyframes with front-end
-    poses. The worst step error is the largest relative error of their steps against the
-    front-end's.
-
-    Raises:
-        InitError: If their steps disagree with the front-end's by more than ``max_error``
-            (median, relative, :func:`step_error`): the initialization fitted something else
-            than the scene (wrong tracks).
-    """
-    with_odom = kf.has_odom[used]
-    if np.any(with_odom):   # the newest odom frame, if the front-end's jumped meanwhile
-        with_odom &= kf.segment[used] == kf.segment[used[with_odom][-1]]
-    sim = Similarity.identity()
-    if np.count_nonzero(with_odom) >= 2:
-        sim = estimate_similarity(kf.R_odom[used][with_odom], kf.C_odom[used][with_odom],
-                                  R_wc[with_odom], centers_w[with_odom])
-    R, C = sim.apply_poses(R_wc, centers_w)
-    idx, R_i, C_i = used[with_odom], R[with_odom], C[with_odom]
-    R_o, C_o = kf.R_odom[idx], kf.C_odom[idx]
-    rel = relative_step_errors(np.einsum('nji,nj->ni', R_i[:-1], C_i[1:] - C_i[:-1]),
-                               np.einsum('nji,nj->ni', R_o[:-1], C_o[1:] - C_o[:-1]), 1.0)
-    error = _median(rel)
-    if error > max_error:
-        msg = f"its steps disagree with the front-end's by {100 * error:.0f} %"
-        raise InitError(msg)
-    return R, C, sim, float(rel.max()) if rel.shape[0] else 0.0
-
-
-def inconsistency(kf: KeyframeStore, config: BackendConfig, costs: tuple[float, float],
-                  scales: tuple[float, float], moved: IntArray, error_before: float) -> str:
-    """Return why an applied window solve is not trusted ('' if it is).
-
-    Checks: the cost did not increase (``costs``: before, after), the poses are finite, the
-    map <- odom scale (``scales``: before, after) did not jump by more than
-    ``fallback_max_scale_jump``, and the window's motion does not disagree with the
-    front-end's by more than ``fallback_max_motion_error`` (relative, median,
-    :func:`motion_error`) unless it already did before the solve (``error_before``).
-    """
-    (cost_before, cost_after), (scale_before, scale) = costs, scales
-    if not (math.isfinite(cost_after) and cost_after <= cost_before * (1.0 + 1e-9)):
-        return f'cost increased ({cost_before:.6g} -> {cost_after:.6g})'
-    if not (np.all(np.isfinite(kf.C_map[moved])) and np.all(np.isfinite(kf.R_map[moved]))):
-        return 'non-finite poses'
-    if abs(math.log(scale / scale_before)) > math.log1p(config.fallback_max_scale_jump):
-        return f'map <- odom scale jumped {scale_before:.4g} -> {scale:.4g}'
-    error = motion_error(kf, moved, scale)
-    if error > config.fallback_max_motion_error and error > error_before:
-        return (f'motion differs from the front-end by {100 * error:.0f} % '
-                f'(before the solve {100 * error_before:.0f} %)')
-    return ''
