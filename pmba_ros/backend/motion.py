@@ -193,15 +193,13 @@ class FrontendNoise:
         """Add one accepted solve: its ``prior_residuals`` and ``prior_leverage``.
 
         The prior was built with the current :attr:`factors`. Factors more than
-        :data:`JUMP_SIGMAS` off (a step that is no motion), factors without a leverage and
-        factors without a weight (the anchors of the step-change factors) do not count.
-        Those beyond the Huber threshold do: a front-end far noisier than the sigmas has
-        most of its steps there until the factors have grown. :attr:`white` counts only
-        steps of at least :attr:`MOVING` times ``typical`` (the run's typical step).
+        :data:`JUMP_SIGMAS` off (a step that is no motion) and factors without a leverage do
+        not count. Those beyond the Huber threshold do: a front-end far noisier than the
+        sigmas has most of its steps there until the factors have grown. :attr:`white` counts
+        only steps of at least :attr:`MOVING` times ``typical`` (the run's typical step).
         """
         keep = ((step_sigmas(prior, residuals) <= JUMP_SIGMAS)
-                & np.all(np.isfinite(leverage), axis=(1, 2))
-                & ((prior.w_rot > 0) | np.any(prior.W_trans != 0, axis=(1, 2))))
+                & np.all(np.isfinite(leverage), axis=(1, 2)))
         if not np.any(keep):
             return
         e, hat = residuals[keep], leverage[keep]
@@ -312,14 +310,8 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         return None
     a_loc = np.arange(cams.shape[0] - 1)
     a, b = cams[:-1], cams[1:]
-    both_fixed = fixed[:-1] & fixed[1:]
-    # The fixed step just before the free ones, its error a constant of the solve, anchors
-    # their step-change factors: the front-end's drift carries over the window's start,
-    # where the window's scale otherwise restarts free (weak where tracks are short).
-    anchor = both_fixed & np.append(~both_fixed[1:], False) & (b == a + 1)
-    anchor[:-1] &= b[:-1] + 1 == b[1:]
-    ok = kf.same_odom(a, b) & (~both_fixed | anchor)
-    a_loc, a, b, anchor = a_loc[ok], a[ok], b[ok], anchor[ok]
+    ok = kf.same_odom(a, b) & ~(fixed[:-1] & fixed[1:])
+    a_loc, a, b = a_loc[ok], a[ok], b[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
     step = row_norms(t_odom)
@@ -358,12 +350,6 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     changes = None if white_noise is None else step_changes(
         a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
         cfg.motion_prior_translation_rel)
-    if changes is None:
-        keep = ~anchor
-        a_loc, R_ab, t_ab, w_rot, W_trans = (a_loc[keep], R_ab[keep], t_ab[keep], w_rot[keep],
-                                             W_trans[keep])
-    else:   # an anchor is only the reference of its change factor: no step factor
-        w_rot[anchor], W_trans[anchor] = 0.0, 0.0
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans,
                              huber=PRIOR_HUBER_SIGMAS * weight, changes=changes)
 

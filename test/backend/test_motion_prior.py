@@ -598,25 +598,6 @@ def test_step_changes_near_a_stop_and_while_speeding_up() -> None:
                                np.linalg.norm(changes.W_trans, axis=2)[:, 1:])
 
 
-def test_the_fixed_step_before_a_window_anchors_its_step_changes() -> None:
-    """The last fixed step joins the first free one in a change factor, with no factor of its own.
-
-    So a window's scale does not restart free at its first keyframe (where tracks are short,
-    the vision barely carries it over). Without step-change factors it is left out.
-    """
-    kf = _store(np.ones(6))
-    cams, fixed = np.arange(7), np.arange(7) < 3
-    plain = frontend_motion_prior(kf, cams, fixed, 1.0, BackendConfig())
-    assert plain is not None and plain.a.tolist() == [2, 3, 4, 5]
-    prior = frontend_motion_prior(kf, cams, fixed, 1.0, BackendConfig(),
-                                  white_noise=(0.3, 0.3, 0.3))
-    assert prior is not None and prior.a.tolist() == [1, 2, 3, 4, 5]
-    assert prior.w_rot[0] == 0.0 and not np.any(prior.W_trans[0])
-    np.testing.assert_array_equal(prior.W_trans[1:], plain.W_trans)
-    assert prior.changes is not None and prior.changes.first.tolist() == [0, 1, 2]
-    assert prior.changes.w_rot[0] > 0 and np.all(np.linalg.norm(prior.changes.W_trans[0]) > 0)
-
-
 def test_a_front_end_better_than_the_parameters_is_followed() -> None:
     """A front-end 4x less noisy than the default simulation (``drift=0.005``), 200 keyframes.
 
