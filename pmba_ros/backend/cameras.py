@@ -24,9 +24,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
-from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.backend.types import CameraModel, pinhole_jacobian, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import sphere
 from pmba_ros.errors import MessageError
@@ -66,12 +67,32 @@ def frame_observations(frame: TrackFrame, usable: dict[int, CameraModel | None],
         msg = 'tracks without normalized coordinates need a CameraInfo'
         raise MessageError(msg)
     finite = np.all(np.isfinite(xy), axis=1)
-    xy = xy[finite]
+    xy, cams = xy[finite], cams[finite]
     bearings = sphere.normalize(np.column_stack([xy, np.ones(xy.shape[0])]))
     obs = KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
-                      cams[finite] if len(usable) > 1 else None)
+                      cams if len(usable) > 1 else None, _pixel_jacobians(bearings, cams, models))
     return (obs, frame.camera_ids.shape[0] - cams.shape[0],
             int(np.count_nonzero(~finite)))
+
+
+def _pixel_jacobians(bearings: FloatArray, cams: IntArray,
+                     models: dict[int, CameraModel]) -> np.ndarray | None:
+    """Return each observation's d(pixel) / d(bearing) by its camera's model, float32.
+
+    None where each camera's is the pinhole of its intrinsics (or not known yet): the
+    problem's builder takes those. Among cameras that have one, the others get their
+    pinhole's; a camera without a model NaN rows (the builder's pinhole).
+    """
+    jacobians = {c: models[c].pixel_jacobian(bearings[cams == c])
+                 for c in np.unique(cams).tolist() if c in models}
+    if all(j is None for j in jacobians.values()):
+        return None
+    out = np.full((bearings.shape[0], 2, 3), np.nan, dtype=np.float32)
+    for c, jac in jacobians.items():
+        on = cams == c
+        out[on] = jac if jac is not None else pinhole_jacobian(bearings[on], models[c].fx,
+                                                               models[c].fy)
+    return out
 
 
 class FrontendCameras:

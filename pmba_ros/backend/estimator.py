@@ -278,7 +278,8 @@ class Estimator:
         intr = Intrinsics.uniform(cams.shape[0], self.fx, self.fy, self.cx, self.cy)
         return make_problem(R, C, intr, g.local, g.feat_idx, pixels, bearings_c=g.bearings,
                             fixed=fixed, n_feats=g.feature_ids.shape[0],
-                            feature_ids=g.feature_ids, camera=g.camera, rig=rig)
+                            feature_ids=g.feature_ids, camera=g.camera, rig=rig,
+                            pixel_jac=g.pixel_jacobians(self.fx, self.fy))
 
     def _initialize(self, batch: IntArray) -> UpdateInfo:
         from pmba_ros.init.pipeline import global_init, InitOptions

@@ -363,6 +363,72 @@ class CameraModel:
             xy_d = xy
         return np.stack([self.fx * xy_d[:, 0] + self.cx, self.fy * xy_d[:, 1] + self.cy], 1)
 
+    def pixel_jacobian(self, bearings: FloatArray) -> FloatArray | None:
+        """Return d(raw pixel) / d(bearing) at unit ``bearings`` (K, 3), shape (K, 2, 3).
+
+        What one pixel of this camera is as a ray error, where that is not the pinhole of
+        its intrinsics (None for a model without distortion): the errors of the observations
+        are weighed by it. Rays at or beyond 90 degrees from the optical axis are NaN.
+        """
+        v = float_rows(bearings, 3, 'pixel_jacobian: bearings', 'K')
+        if self.distortion_model == 'none' or not np.any(self.d):
+            return None
+        if self.distortion_model == 'equidistant':
+            J = _equidistant_jacobian(v, self.d)
+            J[v[:, 2] <= 0] = np.nan
+        else:
+            xy = v[:, :2] / np.where(v[:, 2] > 0, v[:, 2], np.nan)[:, None]
+            J = _plumb_bob_jacobian(xy, self.d) @ pinhole_jacobian(v, 1.0, 1.0)
+        J[:, 0] *= self.fx
+        J[:, 1] *= self.fy
+        return J
+
+
+def pinhole_jacobian(bearings: FloatArray, fx: float, fy: float) -> FloatArray:
+    """Return d(fx x / z, fy y / z) / d(bearing) at ``bearings``, (K, 2, 3); NaN where z <= 0."""
+    v = bearings
+    inv_z = 1.0 / np.where(v[:, 2] > 0, v[:, 2], np.nan)
+    J = np.zeros((v.shape[0], 2, 3))
+    J[:, 0, 0], J[:, 1, 1] = fx * inv_z, fy * inv_z
+    J[:, 0, 2] = -fx * v[:, 0] * inv_z * inv_z
+    J[:, 1, 2] = -fy * v[:, 1] * inv_z * inv_z
+    return J
+
+
+def _plumb_bob_jacobian(xy: FloatArray, d: FloatArray) -> FloatArray:
+    """Return d(distorted) / d(normalized) of :func:`_distort_plumb_bob` at xy, (K, 2, 2)."""
+    k1, k2, p1, p2, k3 = d
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d(radial)/dx = g * x
+    off = g * x * y + 2.0 * p1 * x + 2.0 * p2 * y
+    return np.stack([np.stack([radial + g * x * x + 2.0 * p1 * y + 6.0 * p2 * x, off], -1),
+                     np.stack([off, radial + g * y * y + 6.0 * p1 * y + 2.0 * p2 * x], -1)],
+                    axis=1)
+
+
+def _equidistant_jacobian(v: FloatArray, d: FloatArray) -> FloatArray:
+    """Return d(distorted normalized) / d(bearing) of the fisheye model at unit v, (K, 2, 3).
+
+    From the bearing, not from x/z: the pinhole's 1 / z^2 and the fisheye's cos^2 cancel
+    at the border, where they are each far from 1.
+    """
+    rho = np.hypot(v[:, 0], v[:, 1])
+    theta = np.arctan2(rho, v[:, 2])
+    t2 = theta * theta
+    slope = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+    centre = rho < 1e-9
+    safe = np.where(centre, 1.0, rho)
+    s = v[:, :2] / safe[:, None]                       # direction in the image
+    d_theta = np.column_stack([v[:, 2:3] * s, -rho])   # d theta / d v, (K, 3)
+    across = (np.eye(2) - np.einsum('ki,kj->kij', s, s)) * (_theta_d(theta, d) / safe)[:, None,
+                                                                                        None]
+    J = np.einsum('ki,kj->kij', slope[:, None] * s, d_theta)
+    J[:, :, :2] += across
+    J[centre] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    return J
+
 
 def _distort_plumb_bob(xy: FloatArray, d: FloatArray) -> FloatArray:
     """Apply OpenCV's radial-tangential model (k1, k2, p1, p2, k3) to (K, 2) points."""

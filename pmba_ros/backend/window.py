@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.backend.types import pinhole_jacobian
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import gather as compiled_gather
 from pmba_ros.core.engine import compiled_available
@@ -55,12 +56,15 @@ class KeyframeObs:
         normalized: Normalized undistorted coordinates (x/z, y/z), shape (K, 2).
         camera: Front-end camera id of each observation, shape (K,), or None: all of the
             reference camera (``camera_id``, whose frame the keyframe poses are in).
+        pixel_jac: d(pixel) / d(bearing) by each observation's camera model, shape (K, 2, 3)
+            (float32), or None: the pinhole (see :class:`~pmba_ros.core.problem.Observations`).
     """
 
     ids: IntArray
     bearings: FloatArray
     normalized: FloatArray
     camera: IntArray | None = None
+    pixel_jac: FloatArray | None = None
 
     def of_camera(self, camera: int) -> KeyframeObs:
         """Return the observations of one camera (all of them without camera ids)."""
@@ -68,7 +72,8 @@ class KeyframeObs:
             return self
         sel = self.camera == camera
         return KeyframeObs(self.ids[sel], self.bearings[sel], self.normalized[sel],
-                           self.camera[sel])
+                           self.camera[sel],
+                           None if self.pixel_jac is None else self.pixel_jac[sel])
 
 
 class KeyframeStore:
@@ -351,6 +356,8 @@ class GatheredObservations(NamedTuple):
         normalized: Normalized coordinates, shape (K, 2).
         camera: Front-end camera id of each observation (K,), or None (``all_cameras``
             False: the reference camera's only).
+        pixel_jac: d(pixel) / d(bearing) of each observation (K, 2, 3), NaN rows for the
+            pinhole; None if every one is.
     """
 
     local: IntArray
@@ -359,6 +366,16 @@ class GatheredObservations(NamedTuple):
     bearings: FloatArray
     normalized: FloatArray
     camera: IntArray | None
+    pixel_jac: FloatArray | None = None
+
+    def pixel_jacobians(self, fx: float, fy: float) -> FloatArray | None:
+        """Return :attr:`pixel_jac` in float64, the pinhole of ``fx, fy`` in its NaN rows."""
+        if self.pixel_jac is None:
+            return None
+        jac = self.pixel_jac.astype(np.float64)
+        nominal = np.isnan(jac[:, 0, 0])
+        jac[nominal] = pinhole_jacobian(self.bearings[nominal], fx, fy)
+        return jac
 
 
 def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: IntArray | None,
@@ -402,9 +419,15 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
         camera = camera[sel]
     bearings = np.concatenate([p.bearings for p in parts]) if parts else np.zeros((0, 3))
     pixels = np.concatenate([p.normalized for p in parts]) if parts else np.zeros((0, 2))
+    jac = None
+    if any(p.pixel_jac is not None for p in parts):
+        jac = np.concatenate([p.pixel_jac if p.pixel_jac is not None
+                              else np.full((p.ids.shape[0], 2, 3), np.nan, np.float32)
+                              for p in parts])
+        jac = np.take(jac, sel, axis=0)
     # np.take: the rows fancy indexing would copy, for less.
     return GatheredObservations(local, feat_idx, feature_ids, np.take(bearings, sel, axis=0),
-                                np.take(pixels, sel, axis=0), camera)
+                                np.take(pixels, sel, axis=0), camera, jac)
 
 
 def ordered_tracks(ids: IntArray, offsets: IntArray, feature_filter: IntArray | None, cap: int,

@@ -101,7 +101,16 @@ class Model(ABC, Generic[F]):
         """Return the squared norm of the feature parameters (for the parameter tolerance)."""
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
-        """Return the pixel reprojection error norm of every observation, shape (K,)."""
+        """Return the pixel reprojection error norm of every observation, shape (K,).
+
+        With the cameras' own ``pixel_jac``, to first order: their pixels are not the
+        intrinsics' pinhole (at a fisheye's border that pinhole's are many times larger).
+        """
+        jac = self.obs.pixel_jac
+        if jac is not None:
+            d = evaluation.rays_c - self.obs.bearings_c
+            out: FloatArray = np.linalg.norm(np.einsum('kij,kj->ki', jac, d), axis=1)
+            return out
         return self.engine.reprojection_errors(evaluation.rays_c, self.problem.intrinsics,
                                                self.obs.cam_idx, self.obs.pixels)
 
@@ -140,8 +149,10 @@ class ParallaxModel(Model[ParallaxFeatures]):
         if pixel_weighted:
             self.pixel_residuals = True
             v = problem.obs.bearings_c
-            self._weights = residuals.pixel_weights(
-                self.engine.projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx), v)
+            jac = problem.obs.pixel_jac
+            if jac is None:
+                jac = self.engine.projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx)
+            self._weights = residuals.pixel_weights(jac, v)
 
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""

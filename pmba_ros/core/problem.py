@@ -84,6 +84,10 @@ class Observations:
         pixels: Measured pixels (distorted, as recorded), shape (K, 2).
         camera: Rig camera of each observation, shape (K,), or None: every bearing is in
             its pose's own frame (see :class:`Rig`).
+        pixel_jac: d(pixel) / d(bearing) of the camera that measured each observation, at
+            its bearing, shape (K, 2, 3), or None: the pinhole of the problem's intrinsics.
+            A camera whose pixels relate to rays otherwise (a fisheye lens) weighs its
+            errors by its own.
     """
 
     cam_idx: IntArray
@@ -91,6 +95,7 @@ class Observations:
     bearings_c: FloatArray
     pixels: FloatArray
     camera: IntArray | None = None
+    pixel_jac: FloatArray | None = None
 
     def __len__(self) -> int:
         """Return the number of observations."""
@@ -100,13 +105,15 @@ class Observations:
         """Return the subset of observations selected by ``index``."""
         return Observations(self.cam_idx[index], self.feat_idx[index],
                             self.bearings_c[index], self.pixels[index],
-                            None if self.camera is None else self.camera[index])
+                            None if self.camera is None else self.camera[index],
+                            None if self.pixel_jac is None else self.pixel_jac[index])
 
     def reindexed(self, feat_idx: IntArray) -> Observations:
         """Return the observations with other feature indices (read-only arrays)."""
         return Observations(_readonly(self.cam_idx), _readonly(feat_idx),
                             _readonly(self.bearings_c), _readonly(self.pixels),
-                            None if self.camera is None else _readonly(self.camera))
+                            None if self.camera is None else _readonly(self.camera),
+                            None if self.pixel_jac is None else _readonly(self.pixel_jac))
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,7 +227,7 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
                  bearings_c: FloatArray | None = None, points_w: FloatArray | None = None,
                  fixed: np.ndarray | None = None, n_feats: int | None = None,
                  feature_ids: np.ndarray | None = None, camera: np.ndarray | None = None,
-                 rig: Rig | None = None) -> BAProblem:
+                 rig: Rig | None = None, pixel_jac: FloatArray | None = None) -> BAProblem:
     """Validate inputs and build a :class:`BAProblem`.
 
     Args:
@@ -238,6 +245,8 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         camera: Rig camera of each observation (K,), values in [0, len(rig)); with ``rig``.
         rig: The cameras mounted on each pose (``bearings_c`` are then in each
             observation's rig camera frame).
+        pixel_jac: d(pixel) / d(bearing) of each observation's camera at its bearing
+            (K, 2, 3) (see :class:`Observations`); None: the intrinsics' pinhole.
 
     Returns:
         The problem; observations with non-finite values, duplicate (pose, rig camera,
@@ -308,8 +317,15 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
         bearings_c = bearings_c / np.where(norms > 0, norms, np.nan)
 
     rig_cam = _rig_cameras(camera, rig, K)
+    if pixel_jac is not None:
+        pixel_jac = np.asarray(pixel_jac, dtype=float)
+        if pixel_jac.shape != (K, 2, 3):
+            msg = f'pixel_jac: expected shape ({K}, 2, 3), got {pixel_jac.shape}'
+            raise ProblemError(msg)
     dropped: dict[str, int] = {}
     keep = finite_rows(bearings_c)
+    if pixel_jac is not None:
+        keep &= np.all(np.isfinite(pixel_jac), axis=(1, 2))
     n_finite = int(np.count_nonzero(keep))
     _count(dropped, 'non_finite_observations', K - n_finite)
 
@@ -366,7 +382,8 @@ def make_problem(R_wc: FloatArray, centers_w: FloatArray, intrinsics: Intrinsics
     obs = Observations(_readonly(cam_idx[order]), _readonly(new_index[feat_idx[order]]),
                        _readonly(np.take(bearings_c, order, axis=0)),
                        _readonly(np.take(pixels, order, axis=0)),
-                       None if rig is None else _readonly(rig_cam[order]))
+                       None if rig is None else _readonly(rig_cam[order]),
+                       None if pixel_jac is None else _readonly(np.take(pixel_jac, order, axis=0)))
     pts = None if points_w is None else _readonly(points_w[feat_ok])
     return BAProblem(_readonly(R_wc.copy()), _readonly(centers_w.copy()), intrinsics, obs,
                      int(np.count_nonzero(feat_ok)), pts, _readonly(fixed_arr.copy()),

@@ -64,7 +64,7 @@ def camera_poses(R_wc: FloatArray, centers_w: FloatArray, rig: Rig,
 def camera_observations(obs: Observations, rig: Rig, n_poses: int) -> Observations:
     """Return the observations re-pointed at :func:`camera_poses` (no rig cameras)."""
     return Observations(camera_pose_index(obs, rig, n_poses), obs.feat_idx, obs.bearings_c,
-                        obs.pixels)
+                        obs.pixels, pixel_jac=obs.pixel_jac)
 
 
 def observer_to_rig(rows: FloatArray, R_wc: FloatArray, obs: Observations, rig: Rig) -> None:

@@ -250,7 +250,8 @@ def _subproblem(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
     sub = make_problem(R_wc[cam_index], np.zeros((Mc, 3)), problem.intrinsics.take(cam_index),
                        new_cam[obs.cam_idx[keep]], obs.feat_idx[keep], obs.pixels[keep],
                        bearings_c=obs.bearings_c[keep], n_feats=problem.n_feats,
-                       feature_ids=np.arange(problem.n_feats))
+                       feature_ids=np.arange(problem.n_feats),
+                       pixel_jac=None if obs.pixel_jac is None else obs.pixel_jac[keep])
     return sub, cam_index
 
 

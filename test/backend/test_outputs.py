@@ -317,6 +317,34 @@ def test_equidistant_normalize_matches_cv2_fisheye_projection() -> None:
     np.testing.assert_allclose(cam.normalize(px), cv_xy, atol=1e-5)
 
 
+@pytest.mark.parametrize('model', ['none', 'plumb_bob', 'equidistant'])
+def test_pixel_jacobian_is_the_derivative_of_the_projection(model: str) -> None:
+    """d(raw pixel)/d(bearing) against central differences of :meth:`denormalize`.
+
+    Out to 80 degrees from the axis for the fisheye, where its pixels are far from the
+    pinhole's; a camera without distortion has none (its pinhole is the problem's).
+    """
+    cam = CAMERAS[model]
+    rng = np.random.default_rng(9)
+    theta = rng.uniform(0.0, 1.4 if model == 'equidistant' else 0.8, 200)
+    phi = rng.uniform(0.0, 2 * np.pi, 200)
+    v = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                         np.cos(theta)])
+    v[0] = [0.0, 0.0, 1.0]
+    J = cam.pixel_jacobian(v)
+    if model == 'none':
+        assert J is None
+        return
+    assert J is not None
+    numeric = np.empty_like(J)
+    for i, step in enumerate(np.eye(3) * 1e-6):
+        numeric[:, :, i] = (cam.denormalize((v + step)[:, :2] / (v + step)[:, 2:])
+                            - cam.denormalize((v - step)[:, :2] / (v - step)[:, 2:])) / 2e-6
+    np.testing.assert_allclose(J, numeric, rtol=1e-6, atol=1e-4)
+    behind = cam.pixel_jacobian(np.array([[1.0, 0.0, -0.1]]))
+    assert behind is not None and np.all(np.isnan(behind))
+
+
 def test_normalize_none_and_unreachable_pixels() -> None:
     """Undistorted cameras only scale; pixels beyond a fisheye's reach become NaN."""
     cam = CAMERAS['none']

@@ -51,6 +51,54 @@ def test_non_finite_observations_are_dropped_and_counted() -> None:
     assert p.n_obs == 4 and np.all(np.isfinite(p.obs.bearings_c))
 
 
+def test_pixel_jacobians_follow_their_observations_and_weigh_the_errors() -> None:
+    """A camera's own d(pixel)/d(bearing) goes with its observation and replaces the pinhole's.
+
+    Rows with a non-finite one are dropped like non-finite bearings; the pixel-weighted
+    residuals and the reprojection errors scale with it (twice the pinhole's: twice them).
+    """
+    from pmba_ros.core.models import ParallaxModel
+    from pmba_ros.core.problem import Parameterization
+    from pmba_ros.core.solve import initial_features
+    from pmba_ros.sim.scenes import street_scene
+
+    problem = street_scene(seed=1).start
+    obs = problem.obs
+    pinhole = problem.intrinsics
+    v = obs.bearings_c
+    jac = np.zeros((len(obs), 2, 3))
+    fx = pinhole.fx[obs.cam_idx]
+    jac[:, 0, 0] = jac[:, 1, 1] = fx / v[:, 2]
+    jac[:, :, 2] = -fx[:, None] * v[:, :2] / v[:, 2:3] ** 2
+    args = (problem.R_wc, problem.centers_w, pinhole, obs.cam_idx, obs.feat_idx, obs.pixels)
+    kw = dict(bearings_c=v, points_w=problem.points_w)
+    twice = jac * 2.0
+    twice[[0, 5]] = np.nan
+    same = make_problem(*args, **kw, pixel_jac=jac)
+    doubled = make_problem(*args, **kw, pixel_jac=twice)
+    assert doubled.dropped['non_finite_observations'] == 2
+    keep = np.ones(len(obs), bool)
+    keep[[0, 5]] = False
+    np.testing.assert_array_equal(doubled.obs.pixel_jac, twice[keep])
+    np.testing.assert_array_equal(doubled.obs.take(np.arange(3)).pixel_jac, twice[keep][:3])
+    plain = make_problem(*args, **kw)
+    _, feats = initial_features(plain, Parameterization.PMBA)
+    state = (plain.R_wc, plain.centers_w, feats)
+    ev_plain = ParallaxModel(plain, pixel_weighted=True).evaluate(*state)
+    ev_same = ParallaxModel(same, pixel_weighted=True).evaluate(*state)
+    np.testing.assert_allclose(ev_same.residuals, ev_plain.residuals, rtol=1e-9, atol=1e-12)
+    model = ParallaxModel(make_problem(*args, **kw, pixel_jac=jac * 2.0), pixel_weighted=True)
+    ev = model.evaluate(*state)
+    np.testing.assert_allclose(ev.residuals, 2.0 * ev_plain.residuals, rtol=1e-9, atol=1e-12)
+    # Reprojection errors to first order in the error: the pinhole's where the errors are small.
+    err = model.reprojection_errors_px(ev)
+    exact = ParallaxModel(plain).reprojection_errors_px(ev_plain)
+    small = exact < 1.0
+    np.testing.assert_allclose(err[small], 2.0 * exact[small], rtol=1e-2, atol=1e-6)
+    with pytest.raises(ProblemError, match='pixel_jac'):
+        make_problem(*args, **kw, pixel_jac=jac[:, :, :2])
+
+
 @pytest.mark.parametrize('field,value,match', [
     ('cam', np.array([0, 1, 5, 0, 1, 2, 0]), 'unknown camera index 5'),
     ('feat', np.array([0, 0, 0, 1, 1, -1, 2]), 'unknown feature index -1'),
