@@ -271,7 +271,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
         penalty_weight: Weight of a violated cheirality row, relative to the mean diagonal of
             the normal matrix per unit row norm.
         sparse: Solve with a sparse factorization (True), dense (False), or by the number of
-            unknowns (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
+            unknowns and blocks (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
 
     Returns:
         Positions and diagnostics.
@@ -304,7 +304,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     free[3 * root:3 * root + 3] = False
     fidx = np.flatnonzero(free)
     layout = (lin.pattern.sparse_layout(n_cams, fidx)
-              if normal_blocks.use_sparse(fidx.size, sparse) else None)
+              if normal_blocks.use_sparse(fidx.size, lin.pattern.n_blocks, sparse) else None)
 
     def restricted(blocks: FloatArray) -> FloatArray | scipy.sparse.csc_array:
         if layout is not None:

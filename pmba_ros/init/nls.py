@@ -196,7 +196,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
         step_tolerance: Stop when the relative step norm is below this.
         engine: The compiled loops (``'auto'``: where numba runs) or this module's numpy code.
         sparse: Factor the normal matrix sparse (True), dense (False), or by the number of
-            unknowns (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
+            unknowns and blocks (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
 
     Returns:
         The refined centres and diagnostics.
@@ -216,7 +216,7 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
     free[3 * k_fix + axis_fix] = False
     fidx = np.flatnonzero(free)
     layout = (lin.pattern.sparse_layout(M, fidx)
-              if normal_blocks.use_sparse(fidx.size, sparse) else None)
+              if normal_blocks.use_sparse(fidx.size, lin.pattern.n_blocks, sparse) else None)
     fast = _Compiled(lin, f_scale, w) if resolve(engine).name is EngineName.COMPILED else None
     cost, N, e = fast.evaluate(P) if fast is not None else _evaluate(lin, P, f_scale, w)
     initial_cost = cost

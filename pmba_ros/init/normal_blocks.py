@@ -41,12 +41,18 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-#: Largest number of free position coordinates (3 per camera) solved dense: LAPACK's
-#: Cholesky beats SuperLU's setup below this size on the street / aerial benchmarks.
+#: Largest number of free position coordinates (3 per camera) solved dense: below it LAPACK
+#: is as fast as SuperLU or faster (crossover at 150-200 cameras on simulated streets).
 DENSE_MAX_UNKNOWNS = 600
 
-#: SuperLU's column ordering: minimum degree on the structure of A^T + A, the one for
-#: symmetric matrices (COLAMD's A^T A ordering fills in more here).
+#: Smallest share of non-zero entries at which the matrix is solved dense at any size: where
+#: most camera pairs share features (a 300-camera street whose 500 points are seen by all,
+#: 42 % of the blocks) LAPACK was 5x faster than SuperLU; at 2 % (1500-camera streets and
+#: aerial grids with local tracks) SuperLU was 10-40x faster.
+DENSE_MIN_SHARE = 0.1
+
+#: SuperLU's column ordering: minimum degree on the structure of A^T + A, the one meant for
+#: symmetric matrices (applied to rows and columns alike in symmetric mode).
 _ORDERING = 'MMD_AT_PLUS_A'
 
 #: Largest backward error of the CLS's sparse KKT solve with diagonal pivots (LAPACK's
@@ -178,9 +184,18 @@ def block_pattern(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray
                         slot[5 * K:].reshape(N, 2, 2))
 
 
-def use_sparse(n_unknowns: int, sparse: bool | None) -> bool:
-    """Return whether a system of ``n_unknowns`` is solved sparse (``None``: by its size)."""
-    return n_unknowns > DENSE_MAX_UNKNOWNS if sparse is None else bool(sparse)
+def use_sparse(n_unknowns: int, n_blocks: int, sparse: bool | None) -> bool:
+    """Return whether a system is solved sparse (``None``: by its size and its blocks' share).
+
+    Args:
+        n_unknowns: Free coordinates n.
+        n_blocks: Non-zero 3x3 blocks B of the whole matrix.
+        sparse: The caller's choice, or None.
+    """
+    if sparse is not None:
+        return bool(sparse)
+    return (n_unknowns > DENSE_MAX_UNKNOWNS
+            and 9.0 * n_blocks < DENSE_MIN_SHARE * float(n_unknowns) ** 2)
 
 
 def _superlu(A: scipy.sparse.csc_array, pivot_threshold: float,

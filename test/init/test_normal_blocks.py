@@ -172,3 +172,12 @@ def test_sparse_kkt_solve_pivots_where_diagonal_pivots_break_down() -> None:
     sparse = normal_blocks.solve_kkt(scipy.sparse.csc_array(H), c, 3.0)
     np.testing.assert_allclose(sparse, dense, atol=1e-14)
     assert c @ sparse[:4] == pytest.approx(3.0)
+
+
+def test_sparse_is_chosen_for_large_systems_with_few_coupled_pairs() -> None:
+    """Dense below 600 unknowns or where most blocks are non-zero; the caller may force."""
+    assert not normal_blocks.use_sparse(597, 5_000, None)
+    assert normal_blocks.use_sparse(4497, 42_292, None)  # 1500-camera street, 2 % of blocks
+    assert not normal_blocks.use_sparse(897, 38_228, None)  # 300 cameras, 42 % of blocks
+    assert normal_blocks.use_sparse(24, 64, True)
+    assert not normal_blocks.use_sparse(4497, 42_292, False)
