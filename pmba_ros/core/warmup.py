@@ -116,11 +116,14 @@ def warm_up() -> float:
     obs = problem.obs
     assoc, main = feats.assoc_idx.astype(np.int64), feats.main_idx.astype(np.int64)
     coeff, sin_t = np.zeros((problem.n_feats, 2, 3, 3)), np.zeros(problem.n_feats)
-    for cam, feat in ((obs.cam_idx, obs.feat_idx),
-                      (np.array(obs.cam_idx), np.array(obs.feat_idx))):
-        # Read-only indices (the problem's) and writable ones (the CLS's penalty rows).
-        linear_rays.ray_normal_matrix(cam, feat, assoc, main, coeff, sin_t,
-                                      np.zeros((problem.n_obs, 3, 3)), problem.n_cams)
+    # Every term in block 0: the slots' values do not matter for the compilation.
+    slots = (np.zeros(problem.n_obs, dtype=np.int64),
+             np.zeros((problem.n_obs, 2, 2), dtype=np.int64),
+             np.zeros((problem.n_feats, 2, 2), dtype=np.int64))
+    for feat in (obs.feat_idx, np.array(obs.feat_idx)):
+        # Read-only indices (the problem's) and writable ones.
+        linear_rays.ray_normal_blocks(feat, coeff, sin_t, np.zeros((problem.n_obs, 3, 3)),
+                                      *slots, 1)
     ones = np.ones(problem.n_obs)
     # Writable rays and centres, as init.nls hands them (the problem's arrays are read-only).
     N, e, _ = linear_rays.ray_errors(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,

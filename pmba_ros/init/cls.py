@@ -41,6 +41,7 @@ h_k         (gradient)    (3M,)       dN-bar_k/dP^T r_k: the cheirality row r_k 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 import logging
 
 import numpy as np
@@ -49,21 +50,12 @@ from pmba_ros.core.compiled import linear_rays as compiled_linear_rays
 from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.errors import InitError
+from pmba_ros.init import normal_blocks
 from pmba_ros.init.anchors import LinearizationFrames
-import scipy.linalg
+from pmba_ros.init.normal_blocks import block_pattern, BlockPattern
+import scipy.sparse
 
 logger = logging.getLogger(__name__)
-
-
-def _scatter_blocks(rows: IntArray, cols: IntArray, blocks: FloatArray, n_cams: int,
-                    ) -> FloatArray:
-    """Return sum of the 3x3 ``blocks`` (K, 3, 3) at block (rows[k], cols[k]), (M, M, 3, 3)."""
-    key = rows * n_cams + cols
-    flat = blocks.reshape(-1, 9)
-    out = np.empty((9, n_cams * n_cams))
-    for c in range(9):  # nine entries of a block, each a bincount over the observations
-        out[c] = np.bincount(key, weights=flat[:, c], minlength=n_cams * n_cams)
-    return out.T.reshape(n_cams, n_cams, 3, 3)
 
 
 def _sum_by(index: IntArray, values: FloatArray, n: int) -> FloatArray:
@@ -73,12 +65,6 @@ def _sum_by(index: IntArray, values: FloatArray, n: int) -> FloatArray:
     for c in range(flat.shape[1]):
         out[c] = np.bincount(index, weights=flat[:, c], minlength=n)
     return out.T.reshape(n, *values.shape[1:])
-
-
-def _dense(blocks: FloatArray) -> FloatArray:
-    """Return the (3M, 3M) matrix of (M, M, 3, 3) blocks."""
-    M = blocks.shape[0]
-    return np.ascontiguousarray(blocks.transpose(0, 2, 1, 3).reshape(3 * M, 3 * M))
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,40 +153,46 @@ class LinearRays:
                              + self.sin_t[self.feat] ** 2 * np.sum(r * r, axis=1))
         return norm2
 
-    def normal_matrix(self, A: FloatArray, n_cams: int,
-                      engine: EngineName | str = EngineName.AUTO) -> FloatArray:
-        """Return sum_k G_k^T A_k G_k over all positions, shape (3M, 3M).
+    @cached_property
+    def pattern(self) -> BlockPattern:
+        """Return the non-zero 3x3 blocks of the normal matrices (found once, then reused)."""
+        return block_pattern(self.cam, self.feat, self.assoc, self.main)
+
+    def normal_blocks(self, A: FloatArray, engine: EngineName | str = EngineName.AUTO,
+                      ) -> FloatArray:
+        """Return the non-zero blocks of sum_k G_k^T A_k G_k, shape (B, 3, 3) (``pattern``).
 
         G_k = dN-bar_k / dP (blocks C_a, C_m, -sin_t I on P_a, P_m, P_i; blocks of the same
         camera add up) and A_k a symmetric 3x3 weight of the observation's ray.
 
         Args:
             A: Symmetric weights, shape (K, 3, 3).
-            n_cams: Number of cameras M.
             engine: The compiled loop (``'auto'``: where numba runs) or this numpy code.
         """
+        pat = self.pattern
         if resolve(engine).name is EngineName.COMPILED:
-            return compiled_linear_rays.ray_normal_matrix(
-                self.cam, self.feat, self.assoc, self.main, self.anchor_coeff, self.sin_t, A,
-                n_cams)
+            return compiled_linear_rays.ray_normal_blocks(
+                self.feat, self.anchor_coeff, self.sin_t, A, pat.slot_obs, pat.slot_cross,
+                pat.slot_anchor, pat.n_blocks)
         st = self.sin_t[self.feat]
         C = self.anchor_coeff
         # P_i with itself, and P_i with X_j (then X_j -> P_a, P_m).
-        H = _scatter_blocks(self.cam, self.cam, (st * st)[:, None, None] * A, n_cams)
         cross = -st[:, None, None] * A
         Ck = C[self.feat]
-        Hc = (_scatter_blocks(self.cam, self.assoc[self.feat], cross @ Ck[:, 0], n_cams)
-              + _scatter_blocks(self.cam, self.main[self.feat], cross @ Ck[:, 1], n_cams))
-        H += Hc + Hc.transpose(1, 0, 3, 2)
+        cross_blocks = np.stack([cross @ Ck[:, 0], cross @ Ck[:, 1]], axis=1)
         # X_j with itself, once per feature.
         B = _sum_by(self.feat, A, C.shape[0])
         CtB = np.swapaxes(C, 2, 3) @ B[:, None]  # (N, 2, 3, 3)
         CtBC = CtB[:, :, None] @ C[:, None, :]  # (N, 2, 2, 3, 3): C_s^T B C_t
-        anchor = np.stack([self.assoc, self.main], axis=1)
-        rows = np.repeat(anchor, 2, axis=1).ravel()
-        cols = np.tile(anchor, (1, 2)).ravel()
-        H += _scatter_blocks(rows, cols, CtBC.reshape(-1, 3, 3), n_cams)
-        return _dense(H)
+        return pat.sum_blocks((st * st)[:, None, None] * A, cross_blocks, CtBC)
+
+    def normal_matrix(self, A: FloatArray, n_cams: int,
+                      engine: EngineName | str = EngineName.AUTO) -> FloatArray:
+        """Return sum_k G_k^T A_k G_k over all positions, dense, shape (3M, 3M).
+
+        ``A`` and ``engine`` as in :meth:`normal_blocks`; ``n_cams`` is M.
+        """
+        return self.pattern.dense(self.normal_blocks(A, engine), n_cams)
 
     def gradient(self, y: FloatArray, n_cams: int,
                  engine: EngineName | str = EngineName.AUTO) -> FloatArray:
@@ -265,7 +257,7 @@ class ClsResult:
 
 def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | None = None,
               cameras: BoolArray | None = None, max_penalty_iterations: int = 10,
-              penalty_weight: float = 100.0) -> ClsResult:
+              penalty_weight: float = 100.0, sparse: bool | None = None) -> ClsResult:
     """Solve eq. (14): min sum_k ||[r_k]x N-bar_k(P)||^2 with cheirality and a scale constraint.
 
     Args:
@@ -278,6 +270,8 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
         max_penalty_iterations: Maximum active-set iterations for the cheirality penalty.
         penalty_weight: Weight of a violated cheirality row, relative to the mean diagonal of
             the normal matrix per unit row norm.
+        sparse: Solve with a sparse factorization (True), dense (False), or by the number of
+            unknowns and blocks (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
 
     Returns:
         Positions and diagnostics.
@@ -299,7 +293,7 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     for i in range(3):
         cross_w[:, i, i] += n2
     cross_w *= w[:, None, None]
-    H = lin.normal_matrix(cross_w, n_cams)
+    H_blocks = lin.normal_blocks(cross_w)
     # Cheirality rows h_k = dN-bar_k/dP^T r_k: r_k . N-bar_k(P) >= 0.
     # DEVIATION(eq. 14): the printed z(R_i N) >= 0 is read as "predicted ray on the measured
     # side", r_k . N-bar_k >= 0, which is convention-free and linear (pmba.md §8 item 2).
@@ -309,9 +303,18 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     free = np.repeat(cams, 3)
     free[3 * root:3 * root + 3] = False
     fidx = np.flatnonzero(free)
+    layout = (lin.pattern.sparse_layout(n_cams, fidx)
+              if normal_blocks.use_sparse(fidx.size, lin.pattern.n_blocks, sparse) else None)
+
+    def restricted(blocks: FloatArray) -> FloatArray | scipy.sparse.csc_array:
+        if layout is not None:
+            return layout.matrix(blocks)
+        return lin.pattern.dense(blocks, n_cams)[np.ix_(fidx, fidx)]
+
+    H = restricted(H_blocks)
     cf = c[fidx]
     target = float(np.sum(w))
-    scale_diag = float(np.mean(np.diag(H)[fidx])) if fidx.size else 1.0
+    scale_diag = float(np.mean(H.diagonal())) if fidx.size else 1.0
     row_norm2 = lin.cheirality_row_norms()
     mu = penalty_weight * scale_diag / max(float(np.mean(row_norm2)), 1e-300)
     active = np.zeros(K, dtype=bool)
@@ -320,16 +323,12 @@ def solve_cls(lin: LinearRays, n_cams: int, root: int, *, weights: FloatArray | 
     for it in range(max_penalty_iterations + 1):  # noqa: B007 - reported after the loop
         Hp = H
         if np.any(active):
-            rows = lin.subset(active)
-            Hp = H + rows.normal_matrix(mu * rr[active], n_cams)
-        kkt = np.zeros((fidx.size + 1, fidx.size + 1))
-        kkt[:-1, :-1] = Hp[np.ix_(fidx, fidx)]
-        kkt[:-1, -1] = cf
-        kkt[-1, :-1] = cf
-        rhs = np.zeros(fidx.size + 1)
-        rhs[-1] = target
+            # The penalty rows weighted 0 where inactive: the same blocks (and sums) as the
+            # active rows alone, on the pattern already found.
+            penalty = (mu * active)[:, None, None] * rr
+            Hp = restricted(H_blocks + lin.normal_blocks(penalty))
         try:
-            sol = scipy.linalg.solve(kkt, rhs, assume_a='sym')
+            sol = normal_blocks.solve_kkt(Hp, cf, target)
         except (np.linalg.LinAlgError, ValueError) as err:
             msg = f'CLS (eq. 14): singular system ({err})'
             raise InitError(msg) from err

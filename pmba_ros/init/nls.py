@@ -16,7 +16,9 @@
 Minimises sum_k rho(||xi(N-bar_k(P)) - r_k||^2) over the camera centres P, with the linearised
 rays N-bar_k of eq. (12) (see :mod:`pmba_ros.init.cls`) and a Cauchy loss
 rho(s) = f^2 log(1 + s / f^2). The solver is a vectorised Levenberg-Marquardt with iteratively
-reweighted normal equations: the normal matrix is dense (3M x 3M), assembled block by block.
+reweighted normal equations: the normal matrix is assembled in its non-zero 3x3 blocks
+(camera pairs that share a feature, :mod:`pmba_ros.init.normal_blocks`) and factored dense
+for small problems, sparse (SuperLU) for large ones.
 
 Gauge: the cost is invariant to translation and scale of P (N-bar is linear and homogeneous),
 so P_root is held fixed and so is the largest coordinate of P_k - P_root of one camera k
@@ -41,8 +43,8 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
 from pmba_ros.core.compiled import linear_rays as compiled_linear_rays
 from pmba_ros.core.engine import EngineName, resolve
+from pmba_ros.init import normal_blocks
 from pmba_ros.init.cls import LinearRays
-import scipy.linalg
 
 logger = logging.getLogger(__name__)
 
@@ -100,6 +102,14 @@ def _normal_equations(lin: LinearRays, N: FloatArray, e: FloatArray,
                       f_scale: float | FloatArray, w: FloatArray, n_cams: int,
                       ) -> tuple[FloatArray, FloatArray]:
     """Return the IRLS normal matrix (3M, 3M) and gradient (3M,) of eq. (13) at N-bar, e."""
+    blocks, g = _normal_blocks(lin, N, e, f_scale, w, n_cams)
+    return lin.pattern.dense(blocks, n_cams), g
+
+
+def _normal_blocks(lin: LinearRays, N: FloatArray, e: FloatArray,
+                   f_scale: float | FloatArray, w: FloatArray, n_cams: int,
+                   ) -> tuple[FloatArray, FloatArray]:
+    """Return the IRLS normal matrix's blocks (B, 3, 3) and gradient (3M,) of eq. (13)."""
     norm = np.maximum(np.linalg.norm(N, axis=1), 1e-150)
     Nh = N / norm[:, None]
     # J_N = (I - N^ N^T) / |N| is symmetric, J_N^T J_N = (I - N^ N^T) / |N|^2.
@@ -109,9 +119,9 @@ def _normal_equations(lin: LinearRays, N: FloatArray, e: FloatArray,
     wk = w * drho
     # Unused observations (weight 0) may have N = 0: keep their 0 * inf out.
     w_n = np.where(wk > 0.0, wk / norm, 0.0)
-    H = lin.normal_matrix((w_n / norm)[:, None, None] * proj, n_cams, EngineName.NUMPY)
+    blocks = lin.normal_blocks((w_n / norm)[:, None, None] * proj, EngineName.NUMPY)
     y = w_n[:, None] * np.einsum('kij,kj->ki', proj, e)
-    return H, lin.gradient(y, n_cams, EngineName.NUMPY)
+    return blocks, lin.gradient(y, n_cams, EngineName.NUMPY)
 
 
 class _Compiled:
@@ -139,13 +149,18 @@ class _Compiled:
     def normal_equations(self, N: FloatArray, e: FloatArray, n_cams: int,
                          ) -> tuple[FloatArray, FloatArray]:
         """Return :func:`_normal_equations` at N-bar, e."""
+        blocks, g = self.normal_blocks(N, e, n_cams)
+        return self.lin.pattern.dense(blocks, n_cams), g
+
+    def normal_blocks(self, N: FloatArray, e: FloatArray, n_cams: int,
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Return :func:`_normal_blocks` at N-bar, e."""
         lin = self.lin
         A, y = compiled_linear_rays.nls_weights(N, e, self.f2, self.w)
-        H = compiled_linear_rays.ray_normal_matrix(lin.cam, lin.feat, lin.assoc, lin.main,
-                                                   lin.anchor_coeff, lin.sin_t, A, n_cams)
+        blocks = lin.normal_blocks(A, EngineName.COMPILED)
         g = compiled_linear_rays.ray_gradient(lin.cam, lin.feat, lin.assoc, lin.main,
                                               lin.anchor_coeff, lin.sin_t, y, n_cams)
-        return H, g
+        return blocks, g
 
 
 def gauge_coordinate(centers_w: FloatArray, root: int, cameras: BoolArray) -> tuple[int, int]:
@@ -162,8 +177,9 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
               weights: FloatArray | None = None, cameras: BoolArray | None = None,
               max_iterations: int = 50, function_tolerance: float = 1e-5,
               step_tolerance: float = 1e-10,
-              engine: EngineName | str = EngineName.AUTO) -> NlsResult:
-    """Refine camera centres by eq. (13) with a Cauchy loss (LM, dense normal equations).
+              engine: EngineName | str = EngineName.AUTO,
+              sparse: bool | None = None) -> NlsResult:
+    """Refine camera centres by eq. (13) with a Cauchy loss (LM on the normal equations).
 
     Args:
         lin: Linearised rays (eq. 12) of all observations.
@@ -179,6 +195,8 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
         function_tolerance: Stop when the relative cost decrease is below this.
         step_tolerance: Stop when the relative step norm is below this.
         engine: The compiled loops (``'auto'``: where numba runs) or this module's numpy code.
+        sparse: Factor the normal matrix sparse (True), dense (False), or by the number of
+            unknowns and blocks (None, :func:`pmba_ros.init.normal_blocks.use_sparse`).
 
     Returns:
         The refined centres and diagnostics.
@@ -197,6 +215,8 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
     k_fix, axis_fix = gauge_coordinate(P, root, cams)
     free[3 * k_fix + axis_fix] = False
     fidx = np.flatnonzero(free)
+    layout = (lin.pattern.sparse_layout(M, fidx)
+              if normal_blocks.use_sparse(fidx.size, lin.pattern.n_blocks, sparse) else None)
     fast = _Compiled(lin, f_scale, w) if resolve(engine).name is EngineName.COMPILED else None
     cost, N, e = fast.evaluate(P) if fast is not None else _evaluate(lin, P, f_scale, w)
     initial_cost = cost
@@ -204,15 +224,17 @@ def solve_nls(lin: LinearRays, centers_w: FloatArray, root: int, *,
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
-        H_all, g_all = (fast.normal_equations(N, e, M) if fast is not None
-                        else _normal_equations(lin, N, e, f_scale, w, M))
-        H, g = H_all[np.ix_(fidx, fidx)], g_all[fidx]
-        diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
+        blocks, g_all = (fast.normal_blocks(N, e, M) if fast is not None
+                         else _normal_blocks(lin, N, e, f_scale, w, M))
+        H = (layout.matrix(blocks) if layout is not None
+             else lin.pattern.dense(blocks, M)[np.ix_(fidx, fidx)])
+        g = g_all[fidx]
+        d = H.diagonal()
+        diag = np.maximum(d, 1e-12 * max(float(np.max(d)), 1e-300))
         accepted = False
         while lam < 1e12:
             try:
-                c_f = scipy.linalg.cho_factor(H + lam * np.diag(diag))
-                step = -scipy.linalg.cho_solve(c_f, g)
+                step = -normal_blocks.solve_spd(H, lam * diag, g)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue

@@ -16,6 +16,8 @@
 The position steps of the global initialization (CLS, eq. 14, and NLS, eq. 13) assemble
 sum_k G_k^T A_k G_k over all observations at every iteration, with G_k = dN-bar_k / dP: the
 blocks -sin(theta_j) I on the observer P_i and C_a, C_m on the anchors P_a, P_m of feature j.
+The sum goes into the non-zero 3x3 blocks only (their slots come from
+``init.normal_blocks.block_pattern``); the dense or sparse matrix is built from them.
 """
 
 from __future__ import annotations
@@ -30,51 +32,54 @@ _jit = jit.jit
 
 
 @_jit
-def _ray_normal_matrix(cam: Any, feat: Any, assoc: Any, main: Any, coeff: Any, sin_t: Any,
-                       A: Any, H: Any) -> None:
-    """Add sum_k G_k^T A_k G_k to the dense (3M, 3M) H.
+def _ray_normal_matrix(feat: Any, coeff: Any, sin_t: Any, A: Any, slot_obs: Any,
+                       slot_cross: Any, slot_anchor: Any, blocks: Any) -> None:
+    """Add sum_k G_k^T A_k G_k to the non-zero 3x3 ``blocks`` (B, 3, 3) of their slots.
 
     The observer's blocks are added per observation, the anchors' once per feature from the
     sum B_j of its observations' A_k.
     """
     B = np.zeros((coeff.shape[0], 3, 3))
-    for k in range(cam.shape[0]):
-        j, i = feat[k], cam[k]
+    for k in range(feat.shape[0]):
+        j = feat[k]
         s = sin_t[j]
+        d = slot_obs[k]
         for r in range(3):
             for c in range(3):
                 B[j, r, c] += A[k, r, c]
-                H[3 * i + r, 3 * i + c] += s * s * A[k, r, c]
+                blocks[d, r, c] += s * s * A[k, r, c]
         for t in range(2):
-            a = assoc[j] if t == 0 else main[j]
+            ia, ai = slot_cross[k, t, 0], slot_cross[k, t, 1]
             for r in range(3):
                 for c in range(3):
                     v = -s * (A[k, r, 0] * coeff[j, t, 0, c] + A[k, r, 1] * coeff[j, t, 1, c]
                               + A[k, r, 2] * coeff[j, t, 2, c])
-                    H[3 * i + r, 3 * a + c] += v
-                    H[3 * a + c, 3 * i + r] += v
+                    blocks[ia, r, c] += v
+                    blocks[ai, c, r] += v
     for j in range(coeff.shape[0]):
         for t in range(2):
-            a = assoc[j] if t == 0 else main[j]
             for u in range(2):
-                b = assoc[j] if u == 0 else main[j]
+                b = slot_anchor[j, t, u]
                 for r in range(3):
                     for c in range(3):
                         v = 0.0
                         for p in range(3):
                             for q in range(3):
                                 v += coeff[j, t, p, r] * B[j, p, q] * coeff[j, u, q, c]
-                        H[3 * a + r, 3 * b + c] += v
+                        blocks[b, r, c] += v
 
 
-def ray_normal_matrix(cam: IntArray, feat: IntArray, assoc: IntArray, main: IntArray,
-                      coeff: FloatArray, sin_t: FloatArray, A: FloatArray,
-                      n_cams: int) -> FloatArray:
-    """Return sum_k G_k^T A_k G_k, shape (3M, 3M) (``init.cls.LinearRays.normal_matrix``)."""
-    H = np.zeros((3 * n_cams, 3 * n_cams))
-    _ray_normal_matrix(cam, feat, assoc, main, np.ascontiguousarray(coeff), sin_t,
-                       np.ascontiguousarray(A), H)
-    return H
+def ray_normal_blocks(feat: IntArray, coeff: FloatArray, sin_t: FloatArray, A: FloatArray,
+                      slot_obs: IntArray, slot_cross: IntArray, slot_anchor: IntArray,
+                      n_blocks: int) -> FloatArray:
+    """Return the (B, 3, 3) blocks of sum_k G_k^T A_k G_k (``init.cls.LinearRays``).
+
+    ``slot_*`` as in ``init.normal_blocks.BlockPattern``.
+    """
+    blocks = np.zeros((n_blocks, 3, 3))
+    _ray_normal_matrix(feat, np.ascontiguousarray(coeff), sin_t, np.ascontiguousarray(A),
+                       slot_obs, slot_cross, slot_anchor, blocks)
+    return blocks
 
 
 @_jit
