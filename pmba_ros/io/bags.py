@@ -159,7 +159,7 @@ def _check_paths(paths: Sequence[Path]) -> list[Path]:
     expanded: list[Path] = []
     for path in paths:
         if path.is_dir() and not (path / 'metadata.yaml').exists():
-            files = _storage_files(path)
+            files = storage_files(path)
             if not files:
                 msg = f'{path}: not a bag (no metadata.yaml and no .mcap or .db3 file in it)'
                 raise BagError(msg)
@@ -175,7 +175,7 @@ def _check_paths(paths: Sequence[Path]) -> list[Path]:
     return paths
 
 
-def _storage_files(path: Path) -> list[Path]:
+def storage_files(path: Path) -> list[Path]:
     """Return the storage files inside a rosbag2 folder (sorted), or [] for a file."""
     if not path.is_dir():
         return []
@@ -183,7 +183,7 @@ def _storage_files(path: Path) -> list[Path]:
 
 
 @contextmanager
-def _any_reader(paths: Sequence[Path]) -> Iterator[Any]:
+def any_reader(paths: Sequence[Path]) -> Iterator[Any]:
     """Open an AnyReader over ``paths`` with the Jazzy default typestore.
 
     Raises:
@@ -199,7 +199,7 @@ def _any_reader(paths: Sequence[Path]) -> Iterator[Any]:
         raise BagError(msg) from err
     except errors as err:
         msg = (f'{_describe(paths)}: cannot open bag (not a bag, truncated or corrupt?): '
-               f'{_error_text(err)}')
+               f'{error_text(err)}')
         raise BagError(msg) from err
     try:
         yield reader
@@ -210,7 +210,7 @@ def _any_reader(paths: Sequence[Path]) -> Iterator[Any]:
             logger.debug('closing %s failed: %s', _describe(paths), err)
 
 
-def _error_text(err: BaseException) -> str:
+def error_text(err: BaseException) -> str:
     """Return a one-line description of a reader exception."""
     text = ' '.join(str(a) for a in err.args) if err.args else ''
     text = text.strip() or type(err).__name__
@@ -278,11 +278,11 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
     with ExitStack() as stack:
         damage: tuple[str, ...] = ()
         try:
-            reader = stack.enter_context(_any_reader(checked))
+            reader = stack.enter_context(any_reader(checked))
         except BagError as err:
             from pmba_ros.io.salvage import readable_parts
             checked, damage = readable_parts(checked, err, stack)
-            reader = stack.enter_context(_any_reader(checked))
+            reader = stack.enter_context(any_reader(checked))
         yield OpenBags(checked, reader, _topics_of(reader), damage)
 
 
@@ -355,10 +355,10 @@ def iter_messages(paths: Sequence[Path | str] | OpenBags,
     recorded = list_topics(checked) if recorded is None else recorded
     expected = sum(info.count for name, info in recorded.items()
                    if topics is None or name in topics)
-    folders = [p for p in checked if _storage_files(p)]
+    folders = [p for p in checked if storage_files(p)]
     if expected == 0 or not folders:
         return
-    files = [f for p in checked for f in (_storage_files(p) or [p])]
+    files = [f for p in checked for f in (storage_files(p) or [p])]
     logger.warning('%s: the bag folder reports %d messages but yields none (metadata.yaml '
                    'QoS differs from the storage file); reading %s directly', _describe(checked),
                    expected, _describe(files))
@@ -438,7 +438,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
     ``reader``: an open reader of ``paths`` to use (left open); None opens one.
     """
     errors = _reader_errors()
-    with nullcontext(reader) if reader is not None else _any_reader(paths) as reader:
+    with nullcontext(reader) if reader is not None else any_reader(paths) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
@@ -459,7 +459,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
                         msg_obj = deserialize[conn.msgtype](raw)
                 except errors as err:
                     msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message '
-                           f'on {conn.topic} at {t_ns} ns: {_error_text(err)}')
+                           f'on {conn.topic} at {t_ns} ns: {error_text(err)}')
                     if damage is None:
                         raise BagError(msg) from err
                     logger.debug('%s; skipped', msg)
@@ -535,14 +535,14 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
         except StopIteration:
             return
         except errors as err:
-            msg = f'{_describe(paths)}: bag is corrupt or truncated: {_error_text(err)}'
+            msg = f'{_describe(paths)}: bag is corrupt or truncated: {error_text(err)}'
             raise _CorruptStorage(msg) from err
         yield conn, int(t_ns), raw
 
 
-__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo',
-           'iter_messages', 'iter_serialized', 'jazzy_typestore', 'list_topics', 'open_bags',
-           'require_topics']
+__all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo', 'any_reader',
+           'error_text', 'iter_messages', 'iter_serialized', 'jazzy_typestore', 'list_topics',
+           'open_bags', 'require_topics', 'storage_files']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
@@ -565,7 +565,7 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
         msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; convert '
                'it first: rosbags-convert --src BAG --dst FOLDER')
         raise BagError(msg)
-    with _any_reader(checked) as reader:
+    with any_reader(checked) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
             return

@@ -30,7 +30,7 @@ from tempfile import TemporaryDirectory
 from typing import NamedTuple
 
 from pmba_ros.errors import BagError
-from pmba_ros.io.bags import _any_reader, _error_text, _storage_files
+from pmba_ros.io.bags import any_reader, error_text, storage_files
 
 logger = logging.getLogger(__name__)
 
@@ -135,7 +135,7 @@ def readable_parts(paths: list[Path], error: BagError,
         BagError: ``error`` again if that leaves nothing to read, or a file that is not
             MCAP (a ROS 1 bag, SQLite) does not open.
     """
-    files = [f for p in paths for f in (_storage_files(p) or [p])]
+    files = [f for p in paths for f in (storage_files(p) or [p])]
     if not any(f.suffix == '.mcap' for f in files) and files == paths:
         raise error
     readable: list[Path] = []
@@ -143,13 +143,13 @@ def readable_parts(paths: list[Path], error: BagError,
     tmp: Path | None = None
     for file in files:
         try:
-            with _any_reader([file]):
+            with any_reader([file]):
                 readable.append(file)
                 continue
         except BagError as err:
             if file.suffix != '.mcap':
                 raise error from err
-            reason = _error_text(err.__cause__ or err)
+            reason = error_text(err.__cause__ or err)
         if tmp is None:
             tmp = Path(stack.enter_context(TemporaryDirectory(prefix='pmba_salvage_')))
         saved = salvage_mcap(file, tmp / f'{len(readable)}_{file.name}', reason)
@@ -161,6 +161,6 @@ def readable_parts(paths: list[Path], error: BagError,
     if not readable:
         raise error
     if not damage:   # every file opens: the folder's metadata.yaml is what is wrong
-        damage = [f'{p}: {_error_text(error.__cause__ or error)}; its storage files were '
+        damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
                   'read one by one' for p in paths if p.is_dir()]
     return readable, tuple(damage)

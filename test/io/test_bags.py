@@ -255,8 +255,8 @@ def test_open_bags_reads_what_paths_read(tmp_path: Path, monkeypatch: pytest.Mon
     with bags_mod.open_bags([out]) as opened:
         assert opened.topics == list_topics([out])
         opens = []
-        real = bags_mod._any_reader
-        monkeypatch.setattr(bags_mod, '_any_reader', lambda paths: opens.append(1) or real(paths))
+        real = bags_mod.any_reader
+        monkeypatch.setattr(bags_mod, 'any_reader', lambda paths: opens.append(1) or real(paths))
         assert [repr(m) for m in iter_messages(opened)] == by_path
         assert not opens
 
