@@ -422,8 +422,8 @@ def _equidistant_jacobian(v: FloatArray, d: FloatArray) -> FloatArray:
     safe = np.where(centre, 1.0, rho)
     s = v[:, :2] / safe[:, None]                       # direction in the image
     d_theta = np.column_stack([v[:, 2:3] * s, -rho])   # d theta / d v, (K, 3)
-    across = (np.eye(2) - np.einsum('ki,kj->kij', s, s)) * (_theta_d(theta, d) / safe)[:, None,
-                                                                                        None]
+    stretch = _theta_d(theta, d) / safe
+    across = (np.eye(2) - np.einsum('ki,kj->kij', s, s)) * stretch[:, None, None]
     J = np.einsum('ki,kj->kij', slope[:, None] * s, d_theta)
     J[:, :, :2] += across
     J[centre] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

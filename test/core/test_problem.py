@@ -71,7 +71,7 @@ def test_pixel_jacobians_follow_their_observations_and_weigh_the_errors() -> Non
     jac[:, 0, 0] = jac[:, 1, 1] = fx / v[:, 2]
     jac[:, :, 2] = -fx[:, None] * v[:, :2] / v[:, 2:3] ** 2
     args = (problem.R_wc, problem.centers_w, pinhole, obs.cam_idx, obs.feat_idx, obs.pixels)
-    kw = dict(bearings_c=v, points_w=problem.points_w)
+    kw = {'bearings_c': v, 'points_w': problem.points_w}
     twice = jac * 2.0
     twice[[0, 5]] = np.nan
     same = make_problem(*args, **kw, pixel_jac=jac)
