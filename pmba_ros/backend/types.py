@@ -416,8 +416,7 @@ def _equidistant_jacobian(v: FloatArray, d: FloatArray) -> FloatArray:
     """
     rho = np.hypot(v[:, 0], v[:, 1])
     theta = np.arctan2(rho, v[:, 2])
-    t2 = theta * theta
-    slope = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+    slope = _theta_d_slope(theta, d)
     centre = rho < 1e-9
     safe = np.where(centre, 1.0, rho)
     s = v[:, :2] / safe[:, None]                       # direction in the image
@@ -443,17 +442,11 @@ def _distort_plumb_bob(xy: FloatArray, d: FloatArray) -> FloatArray:
 
 def _undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     """Invert :func:`_distort_plumb_bob` with Newton's method on all points at once."""
-    k1, k2, p1, p2, k3 = d
     xy = xy_d.copy()
     for _ in range(_NEWTON_ITERATIONS):
-        x, y = xy[:, 0], xy[:, 1]
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d(radial)/dx = g * x
         f = _distort_plumb_bob(xy, d) - xy_d
-        j00 = radial + g * x * x + 2.0 * p1 * y + 6.0 * p2 * x
-        j01 = g * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-        j11 = radial + g * y * y + 6.0 * p1 * y + 2.0 * p2 * x
+        J = _plumb_bob_jacobian(xy, d)
+        j00, j01, j11 = J[:, 0, 0], J[:, 0, 1], J[:, 1, 1]
         det = j00 * j11 - j01 * j01
         det = np.where(np.abs(det) < 1e-12, np.nan, det)
         step = np.stack([j11 * f[:, 0] - j01 * f[:, 1], j00 * f[:, 1] - j01 * f[:, 0]], 1)
@@ -472,6 +465,14 @@ def _theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
     return out
 
 
+def _theta_d_slope(theta: FloatArray, d: FloatArray) -> FloatArray:
+    """Return d(theta_d) / d(theta) of :func:`_theta_d`."""
+    t2 = theta * theta
+    k1, k2, k3, k4 = d
+    out: FloatArray = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+    return out
+
+
 def _distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
     """Apply OpenCV's fisheye (equidistant) model to (K, 2) normalized points."""
     r = np.hypot(xy[:, 0], xy[:, 1])
@@ -485,8 +486,7 @@ def _undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
     theta = theta_d.copy()
     for _ in range(_NEWTON_ITERATIONS):
-        t2 = theta * theta
-        df = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+        df = _theta_d_slope(theta, d)
         step = (_theta_d(theta, d) - theta_d) / np.where(np.abs(df) < 1e-12, np.nan, df)
         theta = theta - step
         if np.all(~np.isfinite(step) | (np.abs(step) <= _NEWTON_TOL)):
