@@ -37,6 +37,7 @@ from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import non_negative_int, positive_float, positive_int
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import chunks
+from pmba_ros.core.gauge import camera_components
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
@@ -301,6 +302,8 @@ def run(args: argparse.Namespace) -> int:
             print(result.summary())
     if args.compare:
         print(_table(results))
+    if args.init != 'global':
+        _warn_components(problem, report)
     for r in results:
         if not r.converged:
             print(f'warning: {r.options.param.value}-{r.options.solver.value} stopped at '
@@ -381,6 +384,20 @@ def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any]
         plt.close(fig)
     # The report goes last: its presence says the other outputs are complete.
     write_text_atomic(out / 'report.json', dumps_report(report))
+
+
+def _warn_components(problem: BAProblem, report: dict[str, Any]) -> None:
+    """Warn when no feature joins some of the cameras to the others (a gauge each)."""
+    n, groups = camera_components(problem.n_cams, problem.obs.cam_idx, problem.obs.feat_idx,
+                                  problem.n_feats)
+    if n < 2:
+        return
+    sizes = np.bincount(groups).tolist()
+    text = (f'the cameras form {n} groups that share no feature ({sizes} cameras): each was '
+            "solved on its own, their relative pose and scale are the file's start's")
+    print(f'warning: {text}', file=sys.stderr)
+    for entry in report.values():
+        entry.setdefault('warnings', []).append(text)
 
 
 def _warn_non_finite(results: list[SolveResult], report: dict[str, Any]) -> None:

@@ -111,3 +111,21 @@ def choose_gauge(centers_w: FloatArray, fixed: BoolArray, cam_idx: IntArray,
         return Gauge(fixed, -1, -1)
     axis = int(np.argmax(baseline[partner]))
     return Gauge(fixed, partner, axis)
+
+
+def camera_components(n_cams: int, cam_idx: IntArray, feat_idx: IntArray,
+                      n_feats: int) -> tuple[int, IntArray]:
+    """Return the number of groups of cameras joined by shared features, and each camera's.
+
+    Each group has a similarity gauge of its own: a problem of several is solved, but the
+    groups' relative position, rotation and scale are whatever the start said.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = n_cams + n_feats
+    graph = coo_matrix((np.ones(cam_idx.shape[0]), (cam_idx, n_cams + feat_idx)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    cams = labels[:n_cams]
+    _, groups = np.unique(cams, return_inverse=True)
+    return int(groups.max()) + 1 if n_cams else 0, groups.astype(np.int64)

@@ -232,6 +232,36 @@ def test_global_init_poses_keep_the_input_camera_index(tmp_path: Path) -> None:
     np.testing.assert_array_equal(rows[:, 0], small.n_cams + np.arange(large.n_cams))
 
 
+def test_cameras_no_feature_joins_are_a_warning(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Two scenes in one file, `--init file`: solved, with a warning that each has its gauge.
+
+    One scene alone gives none.
+    """
+    import numpy as np
+    from pmba_ros.core.problem import make_problem
+    from pmba_ros.io.bal import write_bal
+    from pmba_ros.sim.scenes import street_scene
+    small, large = street_scene(2, n_cams=4, n_points=60).start, street_scene(1).start
+    both = make_problem(
+        np.concatenate([small.R_wc, large.R_wc]),
+        np.concatenate([small.centers_w, large.centers_w]),
+        _stack_intrinsics(small, large),
+        np.concatenate([small.obs.cam_idx, large.obs.cam_idx + small.n_cams]),
+        np.concatenate([small.obs.feat_idx, large.obs.feat_idx + small.n_feats]),
+        np.concatenate([small.obs.pixels, large.obs.pixels]),
+        points_w=np.concatenate([small.points_w, large.points_w]))
+    write_bal(tmp_path / 'two.txt', both)
+    write_bal(tmp_path / 'one.txt', large)
+    report = tmp_path / 'report.json'
+    assert main(['solve', str(tmp_path / 'two.txt'), '--quiet', '--report', str(report)]) == 0
+    assert f'2 groups that share no feature ([{small.n_cams}, {large.n_cams}] cameras)' in (
+        capsys.readouterr().err)
+    assert any('2 groups' in w for w in json.loads(report.read_text())['warnings'])
+    assert main(['solve', str(tmp_path / 'one.txt'), '--quiet']) == 0
+    assert 'groups' not in capsys.readouterr().err
+
+
 def _stack_intrinsics(a: BAProblem, b: BAProblem) -> Intrinsics:
     """Return the intrinsics of a's cameras followed by b's."""
     import numpy as np
