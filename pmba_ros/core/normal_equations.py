@@ -55,6 +55,10 @@ import scipy.sparse.linalg
 #: Above this many free pose columns the reduced system is solved as a sparse matrix.
 DENSE_LIMIT = 6000
 
+#: Largest normwise backward error |S x - b| / (|S| |x| + |b|) (1-norms) accepted from the
+#: sparse solve without pivoting; SuperLU's solves of BA systems reach ~1e-16.
+_BACKWARD_TOLERANCE = 1e-12
+
 
 def feature_order(feat_idx: IntArray, n_feats: int) -> IntArray:
     """Return features sorted by their number of observations (stable): new -> old index."""
@@ -424,13 +428,7 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
              (np.concatenate([r_idx.reshape(-1), c_idx[off].reshape(-1), diag]),
               np.concatenate([c_idx.reshape(-1), r_idx[off].reshape(-1), diag]))),
             shape=(dim, dim))
-        S_sp = S_sp[free][:, free]
-        try:
-            lu = scipy.sparse.linalg.splu(S_sp.tocsc(), permc_spec='MMD_AT_PLUS_A')
-        except RuntimeError as err:
-            msg = 'reduced camera system is singular'
-            raise ReducedSystemError(msg) from err
-        x[free] = lu.solve(rhs.reshape(-1)[free])
+        x[free] = _sparse_solve(S_sp[free][:, free].tocsc(), rhs.reshape(-1)[free])
     if not np.all(np.isfinite(x)):
         msg = 'reduced camera system solve produced non-finite values'
         raise ReducedSystemError(msg)
@@ -446,6 +444,39 @@ def _reduced(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatAr
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
     return S_blocks, rhs, V_inv
+
+
+def _sparse_solve(S: scipy.sparse.csc_matrix, b: FloatArray) -> FloatArray:
+    """Return S^-1 b for the symmetric reduced system S, factored by SuperLU.
+
+    Diagonal pivots first, as Cholesky would take them (S is positive definite): symmetric
+    mode orders rows and columns alike by minimum degree on S + S^T, and no pivot search
+    follows; the fill is that of partial pivoting, the factorization 15-30 % faster (aerial
+    grids of 3000 / 6000 cameras). Unpivoted elimination does not guard against small
+    pivots, so a solve whose backward error is not at rounding level (S nearly singular or
+    indefinite), or that SuperLU finds singular, is done again with partial pivoting.
+
+    Raises:
+        ReducedSystemError: If S is singular with partial pivoting too.
+    """
+    try:
+        x: FloatArray = scipy.sparse.linalg.splu(
+            S, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+            options={'SymmetricMode': True}).solve(b)
+    except RuntimeError:  # SuperLU's "Factor is exactly singular": pivoting may still solve it
+        pass
+    else:
+        scale = float(scipy.sparse.linalg.norm(S, 1)) * float(np.linalg.norm(x, 1))
+        backward = float(np.linalg.norm(S @ x - b, 1)) / (scale + float(np.linalg.norm(b, 1)))
+        if backward < _BACKWARD_TOLERANCE:  # False for NaN too
+            return x
+    try:
+        lu = scipy.sparse.linalg.splu(S, permc_spec='MMD_AT_PLUS_A')
+    except RuntimeError as err:
+        msg = 'reduced camera system is singular'
+        raise ReducedSystemError(msg) from err
+    pivoted: FloatArray = lu.solve(b)
+    return pivoted
 
 
 def _dense_cholesky(structure: SchurStructure, S_blocks: FloatArray, damp_pose: FloatArray,

@@ -28,6 +28,8 @@ from pmba_ros.core.numpy_schur import NumpySchurPlan
 from pmba_ros.core.problem import make_problem, permute_features, XyzFeatures
 from pmba_ros.errors import SolverError
 import pytest
+import scipy.sparse
+import scipy.sparse.linalg
 
 from .helpers import engine_named, forward_problem
 
@@ -225,6 +227,61 @@ def test_pose_covariance_refuses_a_singular_system() -> None:
     with pytest.raises(ne.ReducedSystemError):
         ne.pose_covariance(st, eqs, np.zeros((problem.n_feats, 3)),
                            np.ones((4, 6), dtype=bool))
+
+
+def _record_superlu(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """Record whether each SuperLU factorization is in symmetric mode (no pivot search)."""
+    calls: list[bool] = []
+    splu = scipy.sparse.linalg.splu
+
+    def recording(A, **kwargs):
+        calls.append(kwargs.get('options', {}).get('SymmetricMode', False))
+        return splu(A, **kwargs)
+
+    monkeypatch.setattr(scipy.sparse.linalg, 'splu', recording)
+    return calls
+
+
+def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past DENSE_LIMIT: one symmetric-mode factorization, the dense path's step to rounding."""
+    problem = forward_problem(3, n_cams=6, n_points=30)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba', weighted=True)
+    st, _, eqs, _ = _held_pose_system(problem, model, feats, np.array([-1, 0, 1, 2, 3, 4]),
+                                      NUMPY)
+    mask = np.ones((st.n_blocks, 6), dtype=bool)
+    mask[0, 3] = False
+    damp_p = np.full((st.n_blocks, 6), 1e-4)
+    damp_f = np.full((problem.n_feats, 3), 1e-4)
+    dense = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
+    calls = _record_superlu(monkeypatch)
+    monkeypatch.setattr(ne, 'DENSE_LIMIT', 0)
+    sparse = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
+    assert calls == [True]
+    for got, want in zip(sparse, dense, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
+def test_sparse_solve_pivots_where_diagonal_pivots_fail(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A tiny first pivot: unpivoted LU loses the solution, partial pivoting does not."""
+    S = np.array([[1e-20, 1.0, 0.0], [1.0, 1.0, 2.0], [0.0, 2.0, 3.0]])
+    b = np.array([1.0, 2.0, 3.0])
+    calls = _record_superlu(monkeypatch)
+    x = ne._sparse_solve(scipy.sparse.csc_matrix(S), b)
+    assert calls == [True, False]
+    np.testing.assert_allclose(x, np.linalg.solve(S, b), rtol=1e-12)
+
+
+def test_sparse_solve_refuses_a_singular_system(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Singular with diagonal and with partial pivots: a ReducedSystemError."""
+    S = scipy.sparse.csc_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
+    calls = _record_superlu(monkeypatch)
+    with pytest.raises(ne.ReducedSystemError, match='singular'):
+        ne._sparse_solve(S, np.ones(2))
+    assert calls == [True, False]
 
 
 def test_structure_rejects_unordered_features() -> None:
