@@ -67,10 +67,11 @@ def frame_observations(frame: TrackFrame, usable: dict[int, CameraModel | None],
         msg = 'tracks without normalized coordinates need a CameraInfo'
         raise MessageError(msg)
     finite = np.all(np.isfinite(xy), axis=1)
-    xy, cams = xy[finite], cams[finite]
+    xy, seen_by = xy[finite], cams[finite]
     bearings = sphere.normalize(np.column_stack([xy, np.ones(xy.shape[0])]))
     obs = KeyframeObs(frame.feature_ids[sel][finite], bearings, xy,
-                      cams if len(usable) > 1 else None, _pixel_jacobians(bearings, cams, models))
+                      seen_by if len(usable) > 1 else None,
+                      _pixel_jacobians(bearings, seen_by, models))
     return (obs, frame.camera_ids.shape[0] - cams.shape[0],
             int(np.count_nonzero(~finite)))
 

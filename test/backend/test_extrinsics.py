@@ -215,3 +215,24 @@ def test_unknown_extrinsic_is_identity_with_a_warning(street: SimSequence) -> No
     logic.end_of_input()   # a first pose alone is judged by nothing
     values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
     assert values['extrinsic_source'] == 'frames_agree' and 'count.extrinsic_unknown' not in values
+
+
+def test_frame_observations_count_other_cameras_and_non_finite_apart() -> None:
+    """Camera 1 of a mono configuration is 'other', a NaN pixel of camera 0 'non-finite'.
+
+    Each fisheye observation kept carries its camera's pixel Jacobian.
+    """
+    from pmba_ros.backend.cameras import frame_observations
+    from pmba_ros.backend.types import CameraModel, TrackFrame
+
+    fisheye = CameraModel(250.0, 250.0, 320.0, 240.0, 'equidistant',
+                          np.array([0.01, 0.0, 0.0, 0.0]))
+    pixels = np.array([[300.0, 200.0], [np.nan, 10.0], [400.0, 300.0], [100.0, 100.0]])
+    frame = TrackFrame(0, 'camera', [1, 2, 3, 4], [0, 0, 0, 1], pixels, None)
+    obs, other, non_finite = frame_observations(frame, {0: fisheye})
+    assert (other, non_finite) == (1, 1)
+    assert obs.ids.tolist() == [1, 3]
+    assert obs.pixel_jac is not None
+    expected = fisheye.pixel_jacobian(obs.bearings)
+    assert expected is not None
+    np.testing.assert_allclose(obs.pixel_jac, expected, rtol=1e-6)
