@@ -395,12 +395,19 @@ def pinhole_jacobian(bearings: FloatArray, fx: float, fy: float) -> FloatArray:
     return J
 
 
+def _radial(xy: FloatArray, d: FloatArray,
+            ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Return x, y, r^2 and plumb_bob's radial factor 1 + k1 r^2 + k2 r^4 + k3 r^6."""
+    k1, k2, _, _, k3 = d
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    return x, y, r2, 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+
+
 def _plumb_bob_jacobian(xy: FloatArray, d: FloatArray) -> FloatArray:
     """Return d(distorted) / d(normalized) of :func:`_distort_plumb_bob` at xy, (K, 2, 2)."""
     k1, k2, p1, p2, k3 = d
-    x, y = xy[:, 0], xy[:, 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    x, y, r2, radial = _radial(xy, d)
     g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d(radial)/dx = g * x
     off = g * x * y + 2.0 * p1 * x + 2.0 * p2 * y
     return np.stack([np.stack([radial + g * x * x + 2.0 * p1 * y + 6.0 * p2 * x, off], -1),
@@ -431,10 +438,8 @@ def _equidistant_jacobian(v: FloatArray, d: FloatArray) -> FloatArray:
 
 def _distort_plumb_bob(xy: FloatArray, d: FloatArray) -> FloatArray:
     """Apply OpenCV's radial-tangential model (k1, k2, p1, p2, k3) to (K, 2) points."""
-    k1, k2, p1, p2, k3 = d
-    x, y = xy[:, 0], xy[:, 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    _, _, p1, p2, _ = d
+    x, y, r2, radial = _radial(xy, d)
     x_d = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
     y_d = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     return np.stack([x_d, y_d], axis=1)
