@@ -326,17 +326,20 @@ class PmbaNode:
 
     def _on_reset(self, request: Any, response: Any) -> Any:
         del request
-        with self.worker.lock:
+
+        def reset() -> None:
             self.logic.reset()
-        self._map_to_odom = None
-        self._newest_provisional = -1
+            self._map_to_odom, self._newest_provisional = None, -1
+
+        discarded = self.worker.reset(reset)
         response.success = True
-        response.message = 'back-end reset'
+        response.message = f'back-end reset ({discarded} queued messages discarded)'
         return response
 
     def _on_pause(self, request: Any, response: Any) -> Any:
         with self.worker.lock:
             self.logic.set_paused(bool(request.data))
+        self.worker.request_step()   # the diagnostics say so without waiting for input
         response.success = True
         response.message = 'paused' if request.data else 'resumed'
         return response

@@ -478,3 +478,46 @@ def test_publishers_the_inputs_cannot_match_are_named(
         rclpy.shutdown(context=other)
         wrapper.close()
         driver.destroy_node()
+
+
+def test_pause_and_reset_show_without_input(
+        ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """~/pause and ~/reset reach the diagnostics while the front-end sends nothing.
+
+    The back-end's status came only with steps, which inputs trigger: a pause said nothing
+    until the next message. A reset discards the queued messages (they belong to what it
+    forgets) and says how many.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import SetBool, Trigger
+
+    context, executor = ros
+    node = rclpy.create_node('pmba_node', context=context,
+                             parameter_overrides=[Parameter('publish_tf', value=False)])
+    wrapper = PmbaNode(node, start_worker=False)   # the test steps the worker
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    executor.add_node(node)
+    executor.add_node(driver)
+    got: list[Any] = []
+    driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
+    try:
+        pause = driver.create_client(SetBool, '/pmba_node/pause')
+        assert spin_until(executor, pause.service_is_ready)
+        future = pause.call_async(SetBool.Request(data=True))
+        assert spin_until(executor, future.done) and future.result().success
+        wrapper.process_pending()
+        assert spin_until(executor, lambda: any(
+            s.message == 'paused' for s in statuses(got, 'pmba_ros: back-end')), 5.0)
+        for _ in range(3):
+            wrapper.worker.enqueue('tracks', object())
+        reset = driver.create_client(Trigger, '/pmba_node/reset')
+        assert spin_until(executor, reset.service_is_ready)
+        future = reset.call_async(Trigger.Request())
+        assert spin_until(executor, future.done)
+        assert future.result().success and '3 queued messages discarded' in \
+            future.result().message
+        wrapper.process_pending()
+        assert wrapper.logic.stats.counters['bad_tracks'] == 0
+    finally:
+        wrapper.close()
+        driver.destroy_node()

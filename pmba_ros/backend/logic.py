@@ -20,10 +20,9 @@ associates keyframe poses with track frames by stamp (``stamp_tolerance_s``), fe
 :class:`~pmba_ros.backend.estimator.Estimator`, and returns the outputs as ``(topic, msg)``
 pairs: the config's relative topic names, ``'/tf'`` and ``'/diagnostics'``.
 
-Every output stamp comes from input headers (the newest processed keyframe; the map -> odom
-TF is future-dated by ``transform_tolerance_s``), never from a clock. With
-``deterministic=True`` (bag replay) there are no time budgets and no timings in the outputs,
-so identical inputs give byte-identical outputs.
+Every output stamp comes from input headers (the newest processed keyframe; map -> odom is
+future-dated by ``transform_tolerance_s``), never from a clock. With ``deterministic=True``
+(bag replay) there are no time budgets and no timings: identical inputs, identical outputs.
 """
 
 from __future__ import annotations
@@ -37,8 +36,8 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
+from pmba_ros.backend import feature_ids, status, tracks
 from pmba_ros.backend import outputs as out
-from pmba_ros.backend import status, tracks
 from pmba_ros.backend.cameras import frame_id_of, frame_observations, FrontendCameras
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
@@ -100,6 +99,7 @@ class BackendLogic:
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
         self._track_memory = tracks.TrackMemory()
+        self._feature_ids = feature_ids.FeatureIdRestarts()
         self._pose_check = PoseJumpCheck()
         self._track_stamps = StampLeapCheck('track_stamp_leaps')
         self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps',
@@ -178,6 +178,8 @@ class BackendLogic:
             return
         for reason, n in [('dropped_observations', frame.dropped), *frame.drop_reasons.items()]:
             self.count(reason, n)
+        frame, restarted = self._feature_ids.shift(frame)   # a relaunched front-end's ids
+        self.count('feature_id_restarts', int(restarted))
         for taken in self._track_stamps.admit(frame.stamp_ns, frame, self._reject):
             self._take_tracks(taken)
 
@@ -257,8 +259,7 @@ class BackendLogic:
     def apply_config(self, config: BackendConfig) -> None:
         """Use ``config`` from the next keyframe on (the node's run-time parameter changes).
 
-        Only fields read at use time take effect (solver budgets, loss, tolerances,
-        covariances); the node declares the others read-only.
+        Only fields read at use time take effect; the node declares the others read-only.
         """
         self.config = config
         self.estimator.config = config
@@ -266,8 +267,7 @@ class BackendLogic:
     def set_paused(self, paused: bool) -> None:
         """Pause (drop and count inputs) or resume."""
         if bool(paused) != self._paused:
-            self._paused = bool(paused)
-            self._diag_dirty = True
+            self._paused, self._diag_dirty = bool(paused), True
             logger.info('back-end %s', 'paused' if paused else 'resumed')
 
     @property

@@ -89,6 +89,44 @@ class LogicWorker:
         with self._counts_lock:
             self._received[kind] += 1
 
+    def request_step(self) -> None:
+        """Have the thread run a step without input (diagnostics of a pause or a reset).
+
+        The back-end's status is published from steps, which inputs trigger: a pause or a
+        reset while the front-end sent nothing kept showing the old state. A full queue
+        needs no such step: its messages come first and each steps.
+        """
+        try:
+            self._queue.put_nowait(('step', None))
+        except queue.Full:
+            pass
+
+    def reset(self, action: Callable[[], None]) -> int:
+        """Run ``action`` (a reset) under :attr:`lock` and discard the queued messages.
+
+        Messages queued before the reset belong to what it forgets: handled after it, a
+        relaunched front-end's earlier stamps came after them and were refused as not
+        increasing. Holding the lock also keeps a solve's outputs from being published
+        after the reset (the thread publishes under it).
+
+        Returns:
+            The number of queued messages discarded.
+        """
+        discarded = 0
+        with self.lock:
+            action()
+            while True:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if item is _STOP:   # keep a stop request
+                    self._queue.put_nowait(item)
+                    break
+                discarded += 1
+        self.request_step()
+        return discarded
+
     def stage_config(self, config: BackendConfig) -> None:
         """Apply ``config`` to the logic before the next message (``publish_tf`` forced on)."""
         with self._counts_lock:
@@ -134,8 +172,10 @@ class LogicWorker:
             for reason, n in drops.items():
                 self.logic.count(reason, n)
             kind, _, camera = kind.partition('.')  # 'camera_info.c': camera c of a rig
-            handlers = {'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
-                        'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf}
+            handlers: dict[str, Callable[[Any], None]] = {
+                'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
+                'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf,
+                'step': lambda _msg: None}   # request_step(): a step without input
             if kind not in handlers or (camera and not (kind == 'camera_info'
                                                         and camera.isdigit())):
                 msg_ = (f'unknown input kind {kind + "." * bool(camera) + camera!r} (expected '
@@ -146,7 +186,9 @@ class LogicWorker:
             else:
                 handlers[kind](msg)
             outputs = self.logic.step()
-        self._publish(outputs)
+            # Under the lock: a reset in between would otherwise see the forgotten run's
+            # path and map -> odom published (and remembered by the node) after it.
+            self._publish(outputs)
 
     def _run(self) -> None:
         while not self._stop.is_set():

@@ -836,3 +836,48 @@ def test_global_mode_short_street(street: SimSequence) -> None:
     gt = street.gt_trajectory().take(np.arange(45))
     fe = ate(street.odom_trajectory().take(np.arange(45)), gt, 'sim3').rmse
     assert ate(logic.optimized_trajectory(), gt, 'sim3').rmse <= 0.5 * fe
+
+
+def test_a_relaunched_frontends_fresh_feature_ids_are_new_features() -> None:
+    """A front-end relaunched without ~/reset numbers its features from 0 again.
+
+    Its ids joined the old run's tracks of the same ids still in the window: every solve
+    exploded and was rolled back (39 of 40 keyframes in a 40 + 40 run), the new run's ATE
+    tripled.
+    """
+    first = simulate_sequence('street', n_keyframes=24, seed=1)
+    second = simulate_sequence('street', n_keyframes=24, seed=2)
+    shift = int(first.stamps_ns[-1] - second.stamps_ns[0]) + 5_000_000_000
+    second = dataclasses.replace(second, stamps_ns=second.stamps_ns + shift, frames=[
+        dataclasses.replace(f, stamp_ns=f.stamp_ns + shift) for f in second.frames])
+    assert min(int(f.feature_ids.min()) for f in second.frames) == 0
+    logic = BackendLogic(config(publish_tf=False), BACKEND)
+    run(logic, first)
+    assert logic.state == 'tracking'
+    for _ in feed(logic, second, range(len(second))):
+        pass
+    counters = logic.stats.counters
+    assert counters['feature_id_restarts'] == 1
+    assert counters['cost_explosions'] == 0 and counters['solve_rollbacks'] == 0
+    assert len(logic.optimized_trajectory().stamps_s) == len(first) + len(second)
+
+
+def test_feature_id_restarts_only_on_a_restarted_count() -> None:
+    """Continued and new ids pass as they are; ids starting again are shifted past all."""
+    from pmba_ros.backend.feature_ids import FeatureIdRestarts
+
+    def frame(ids: list[int]) -> TrackFrame:
+        return TrackFrame(0, 'cam', np.array(ids), np.zeros(len(ids), dtype=np.int64),
+                          None, np.zeros((len(ids), 2)))
+
+    check = FeatureIdRestarts()
+    for ids, restarted, shifted in (([10, 11, 12], False, [10, 11, 12]),
+                                    ([12, 13], False, [12, 13]),
+                                    ([], False, []),
+                                    ([20, 21], False, [20, 21]),    # all tracks lost
+                                    ([0, 1, 2], True, [22, 23, 24]),  # relaunched
+                                    ([2, 3], False, [24, 25]),
+                                    ([0, 1], True, [26, 27]),
+                                    ([1, 30, 31], False, [27, 56, 57])):   # 1 continued
+        got, flag = check.shift(frame(ids))
+        assert flag == restarted and got.feature_ids.tolist() == shifted
