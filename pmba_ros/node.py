@@ -421,7 +421,8 @@ class PmbaNode:
         level, message = node_level_and_message(age, last_input >= 0, self.config.stale_input_s,
                                                 tf_off, MAP_TO_ODOM_TOPIC, problems)
         values: dict[str, str | float] = {
-            'tf': self.tf_mode, 'input_age_s': round(age, 3),
+            'tf': self.tf_mode if self.config.publish_tf else 'disabled (publish_tf false)',
+            'input_age_s': round(age, 3),
             'queue_length': self.worker.queue_length(),
             'provisional_odometry': self._sent['provisional_odometry'],
             'map_to_odom_sent': self._sent['map_to_odom'], **received_values(received)}

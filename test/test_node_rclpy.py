@@ -312,6 +312,12 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
         assert wrapper.tf_mode.startswith('disabled') and wrapper._tf_timer is None
         assert wrapper.node.set_parameters([Parameter('publish_tf', value=True)])[0].successful
         assert wrapper.tf_mode.startswith('off') and wrapper._tf_timer is not None
+        # Switched off again: the diagnostics say so, not the mode it had.
+        assert wrapper.node.set_parameters([Parameter('publish_tf', value=False)])[0].successful
+        got.clear()
+        assert spin_until(executor, lambda: any(
+            {kv.key: kv.value for kv in s.values}.get('tf', '').startswith('disabled')
+            for s in statuses(got, 'pmba_ros: node')), 3.0)
     finally:
         wrapper.close()
         driver.destroy_node()

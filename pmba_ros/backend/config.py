@@ -68,6 +68,9 @@ NON_NEGATIVE_FLOATS = ('motion_prior_translation_rel', 'motion_prior_shape_rel',
                        'tf_rate_hz')
 """Float parameters (an integer is accepted and converted) that must be > 0 / >= 0."""
 
+TF_RATE_HZ = (0.01, 1000.0)
+"""The rates ``tf_rate_hz`` may take besides 0."""
+
 NODE_NAME = 'pmba_node'
 
 NOT_OPTIMIZED_COVARIANCE_SCALE = 10.0
@@ -177,7 +180,7 @@ class BackendConfig:
         camera_info_qos: QoS of the CameraInfo subscription (as ``features_qos``; best effort
             receives from reliable and best-effort publishers alike).
         tf_rate_hz: Rate at which the node re-sends the newest map -> odom, Hz (0: only on
-            keyframes).
+            keyframes; else within :data:`TF_RATE_HZ`).
         stale_input_s: The node's diagnostics warn when no input arrived for this long, s.
     """
 
@@ -280,6 +283,11 @@ class BackendConfig:
                 msg = f'parameter {name}={value!r}: expected {kind}'
                 raise ValueError(msg)
             object.__setattr__(self, name, float(value))
+        if self.tf_rate_hz and not TF_RATE_HZ[0] <= self.tf_rate_hz <= TF_RATE_HZ[1]:
+            # Outside it the node's timer period overflows or the timer spins a core.
+            msg = (f'parameter tf_rate_hz={self.tf_rate_hz!r}: expected 0 (off) or '
+                   f'{TF_RATE_HZ[0]:g}-{TF_RATE_HZ[1]:g} Hz')
+            raise ValueError(msg)
         for name in ('features_topic', 'keyframe_topic', 'camera_info_topic', 'path_topic',
                      'keyframes_topic', 'landmarks_topic', 'odometry_topic', 'map_frame',
                      'save_directory'):

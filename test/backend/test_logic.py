@@ -157,6 +157,8 @@ def test_config_from_params_flat_and_nested() -> None:
     ({'publish_tf': 'yes'}, 'publish_tf'),
     ({'path_topic': ''}, 'path_topic'),
     ({'windowsize': 20}, 'unknown parameter'),
+    ({'tf_rate_hz': 1e-12}, r'tf_rate_hz.*0 \(off\) or 0.01-1000 Hz'),
+    ({'tf_rate_hz': 1e7}, 'tf_rate_hz'),
 ])
 def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
     """An invalid parameter value is a ValueError naming the parameter."""
