@@ -70,12 +70,15 @@ def seq() -> SimSequence:
     return simulate_sequence('street', n_keyframes=16, seed=1)
 
 
-def start(context: Context, executor: SingleThreadedExecutor,
+def start(context: Context, executor: SingleThreadedExecutor, *, start_worker: bool = True,
           **params: Any) -> tuple[PmbaNode, Any]:
-    """Start a PmbaNode with parameter overrides and a driver node on one executor."""
+    """Start a PmbaNode with parameter overrides and a driver node on one executor.
+
+    ``start_worker`` False: the test steps the worker itself.
+    """
     node = rclpy.create_node('pmba_node', context=context, parameter_overrides=[
         Parameter(k, value=v) for k, v in params.items()])
-    wrapper = PmbaNode(node)
+    wrapper = PmbaNode(node, start_worker=start_worker)
     driver = rclpy.create_node('pmba_test_driver', context=context)
     executor.add_node(node)
     executor.add_node(driver)
@@ -156,11 +159,7 @@ def test_provisional_odometry_before_the_solve(ros: tuple[Context, SingleThreade
     from nav_msgs.msg import Odometry
 
     context, executor = ros
-    node = rclpy.create_node('pmba_node', context=context)
-    wrapper = PmbaNode(node, start_worker=False)
-    driver = rclpy.create_node('pmba_test_driver', context=context)
-    executor.add_node(node)
-    executor.add_node(driver)
+    wrapper, driver = start(context, executor, start_worker=False)
     got: list[Any] = []
     driver.create_subscription(Odometry, 'pmba/odometry', got.append, RELIABLE)
     try:
@@ -498,12 +497,7 @@ def test_pause_and_reset_show_without_input(
     from std_srvs.srv import SetBool, Trigger
 
     context, executor = ros
-    node = rclpy.create_node('pmba_node', context=context,
-                             parameter_overrides=[Parameter('publish_tf', value=False)])
-    wrapper = PmbaNode(node, start_worker=False)   # the test steps the worker
-    driver = rclpy.create_node('pmba_test_driver', context=context)
-    executor.add_node(node)
-    executor.add_node(driver)
+    wrapper, driver = start(context, executor, start_worker=False, publish_tf=False)
     got: list[Any] = []
     driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
     try:
