@@ -98,14 +98,6 @@ def _evaluate(lin: LinearRays, P: FloatArray, f_scale: float | FloatArray,
     return 0.5 * float(np.sum(w * rho)), N, e
 
 
-def _normal_equations(lin: LinearRays, N: FloatArray, e: FloatArray,
-                      f_scale: float | FloatArray, w: FloatArray, n_cams: int,
-                      ) -> tuple[FloatArray, FloatArray]:
-    """Return the IRLS normal matrix (3M, 3M) and gradient (3M,) of eq. (13) at N-bar, e."""
-    blocks, g = _normal_blocks(lin, N, e, f_scale, w, n_cams)
-    return lin.pattern.dense(blocks, n_cams), g
-
-
 def _normal_blocks(lin: LinearRays, N: FloatArray, e: FloatArray,
                    f_scale: float | FloatArray, w: FloatArray, n_cams: int,
                    ) -> tuple[FloatArray, FloatArray]:
@@ -127,7 +119,7 @@ def _normal_blocks(lin: LinearRays, N: FloatArray, e: FloatArray,
 class _Compiled:
     """The compiled loops of the NLS (:mod:`pmba_ros.core.compiled.linear_rays`).
 
-    They give :func:`_evaluate` and :func:`_normal_equations` to rounding, in one pass over
+    They give :func:`_evaluate` and :func:`_normal_blocks` to rounding, in one pass over
     the observations instead of a few dozen numpy calls.
     """
 
@@ -145,12 +137,6 @@ class _Compiled:
             lin.cam, lin.feat, lin.assoc, lin.main, lin.anchor_coeff, lin.sin_t, lin.rays, P,
             self.f2, self.w)
         return 0.5 * float(np.sum(w_rho)), N, e
-
-    def normal_equations(self, N: FloatArray, e: FloatArray, n_cams: int,
-                         ) -> tuple[FloatArray, FloatArray]:
-        """Return :func:`_normal_equations` at N-bar, e."""
-        blocks, g = self.normal_blocks(N, e, n_cams)
-        return self.lin.pattern.dense(blocks, n_cams), g
 
     def normal_blocks(self, N: FloatArray, e: FloatArray, n_cams: int,
                       ) -> tuple[FloatArray, FloatArray]:

@@ -189,14 +189,14 @@ def test_nls_engines_agree(engine: Engine) -> None:
     w[::7] = 0.0
     f_scale = np.linspace(2.0, 4.0, lin.n_obs) / 500.0
     cost, N, e = nls._evaluate(lin, start, f_scale, w)
-    H, g = nls._normal_equations(lin, N, e, f_scale, w, M)
+    H, g = nls._normal_blocks(lin, N, e, f_scale, w, M)
     if engine.name.value == 'compiled':
         fast = nls._Compiled(lin, f_scale, w)
         cost_c, N_c, e_c = fast.evaluate(start)
         assert cost_c == pytest.approx(cost, rel=1e-12)
         np.testing.assert_allclose(N_c, N, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(e_c, e, rtol=1e-12, atol=1e-15)
-        H_c, g_c = fast.normal_equations(N, e, M)
+        H_c, g_c = fast.normal_blocks(N, e, M)
         np.testing.assert_allclose(H_c, H, atol=1e-12 * np.abs(H).max())
         np.testing.assert_allclose(g_c, g, atol=1e-12 * np.abs(g).max())
     ref = nls.solve_nls(lin, start, st.root, f_scale=f_scale, weights=w, engine='numpy')
