@@ -41,6 +41,9 @@ SUSPECT_COUNTERS = {
                             'clock glitch)',
     'track_stamp_leaps': 'tracks messages dropped: stamped far ahead of the next one (a clock '
                          'glitch)',
+    'input_restarts': 'times the input started again (stamps back at an earlier time, a '
+                      'recording played twice?): the back-end started over, the outputs are '
+                      "the last run's",
     'cost_explosions': 'solves whose cost per observation exploded relative to their '
                        'history (inconsistent tracks?)',
     # Input accepted and then not used, or used another way than the recording meant: only

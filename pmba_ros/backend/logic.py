@@ -42,18 +42,21 @@ from pmba_ros.backend.cameras import frame_id_of, frame_observations, FrontendCa
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
+from pmba_ros.backend.input_restart import InputRestarts
+from pmba_ros.backend.keyframe_outputs import KeyframeOutputs, TF_TOPIC
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.pose_stream import PoseStream
 from pmba_ros.backend.results import save_results
 from pmba_ros.backend.sanity import DUPLICATE_POSES, PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
-from pmba_ros.backend.window import KeyframeObs, KeyframeStatus
+from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import so3
 from pmba_ros.eval.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
-TF_TOPIC = '/tf'
+__all__ = ['DIAGNOSTICS_TOPIC', 'TF_TOPIC', 'BackendLogic']
+
 DIAGNOSTICS_TOPIC = '/diagnostics'
 
 
@@ -92,9 +95,7 @@ class BackendLogic:
         self._pending: deque[_Keyframe] = deque()
         self._last_kf_stamp = -1
         self._newest_input_ns, self._input_ended = -1, False
-        self._odom_frame = self.config.odom_frame or 'odom'
-        self._base_frame = self.config.base_frame or 'base_link'
-        self._published = out.PoseMessageCache()
+        self.outputs = KeyframeOutputs(self.estimator, self.cameras, self.backend, self.config)
         self._last_info = status.UpdateInfo('none')
         self._diag_dirty = True
         self._counters_at_diag: Counter[str] = Counter()
@@ -105,6 +106,7 @@ class BackendLogic:
         self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps',
                                                repeat_reason=DUPLICATE_POSES)
         self._pose_stream = PoseStream(10 * self.config.buffer_size)
+        self._restarts = InputRestarts(self.config.buffer_size)
         self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------
@@ -170,6 +172,8 @@ class BackendLogic:
         if self._paused:
             self.count('dropped_while_paused')
             return
+        if self._restarted('tracks', msg, self._track_stamps.newest_ns):
+            return
         try:
             frame = tracks.parse_tracks(msg, self.config.feature_layout, self.config.num_cams,
                                         self._track_memory)
@@ -199,6 +203,8 @@ class BackendLogic:
         """Parse and buffer a keyframe pose message (bad ones are counted)."""
         if self._paused:
             self.count('dropped_while_paused')
+            return
+        if self._restarted('keyframes', msg, self._keyframe_stamps.newest_ns):
             return
         try:
             pose = tracks.parse_keyframe(msg, self.config.keyframe_type)
@@ -255,6 +261,20 @@ class BackendLogic:
         self._init_buffers()
         self.count('resets')
         logger.info('back-end reset')
+
+    def _restarted(self, stream: str, msg: Any, taken_ns: int) -> bool:
+        """Start over from ``msg`` if it ends a stretch of input that started again."""
+        if not self._restarts.see(stream, tracks.stamp_of(msg), taken_ns, msg):
+            return False
+        stretch = self._restarts.stretch()
+        self.estimator.reset()
+        self._init_buffers()
+        self._reject('input_restarts', f'{len(stretch)} messages stamped before the last '
+                     'ones, in order among themselves: the input started again (a recording '
+                     'played in a loop?); the back-end starts over from them')
+        for name, kept in stretch:
+            (self.on_keyframe if name == 'keyframes' else self.on_tracks)(kept)
+        return True
 
     def apply_config(self, config: BackendConfig) -> None:
         """Use ``config`` from the next keyframe on (the node's run-time parameter changes).
@@ -363,8 +383,7 @@ class BackendLogic:
             T_bc = self._resolve_extrinsic(kf.pose, frame)
             odom = T_bc.apply_to_poses(so3.from_quat_xyzw(kf.pose.quat_xyzw),
                                        np.asarray(kf.pose.position))
-            self._odom_frame = self.config.odom_frame or kf.pose.frame_id or 'odom'
-            self._base_frame = self.config.base_frame or kf.pose.child_frame_id or 'base_link'
+            self.outputs.name_frames(self.config, kf.pose.frame_id, kf.pose.child_frame_id)
         try:
             obs = self._observations(frame) if frame is not None else None
             info = self.estimator.add_keyframe(
@@ -446,91 +465,10 @@ class BackendLogic:
 
     # --- outputs --------------------------------------------------------------------------
 
-    def _camera_to_body(self) -> Rigid:
-        """Return T_cb (identity until an extrinsic is known)."""
-        extrinsic = self.cameras.extrinsic
-        return Rigid.identity() if extrinsic is None else extrinsic.inverse()
-
-    def body_poses(self, idx: np.ndarray) -> tuple[FloatArray, FloatArray]:
-        """Return the map-frame body poses (R (n, 3, 3), positions (n, 3)) of keyframes idx."""
-        kf = self.estimator.kf
-        return self._camera_to_body().apply_to_poses(kf.R_map[idx], kf.C_map[idx])
-
-    def frontend_body_poses(self, idx: np.ndarray) -> tuple[FloatArray, FloatArray]:
-        """Return the front-end (odom-frame) body poses of keyframes idx, as received."""
-        kf = self.estimator.kf
-        return self._camera_to_body().apply_to_poses(kf.R_odom[idx], kf.C_odom[idx])
-
-    def _poses(self, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
-        """Return PoseStamped and Pose messages of keyframes ``idx`` (built incrementally).
-
-        Fixed and dead-reckoned keyframes are final (and passed-through ones once tracking):
-        their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`).
-        """
-        kf = self.estimator.kf
-        status = kf.status[idx]
-        final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
-        if self.estimator.state == 'tracking':  # passed through before the initialization
-            final |= status == KeyframeStatus.PASSED_THROUGH
-
-        def build(sel: np.ndarray) -> list[Any]:
-            R, C = self.body_poses(sel)
-            return out.pose_stamped_msgs(kf.stamps_ns[sel], self.config.map_frame, C,
-                                         so3.to_quat_xyzw(R), self.backend)
-
-        return self._published.update(idx, final, build)
-
     def _outputs(self) -> list[tuple[str, Any]]:
-        cfg = self.config
-        stamp = self._last_kf_stamp
-        idx = self.estimator.estimated()
-        result: list[tuple[str, Any]] = []
-        if idx.shape[0]:
-            kf = self.estimator.kf
-            stamped, plain = self._poses(idx)
-            header = out.header_msg(stamp, cfg.map_frame, self.backend)
-            result.append((cfg.path_topic, self.backend.new('nav_msgs/msg/Path', header=header,
-                                                            poses=stamped)))
-            result.append((cfg.keyframes_topic, self.backend.new(
-                'geometry_msgs/msg/PoseArray', header=header, poses=plain)))
-            result.append((cfg.landmarks_topic, out.make_point_cloud2_xyz(
-                stamp, cfg.map_frame, self.estimator.landmark_points(), self.backend)))
-            last = int(idx[-1])
-            if int(kf.stamps_ns[last]) == stamp:
-                result.append((cfg.odometry_topic, self._odometry(last)))
-                if cfg.publish_tf and kf.has_odom[last]:
-                    result.append((TF_TOPIC, self._map_to_odom(last)))
-        result.append(self._diagnostics(stamp))
+        result = self.outputs.messages(self.config, self._last_kf_stamp)
+        result.append(self._diagnostics(self._last_kf_stamp))
         return result
-
-    def _odometry(self, i: int) -> Any:
-        cfg = self.config
-        cov = cfg.odometry_covariance(optimized=bool(self.estimator.optimized(np.array([i]))[0]))
-        R, C = self.body_poses(np.array([i]))
-        return out.make_odometry(int(self.estimator.kf.stamps_ns[i]), cfg.map_frame,
-                                 self._base_frame, C[0], so3.to_quat_xyzw(R[0]), cov, self.backend)
-
-    def map_from_odom_at(self, i: int) -> Rigid:
-        """REP-105: T_map_odom = T_map_body (back-end) * T_odom_body (front-end)^-1 at i."""
-        idx = np.array([i])
-        R_m, C_m = self.body_poses(idx)
-        R_o, C_o = self.frontend_body_poses(idx)
-        R = so3.project(R_m[0] @ R_o[0].T)
-        return Rigid(R, C_m[0] - R @ C_o[0])
-
-    def _newest_with_odom(self) -> int | None:
-        """Return the newest keyframe with a map pose and a front-end pose, or None."""
-        idx = self.estimator.estimated()
-        idx = idx[self.estimator.kf.has_odom[idx]]
-        return int(idx[-1]) if idx.shape[0] else None
-
-    def _map_to_odom(self, i: int) -> Any:
-        """Return the map -> odom TF at keyframe i (see :meth:`map_from_odom_at`)."""
-        T = self.map_from_odom_at(i)
-        stamp = int(self.estimator.kf.stamps_ns[i]) + round(
-            self.config.transform_tolerance_s * 1e9)
-        return out.make_tf(stamp, self.config.map_frame, self._odom_frame, T.translation,
-                           so3.to_quat_xyzw(T.rotation), self.backend)
 
     def _diagnostics(self, stamp: int) -> tuple[str, Any]:
         cfg = self.config
@@ -580,14 +518,14 @@ class BackendLogic:
         initialization, too few observations) are at their front-end pose through map <- odom.
         """
         idx = self.estimator.estimated()
-        R, C = self.body_poses(idx)
+        R, C = self.outputs.body_poses(idx)
         return Trajectory(self.estimator.kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def frontend_trajectory(self) -> Trajectory:
         """Return the front-end body poses of the keyframes received (odom frame)."""
         kf = self.estimator.kf
         idx = np.flatnonzero(kf.has_odom[:kf.n])
-        R, C = self.frontend_body_poses(idx)
+        R, C = self.outputs.frontend_body_poses(idx)
         return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def landmarks(self) -> FloatArray:

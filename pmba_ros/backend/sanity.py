@@ -274,6 +274,11 @@ class StampLeapCheck:
             self._last_ns = stamp_ns
         return [*taken, payload]
 
+    @property
+    def newest_ns(self) -> int:
+        """Return the newest stamp taken (held ones are not yet), -1 before any."""
+        return -1 if self._last_ns is None else self._last_ns
+
     def holding(self) -> bool:
         """Return True while messages are held (the first ones, or one stamped far ahead)."""
         return self._held is not None or bool(self._first)

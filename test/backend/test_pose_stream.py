@@ -96,12 +96,18 @@ def test_forget_before_keeps_the_last_pose_before_the_stamp() -> None:
 
 
 def _stream_run(seq: SimSequence, per_keyframe: int, offset_ns: int,
-                source: str) -> BackendLogic:
-    """Run the back-end over tracks and a pose stream ``per_keyframe`` times their rate."""
+                source: str, tracks_lead: int = 0) -> BackendLogic:
+    """Run the back-end over tracks and a pose stream ``per_keyframe`` times their rate.
+
+    The tracks of keyframe ``i + tracks_lead`` arrive before the poses after keyframe i.
+    """
     logic = BackendLogic(config(keyframe_source=source), BACKEND)
     logic.on_camera_info(camera_info_msg(seq))
-    for i in range(len(seq)):
+    for i in range(tracks_lead):
         logic.on_tracks(tracks_msg(seq, i))
+    for i in range(len(seq)):
+        if i + tracks_lead < len(seq):
+            logic.on_tracks(tracks_msg(seq, i + tracks_lead))
         logic.step()
         last = i + 1 == len(seq)
         i0, j = (i - 1, i) if last else (i, i + 1)   # the last keyframe: its segment's end
@@ -152,6 +158,21 @@ def test_a_pose_stream_ten_times_the_tracks_rate_gives_the_keyframes_poses(
     collect_stats(stream, fine)
     assert any('--keyframes-from tracks' in w for w in report.warnings), report.warnings
     assert not any('--keyframes-from' in w for w in fine.warnings)
+
+
+def test_a_stream_behind_the_tracks_is_waited_for(street40: SimSequence) -> None:
+    """Poses arriving 0.3 s after the tracks of their time: not stale input, not a restart.
+
+    The keyframes whose tracks came before any pose are taken without one (none was known to
+    come); every later one gets its pose.
+    """
+    logic = _stream_run(street40, 10, 0, 'tracks', tracks_lead=3)
+    counters = logic.stats.counters
+    assert not counters['input_restarts'] and not counters['keyframes_without_pose']
+    fe = logic.frontend_trajectory()
+    np.testing.assert_array_equal(fe.stamps_s, street40.stamps_ns[4:] * 1e-9)
+    np.testing.assert_allclose(fe.positions_xyz, street40.centers_odom[4:], atol=1e-9)
+    assert len(logic.optimized_trajectory()) == len(street40)
 
 
 def test_a_stream_offset_from_the_tracks_is_interpolated(street40: SimSequence) -> None:

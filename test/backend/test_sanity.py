@@ -23,6 +23,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+from pmba_ros.backend.input_restart import InputRestarts
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC
 from pmba_ros.backend.sanity import CostMonitor, PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.status import BackendStats
@@ -164,9 +165,9 @@ def test_front_end_relocalization_starts_a_new_odom_frame(
     assert (counters['keyframe_pose_jumps'] > 0) != (counters['odom_frame_jumps'] == 1)
     assert ate(opt, gt, 'sim3').rmse <= 1.25 * ate_without
     last = kf.n - 1
-    T = logic.map_from_odom_at(last)   # REP-105 still holds in the new frame
-    R_o, C_o = logic.frontend_body_poses(np.array([last]))
-    R_m, C_m = logic.body_poses(np.array([last]))
+    T = logic.outputs.map_from_odom_at(last)   # REP-105 still holds in the new frame
+    R_o, C_o = logic.outputs.frontend_body_poses(np.array([last]))
+    R_m, C_m = logic.outputs.body_poses(np.array([last]))
     np.testing.assert_allclose(T.rotation @ R_o[0], R_m[0], atol=1e-9)
     np.testing.assert_allclose(T.rotation @ C_o[0] + T.translation, C_m[0], atol=1e-9)
 
@@ -421,6 +422,65 @@ def test_a_pause_of_the_front_end_loses_nothing(street: SimSequence) -> None:
     assert len(logic.optimized_trajectory()) == len(street)
     assert not (logic.stats.counters['keyframe_stamp_leaps']
                 + logic.stats.counters['track_stamp_leaps'])
+
+
+def _feed(logic: BackendLogic, seq: SimSequence, indices: range | list[int]) -> None:
+    for i in indices:
+        logic.on_tracks(tracks_msg(seq, i))
+        logic.step()
+        logic.on_keyframe(keyframe_msg(seq, i))
+        logic.step()
+
+
+def test_a_recording_played_again_starts_the_back_end_over(street: SimSequence) -> None:
+    """``ros2 bag play --loop``: the same stamps again. Before, all of them were rejected.
+
+    The second pass's outputs are those of a back-end that saw it alone, and the restart
+    shows in the diagnostics (WARN, ``input_restarts``).
+    """
+    once, _ = _run(street)
+    logic, _ = _run(street)
+    diagnostics = []
+    for i in range(len(street)):
+        logic.on_tracks(tracks_msg(street, i))
+        logic.on_keyframe(keyframe_msg(street, i))
+        diagnostics += [m for t, m in logic.step() if t == DIAGNOSTICS_TOPIC]
+    counters = logic.stats.counters
+    assert counters['input_restarts'] == 1 and logic.state == 'tracking'
+    assert counters['keyframe_stamp_not_increasing'] == InputRestarts.RUN - 1
+    again, first = logic.optimized_trajectory(), once.optimized_trajectory()
+    np.testing.assert_array_equal(again.stamps_s, first.stamps_s)
+    np.testing.assert_array_equal(again.positions_xyz, first.positions_xyz)
+    warned = [m for m in diagnostics if diag_values(m).get('count.input_restarts') == '1']
+    assert warned and warned[0].status[0].level == 1
+
+
+@pytest.mark.parametrize('late', [1, InputRestarts.RUN - 1])
+def test_late_messages_are_not_a_restart(street: SimSequence, late: int) -> None:
+    """Up to RUN - 1 old keyframes and tracks in order, then newer ones: rejected, no restart."""
+    older = dataclasses.replace(street, stamps_ns=street.stamps_ns - STEP_NS // 2, frames=[
+        dataclasses.replace(f, stamp_ns=f.stamp_ns - STEP_NS // 2) for f in street.frames])
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(street))
+    _feed(logic, street, range(30))
+    _feed(logic, older, range(10, 10 + late))
+    _feed(logic, street, range(30, len(street)))
+    counters = logic.stats.counters
+    assert counters['input_restarts'] == 0
+    assert counters['keyframe_stamp_not_increasing'] == counters['stale_tracks'] == late
+    assert len(logic.optimized_trajectory()) == len(street)
+
+
+def test_old_messages_out_of_order_among_themselves_are_not_a_restart() -> None:
+    """Each old message must follow the previous one: a scatter of stragglers is none."""
+    check = InputRestarts()
+    taken = 100
+    for stamp in (10, 20, 15, 30, 40, 35, 50, 60):
+        assert not check.see('keyframes', stamp, taken, stamp)
+    assert not check.see('keyframes', 70, taken, 70)   # 35, 50, 60, 70: four in order
+    assert check.see('keyframes', 80, taken, 80)
+    assert [m for _, m in check.stretch()] == [35, 50, 60, 70, 80]
+    assert not check.see('keyframes', 101, taken, 101)   # a newer message ends any stretch
 
 
 def test_keyframes_waiting_for_tracks_are_processed_at_the_end_of_input(
