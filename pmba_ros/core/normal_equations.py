@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -52,8 +53,18 @@ import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
 
-#: Above this many free pose columns the reduced system is solved as a sparse matrix.
+#: Up to this many free pose columns the reduced system is factored as a dense matrix.
 DENSE_LIMIT = 6000
+
+#: Above this many it is factored as a sparse matrix (a dense one takes 8 n^2 bytes: 3.2 GB).
+SPARSE_LIMIT = 20000
+
+#: Between the two, the share of its factor's lower triangle that a sparse factorization
+#: fills (:attr:`SchurStructure.sparse_fill`) above which the dense one is taken. A sequence's
+#: cameras see their neighbours only and fill little; a photo collection's see much of one
+#: scene, and SuperLU on a factor that fills most of the triangle runs several times slower
+#: than LAPACK's dense Cholesky (and the sparse matrix costs more to build).
+DENSE_FILL = 0.25
 
 #: Largest normwise backward error |S x - b| / (|S| |x| + |b|) (1-norms) accepted from the
 #: sparse solve without pivoting; SuperLU's solves of BA systems reach ~1e-16.
@@ -296,6 +307,28 @@ class SchurStructure:
         """Column block of each upper pair of U and S."""
         return self.plan.pair_cols
 
+    @cached_property
+    def sparse_fill(self) -> float:
+        """Return the share of the lower triangle a sparse factorization of S fills.
+
+        Predicted on S's pattern of pose blocks (one entry per 6 x 6 block, 36 times
+        smaller), factored as :func:`_sparse_solve` factors S: the fill follows the
+        blocks, whose orderings agree.
+        """
+        nb = self.n_blocks
+        if nb < 2:
+            return 1.0
+        rows, cols = self.pair_rows, self.pair_cols
+        off = rows != cols
+        degree = np.bincount(np.concatenate([rows[off], cols[off]]), minlength=nb)
+        pattern = scipy.sparse.csc_matrix(
+            (np.concatenate([np.ones(2 * int(off.sum())), degree + 1.0]),
+             (np.concatenate([rows[off], cols[off], np.arange(nb)]),
+              np.concatenate([cols[off], rows[off], np.arange(nb)]))), shape=(nb, nb))
+        lu = scipy.sparse.linalg.splu(pattern, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+                                      options={'SymmetricMode': True})
+        return float(lu.L.nnz - nb) / (nb * (nb - 1) / 2)
+
 
 def assemble(structure: SchurStructure, lin: Linearization) -> NormalEquations:
     """Assemble U, W, V and the gradient from residuals and Jacobian blocks.
@@ -412,7 +445,8 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
     free = pose_free.reshape(-1)
     dim = nb * 6
     x = np.zeros(dim)
-    if dim <= DENSE_LIMIT or int(free.sum()) <= DENSE_LIMIT:
+    n_free = int(free.sum())
+    if n_free <= DENSE_LIMIT or (n_free <= SPARSE_LIMIT and structure.sparse_fill > DENSE_FILL):
         factor = _dense_cholesky(structure, S_blocks, damp_pose, free)
         x[free], _ = scipy.linalg.lapack.dpotrs(factor, rhs.reshape(-1)[free], lower=False)
     else:

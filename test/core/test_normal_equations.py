@@ -15,6 +15,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 from pmba_ros.core import conversions, numpy_schur
 from pmba_ros.core import normal_equations as ne
@@ -95,10 +97,10 @@ def _model_and_features(problem, param: str, weighted: bool = False, engine: Eng
 
 @pytest.mark.parametrize(('param', 'weighted'),
                          [('pmba', False), ('pmba', True), ('xyz', False), ('idp', False)])
-@pytest.mark.parametrize('dense_limit', [ne.DENSE_LIMIT, 0])
+@pytest.mark.parametrize('sparse_limit', [ne.SPARSE_LIMIT, 0])
 @pytest.mark.parametrize('tracks', ['full', 'uneven'])
 @pytest.mark.parametrize('schur_products', SCHUR_PATHS)
-def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_limit: int,
+def test_schur_solution_equals_dense_solve(param: str, weighted: bool, sparse_limit: int,
                                            tracks: str, schur_products: str,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """The Schur path solves J^T J exactly; x^T H x equals |J x|^2.
@@ -106,7 +108,8 @@ def test_schur_solution_equals_dense_solve(param: str, weighted: bool, dense_lim
     Every way of forming W V^-1 W^T (:data:`SCHUR_PATHS`), and both a dense and a sparse
     reduced system.
     """
-    monkeypatch.setattr(ne, 'DENSE_LIMIT', dense_limit)
+    monkeypatch.setattr(ne, 'DENSE_LIMIT', min(ne.DENSE_LIMIT, sparse_limit))
+    monkeypatch.setattr(ne, 'SPARSE_LIMIT', sparse_limit)
     engine = _select_path(schur_products, monkeypatch)
     monkeypatch.setattr(numpy_schur, '_SCHUR_BATCH', 37)
     problem = forward_problem(6, n_cams=5, n_points=25)
@@ -244,7 +247,7 @@ def _record_superlu(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
 
 def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Past DENSE_LIMIT: one symmetric-mode factorization, the dense path's step to rounding."""
+    """Past SPARSE_LIMIT: one symmetric-mode factorization, the dense path's step to rounding."""
     problem = forward_problem(3, n_cams=6, n_points=30)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
@@ -258,10 +261,54 @@ def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
     dense = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
     calls = _record_superlu(monkeypatch)
     monkeypatch.setattr(ne, 'DENSE_LIMIT', 0)
+    monkeypatch.setattr(ne, 'SPARSE_LIMIT', 0)
     sparse = ne.solve_schur(st, eqs, damp_p, damp_f, mask)
     assert calls == [True]
     for got, want in zip(sparse, dense, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
+def _fill(pairs: list[tuple[int, int]], n_blocks: int) -> float:
+    """Return SchurStructure.sparse_fill of S's upper pose-block pairs ``pairs``."""
+    rows, cols = np.array(pairs).T
+    structure = SimpleNamespace(n_blocks=n_blocks, pair_rows=rows, pair_cols=cols)
+    return ne.SchurStructure.sparse_fill.func(structure)   # type: ignore[attr-defined]
+
+
+def test_sparse_fill_is_low_for_a_sequence_and_high_for_a_collection() -> None:
+    """A sequence's cameras share features with their neighbours: a banded S fills its band.
+
+    A photo collection's see one scene: S is dense, and so are two groups joined by one pair.
+    """
+    n = 300
+    band = [(i, j) for i in range(n) for j in range(i, min(n, i + 6))]
+    assert _fill(band, n) < 1.2 * 2 * 5 / n   # its band: 5 blocks below each diagonal one
+    full = [(i, j) for i in range(40) for j in range(i, 40)]
+    assert _fill(full, 40) == pytest.approx(1.0)
+    groups = [(i, j) for g in (0, 20) for i in range(g, g + 20) for j in range(i, g + 20)]
+    assert 0.4 < _fill([*groups, (0, 20)], 40) < 0.6
+    assert _fill([(0, 0)], 1) == 1.0
+
+
+@pytest.mark.parametrize('fill_limit', [0.0, 1.0])
+def test_between_the_limits_the_fill_chooses_the_factorization(
+        fill_limit: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every camera sees every feature: dense Cholesky (its factor comes back), not SuperLU."""
+    problem = forward_problem(3, n_cams=6, n_points=30)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba', weighted=True)
+    st, _, eqs, _ = _held_pose_system(problem, model, feats, np.array([-1, 0, 1, 2, 3, 4]),
+                                      NUMPY)
+    assert st.sparse_fill == pytest.approx(1.0)
+    mask = np.ones((st.n_blocks, 6), dtype=bool)
+    damp_p, damp_f = np.full((st.n_blocks, 6), 1e-4), np.full((problem.n_feats, 3), 1e-4)
+    monkeypatch.setattr(ne, 'DENSE_LIMIT', 0)
+    monkeypatch.setattr(ne, 'DENSE_FILL', fill_limit)
+    calls = _record_superlu(monkeypatch)
+    *_, factor = ne.solve_schur_factored(st, eqs, damp_p, damp_f, mask)
+    assert (factor is not None) == (fill_limit < 1.0)
+    assert len(calls) == (fill_limit >= 1.0)   # the fill was predicted once, before
 
 
 def test_sparse_solve_pivots_where_diagonal_pivots_fail(
