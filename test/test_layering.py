@@ -50,7 +50,7 @@ CORE_RANKS = {
 RESTRICTED = {
     'rclpy': {'node'},
     'rosbags': {'io.bags', 'io.bag_writer', 'backend.msg_backend'},
-    'mcap': {'io.bags', 'io.salvage'},
+    'mcap': {'io.bags', 'io.salvage.mcap_file'},
     'mcap_ros2': {'io.bags'},
     'matplotlib': {'plot'},
 }

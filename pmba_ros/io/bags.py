@@ -268,7 +268,7 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
 
     Recordings that cannot be opened whole are read file by file: an MCAP file without its
     index (a recorder killed mid-run) by its messages up to the damage
-    (:func:`~pmba_ros.io.salvage.salvage_mcap`), a rosbag2 folder whose ``metadata.yaml``
+    (:func:`~pmba_ros.io.salvage.mcap_file.salvage_mcap`), a rosbag2 folder whose ``metadata.yaml``
     lists a missing file by the files there are. ``damage`` then says what was lost.
 
     Raises:
