@@ -27,7 +27,8 @@ class Salvaged(NamedTuple):
     Attributes:
         path: The new, complete storage file.
         messages: Messages copied.
-        damage: What was wrong with the original and where reading stopped.
+        damage: What was wrong with the original and where reading stopped (the original's
+            name is not in it: the copy may be read from another copy).
     """
 
     path: Path

@@ -22,13 +22,10 @@ new, indexed file, as ``mcap recover`` does, and says what was lost.
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 import struct
 
 from pmba_ros.io.salvage.common import Salvaged
-
-logger = logging.getLogger(__name__)
 
 __all__ = ['salvage_mcap']
 
@@ -56,7 +53,7 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     Args:
         path: The damaged MCAP file.
         dest: The file to write.
-        reason: Why ``path`` could not be opened (for the damage description).
+        reason: Why ``path`` is read this way, the damage description's start.
 
     Returns:
         What was copied, or None if not a single message could be (``dest`` removed).
@@ -101,7 +98,6 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     if not messages:
         dest.unlink(missing_ok=True)
         return None
-    damage = (f'{path}: cannot be opened ({reason}); {messages} messages read up to the '
+    damage = (f'{reason}; {messages} messages read up to the '
               f'damage {stopped}, the rest of the file is lost')
-    logger.warning('%s', damage)
     return Salvaged(dest, messages, damage)
