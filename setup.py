@@ -40,6 +40,7 @@ setup(
         'numpy>=1.24',
         'scipy>=1.10',
         'rosbags>=0.11',
+        'apsw',   # rosbags reads SQLite with it; io.salvage reads damaged .db3 files with it too
         'mcap>=1.1',
         'mcap-ros2-support>=0.5',
         'PyYAML',

@@ -393,6 +393,7 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
             if bags.damage:   # parts that could not be opened: read around, reported as damage
                 damage.damaged_parts = len(bags.damage)
                 damage.first_damage = bags.damage[0]
+                report.warnings.extend(bags.damage[1:])   # the first is `read_error`
             stream = iter_messages(bags, topics=list(kinds), damage=damage,
                                    points_as_arrays=True)
             for stamp, kind, message in stamp_ordered(_counted(stream, report), kinds):

@@ -22,6 +22,7 @@ import os
 from pathlib import Path
 import random
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -334,3 +335,52 @@ def test_truncated_recording_keeps_the_keyframes_before_the_cut(bag: Path,
     assert 'the rest of the file is lost' in data['read_error']
     assert N_KF // 3 < report.keyframes_out < N_KF
     assert len(read_tum(out / 'keyframes_frontend.tum')) == report.keyframes_out
+
+
+def _damaged(bag: Path, folder: Path, kind: str) -> Path:
+    """Return the street recorded as ``kind`` and damaged as a killed recorder leaves it."""
+    from rosbags.convert.converter import convert
+    from rosbags.typesys import get_typestore, Stores
+
+    if kind == 'ros1_active':
+        ros1 = folder / 'street.bag'
+        convert([bag], ros1, 'sqlite3', 9, None, 'file', None,
+                get_typestore(Stores.ROS1_NOETIC), [], [], [], [])
+        data = bytearray(ros1.read_bytes())
+        field = data.index(b'index_pos=') + len(b'index_pos=')
+        (index_pos,) = struct.unpack_from('<Q', data, field)
+        data[field: field + 8] = bytes(8)
+        active = folder / 'run.bag.active'
+        active.write_bytes(data[:index_pos])
+        return active
+    rec = folder / 'rec'
+    convert([bag], rec, 'sqlite3', 9, None, 'file', None, None, [], [], [], [])
+    (rec / 'metadata.yaml').unlink()
+    if kind == 'db3_cut':
+        db3 = rec / 'rec.db3'
+        db3.write_bytes(db3.read_bytes()[: db3.stat().st_size * 6 // 10 + 777])
+    return rec
+
+
+@pytest.mark.parametrize('kind', ['no_metadata', 'db3_cut', 'ros1_active'])
+def test_killed_recorders_recording_replays_what_it_holds(bag: Path, tmp_path: Path,
+                                                          kind: str) -> None:
+    """A killed recorder's recording: what it wrote is replayed, exit 3, the damage reported.
+
+    A rosbag2 folder without metadata.yaml (its SQLite file whole or cut short), a ROS 1
+    ``.bag.active`` without its index. Before, the cut SQLite file and the ROS 1 bag were
+    refused whole, and the folder without metadata.yaml replayed as complete.
+    """
+    recording = _damaged(bag, tmp_path, kind)
+    out = tmp_path / 'o'
+    assert main(['replay', str(recording), '--out', str(out), '--quiet']) == 3
+    data = json.loads((out / 'report.json').read_text())
+    assert not data['complete'] and data['damaged_parts'] >= 1
+    assert data['read_error'].startswith(str(recording))
+    kept = len(read_tum(out / 'keyframes_frontend.tum'))
+    if kind == 'db3_cut':
+        assert N_KF // 3 < kept < N_KF
+        assert 'the rest of the file is lost' in data['read_error']
+        assert any('no metadata.yaml' in w for w in data['warnings'])
+    else:
+        assert kept == N_KF

@@ -117,13 +117,18 @@ class ReadStats:
 
 
 def _reader_errors() -> tuple[type[BaseException], ...]:
-    """Return the exception types the rosbags readers raise on bad input."""
+    """Return the exception types the rosbags readers raise on bad input.
+
+    rosbags passes on what apsw, its SQLite binding, raises on a page found damaged while it
+    reads the messages (``apsw.CorruptError``).
+    """
+    import apsw
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as Reader1Error
     from rosbags.rosbag2 import ReaderError as Reader2Error
     return (AnyReaderError, Reader1Error, Reader2Error, struct.error, EOFError, ValueError,
             KeyError, IndexError, UnicodeDecodeError, AssertionError, OSError, ArithmeticError,
-            MemoryError, TypeError, RuntimeError, *_zstd_errors())
+            MemoryError, TypeError, RuntimeError, apsw.Error, *_zstd_errors())
 
 
 def _zstd_errors() -> tuple[type[BaseException], ...]:
@@ -168,11 +173,16 @@ def _check_paths(paths: Sequence[Path]) -> list[Path]:
         else:
             expanded.append(path)
     paths = expanded
-    kinds = {p.suffix == '.bag' for p in paths}
+    kinds = {is_ros1(p) for p in paths}
     if len(kinds) > 1:
         msg = f'cannot mix ROS 1 (.bag) and ROS 2 recordings: {_describe(paths)}'
         raise BagError(msg)
     return paths
+
+
+def is_ros1(path: Path) -> bool:
+    """Return True for a ROS 1 bag (``.bag``, or ``.bag.active``: ``rosbag record`` writing)."""
+    return path.suffix == '.bag' or path.name.endswith('.bag.active')
 
 
 def storage_files(path: Path) -> list[Path]:
@@ -266,22 +276,30 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
     Opening parses the bags' metadata and message definitions; a replay that lists the topics
     and then reads the messages needs it only once.
 
-    Recordings that cannot be opened whole are read file by file: an MCAP file without its
-    index (a recorder killed mid-run) by its messages up to the damage
-    (:func:`~pmba_ros.io.salvage.salvage_mcap`), a rosbag2 folder whose ``metadata.yaml``
-    lists a missing file by the files there are. ``damage`` then says what was lost.
+    Recordings that cannot be opened whole, or that a recorder did not close, are read file by
+    file (:func:`~pmba_ros.io.salvage.readable_parts`): a damaged storage file by its readable
+    messages (an MCAP or ROS 1 bag without its index up to the damage; the readable rows of a
+    SQLite file cut short, damaged, with SQLite's journal beside it or an index missing rows),
+    a rosbag2 folder without ``metadata.yaml``, or whose ``metadata.yaml`` lists a missing file,
+    by the files there are. ``damage`` then says what was lost.
 
     Raises:
         BagError: If a bag is missing or cannot be opened, not even in part.
     """
-    checked = _check_paths([Path(p) for p in paths])
+    from pmba_ros.io import salvage  # it builds on this module
+    given = [Path(p) for p in paths]
+    checked = _check_paths(given)
     with ExitStack() as stack:
         damage: tuple[str, ...] = ()
-        try:
-            reader = stack.enter_context(any_reader(checked))
-        except BagError as err:
-            from pmba_ros.io.salvage import readable_parts
-            checked, damage = readable_parts(checked, err, stack)
+        error: BagError | None = None
+        reader = None
+        if not salvage.suspect(given):
+            try:
+                reader = stack.enter_context(any_reader(checked))
+            except BagError as err:
+                error = err
+        if reader is None:
+            checked, damage = salvage.readable_parts(given, error, stack)
             reader = stack.enter_context(any_reader(checked))
         yield OpenBags(checked, reader, _topics_of(reader), damage)
 
@@ -541,8 +559,8 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
 
 
 __all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo', 'any_reader',
-           'error_text', 'iter_messages', 'iter_serialized', 'jazzy_typestore', 'list_topics',
-           'open_bags', 'require_topics', 'storage_files']
+           'error_text', 'is_ros1', 'iter_messages', 'iter_serialized', 'jazzy_typestore',
+           'list_topics', 'open_bags', 'require_topics', 'storage_files']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
@@ -560,7 +578,7 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
             (whose serialization ROS 2 publishers cannot send).
     """
     checked = _check_paths([Path(p) for p in paths])
-    ros1 = [p for p in checked if p.suffix == '.bag']
+    ros1 = [p for p in checked if is_ros1(p)]
     if ros1:
         msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; convert '
                'it first: rosbags-convert --src BAG --dst FOLDER')

@@ -22,33 +22,12 @@ new, indexed file, as ``mcap recover`` does, and says what was lost.
 
 from __future__ import annotations
 
-from contextlib import ExitStack
-import logging
 from pathlib import Path
 import struct
-from tempfile import TemporaryDirectory
-from typing import NamedTuple
 
-from pmba_ros.errors import BagError
-from pmba_ros.io.bags import any_reader, error_text, storage_files
+from pmba_ros.io.salvage.common import Salvaged
 
-logger = logging.getLogger(__name__)
-
-__all__ = ['Salvaged', 'readable_parts', 'salvage_mcap']
-
-
-class Salvaged(NamedTuple):
-    """What :func:`salvage_mcap` copied.
-
-    Attributes:
-        path: The new, complete MCAP file.
-        messages: Messages copied.
-        damage: What was wrong with the original and where reading stopped.
-    """
-
-    path: Path
-    messages: int
-    damage: str
+__all__ = ['salvage_mcap']
 
 
 def _stream_errors() -> tuple[type[BaseException], ...]:
@@ -74,7 +53,7 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     Args:
         path: The damaged MCAP file.
         dest: The file to write.
-        reason: Why ``path`` could not be opened (for the damage description).
+        reason: Why ``path`` is read this way, the damage description's start.
 
     Returns:
         What was copied, or None if not a single message could be (``dest`` removed).
@@ -119,48 +98,6 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     if not messages:
         dest.unlink(missing_ok=True)
         return None
-    damage = (f'{path}: cannot be opened ({reason}); {messages} messages read up to the '
+    damage = (f'{reason}; {messages} messages read up to the '
               f'damage {stopped}, the rest of the file is lost')
-    logger.warning('%s', damage)
     return Salvaged(dest, messages, damage)
-
-
-def readable_parts(paths: list[Path], error: BagError,
-                   stack: ExitStack) -> tuple[list[Path], tuple[str, ...]]:
-    """Return the storage files of ``paths`` that open, damaged MCAP files' readable copies.
-
-    The copies go to a temporary folder that ``stack`` removes.
-
-    Raises:
-        BagError: ``error`` again if that leaves nothing to read, or a file that is not
-            MCAP (a ROS 1 bag, SQLite) does not open.
-    """
-    files = [f for p in paths for f in (storage_files(p) or [p])]
-    if not any(f.suffix == '.mcap' for f in files) and files == paths:
-        raise error
-    readable: list[Path] = []
-    damage: list[str] = []
-    tmp: Path | None = None
-    for file in files:
-        try:
-            with any_reader([file]):
-                readable.append(file)
-                continue
-        except BagError as err:
-            if file.suffix != '.mcap':
-                raise error from err
-            reason = error_text(err.__cause__ or err)
-        if tmp is None:
-            tmp = Path(stack.enter_context(TemporaryDirectory(prefix='pmba_salvage_')))
-        saved = salvage_mcap(file, tmp / f'{len(readable)}_{file.name}', reason)
-        if saved is None:
-            damage.append(f'{file}: cannot be opened ({reason}); no message in it is readable')
-            continue
-        readable.append(saved.path)
-        damage.append(saved.damage)
-    if not readable:
-        raise error
-    if not damage:   # every file opens: the folder's metadata.yaml is what is wrong
-        damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
-                  'read one by one' for p in paths if p.is_dir()]
-    return readable, tuple(damage)
