@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import errno
 import json
+import logging
 import os
 from pathlib import Path
 import random
@@ -35,7 +36,7 @@ from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts
 from pmba_ros.io.bag_writer import BagWriter, open_writer
-from pmba_ros.io.bags import iter_messages, list_topics, ReadStats
+from pmba_ros.io.bags import iter_messages, iter_serialized, list_topics, ReadStats
 from pmba_ros.io.output_dir import output_lock
 from pmba_ros.replay import replay
 from pmba_ros.sim.bag import write_sequence_bag
@@ -384,3 +385,23 @@ def test_killed_recorders_recording_replays_what_it_holds(bag: Path, tmp_path: P
         assert any('no metadata.yaml' in w for w in data['warnings'])
     else:
         assert kept == N_KF
+
+
+def test_play_reads_a_damaged_recording_as_replay_does(bag: Path, tmp_path: Path,
+                                                       caplog: pytest.LogCaptureFixture) -> None:
+    """``pmba play``'s reader: a cut MCAP file up to the cut with a warning, a ROS 1 bag refused.
+
+    Before, play opened recordings without salvage: the cut file was refused whole.
+    """
+    whole = sum(1 for _ in iter_serialized([bag]))
+    chunked = tmp_path / 'chunked.mcap'
+    _rechunked(bag, chunked, 4096)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(chunked.read_bytes()[: chunked.stat().st_size * 6 // 10])
+    with caplog.at_level(logging.WARNING, logger='pmba_ros.io.bags'):
+        played = list(iter_serialized([cut]))
+    assert whole // 3 < len(played) < whole
+    assert [t for _, t, _ in played] == sorted(t for _, t, _ in played)
+    assert any('cut.mcap: cannot be opened' in r.getMessage() for r in caplog.records)
+    with pytest.raises(BagError, match='ROS 1 bag cannot be played'):
+        list(iter_serialized([_damaged(bag, tmp_path, 'ros1_active')]))

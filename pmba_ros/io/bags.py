@@ -568,6 +568,8 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
     """Yield ``(topic, log_time_ns, CDR bytes)`` of rosbag2 recordings in log-time order.
 
     The bytes are the stored serialization, ready for an rclpy publisher (``pmba play``).
+    A damaged recording is read in the parts that can be, as :func:`open_bags` reads it, with
+    a warning naming the damage.
 
     Args:
         paths: rosbag2 folders or storage files.
@@ -577,15 +579,15 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
         BagError: If a bag is missing, cannot be opened or is corrupt, or is a ROS 1 bag
             (whose serialization ROS 2 publishers cannot send).
     """
-    checked = _check_paths([Path(p) for p in paths])
-    ros1 = [p for p in checked if is_ros1(p)]
-    if ros1:
-        msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; convert '
-               'it first: rosbags-convert --src BAG --dst FOLDER')
-        raise BagError(msg)
-    with any_reader(checked) as reader:
+    with open_bags(paths) as bags:
+        ros1 = [p for p in bags.paths if is_ros1(p)]
+        if ros1:
+            msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; '
+                   'convert it first: rosbags-convert --src BAG --dst FOLDER')
+            raise BagError(msg)
+        for damage in bags.damage:
+            logger.warning('%s', damage)
+        reader = bags.reader
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        if not conns:
-            return
-        for conn, t_ns, raw in _raw_messages(reader, conns, checked):
+        for conn, t_ns, raw in _raw_messages(reader, conns, bags.paths) if conns else ():
             yield conn.topic, t_ns, bytes(raw)
