@@ -304,6 +304,7 @@ def run(args: argparse.Namespace) -> int:
         print(_table(results))
     if args.init != 'global':
         _warn_components(problem, report)
+    _warn_focal_lengths(problem, report)
     for r in results:
         if not r.converged:
             print(f'warning: {r.options.param.value}-{r.options.solver.value} stopped at '
@@ -395,9 +396,46 @@ def _warn_components(problem: BAProblem, report: dict[str, Any]) -> None:
     sizes = np.bincount(groups).tolist()
     text = (f'the cameras form {n} groups that share no feature ({sizes} cameras): each was '
             "solved on its own, their relative pose and scale are the file's start's")
+    _warn(report, text)
+
+
+def _warn(report: dict[str, Any], text: str) -> None:
+    """Print a warning and add it to every method's report entry."""
     print(f'warning: {text}', file=sys.stderr)
     for entry in report.values():
         entry.setdefault('warnings', []).append(text)
+
+
+WIDE_DEG = 80.0
+"""Off-axis angle beyond which half a camera's observations make its focal length suspect."""
+NARROW_DEG = 0.01
+"""Field of view (half-angle) within which all of a camera's observations make it suspect."""
+
+
+def _warn_focal_lengths(problem: BAProblem, report: dict[str, Any]) -> None:
+    """Warn about cameras whose focal length cannot be that of their observations.
+
+    Half the observations of a camera more than WIDE_DEG off its axis, or all within
+    NARROW_DEG of it: a focal length in other units than the pixels (a wrong column, mm), with
+    which the solve converges to nonsense without a sign of it.
+    """
+    obs = problem.obs
+    off_axis = np.degrees(np.arccos(np.clip(obs.bearings_c[:, 2], -1.0, 1.0)))
+    counts = np.bincount(obs.cam_idx, minlength=problem.n_cams)
+    wide = 2 * np.bincount(obs.cam_idx, off_axis > WIDE_DEG, problem.n_cams) >= counts
+    widest = np.zeros(problem.n_cams)
+    np.maximum.at(widest, obs.cam_idx, off_axis)
+    narrow = widest <= NARROW_DEG
+    wide_text = f'half of their observations or more over {WIDE_DEG:g} degrees off the axis'
+    narrow_text = f'all their observations within {NARROW_DEG:g} degrees of the optical axis'
+    for bad, what in ((wide & (counts > 0), wide_text), (narrow & (counts > 0), narrow_text)):
+        cams = np.flatnonzero(bad)
+        if not cams.size:
+            continue
+        i = int(cams[0])
+        text = (f'{cams.size} cameras (the first: camera {i}, focal length '
+                f'{problem.intrinsics.fx[i]:g} px) have {what}: is the focal length in pixels?')
+        _warn(report, text)
 
 
 def _warn_non_finite(results: list[SolveResult], report: dict[str, Any]) -> None:

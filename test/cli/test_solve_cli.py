@@ -268,3 +268,31 @@ def _stack_intrinsics(a: BAProblem, b: BAProblem) -> Intrinsics:
     fields = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2')
     return Intrinsics(*(np.concatenate([getattr(a.intrinsics, f), getattr(b.intrinsics, f)])
                         for f in fields))
+
+
+@pytest.mark.parametrize('focal', [1e-9, 1e12])
+def test_focal_lengths_the_observations_cannot_have_are_a_warning(
+        tmp_path: Path, focal: float, capsys: pytest.CaptureFixture[str]) -> None:
+    """A BAL file whose focal lengths are not in pixels: solved, with a warning naming them.
+
+    Before, it converged to a wrong RMS without a word; the file as written gives none.
+    """
+    from pmba_ros.io.bal import write_bal
+    from pmba_ros.sim.scenes import street_scene
+    problem = street_scene(1).start
+    write_bal(tmp_path / 'good.txt', problem)
+    lines = (tmp_path / 'good.txt').read_text().splitlines()
+    header = [int(v) for v in lines[0].split()]
+    first_camera = 1 + header[2]
+    for c in range(problem.n_cams):   # the 7th of 9 values of each camera: f
+        lines[first_camera + 9 * c + 6] = f'{focal:.17g}'
+    (tmp_path / 'bad.txt').write_text('\n'.join(lines) + '\n')
+    report = tmp_path / 'report.json'
+    assert main(['solve', str(tmp_path / 'bad.txt'), '--quiet', '--max-iters', '3',
+                 '--report', str(report)]) == 0
+    err = capsys.readouterr().err
+    assert f'{problem.n_cams} cameras (the first: camera 0, focal length {focal:g} px)' in err
+    assert ('over 80 degrees' if focal < 1 else 'within 0.01 degrees') in err
+    assert any('focal length' in w for w in json.loads(report.read_text())['warnings'])
+    assert main(['solve', str(tmp_path / 'good.txt'), '--quiet', '--max-iters', '3']) == 0
+    assert 'focal length' not in capsys.readouterr().err
