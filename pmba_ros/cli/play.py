@@ -21,6 +21,7 @@ For users with rclpy from pip (``pip install .[ros]``) but no ``ros2 bag``::
     pmba play street_bag --clock                  # /clock for nodes with use_sim_time
     pmba play street_bag --remap /features:=/feature_tracker/feature
     pmba play street_bag --topics /features /keyframe_pose --wait-for-subscribers 30
+    pmba play street_bag --loop --clock           # again and again, until Ctrl-C
 
 Messages are published as stored (CDR), reliable and transient local: a subscriber that is
 transient local too (``features_qos:=transient_local`` on pmba_node) loses none of the first
@@ -29,6 +30,7 @@ messages to discovery. ROS 1 bags must be converted first (``rosbags-convert``).
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -72,6 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'subscriber')
     parser.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
                         help='remap a topic (repeatable)')
+    parser.add_argument('--loop', action='store_true',
+                        help='play the recording again from its start each time it ends, '
+                             'until interrupted (pmba_node starts over on each pass)')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -100,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         msg = f'--remap {bad[0]!r}: expected FROM:=TO'
         raise BagError(msg)
     ros_args = ['--ros-args', *[a for r in args.remap for a in ('-r', r)]]
-    count = play_messages(iter_serialized([args.bag], wanted),
+    passes = itertools.count() if args.loop else range(1)
+    messages = itertools.chain.from_iterable(iter_serialized([args.bag], wanted) for _ in passes)
+    count = play_messages(messages,
                           {t: topics[t].msgtype for t in wanted}, rate=args.rate,
                           clock=args.clock, delay_s=max(0.0, args.delay),
                           wait_for_subscribers_s=max(0.0, args.wait_for_subscribers),

@@ -54,7 +54,8 @@ def paced(messages: Iterable[tuple[str, int, bytes]], rate: float = 1.0, *,
     """Yield the messages at their recorded spacing divided by ``rate``.
 
     The first message is due at once; each later one when its log time, less the first's,
-    divided by ``rate``, has passed.
+    divided by ``rate``, has passed. A message logged before its predecessor starts the
+    timing over (a recording played again, ``pmba play --loop``): it is due at once.
 
     Args:
         messages: ``(topic, log_time_ns, CDR bytes)`` in log-time order.
@@ -68,9 +69,11 @@ def paced(messages: Iterable[tuple[str, int, bytes]], rate: float = 1.0, *,
         never past the next message's).
     """
     start: tuple[float, int] | None = None
+    last_ns = 0
     for topic, t_ns, raw in messages:
-        if start is None:
+        if start is None or t_ns < last_ns:
             start = (monotonic(), t_ns)
+        last_ns = t_ns
         target = start[0] + (t_ns - start[1]) * 1e-9 / rate
         while (wait := target - monotonic()) > 0:
             if clock_period_s is not None:

@@ -115,3 +115,33 @@ def test_play_errors(sim_bag: Path, tmp_path: Path) -> None:
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
     assert 'played 1 messages' in stdout
+
+
+@pytest.mark.slow
+def test_play_loop_plays_the_recording_again_until_interrupted(
+        sim_bag: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--loop``: the keyframes again, stamped as the first time and paced again, to SIGINT."""
+    import signal
+
+    from nav_msgs.msg import Odometry
+
+    with isolated_node(monkeypatch, 'loop_listener') as (domain, executor, node):
+        got: list[tuple[float, int]] = []
+        node.create_subscription(
+            Odometry, '/keyframe_pose', lambda m: got.append(
+                (time.monotonic(), m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec)),
+            transient_local_qos(100))
+        proc = play([str(sim_bag), '--rate', '4', '--loop', '--wait-for-subscribers', '30',
+                     '--topics', '/keyframe_pose'], domain)
+        try:
+            assert spin_until(executor, lambda: len(got) >= 30, timeout_s=60.0), len(got)
+            proc.send_signal(signal.SIGINT)
+            _, stderr = proc.communicate(timeout=30)
+            assert proc.returncode == 0 and 'Traceback' not in stderr, stderr
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    stamps = [s for _, s in got]
+    assert stamps[12:24] == stamps[:12] and stamps[24:30] == stamps[:6]
+    gaps = np.diff([t for t, _ in got[12:24]])
+    assert abs(float(np.median(gaps)) - KEYFRAME_PERIOD_S / 4) < 0.02

@@ -49,6 +49,17 @@ def test_messages_are_due_at_their_recorded_spacing_over_the_rate() -> None:
                    (0.5, Tick(6_000_000_000, '/a', b'3'))]
 
 
+def test_a_recording_played_again_is_paced_again() -> None:
+    """``pmba play --loop``: the second pass starts at once and keeps its spacing.
+
+    Before, its first message was due at once and so was every other (all in the past).
+    """
+    clock = FakeClock()
+    due = [round(clock.now - 100.0, 9) for _ in paced(
+        MESSAGES + MESSAGES, 1.0, monotonic=clock.monotonic, sleep=clock.sleep)]
+    assert due == [0.0, 0.5, 1.0, 1.0, 1.5, 2.0]
+
+
 def test_clock_ticks_fill_the_waits_in_bag_time_and_never_pass_the_next_message() -> None:
     """With a clock period, ticks without a message carry bag time up to the next message."""
     clock = FakeClock()
