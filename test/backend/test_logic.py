@@ -39,6 +39,7 @@ from pmba_ros.backend.window import (
     select_fixed,
 )
 from pmba_ros.core import so3
+from pmba_ros.errors import Cancelled
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.ply import read_ply
@@ -778,6 +779,33 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
     assert values['count.resets'] == '1'
     run(logic, street, 21)  # starts over (earlier stamps are fine after a reset)
     assert logic.state == 'tracking'
+
+
+@pytest.mark.parametrize('initialized', [False, True], ids=['initialization', 'refine'])
+def test_a_cancelled_update_leaves_step_uncounted(street: SimSequence,
+                                                  initialized: bool) -> None:
+    """The estimator's checkpoint (the worker's, as the solves iterate) stops them: Cancelled.
+
+    step() lets it through rather than counting an internal error and going on: the state it
+    leaves is half-updated, which only a reset or the shutdown may follow.
+    """
+    logic = BackendLogic(config(init_batch_size=10), BACKEND)
+    run(logic, street, 12 if initialized else 9)
+    assert (logic.state == 'tracking') is initialized
+    calls: list[int] = []
+
+    def checkpoint() -> None:
+        calls.append(1)
+        msg = 'stop'
+        raise Cancelled(msg)
+
+    logic.estimator.checkpoint = checkpoint
+    logic.on_tracks(tracks_msg(street, 12))
+    logic.step()
+    logic.on_keyframe(keyframe_msg(street, 12))
+    with pytest.raises(Cancelled):
+        logic.step()
+    assert calls == [1] and not logic.stats.counters['internal_errors']
 
 
 def test_sliding_memory_is_bounded(street: SimSequence) -> None:
