@@ -126,7 +126,8 @@ class PmbaNode:
         # and decides itself whether it goes to TF.
         self.logic = BackendLogic(replace(cfg, publish_tf=True), self.backend)
         self._log_route = LogRoute(node.get_logger())
-        self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size)
+        self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size,
+                                  closing=lambda: not node.context.ok())
         self._started = time.monotonic()
         self._map_to_odom: MapToOdom | None = None
         self._newest_provisional = -1
@@ -300,7 +301,7 @@ class PmbaNode:
 
     def _on_keyframe(self, msg: Any) -> None:
         self.worker.enqueue('keyframe', msg)
-        if not self.logic.paused:
+        if not self.worker.paused:
             self._publish_provisional(msg)
 
     def _publish_provisional(self, msg: Any) -> None:
@@ -337,9 +338,7 @@ class PmbaNode:
         return response
 
     def _on_pause(self, request: Any, response: Any) -> Any:
-        with self.worker.lock:
-            self.logic.set_paused(bool(request.data))
-        self.worker.request_step()   # the diagnostics say so without waiting for input
+        self.worker.stage_pause(bool(request.data))   # not waiting for a solve in progress
         response.success = True
         response.message = 'paused' if request.data else 'resumed'
         return response
@@ -348,6 +347,9 @@ class PmbaNode:
         del request
         try:
             with self.worker.lock:
+                if self.worker.cancelled:   # shutting down: an update may be half-done
+                    msg = 'the node is shutting down'
+                    raise PmbaError(msg)
                 paths = self.logic.save(self.config.save_directory)
         except Exception as err:
             response.success = False
@@ -376,7 +378,8 @@ class PmbaNode:
                 elif topic in self.publishers:
                     self.publishers[topic].publish(msg)
             except Exception as err:
-                self.node.get_logger().error(f'publishing on {topic} failed: {err}')
+                if self.node.context.ok():   # else the process is shutting down
+                    self.node.get_logger().error(f'publishing on {topic} failed: {err}')
 
     def _send_map_to_odom(self, transform: Any) -> None:
         """Remember map -> odom (for the provisional poses) and send it on TF and the topic."""

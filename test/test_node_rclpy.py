@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import logging
 import sys
+import threading
 import time
 import types
 from typing import Any
@@ -337,7 +338,7 @@ def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path:
             future = client.call_async(request)
             assert spin_until(executor, future.done)
             assert future.result().success, future.result().message
-        assert wrapper.logic.paused
+        assert wrapper.worker.paused   # the logic takes it at the worker's next step
         assert (tmp_path / 'pmba_keyframes.tum').exists()
     finally:
         wrapper.close()
@@ -518,6 +519,57 @@ def test_pause_and_reset_show_without_input(
             future.result().message
         wrapper.process_pending()
         assert wrapper.logic.stats.counters['bad_tracks'] == 0
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_pause_and_reset_during_a_solve(ros: tuple[Context, SingleThreadedExecutor],
+                                        seq: SimSequence,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """~/pause answers while the initialization's BA runs; ~/reset abandons it, unpublished.
+
+    The BA here takes a minute unless stopped (it checks in as the solver's iterations do).
+    Both services waited for it, the executor blocked meanwhile (no diagnostics, no
+    provisional poses), and the reset then published the forgotten initialization.
+    """
+    from nav_msgs.msg import Path
+    from pmba_ros.init import pipeline
+    from std_srvs.srv import SetBool, Trigger
+
+    solving, ended = threading.Event(), threading.Event()
+    real_solve = pipeline.solve
+
+    def slow_solve(*args: Any, callback: Any = None, **kwargs: Any) -> Any:
+        solving.set()
+        try:
+            for _ in range(6000):
+                callback(None)
+                time.sleep(0.01)
+        finally:
+            ended.set()
+        return real_solve(*args, callback=callback, **kwargs)
+
+    monkeypatch.setattr(pipeline, 'solve', slow_solve)
+    context, executor = ros
+    wrapper, driver = start(context, executor, init_batch_size=10, deterministic=True,
+                            publish_tf=False)
+    paths: list[Any] = []
+    driver.create_subscription(Path, 'pmba/path', paths.append, RELIABLE)
+    try:
+        feed(executor, driver, seq)
+        assert spin_until(executor, solving.is_set)
+        for srv_type, name, request in ((SetBool, '/pmba_node/pause', SetBool.Request(data=True)),
+                                        (Trigger, '/pmba_node/reset', Trigger.Request())):
+            client = driver.create_client(srv_type, name)
+            assert spin_until(executor, client.service_is_ready)
+            future = client.call_async(request)
+            assert spin_until(executor, future.done, 10.0), name
+            assert future.result().success
+            assert ended.is_set() == (name.endswith('reset'))
+        spin_until(executor, lambda: False, 0.5)
+        assert all(len(p.poses) < 10 for p in paths)   # the initialization's never came
+        assert wrapper.logic.paused and wrapper.logic.state == 'paused'
     finally:
         wrapper.close()
         driver.destroy_node()

@@ -210,6 +210,7 @@ class Node:
         self.logger = Logger()
         self.destroyed = False
         self.graph: dict[str, list[str]] = {}
+        self.context = types.SimpleNamespace(ok=lambda: not self.destroyed)
 
     def declare_parameter(self, name: str, value: Any = None, descriptor: Any = None,
                           ignore_override: bool = False) -> Parameter:
