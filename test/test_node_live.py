@@ -169,7 +169,7 @@ def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
                       lambda: {int(s) for s in stamps_ns} <= listener.stamps('odom'),
                       timeout_s=10.0)
     names = {s.name for a in listener.got['diag'] for s in a.status}
-    assert {'pmba_ros: node', 'pmba_ros: back-end'} <= names
+    assert {'pmba_node: node', 'pmba_node: back-end'} <= names
 
 
 @pytest.mark.slow

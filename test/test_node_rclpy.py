@@ -47,7 +47,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from .ros_helpers import domain_id, isolate, spin_until
+from .ros_helpers import domain_id, isolate, spin_until, transient_local_qos
 
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -144,10 +144,10 @@ def test_outputs_without_tf2(ros: tuple[Context, SingleThreadedExecutor],
         assert (m2o.header.frame_id, m2o.child_frame_id) == ('map', 'odom')
         sent = len(got['m2o'])
         assert spin_until(executor, lambda: len(got['m2o']) >= sent + 4, timeout_s=5.0)
-        node_diag = statuses(got['diag'], 'pmba_ros: node')
+        node_diag = statuses(got['diag'], 'pmba_node: node')
         assert node_diag and 'TF off' in node_diag[-1].message
         assert node_diag[-1].level == node_diag[-1].WARN
-        backend_diag = statuses(got['diag'], 'pmba_ros: back-end')
+        backend_diag = statuses(got['diag'], 'pmba_node: back-end')
         assert {kv.key: kv.value for kv in backend_diag[-1].values}['state'] == 'tracking'
     finally:
         wrapper.close()
@@ -306,8 +306,8 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
     driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
     try:
         assert spin_until(executor, lambda: any(
-            'no input received' in s.message for s in statuses(got, 'pmba_ros: node')), 5.0)
-        status = statuses(got, 'pmba_ros: node')[-1]
+            'no input received' in s.message for s in statuses(got, 'pmba_node: node')), 5.0)
+        status = statuses(got, 'pmba_node: node')[-1]
         assert status.level == status.WARN and 'TF off' not in status.message
         assert wrapper.tf_mode.startswith('disabled') and wrapper._tf_timer is None
         assert wrapper.node.set_parameters([Parameter('publish_tf', value=True)])[0].successful
@@ -317,7 +317,7 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
         got.clear()
         assert spin_until(executor, lambda: any(
             {kv.key: kv.value for kv in s.values}.get('tf', '').startswith('disabled')
-            for s in statuses(got, 'pmba_ros: node')), 3.0)
+            for s in statuses(got, 'pmba_node: node')), 3.0)
     finally:
         wrapper.close()
         driver.destroy_node()
@@ -474,10 +474,10 @@ def test_publishers_the_inputs_cannot_match_are_named(
     def warned() -> bool:
         return any('keyframe_pose is published as geometry_msgs/msg/PoseStamped' in s.message
                    and 'reliability; set features_qos' in s.message
-                   for s in statuses(got, 'pmba_ros: node'))
+                   for s in statuses(got, 'pmba_node: node'))
     try:
         assert spin_until(executor, warned, 10.0)
-        status = next(s for s in statuses(got, 'pmba_ros: node') if 'PoseStamped' in s.message)
+        status = next(s for s in statuses(got, 'pmba_node: node') if 'PoseStamped' in s.message)
         assert status.level == status.WARN
     finally:
         front_end.destroy_node()
@@ -508,7 +508,7 @@ def test_pause_and_reset_show_without_input(
         assert spin_until(executor, future.done) and future.result().success
         wrapper.process_pending()
         assert spin_until(executor, lambda: any(
-            s.message == 'paused' for s in statuses(got, 'pmba_ros: back-end')), 5.0)
+            s.message == 'paused' for s in statuses(got, 'pmba_node: back-end')), 5.0)
         for _ in range(3):
             wrapper.worker.enqueue('tracks', object())
         reset = driver.create_client(Trigger, '/pmba_node/reset')
@@ -573,3 +573,63 @@ def test_pause_and_reset_during_a_solve(ros: tuple[Context, SingleThreadedExecut
     finally:
         wrapper.close()
         driver.destroy_node()
+
+
+def test_two_nodes_in_one_process_log_and_report_as_themselves(
+        ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """Two PmbaNodes in one process (a component container): each one's lines are its own.
+
+    The package logger is one per process: every node's back-end warning came out of both
+    nodes' loggers, and both published their statuses under the same names.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.msg import Log
+    from sensor_msgs.msg import CameraInfo
+    from std_srvs.srv import Trigger
+
+    context, executor = ros
+    latched = [Parameter('camera_info_qos', value='transient_local')]   # none lost at match
+    nodes = [PmbaNode(rclpy.create_node('pmba_a', context=context,
+                                        parameter_overrides=latched)),
+             PmbaNode(rclpy.create_node('pmba_node', namespace='robot2', context=context,
+                                        parameter_overrides=latched))]
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    for node in (*[n.node for n in nodes], driver):
+        executor.add_node(node)
+    lines: list[Any] = []
+    diagnostics: list[Any] = []
+    driver.create_subscription(Log, '/rosout', lines.append, QoSProfile(
+        depth=100, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    driver.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, RELIABLE)
+    pubs = [driver.create_publisher(CameraInfo, topic, transient_local_qos(10))
+            for topic in ('/camera_info', '/robot2/camera_info')]
+    try:
+        assert spin_until(executor, lambda: all(p.get_subscription_count() for p in pubs))
+        for pub, fx in zip(pubs, (-1.0, -2.0), strict=True):   # refused with a warning
+            info = CameraInfo()
+            info.k[0] = fx
+            pub.publish(info)
+        reset = driver.create_client(Trigger, '/robot2/pmba_node/reset')
+        assert spin_until(executor, reset.service_is_ready)
+        future = reset.call_async(Trigger.Request())
+        assert spin_until(executor, future.done)
+
+        def said(text: str) -> list[str]:
+            return [m.name for m in lines if text in m.msg]
+        assert spin_until(executor, lambda: bool(said('got [-1.0') and said('got [-2.0')
+                                                 and said('back-end reset')), 10.0)
+        spin_until(executor, lambda: False, 0.3)   # a line under the other name would be here
+        assert said('got [-1.0') == ['pmba_a']
+        assert said('got [-2.0') == ['robot2.pmba_node']
+        assert said('back-end reset') == ['robot2.pmba_node']
+        names = {s.name for a in diagnostics for s in a.status}
+        assert {'pmba_a: back-end', 'pmba_a: node', 'robot2/pmba_node: back-end',
+                'robot2/pmba_node: node'} <= names
+        nodes.pop().close()
+        assert not logging.getLogger('pmba_ros').propagate   # pmba_a still routes its lines
+    finally:
+        for wrapper in nodes:
+            wrapper.close()
+        driver.destroy_node()
+    assert logging.getLogger('pmba_ros').propagate

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
+import contextvars
 from dataclasses import replace
 import logging
 import queue
@@ -82,8 +83,13 @@ class LogicWorker:
         """``time.monotonic()`` of the newest front-end input (-1: none yet; TF excluded)."""
 
     def start(self) -> None:
-        """Start the solver thread (a daemon: a solve in progress ends with the process)."""
-        self._thread = threading.Thread(target=self._run, name='pmba_solver', daemon=True)
+        """Start the solver thread (a daemon: a solve in progress ends with the process).
+
+        It runs in a copy of the caller's context (``contextvars``): the node's log route
+        holds there.
+        """
+        self._thread = threading.Thread(target=contextvars.copy_context().run,
+                                        args=(self._run,), name='pmba_solver', daemon=True)
         self._thread.start()
 
     def enqueue(self, kind: str, msg: Any) -> None:
