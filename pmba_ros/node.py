@@ -348,8 +348,8 @@ class PmbaNode:
         del request
         try:
             with self.worker.lock:
-                if self.worker.cancelled:   # shutting down: an update may be half-done
-                    msg = 'the node is shutting down'
+                if self.worker.cancelled:   # an update abandoned half-way: nothing to save
+                    msg = 'the back-end is being reset or the node shut down'
                     raise PmbaError(msg)
                 paths = self.logic.save(self.config.save_directory)
         except Exception as err:
