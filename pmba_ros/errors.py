@@ -11,7 +11,10 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Exception types of pmba_ros; every error the package raises derives from PmbaError."""
+"""Exception types of pmba_ros; every error the package raises derives from PmbaError.
+
+:class:`Cancelled` is no error: a computation stopped on request.
+"""
 
 from __future__ import annotations
 
@@ -50,3 +53,13 @@ class BagError(PmbaError):
 
 class EvaluationError(PmbaError, ValueError):
     """Trajectories cannot be compared (no overlap, too few poses, bad format)."""
+
+
+class Cancelled(BaseException):
+    """A computation stopped on request: the node's solver thread at shutdown or ``~/reset``.
+
+    Raised between solver iterations and initialization stages; the estimate it interrupts is
+    left half-updated, so it is only raised where that state is dropped next. A BaseException,
+    as :class:`asyncio.CancelledError` is: the back-end's ``except Exception`` guards, which
+    count a failed update and go on, must let it through.
+    """

@@ -36,7 +36,6 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, fields, replace
 import importlib
-import logging
 import sys
 import time
 from typing import Any
@@ -59,12 +58,8 @@ from pmba_ros.core import warmup
 from pmba_ros.errors import MessageError, PmbaError
 from pmba_ros.io.playback import ACK_TIMEOUT_S, CLOCK_PERIOD_S, MATCH_SETTLE_S, paced, wait_until
 
-logger = logging.getLogger(__name__)
-
 MAP_TO_ODOM_TOPIC = 'pmba/map_to_odom'
 """geometry_msgs/TransformStamped copy of every map -> odom sent (for users without tf2)."""
-
-NODE_DIAGNOSTICS_NAME = 'pmba_ros: node'
 
 _DIAGNOSTICS_PERIOD_S = 1.0
 
@@ -126,12 +121,16 @@ class PmbaNode:
         # and decides itself whether it goes to TF.
         self.logic = BackendLogic(replace(cfg, publish_tf=True), self.backend)
         self._log_route = LogRoute(node.get_logger())
-        self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size)
+        self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size,
+                                  closing=lambda: not node.context.ok())
         self._started = time.monotonic()
         self._map_to_odom: MapToOdom | None = None
         self._newest_provisional = -1
         self._backend_status: list[Any] = []
         self._sent = Counter[str]()
+        # Status names 'NODE: back-end' and 'NODE: node' (diagnostic_updater's 'node: task'),
+        # namespace included: two nodes' statuses must not take each other's place.
+        self.diagnostics_prefix = node.get_fully_qualified_name().lstrip('/')
 
         overrides = QoSOverridingOptions.with_default_policies()
         pub_qos = QoSProfile(depth=cfg.qos_depth, reliability=ReliabilityPolicy.RELIABLE,
@@ -166,9 +165,10 @@ class PmbaNode:
         self.tf_mode = self._make_tf()
         trigger = _msg_type('std_srvs/srv/Trigger')
         self.services = [
-            node.create_service(trigger, '~/reset', self._on_reset),
-            node.create_service(_msg_type('std_srvs/srv/SetBool'), '~/pause', self._on_pause),
-            node.create_service(trigger, '~/save', self._on_save),
+            node.create_service(trigger, '~/reset', self._log_route.routed(self._on_reset)),
+            node.create_service(_msg_type('std_srvs/srv/SetBool'), '~/pause',
+                                self._log_route.routed(self._on_pause)),
+            node.create_service(trigger, '~/save', self._log_route.routed(self._on_save)),
         ]
         node.add_on_set_parameters_callback(self._check_parameters)
         node.add_post_set_parameters_callback(self._apply_parameters)
@@ -176,7 +176,8 @@ class PmbaNode:
         self._reset_tf_timer()
         self._diag_timer = node.create_timer(_DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         if start_worker:
-            self.worker.start()
+            with self._log_route.active():   # the thread logs under this node's name
+                self.worker.start()
         node.get_logger().info(
             f'pmba_node: mode {cfg.mode}, window {cfg.window_size}, layout '
             f'{cfg.feature_layout}, tracks on {cfg.features_topic!r}, keyframes on '
@@ -255,7 +256,8 @@ class PmbaNode:
             self.tf_mode = self._make_tf()
         if (old.tf_rate_hz, old.publish_tf) != (self.config.tf_rate_hz, self.config.publish_tf):
             self._reset_tf_timer()
-        logger.info('parameters set: %s', ', '.join(f'{k}={v!r}' for k, v in changes.items()))
+        self.node.get_logger().info(
+            'parameters set: ' + ', '.join(f'{k}={v!r}' for k, v in changes.items()))
 
     def _reset_tf_timer(self) -> None:
         if self._tf_timer is not None:
@@ -300,7 +302,7 @@ class PmbaNode:
 
     def _on_keyframe(self, msg: Any) -> None:
         self.worker.enqueue('keyframe', msg)
-        if not self.logic.paused:
+        if not self.worker.paused:
             self._publish_provisional(msg)
 
     def _publish_provisional(self, msg: Any) -> None:
@@ -337,9 +339,7 @@ class PmbaNode:
         return response
 
     def _on_pause(self, request: Any, response: Any) -> Any:
-        with self.worker.lock:
-            self.logic.set_paused(bool(request.data))
-        self.worker.request_step()   # the diagnostics say so without waiting for input
+        self.worker.stage_pause(bool(request.data))   # not waiting for a solve in progress
         response.success = True
         response.message = 'paused' if request.data else 'resumed'
         return response
@@ -348,6 +348,9 @@ class PmbaNode:
         del request
         try:
             with self.worker.lock:
+                if self.worker.cancelled:   # an update abandoned half-way: nothing to save
+                    msg = 'the back-end is being reset or the node shut down'
+                    raise PmbaError(msg)
                 paths = self.logic.save(self.config.save_directory)
         except Exception as err:
             response.success = False
@@ -371,12 +374,15 @@ class PmbaNode:
                     for transform in msg.transforms:
                         self._send_map_to_odom(transform)
                 elif topic == DIAGNOSTICS_TOPIC:
+                    for status in msg.status:
+                        status.name = f'{self.diagnostics_prefix}: back-end'
                     self._backend_status = list(msg.status)
                     self.publish_diagnostics()
                 elif topic in self.publishers:
                     self.publishers[topic].publish(msg)
             except Exception as err:
-                self.node.get_logger().error(f'publishing on {topic} failed: {err}')
+                if self.node.context.ok():   # else the process is shutting down
+                    self.node.get_logger().error(f'publishing on {topic} failed: {err}')
 
     def _send_map_to_odom(self, transform: Any) -> None:
         """Remember map -> odom (for the provisional poses) and send it on TF and the topic."""
@@ -427,7 +433,8 @@ class PmbaNode:
             'provisional_odometry': self._sent['provisional_odometry'],
             'map_to_odom_sent': self._sent['map_to_odom'], **received_values(received)}
         array = out.make_diagnostics(self.node.get_clock().now().nanoseconds,
-                                     NODE_DIAGNOSTICS_NAME, level, message, values, self.backend)
+                                     f'{self.diagnostics_prefix}: node', level, message, values,
+                                     self.backend)
         return array.status[0]
 
     def publish_diagnostics(self) -> None:

@@ -61,14 +61,33 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def start_node(domain: int, log: Path, *ros_args: str) -> subprocess.Popen[str]:
+# pmba_node whose initialization BA takes a minute unless stopped: it checks in with the
+# node's worker as the solver's iterations do.
+SLOW_INIT_NODE = """
+import sys, time
+from pmba_ros.init import pipeline
+real_solve = pipeline.solve
+def slow_solve(*args, callback=None, **kwargs):
+    print('slow solve started', flush=True)
+    for _ in range(6000):
+        callback(None)
+        time.sleep(0.01)
+    return real_solve(*args, callback=callback, **kwargs)
+pipeline.solve = slow_solve
+from pmba_ros.node import main
+main(sys.argv[1:])
+"""
+
+
+def start_node(domain: int, log: Path, *ros_args: str,
+               program: tuple[str, str] = ('-m', 'pmba_ros.node')) -> subprocess.Popen[str]:
     """Start pmba_node with the params file and ``ros_args`` on ``domain``, logging to ``log``.
 
     A file, not a pipe: a pipe nobody reads while the node runs blocks it once full.
     """
     with log.open('w', encoding='utf-8') as out_file:
         return subprocess.Popen(
-            [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file',
+            [sys.executable, *program, '--ros-args', '--params-file',
              str(PARAMS), '-p', 'init_batch_size:=10', *ros_args],
             env=isolated_env(domain), stdout=out_file, stderr=subprocess.STDOUT, text=True,
             preexec_fn=_default_sigint)
@@ -150,7 +169,7 @@ def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
                       lambda: {int(s) for s in stamps_ns} <= listener.stamps('odom'),
                       timeout_s=10.0)
     names = {s.name for a in listener.got['diag'] for s in a.status}
-    assert {'pmba_ros: node', 'pmba_ros: back-end'} <= names
+    assert {'pmba_node: node', 'pmba_node: back-end'} <= names
 
 
 @pytest.mark.slow
@@ -233,6 +252,57 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         seconds, stderr = stop(node, signal.SIGTERM, log)
         assert node.returncode == 0, stderr
         assert seconds < 2.0
+    finally:
+        if node.poll() is None:
+            node.kill()
+            node.wait()
+
+
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT], ids=['SIGTERM', 'SIGINT'])
+def test_a_signal_during_a_long_solve_ends_it(listener: Listener, tmp_path: Path,
+                                              sig: int) -> None:
+    """A signal while the initialization's BA runs, a ~/save waiting for it: exit 0 at once.
+
+    The BA is abandoned, not finished (it would take a minute), nothing of it is published,
+    the save is refused (an abandoned update leaves a half-updated state) and no error or
+    traceback is printed. SIGTERM used to wait for the BA: the executor sat in the save,
+    and rclpy's SIGTERM handler only shuts the context down.
+    """
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, PointCloud
+    from std_srvs.srv import Trigger
+
+    domain = listener.domain  # type: ignore[attr-defined]
+    log = tmp_path / 'node.log'
+    saved = tmp_path / 'saved'
+    node = start_node(domain, log, *LATCHED_INPUTS, '-p', f'save_directory:={saved}',
+                      program=('-c', SLOW_INIT_NODE))
+    seq = simulate_sequence('street', n_keyframes=12, seed=4)
+    backend = RclpyBackend()
+    driver = listener.node
+    pubs = (driver.create_publisher(PointCloud, '/features', LATCHED),
+            driver.create_publisher(Odometry, '/keyframe_pose', LATCHED),
+            driver.create_publisher(CameraInfo, '/camera_info', LATCHED))
+    try:
+        wait_until_up(listener, node, log)
+        pubs[2].publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+        for i in range(len(seq)):
+            pubs[0].publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
+            pubs[1].publish(out.make_odometry(
+                int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
+                so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
+        assert spin_until(listener.executor, lambda: 'slow solve started' in log.read_text(
+            encoding='utf-8'), timeout_s=60.0), log.read_text(encoding='utf-8')
+        client = driver.create_client(Trigger, '/pmba_node/save')
+        assert spin_until(listener.executor, client.service_is_ready, 10.0)
+        client.call_async(Trigger.Request())
+        spin_until(listener.executor, lambda: False, 0.5)   # the save waits for the BA
+        _, text = stop(node, sig, log)
+        assert node.returncode == 0, text
+        spin_until(listener.executor, lambda: False, 0.5)
+        assert all(len(p.poses) < 10 for p in listener.got['path']), 'the BA was published'
+        assert not saved.exists()
+        assert 'Traceback' not in text and 'failed' not in text.lower(), text
     finally:
         if node.poll() is None:
             node.kill()

@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import logging
 import sys
+import threading
 import time
 import types
 from typing import Any
@@ -46,7 +47,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from .ros_helpers import domain_id, isolate, spin_until
+from .ros_helpers import domain_id, isolate, spin_until, transient_local_qos
 
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -143,10 +144,10 @@ def test_outputs_without_tf2(ros: tuple[Context, SingleThreadedExecutor],
         assert (m2o.header.frame_id, m2o.child_frame_id) == ('map', 'odom')
         sent = len(got['m2o'])
         assert spin_until(executor, lambda: len(got['m2o']) >= sent + 4, timeout_s=5.0)
-        node_diag = statuses(got['diag'], 'pmba_ros: node')
+        node_diag = statuses(got['diag'], 'pmba_node: node')
         assert node_diag and 'TF off' in node_diag[-1].message
         assert node_diag[-1].level == node_diag[-1].WARN
-        backend_diag = statuses(got['diag'], 'pmba_ros: back-end')
+        backend_diag = statuses(got['diag'], 'pmba_node: back-end')
         assert {kv.key: kv.value for kv in backend_diag[-1].values}['state'] == 'tracking'
     finally:
         wrapper.close()
@@ -268,15 +269,21 @@ def test_qos_per_input_and_overrides(ros: tuple[Context, SingleThreadedExecutor]
         driver.destroy_node()
 
 
-def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor],
-                                        request: pytest.FixtureRequest) -> None:
+@pytest.fixture
+def backend_logging() -> Iterator[None]:
+    """Let the back-end log: `pmba replay` (run in-process by the CLI tests) quiets it."""
+    backend_logger = logging.getLogger('pmba_ros.backend')
+    level = backend_logger.level
+    backend_logger.setLevel(logging.NOTSET)
+    yield
+    backend_logger.setLevel(level)
+
+
+@pytest.mark.usefixtures('backend_logging')
+def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor]) -> None:
     """Back-end ``logging`` records come out of the node's logger on /rosout."""
     from rcl_interfaces.msg import Log
 
-    # `pmba replay` (run in-process by the CLI tests) quiets pmba_ros.backend in its process.
-    backend_logger = logging.getLogger('pmba_ros.backend')
-    request.addfinalizer(lambda level=backend_logger.level: backend_logger.setLevel(level))
-    backend_logger.setLevel(logging.NOTSET)
     context, executor = ros
     wrapper, driver = start(context, executor)
     got: list[Any] = []
@@ -305,8 +312,8 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
     driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
     try:
         assert spin_until(executor, lambda: any(
-            'no input received' in s.message for s in statuses(got, 'pmba_ros: node')), 5.0)
-        status = statuses(got, 'pmba_ros: node')[-1]
+            'no input received' in s.message for s in statuses(got, 'pmba_node: node')), 5.0)
+        status = statuses(got, 'pmba_node: node')[-1]
         assert status.level == status.WARN and 'TF off' not in status.message
         assert wrapper.tf_mode.startswith('disabled') and wrapper._tf_timer is None
         assert wrapper.node.set_parameters([Parameter('publish_tf', value=True)])[0].successful
@@ -316,7 +323,7 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
         got.clear()
         assert spin_until(executor, lambda: any(
             {kv.key: kv.value for kv in s.values}.get('tf', '').startswith('disabled')
-            for s in statuses(got, 'pmba_ros: node')), 3.0)
+            for s in statuses(got, 'pmba_node: node')), 3.0)
     finally:
         wrapper.close()
         driver.destroy_node()
@@ -337,7 +344,7 @@ def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path:
             future = client.call_async(request)
             assert spin_until(executor, future.done)
             assert future.result().success, future.result().message
-        assert wrapper.logic.paused
+        assert wrapper.worker.paused   # the logic takes it at the worker's next step
         assert (tmp_path / 'pmba_keyframes.tum').exists()
     finally:
         wrapper.close()
@@ -473,10 +480,10 @@ def test_publishers_the_inputs_cannot_match_are_named(
     def warned() -> bool:
         return any('keyframe_pose is published as geometry_msgs/msg/PoseStamped' in s.message
                    and 'reliability; set features_qos' in s.message
-                   for s in statuses(got, 'pmba_ros: node'))
+                   for s in statuses(got, 'pmba_node: node'))
     try:
         assert spin_until(executor, warned, 10.0)
-        status = next(s for s in statuses(got, 'pmba_ros: node') if 'PoseStamped' in s.message)
+        status = next(s for s in statuses(got, 'pmba_node: node') if 'PoseStamped' in s.message)
         assert status.level == status.WARN
     finally:
         front_end.destroy_node()
@@ -507,7 +514,7 @@ def test_pause_and_reset_show_without_input(
         assert spin_until(executor, future.done) and future.result().success
         wrapper.process_pending()
         assert spin_until(executor, lambda: any(
-            s.message == 'paused' for s in statuses(got, 'pmba_ros: back-end')), 5.0)
+            s.message == 'paused' for s in statuses(got, 'pmba_node: back-end')), 5.0)
         for _ in range(3):
             wrapper.worker.enqueue('tracks', object())
         reset = driver.create_client(Trigger, '/pmba_node/reset')
@@ -521,3 +528,115 @@ def test_pause_and_reset_show_without_input(
     finally:
         wrapper.close()
         driver.destroy_node()
+
+
+def test_pause_and_reset_during_a_solve(ros: tuple[Context, SingleThreadedExecutor],
+                                        seq: SimSequence,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """~/pause answers while the initialization's BA runs; ~/reset abandons it, unpublished.
+
+    The BA here takes a minute unless stopped (it checks in as the solver's iterations do).
+    Both services waited for it, the executor blocked meanwhile (no diagnostics, no
+    provisional poses), and the reset then published the forgotten initialization.
+    """
+    from nav_msgs.msg import Path
+    from pmba_ros.init import pipeline
+    from std_srvs.srv import SetBool, Trigger
+
+    solving, ended = threading.Event(), threading.Event()
+    real_solve = pipeline.solve
+
+    def slow_solve(*args: Any, callback: Any = None, **kwargs: Any) -> Any:
+        solving.set()
+        try:
+            for _ in range(6000):
+                callback(None)
+                time.sleep(0.01)
+        finally:
+            ended.set()
+        return real_solve(*args, callback=callback, **kwargs)
+
+    monkeypatch.setattr(pipeline, 'solve', slow_solve)
+    context, executor = ros
+    wrapper, driver = start(context, executor, init_batch_size=10, deterministic=True,
+                            publish_tf=False)
+    paths: list[Any] = []
+    driver.create_subscription(Path, 'pmba/path', paths.append, RELIABLE)
+    try:
+        feed(executor, driver, seq)
+        assert spin_until(executor, solving.is_set)
+        for srv_type, name, request in ((SetBool, '/pmba_node/pause', SetBool.Request(data=True)),
+                                        (Trigger, '/pmba_node/reset', Trigger.Request())):
+            client = driver.create_client(srv_type, name)
+            assert spin_until(executor, client.service_is_ready)
+            future = client.call_async(request)
+            assert spin_until(executor, future.done, 10.0), name
+            assert future.result().success
+            assert ended.is_set() == (name.endswith('reset'))
+        spin_until(executor, lambda: False, 0.5)
+        assert all(len(p.poses) < 10 for p in paths)   # the initialization's never came
+        assert wrapper.logic.paused and wrapper.logic.state == 'paused'
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+@pytest.mark.usefixtures('backend_logging')
+def test_two_nodes_in_one_process_log_and_report_as_themselves(
+        ros: tuple[Context, SingleThreadedExecutor]) -> None:
+    """Two PmbaNodes in one process (a component container): each one's lines are its own.
+
+    The package logger is one per process: every node's back-end warning came out of both
+    nodes' loggers, and both published their statuses under the same names.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.msg import Log
+    from sensor_msgs.msg import CameraInfo
+    from std_srvs.srv import Trigger
+
+    context, executor = ros
+    latched = [Parameter('camera_info_qos', value='transient_local')]   # none lost at match
+    nodes = [PmbaNode(rclpy.create_node('pmba_a', context=context,
+                                        parameter_overrides=latched)),
+             PmbaNode(rclpy.create_node('pmba_node', namespace='robot2', context=context,
+                                        parameter_overrides=latched))]
+    driver = rclpy.create_node('pmba_test_driver', context=context)
+    for node in (*[n.node for n in nodes], driver):
+        executor.add_node(node)
+    lines: list[Any] = []
+    diagnostics: list[Any] = []
+    driver.create_subscription(Log, '/rosout', lines.append, QoSProfile(
+        depth=100, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    driver.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, RELIABLE)
+    pubs = [driver.create_publisher(CameraInfo, topic, transient_local_qos(10))
+            for topic in ('/camera_info', '/robot2/camera_info')]
+    try:
+        assert spin_until(executor, lambda: all(p.get_subscription_count() for p in pubs))
+        for pub, fx in zip(pubs, (-1.0, -2.0), strict=True):   # refused with a warning
+            info = CameraInfo()
+            info.k[0] = fx
+            pub.publish(info)
+
+        def said(text: str) -> list[str]:
+            return [m.name for m in lines if text in m.msg]
+        assert spin_until(executor, lambda: bool(said('got [-1.0') and said('got [-2.0')), 10.0)
+        reset = driver.create_client(Trigger, '/robot2/pmba_node/reset')   # on the executor
+        assert spin_until(executor, reset.service_is_ready)
+        future = reset.call_async(Trigger.Request())
+        assert spin_until(executor, future.done)
+        assert spin_until(executor, lambda: bool(said('back-end reset')), 10.0)
+        spin_until(executor, lambda: False, 0.3)   # a line under the other name would be here
+        assert said('got [-1.0') == ['pmba_a']
+        assert said('got [-2.0') == ['robot2.pmba_node']
+        assert said('back-end reset') == ['robot2.pmba_node']
+        names = {s.name for a in diagnostics for s in a.status}
+        assert {'pmba_a: back-end', 'pmba_a: node', 'robot2/pmba_node: back-end',
+                'robot2/pmba_node: node'} <= names
+        nodes.pop().close()
+        assert not logging.getLogger('pmba_ros').propagate   # pmba_a still routes its lines
+    finally:
+        for wrapper in nodes:
+            wrapper.close()
+        driver.destroy_node()
+    assert logging.getLogger('pmba_ros').propagate

@@ -107,6 +107,7 @@ class FrontendCameras:
         """Start with no camera known."""
         self.config = config
         self.tf_tree = TransformTree()
+        self.reference: CameraModel | None = None
         self.reference_frame = ''
         self.others: dict[int, CameraModel] = {}
         self.other_frames: dict[int, str] = {}
@@ -122,17 +123,27 @@ class FrontendCameras:
         self.rig: dict[int, tuple[Rigid, str]] = {}
         self.unconfigured_warned: set[int] = set()
 
-    def set_other(self, camera_id: int, camera: CameraModel, frame_id: str) -> str:
-        """Keep the intrinsics and frame of a camera other than the reference one.
+    def take_intrinsics(self, camera_id: int, camera: CameraModel,
+                        frame_id: str) -> tuple[str, CameraModel | None]:
+        """Keep a camera's newest intrinsics and frame (of the reference one: :attr:`reference`).
+
+        The newest replaces what a camera had: a relaunched front-end's calibration or
+        resolution, or a second driver on the topic (then they alternate). Tracks in pixels
+        are normalized with the intrinsics of when they are used, the stored observations
+        are bearings and stay.
 
         Returns:
-            Why the camera id is refused ('' if it was taken).
+            Why the camera id is refused ('' if it was taken) and the camera's previous
+            intrinsics (None: its first).
         """
+        if camera_id == self.config.camera_id:
+            old, self.reference, self.reference_frame = self.reference, camera, frame_id
+            return '', old
         if not 0 <= camera_id < self.config.num_cams:
-            return f'camera id {camera_id} is not in [0, num_cams={self.config.num_cams})'
-        self.others[camera_id] = camera
+            return f'camera id {camera_id} is not in [0, num_cams={self.config.num_cams})', None
+        old, self.others[camera_id] = self.others.get(camera_id), camera
         self.other_frames[camera_id] = frame_id
-        return ''
+        return '', old
 
     def resolve_extrinsic(self, body: str, camera_frame: str) -> tuple[Rigid | None, str]:
         """Find and fix the reference camera's body -> camera extrinsic.

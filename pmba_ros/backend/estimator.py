@@ -44,6 +44,7 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import contextlib
 import importlib
 import logging
@@ -97,8 +98,6 @@ from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
 
-STATES = ('collecting', 'waiting_for_parallax', 'tracking')
-
 
 def import_initialization() -> None:
     """Import the initialization (and OpenCV, an extra) before input rather than at first use."""
@@ -114,6 +113,8 @@ class Estimator:
         self.config = config
         self.fx = self.fy = config.fallback_focal_px
         self.cx = self.cy = 0.0
+        # Between solver iterations and initialization stages; may raise Cancelled (worker).
+        self.checkpoint: Callable[[], None] = lambda: None
         self.reset()
 
     def reset(self) -> None:
@@ -299,7 +300,8 @@ class Estimator:
             import cv2
 
             cv2.setRNGSeed(cfg.seed)
-            result = global_init(problem, opts)
+            result = global_init(problem, opts, progress=lambda *_: self.checkpoint(),
+                                 callback=lambda _: self.checkpoint())
             used = batch[result.camera_index]
             R, C, sim, worst = in_odom_frame(self.kf, used, result.solve.R_wc,
                                              result.solve.centers_w, cfg.fallback_max_motion_error)
@@ -454,7 +456,8 @@ class Estimator:
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
                                    prior_leverage=sampled)
             prior = self._motion_prior(cams, fixed, step)
-            res = solve(problem, options, feats, pose_prior=prior)
+            res = solve(problem, options, feats, pose_prior=prior,
+                        callback=lambda _: self.checkpoint())
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)

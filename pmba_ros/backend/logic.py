@@ -123,6 +123,9 @@ class BackendLogic:
     def on_camera_info(self, msg: Any, camera_id: int | None = None) -> None:
         """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted).
 
+        Changed intrinsics replace a camera's (:meth:`FrontendCameras.take_intrinsics`); the
+        first change is a warning, each is counted as ``camera_info_changes``.
+
         Args:
             msg: The message.
             camera_id: Front-end camera id it describes (``camera_info_topics`` order);
@@ -133,27 +136,22 @@ class BackendLogic:
         except Exception as err:
             self._reject('bad_camera_info', err)
             return
-        if camera_id is not None and camera_id != self.config.camera_id:
-            self._set_other_camera_info(int(camera_id), camera, msg)
-            return
-        if self.camera is None:
-            logger.info('camera info: %s fx=%.1f fy=%.1f', camera.distortion_model, camera.fx,
-                        camera.fy)
-            self._diag_dirty = True
-        self.camera = camera
-        self.cameras.reference_frame = frame_id_of(msg)
-        self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
-
-    def _set_other_camera_info(self, camera_id: int, camera: CameraModel, msg: Any) -> None:
-        """Keep the intrinsics and frame of a camera other than the reference one."""
-        new = camera_id not in self.cameras.others
-        refused = self.cameras.set_other(camera_id, camera, frame_id_of(msg))
+        cam = self.config.camera_id if camera_id is None else int(camera_id)
+        refused, old = self.cameras.take_intrinsics(cam, camera, frame_id_of(msg))
         if refused:
             self._reject('bad_camera_info', refused)
-        elif new:
-            logger.info('camera info of camera %d: fx=%.1f fy=%.1f', camera_id, camera.fx,
-                        camera.fy)
+            return
+        if old is None:
+            logger.info('camera info of camera %d: %s', cam, camera.describe())
             self._diag_dirty = True
+        elif change := camera.change_from(old):   # warned once, counted always
+            self.count('camera_info_changes')
+            if self._stats.counters['camera_info_changes'] == 1:
+                logger.warning('camera info of camera %d changed: %s; the newest is used '
+                               '(further changes are only counted)', cam, change)
+        if cam == self.config.camera_id:
+            self.camera = camera
+            self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
 
     def on_tf(self, msg: Any) -> None:
         """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).

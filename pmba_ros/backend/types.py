@@ -266,6 +266,20 @@ class CameraModel:
         object.__setattr__(self, 'width', int(self.width))
         object.__setattr__(self, 'height', int(self.height))
 
+    def describe(self) -> str:
+        """Return the model in one line: size, distortion model, intrinsics, coefficients."""
+        coefficients = ' '.join(f'{v:.6g}' for v in self.d)
+        return (f'{self.width}x{self.height} {self.distortion_model} fx={self.fx:.6g} '
+                f'fy={self.fy:.6g} cx={self.cx:.6g} cy={self.cy:.6g}'
+                + (f' d=[{coefficients}]' if coefficients else ''))
+
+    def change_from(self, old: CameraModel) -> str:
+        """Return ``'OLD -> NEW'`` (:meth:`describe`) if ``old`` differs, else ''."""
+        if old is self:   # the same CameraInfo again (from_camera_info keeps its models)
+            return ''
+        before, after = old.describe(), self.describe()
+        return '' if before == after else f'{before} -> {after}'
+
     @property
     def k(self) -> FloatArray:
         """Return the 3x3 calibration matrix K (row-major, no skew)."""

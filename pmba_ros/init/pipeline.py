@@ -69,7 +69,7 @@ from pmba_ros.core.problem import (
     ParallaxFeatures,
     subset_features,
 )
-from pmba_ros.core.solve import solve
+from pmba_ros.core.solve import IterationRecord, solve
 from pmba_ros.errors import InitError
 from pmba_ros.init import (
     anchors,
@@ -406,13 +406,16 @@ def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
 
 
 def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
-                progress: ProgressCallback | None = None) -> InitResult:
+                progress: ProgressCallback | None = None,
+                callback: Callable[[IterationRecord], None] | None = None) -> InitResult:
     """Initialize and solve a PMBA problem from its feature tracks alone, with one BA.
 
     Args:
         problem: Observations (tracks) and intrinsics; its poses and points are ignored.
         options: Stage options.
         progress: Optional callback ``progress(stage, entries)`` after every stage.
+        callback: Optional callback of the BA's iterations (see :func:`~pmba_ros.core.
+            solve.solve`).
 
     Returns:
         The solved sub-problem of the largest view-graph component, with the per-stage report.
@@ -527,7 +530,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     low |= _behind_an_observer(init_problem, feats)
     feats = ParallaxFeatures(np.where(low, 0.0, feats.theta), feats.n, feats.main_idx,
                              feats.assoc_idx)
-    result = solve(init_problem, options.solve_options, feats)
+    result = solve(init_problem, options.solve_options, feats, callback=callback)
     st.done('ba', {'anchors_swapped_before_ba': report_swaps,
                    'features_started_at_infinity': int(np.sum(low)),
                    'initial_cost': result.initial_cost, 'final_cost': result.final_cost,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 import dataclasses
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +31,7 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
 from pmba_ros.backend.msg_backend import MsgBackend, RosbagsBackend
-from pmba_ros.backend.types import TrackFrame
+from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.backend.window import (
     gather_observations,
     KeyframeObs,
@@ -39,6 +40,7 @@ from pmba_ros.backend.window import (
     select_fixed,
 )
 from pmba_ros.core import so3
+from pmba_ros.errors import Cancelled
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.ply import read_ply
@@ -539,6 +541,64 @@ def test_bad_camera_info_and_bad_keyframes(street: SimSequence) -> None:
     assert logic.camera is None
 
 
+def _run_with_camera(seq: SimSequence, layout: str, cameras: list[CameraModel],
+                     pixel_scales: list[float]) -> BackendLogic:
+    """Run ``seq`` with keyframe i's CameraInfo ``cameras[i]``, its pixels times a scale.
+
+    ``per_point`` tracks carry pixels only (OpenVINS): the intrinsics normalize them.
+    """
+    logic = BackendLogic(config(init_batch_size=10, feature_layout=layout), BACKEND)
+    for i in range(len(seq)):
+        frame = dataclasses.replace(seq.frames[i], pixels=seq.frames[i].pixels * pixel_scales[i])
+        if layout == 'per_point':
+            frame = dataclasses.replace(frame, normalized=None)
+        logic.on_camera_info(make_camera_info(int(seq.stamps_ns[i]), 'camera', cameras[i],
+                                              BACKEND))
+        logic.on_tracks(tracks_msg(seq, i, layout, frame=frame))
+        logic.on_keyframe(keyframe_msg(seq, i))
+        logic.step()
+    return logic
+
+
+@pytest.mark.parametrize('layout', ['vins_fusion', 'per_point'])
+def test_a_front_end_relaunched_at_another_resolution(layout: str,
+                                                      caplog: pytest.LogCaptureFixture) -> None:
+    """Halfway the images double (CameraInfo and pixels): the new intrinsics are used.
+
+    One warning names the old and the new ones, the change is counted, and the estimate is
+    as good as without it: the stored observations are bearings, the new pixels are
+    normalized with the new intrinsics.
+    """
+    seq = simulate_sequence('street', n_keyframes=40, seed=1)
+    cam = seq.camera
+    big = dataclasses.replace(cam, fx=2 * cam.fx, fy=2 * cam.fy, cx=2 * cam.cx, cy=2 * cam.cy,
+                              width=2 * cam.width, height=2 * cam.height)
+    n = len(seq)
+    plain = _run_with_camera(seq, layout, [cam] * n, [1.0] * n)
+    with caplog.at_level(logging.WARNING, logger='pmba_ros.backend.logic'):
+        changed = _run_with_camera(seq, layout, [cam] * 20 + [big] * 20, [1.0] * 20 + [2.0] * 20)
+    warnings = [r.getMessage() for r in caplog.records if 'camera info' in r.getMessage()]
+    assert len(warnings) == 1 and 'fx=400 ' in warnings[0] and '1280x960' in warnings[0]
+    assert changed.stats.counters['camera_info_changes'] == 1
+    assert changed.camera is not None and changed.camera.fx == 2 * cam.fx
+    gt = seq.gt_trajectory()
+    before = ate(plain.optimized_trajectory(), gt, 'sim3').rmse
+    after = ate(changed.optimized_trajectory(), gt, 'sim3').rmse
+    assert after <= 1.3 * before, f'ATE {after:.4f} m with the change, {before:.4f} m without'
+
+
+def test_two_drivers_alternating_on_the_topic_are_counted() -> None:
+    """A second camera's CameraInfo on the same topic: every change counted, warned once."""
+    seq = simulate_sequence('street', n_keyframes=12, seed=1)
+    other = dataclasses.replace(seq.camera, fx=1.3 * seq.camera.fx)
+    logic = BackendLogic(config(), BACKEND)
+    for i in range(6):
+        logic.on_camera_info(make_camera_info(int(seq.stamps_ns[i]), 'camera',
+                                              other if i % 2 else seq.camera, BACKEND))
+    values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
+    assert values['count.camera_info_changes'] == '5'
+
+
 def test_pure_rotation_waits_for_parallax() -> None:
     """Pure rotation: no initialization attempt, every keyframe passed through (front-end)."""
     seq = simulate_sequence('rotation', n_keyframes=40, seed=0)
@@ -778,6 +838,33 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
     assert values['count.resets'] == '1'
     run(logic, street, 21)  # starts over (earlier stamps are fine after a reset)
     assert logic.state == 'tracking'
+
+
+@pytest.mark.parametrize('initialized', [False, True], ids=['initialization', 'refine'])
+def test_a_cancelled_update_leaves_step_uncounted(street: SimSequence,
+                                                  initialized: bool) -> None:
+    """The estimator's checkpoint (the worker's, as the solves iterate) stops them: Cancelled.
+
+    step() lets it through rather than counting an internal error and going on: the state it
+    leaves is half-updated, which only a reset or the shutdown may follow.
+    """
+    logic = BackendLogic(config(init_batch_size=10), BACKEND)
+    run(logic, street, 12 if initialized else 9)
+    assert (logic.state == 'tracking') is initialized
+    calls: list[int] = []
+
+    def checkpoint() -> None:
+        calls.append(1)
+        msg = 'stop'
+        raise Cancelled(msg)
+
+    logic.estimator.checkpoint = checkpoint
+    logic.on_tracks(tracks_msg(street, 12))
+    logic.step()
+    logic.on_keyframe(keyframe_msg(street, 12))
+    with pytest.raises(Cancelled):
+        logic.step()
+    assert calls == [1] and not logic.stats.counters['internal_errors']
 
 
 def test_sliding_memory_is_bounded(street: SimSequence) -> None:

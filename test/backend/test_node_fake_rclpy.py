@@ -210,6 +210,7 @@ class Node:
         self.logger = Logger()
         self.destroyed = False
         self.graph: dict[str, list[str]] = {}
+        self.context = types.SimpleNamespace(ok=lambda: not self.destroyed)
 
     def declare_parameter(self, name: str, value: Any = None, descriptor: Any = None,
                           ignore_override: bool = False) -> Parameter:
@@ -265,6 +266,10 @@ class Node:
     def get_logger(self) -> Logger:
         """Get logger."""
         return self.logger
+
+    def get_fully_qualified_name(self) -> str:
+        """Return '/' + the name (no namespace here)."""
+        return '/' + self.name
 
     def get_name(self) -> str:
         """Get name."""
@@ -343,6 +348,7 @@ class FakeRclpy:
     created: list[Node]
     shutdowns: list[bool]
     spin: list[Callable[[Node], None]]
+    wrappers: list[Any] = field(default_factory=list)   # closed at the end (log routes)
 
 
 @pytest.fixture
@@ -416,6 +422,8 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
     for name, mod in modules.items():
         monkeypatch.setitem(sys.modules, name, mod)
     yield state
+    for wrapper in state.wrappers:
+        wrapper.close()
 
 
 @pytest.fixture(scope='module')
@@ -429,7 +437,9 @@ def make(fake: FakeRclpy, **overrides: Any) -> Any:
     from pmba_ros.node import PmbaNode
     import rclpy as fake_rclpy
     node = fake_rclpy.create_node('pmba_node', parameter_overrides=overrides)
-    return PmbaNode(node, start_worker=False)
+    wrapper = PmbaNode(node, start_worker=False)
+    fake.wrappers.append(wrapper)
+    return wrapper
 
 
 def by_topic(node: Node) -> dict[str, Publisher]:
@@ -461,7 +471,7 @@ def test_tf_topic_fallback_without_tf2_ros(fake_ros: FakeRclpy, seq: SimSequence
     resend.callback()
     assert len(tf) == n + 1 and tf[-1].transforms[0].header.stamp.sec == 5
     diag = pubs['/diagnostics'].published[-1]
-    node_status = next(st for st in diag.status if st.name == 'pmba_ros: node')
+    node_status = next(st for st in diag.status if st.name == 'pmba_node: node')
     assert {kv.key: kv.value for kv in node_status.values}['tf'].startswith('/tf publisher')
 
 

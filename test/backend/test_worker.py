@@ -11,11 +11,16 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The node's solver thread without ROS: queue, drops, staged parameters, dispatch."""
+"""The node's solver thread without ROS: queue, drops, staged parameters, dispatch.
+
+Also what a stop, a reset, the shutdown or a pause does to a solve in progress.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
+import threading
 import time
 from typing import Any
 
@@ -122,3 +127,105 @@ def test_the_thread_handles_messages_and_stops() -> None:
         time.sleep(0.01)
     worker.stop()
     assert logic.calls == [('tracks', 1)]
+
+
+class SolvingLogic(RecordingLogic):
+    """A back-end whose step after tracks "solves" for a minute, at the estimator's checkpoints."""
+
+    def __init__(self) -> None:
+        """Create it with nothing to solve."""
+        super().__init__()
+        self.solving = threading.Event()
+        self.ended = threading.Event()
+        self.release = threading.Event()
+        self._tracks_to_solve = False
+
+    def on_tracks(self, msg: Any) -> None:
+        """Record tracks; the next step solves."""
+        super().on_tracks(msg)
+        self._tracks_to_solve = True
+
+    def step(self) -> list[tuple[str, Any]]:
+        """Solve until released (or a minute passed), checking in as the solver does."""
+        if not self._tracks_to_solve:
+            return []
+        self._tracks_to_solve = False
+        self.solving.set()
+        try:
+            deadline = time.monotonic() + 60.0
+            while not self.release.wait(0.01) and time.monotonic() < deadline:
+                self.estimator.checkpoint()
+        finally:
+            self.ended.set()
+        return [('pmba/path', len(self.calls))]
+
+
+def _wait_for(condition: Callable[[], bool]) -> None:
+    """Wait (10 s at most) until ``condition()`` holds."""
+    deadline = time.monotonic() + 10.0
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def _solving(closing: Callable[[], bool] = lambda: False,
+             ) -> tuple[SolvingLogic, LogicWorker, list[Any]]:
+    """Return a started worker that is solving the tracks message 1, and what it publishes."""
+    logic = SolvingLogic()
+    published: list[Any] = []
+    worker = LogicWorker(logic, published.append, queue_size=10, closing=closing)
+    worker.start()
+    worker.enqueue('tracks', 1)
+    assert logic.solving.wait(10.0)
+    return logic, worker, published
+
+
+def test_stop_abandons_the_solve_in_progress() -> None:
+    """stop() ends a solve at its next iteration (not after it), and nothing is published."""
+    logic, worker, published = _solving()
+    worker.stop()
+    assert logic.ended.wait(10.0)
+    assert published == []
+
+
+def test_the_shutdown_abandons_the_solve_and_what_is_queued() -> None:
+    """Once ``closing()`` holds, the solve stops, nothing is published, nothing handled."""
+    closing = threading.Event()
+    logic, worker, published = _solving(closing.is_set)
+    worker.enqueue('keyframe', 2)
+    closing.set()
+    assert logic.ended.wait(10.0)
+    worker.enqueue('keyframe', 3)
+    time.sleep(0.3)   # time for the thread to take them (it must not handle them)
+    worker.stop()
+    assert published == [] and logic.calls == [('tracks', 1)]
+
+
+def test_reset_abandons_the_solve_and_discards_the_queue() -> None:
+    """A reset does not wait for the solve: it is abandoned, unpublished; later input works."""
+    logic, worker, published = _solving()
+    for i in (2, 3, 4):
+        worker.enqueue('tracks', i)
+    result: list[int] = []
+    reset = threading.Thread(target=lambda: result.append(
+        worker.reset(lambda: logic.calls.append(('reset', None)))))
+    reset.start()
+    reset.join(10.0)
+    # Message 2 may have been taken off the queue already: dropped all the same, uncounted.
+    assert result in ([2], [3]) and logic.ended.is_set()
+    logic.release.set()
+    worker.enqueue('tracks', 5)
+    _wait_for(lambda: any(published))
+    worker.stop()
+    assert logic.calls == [('tracks', 1), ('reset', None), ('tracks', 5)]
+    assert [outputs for outputs in published if outputs] == [[('pmba/path', 3)]]
+
+
+def test_a_pause_does_not_wait_for_the_solve() -> None:
+    """A pause is staged at once (the solve goes on and is published), applied after it."""
+    logic, worker, published = _solving()
+    worker.stage_pause(True)
+    assert worker.paused and not logic.paused
+    logic.release.set()
+    _wait_for(lambda: logic.paused)
+    worker.stop()
+    assert logic.paused and published[0] == [('pmba/path', 1)]

@@ -23,7 +23,7 @@ import numpy as np
 from pmba_ros.backend.window import estimate_similarity
 from pmba_ros.core import so3
 from pmba_ros.core.problem import BAProblem, make_problem
-from pmba_ros.core.solve import solve, SolveOptions
+from pmba_ros.core.solve import IterationRecord, solve, SolveOptions
 from pmba_ros.errors import InitError
 from pmba_ros.init import pipeline
 from pmba_ros.init.pipeline import global_init, InitOptions, InitResult, STAGES
@@ -94,7 +94,10 @@ def test_problem_poses_and_points_are_ignored() -> None:
 
 
 def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Every stage reports in order, the report is JSON-able and solve runs exactly once."""
+    """Every stage reports in order, the report is JSON-able and solve runs exactly once.
+
+    The BA's iterations go to ``callback`` (the node's worker stops a solve there).
+    """
     calls = []
     real_solve = pipeline.solve
 
@@ -104,9 +107,12 @@ def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr(pipeline, 'solve', counting_solve)
     seen: list[str] = []
+    records: list[IterationRecord] = []
     res = global_init(sim_street(1, n_cams=8, n_points=200).gt,
-                      progress=lambda stage, entries: seen.append(stage))
+                      progress=lambda stage, entries: seen.append(stage),
+                      callback=records.append)
     assert seen == list(STAGES)
+    assert records == res.solve.history and len(records) > 1
     assert len(calls) == 1 and res.ba_invocations == 1
     report = json.loads(json.dumps(res.to_report()))
     summary = report['summary']
