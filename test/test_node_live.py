@@ -210,6 +210,53 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
 
 
 @pytest.mark.slow
+def test_a_recording_played_in_a_loop_starts_the_node_over(listener: Listener,
+                                                           tmp_path: Path) -> None:
+    """``pmba play --loop``: each pass's stamps start over; the node starts over with them.
+
+    Before, every message after the first pass was rejected as out of order.
+    """
+    bag = tmp_path / 'street'
+    assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '4', '--out',
+                 str(bag)]) == 0
+    domain = listener.domain  # type: ignore[attr-defined]
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, *LATCHED_INPUTS, '-p', 'max_time_s:=1')
+    player = None
+    try:
+        wait_until_up(listener, node, log)
+        player = subprocess.Popen(
+            [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--loop', '--rate', '2',
+             '--wait-for-subscribers', '30', '--topics', '/features', '/keyframe_pose',
+             '/camera_info'],
+            env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+        def restarted() -> bool:
+            return any(v.key == 'count.input_restarts' and v.value == '1'
+                       for a in listener.got['diag'] for s in a.status for v in s.values)
+
+        def full_paths() -> int:
+            return sum(len(p.poses) == N_KEYFRAMES for p in listener.got['path'])
+
+        assert spin_until(listener.executor, lambda: full_paths() >= 1, timeout_s=90.0)
+        first = listener.got['path'][-1]
+        assert spin_until(listener.executor, restarted, timeout_s=60.0)
+        assert spin_until(listener.executor,
+                          lambda: restarted() and len(listener.got['path'][-1].poses) < 10,
+                          timeout_s=30.0)
+        assert spin_until(listener.executor, lambda: full_paths() >= 2, timeout_s=60.0)
+        again = [p for p in listener.got['path'] if len(p.poses) == N_KEYFRAMES][-1]
+        assert [p.header.stamp for p in again.poses] == [p.header.stamp for p in first.poses]
+        _, stderr = stop(node, signal.SIGINT, log)
+        assert node.returncode == 0 and 'Traceback' not in stderr, stderr
+    finally:
+        for proc in (node, player):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.mark.slow
 def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listener,
                                                                tmp_path: Path) -> None:
     """VINS-Fusion layout with PoseStamped keyframes from a driver node at 10 Hz."""
