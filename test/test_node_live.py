@@ -210,25 +210,31 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize('sim_time', [False, True], ids=['wall_time', 'use_sim_time'])
 def test_a_recording_played_in_a_loop_starts_the_node_over(listener: Listener,
-                                                           tmp_path: Path) -> None:
+                                                           tmp_path: Path,
+                                                           sim_time: bool) -> None:
     """``pmba play --loop``: each pass's stamps start over; the node starts over with them.
 
-    Before, every message after the first pass was rejected as out of order.
+    Also with ``use_sim_time`` and ``/clock`` going back with each pass (``ros2 bag play
+    --loop --clock``). Before, every message after the first pass was rejected as out of
+    order.
     """
     bag = tmp_path / 'street'
     assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '4', '--out',
                  str(bag)]) == 0
     domain = listener.domain  # type: ignore[attr-defined]
     log = tmp_path / 'node.log'
-    node = start_node(domain, log, *LATCHED_INPUTS, '-p', 'max_time_s:=1')
+    clock = ('-p', 'use_sim_time:=true') if sim_time else ()
+    node = start_node(domain, log, *LATCHED_INPUTS, '-p', 'max_time_s:=1', *clock)
     player = None
     try:
-        wait_until_up(listener, node, log)
+        if not sim_time:   # with sim time its timers wait for /clock
+            wait_until_up(listener, node, log)
         player = subprocess.Popen(
             [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--loop', '--rate', '2',
              '--wait-for-subscribers', '30', '--topics', '/features', '/keyframe_pose',
-             '/camera_info'],
+             '/camera_info', *(['--clock'] if sim_time else [])],
             env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
         def restarted() -> bool:
