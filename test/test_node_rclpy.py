@@ -269,17 +269,6 @@ def test_qos_per_input_and_overrides(ros: tuple[Context, SingleThreadedExecutor]
         driver.destroy_node()
 
 
-@pytest.fixture
-def backend_logging() -> Iterator[None]:
-    """Let the back-end log: `pmba replay` (run in-process by the CLI tests) quiets it."""
-    backend_logger = logging.getLogger('pmba_ros.backend')
-    level = backend_logger.level
-    backend_logger.setLevel(logging.NOTSET)
-    yield
-    backend_logger.setLevel(level)
-
-
-@pytest.mark.usefixtures('backend_logging')
 def test_backend_logging_reaches_rosout(ros: tuple[Context, SingleThreadedExecutor]) -> None:
     """Back-end ``logging`` records come out of the node's logger on /rosout."""
     from rcl_interfaces.msg import Log
@@ -581,7 +570,6 @@ def test_pause_and_reset_during_a_solve(ros: tuple[Context, SingleThreadedExecut
         driver.destroy_node()
 
 
-@pytest.mark.usefixtures('backend_logging')
 def test_two_nodes_in_one_process_log_and_report_as_themselves(
         ros: tuple[Context, SingleThreadedExecutor]) -> None:
     """Two PmbaNodes in one process (a component container): each one's lines are its own.

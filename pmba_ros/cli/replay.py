@@ -253,19 +253,22 @@ def run(args: argparse.Namespace) -> int:
     quiet, plot = bool(getattr(args, 'quiet', False)), bool(getattr(args, 'plot', False))
     config = build_config(args)
     intrinsics = _parse_intrinsics(opts['intrinsics'])
+    backend_logger = logging.getLogger('pmba_ros.backend')
+    level = backend_logger.level
     if not getattr(args, 'verbose', False):
         # The report counts rejected inputs; one warning per message would bury the summary.
-        logging.getLogger('pmba_ros.backend').setLevel(logging.ERROR)
-    bags, gt = list(getattr(args, 'bags', [])), opts['gt']
-    if not bags:
-        bags, gt = _default_street(args.out, gt, quiet=quiet)
+        backend_logger.setLevel(logging.ERROR)
     bar = ProgressBar(sys.stderr) if not quiet and sys.stderr.isatty() else None
     previous = _interrupt_on_sigterm()
     try:
+        bags, gt = list(getattr(args, 'bags', [])), opts['gt']
+        if not bags:
+            bags, gt = _default_street(args.out, gt, quiet=quiet)
         report = replay(bags, args.out, config, gt=gt, gt_times=opts['gt_times'], plot=plot,
                         progress=bar, intrinsics=intrinsics, align=args.align,
                         chosen=_chosen(args))
     finally:
+        backend_logger.setLevel(level)   # run in-process (tests, scripts), the caller's again
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
         if bar is not None:

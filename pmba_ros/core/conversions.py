@@ -289,11 +289,30 @@ def parallax_to_xyz(R_wc: FloatArray, centers_w: FloatArray,
                     feats: ParallaxFeatures) -> FloatArray:
     """Euclidean points F = P_m + D sin(alpha - theta)/sin(theta) R_m n (PMBA eq. 2).
 
-    Points at infinity (theta ~ 0) come out as inf in their direction's coordinates.
+    Points at infinity (theta ~ 0) come out as inf in their direction's coordinates, and so
+    do points whose depth along their ray is negative (the parallax angle crossed zero):
+    the homogeneous point, and so every ray to it, is the same, but its Euclidean copy lies
+    behind the cameras that see it (COLMAP cannot project a fisheye's ray there).
     """
-    X, w = parallax_homogeneous(R_wc, centers_w, feats)
+    u, _, _, _, sin_t, _, g = residuals.anchor_terms(R_wc, centers_w, feats)
+    X = g[:, None] * u + sin_t[:, None] * centers_w[feats.main_idx]
+    beyond = g * sin_t < 0
+    X[beyond] = g[beyond, None] * u[beyond]
+    w = np.where(beyond, 0.0, sin_t)
     with np.errstate(divide='ignore', invalid='ignore'):
         return X / w[:, None]  # eq. (2)
+
+
+def far_points(R_wc: FloatArray, centers_w: FloatArray, feats: ParallaxFeatures,
+               distance: float) -> FloatArray:
+    """Return finite stand-ins for points at infinity: ``distance`` along their rays.
+
+    From each main anchor, along the direction its rays have (PMBA eq. 2 as theta -> 0),
+    for formats that store Euclidean points only.
+    """
+    u, _, _, _, _, _, g = residuals.anchor_terms(R_wc, centers_w, feats)
+    out: FloatArray = centers_w[feats.main_idx] + distance * np.sign(g)[:, None] * u
+    return out
 
 
 def xyz_to_idp(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,

@@ -27,8 +27,11 @@ SIMPLE_PINHOLE      fx = fy = f, cx, cy
 PINHOLE             fx, fy, cx, cy
 SIMPLE_RADIAL       fx = fy = f, cx, cy, k1 = k
 RADIAL              fx = fy = f, cx, cy, k1, k2
-OPENCV              fx, fy, cx, cy, k1, k2            only with p1 = p2 = 0 (no tangential)
+OPENCV              fx, fy, cx, cy, k1, k2            with p1 = p2 = 0 (no tangential)
 ==================  ================================  ======================================
+
+OPENCV with tangential terms, FULL_OPENCV without rational ones and the fisheye models are
+read through OpenCV camera models (:mod:`pmba_ros.io.colmap_cameras`).
 
 Other camera models raise :class:`~pmba_ros.errors.FormatError` naming the model. Writing
 updates the poses of the solved images and the positions of the solved points and keeps
@@ -48,6 +51,7 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
+from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -67,7 +71,6 @@ MODELS: dict[int, tuple[str, int]] = {
     8: ('SIMPLE_RADIAL_FISHEYE', 4), 9: ('RADIAL_FISHEYE', 5), 10: ('THIN_PRISM_FISHEYE', 12),
 }
 _MODEL_IDS = {name: (mid, n) for mid, (name, n) in MODELS.items()}
-SUPPORTED = ('SIMPLE_PINHOLE', 'PINHOLE', 'SIMPLE_RADIAL', 'RADIAL', 'OPENCV')
 _INVALID_POINT = -1
 
 
@@ -388,32 +391,6 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
 
 # ---- conversion --------------------------------------------------------------------------
 
-def _intrinsics(model: ColmapModel, image_ids: list[int]) -> Intrinsics:
-    rows = []
-    for iid in image_ids:
-        cam = model.cameras[model.images[iid].camera_id]
-        p = cam.params
-        if cam.model == 'SIMPLE_PINHOLE':
-            rows.append((p[0], p[0], p[1], p[2], 0.0, 0.0))
-        elif cam.model == 'PINHOLE':
-            rows.append((p[0], p[1], p[2], p[3], 0.0, 0.0))
-        elif cam.model == 'SIMPLE_RADIAL':
-            rows.append((p[0], p[0], p[1], p[2], p[3], 0.0))
-        elif cam.model == 'RADIAL':
-            rows.append((p[0], p[0], p[1], p[2], p[3], p[4]))
-        elif cam.model == 'OPENCV' and p[6] == 0.0 and p[7] == 0.0:
-            rows.append((p[0], p[1], p[2], p[3], p[4], p[5]))
-        else:
-            why = ('tangential distortion p1, p2 != 0' if cam.model == 'OPENCV'
-                   else f'model {cam.model}')
-            msg = (f'COLMAP camera {model.images[iid].camera_id} (image {iid}): {why} is not '
-                   f'supported; supported models: {", ".join(SUPPORTED)} (OPENCV without '
-                   'tangential terms). Undistort the images (colmap image_undistorter) first')
-            raise FormatError(msg)
-    a = np.array(rows, dtype=float).reshape(-1, 6)
-    return Intrinsics(*(a[:, i].copy() for i in range(6)))
-
-
 def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
     """Return the BA problem of a model and the COLMAP image id of each of its cameras.
 
@@ -428,7 +405,11 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
         msg = 'COLMAP model has no images'
         raise FormatError(msg)
     cam_of = {iid: k for k, iid in enumerate(image_ids)}
-    intr = _intrinsics(model, image_ids)
+    used = sorted({model.images[i].camera_id for i in image_ids})
+    cameras = {cid: camera_model(model.cameras[cid], cid) for cid in used}
+    rows, models = zip(*(cameras[model.images[i].camera_id] for i in image_ids), strict=True)
+    a = np.array(rows, dtype=float).reshape(-1, 6)
+    intr = Intrinsics(*(a[:, i].copy() for i in range(6)))
     q = np.array([model.images[i].qvec for i in image_ids])
     t = np.array([model.images[i].tvec for i in image_ids])
     R_cw = _quat_to_R(q)
@@ -448,11 +429,15 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
         cam_idx.append(np.full(len(feats), cam_of[iid], dtype=np.int64))
         feat_idx.append(np.array(feats, dtype=np.int64))
         pix.append(img.xys[has])
+    cams = np.concatenate(cam_idx)
+    pixels = np.concatenate(pix).reshape(-1, 2)
+    pixel_jac = None
+    if any(m is not None for m in models):
+        pixels, pixel_jac = through_pinhole(pixels, cams, intr, list(models))
     try:
-        problem = make_problem(R_wc, centers, intr, np.concatenate(cam_idx),
-                               np.concatenate(feat_idx), np.concatenate(pix).reshape(-1, 2),
+        problem = make_problem(R_wc, centers, intr, cams, np.concatenate(feat_idx), pixels,
                                points_w=model.xyz, n_feats=model.point_ids.shape[0],
-                               feature_ids=model.point_ids)
+                               feature_ids=model.point_ids, pixel_jac=pixel_jac)
     except ProblemError as err:
         msg = f'COLMAP model: {err}'
         raise FormatError(msg) from err

@@ -296,3 +296,26 @@ def test_compiled_coincident_pairs_are_numpys() -> None:
         np.testing.assert_array_equal(anchor_search.coincident_keys(C, baseline),
                                       np.sort(conversions._coincident_pairs(C, baseline)))
     assert found > 0
+
+
+def test_a_parallax_past_zero_is_at_infinity_along_its_rays_not_behind_the_cameras() -> None:
+    """Theta < 0 by a little: every ray is the same, but F of eq. 2 lies behind the anchor.
+
+    It comes out at infinity (inf along its rays), and ``far_points`` puts it far along them.
+    """
+    from pmba_ros.core.problem import ParallaxFeatures
+
+    problem = forward_problem(0)
+    R, C = problem.R_wc, problem.centers_w
+    feats, ok = conversions.xyz_to_parallax(problem, R, C, problem.points_w)
+    assert np.all(ok)
+    flipped = ParallaxFeatures(np.where(np.arange(feats.theta.size) == 3, -1e-7, feats.theta),
+                               feats.n, feats.main_idx, feats.assoc_idx)
+    X = conversions.parallax_to_xyz(R, C, flipped)
+    np.testing.assert_array_equal(np.delete(X, 3, axis=0),
+                                  np.delete(conversions.parallax_to_xyz(R, C, feats), 3, axis=0))
+    ray = problem.points_w[3] - C[feats.main_idx[3]]
+    assert not np.all(np.isfinite(X[3]))
+    assert np.all(np.sign(X[3][np.isinf(X[3])]) == np.sign(ray[np.isinf(X[3])]))
+    far = conversions.far_points(R, C, flipped, 1e9)[3] - C[feats.main_idx[3]]
+    assert far @ ray / (np.linalg.norm(far) * np.linalg.norm(ray)) > 1 - 1e-9
