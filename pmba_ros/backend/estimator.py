@@ -113,8 +113,7 @@ class Estimator:
         self.config = config
         self.fx = self.fy = config.fallback_focal_px
         self.cx = self.cy = 0.0
-        # Between solver iterations and initialization stages; may raise Cancelled (worker).
-        self.checkpoint: Callable[[], None] = lambda: None
+        self.checkpoint: Callable[[], None] = lambda: None   # between solver steps (worker)
         self.reset()
 
     def reset(self) -> None:
@@ -314,7 +313,8 @@ class Estimator:
         res = result.solve
         self.kf.R_map[used], self.kf.C_map[used] = R, C
         fids = problem.feature_ids[result.feature_index]
-        points = sim.scale * res.points_w @ sim.rotation.T + sim.translation
+        with np.errstate(invalid='ignore'):   # points at infinity: unknown (NaN) below
+            points = sim.scale * res.points_w @ sim.rotation.T + sim.translation
         self.features.upsert(fids, np.where(finite_rows(points)[:, None], points, np.nan))
         self.kf.status[batch] = KeyframeStatus.ACTIVE
         self.state = 'tracking'
