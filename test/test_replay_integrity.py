@@ -398,10 +398,48 @@ def test_play_reads_a_damaged_recording_as_replay_does(bag: Path, tmp_path: Path
     _rechunked(bag, chunked, 4096)
     cut = tmp_path / 'cut.mcap'
     cut.write_bytes(chunked.read_bytes()[: chunked.stat().st_size * 6 // 10])
-    with caplog.at_level(logging.WARNING, logger='pmba_ros.io.bags'):
+    with caplog.at_level(logging.WARNING, logger='pmba_ros.io'):
         played = list(iter_serialized([cut]))
     assert whole // 3 < len(played) < whole
     assert [t for _, t, _ in played] == sorted(t for _, t, _ in played)
     assert any('cut.mcap: cannot be opened' in r.getMessage() for r in caplog.records)
     with pytest.raises(BagError, match='ROS 1 bag cannot be played'):
         list(iter_serialized([_damaged(bag, tmp_path, 'ros1_active')]))
+
+
+def test_play_salvages_a_damaged_recording_once_and_warns_once_per_damage(
+        bag: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``pmba play --loop`` of a cut file: one salvage, one warning, every pass the same.
+
+    Before, the topics and every pass opened the recording again: the cut file was salvaged
+    once per pass plus once, and its damage warned twice per pass plus once.
+    """
+    import itertools
+
+    from pmba_ros import node as node_mod
+    from pmba_ros.io import salvage
+
+    chunked = tmp_path / 'chunked.mcap'
+    _rechunked(bag, chunked, 4096)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(chunked.read_bytes()[: chunked.stat().st_size * 6 // 10])
+    one_pass = list(iter_serialized([cut]))
+    passes: list[list[tuple[str, int, bytes]]] = []
+
+    def play_messages(messages: Iterator[tuple[str, int, bytes]], *_: Any, **__: Any) -> int:
+        taken = list(itertools.islice(messages, 3 * len(one_pass)))
+        passes.extend(taken[i:i + len(one_pass)] for i in range(0, len(taken), len(one_pass)))
+        return len(taken)
+
+    salvaged = []
+    readable_parts = salvage.readable_parts
+    monkeypatch.setattr(salvage, 'readable_parts',
+                        lambda *a: salvaged.append(1) or readable_parts(*a))
+    monkeypatch.setattr(node_mod, 'play_messages', play_messages)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger='pmba_ros'):
+        assert main(['play', str(cut), '--loop']) == 0
+    assert passes == [one_pass] * 3
+    assert len(salvaged) == 1
+    assert sum('cut.mcap: cannot be opened' in r.getMessage() for r in caplog.records) == 1

@@ -51,6 +51,7 @@ class InputRestarts:
     """Keyframe poses or tracks messages older than their stream's newest taken, in order
     among themselves and with none newer in between, that make a restart."""
     max_kept: int = 1000
+    """Messages kept while a stretch may be a restart (the oldest go first)."""
     _streams: dict[str, _Stream] = field(default_factory=dict, init=False, repr=False)
     _kept: list[tuple[str, Any]] = field(default_factory=list, init=False, repr=False)
 
@@ -74,7 +75,7 @@ class InputRestarts:
         if stamp_ns > taken_ns:
             s.run = 0
             if any(other.run for other in self._streams.values()):
-                self._kept.append((stream, msg))   # past the old run already: the new run's
+                self._keep(stream, msg)   # past the old run already: the new run's
             else:
                 self._kept.clear()
             return False
@@ -83,10 +84,14 @@ class InputRestarts:
             self._kept = [(name, m) for name, m in self._kept if name != stream]
         s.run += 1
         s.run_last_ns = stamp_ns
+        self._keep(stream, msg)
+        return s.run >= self.RUN
+
+    def _keep(self, stream: str, msg: Any) -> None:
+        """Keep a message of the stretch; past ``max_kept`` the oldest goes."""
         self._kept.append((stream, msg))
         if len(self._kept) > self.max_kept:
             self._kept.pop(0)
-        return s.run >= self.RUN
 
     def stretch(self) -> list[tuple[str, Any]]:
         """Return the messages kept since the restart began, in arrival order, and forget all."""

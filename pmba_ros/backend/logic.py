@@ -106,7 +106,7 @@ class BackendLogic:
         self._keyframe_stamps = StampLeapCheck('keyframe_stamp_leaps',
                                                repeat_reason=DUPLICATE_POSES)
         self._pose_stream = PoseStream(10 * self.config.buffer_size)
-        self._restarts = InputRestarts(self.config.buffer_size)
+        self._restarts = InputRestarts(max_kept=self.config.buffer_size)
         self.cameras.forget_extrinsics()
 
     # --- inputs ---------------------------------------------------------------------------

@@ -89,28 +89,30 @@ def run(args: argparse.Namespace) -> int:
         BagError: If the bag is missing or unreadable, or a requested topic is not in it.
         MessageError: If a message type is not available to rclpy.
     """
-    from pmba_ros.io.bags import iter_serialized, list_topics
+    from pmba_ros.io.bags import open_bags, serialized_messages
     from pmba_ros.node import play_messages
 
-    topics = list_topics([args.bag])
-    if args.topics:
-        missing = sorted(set(args.topics) - set(topics))
-        if missing:
-            msg = (f'{args.bag}: topic(s) {", ".join(missing)} not in the bag (topics: '
-                   f'{", ".join(sorted(topics))})')
+    with open_bags([args.bag]) as bags:   # once: a damaged recording is salvaged once
+        topics = bags.topics
+        if args.topics:
+            missing = sorted(set(args.topics) - set(topics))
+            if missing:
+                msg = (f'{args.bag}: topic(s) {", ".join(missing)} not in the bag (topics: '
+                       f'{", ".join(sorted(topics))})')
+                raise BagError(msg)
+        wanted = sorted(args.topics or topics)
+        bad = [r for r in args.remap if ':=' not in r]
+        if bad:
+            msg = f'--remap {bad[0]!r}: expected FROM:=TO'
             raise BagError(msg)
-    wanted = sorted(args.topics or topics)
-    bad = [r for r in args.remap if ':=' not in r]
-    if bad:
-        msg = f'--remap {bad[0]!r}: expected FROM:=TO'
-        raise BagError(msg)
-    ros_args = ['--ros-args', *[a for r in args.remap for a in ('-r', r)]]
-    passes = itertools.count() if args.loop else range(1)
-    messages = itertools.chain.from_iterable(iter_serialized([args.bag], wanted) for _ in passes)
-    count = play_messages(messages,
-                          {t: topics[t].msgtype for t in wanted}, rate=args.rate,
-                          clock=args.clock, delay_s=max(0.0, args.delay),
-                          wait_for_subscribers_s=max(0.0, args.wait_for_subscribers),
-                          ros_args=ros_args)
+        ros_args = ['--ros-args', *[a for r in args.remap for a in ('-r', r)]]
+        passes = itertools.count() if args.loop else range(1)
+        messages = itertools.chain.from_iterable(serialized_messages(bags, wanted)
+                                                 for _ in passes)
+        count = play_messages(messages,
+                              {t: topics[t].msgtype for t in wanted}, rate=args.rate,
+                              clock=args.clock, delay_s=max(0.0, args.delay),
+                              wait_for_subscribers_s=max(0.0, args.wait_for_subscribers),
+                              ros_args=ros_args)
     print(f'played {count} messages on {len(wanted)} topics')
     return 0

@@ -560,7 +560,8 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
 
 __all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo', 'any_reader',
            'error_text', 'is_ros1', 'iter_messages', 'iter_serialized', 'jazzy_typestore',
-           'list_topics', 'open_bags', 'require_topics', 'storage_files']
+           'list_topics', 'open_bags', 'require_topics', 'serialized_messages',
+           'storage_files']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,
@@ -568,8 +569,8 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
     """Yield ``(topic, log_time_ns, CDR bytes)`` of rosbag2 recordings in log-time order.
 
     The bytes are the stored serialization, ready for an rclpy publisher (``pmba play``).
-    A damaged recording is read in the parts that can be, as :func:`open_bags` reads it, with
-    a warning naming the damage.
+    A damaged recording is read in the parts that can be, as :func:`open_bags` reads it (and
+    warns).
 
     Args:
         paths: rosbag2 folders or storage files.
@@ -580,14 +581,18 @@ def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = 
             (whose serialization ROS 2 publishers cannot send).
     """
     with open_bags(paths) as bags:
-        ros1 = [p for p in bags.paths if is_ros1(p)]
-        if ros1:
-            msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; '
-                   'convert it first: rosbags-convert --src BAG --dst FOLDER')
-            raise BagError(msg)
-        for damage in bags.damage:
-            logger.warning('%s', damage)
-        reader = bags.reader
-        conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        for conn, t_ns, raw in _raw_messages(reader, conns, bags.paths) if conns else ():
-            yield conn.topic, t_ns, bytes(raw)
+        yield from serialized_messages(bags, topics)
+
+
+def serialized_messages(bags: OpenBags, topics: Sequence[str] | None = None,
+                        ) -> Iterator[tuple[str, int, bytes]]:
+    """Yield :func:`iter_serialized`'s messages of opened recordings, each call from the start."""
+    ros1 = [p for p in bags.paths if is_ros1(p)]
+    if ros1:
+        msg = (f'{_describe(ros1)}: a ROS 1 bag cannot be played into ROS 2 as it is; '
+               'convert it first: rosbags-convert --src BAG --dst FOLDER')
+        raise BagError(msg)
+    reader = bags.reader
+    conns = [c for c in reader.connections if topics is None or c.topic in topics]
+    for conn, t_ns, raw in _raw_messages(reader, conns, bags.paths) if conns else ():
+        yield conn.topic, t_ns, bytes(raw)

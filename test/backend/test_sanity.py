@@ -483,6 +483,19 @@ def test_old_messages_out_of_order_among_themselves_are_not_a_restart() -> None:
     assert not check.see('keyframes', 101, taken, 101)   # a newer message ends any stretch
 
 
+def test_messages_kept_for_a_possible_restart_stay_within_max_kept() -> None:
+    """One stale keyframe, then its stream stalls while tracks flow: at most max_kept are kept.
+
+    Before, the newer tracks were kept for the stretch without a bound, for as long as the
+    keyframe stream stayed silent (a front-end that lost track).
+    """
+    check = InputRestarts(max_kept=10)
+    assert not check.see('keyframes', 50, 100, 'stale')
+    for stamp in range(101, 1101):
+        assert not check.see('tracks', stamp, stamp - 1, stamp)
+    assert len(check.stretch()) == 10
+
+
 def test_keyframes_waiting_for_tracks_are_processed_at_the_end_of_input(
         street: SimSequence) -> None:
     """The tracks of keyframe 35 are unreadable: the keyframes behind it wait, then come out."""

@@ -27,7 +27,7 @@ from pmba_ros.core.engine import Engine, NUMPY
 from pmba_ros.core.gauge import choose_gauge
 from pmba_ros.core.models import IdpModel, ParallaxModel, XyzModel
 from pmba_ros.core.numpy_schur import NumpySchurPlan
-from pmba_ros.core.problem import make_problem, permute_features, XyzFeatures
+from pmba_ros.core.problem import BAProblem, make_problem, permute_features, XyzFeatures
 from pmba_ros.errors import SolverError
 import pytest
 import scipy.sparse
@@ -245,15 +245,21 @@ def _record_superlu(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     return calls
 
 
-def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """Past SPARSE_LIMIT: one symmetric-mode factorization, the dense path's step to rounding."""
+def _six_camera_system() -> tuple[BAProblem, ne.SchurStructure, ne.NormalEquations]:
+    """Return a PMBA problem of 6 cameras that all see its 30 features, and its system."""
     problem = forward_problem(3, n_cams=6, n_points=30)
     problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
                                                          problem.n_feats))
     model, feats = _model_and_features(problem, 'pmba', weighted=True)
     st, _, eqs, _ = _held_pose_system(problem, model, feats, np.array([-1, 0, 1, 2, 3, 4]),
                                       NUMPY)
+    return problem, st, eqs
+
+
+def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past SPARSE_LIMIT: one symmetric-mode factorization, the dense path's step to rounding."""
+    problem, st, eqs = _six_camera_system()
     mask = np.ones((st.n_blocks, 6), dtype=bool)
     mask[0, 3] = False
     damp_p = np.full((st.n_blocks, 6), 1e-4)
@@ -294,12 +300,7 @@ def test_sparse_fill_is_low_for_a_sequence_and_high_for_a_collection() -> None:
 def test_between_the_limits_the_fill_chooses_the_factorization(
         fill_limit: float, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every camera sees every feature: dense Cholesky (its factor comes back), not SuperLU."""
-    problem = forward_problem(3, n_cams=6, n_points=30)
-    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
-                                                         problem.n_feats))
-    model, feats = _model_and_features(problem, 'pmba', weighted=True)
-    st, _, eqs, _ = _held_pose_system(problem, model, feats, np.array([-1, 0, 1, 2, 3, 4]),
-                                      NUMPY)
+    problem, st, eqs = _six_camera_system()
     assert st.sparse_fill == pytest.approx(1.0)
     mask = np.ones((st.n_blocks, 6), dtype=bool)
     damp_p, damp_f = np.full((st.n_blocks, 6), 1e-4), np.full((problem.n_feats, 3), 1e-4)

@@ -150,7 +150,6 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
         if saved is None:
             damage.append(f'{file}: {reason}; no message in it is readable')
             continue
-        logger.warning('%s: %s', file, saved.damage)
         readable.append(saved.path)
         damage.append(f'{file}: {saved.damage}')
     if not readable:
@@ -160,4 +159,6 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
     if error is not None and not damage:   # every file opens: the folder's metadata.yaml is wrong
         damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
                   'read one by one' for p in paths if p.is_dir()]
+    for line in damage:
+        logger.warning('%s', line)
     return readable, tuple(damage)
