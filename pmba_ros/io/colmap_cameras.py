@@ -28,6 +28,7 @@ undistorted pixels.
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -107,25 +108,29 @@ def through_pinhole(pixels: FloatArray, cam_idx: IntArray, intr: Intrinsics,
         as they are; and each observation's pixel Jacobian at its bearing (K, 2, 3).
     """
     out = np.array(pixels, dtype=float)
-    per_camera = np.array([m is not None for m in models])
-    opencv = np.flatnonzero(per_camera[cam_idx])
-    by_model: dict[int, list[int]] = {}
-    for k in np.unique(cam_idx[opencv]).tolist():
-        by_model.setdefault(id(models[k]), []).append(k)
-    for ks in by_model.values():
-        rows = np.flatnonzero(np.isin(cam_idx, ks))
-        model = models[ks[0]]
-        assert model is not None
+    # The observations of each distinct OpenCV model (COLMAP images share cameras), found in
+    # one sort: a collection with a camera per image has as many models as images.
+    distinct: dict[int, int] = {}
+    firsts: list[CameraModel] = []
+    codes = np.full(len(models), -1, dtype=np.int64)
+    for k, m in enumerate(models):
+        if m is not None:
+            if id(m) not in distinct:
+                distinct[id(m)] = len(firsts)
+                firsts.append(m)
+            codes[k] = distinct[id(m)]
+    group = codes[cam_idx]
+    order = np.argsort(group, kind='stable')
+    bounds = np.searchsorted(group[order], np.arange(len(firsts) + 1))
+    groups = [(firsts[g], order[a:b]) for g, (a, b) in enumerate(itertools.pairwise(bounds))]
+    for model, rows in groups:
         xy = model.normalize(out[rows])
         out[rows] = np.column_stack([model.fx * xy[:, 0] + model.cx,
                                      model.fy * xy[:, 1] + model.cy])
     finite = np.isfinite(out).all(axis=1)
     bearings = pixels_to_bearings(np.where(finite[:, None], out, 0.0), intr, cam_idx)
     _, jac = projection_jacobian(bearings, intr, cam_idx)
-    for ks in by_model.values():
-        rows = np.flatnonzero(np.isin(cam_idx, ks))
-        model = models[ks[0]]
-        assert model is not None
+    for model, rows in groups:
         own = model.pixel_jacobian(bearings[rows])
         if own is not None:
             jac[rows] = own

@@ -289,3 +289,46 @@ def test_opencv_and_fisheye_cameras_solve_to_colmaps_own_optimum(
     assert behind == 0 and rms < 0.75   # the 0.5 px noise per axis, less what the fit takes
     assert rms <= _colmap_rms(theirs)[0] * (1 + 1e-4)
     assert report['final_rms_px'] == pytest.approx(rms, rel=1e-3)   # first order in the pixels
+
+
+def test_each_image_is_undistorted_by_its_own_camera() -> None:
+    """Images of three cameras (OPENCV, OPENCV_FISHEYE, PINHOLE), pixels made by pycolmap.
+
+    Without noise, every bearing read back is the true ray, and every pixel Jacobian is the
+    one of the image's own camera (pycolmap's, by central differences).
+    """
+    pycolmap = pytest.importorskip('pycolmap')
+    gt = street_scene(4, n_cams=6, n_points=80, max_track_length=4, far_fraction=0.0).gt
+    cameras = {1: ('OPENCV', [450.0, 440.0, 320.0, 240.0, -0.2, 0.05, 0.002, -0.001]),
+               2: ('OPENCV_FISHEYE', [300.0, 300.0, 320.0, 240.0, 0.05, -0.01, 0.002, 0.0]),
+               3: ('PINHOLE', [500.0, 500.0, 320.0, 240.0])}
+    camera_of_image = {k + 1: k % 3 + 1 for k in range(gt.n_cams)}
+    obs = gt.obs
+    rays = np.einsum('kji,kj->ki', gt.R_wc[obs.cam_idx],
+                     gt.points_w[obs.feat_idx] - gt.centers_w[obs.cam_idx])
+    pixels = np.empty((len(obs), 2))
+    for k, cid in enumerate(obs.cam_idx.tolist()):
+        name, params = cameras[camera_of_image[cid + 1]]
+        pixels[k] = pycolmap.Camera(model=name, width=640, height=480,
+                                    params=params).img_from_cam(rays[k][None])[0]
+    model = colmap.from_problem(dataclasses.replace(gt, obs=dataclasses.replace(
+        obs, pixels=pixels)), image_size=(640, 480))
+    model = dataclasses.replace(
+        model, cameras={c: colmap.ColmapCamera(n, 640, 480, np.array(p))
+                        for c, (n, p) in cameras.items()},
+        images={i: dataclasses.replace(img, camera_id=camera_of_image[i])
+                for i, img in model.images.items()})
+    problem, _ = colmap.to_problem(model)
+    assert problem.n_obs == len(obs)
+    unit = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    np.testing.assert_allclose(problem.obs.bearings_c, unit, atol=1e-9)
+    jac = problem.obs.pixel_jac
+    assert jac is not None
+    for k in range(0, len(obs), 7):
+        name, params = cameras[camera_of_image[int(obs.cam_idx[k]) + 1]]
+        camera = pycolmap.Camera(model=name, width=640, height=480, params=params)
+        numeric = np.column_stack([
+            (camera.img_from_cam((unit[k] + h)[None])[0]
+             - camera.img_from_cam((unit[k] - h)[None])[0]) / 2e-6
+            for h in np.eye(3) * 1e-6])
+        np.testing.assert_allclose(jac[k], numeric, rtol=1e-5, atol=1e-3)
