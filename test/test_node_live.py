@@ -133,6 +133,17 @@ def listener(monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
         yield result
 
 
+def driver_publishers(listener: Listener, pose_type: Any, features: str,
+                      pose: str) -> tuple[Any, Any, Any]:
+    """Return the test's latched publishers of tracks, keyframe poses and CameraInfo."""
+    from sensor_msgs.msg import CameraInfo, PointCloud
+
+    node = listener.node
+    return (node.create_publisher(PointCloud, features, LATCHED),
+            node.create_publisher(pose_type, pose, LATCHED),
+            node.create_publisher(CameraInfo, '/camera_info', LATCHED))
+
+
 def stop(proc: subprocess.Popen[str], sig: int, log: Path) -> tuple[float, str]:
     """Send ``sig``; return the seconds until the process ended and its log."""
     t0 = time.monotonic()
@@ -267,7 +278,6 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
                                                                tmp_path: Path) -> None:
     """VINS-Fusion layout with PoseStamped keyframes from a driver node at 10 Hz."""
     from geometry_msgs.msg import PoseStamped
-    from sensor_msgs.msg import CameraInfo, PointCloud
     from std_srvs.srv import SetBool, Trigger
 
     domain = listener.domain  # type: ignore[attr-defined]
@@ -277,10 +287,7 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
                       '-r', 'features:=/vins/feature', '-r', 'keyframe_pose:=/vins/pose')
     seq = simulate_sequence('street', n_keyframes=N_KEYFRAMES, seed=4)
     backend = RclpyBackend()
-    driver = listener.node
-    pubs = (driver.create_publisher(PointCloud, '/vins/feature', LATCHED),
-            driver.create_publisher(PoseStamped, '/vins/pose', LATCHED),
-            driver.create_publisher(CameraInfo, '/camera_info', LATCHED))
+    pubs = driver_publishers(listener, PoseStamped, '/vins/feature', '/vins/pose')
     try:
         wait_until_up(listener, node, log)
         assert spin_until(listener.executor, lambda: min(
@@ -322,7 +329,6 @@ def test_a_signal_during_a_long_solve_ends_it(listener: Listener, tmp_path: Path
     and rclpy's SIGTERM handler only shuts the context down.
     """
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import CameraInfo, PointCloud
     from std_srvs.srv import Trigger
 
     domain = listener.domain  # type: ignore[attr-defined]
@@ -333,9 +339,7 @@ def test_a_signal_during_a_long_solve_ends_it(listener: Listener, tmp_path: Path
     seq = simulate_sequence('street', n_keyframes=12, seed=4)
     backend = RclpyBackend()
     driver = listener.node
-    pubs = (driver.create_publisher(PointCloud, '/features', LATCHED),
-            driver.create_publisher(Odometry, '/keyframe_pose', LATCHED),
-            driver.create_publisher(CameraInfo, '/camera_info', LATCHED))
+    pubs = driver_publishers(listener, Odometry, '/features', '/keyframe_pose')
     try:
         wait_until_up(listener, node, log)
         pubs[2].publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
