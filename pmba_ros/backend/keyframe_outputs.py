@@ -51,12 +51,14 @@ class KeyframeOutputs:
         self.estimator = estimator
         self.cameras = cameras
         self.backend = backend
-        self.odom_frame = config.odom_frame or 'odom'
-        self.base_frame = config.base_frame or 'base_link'
+        self.name_frames(config, '', '')
         self._published = out.PoseMessageCache()
 
     def name_frames(self, config: BackendConfig, odom_frame: str, body_frame: str) -> None:
-        """Take the frames of a keyframe pose where the configuration names none."""
+        """Take the frames of a keyframe pose where the configuration names none.
+
+        Attributes set: ``odom_frame`` and ``base_frame`` (the defaults where neither names one).
+        """
         self.odom_frame = config.odom_frame or odom_frame or 'odom'
         self.base_frame = config.base_frame or body_frame or 'base_link'
 
