@@ -37,12 +37,11 @@ from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import non_negative_int, positive_float, positive_int
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import chunks
-from pmba_ros.core.conversions import far_points
 from pmba_ros.core.gauge import camera_components
 from pmba_ros.core.loss import Loss
-from pmba_ros.core.problem import BAProblem, ParallaxFeatures, Parameterization
+from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
-from pmba_ros.errors import DegenerateGeometryError, FormatError
+from pmba_ros.errors import FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
 from pmba_ros.plot import pyplot
@@ -205,22 +204,15 @@ def _detect_format(path: Path) -> str:
     return 'bundler' if path.suffix == '.out' else detect_problem_format(path)
 
 
-FAR_POINT_SPREADS = 1e4
-"""Distance of a point at infinity's stand-in, in spreads of the camera centres: its rays
-then differ from parallel by 1e-4 rad at most."""
-
-
 def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: SolveResult,
                  init: Any | None) -> None:
     """Write the refined model in its input format (COLMAP text / binary, Bundler) to ``out``.
 
-    The solution's frame is a free gauge (and arbitrary after a global initialization): it is
-    brought onto the model's frame by the similarity that best maps its camera centres (and
-    points, if the centres are collinear) onto the model's, so the model is refined in place
-    and the images and points that were not solved stay consistent with the refined ones.
+    The solution is first brought onto the model's frame
+    (:func:`~pmba_ros.io.solution_frame.in_model_frame`), so the model is refined in place.
     """
-    from pmba_ros.eval.align import umeyama_alignment
     from pmba_ros.io import bundler, colmap
+    from pmba_ros.io.solution_frame import in_model_frame
     if init is None:
         cams = np.arange(problem.n_cams)
         rows = np.argsort(problem.feature_ids)[np.searchsorted(
@@ -229,25 +221,9 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         cams = init.camera_index
         rows = init.feature_index
     point_ids = problem.feature_ids[rows]
-    points = np.array(result.points_w)
-    finite = np.all(np.isfinite(points), axis=1)
-    if not np.all(finite) and isinstance(result.features, ParallaxFeatures):
-        # Points at infinity: far along their rays, where COLMAP and Bundler see them too.
-        spread = float(np.sqrt(np.mean(np.sum(
-            (result.centers_w - result.centers_w.mean(axis=0)) ** 2, axis=1)))) or 1.0
-        points[~finite] = far_points(result.R_wc, result.centers_w, result.features,
-                                     FAR_POINT_SPREADS * spread)[~finite]
     assert problem.points_w is not None  # both formats store their points
-    try:
-        sim = umeyama_alignment(result.centers_w, problem.centers_w[cams], with_scale=True)
-    except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
-        sim = umeyama_alignment(np.concatenate([result.centers_w, points[finite]]),
-                                np.concatenate([problem.centers_w[cams],
-                                                problem.points_w[rows][finite]]),
-                                with_scale=True)
-    R_wc = sim.rotation @ result.R_wc
-    centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
-    points = sim.scale * points @ sim.rotation.T + sim.translation
+    R_wc, centers, points = in_model_frame(result, problem.centers_w[cams],
+                                           problem.points_w[rows])
     if fmt == 'colmap':
         model = colmap.read_colmap(source)
         _, image_ids = colmap.to_problem(model)
