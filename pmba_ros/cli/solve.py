@@ -262,7 +262,11 @@ def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
     _check_outputs(args)
     chunks.set_max_threads(args.threads)
-    problem = load_problem(args.problem, args.format)
+    rigs = _load_rigs(args)
+    problem = rigs.problem if rigs is not None else load_problem(args.problem, args.format)
+    if rigs is not None and rigs.held:
+        print(f'{rigs.rigs.frames_path}: one pose per frame, {len(rigs.problem.rig or [])} '
+              'rig cameras held rigid')
     print(f'{args.problem}: {problem.n_cams} cameras, {problem.n_feats} features, '
           f'{problem.n_obs} observations' + (f', dropped {problem.dropped}' if problem.dropped
                                              else ''))
@@ -273,7 +277,14 @@ def run(args: argparse.Namespace) -> int:
     for param, solver in runs:
         options = _options(param, solver, args)
         callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
-        if args.init == 'global':
+        if args.init == 'global' and rigs is not None and rigs.held:
+            from pmba_ros.cli.colmap_rigs import global_rig_init
+            init: Any = global_rig_init(rigs, options, callback)
+            result = init.solve
+            entry = {**result.to_report(), 'init': init.to_report(),
+                     'ba_invocations': init.ba_invocations}
+            inits.append(init)
+        elif args.init == 'global':
             from pmba_ros.init.pipeline import global_init, InitOptions
             init = global_init(problem, InitOptions(solve_options=options), progress=None)
             result = init.solve
@@ -299,6 +310,8 @@ def run(args: argparse.Namespace) -> int:
                   f'{r.termination.value} after {r.iterations} iterations, not converged '
                   f'(final rms {r.final_rms_px:.4f} px): the result is not a minimum',
                   file=sys.stderr)
+    for text in [] if rigs is None else rigs.warnings:
+        _warn(report, text)
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))
     _warn_non_finite(results, out_report)
     if args.report:
@@ -311,8 +324,35 @@ def run(args: argparse.Namespace) -> int:
         if fmt == 'auto' and not args.problem.startswith('sim:'):
             fmt = _detect_format(source)
         if not args.compare and fmt in ('colmap', 'bundler'):
-            _write_model(args.out, source, fmt, problem, results[0], inits[0])
+            _write_solved_model(args.out, source, fmt, problem, results[0], inits[0], rigs)
     return 0
+
+
+def _load_rigs(args: argparse.Namespace) -> Any:
+    """Return a COLMAP model's rigs and frames (a ``RigModel``), or None without them.
+
+    Raises:
+        FormatError: If the rigs or frames are malformed.
+    """
+    path = Path(args.problem)
+    if args.problem.startswith('sim:') or not path.exists() or args.format not in (
+            'auto', 'colmap') or (args.format == 'auto' and _detect_format(path) != 'colmap'):
+        return None
+    from pmba_ros.cli.colmap_rigs import load_rig_model
+    return load_rig_model(path, rigid=args.param == 'pmba' and not args.compare)
+
+
+def _write_solved_model(out: Path, source: Path, fmt: str, problem: BAProblem,
+                        result: SolveResult, init: Any | None, rigs: Any | None) -> None:
+    """Write the refined model in its format, a COLMAP model with its rigs and frames."""
+    from pmba_ros.cli import colmap_rigs
+    if rigs is not None and rigs.held:
+        colmap_rigs.write_rig_model(out, source, rigs, result,
+                                    None if init is None else init.camera_index)
+        return
+    _write_model(out, source, fmt, problem, result, init)
+    if rigs is not None and rigs.written:
+        colmap_rigs.write_frames_of_images(out, source, rigs)
 
 
 def _table(results: list[SolveResult]) -> str:

@@ -191,7 +191,8 @@ def to_rig_problem(images: BAProblem, layout: RigLayout, R_wc: FloatArray,
 
 
 def frames_from_images(layout: RigLayout, image_index: IntArray, R_wc: FloatArray,
-                       centers_w: FloatArray) -> tuple[IntArray, FloatArray, FloatArray, float]:
+                       centers_w: FloatArray, fit_scale: bool = True,
+                       ) -> tuple[IntArray, FloatArray, FloatArray, float]:
     """Return rig poses from image poses solved alone (a global initialization's).
 
     Each rotation is the chordal mean of its images' (through their cameras' offsets). The
@@ -203,6 +204,7 @@ def frames_from_images(layout: RigLayout, image_index: IntArray, R_wc: FloatArra
         image_index: Solved images (indices into ``layout.image_ids``), shape (S,).
         R_wc: Their rotations, shape (S, 3, 3).
         centers_w: Their centres, shape (S, 3).
+        fit_scale: Fit the scale; False: the images' solution is at the rig's scale.
 
     Returns:
         The layout poses with a solved image (P,), their rotations (P, 3, 3) and origins
@@ -221,7 +223,7 @@ def frames_from_images(layout: RigLayout, image_index: IntArray, R_wc: FloatArra
     c_dev = centers_w - (_group_sum(centers_w, group, P) / counts)[group]
     l_dev = lever - (_group_sum(lever, group, P) / counts)[group]
     denom = float(np.sum(c_dev * c_dev))
-    scale = float(np.sum(c_dev * l_dev)) / denom if denom > 0 else 1.0
+    scale = float(np.sum(c_dev * l_dev)) / denom if denom > 0 and fit_scale else 1.0
     if not scale > 0:
         logger.warning('COLMAP rigs: no frame has two initialized images with a baseline; '
                        'the rig problem starts at scale 1')

@@ -35,11 +35,27 @@ if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray
     from pmba_ros.core.solve import SolveResult
 
-__all__ = ['FAR_POINT_SPREADS', 'in_model_frame']
+__all__ = ['FAR_POINT_SPREADS', 'finite_points', 'in_model_frame']
 
 FAR_POINT_SPREADS = 1e4
 """Distance of a point at infinity's stand-in, in spreads of the camera centres: its rays
 then differ from parallel by 1e-4 rad at most."""
+
+
+def finite_points(result: SolveResult) -> FloatArray:
+    """Return a solution's points, those at infinity far along their rays, shape (N, 3).
+
+    Where COLMAP and Bundler see them too: :data:`FAR_POINT_SPREADS` spreads of the camera
+    centres from their main anchor.
+    """
+    points = np.array(result.points_w)
+    finite = np.all(np.isfinite(points), axis=1)
+    if not np.all(finite) and isinstance(result.features, ParallaxFeatures):
+        spread = float(np.sqrt(np.mean(np.sum(
+            (result.centers_w - result.centers_w.mean(axis=0)) ** 2, axis=1)))) or 1.0
+        points[~finite] = far_points(result.R_wc, result.centers_w, result.features,
+                                     FAR_POINT_SPREADS * spread)[~finite]
+    return points
 
 
 def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatArray,
@@ -56,14 +72,8 @@ def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatAr
     Returns:
         Rotations (M, 3, 3), centres (M, 3) and points (N, 3), every point finite.
     """
-    points = np.array(result.points_w)
-    finite = np.all(np.isfinite(points), axis=1)
-    if not np.all(finite) and isinstance(result.features, ParallaxFeatures):
-        # Points at infinity: far along their rays, where COLMAP and Bundler see them too.
-        spread = float(np.sqrt(np.mean(np.sum(
-            (result.centers_w - result.centers_w.mean(axis=0)) ** 2, axis=1)))) or 1.0
-        points[~finite] = far_points(result.R_wc, result.centers_w, result.features,
-                                     FAR_POINT_SPREADS * spread)[~finite]
+    points = finite_points(result)
+    finite = np.all(np.isfinite(result.points_w), axis=1)
     try:
         sim = umeyama_alignment(result.centers_w, centers_w, with_scale=with_scale)
     except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
