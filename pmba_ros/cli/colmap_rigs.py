@@ -33,7 +33,8 @@ from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
-from pmba_ros.io import colmap, colmap_rig_problem as rp, colmap_rigs
+from pmba_ros.io import colmap, colmap_rigs
+from pmba_ros.io import colmap_rig_problem as rp
 from pmba_ros.io.solution_frame import finite_points, in_model_frame
 
 if TYPE_CHECKING:

@@ -37,6 +37,7 @@ Other camera models raise :class:`~pmba_ros.errors.FormatError` naming the model
 updates the poses of the solved images and the positions of the solved points and keeps
 everything else (cameras, names, colours, 2-D points, unsolved images and points) as read.
 Format reference: COLMAP's ``src/colmap/scene/reconstruction_io.cc`` (text and binary).
+Rigs and frames (COLMAP >= 3.12): :mod:`pmba_ros.io.colmap_rigs`.
 """
 
 from __future__ import annotations
@@ -298,6 +299,7 @@ class BinaryReader:
     """Little-endian binary reader that names the file and offset in its errors."""
 
     def __init__(self, path: Path) -> None:
+        """Read the whole file."""
         self.path = path
         self.data = path.read_bytes()
         self.pos = 0
@@ -334,7 +336,7 @@ class BinaryReader:
         return int(count)
 
     def string(self) -> str:
-        """Return a NUL-terminated UTF-8 string (an image name), and move past it."""
+        """Return the NUL-terminated UTF-8 text here (an image name), and move past it."""
         end = self.data.find(b'\0', self.pos)
         if end < 0:
             msg = f'{self.path}: unterminated image name at byte {self.pos}'

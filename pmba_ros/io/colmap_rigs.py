@@ -202,8 +202,8 @@ def _check(model: ColmapRigs, images: dict[int, ColmapImage]) -> None:
                 msg = f'{path}: frame {fid} refers to unknown image {iid}'
                 raise FormatError(msg)
             if images[iid].camera_id != cid:
-                msg = (f'{path}: frame {fid} has image {iid} as camera {cid}\'s, but the image '
-                       f'is camera {images[iid].camera_id}\'s')
+                msg = (f'{path}: frame {fid} has image {iid} as camera {cid}, but the image is '
+                       f'of camera {images[iid].camera_id}')
                 raise FormatError(msg)
             if iid in seen:
                 msg = f'{path}: image {iid} is in frames {seen[iid]} and {fid}'
@@ -325,8 +325,8 @@ def write_rigs(directory: str | PathLike[str], model: ColmapRigs, binary: bool =
             _write_frames_bin(fh, model.frames)
         return
     lines = ['# Rig calib list with one line of data per calib:',
-             '#   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as '
-             '(SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])',
+             ('#   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as '
+              '(SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])'),
              f'# Number of rigs: {len(model.rigs)}']
     for rid, rig in sorted(model.rigs.items()):
         n = len(rig.sensors) + (rig.ref_type is not None)
@@ -339,8 +339,8 @@ def write_rigs(directory: str | PathLike[str], model: ColmapRigs, binary: bool =
         lines.append(' '.join(words))
     (d / 'rigs.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8')
     lines = ['# Frame list with one line of data per frame:',
-             '#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], NUM_DATA_IDS, '
-             'DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)',
+             ('#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], NUM_DATA_IDS, '
+              'DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)'),
              f'# Number of frames: {len(model.frames)}']
     for fid, f in sorted(model.frames.items()):
         pose = ' '.join(f'{v:.17g}' for v in np.concatenate([f.qvec, f.tvec]))

@@ -18,16 +18,16 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from test.io.test_colmap import _colmap_rms
+from test.io.test_colmap_rigs import synthesize
 from typing import Any
 
 import numpy as np
 from pmba_ros.cli.main import main
 from pmba_ros.core.solve import solve
-from pmba_ros.io import colmap, colmap_rig_problem as rp, colmap_rigs
+from pmba_ros.io import colmap, colmap_rigs
+from pmba_ros.io import colmap_rig_problem as rp
 import pytest
-
-from test.io.test_colmap import _colmap_rms
-from test.io.test_colmap_rigs import synthesize
 
 pycolmap = pytest.importorskip('pycolmap')
 
@@ -48,7 +48,7 @@ def _pose(image: Any) -> Any:
 
 
 def _check_written(out: Path) -> None:
-    """pycolmap reads the model; its image poses are ours, and each rig is rigid."""
+    """Check that pycolmap reads the model; its image poses are ours, and each rig is rigid."""
     rec = pycolmap.Reconstruction(str(out))
     ours = colmap.read_colmap(out)
     for iid, image in rec.images.items():
@@ -68,7 +68,7 @@ def _check_written(out: Path) -> None:
 @pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
 @pytest.mark.parametrize('camera', sorted(CAMERAS))
 def test_noise_free_rig_models_solve_to_zero(tmp_path: Path, camera: str, binary: bool) -> None:
-    """pycolmap's noise-free rig models: one pose per frame, zero error, read back rigid."""
+    """Noise-free rig models of pycolmap: one pose per frame, zero error, read back rigid."""
     synthesize(tmp_path / 'in', binary, camera, CAMERAS[camera])
     report = _solve(tmp_path / 'in', tmp_path / 'out')
     assert report['n_cams'] == 9 and report['final_rms_px'] < 1e-10

@@ -128,7 +128,7 @@ def test_damaged_binary_frames_are_refused_naming_the_file(tmp_path: Path) -> No
     with pytest.raises(FormatError, match=r'frames\.bin: frame 1 refers to unknown image 999'):
         colmap_rigs.read_rigs(tmp_path, images)
     (tmp_path / 'rigs.bin').unlink()
-    with pytest.raises(FormatError, match='rigs.bin is missing'):
+    with pytest.raises(FormatError, match=r'rigs\.bin is missing'):
         colmap_rigs.read_rigs(tmp_path, images)
 
 
