@@ -30,7 +30,7 @@ from collections.abc import Callable
 import math
 from pathlib import Path
 import sys
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._json import dumps_report
@@ -45,6 +45,9 @@ from pmba_ros.errors import FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
 from pmba_ros.plot import pyplot
+
+if TYPE_CHECKING:
+    from pmba_ros.cli.colmap_rigs import RigModel
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
 COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
@@ -328,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_rigs(args: argparse.Namespace) -> Any:
+def _load_rigs(args: argparse.Namespace) -> RigModel | None:
     """Return a COLMAP model's rigs and frames (a ``RigModel``), or None without them.
 
     Raises:
@@ -343,7 +346,7 @@ def _load_rigs(args: argparse.Namespace) -> Any:
 
 
 def _write_solved_model(out: Path, source: Path, fmt: str, problem: BAProblem,
-                        result: SolveResult, init: Any | None, rigs: Any | None) -> None:
+                        result: SolveResult, init: Any | None, rigs: RigModel | None) -> None:
     """Write the refined model in its format, a COLMAP model with its rigs and frames."""
     from pmba_ros.cli import colmap_rigs
     if rigs is not None and rigs.held:
