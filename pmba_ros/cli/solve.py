@@ -30,22 +30,24 @@ from collections.abc import Callable
 import math
 from pathlib import Path
 import sys
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import non_negative_int, positive_float, positive_int
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import chunks
-from pmba_ros.core.conversions import far_points
 from pmba_ros.core.gauge import camera_components
 from pmba_ros.core.loss import Loss
-from pmba_ros.core.problem import BAProblem, ParallaxFeatures, Parameterization
+from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
-from pmba_ros.errors import DegenerateGeometryError, FormatError
+from pmba_ros.errors import FormatError
 from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
 from pmba_ros.plot import pyplot
+
+if TYPE_CHECKING:
+    from pmba_ros.cli.colmap_rigs import RigModel
 
 #: ``--compare`` runs the paper's Table 4 pairing: PMBA with Dogleg, the baselines with LM.
 COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
@@ -205,22 +207,15 @@ def _detect_format(path: Path) -> str:
     return 'bundler' if path.suffix == '.out' else detect_problem_format(path)
 
 
-FAR_POINT_SPREADS = 1e4
-"""Distance of a point at infinity's stand-in, in spreads of the camera centres: its rays
-then differ from parallel by 1e-4 rad at most."""
-
-
 def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: SolveResult,
                  init: Any | None) -> None:
     """Write the refined model in its input format (COLMAP text / binary, Bundler) to ``out``.
 
-    The solution's frame is a free gauge (and arbitrary after a global initialization): it is
-    brought onto the model's frame by the similarity that best maps its camera centres (and
-    points, if the centres are collinear) onto the model's, so the model is refined in place
-    and the images and points that were not solved stay consistent with the refined ones.
+    The solution is first brought onto the model's frame
+    (:func:`~pmba_ros.io.solution_frame.in_model_frame`), so the model is refined in place.
     """
-    from pmba_ros.eval.align import umeyama_alignment
     from pmba_ros.io import bundler, colmap
+    from pmba_ros.io.solution_frame import in_model_frame
     if init is None:
         cams = np.arange(problem.n_cams)
         rows = np.argsort(problem.feature_ids)[np.searchsorted(
@@ -229,25 +224,9 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         cams = init.camera_index
         rows = init.feature_index
     point_ids = problem.feature_ids[rows]
-    points = np.array(result.points_w)
-    finite = np.all(np.isfinite(points), axis=1)
-    if not np.all(finite) and isinstance(result.features, ParallaxFeatures):
-        # Points at infinity: far along their rays, where COLMAP and Bundler see them too.
-        spread = float(np.sqrt(np.mean(np.sum(
-            (result.centers_w - result.centers_w.mean(axis=0)) ** 2, axis=1)))) or 1.0
-        points[~finite] = far_points(result.R_wc, result.centers_w, result.features,
-                                     FAR_POINT_SPREADS * spread)[~finite]
     assert problem.points_w is not None  # both formats store their points
-    try:
-        sim = umeyama_alignment(result.centers_w, problem.centers_w[cams], with_scale=True)
-    except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
-        sim = umeyama_alignment(np.concatenate([result.centers_w, points[finite]]),
-                                np.concatenate([problem.centers_w[cams],
-                                                problem.points_w[rows][finite]]),
-                                with_scale=True)
-    R_wc = sim.rotation @ result.R_wc
-    centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
-    points = sim.scale * points @ sim.rotation.T + sim.translation
+    R_wc, centers, points = in_model_frame(result, problem.centers_w[cams],
+                                           problem.points_w[rows])
     if fmt == 'colmap':
         model = colmap.read_colmap(source)
         _, image_ids = colmap.to_problem(model)
@@ -286,7 +265,11 @@ def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
     _check_outputs(args)
     chunks.set_max_threads(args.threads)
-    problem = load_problem(args.problem, args.format)
+    rigs = _load_rigs(args)
+    problem = rigs.problem if rigs is not None else load_problem(args.problem, args.format)
+    if rigs is not None and rigs.held:
+        print(f'{rigs.rigs.frames_path}: one pose per frame, {len(rigs.problem.rig or [])} '
+              'rig cameras held rigid')
     print(f'{args.problem}: {problem.n_cams} cameras, {problem.n_feats} features, '
           f'{problem.n_obs} observations' + (f', dropped {problem.dropped}' if problem.dropped
                                              else ''))
@@ -297,7 +280,14 @@ def run(args: argparse.Namespace) -> int:
     for param, solver in runs:
         options = _options(param, solver, args)
         callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
-        if args.init == 'global':
+        if args.init == 'global' and rigs is not None and rigs.held:
+            from pmba_ros.cli.colmap_rigs import global_rig_init
+            init: Any = global_rig_init(rigs, options, callback)
+            result = init.solve
+            entry = {**result.to_report(), 'init': init.to_report(),
+                     'ba_invocations': init.ba_invocations}
+            inits.append(init)
+        elif args.init == 'global':
             from pmba_ros.init.pipeline import global_init, InitOptions
             init = global_init(problem, InitOptions(solve_options=options), progress=None)
             result = init.solve
@@ -323,6 +313,8 @@ def run(args: argparse.Namespace) -> int:
                   f'{r.termination.value} after {r.iterations} iterations, not converged '
                   f'(final rms {r.final_rms_px:.4f} px): the result is not a minimum',
                   file=sys.stderr)
+    for text in [] if rigs is None else rigs.warnings:
+        _warn(report, text)
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))
     _warn_non_finite(results, out_report)
     if args.report:
@@ -335,8 +327,35 @@ def run(args: argparse.Namespace) -> int:
         if fmt == 'auto' and not args.problem.startswith('sim:'):
             fmt = _detect_format(source)
         if not args.compare and fmt in ('colmap', 'bundler'):
-            _write_model(args.out, source, fmt, problem, results[0], inits[0])
+            _write_solved_model(args.out, source, fmt, problem, results[0], inits[0], rigs)
     return 0
+
+
+def _load_rigs(args: argparse.Namespace) -> RigModel | None:
+    """Return a COLMAP model's rigs and frames (a ``RigModel``), or None without them.
+
+    Raises:
+        FormatError: If the rigs or frames are malformed.
+    """
+    path = Path(args.problem)
+    if args.problem.startswith('sim:') or not path.exists() or args.format not in (
+            'auto', 'colmap') or (args.format == 'auto' and _detect_format(path) != 'colmap'):
+        return None
+    from pmba_ros.cli.colmap_rigs import load_rig_model
+    return load_rig_model(path, rigid=args.param == 'pmba' and not args.compare)
+
+
+def _write_solved_model(out: Path, source: Path, fmt: str, problem: BAProblem,
+                        result: SolveResult, init: Any | None, rigs: RigModel | None) -> None:
+    """Write the refined model in its format, a COLMAP model with its rigs and frames."""
+    from pmba_ros.cli import colmap_rigs
+    if rigs is not None and rigs.held:
+        colmap_rigs.write_rig_model(out, source, rigs, result,
+                                    None if init is None else init.camera_index)
+        return
+    _write_model(out, source, fmt, problem, result, init)
+    if rigs is not None and rigs.written:
+        colmap_rigs.write_frames_of_images(out, source, rigs)
 
 
 def _table(results: list[SolveResult]) -> str:

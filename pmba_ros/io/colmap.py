@@ -37,6 +37,7 @@ Other camera models raise :class:`~pmba_ros.errors.FormatError` naming the model
 updates the poses of the solved images and the positions of the solved points and keeps
 everything else (cameras, names, colours, 2-D points, unsolved images and points) as read.
 Format reference: COLMAP's ``src/colmap/scene/reconstruction_io.cc`` (text and binary).
+Rigs and frames (COLMAP >= 3.12): :mod:`pmba_ros.io.colmap_rigs`.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'from_problem', 'is_colmap_model',
+__all__ = ['BinaryReader', 'ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat',
+           'data_lines', 'from_problem', 'is_colmap_model', 'numbers', 'quat_to_R',
            'read_colmap', 'to_problem', 'updated', 'write_colmap']
 
 #: COLMAP model id -> (name, number of parameters).
@@ -136,7 +138,7 @@ def is_colmap_model(path: str | PathLike[str]) -> bool:
 
 # ---- quaternions -------------------------------------------------------------------------
 
-def _quat_to_R(q: FloatArray) -> FloatArray:
+def quat_to_R(q: FloatArray) -> FloatArray:
     """Return rotation matrices (M, 3, 3) of unit quaternions (M, 4) in (w, x, y, z)."""
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T
@@ -147,7 +149,7 @@ def _quat_to_R(q: FloatArray) -> FloatArray:
     ], axis=1)
 
 
-def _R_to_quat(R: FloatArray) -> FloatArray:
+def R_to_quat(R: FloatArray) -> FloatArray:
     """Return unit quaternions (M, 4) (w, x, y, z), w >= 0, of rotations (M, 3, 3)."""
     # The largest of the four squared components is computed directly (stable everywhere).
     tr = np.trace(R, axis1=1, axis2=2)
@@ -203,7 +205,8 @@ def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
     return ColmapModel(cameras, images, ids, xyz, rgb, err, tracks)
 
 
-def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+def data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """Return the (line number, tokens) of a text file's lines that are not comments."""
     out = []
     with path.open(encoding='utf-8') as fh:
         for n, line in enumerate(fh, 1):
@@ -213,7 +216,8 @@ def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
     return out
 
 
-def _numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
+def numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
+    """Return tokens as floats; FormatError naming the file, line ``n`` and ``what``."""
     try:
         return np.array(tokens, dtype=float)
     except ValueError as err:
@@ -235,13 +239,13 @@ def _camera(path: Path, where: str, model: str, width: int, height: int,
 
 def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
     cams = {}
-    for n, t in _data_lines(path):
+    for n, t in data_lines(path):
         if len(t) < 4:
             msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
             raise FormatError(msg)
-        head = _numbers(path, n, [t[0], t[2], t[3]], 'camera id / size')
+        head = numbers(path, n, [t[0], t[2], t[3]], 'camera id / size')
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
-                                     _numbers(path, n, t[4:], 'camera parameters'))
+                                     numbers(path, n, t[4:], 'camera parameters'))
     return cams
 
 
@@ -263,11 +267,11 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
         if len(head) < 10:
             msg = f'{path}:{n}: expected "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"'
             raise FormatError(msg)
-        v = _numbers(path, n, head[:9], 'image pose')
+        v = numbers(path, n, head[:9], 'image pose')
         if len(pts) % 3:
             msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
             raise FormatError(msg)
-        p = _numbers(path, n2, pts, 'image points').reshape(-1, 3)
+        p = numbers(path, n2, pts, 'image points').reshape(-1, 3)
         images[int(v[0])] = ColmapImage(v[1:5], v[5:8], int(v[8]), ' '.join(head[9:]),
                                         p[:, :2].copy(), p[:, 2].astype(np.int64))
     return images
@@ -276,12 +280,12 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
 def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
                                           list[IntArray]]:
     ids, xyz, rgb, err, tracks = [], [], [], [], []
-    for n, t in _data_lines(path):
+    for n, t in data_lines(path):
         if len(t) < 8 or (len(t) - 8) % 2:
             msg = (f'{path}:{n}: expected "POINT3D_ID X Y Z R G B ERROR" and (IMAGE_ID, '
                    'POINT2D_IDX) pairs')
             raise FormatError(msg)
-        v = _numbers(path, n, t, 'point')
+        v = numbers(path, n, t, 'point')
         ids.append(int(v[0]))
         xyz.append(v[1:4])
         rgb.append(v[4:7])
@@ -291,15 +295,17 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
 
 
-class _Reader:
+class BinaryReader:
     """Little-endian binary reader that names the file and offset in its errors."""
 
     def __init__(self, path: Path) -> None:
+        """Read the whole file."""
         self.path = path
         self.data = path.read_bytes()
         self.pos = 0
 
     def take(self, fmt: str) -> tuple[Any, ...]:
+        """Return the values of a struct format at the position, and move past them."""
         size = struct.calcsize('<' + fmt)
         if self.pos + size > len(self.data):
             msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
@@ -309,6 +315,7 @@ class _Reader:
         return out
 
     def array(self, dtype: str, count: int) -> np.ndarray:
+        """Return ``count`` values of ``dtype`` (a copy), and move past them."""
         size = np.dtype(dtype).itemsize * count
         if self.pos + size > len(self.data):
             msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
@@ -329,6 +336,7 @@ class _Reader:
         return int(count)
 
     def string(self) -> str:
+        """Return the NUL-terminated UTF-8 text here (an image name), and move past it."""
         end = self.data.find(b'\0', self.pos)
         if end < 0:
             msg = f'{self.path}: unterminated image name at byte {self.pos}'
@@ -339,7 +347,7 @@ class _Reader:
 
 
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
-    r = _Reader(path)
+    r = BinaryReader(path)
     count = r.count(24, 'cameras')        # id, model, width, height
     cams = {}
     for _ in range(count):
@@ -354,7 +362,7 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
 
 
 def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
-    r = _Reader(path)
+    r = BinaryReader(path)
     count = r.count(73, 'images')         # id, pose, camera id, name's NUL, point count
     images = {}
     for _ in range(count):
@@ -372,7 +380,7 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
 
 def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
                                           list[IntArray]]:
-    r = _Reader(path)
+    r = BinaryReader(path)
     n = r.count(51, 'points')             # id, xyz, rgb, error, track length
     ids = np.empty(n, dtype=np.int64)
     xyz = np.empty((n, 3))
@@ -412,7 +420,7 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
     intr = Intrinsics(*(a[:, i].copy() for i in range(6)))
     q = np.array([model.images[i].qvec for i in image_ids])
     t = np.array([model.images[i].tvec for i in image_ids])
-    R_cw = _quat_to_R(q)
+    R_cw = quat_to_R(q)
     R_wc = np.swapaxes(R_cw, 1, 2)
     centers = -np.einsum('mij,mj->mi', R_wc, t)
     feat_of = {int(pid): j for j, pid in enumerate(model.point_ids)}
@@ -452,7 +460,7 @@ def updated(model: ColmapModel, image_ids: IntArray, R_wc: FloatArray, centers_w
     position.
     """
     R_cw = np.swapaxes(np.asarray(R_wc, dtype=float), 1, 2)
-    q = _R_to_quat(R_cw)
+    q = R_to_quat(R_cw)
     t = -np.einsum('mij,mj->mi', R_cw, centers_w)
     images = dict(model.images)
     for k, iid in enumerate(np.asarray(image_ids).tolist()):
@@ -567,7 +575,7 @@ def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
             cam = ColmapCamera('OPENCV', w, h, np.array([fx, fy, cx, cy, k1, k2, 0.0, 0.0]))
         cameras[k + 1] = cam
     R_cw = np.swapaxes(problem.R_wc, 1, 2)
-    q = _R_to_quat(R_cw)
+    q = R_to_quat(R_cw)
     t = -np.einsum('mij,mj->mi', R_cw, problem.centers_w)
     obs = problem.obs
     ids = np.asarray(problem.feature_ids, dtype=np.int64)
