@@ -46,6 +46,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
+from pmba_ros.io.text import utf8_text
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -91,7 +92,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         FormatError: On a malformed file (the file, and what was expected where).
     """
     path = Path(path)
-    text = path.read_text(encoding='utf-8')
+    text = utf8_text(path)
     first, _, rest = text.partition('\n')
     if not first.lstrip().startswith('#'):
         rest = text

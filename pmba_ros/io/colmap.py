@@ -63,7 +63,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ['BinaryReader', 'ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat',
-           'data_lines', 'from_problem', 'is_colmap_model', 'numbers', 'quat_to_R',
+           'data_lines', 'from_problem', 'integers', 'is_colmap_model', 'numbers', 'quat_to_R',
            'read_colmap', 'to_problem', 'updated', 'write_colmap']
 
 #: COLMAP model id -> (name, number of parameters).
@@ -74,6 +74,10 @@ MODELS: dict[int, tuple[str, int]] = {
 }
 _MODEL_IDS = {name: (mid, n) for mid, (name, n) in MODELS.items()}
 _INVALID_POINT = -1
+NAME_ERRORS = 'surrogateescape'
+"""How bytes that are not UTF-8 are read and written: COLMAP stores an image name as the
+file system gave it, and a refined model must name the same files; in a number they fail
+as any other non-numeric text."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -208,7 +212,7 @@ def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
 def data_lines(path: Path) -> list[tuple[int, list[str]]]:
     """Return the (line number, tokens) of a text file's lines that are not comments."""
     out = []
-    with path.open(encoding='utf-8') as fh:
+    with path.open(encoding='utf-8', errors=NAME_ERRORS) as fh:
         for n, line in enumerate(fh, 1):
             s = line.strip()
             if s and not s.startswith('#'):
@@ -222,6 +226,15 @@ def numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
         return np.array(tokens, dtype=float)
     except ValueError as err:
         msg = f'{path}:{n}: non-numeric value in {what}: {err}'
+        raise FormatError(msg) from err
+
+
+def integers(path: Path, n: int, tokens: list[str], what: str) -> IntArray:
+    """Return tokens as int64; FormatError naming the file, line ``n`` and ``what``."""
+    try:
+        return np.array(tokens, dtype=np.int64)
+    except (ValueError, OverflowError) as err:
+        msg = f'{path}:{n}: not an integer in {what}: {err}'
         raise FormatError(msg) from err
 
 
@@ -243,14 +256,14 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
         if len(t) < 4:
             msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
             raise FormatError(msg)
-        head = numbers(path, n, [t[0], t[2], t[3]], 'camera id / size')
+        head = integers(path, n, [t[0], t[2], t[3]], 'camera id / size')
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
                                      numbers(path, n, t[4:], 'camera parameters'))
     return cams
 
 
 def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
-    with path.open(encoding='utf-8') as fh:
+    with path.open(encoding='utf-8', errors=NAME_ERRORS) as fh:
         lines = [(n, line.split()) for n, line in enumerate(fh, 1)
                  if not line.lstrip().startswith('#')]
     images = {}
@@ -267,13 +280,14 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
         if len(head) < 10:
             msg = f'{path}:{n}: expected "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"'
             raise FormatError(msg)
-        v = numbers(path, n, head[:9], 'image pose')
+        v = numbers(path, n, head[1:8], 'image pose')
+        ids = integers(path, n, [head[0], head[8]], 'image / camera id')
         if len(pts) % 3:
             msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
             raise FormatError(msg)
-        p = numbers(path, n2, pts, 'image points').reshape(-1, 3)
-        images[int(v[0])] = ColmapImage(v[1:5], v[5:8], int(v[8]), ' '.join(head[9:]),
-                                        p[:, :2].copy(), p[:, 2].astype(np.int64))
+        xys = numbers(path, n2, pts[0::3] + pts[1::3], 'image points').reshape(2, -1).T
+        images[int(ids[0])] = ColmapImage(v[:4], v[4:], int(ids[1]), ' '.join(head[9:]), xys,
+                                          integers(path, n2, pts[2::3], 'image points'))
     return images
 
 
@@ -285,12 +299,16 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
             msg = (f'{path}:{n}: expected "POINT3D_ID X Y Z R G B ERROR" and (IMAGE_ID, '
                    'POINT2D_IDX) pairs')
             raise FormatError(msg)
-        v = numbers(path, n, t, 'point')
-        ids.append(int(v[0]))
-        xyz.append(v[1:4])
-        rgb.append(v[4:7])
-        err.append(v[7])
-        tracks.append(v[8:].astype(np.int64).reshape(-1, 2))
+        v = numbers(path, n, t[1:4] + t[7:8], 'point')
+        whole = integers(path, n, t[:1] + t[4:7] + t[8:], 'point')
+        if np.any((whole[1:4] < 0) | (whole[1:4] > 255)):
+            msg = f'{path}:{n}: colour {" ".join(t[4:7])} is not in 0..255'
+            raise FormatError(msg)
+        ids.append(int(whole[0]))
+        xyz.append(v[:3])
+        rgb.append(whole[1:4])
+        err.append(v[3])
+        tracks.append(whole[4:].reshape(-1, 2))
     return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
 
@@ -341,7 +359,7 @@ class BinaryReader:
         if end < 0:
             msg = f'{self.path}: unterminated image name at byte {self.pos}'
             raise FormatError(msg)
-        s = self.data[self.pos:end].decode('utf-8')
+        s = self.data[self.pos:end].decode('utf-8', errors=NAME_ERRORS)
         self.pos = end + 1
         return s
 
@@ -388,7 +406,7 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
     err = np.empty(n)
     tracks = []
     for k in range(n):
-        (pid,) = r.take('Q')
+        (pid,) = r.take('q')   # uint64 in the file, as images.bin's references are read
         ids[k] = pid
         xyz[k] = r.array('<f8', 3)
         rgb[k] = r.array('u1', 3)
@@ -503,7 +521,7 @@ def write_colmap(directory: str | PathLike[str], model: ColmapModel,
         lines.append(f'{iid} {pose} {img.camera_id} {img.name}')
         lines.append(' '.join(f'{x:.17g} {y:.17g} {int(p)}'
                               for (x, y), p in zip(img.xys, img.point3d_ids, strict=True)))
-    (d / 'images.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    (d / 'images.txt').write_text('\n'.join(lines) + '\n', encoding='utf-8', errors=NAME_ERRORS)
     lines = ['# 3D point list with one line of data per point:',
              '#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)',
              f'# Number of points: {model.point_ids.shape[0]}']
@@ -529,7 +547,7 @@ def _write_images_bin(fh: BinaryIO, model: ColmapModel) -> None:
         fh.write(struct.pack('<i', iid))
         fh.write(np.concatenate([img.qvec, img.tvec]).astype('<f8').tobytes())
         fh.write(struct.pack('<i', img.camera_id))
-        fh.write(img.name.encode('utf-8') + b'\0')
+        fh.write(img.name.encode('utf-8', errors=NAME_ERRORS) + b'\0')
         fh.write(struct.pack('<Q', img.xys.shape[0]))
         rec = np.empty(img.xys.shape[0], dtype='<f8,<f8,<i8')
         rec['f0'], rec['f1'], rec['f2'] = img.xys[:, 0], img.xys[:, 1], img.point3d_ids

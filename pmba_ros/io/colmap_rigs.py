@@ -34,7 +34,7 @@ from typing import BinaryIO, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.errors import FormatError
-from pmba_ros.io.colmap import BinaryReader, data_lines, numbers
+from pmba_ros.io.colmap import BinaryReader, data_lines, integers, numbers
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -221,7 +221,7 @@ def _sensor_type(path: Path, where: str, token: str) -> int:
 def _read_rigs_txt(path: Path) -> dict[int, ColmapRig]:
     rigs = {}
     for n, t in data_lines(path):
-        head = numbers(path, n, t[:2], 'rig id / number of sensors').astype(np.int64)
+        head = integers(path, n, t[:2], 'rig id / number of sensors')
         if head.shape[0] < 2:
             msg = f'{path}:{n}: expected "RIG_ID NUM_SENSORS REF_SENSOR_TYPE REF_SENSOR_ID ..."'
             raise FormatError(msg)
@@ -260,8 +260,9 @@ def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
             msg = (f'{path}:{n}: expected "FRAME_ID RIG_ID QW QX QY QZ TX TY TZ NUM_DATA_IDS '
                    'DATA_IDS[]"')
             raise FormatError(msg)
-        v = numbers(path, n, t[:10], 'frame')
-        count = int(v[9])
+        v = numbers(path, n, t[2:9], 'frame pose')
+        head = integers(path, n, t[:2] + t[9:10], 'frame id / rig id / number of data ids')
+        count = int(head[2])
         rest = t[10:]
         if len(rest) != 3 * count:
             msg = (f'{path}:{n}: {count} data ids need {3 * count} values as "SENSOR_TYPE '
@@ -270,8 +271,8 @@ def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
         ids = np.empty((count, 3), dtype=np.int64)
         for j in range(count):
             ids[j, 0] = _sensor_type(path, str(n), rest[3 * j])
-            ids[j, 1:] = numbers(path, n, rest[3 * j + 1:3 * j + 3], 'data id')
-        frames[int(v[0])] = ColmapFrame(int(v[1]), v[2:6], v[6:9], ids)
+            ids[j, 1:] = integers(path, n, rest[3 * j + 1:3 * j + 3], 'data id')
+        frames[int(head[0])] = ColmapFrame(int(head[1]), v[:4], v[4:], ids)
     return frames
 
 

@@ -27,18 +27,26 @@ if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray, IntArray
 
 
+def utf8_text(path: Path) -> str:
+    """Return the text of ``path``.
+
+    Raises:
+        FormatError: If the file is not UTF-8 text.
+    """
+    try:
+        return path.read_text(encoding='utf-8')
+    except UnicodeDecodeError as err:
+        msg = f'{path}: not a text file ({err})'
+        raise FormatError(msg) from err
+
+
 def nonblank_lines(path: Path) -> tuple[list[str], list[int]]:
     """Return the non-blank lines of ``path`` and their 1-based line numbers.
 
     Raises:
         FormatError: If the file is not UTF-8 text.
     """
-    try:
-        text = path.read_text(encoding='utf-8')
-    except UnicodeDecodeError as err:
-        msg = f'{path}: not a text file ({err})'
-        raise FormatError(msg) from err
-    lines = text.splitlines()
+    lines = utf8_text(path).splitlines()
     numbers = [i for i, s in enumerate(lines, start=1) if s.strip()]
     return [lines[i - 1] for i in numbers], numbers
 

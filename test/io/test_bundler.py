@@ -137,11 +137,12 @@ def test_unregistered_cameras_are_left_out_and_written_back(
      'truncated file: 10000000000 points need'),
     ('# Bundle file v0.3\n1 -5\n' + '1 0 0 ' * 5 + '\n', 'negative count'),
     ('# Bundle file v0.3\n-3 2\n', 'negative count'),
+    (b'# Bundle file v0.3\n1 1\n\xff\xfe 0 0\n', 'not a text file'),   # a damaged byte
 ])
-def test_malformed_files_are_reported(tmp_path: Path, text: str, match: str) -> None:
+def test_malformed_files_are_reported(tmp_path: Path, text: str | bytes, match: str) -> None:
     """Errors name the file and what is wrong."""
     path = tmp_path / 'bad.out'
-    path.write_text(text)
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
     with pytest.raises(FormatError, match=match) as info:
         bundler.read_bundler(path)
     assert 'bad.out' in str(info.value)

@@ -130,6 +130,12 @@ def test_unsupported_camera_models_are_named(tmp_path: Path, line: str, match: s
     ('cameras.txt', '1 NOPE 640 480 1\n', "unknown camera model 'NOPE'"),
     ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 2\n', 'triples'),
     ('points3D.txt', '1 0 0 x 1 1 1 0\n', 'non-numeric'),
+    # Damaged integers: an OverflowError, a ValueError and silent truncation or wrapping before.
+    ('cameras.txt', '1 PINHOLE inf 480 500 500 320 240\n', 'not an integer in camera id / size'),
+    ('images.txt', '1 1 0 0 0 0 0 0 1.5 a.png\n\n', 'not an integer in image / camera id'),
+    ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 2 nan\n', 'not an integer in image points'),
+    ('points3D.txt', '1 0 0 1 1 1 1 0 1 99999999999999999999\n', 'not an integer in point'),
+    ('points3D.txt', '1 0 0 1 300 1 1 0\n', 'colour 300 1 1 is not in 0..255'),
 ])
 def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, content: str,
                                                  match: str) -> None:
@@ -142,6 +148,36 @@ def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, cont
     with pytest.raises(FormatError, match=match) as info:
         colmap.read_colmap(tmp_path)
     assert name in str(info.value)
+
+
+@pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
+def test_image_names_that_are_not_utf8_round_trip(tmp_path: Path, scene_problem: BAProblem,
+                                                  binary: bool) -> None:
+    """A Latin-1 file name (as an old file system gave it) is read and written byte for byte."""
+    model = colmap.from_problem(scene_problem)
+    colmap.write_colmap(tmp_path / 'a', model, binary=binary)
+    name = 'images.bin' if binary else 'images.txt'
+    data = (tmp_path / 'a' / name).read_bytes()
+    assert b'image_000001' in data
+    (tmp_path / 'a' / name).write_bytes(data.replace(b'image_000001', b'caf\xe9_000001'))
+    read = colmap.read_colmap(tmp_path / 'a')
+    problem, _ = colmap.to_problem(read)
+    _same_problem(scene_problem, problem)
+    colmap.write_colmap(tmp_path / 'b', read, binary=binary)
+    assert b'caf\xe9_000001' in (tmp_path / 'b' / name).read_bytes()
+
+
+@pytest.mark.parametrize('name', ['cameras.txt', 'points3D.txt'])
+def test_bytes_that_are_not_text_in_a_number_are_named(tmp_path: Path,
+                                                       scene_problem: BAProblem,
+                                                       name: str) -> None:
+    """A damaged byte in a number is a FormatError naming the file, not a decoding crash."""
+    colmap.write_colmap(tmp_path, colmap.from_problem(scene_problem))
+    lines = (tmp_path / name).read_bytes().split(b'\n')
+    lines[3] = lines[3][:12] + b'\xa0' + lines[3][13:]
+    (tmp_path / name).write_bytes(b'\n'.join(lines))
+    with pytest.raises(FormatError, match=name.replace('.', r'\.') + ':4: '):
+        colmap.read_colmap(tmp_path)
 
 
 def test_truncated_binary_file_is_reported(tmp_path: Path, scene_problem: BAProblem) -> None:
@@ -163,6 +199,19 @@ def test_damaged_binary_count_is_reported_before_allocating(
     with pytest.raises(FormatError, match=name.replace('.', r'\.') + ': truncated file or bad '
                        'count: 1099511627776'):
         colmap.read_colmap(tmp_path)
+
+
+def test_point_id_beyond_int64_is_read_not_a_crash(tmp_path: Path,
+                                                   scene_problem: BAProblem) -> None:
+    """A damaged uint64 point id (top bit set) reads as an id no image refers to."""
+    colmap.write_colmap(tmp_path, colmap.from_problem(scene_problem), binary=True)
+    data = bytearray((tmp_path / 'points3D.bin').read_bytes())
+    data[8:16] = (2 ** 64 - 5).to_bytes(8, 'little')   # the first point's id
+    (tmp_path / 'points3D.bin').write_bytes(bytes(data))
+    model = colmap.read_colmap(tmp_path)
+    assert model.point_ids[0] == -5
+    with pytest.raises(FormatError, match='unknown 3-D point'):
+        colmap.to_problem(model)
 
 
 def test_missing_files_are_named(tmp_path: Path) -> None:

@@ -100,6 +100,8 @@ def _damage_frames_txt(path: Path, old: str, new: str) -> None:
     (' CAMERA 1 1', ' LIDAR 1 1', r"frames.txt:4: unknown sensor type 'LIDAR'"),
     (' CAMERA 1 1', ' CAMERA 1', r'frames.txt:4: 2 data ids need 6 values'),
     ('1 1 ', '1 7 ', 'frames.txt: frame 1 refers to unknown rig 7'),
+    (' CAMERA 1 1', ' CAMERA 1 inf', 'frames.txt:4: not an integer in data id'),
+    ('1 1 ', '1 1.5 ', 'frames.txt:4: not an integer in frame id / rig id'),
 ])
 def test_damaged_text_frames_are_refused_naming_the_file(tmp_path: Path, old: str, new: str,
                                                          match: str) -> None:
