@@ -46,13 +46,14 @@ from dataclasses import dataclass, replace
 import logging
 from pathlib import Path
 import struct
-from typing import Any, BinaryIO, TYPE_CHECKING
+from typing import BinaryIO, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
+from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ERRORS, numbers
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -62,9 +63,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['BinaryReader', 'ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat',
-           'data_lines', 'from_problem', 'integers', 'is_colmap_model', 'numbers', 'quat_to_R',
-           'read_colmap', 'to_problem', 'updated', 'write_colmap']
+__all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat', 'from_problem',
+           'is_colmap_model', 'quat_to_R', 'read_colmap', 'to_problem', 'updated', 'write_colmap']
 
 #: COLMAP model id -> (name, number of parameters).
 MODELS: dict[int, tuple[str, int]] = {
@@ -74,10 +74,6 @@ MODELS: dict[int, tuple[str, int]] = {
 }
 _MODEL_IDS = {name: (mid, n) for mid, (name, n) in MODELS.items()}
 _INVALID_POINT = -1
-NAME_ERRORS = 'surrogateescape'
-"""How bytes that are not UTF-8 are read and written: COLMAP stores an image name as the
-file system gave it, and a refined model must name the same files; in a number they fail
-as any other non-numeric text."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,35 +205,6 @@ def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
     return ColmapModel(cameras, images, ids, xyz, rgb, err, tracks)
 
 
-def data_lines(path: Path) -> list[tuple[int, list[str]]]:
-    """Return the (line number, tokens) of a text file's lines that are not comments."""
-    out = []
-    with path.open(encoding='utf-8', errors=NAME_ERRORS) as fh:
-        for n, line in enumerate(fh, 1):
-            s = line.strip()
-            if s and not s.startswith('#'):
-                out.append((n, s.split()))
-    return out
-
-
-def numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
-    """Return tokens as floats; FormatError naming the file, line ``n`` and ``what``."""
-    try:
-        return np.array(tokens, dtype=float)
-    except ValueError as err:
-        msg = f'{path}:{n}: non-numeric value in {what}: {err}'
-        raise FormatError(msg) from err
-
-
-def integers(path: Path, n: int, tokens: list[str], what: str) -> IntArray:
-    """Return tokens as int64; FormatError naming the file, line ``n`` and ``what``."""
-    try:
-        return np.array(tokens, dtype=np.int64)
-    except (ValueError, OverflowError) as err:
-        msg = f'{path}:{n}: not an integer in {what}: {err}'
-        raise FormatError(msg) from err
-
-
 def _camera(path: Path, where: str, model: str, width: int, height: int,
             params: FloatArray) -> ColmapCamera:
     if model not in _MODEL_IDS:
@@ -311,57 +278,6 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         tracks.append(whole[4:].reshape(-1, 2))
     return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
-
-
-class BinaryReader:
-    """Little-endian binary reader that names the file and offset in its errors."""
-
-    def __init__(self, path: Path) -> None:
-        """Read the whole file."""
-        self.path = path
-        self.data = path.read_bytes()
-        self.pos = 0
-
-    def take(self, fmt: str) -> tuple[Any, ...]:
-        """Return the values of a struct format at the position, and move past them."""
-        size = struct.calcsize('<' + fmt)
-        if self.pos + size > len(self.data):
-            msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
-            raise FormatError(msg)
-        out = struct.unpack_from('<' + fmt, self.data, self.pos)
-        self.pos += size
-        return out
-
-    def array(self, dtype: str, count: int) -> np.ndarray:
-        """Return ``count`` values of ``dtype`` (a copy), and move past them."""
-        size = np.dtype(dtype).itemsize * count
-        if self.pos + size > len(self.data):
-            msg = f'{self.path}: truncated file at byte {self.pos} (need {size} more bytes)'
-            raise FormatError(msg)
-        out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos).copy()
-        self.pos += size
-        return out
-
-    def count(self, record_bytes: int, what: str) -> int:
-        """Read a record count that the rest of the file can hold (records >= record_bytes)."""
-        # A damaged count is refused before it sizes an array (2**40 points: 8 TiB).
-        (count,) = self.take('Q')
-        left = len(self.data) - self.pos
-        if count * record_bytes > left:
-            msg = (f'{self.path}: truncated file or bad count: {count} {what} need at least '
-                   f'{count * record_bytes} bytes, {left} left after byte {self.pos}')
-            raise FormatError(msg)
-        return int(count)
-
-    def string(self) -> str:
-        """Return the NUL-terminated UTF-8 text here (an image name), and move past it."""
-        end = self.data.find(b'\0', self.pos)
-        if end < 0:
-            msg = f'{self.path}: unterminated image name at byte {self.pos}'
-            raise FormatError(msg)
-        s = self.data[self.pos:end].decode('utf-8', errors=NAME_ERRORS)
-        self.pos = end + 1
-        return s
 
 
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:

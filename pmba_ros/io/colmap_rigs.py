@@ -34,7 +34,7 @@ from typing import BinaryIO, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.errors import FormatError
-from pmba_ros.io.colmap import BinaryReader, data_lines, integers, numbers
+from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, numbers
 
 if TYPE_CHECKING:
     from os import PathLike
