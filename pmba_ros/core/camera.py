@@ -141,6 +141,15 @@ def pixels_to_bearings(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray
     Radial distortion is inverted with Newton's method on r (vectorized); cameras without
     distortion take the closed form.
     """
+    # Absurd intrinsics (a damaged file's 1e-306 px focal length) overflow here: their rays
+    # come out non-finite, which make_problem drops and counts.
+    with np.errstate(over='ignore', invalid='ignore'):
+        return _undistorted_rays(pixels, intr, cam_idx, iterations)
+
+
+def _undistorted_rays(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray,
+                      iterations: int) -> FloatArray:
+    """Return :func:`pixels_to_bearings`' unit bearings (K, 3)."""
     xd = (pixels[:, 0] - intr.cx[cam_idx]) / intr.fx[cam_idx]
     yd = (pixels[:, 1] - intr.cy[cam_idx]) / intr.fy[cam_idx]
     k1 = intr.k1[cam_idx]

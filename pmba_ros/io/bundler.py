@@ -211,21 +211,21 @@ def _rotations(R: FloatArray, file_cams: IntArray) -> FloatArray:
     camera without a word: it is refused instead.
 
     Raises:
-        FormatError: Naming the first registered camera whose R is not a rotation.
+        FormatError: Naming the first registered camera whose R is not a (finite) rotation.
     """
     finite = np.all(np.isfinite(R), axis=(1, 2))
     safe = np.where(finite[:, None, None], R, 0.0)
     ortho_err = np.abs(np.swapaxes(safe, 1, 2) @ safe - np.eye(3)).max(axis=(1, 2))
     det_err = np.abs(np.linalg.det(safe) - 1.0)
-    bad = np.flatnonzero(finite & ((ortho_err > _ROTATION_TOL) | (det_err > _ROTATION_TOL)))
+    bad = np.flatnonzero(~finite | (ortho_err > _ROTATION_TOL) | (det_err > _ROTATION_TOL))
     if bad.size:
         k = int(bad[0])
         msg = (f'Bundler file: camera {int(file_cams[k])} has a rotation that is not a '
                f'rotation matrix (|R^T R - I| = {ortho_err[k]:.3g}, det R = '
-               f'{np.linalg.det(safe[k]):.3g})')
+               f'{np.linalg.det(safe[k]):.3g})' if finite[k] else
+               f'Bundler file: camera {int(file_cams[k])} has a non-finite rotation')
         raise FormatError(msg)
-    # Non-finite rows are left to make_problem, which names the pose.
-    out: FloatArray = np.where(finite[:, None, None], so3.project(safe), R)
+    out: FloatArray = so3.project(R)
     return out
 
 

@@ -54,6 +54,7 @@ from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
 from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ERRORS, numbers
+from pmba_ros.io.text import MAX_PIXEL
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -349,6 +350,12 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
     cam_of = {iid: k for k, iid in enumerate(image_ids)}
     used = sorted({model.images[i].camera_id for i in image_ids})
     cameras = {cid: camera_model(model.cameras[cid], cid) for cid in used}
+    for cid, ((fx, fy, cx, cy, *_), _) in cameras.items():
+        if not (fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()):
+            msg = (f'COLMAP camera {cid} ({model.cameras[cid].model}): focal lengths {fx:g}, '
+                   f'{fy:g}, centre {cx:g}, {cy:g}; expected positive focal lengths and finite '
+                   'values')
+            raise FormatError(msg)
     rows, models = zip(*(cameras[model.images[i].camera_id] for i in image_ids), strict=True)
     a = np.array(rows, dtype=float).reshape(-1, 6)
     intr = Intrinsics(*(a[:, i].copy() for i in range(6)))
@@ -368,9 +375,16 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
         except KeyError as err:
             msg = f'COLMAP image {iid} refers to unknown 3-D point {err.args[0]}'
             raise FormatError(msg) from err
+        xy = img.xys[has]
+        bad = ~(np.abs(xy) <= MAX_PIXEL).all(axis=1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            msg = (f'COLMAP image {iid}: 2-D point of 3-D point {int(pids[k])} at '
+                   f'({xy[k, 0]:g}, {xy[k, 1]:g}) px: not a pixel')
+            raise FormatError(msg)
         cam_idx.append(np.full(len(feats), cam_of[iid], dtype=np.int64))
         feat_idx.append(np.array(feats, dtype=np.int64))
-        pix.append(img.xys[has])
+        pix.append(xy)
     cams = np.concatenate(cam_idx)
     pixels = np.concatenate(pix).reshape(-1, 2)
     pixel_jac = None

@@ -201,6 +201,22 @@ def test_damaged_binary_count_is_reported_before_allocating(
         colmap.read_colmap(tmp_path)
 
 
+@pytest.mark.parametrize(('camera', 'points', 'match'), [
+    ('1 PINHOLE 640 480 500 -500 320 240', '10 20 5', 'COLMAP camera 1 .*focal lengths 500, -500'),
+    ('1 PINHOLE 640 480 500 500 320 240', '1e300 20 5',
+     r'image 1: 2-D point of 3-D point 5 at \(1e\+300, 20\) px: not a pixel'),
+])
+def test_absurd_cameras_and_pixels_are_refused(tmp_path: Path, camera: str, points: str,
+                                               match: str) -> None:
+    """A negative focal length or a pixel at 1e300 names the camera or image (was a crash)."""
+    (tmp_path / 'cameras.txt').write_text(camera + '\n')
+    (tmp_path / 'images.txt').write_text(f'1 1 0 0 0 0 0 0 1 a.png\n{points}\n'
+                                         '2 1 0 0 0 -1 0 0 1 b.png\n11 21 5\n')
+    (tmp_path / 'points3D.txt').write_text('5 0 0 10 255 0 0 0.5 1 0 2 0\n')
+    with pytest.raises(FormatError, match=match):
+        colmap.to_problem(colmap.read_colmap(tmp_path))
+
+
 def test_point_id_beyond_int64_is_read_not_a_crash(tmp_path: Path,
                                                    scene_problem: BAProblem) -> None:
     """A damaged uint64 point id (top bit set) reads as an id no image refers to."""
