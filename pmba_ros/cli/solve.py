@@ -327,7 +327,9 @@ def run(args: argparse.Namespace) -> int:
         if fmt == 'auto' and not args.problem.startswith('sim:'):
             fmt = _detect_format(source)
         if not args.compare and fmt in ('colmap', 'bundler'):
-            _write_solved_model(args.out, source, fmt, problem, results[0], inits[0], rigs)
+            for text in _write_solved_model(args.out, source, fmt, problem, results[0],
+                                            inits[0], rigs):
+                print(f'warning: {text}', file=sys.stderr)
     return 0
 
 
@@ -346,16 +348,53 @@ def _load_rigs(args: argparse.Namespace) -> RigModel | None:
 
 
 def _write_solved_model(out: Path, source: Path, fmt: str, problem: BAProblem,
-                        result: SolveResult, init: Any | None, rigs: RigModel | None) -> None:
-    """Write the refined model in its format, a COLMAP model with its rigs and frames."""
+                        result: SolveResult, init: Any | None, rigs: RigModel | None) -> list[str]:
+    """Write the refined model in its format, a COLMAP model with its rigs and frames.
+
+    Returns:
+        Warnings: files of another COLMAP model left in the input's own folder.
+    """
     from pmba_ros.cli import colmap_rigs
     if rigs is not None and rigs.held:
         colmap_rigs.write_rig_model(out, source, rigs, result,
                                     None if init is None else init.camera_index)
-        return
-    _write_model(out, source, fmt, problem, result, init)
-    if rigs is not None and rigs.written:
-        colmap_rigs.write_frames_of_images(out, source, rigs)
+    else:
+        _write_model(out, source, fmt, problem, result, init)
+        if rigs is not None and rigs.written:
+            colmap_rigs.write_frames_of_images(out, source, rigs)
+    if fmt != 'colmap':
+        return []
+    with_rigs = rigs is not None and (rigs.held or rigs.written)
+    return _clear_stale_colmap_files(out, source, with_rigs)
+
+
+COLMAP_FILES = tuple(f'{name}.{form}' for name in ('cameras', 'images', 'points3D', 'rigs',
+                                                   'frames') for form in ('bin', 'txt'))
+"""The files of a COLMAP model, in either form."""
+
+
+def _clear_stale_colmap_files(out: Path, source: Path, with_rigs: bool) -> list[str]:
+    """Remove the COLMAP files in ``out`` that the model just written there does not have.
+
+    COLMAP reads the binary form where both are there, and rigs and frames beside any model:
+    an earlier run's files would be read instead of the refined model, or with it. In the
+    input's own folder nothing is removed; a warning names them instead.
+    """
+    form = 'bin' if (source / 'cameras.bin').is_file() else 'txt'
+    names = ('cameras', 'images', 'points3D') + (('rigs', 'frames') if with_rigs else ())
+    written = {f'{name}.{form}' for name in names}
+    stale = [out / f for f in COLMAP_FILES if f not in written and (out / f).is_file()]
+    if not stale:
+        return []
+    listed = ', '.join(p.name for p in stale)
+    if out.resolve() == source.resolve():
+        msg = (f'{out} also holds {listed} of another model, which COLMAP may read instead '
+               'of (or with) the refined one')
+        return [msg]
+    for path in stale:
+        path.unlink()
+    print(f'{out}: removed {listed} of an earlier model')
+    return []
 
 
 def _table(results: list[SolveResult]) -> str:

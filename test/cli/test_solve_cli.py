@@ -138,6 +138,32 @@ def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: st
     assert data['converged']
 
 
+def test_an_earlier_models_colmap_files_are_removed_from_out(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Binary files and rigs of an earlier run would be read instead of a refined text model."""
+    import numpy as np
+    from pmba_ros.io import colmap
+    from pmba_ros.sim.scenes import street_scene
+
+    scene = street_scene(2, n_cams=6, n_points=200, far_fraction=0.0)
+    model = colmap.from_problem(scene.start)
+    colmap.write_colmap(tmp_path / 'model', model)
+    out = tmp_path / 'refined'
+    colmap.write_colmap(out, model, binary=True)        # an earlier run's binary model
+    (out / 'rigs.txt').write_text('1 1 CAMERA 1\n')    # and its rigs
+    assert main(['solve', str(tmp_path / 'model'), '--quiet', '--out', str(out)]) == 0
+    assert 'removed cameras.bin, images.bin, points3D.bin, rigs.txt' in capsys.readouterr().out
+    assert sorted(p.name for p in out.glob('*.bin')) == [] and not (out / 'rigs.txt').exists()
+    refined, _ = colmap.to_problem(colmap.read_colmap(out))
+    assert not np.allclose(refined.centers_w, scene.start.centers_w)
+    # In the input's own folder nothing is removed: a warning says what COLMAP may read.
+    colmap.write_colmap(tmp_path / 'model', model, binary=True)
+    assert main(['solve', str(tmp_path / 'model'), '--quiet', '--out',
+                 str(tmp_path / 'model')]) == 0
+    assert 'also holds cameras.txt, images.txt, points3D.txt' in capsys.readouterr().err
+    assert (tmp_path / 'model' / 'cameras.txt').is_file()
+
+
 @pytest.mark.parametrize('init', ['file', 'global'])
 def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str) -> None:
     """`pmba solve bundle.out --out DIR` writes DIR/bundle.out with the refined cameras."""
