@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+from contextlib import closing
 from pathlib import Path
 import shutil
 import sqlite3
@@ -117,6 +118,24 @@ def test_nothing_readable_names_the_file(tmp_path: Path) -> None:
         bad.write_bytes(content)
         with pytest.raises(BagError, match=rf'{name}: cannot'), open_bags([bad]):
             pass
+
+
+@pytest.mark.parametrize(('table', 'update', 'match'), [
+    ('topics', "UPDATE topics SET name = CAST(X'2fff73' AS TEXT)", r"utf-8 b'/\\xffs'"),
+    ('sqlite_master', ("UPDATE sqlite_master SET sql = CAST(X'ff' AS TEXT) || sql "
+                       "WHERE name = 'timestamp_idx'"), 'malformed database schema'),
+])
+def test_text_that_is_not_utf8_names_the_file(tmp_path: Path, table: str, update: str,
+                                               match: str) -> None:
+    """A damaged byte in a topic's name or the schema: one clear error (was a traceback)."""
+    db3 = write_db3(tmp_path / 'rec')
+    with closing(sqlite3.connect(db3)) as db:
+        if table == 'sqlite_master':
+            db.execute('PRAGMA writable_schema = ON')
+        db.execute(update)
+        db.commit()
+    with pytest.raises(BagError, match=rf'rec\.db3: cannot open bag .*{match}'), open_bags([db3]):
+        pass
 
 
 def test_index_missing_rows_is_rebuilt(tmp_path: Path) -> None:

@@ -57,6 +57,10 @@ __all__ = ['index_damage', 'journal_of', 'recover_journal', 'salvage_db3']
 JOURNAL_SUFFIXES = ('-wal', '-journal')
 """What SQLite appends to a database's name for its write-ahead log and its rollback journal."""
 
+UNREADABLE = (apsw.Error, UnicodeDecodeError)
+"""What a read of a damaged file raises: apsw decodes TEXT values as UTF-8, and a damaged byte
+there (a table's name, a column that a flipped bit made TEXT) fails as a damaged page does."""
+
 _MAX_ROWID = 2**63 - 1
 _ROWS = 'SELECT rowid, * FROM messages WHERE rowid >= ? ORDER BY rowid'
 _SHOWN_GAPS = 3
@@ -122,7 +126,7 @@ def index_damage(path: Path) -> str | None:
                                  'WHERE timestamp >= ?', (-_MAX_ROWID - 1,)).fetchall()[0][0]
         except apsw.SQLError:   # no such index, no messages table: not for this check
             return None
-        except apsw.Error as err:
+        except UNREADABLE as err:
             return f'its message rows do not all read ({err})'
     if rows == indexed:
         return None
@@ -206,7 +210,7 @@ def _probe(src: apsw.Connection, start: int, walk: _Walk) -> tuple[bool, Row | N
     """Return whether the first row from rowid ``start`` on reads, and that row (None: none)."""
     try:
         row = src.execute(f'{_ROWS} LIMIT 1', (start,)).fetchone()
-    except apsw.Error:
+    except UNREADABLE:
         return False, None
     if row is None:
         return True, None
@@ -224,7 +228,7 @@ def _run(src: apsw.Connection, start: int, walk: _Walk) -> Generator[Row, None, 
             if not _plausible(row, walk.last):
                 return False
             yield walk.take(row)
-    except apsw.Error:
+    except UNREADABLE:
         return False
     return True
 
@@ -283,7 +287,7 @@ def _copy_table(src: apsw.Connection, out: sqlite3.Connection, name: str) -> boo
     quoted = '"{}"'.format(name.replace('"', '""'))
     try:
         rows = src.execute(f'SELECT * FROM {quoted}').fetchall()
-    except apsw.Error:
+    except UNREADABLE:
         return False
     if not rows:
         return True
@@ -327,7 +331,7 @@ def salvage_db3(path: Path, dest: Path, reason: str) -> Salvaged | None:
                 'SELECT type, name, sql FROM sqlite_master WHERE sql IS NOT NULL')
                 if not str(name).startswith('sqlite_')]   # SQLite's own, made by itself
             width = len(src.execute('PRAGMA table_info(messages)').fetchall())
-        except apsw.Error:   # not SQLite, or its schema unreadable
+        except UNREADABLE:   # not SQLite, or its schema unreadable
             return None
         tables = [name for kind, name, _ in schema if kind == 'table']
         if not width or 'topics' not in tables:
