@@ -126,7 +126,7 @@ def test_nothing_readable_names_the_file(tmp_path: Path) -> None:
                        "WHERE name = 'timestamp_idx'"), 'malformed database schema'),
 ])
 def test_text_that_is_not_utf8_names_the_file(tmp_path: Path, table: str, update: str,
-                                               match: str) -> None:
+                                              match: str) -> None:
     """A damaged byte in a topic's name or the schema: one clear error (was a traceback)."""
     db3 = write_db3(tmp_path / 'rec')
     with closing(sqlite3.connect(db3)) as db:
