@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import struct
 
 import numpy as np
 from pmba_ros.backend.msg_backend import RosbagsBackend
@@ -25,18 +26,20 @@ from pmba_ros.io.bags import iter_messages, jazzy_typestore, open_bags
 import pytest
 
 
-def write_chunked(path: Path, n: int, topic: str = '/gt', t0: int = 0) -> None:
+def write_chunked(path: Path, n: int, topic: str = '/gt', t0: int = 0,
+                  compressed: bool = True) -> None:
     """Write ``n`` PoseStamped messages 0.1 s apart into many small MCAP chunks.
 
     ``ros2 bag record`` closes a chunk every 768 KiB: a long recording has many.
     """
-    from mcap.writer import Writer
+    from mcap.writer import CompressionType, Writer
 
     typestore = jazzy_typestore()
     backend = RosbagsBackend(typestore)
     msgdef = typestore.generate_msgdef('geometry_msgs/msg/PoseStamped', ros_version=2)[0]
     with path.open('wb') as out:
-        writer = Writer(out, chunk_size=512)
+        writer = Writer(out, chunk_size=512, compression=CompressionType.ZSTD if compressed
+                        else CompressionType.NONE)
         writer.start(profile='ros2', library='test')
         schema = writer.register_schema('geometry_msgs/msg/PoseStamped', 'ros2msg',
                                         msgdef.encode())
@@ -68,6 +71,32 @@ def test_truncated_mcap_is_read_up_to_the_damage(tmp_path: Path) -> None:
         assert 'the rest of the file is lost' in opened.damage[0]
         assert opened.topics['/gt'].count == len(xs)
     assert 80 < len(xs) < 200 and xs == list(range(len(xs)))
+
+
+def test_record_length_past_any_file_is_damage_read_up_to(tmp_path: Path) -> None:
+    """A record of 2**63 bytes (flipped bits) in a killed recorder's file: the messages before.
+
+    The record is in a chunk whose CRC is zero (not computed, which MCAP allows), so the
+    reader meets its length.
+    """
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200, compressed=False)
+    data = bytearray(bad.read_bytes())
+    pos = 8   # past the magic: opcode (u8), length (u64), body, record by record
+    chunks = 0
+    while chunks < 30 or data[pos] != 0x06:   # to the 31st chunk, past the 30th's indexes
+        chunks += data[pos] == 0x06
+        pos += 9 + struct.unpack_from('<Q', data, pos + 1)[0]
+    # The chunk's body: start and end time, uncompressed size (u64 each), CRC (u32),
+    # compression (an empty string: u32 0), records length (u64), then the records.
+    data[pos + 33:pos + 37] = bytes(4)
+    first = pos + 9 + 8 + 8 + 8 + 4 + 4 + 8
+    data[first:first + 9] = b'\x7f' + struct.pack('<Q', 2**63 + 5)   # an unknown record
+    bad.write_bytes(bytes(data[:pos + 2000]))   # no summary: a killed recorder
+    with open_bags([bad]) as opened:
+        xs = _xs(opened)
+        assert 'the rest of the file is lost' in opened.damage[0]
+    assert 50 < len(xs) < 200 and xs == list(range(len(xs)))
 
 
 def test_nothing_readable_stays_the_open_error(tmp_path: Path) -> None:

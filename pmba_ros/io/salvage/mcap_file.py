@@ -33,8 +33,9 @@ __all__ = ['salvage_mcap']
 def _stream_errors() -> tuple[type[BaseException], ...]:
     """Return what the mcap stream reader raises on a truncated or corrupt file."""
     from mcap.exceptions import McapError
+    # A damaged length asks a buffer for more than it can hold: OverflowError, MemoryError.
     errors: list[type[BaseException]] = [McapError, EOFError, ValueError, KeyError,
-                                         struct.error, OSError]
+                                         struct.error, OSError, ArithmeticError, MemoryError]
     try:
         import zstandard
         errors.append(zstandard.ZstdError)
