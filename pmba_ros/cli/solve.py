@@ -55,7 +55,8 @@ COMPARE = (('pmba', 'dogleg'), ('xyz', 'lm'), ('idp', 'lm'))
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``solve`` options."""
-    parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, or '
+    parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, COLMAP '
+                        'model directory (multi-camera rigs held rigid), Bundler .out file, or '
                         'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]')
     parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap', 'bundler'],
                         default='auto', help='auto: a directory with cameras.txt/.bin is a '
