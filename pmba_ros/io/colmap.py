@@ -57,6 +57,7 @@ from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ER
 from pmba_ros.io.text import MAX_PIXEL
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from os import PathLike
 
     from pmba_ros._typing import FloatArray, IntArray
@@ -64,8 +65,9 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat', 'from_problem',
-           'is_colmap_model', 'quat_to_R', 'read_colmap', 'to_problem', 'updated', 'write_colmap']
+__all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat', 'check_poses',
+           'from_problem', 'is_colmap_model', 'quat_to_R', 'read_colmap', 'to_problem',
+           'updated', 'write_colmap']
 
 #: COLMAP model id -> (name, number of parameters).
 MODELS: dict[int, tuple[str, int]] = {
@@ -138,6 +140,25 @@ def is_colmap_model(path: str | PathLike[str]) -> bool:
 
 
 # ---- quaternions -------------------------------------------------------------------------
+
+def check_poses(q: FloatArray, t: FloatArray, names: Sequence[str]) -> None:
+    """Refuse the first pose whose quaternion (M, 4) or translation (M, 3) is not one.
+
+    COLMAP normalizes a stored quaternion: any finite one but zero is a rotation.
+
+    Raises:
+        FormatError: Naming the pose (``names[k]``, e.g. 'image 12') and its values.
+    """
+    with np.errstate(over='ignore'):
+        norm = np.linalg.norm(q, axis=1)
+    bad = ~(np.isfinite(norm) & (norm > 0) & np.isfinite(t).all(axis=1))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        msg = (f'COLMAP {names[k]}: its pose (quaternion {" ".join(f"{v:g}" for v in q[k])}, '
+               f'translation {" ".join(f"{v:g}" for v in t[k])}) is not a rotation and a '
+               'translation')
+        raise FormatError(msg)
+
 
 def quat_to_R(q: FloatArray) -> FloatArray:
     """Return rotation matrices (M, 3, 3) of unit quaternions (M, 4) in (w, x, y, z)."""
@@ -361,6 +382,7 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
     intr = Intrinsics(*(a[:, i].copy() for i in range(6)))
     q = np.array([model.images[i].qvec for i in image_ids])
     t = np.array([model.images[i].tvec for i in image_ids])
+    check_poses(q, t, [f'image {i}' for i in image_ids])
     R_cw = quat_to_R(q)
     R_wc = np.swapaxes(R_cw, 1, 2)
     centers = -np.einsum('mij,mj->mi', R_wc, t)

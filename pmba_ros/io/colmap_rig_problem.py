@@ -42,7 +42,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project, projection_jacobian
 from pmba_ros.core.problem import make_problem, Rig
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.colmap import quat_to_R, R_to_quat
+from pmba_ros.io.colmap import check_poses, quat_to_R, R_to_quat
 
 if TYPE_CHECKING:
     from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -127,6 +127,8 @@ def rig_layout(model: ColmapModel, rigs: ColmapRigs, image_ids: IntArray) -> Rig
     if lone:
         offsets.append(np.array([1.0, 0, 0, 0, 0, 0, 0]))
     s = np.array(offsets, dtype=float).reshape(-1, 7)
+    check_poses(s[:, :4], s[:, 4:], [f'rig {r} camera {c} sensor_from_rig' for r, c in pairs]
+                + ['identity'] * len(lone))
     R_rc, t_rc = _pose(s[:, :4], s[:, 4:])     # the camera's pose in the rig frame
     rig = Rig(R_rc, t_rc)
     pose_of = {f: k for k, f in enumerate(frame_ids)}
@@ -137,6 +139,8 @@ def rig_layout(model: ColmapModel, rigs: ColmapRigs, image_ids: IntArray) -> Rig
                        if i in frame_of else len(pairs) for i in ids]
     q = np.array([rigs.frames[f].qvec for f in frame_ids] + [model.images[i].qvec for i in lone])
     t = np.array([rigs.frames[f].tvec for f in frame_ids] + [model.images[i].tvec for i in lone])
+    check_poses(q.reshape(-1, 4), t.reshape(-1, 3),
+                [f'frame {f}' for f in frame_ids] + [f'image {i}' for i in lone])
     R_wc, centers = _pose(q.reshape(-1, 4), t.reshape(-1, 3))
     return RigLayout(np.array(ids, dtype=np.int64), np.array(pose_of_image, dtype=np.int64),
                      np.array(camera_of_image, dtype=np.int64),

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+import warnings
 
 import numpy as np
 from pmba_ros.cli.main import main
@@ -199,6 +200,19 @@ def test_damaged_binary_count_is_reported_before_allocating(
     with pytest.raises(FormatError, match=name.replace('.', r'\.') + ': truncated file or bad '
                        'count: 1099511627776'):
         colmap.read_colmap(tmp_path)
+
+
+@pytest.mark.parametrize('pose', ['0 0 0 0 0 0 0', '1 0 0 0 nan 0 0', '1e300 1e300 0 0 0 0 0'])
+def test_a_pose_that_is_none_names_the_image(tmp_path: Path, pose: str) -> None:
+    """A zero or non-finite quaternion or translation: the COLMAP image id (was a pose index)."""
+    (tmp_path / 'cameras.txt').write_text('1 PINHOLE 640 480 500 500 320 240\n')
+    (tmp_path / 'images.txt').write_text('1 1 0 0 0 0 0 0 1 a.png\n10 20 5\n'
+                                         f'7 {pose} 1 b.png\n11 21 5\n')
+    (tmp_path / 'points3D.txt').write_text('5 0 0 10 255 0 0 0.5 1 0 7 0\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')   # nor a numpy warning before the error
+        with pytest.raises(FormatError, match=r'COLMAP image 7: its pose \(quaternion'):
+            colmap.to_problem(colmap.read_colmap(tmp_path))
 
 
 @pytest.mark.parametrize(('camera', 'points', 'match'), [

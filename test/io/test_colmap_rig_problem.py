@@ -190,3 +190,19 @@ def test_a_camera_without_its_offset_is_not_held(tmp_path: Path) -> None:
     report = _solve(tmp_path / 'in', tmp_path / 'out')
     assert report['n_cams'] == 18 and any('without sensor_from_rig' in w
                                           for w in report['warnings'])
+
+
+def test_a_frame_whose_pose_is_none_is_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A frame's zero quaternion: one error naming the frame (a rotation of NaNs before)."""
+    synthesize(tmp_path, binary=False)
+    frames = tmp_path / 'frames.txt'
+    lines = frames.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if not line.startswith('#'))
+    head = lines[k].split()
+    head[2:6] = ['0', '0', '0', '0']
+    lines[k] = ' '.join(head)
+    frames.write_text('\n'.join(lines) + '\n')
+    assert main(['solve', str(tmp_path), '--quiet']) == 1
+    err = capsys.readouterr().err
+    assert f'error: COLMAP frame {head[0]}: its pose (quaternion 0 0 0 0' in err
