@@ -307,6 +307,8 @@ def run(args: argparse.Namespace) -> int:
         print(_table(results))
     if args.init != 'global':
         _warn_components(problem, report)
+    else:
+        _warn_left_out(problem, inits[0], report)
     _warn_focal_lengths(problem, report)
     for r in results:
         if not r.converged:
@@ -468,6 +470,16 @@ def _warn_components(problem: BAProblem, report: dict[str, Any]) -> None:
     text = (f'the cameras form {n} groups that share no feature ({sizes} cameras): each was '
             "solved on its own, their relative pose and scale are the file's start's")
     _warn(report, text)
+
+
+def _warn_left_out(problem: BAProblem, init: Any, report: dict[str, Any]) -> None:
+    """Warn about cameras a global initialization could not place (so did not solve)."""
+    left = problem.n_cams - init.camera_index.shape[0]
+    if left > 0:
+        _warn(report, f'global initialization: {left} of {problem.n_cams} cameras could not be '
+              'placed (outside the largest group of views joined by two-view geometry, or '
+              "without enough features; the report's init says which) and were not solved; "
+              'a written model keeps them as read')
 
 
 def _warn(report: dict[str, Any], text: str) -> None:

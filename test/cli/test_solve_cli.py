@@ -138,6 +138,35 @@ def test_solve_refines_a_colmap_model_in_its_own_format(tmp_path: Path, init: st
     assert data['converged']
 
 
+def test_cameras_the_global_initialization_leaves_out_are_warned_about(tmp_path: Path) -> None:
+    """Two scenes in one model share no feature: the smaller one is not solved, and it is said."""
+    import dataclasses
+
+    import numpy as np
+    from pmba_ros.io import colmap
+    from pmba_ros.sim.scenes import street_scene
+
+    a = colmap.from_problem(street_scene(1, n_cams=10, n_points=300).start)
+    b = colmap.from_problem(street_scene(2, n_cams=8, n_points=250).start)
+    images = dict(a.images)
+    for iid, img in b.images.items():   # ids past a's: images + 100, points + 10_000
+        images[iid + 100] = dataclasses.replace(
+            img, name=f'b_{img.name}',
+            point3d_ids=np.where(img.point3d_ids >= 0, img.point3d_ids + 10_000, -1))
+    model = dataclasses.replace(
+        a, images=images, point_ids=np.concatenate([a.point_ids, b.point_ids + 10_000]),
+        xyz=np.concatenate([a.xyz, b.xyz + 100.0]), rgb=np.concatenate([a.rgb, b.rgb]),
+        error=np.concatenate([a.error, b.error]),
+        tracks=[*a.tracks, *[t + np.array([100, 0]) for t in b.tracks]])
+    colmap.write_colmap(tmp_path / 'two', model)
+    assert main(['solve', str(tmp_path / 'two'), '--init', 'global', '--quiet', '--report',
+                 str(tmp_path / 'r.json')]) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert report['n_cams'] == 10
+    (warning,) = report['warnings']
+    assert warning.startswith('global initialization: 8 of 18 cameras could not be placed')
+
+
 def test_an_earlier_models_colmap_files_are_removed_from_out(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Binary files and rigs of an earlier run would be read instead of a refined text model."""
