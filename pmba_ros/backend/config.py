@@ -55,7 +55,7 @@ INT_MINIMUMS: dict[str, int] = {
     'init_retry_every': 1, 'init_min_features': 1, 'init_max_iterations': 1,
     'fallback_reinit_after': 1, 'min_observations': 5, 'num_cams': 1,
     'camera_id': 0, 'qos_depth': 1, 'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
-    'max_landmarks': 0, 'max_observations_per_feature': 0}
+    'max_landmarks': 0, 'max_observations_per_feature': 0, 'init_max_batch': 3}
 """Integer parameters and their smallest accepted value."""
 
 POSITIVE_FLOATS = ('motion_prior_direction_rel', 'max_time_s', 'loss_scale_px',
@@ -300,7 +300,8 @@ class BackendConfig:
                 msg = f'parameter {name}: expected a string'
                 raise ValueError(msg)
         topics = self.camera_info_topics
-        if isinstance(topics, str) or not all(isinstance(t, str) and t for t in topics):
+        if not isinstance(topics, list | tuple) or not all(isinstance(t, str) and t
+                                                           for t in topics):
             msg = f'parameter camera_info_topics={topics!r}: expected a list of topic names'
             raise ValueError(msg)
         object.__setattr__(self, 'camera_info_topics', tuple(topics))

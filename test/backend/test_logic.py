@@ -161,6 +161,11 @@ def test_config_from_params_flat_and_nested() -> None:
     ({'windowsize': 20}, 'unknown parameter'),
     ({'tf_rate_hz': 1e-12}, r'tf_rate_hz.*0 \(off\) or 0.01-1000 Hz'),
     ({'tf_rate_hz': 1e7}, 'tf_rate_hz'),
+    # Values a YAML file gives for a typo (1e12 is a string to YAML 1.1): were TypeErrors.
+    ({'init_max_batch': '1e12'}, r"init_max_batch='1e12': expected an integer >= 3"),
+    ({'init_max_batch': [60]}, 'init_max_batch'),
+    ({'camera_info_topics': 0}, r'camera_info_topics=0: expected a list of topic names'),
+    ({'camera_info_topics': True}, 'camera_info_topics'),
 ])
 def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
     """An invalid parameter value is a ValueError naming the parameter."""
