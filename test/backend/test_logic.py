@@ -173,6 +173,18 @@ def test_config_rejects_bad_params(params: dict[str, Any], match: str) -> None:
         BackendConfig.from_params(params)
 
 
+def test_every_parameter_given_a_wrong_value_is_taken_or_named() -> None:
+    """Each field, given each value of the wrong kind or size: a config, or a ValueError."""
+    wrong: list[Any] = [-1, 0, 10**12, '1e12', float('nan'), float('inf'), 'abc', '', [], True,
+                        2.5, [1.0, 2.0], None, {'a': 1}]
+    for field in dataclasses.fields(BackendConfig):
+        for value in wrong:
+            try:
+                BackendConfig.from_params({field.name: value})
+            except ValueError as err:   # anything else fails the test with its traceback
+                assert field.name in str(err), (field.name, value, err)
+
+
 def thin_tracks(ids: np.ndarray, cams: np.ndarray, cap: int) -> np.ndarray:
     """Return the mask of observations thinning keeps, track by track (the test's reference).
 
