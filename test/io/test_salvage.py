@@ -95,8 +95,21 @@ def test_record_length_past_any_file_is_damage_read_up_to(tmp_path: Path) -> Non
     bad.write_bytes(bytes(data[:pos + 2000]))   # no summary: a killed recorder
     with open_bags([bad]) as opened:
         xs = _xs(opened)
-        assert 'the rest of the file is lost' in opened.damage[0]
-    assert 50 < len(xs) < 200 and xs == list(range(len(xs)))
+        assert 'skipped (damaged)' in opened.damage[0]
+    # The damaged chunk's messages are lost; those of the chunks before and after are read.
+    assert xs == sorted(xs) and xs[:50] == list(range(50)) and 150 < len(xs) < 200
+    assert len(set(range(int(xs[-1]) + 1)) - set(xs)) < 10
+
+
+def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:
+    """The magic and the header record zeroed (the file's first 20 bytes): every message."""
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200)
+    bad.write_bytes(bytes(20) + bad.read_bytes()[20:])
+    with open_bags([bad]) as opened:
+        xs = _xs(opened)
+        assert 'bytes 8-' in opened.damage[0]
+    assert xs == list(range(200))
 
 
 def test_nothing_readable_stays_the_open_error(tmp_path: Path) -> None:
@@ -106,6 +119,10 @@ def test_nothing_readable_stays_the_open_error(tmp_path: Path) -> None:
     cut = tmp_path / 'cut.mcap'
     cut.write_bytes(whole.read_bytes()[:300])
     with pytest.raises(BagError, match=r'cut\.mcap: cannot open bag'), open_bags([cut]):
+        pass
+    empty = tmp_path / 'empty.mcap'
+    empty.write_bytes(b'')
+    with pytest.raises(BagError, match=r'empty\.mcap: cannot open bag'), open_bags([empty]):
         pass
 
 

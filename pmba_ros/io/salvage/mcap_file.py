@@ -16,18 +16,31 @@
 ``ros2 bag record`` writes an MCAP file's index (summary and footer) when it closes it; a
 recorder that is killed, or a disk that fills up, leaves a file without one, and rosbags
 refuses the whole file ("File end magic is invalid"): every keyframe before the damage was
-lost. :func:`salvage_mcap` copies the complete chunks at the start of such a file into a
-new, indexed file, as ``mcap recover`` does, and says what was lost.
+lost. :func:`salvage_mcap` copies the complete chunks of such a file into a new, indexed
+file, as ``mcap recover`` does, and says what was lost. A damaged record is stepped over:
+reading starts again at the next chunk whose record parses and whose CRC holds, and the
+schemas and channels are taken from wherever they read (a later chunk, the summary).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+import io
+import mmap
 from pathlib import Path
 import struct
+from typing import Any
 
 from pmba_ros.io.salvage.common import Salvaged
 
 __all__ = ['salvage_mcap']
+
+_CHUNK = 0x06
+"""The opcode of a chunk record."""
+
+_CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8
+"""A chunk record's least body: start and end time, sizes, CRC, compression, records length."""
 
 
 def _stream_errors() -> tuple[type[BaseException], ...]:
@@ -44,12 +57,76 @@ def _stream_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
+@dataclass
+class _Walk:
+    """What reading a damaged file met: the stretches skipped and where it stopped."""
+
+    skipped: list[tuple[int, int]] = field(default_factory=list)
+    stopped: str = 'at the end of the file'
+
+
+def _records(path: Path, walk: _Walk) -> Iterator[Any]:
+    """Yield the records of an MCAP file, stepping over damaged ones to the next chunk."""
+    from mcap.exceptions import EndOfFile
+    from mcap.stream_reader import StreamReader
+
+    errors = _stream_errors()
+    if path.stat().st_size == 0:   # nothing to map
+        walk.stopped = 'at once: the file is empty'
+        return
+    with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        pos, size = 0, len(data)
+        while pos < size:
+            fh.seek(pos)
+            try:
+                yield from StreamReader(fh, skip_magic=pos > 0, validate_crcs=True).records
+                return
+            except EndOfFile:
+                walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'
+                return
+            except errors as err:
+                bad = fh.tell()
+                nxt = _next_chunk(data, bad, errors)
+                if nxt is None:
+                    walk.stopped = f'at byte {bad} of {size} ({type(err).__name__}: {err})'
+                    return
+                walk.skipped.append((bad, nxt))
+                pos = nxt
+
+
+def _next_chunk(data: mmap.mmap, start: int,
+                errors: tuple[type[BaseException], ...]) -> int | None:
+    """Return the offset of the first chunk record after ``start`` that reads whole, or None."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import breakup_chunk, StreamReader
+
+    unreadable: tuple[type[BaseException], ...] = (StopIteration, *errors)
+    at = start
+    while (at := data.find(bytes([_CHUNK]), at + 1)) >= 0:
+        if at + 9 + _CHUNK_HEAD > len(data):
+            return None
+        (length,) = struct.unpack_from('<Q', data, at + 1)
+        if not _CHUNK_HEAD <= length <= len(data) - at - 9:
+            continue
+        try:
+            reader = StreamReader(io.BytesIO(data[at:at + 9 + length]), skip_magic=True,
+                                  emit_chunks=True)
+            record = next(iter(reader.records))
+            if isinstance(record, Chunk):
+                breakup_chunk(record, validate_crc=True)
+                return at
+        except unreadable:
+            continue
+    return None
+
+
 def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     """Copy the readable messages of the MCAP file ``path`` into ``dest``.
 
-    Records are read from the start up to the first that is incomplete or corrupt (a chunk
-    cut short, a CRC mismatch); the schemas, channels and messages before it are written
-    into ``dest`` with a summary, so rosbags reads it like any recording.
+    Records are read from the start; a record that is incomplete or corrupt (a chunk cut
+    short, a CRC mismatch) is stepped over to the next chunk that reads whole. The schemas
+    and channels read anywhere are written first, then the messages of the readable chunks,
+    with a summary, so rosbags reads the copy like any recording.
 
     Args:
         path: The damaged MCAP file.
@@ -59,46 +136,45 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     Returns:
         What was copied, or None if not a single message could be (``dest`` removed).
     """
-    from mcap.exceptions import EndOfFile
     from mcap.records import Channel, Header, Message, Schema
-    from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
 
-    errors = _stream_errors()
-    size = path.stat().st_size
-    messages, stopped = 0, 'at its end (no index)'
-    schemas: dict[int, int] = {}
-    channels: dict[int, int] = {}
-    with path.open('rb') as src, dest.open('wb') as out:
-        writer = Writer(out)
-        started = False
-        try:
-            for record in StreamReader(src, skip_magic=False, validate_crcs=True).records:
-                if isinstance(record, Header) and not started:
-                    writer.start(profile=record.profile, library=record.library)
-                    started = True
-                elif not started:
-                    continue
-                elif isinstance(record, Schema) and record.id not in schemas:
-                    schemas[record.id] = writer.register_schema(record.name, record.encoding,
-                                                                record.data)
-                elif isinstance(record, Channel) and record.id not in channels:
-                    channels[record.id] = writer.register_channel(
-                        record.topic, record.message_encoding,
-                        schemas.get(record.schema_id, 0), record.metadata)
-                elif isinstance(record, Message) and record.channel_id in channels:
-                    writer.add_message(channels[record.channel_id], record.log_time,
+    header: Any = None
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    walk = _Walk()
+    for record in _records(path, walk):   # first the schemas and channels, wherever they are
+        if isinstance(record, Header) and header is None:
+            header = record
+        elif isinstance(record, Schema):
+            schemas.setdefault(record.id, record)
+        elif isinstance(record, Channel):
+            channels.setdefault(record.id, record)
+    messages = 0
+    if channels:
+        with dest.open('wb') as out:
+            writer = Writer(out)
+            # Without a header that reads (the file's start damaged): rosbag2's profile.
+            writer.start(profile='ros2' if header is None else header.profile,
+                         library='pmba_ros salvage' if header is None else header.library)
+            schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data)
+                          for sid, s in schemas.items()}
+            channel_ids = {cid: writer.register_channel(c.topic, c.message_encoding,
+                                                        schema_ids.get(c.schema_id, 0),
+                                                        c.metadata)
+                           for cid, c in channels.items()}
+            for record in _records(path, _Walk()):
+                if isinstance(record, Message) and record.channel_id in channel_ids:
+                    writer.add_message(channel_ids[record.channel_id], record.log_time,
                                        record.data, record.publish_time, record.sequence)
                     messages += 1
-        except EndOfFile:
-            stopped = f'where the file ends, at byte {size}, in the middle of a record'
-        except errors as err:
-            stopped = f'at byte {src.tell()} of {size} ({type(err).__name__}: {err})'
-        if started:
             writer.finish()
     if not messages:
         dest.unlink(missing_ok=True)
         return None
-    damage = (f'{reason}; {messages} messages read up to the '
-              f'damage {stopped}, the rest of the file is lost')
+    skipped = ''.join(f', bytes {a}-{b} skipped (damaged)' for a, b in walk.skipped[:3])
+    if len(walk.skipped) > 3:
+        skipped += f' and {len(walk.skipped) - 3} more damaged stretches'
+    lost = '' if walk.stopped == _Walk.stopped else ', the rest of the file is lost'
+    damage = f'{reason}; {messages} messages read{skipped}; reading stopped {walk.stopped}{lost}'
     return Salvaged(dest, messages, damage)
