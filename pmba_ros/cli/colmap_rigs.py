@@ -190,9 +190,7 @@ def write_frames_of_images(out: Path, source: Path, rm: RigModel) -> None:
     image_ids = np.array(sorted(model.images), dtype=np.int64)   # the layout's order
     q = np.array([model.images[int(i)].qvec for i in image_ids])
     t = np.array([model.images[int(i)].tvec for i in image_ids])
-    R_cw = colmap.quat_to_R(q)
-    R_wc = np.swapaxes(R_cw, 1, 2)
-    centers = -np.einsum('mij,mj->mi', R_wc, t)
+    R_wc, centers = colmap.poses_from_colmap(q, t)
     poses, R_wr, C_r, _ = rp.frames_from_images(rm.layout, np.arange(image_ids.shape[0]),
                                                 R_wc, centers, fit_scale=False)
     colmap_rigs.write_rigs(out, rp.updated_frames(rm.rigs, rm.layout, poses, R_wr, C_r),

@@ -66,8 +66,8 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ['ColmapCamera', 'ColmapImage', 'ColmapModel', 'R_to_quat', 'check_poses',
-           'from_problem', 'is_colmap_model', 'quat_to_R', 'read_colmap', 'to_problem',
-           'updated', 'write_colmap']
+           'from_problem', 'is_colmap_model', 'poses_from_colmap', 'poses_to_colmap',
+           'quat_to_R', 'read_colmap', 'to_problem', 'updated', 'write_colmap']
 
 #: COLMAP model id -> (name, number of parameters).
 MODELS: dict[int, tuple[str, int]] = {
@@ -194,6 +194,19 @@ def R_to_quat(R: FloatArray) -> FloatArray:
         q[mask] = np.stack(comps, axis=1)[mask]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     return np.where(q[:, :1] < 0, -q, q)
+
+
+def poses_from_colmap(q: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return (R_wc (M, 3, 3), centres (M, 3)) of COLMAP's world -> camera poses (q, t)."""
+    R_wc = np.swapaxes(quat_to_R(np.reshape(q, (-1, 4))), 1, 2)
+    return R_wc, -np.einsum('mij,mj->mi', R_wc, np.reshape(t, (-1, 3)))
+
+
+def poses_to_colmap(R_wc: FloatArray, centers_w: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return COLMAP's (q (M, 4), t (M, 3)) of camera -> world rotations and centres."""
+    R_cw = np.swapaxes(np.asarray(R_wc, dtype=float), 1, 2)
+    q = R_to_quat(R_cw) if R_cw.shape[0] else np.zeros((0, 4))
+    return q, -np.einsum('mij,mj->mi', R_cw, centers_w)
 
 
 # ---- reading -----------------------------------------------------------------------------
@@ -383,9 +396,7 @@ def to_problem(model: ColmapModel) -> tuple[BAProblem, IntArray]:
     q = np.array([model.images[i].qvec for i in image_ids])
     t = np.array([model.images[i].tvec for i in image_ids])
     check_poses(q, t, [f'image {i}' for i in image_ids])
-    R_cw = quat_to_R(q)
-    R_wc = np.swapaxes(R_cw, 1, 2)
-    centers = -np.einsum('mij,mj->mi', R_wc, t)
+    R_wc, centers = poses_from_colmap(q, t)
     feat_of = {int(pid): j for j, pid in enumerate(model.point_ids)}
     cam_idx, feat_idx, pix = [], [], []
     for iid in image_ids:
@@ -429,9 +440,7 @@ def updated(model: ColmapModel, image_ids: IntArray, R_wc: FloatArray, centers_w
     Non-finite points (PMBA points at infinity, which COLMAP cannot store) keep their stored
     position.
     """
-    R_cw = np.swapaxes(np.asarray(R_wc, dtype=float), 1, 2)
-    q = R_to_quat(R_cw)
-    t = -np.einsum('mij,mj->mi', R_cw, centers_w)
+    q, t = poses_to_colmap(R_wc, centers_w)
     images = dict(model.images)
     for k, iid in enumerate(np.asarray(image_ids).tolist()):
         images[iid] = replace(images[iid], qvec=q[k], tvec=t[k])
@@ -544,9 +553,7 @@ def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
         else:
             cam = ColmapCamera('OPENCV', w, h, np.array([fx, fy, cx, cy, k1, k2, 0.0, 0.0]))
         cameras[k + 1] = cam
-    R_cw = np.swapaxes(problem.R_wc, 1, 2)
-    q = R_to_quat(R_cw)
-    t = -np.einsum('mij,mj->mi', R_cw, problem.centers_w)
+    q, t = poses_to_colmap(problem.R_wc, problem.centers_w)
     obs = problem.obs
     ids = np.asarray(problem.feature_ids, dtype=np.int64)
     images = {}

@@ -42,7 +42,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project, projection_jacobian
 from pmba_ros.core.problem import make_problem, Rig
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.colmap import check_poses, quat_to_R, R_to_quat
+from pmba_ros.io.colmap import check_poses, poses_from_colmap, poses_to_colmap
 
 if TYPE_CHECKING:
     from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -95,12 +95,6 @@ def unknown_offsets(rigs: ColmapRigs) -> list[str]:
             if rigs.rigs[r].sensor_from_rig(0, c) is None]
 
 
-def _pose(q: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return (R_wc, centre) of a COLMAP world -> camera pose (q, t), shapes (M, ...)."""
-    R_wc = np.swapaxes(quat_to_R(q), 1, 2)
-    return R_wc, -np.einsum('mij,mj->mi', R_wc, t)
-
-
 def rig_layout(model: ColmapModel, rigs: ColmapRigs, image_ids: IntArray) -> RigLayout:
     """Return the poses and rig cameras of a model's images.
 
@@ -129,7 +123,7 @@ def rig_layout(model: ColmapModel, rigs: ColmapRigs, image_ids: IntArray) -> Rig
     s = np.array(offsets, dtype=float).reshape(-1, 7)
     check_poses(s[:, :4], s[:, 4:], [f'rig {r} camera {c} sensor_from_rig' for r, c in pairs]
                 + ['identity'] * len(lone))
-    R_rc, t_rc = _pose(s[:, :4], s[:, 4:])     # the camera's pose in the rig frame
+    R_rc, t_rc = poses_from_colmap(s[:, :4], s[:, 4:])     # the camera's pose in the rig frame
     rig = Rig(R_rc, t_rc)
     pose_of = {f: k for k, f in enumerate(frame_ids)}
     pose_of.update({-i: len(frame_ids) + k for k, i in enumerate(lone)})
@@ -141,7 +135,7 @@ def rig_layout(model: ColmapModel, rigs: ColmapRigs, image_ids: IntArray) -> Rig
     t = np.array([rigs.frames[f].tvec for f in frame_ids] + [model.images[i].tvec for i in lone])
     check_poses(q.reshape(-1, 4), t.reshape(-1, 3),
                 [f'frame {f}' for f in frame_ids] + [f'image {i}' for i in lone])
-    R_wc, centers = _pose(q.reshape(-1, 4), t.reshape(-1, 3))
+    R_wc, centers = poses_from_colmap(q, t)
     return RigLayout(np.array(ids, dtype=np.int64), np.array(pose_of_image, dtype=np.int64),
                      np.array(camera_of_image, dtype=np.int64),
                      np.array(frame_ids + [-1] * len(lone), dtype=np.int64), rig, R_wc, centers)
@@ -276,9 +270,7 @@ def updated_frames(rigs: ColmapRigs, layout: RigLayout, poses: IntArray, R_wc: F
     """
     frame_ids = layout.frame_ids[poses]
     mine: BoolArray = frame_ids >= 0
-    R_cw = np.swapaxes(np.asarray(R_wc)[mine], 1, 2)
-    q = R_to_quat(R_cw) if R_cw.shape[0] else np.zeros((0, 4))
-    t = -np.einsum('mij,mj->mi', R_cw, np.asarray(centers_w)[mine])
+    q, t = poses_to_colmap(np.asarray(R_wc)[mine], np.asarray(centers_w)[mine])
     frames = dict(rigs.frames)
     for k, fid in enumerate(frame_ids[mine].tolist()):
         frames[fid] = replace(frames[fid], qvec=q[k], tvec=t[k])
