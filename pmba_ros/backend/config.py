@@ -107,8 +107,9 @@ class BackendConfig:
             measured by the solves; 0: no translation prior).
         motion_prior_shape_rel: Sigma of that length against the map's own map <- odom scale
             over the ``window_size`` steps around it (the front-end's steps agree with each
-            other better than its scale holds), as a fraction of the step; monocular
-            solves only, a rig's map being metric (0: only the length above).
+            other better than its scale holds), as a fraction of the step; in a rig's
+            solves (a metric map) the lengths are held to each other only, the scale left
+            to the baseline (0: only the length above).
         motion_prior_direction_rel: Sigma of that translation across the step (its direction),
             as a fraction of the step.
         motion_prior_rotation_rad: Sigma of its relative rotation, rad (0: none).

@@ -292,7 +292,9 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     The second keeps the front-end's local motion and leaves the map's scale to the
     vision, the first slowly pulls that scale back to the run's. As the second also
     holds back changes of the map's scale, it suits monocular solves, sliding or global,
-    whose vision sees the scale weakly and step by step, not a stereo rig (a metric map).
+    whose vision sees the scale weakly and step by step, not a stereo rig (a metric map):
+    there the steps' lengths are held to each other by step-change factors instead
+    (:func:`rig_length_gain`), which leave the window's scale to the rig's baseline.
     Weights: one sigma (of the length, of the direction across it
     ``motion_prior_direction_rel``, each of the step plus :data:`STEP_FLOOR_REL` of a typical one,
     ``typical`` (:func:`typical_step`; 0: the median moving front-end step of ``cams`` in map
@@ -347,27 +349,54 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         W_trans = (P_along / k_along + (np.eye(3) - P_along) / k_across) @ W_trans
     w_rot, W_trans = (weight / k_rot) * w_rot, weight * W_trans
     t_ab = scale[:, None] * t_odom
-    changes = None if white_noise is None else step_changes(
-        a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
-        cfg.motion_prior_translation_rel)
+    length_gain = None
+    if not follow_map_scale and cfg.motion_prior_shape_rel > 0:
+        length_gain = rig_length_gain(step * scale, floor, cfg, run_steps)
+    changes = step_changes(a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
+                           cfg.motion_prior_translation_rel, length_gain)
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans,
                              huber=PRIOR_HUBER_SIGMAS * weight, changes=changes)
 
 
+def rig_length_gain(step: FloatArray, floor: float, config: BackendConfig,
+                    run_steps: int) -> FloatArray:
+    """Return the gain of a rig's step-change factors on the step lengths (m,) over the steps'.
+
+    The step factors hold a length to the reference scale (``motion_prior_translation_rel``,
+    grown early in a run as :func:`frontend_motion_prior` grows it); the front-end's lengths
+    agree with each other to ``motion_prior_shape_rel``. The step-change factors carry that
+    agreement: a window's steps keep their proportions, their common scale stays free for
+    the rig's baseline to set. Where that baseline hardly sees the scene's depth (a drone's
+    stereo pair from tens of metres up) nothing else in the solve tells one step's length
+    from a tilt, and the lengths jittered by the loose step factors' few percent.
+    ``step``: the steps' lengths in map units; ``floor``: the sigmas' floor
+    (:data:`STEP_FLOOR_REL` of a typical step).
+    """
+    rel = config.motion_prior_translation_rel
+    if rel <= 0:
+        return np.zeros(step.shape[0])
+    if run_steps > 0:
+        rel *= math.sqrt(1.0 + RUN_SCALE_SPAN / run_steps)
+    return (rel * step + floor) / (config.motion_prior_shape_rel * step + floor)
+
+
 def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: FloatArray,
                  W_trans: FloatArray, factors: tuple[float, float, float],
-                 white: tuple[float, float, float], scale_rel: float) -> StepChanges | None:
+                 white: tuple[float, float, float] | None, scale_rel: float,
+                 length_gain: FloatArray | None = None) -> StepChanges | None:
     """Return the step-change factors of consecutive prior factors (steps a -> a + 1).
 
     The step factors hold each step to ``factors`` (k) times the parameters' sigmas; single
     steps scatter ``white`` (w) times them. The step factors leave, per step and part
     (rotation, length, direction), ``k^2 / w^2 - 1`` times their information (none where
-    w >= k): covariance S. A change of the error from step ab to bc has S_ab + S_bc, and
-    independent factors on consecutive changes count its fastest component twice: 2 (S_ab +
-    S_bc). A drift that stays over a step cancels in the change; near a stop the larger
-    step's S sets it. The steps are brought to the map by a scale known to ``scale_rel``:
-    where the step changes (speeding up, turning), ``scale_rel (t_bc - t_ab)`` adds to the
-    covariance (stiff factors had held the map to a scale taken at a stop).
+    w >= k or w is not measured); ``length_gain`` (m,), where given, is the least square
+    root of that share for the lengths (:func:`rig_length_gain`): covariance S. A change of
+    the error from step ab to bc has S_ab + S_bc, and independent factors on consecutive
+    changes count its fastest component twice: 2 (S_ab + S_bc). A drift that stays over a
+    step cancels in the change; near a stop the larger step's S sets it. The steps are
+    brought to the map by a scale known to ``scale_rel``: where the step changes (speeding
+    up, turning), ``scale_rel (t_bc - t_ab)`` adds to the covariance (stiff factors had
+    held the map to a scale taken at a stop).
 
     Args:
         a: First pose of each step factor (consecutive steps: a[i + 1] == a[i] + 1).
@@ -378,16 +407,21 @@ def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: Floa
         factors: :attr:`FrontendNoise.factors`.
         white: :attr:`FrontendNoise.white`.
         scale_rel: Relative sigma of the scale the steps were brought to the map with.
+        length_gain: A rig's least gain of the lengths, per step; None: the white noise's.
     """
-    k, w = np.asarray(factors), np.asarray(white)
-    gain = np.sqrt(np.maximum(k * k / np.maximum(w * w, 1e-12) - 1.0, 0.0))
+    k = np.asarray(factors)
+    gain = np.zeros(3) if white is None else np.sqrt(
+        np.maximum(k * k / np.maximum(np.asarray(white) ** 2, 1e-12) - 1.0, 0.0))
+    along = np.full(a.shape[0], gain[1])
+    if length_gain is not None:
+        np.maximum(along, length_gain, out=along)
     # Not the newest step yet: a jump of the front-end's frame arrives there, and the solve
     # that finds it should not be pulled by more than the step's own factor.
     first = np.flatnonzero(a[1:-1] == a[:-2] + 1)
-    if not np.any(gain) or first.size == 0:
+    if not (np.any(gain) or np.any(along)) or first.size == 0:
         return None
     # Per step, the square-root information the white noise adds, and its covariance.
-    E = (gain[1] * P_along + gain[2] * (np.eye(3) - P_along)) @ W_trans
+    E = (along[:, None, None] * P_along + gain[2] * (np.eye(3) - P_along)) @ W_trans
     info = np.swapaxes(E, 1, 2) @ E
     ridge = 1e-12 * np.max(np.trace(info, axis1=1, axis2=2), initial=1.0)
     S = np.linalg.inv(info + ridge * np.eye(3))

@@ -196,6 +196,38 @@ def test_step_length_is_held_to_the_run_scale_more_tightly_as_the_run_grows() ->
     np.testing.assert_allclose(prior.W_trans[:, 1, 1], direction)
 
 
+def test_a_rigs_step_lengths_are_held_to_each_other_and_its_scale_left_free() -> None:
+    """A rig's steps get step-change factors on their lengths with the shape sigma.
+
+    Its map is metric, so no factor holds the steps to the map's own scale; the lengths'
+    agreement (``motion_prior_shape_rel``) comes in as changes: 2 (S + S) with S the
+    step's (shape_rel * step + floor)^2. A map stretched as a whole changes no step's error,
+    one longer step does; the direction across is the step factors' alone.
+    """
+    kf = _store(np.full(12, 1.0))
+    cams, fixed = np.arange(kf.n), np.zeros(kf.n, dtype=bool)
+    cfg = BackendConfig()
+    rig = frontend_motion_prior(kf, cams, fixed, 1.0, cfg, follow_map_scale=False,
+                                run_steps=20)
+    assert rig is not None and rig.changes is not None
+    np.testing.assert_allclose(1.0 / rig.changes.W_trans[:, 0, 0],
+                               2.0 * (cfg.motion_prior_shape_rel + STEP_FLOOR_REL), rtol=1e-6)
+    assert np.all(np.abs(rig.changes.W_trans[:, 1:, 1:]) < 1e-3 * rig.changes.W_trans[:, :1, :1])
+    R = np.tile(np.eye(3), (kf.n, 1, 1))
+    stretched = rig.evaluate(R, 1.03 * kf.C_map[:kf.n])
+    assert rig.changes.evaluate(rig, stretched).cost < 1e-20 < stretched.cost
+    one_longer = kf.C_map[:kf.n].copy()
+    one_longer[6:, 0] += 0.03   # step 5 -> 6: 3 % long, 1.4 sigmas of a change
+    r = rig.changes.evaluate(rig, rig.evaluate(R, one_longer)).residuals
+    np.testing.assert_allclose(np.abs(r[:, 3]).max(), 0.03 / (2 * 0.011), rtol=1e-6)
+    # Monocular solves hold the lengths to the map's scale instead: no change factors.
+    mono = frontend_motion_prior(kf, cams, fixed, 1.0, cfg, run_steps=20)
+    assert mono is not None and mono.changes is None
+    off = frontend_motion_prior(kf, cams, fixed, 1.0, BackendConfig(motion_prior_shape_rel=0.0),
+                                follow_map_scale=False, run_steps=20)
+    assert off is not None and off.changes is None
+
+
 @pytest.mark.parametrize(('scenario', 'seed'), [('aerial', 0), ('aerial', 2), ('loop', 0)])
 def test_never_worse_than_the_front_end(scenario: str, seed: int) -> None:
     """Weak vision (ground 40 m below, or a turning loop): ATE and RPE at most the front-end's."""
