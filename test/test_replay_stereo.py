@@ -160,3 +160,28 @@ def test_a_rig_that_barely_sees_depth_keeps_the_front_ends_local_motion(
     assert report.accuracy is not None
     accuracy = report.accuracy
     assert accuracy['rpe_optimized'] < accuracy['rpe_frontend'], accuracy
+
+
+def test_a_vins_mono_rig_is_warned_about_and_read_when_its_cameras_are_named(
+        tmp_path: Path) -> None:
+    """Layout vins_mono holds the camera in the id (id * NUM_OF_CAM + cam), not the count.
+
+    Read as one camera, the second camera's observations are features of the first, seen
+    from one place each: a map off by far more than the front-end, said only by a warning
+    that names the recorded CameraInfo topics. Named as the rig's, they are read as one.
+    """
+    seq = simulate_sequence('street', n_keyframes=40, seed=3)
+    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
+    bag = tmp_path / 'bag'
+    write_sequence_bag(seq, bag, layout='vins_mono', extrinsic=EUROC_CAM0,
+                       rig_extrinsics=[EUROC_CAM1])
+    config = BackendConfig(feature_layout='vins_mono')
+    one = replay([bag], tmp_path / 'one', config, gt=groundtruth_path(bag), align='se3')
+    assert any('does not tell NUM_OF_CAM: read as num_cams 1' in w
+               and '2 CameraInfo topics (/camera1/camera_info, /camera_info)' in w
+               for w in one.warnings), one.warnings
+    rig = replay([bag], tmp_path / 'rig',
+                 replace(config, num_cams=2, camera_info_topics=CAMERA_INFOS),
+                 gt=groundtruth_path(bag), align='se3', chosen={'num_cams'})
+    assert not any('NUM_OF_CAM' in w for w in rig.warnings)
+    assert rig.accuracy is not None and rig.accuracy['ate_ratio'] < 0.3, rig.accuracy

@@ -129,6 +129,9 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario not in _BAG_SCENARIOS:
         msg = f'--scenario {args.scenario} is for --format bal; bags: {", ".join(_BAG_SCENARIOS)}'
         raise PmbaError(msg)
+    layout, topics = _front_end(args.frontend, args.layout)
+    if args.cameras == 2:
+        _check_two_cameras(args.frontend, layout)
     from pmba_ros.backend.extrinsics import Rigid
     from pmba_ros.sim.bag import EUROC_CAM0, write_sequence_bag
     from pmba_ros.sim.rig import add_camera, EUROC_CAM1
@@ -148,7 +151,6 @@ def run(args: argparse.Namespace) -> int:
         seq = add_camera(seq, T_c0c1, camera_id=1, seed=args.seed + 1)
         rig = [EUROC_CAM1 if extrinsic is not None else T_c0c1]
         extrinsic = extrinsic or Rigid.identity()
-    layout, topics = _front_end(args.frontend, args.layout)
     info = write_sequence_bag(seq, args.out, layout=layout, overwrite=args.overwrite,
                               extrinsic=extrinsic, rig_extrinsics=rig, topics=topics)
     print(f'wrote {info.bag}: {args.scenario}, {info.n_keyframes} keyframes '
@@ -157,10 +159,33 @@ def run(args: argparse.Namespace) -> int:
     print(f'ground truth: {info.groundtruth_tum}')
     if args.cameras == 2:
         print('a metric map: evaluate its replay with --align se3')
+        if layout == 'vins_mono':   # its ids hold the camera, but not the camera count
+            print('replay it with --camera-info-topic /camera_info --camera-info-topic '
+                  '/camera1/camera_info (tracks in layout vins_mono do not tell num_cams)')
     if args.frontend is not None:
         print(f'the node on its topics: ros2 launch pmba_ros pmba.launch.py '
               f'frontend:={args.frontend}, then pmba play {args.out}')
     return 0
+
+
+def _check_two_cameras(frontend: str | None, layout: str) -> None:
+    """Refuse a stereo rig where the front-end or layout carries one camera's tracks.
+
+    Raises:
+        PmbaError: Layout ``per_point`` (no camera id: VINS-Fusion's keyframe_point and
+            OpenVINS' loop_feats carry the reference camera's features), or VINS-Mono,
+            whose estimator is monocular.
+    """
+    if layout == 'per_point':
+        named = f'--frontend {frontend}' if frontend else '--layout per_point'
+        msg = (f'--cameras 2: {named} publishes tracks in layout per_point, which has no '
+               'camera id (one camera); a stereo rig needs layout vins_fusion (the default), '
+               'named or vins_mono')
+        raise PmbaError(msg)
+    if frontend is not None and PAIRINGS[frontend]['parameters'].get('num_cams') == 1:
+        msg = (f'--cameras 2: --frontend {frontend} is monocular; for a two-camera tracker '
+               f'in its track layout use --layout {layout} without --frontend')
+        raise PmbaError(msg)
 
 
 def _front_end(frontend: str | None, layout: str | None) -> tuple[str, SimTopics | None]:

@@ -92,6 +92,8 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
     if layout != config.feature_layout:
         changes['feature_layout'] = layout
     cameras = _camera_count(frames or [], layout, config.num_cams)
+    if layout == 'vins_mono' and 'num_cams' not in chosen:
+        _camera_count_unknown(bags, config, warnings)
     if cameras > config.num_cams and 'num_cams' not in chosen:
         changes['num_cams'] = cameras
         rig = _rig_camera_infos(bags, config, cameras)
@@ -198,6 +200,23 @@ def _camera_count(frames: list[TrackFrame], layout: str, num_cams: int) -> int:
         return num_cams
     top = max((int(f.camera_ids.max()) for f in frames if f.camera_ids.size), default=-1)
     return top + 1 if num_cams <= top < MAX_CAMERAS else num_cams
+
+
+def _camera_count_unknown(bags: OpenBags, config: BackendConfig, warnings: list[str]) -> None:
+    """Warn where a vins_mono recording may hold more cameras than ``num_cams``.
+
+    Its ids are ``id * NUM_OF_CAM + cam``: read with too few cameras, a rig's second camera
+    becomes features of the first, each seen from one place, and the map is wrong without an
+    error. The ids cannot tell the count; more CameraInfo topics than cameras may.
+    """
+    infos = sorted(t for t, i in bags.topics.items() if i.msgtype in CAMERA_INFO_TYPES)
+    if len(infos) > config.num_cams:
+        _note(warnings, f'tracks in layout vins_mono hold their camera in the id (id * '
+                        f'NUM_OF_CAM + cam), which does not tell NUM_OF_CAM: read as '
+                        f'num_cams {config.num_cams}; the recording has {len(infos)} CameraInfo '
+                        f'topics ({", ".join(infos)}): if its tracker ran with NUM_OF_CAM '
+                        f'{len(infos)}, give --camera-info-topic once per camera, in '
+                        'camera-id order')
 
 
 def _rig_camera_infos(bags: OpenBags, config: BackendConfig, cameras: int) -> tuple[str, ...]:

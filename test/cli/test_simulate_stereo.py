@@ -43,3 +43,32 @@ def test_simulate_two_cameras(tmp_path: Path, extrinsic: str) -> None:
     both = np.intersect1d(frame.feature_ids[frame.camera_ids == 0],
                           frame.feature_ids[frame.camera_ids == 1])
     assert both.shape[0] > 50
+
+
+@pytest.mark.parametrize(('options', 'named'), [
+    (['--frontend', 'vins_fusion'], 'layout per_point, which has no camera id'),
+    (['--frontend', 'openvins'], 'layout per_point, which has no camera id'),
+    (['--layout', 'per_point'], 'layout per_point, which has no camera id'),
+    (['--frontend', 'vins_mono'], '--frontend vins_mono is monocular'),
+])
+def test_two_cameras_in_tracks_of_one_camera_are_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], options: list[str],
+        named: str) -> None:
+    """A layout or front-end that carries one camera's tracks cannot hold a rig: named, early."""
+    bag = tmp_path / 'bag'
+    assert main(['simulate', '--keyframes', '8', '--cameras', '2', *options,
+                 '--out', str(bag)]) == 1
+    assert named in capsys.readouterr().err
+    assert not bag.exists()
+
+
+def test_a_vins_mono_rig_says_how_to_replay_it(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """Its ids hold the camera but not the camera count: the replay needs both CameraInfos."""
+    bag = tmp_path / 'bag'
+    assert main(['simulate', '--keyframes', '8', '--cameras', '2', '--layout', 'vins_mono',
+                 '--out', str(bag)]) == 0
+    assert ('--camera-info-topic /camera_info --camera-info-topic /camera1/camera_info'
+            in capsys.readouterr().out)
+    frame = parse_tracks(next(iter_messages([bag], topics=['/features'])).msg, 'vins_mono', 2)
+    assert set(frame.camera_ids.tolist()) == {0, 1}
