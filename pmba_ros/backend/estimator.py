@@ -98,6 +98,10 @@ from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
 
+RESCALE_MIN = 1e-3
+"""The map is rescaled once the rig's pending scale steps add up to this (a tenth of a
+percent): every rescaling moves each published pose, and the path is rebuilt whole."""
+
 
 def import_initialization() -> None:
     """Import the initialization (and OpenCV, an extra) before input rather than at first use."""
@@ -128,6 +132,9 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
+        self._pending_rescale = 0.0
+        self.map_version = 0
+        """Counts the rescalings of the whole map (:meth:`_follow_rig_scale`)."""
         self._run_scale = RunScale()
         self._segment = 0   # odom segment of the keyframe being added (as _odom_cov)
         self.pixel_noise = PixelNoise()
@@ -424,6 +431,7 @@ class Estimator:
 
     def _refine(self, *, slide: bool = True) -> UpdateInfo:
         cfg = self.config
+        rig = self._rig() is not None
         window_ids = self._slide() if slide else None
         active = self.kf.indices(KeyframeStatus.ACTIVE)
         if window_ids is not None:
@@ -454,7 +462,8 @@ class Estimator:
                                    loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
                                    max_iterations=cfg.max_iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
-                                   prior_leverage=sampled)
+                                   prior_leverage=sampled,
+                                   scale_tension=window_ids is not None and rig)
             prior = self._motion_prior(cams, fixed, step)
             res = solve(problem, options, feats, pose_prior=prior,
                         callback=lambda _: self.checkpoint())
@@ -496,6 +505,7 @@ class Estimator:
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
+        self._follow_rig_scale(*res.scale_tension)
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
@@ -503,6 +513,38 @@ class Estimator:
         if jumped.size:   # this solve was pulled by the factors across the jump: again without
             info.solve_ms += self._refine(slide=slide).solve_ms
         return info
+
+    def _follow_rig_scale(self, slope: float, curvature: float) -> None:
+        """Rescale the whole map by this solve's share of the scale its rig measures.
+
+        A sliding window holds the older map fixed, and with it the scale the
+        initialization gave the map (the front-end's at the time; it is monocular): a rig
+        whose baseline hardly sees the scene's depth cannot move that scale window by
+        window. A solve's scale tension (the slope and curvature of its cost along a scaling
+        of the whole problem, fixed keyframes too: :func:`~pmba_ros.core.solve.scale_tension`)
+        gives the step the window's metric measurements, the rig's and the front-end's, ask
+        of the map's scale. A keyframe stays in about ``window_size`` solves, so each solve
+        takes ``1 / window_size`` of its step, bounded by its share of
+        ``fallback_max_scale_jump``: the measurements count about once and a persistent pull
+        moves the scale all the way. Steps add up until they reach :data:`RESCALE_MIN`
+        (applying one moves every published pose). About the newest keyframe, which stays.
+        """
+        if not (math.isfinite(slope) and math.isfinite(curvature) and curvature > 0):
+            return
+        share = 1.0 / self.config.window_size
+        bound = share * self.config.fallback_max_scale_jump
+        self._pending_rescale += float(np.clip(-share * slope / curvature, -bound, bound))
+        if abs(self._pending_rescale) < RESCALE_MIN:
+            return
+        factor, self._pending_rescale = 1.0 + self._pending_rescale, 0.0
+        n = self.kf.n
+        center = self.kf.C_map[n - 1].copy()
+        self.kf.C_map[:n] = center + factor * (self.kf.C_map[:n] - center)
+        self.features.points = center + factor * (self.features.points - center)
+        self.landmarks.scale_about(center, factor)
+        self._run_scale.rescale(factor)
+        self.map_version += 1
+        self._update_similarity()
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray,
                       step: float) -> RelativePosePrior | None:

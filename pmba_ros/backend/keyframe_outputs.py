@@ -53,6 +53,7 @@ class KeyframeOutputs:
         self.backend = backend
         self.name_frames(config, '', '')
         self._published = out.PoseMessageCache()
+        self._map_version = estimator.map_version
 
     def name_frames(self, config: BackendConfig, odom_frame: str, body_frame: str) -> None:
         """Take the frames of a keyframe pose where the configuration names none.
@@ -116,9 +117,13 @@ class KeyframeOutputs:
         """Return PoseStamped and Pose messages of keyframes ``idx`` (built incrementally).
 
         Fixed and dead-reckoned keyframes are final (and passed-through ones once tracking):
-        their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`).
+        their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`) until
+        the estimator rescales the whole map.
         """
         kf = self.estimator.kf
+        if self.estimator.map_version != self._map_version:   # the whole map was rescaled
+            self._published = out.PoseMessageCache()
+            self._map_version = self.estimator.map_version
         status = kf.status[idx]
         final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
         if self.estimator.state == 'tracking':  # passed through before the initialization

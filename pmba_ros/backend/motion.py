@@ -105,6 +105,10 @@ class RunScale:
         self.steps, self.path = self._fixed_steps + count, total_map
         return total_map / total_odom if total_odom > 0 and total_map > 0 else fallback
 
+    def rescale(self, factor: float) -> None:
+        """Take a rescaling of the whole map by ``factor`` into the steps already summed."""
+        self._map *= factor
+
     @staticmethod
     def _lengths(kf: KeyframeStore, first: int, stop: int,
                  usable: BoolArray) -> tuple[float, float, int]:

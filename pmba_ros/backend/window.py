@@ -229,6 +229,10 @@ class LandmarkStore:
             self._chunks = [merged]
             self._count = merged.shape[0]
 
+    def scale_about(self, center: FloatArray, factor: float) -> None:
+        """Apply X -> center + factor (X - center) to every landmark."""
+        self._chunks = [center + factor * (c - center) for c in self._chunks]
+
     def points(self) -> FloatArray:
         """Return all landmarks, shape (L, 3)."""
         if len(self._chunks) > 1:

@@ -102,6 +102,8 @@ class SolveOptions:
             is installed and ``PMBA_NUMBA`` is not 0 (:mod:`pmba_ros.core.engine`). Both give
             the same iterates to rounding.
         prior_leverage: Also return the pose prior's leverages (``SolveResult.prior_leverage``).
+        scale_tension: PMBA only: also return the cost's slope and curvature along a scaling
+            of every pose, fixed ones too (``SolveResult.scale_tension``).
     """
 
     param: Parameterization = Parameterization.PMBA
@@ -119,6 +121,7 @@ class SolveOptions:
     fix_gauge: bool = False
     engine: EngineName = EngineName.AUTO
     prior_leverage: bool = False
+    scale_tension: bool = False
 
     def __post_init__(self) -> None:
         """Coerce enum strings and validate ranges."""
@@ -191,6 +194,9 @@ class SolveResult:
         prior_leverage: With ``options.prior_leverage``, the prior's blocks of the hat matrix
             at the last linearization, (M, 6, 6) (:meth:`RelativePosePrior.hat_blocks`),
             NaN where not computed.
+        scale_tension: With ``options.scale_tension``, d cost / d s and d^2 cost / d s^2 at
+            the result for centres (1 + s) P, fixed ones too (:func:`scale_tension`); NaN
+            where not computed.
     """
 
     R_wc: FloatArray
@@ -213,6 +219,7 @@ class SolveResult:
     noise_px: float = math.nan
     prior_residuals: FloatArray = field(default_factory=lambda: np.zeros((0, 6)))
     prior_leverage: FloatArray = field(default_factory=lambda: np.zeros((0, 6, 6)))
+    scale_tension: tuple[float, float] = (math.nan, math.nan)
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -546,12 +553,36 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     leverage = np.full((len(factors) if factors is not None else 0, 6, 6), np.nan)
     if options.prior_leverage and factors is not None and last_lin is not None:
         leverage = last_lin.prior_leverage(factors, free_block)
+    tension = (math.nan, math.nan)
+    if options.scale_tension and options.param is Parameterization.PMBA:
+        tension = scale_tension(lambda s: evaluate(state.R_wc, s * state.centers_w,
+                                                   state.feats).cost, state.cost)
     return SolveResult(state.R_wc, state.centers_w, final_feats, points, problem, options,
                        termination in _CONVERGED, termination, it, accepted_steps,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
                        time.perf_counter() - t0, history, noise_px,
                        state.prior.residuals if state.prior is not None else np.zeros((0, 6)),
-                       leverage)
+                       leverage, tension)
+
+
+SCALE_STEP = 1e-3
+"""Relative step of :func:`scale_tension`'s central differences."""
+
+
+def scale_tension(cost: Callable[[float], float], cost_at_one: float) -> tuple[float, float]:
+    """Return the slope and curvature of ``cost(1 + s)`` at s = 0 (central differences).
+
+    ``cost(c)``: the cost with every camera centre times c, rotations and features as they
+    are. PMBA's features (a parallax angle and a ray on their anchors) scale with the
+    centres, so this is the whole map scaled about the origin: a monocular map's
+    reprojections do not change, a rig's other cameras (their baselines are metric) and the
+    front-end's step lengths do. Fixed poses scale too: where a sliding window holds the
+    older map fixed, the slope is the pull of the window's metric measurements against the
+    scale the fixed keyframes impose on it.
+    """
+    h = SCALE_STEP
+    up, down = cost(1.0 + h), cost(1.0 - h)
+    return (up - down) / (2.0 * h), (up - 2.0 * cost_at_one + down) / (h * h)
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
