@@ -73,9 +73,10 @@ from pmba_ros._process import tune_process
 from pmba_ros.core import conversions, so3
 from pmba_ros.core.camera import project
 from pmba_ros.core.compiled import chunks
+from pmba_ros.core.conversions import initial_features
 from pmba_ros.core.models import XyzModel
 from pmba_ros.core.problem import BAProblem, XyzFeatures
-from pmba_ros.core.solve import initial_features, solve, SolveOptions, SolveResult
+from pmba_ros.core.solve import solve, SolveOptions, SolveResult
 from pmba_ros.io.bal import read_bal
 from pmba_ros.sim.scenes import synthetic_large, table3_scene
 import scipy

@@ -61,10 +61,12 @@ from pmba_ros.backend.motion import (
     FrontendNoise,
     JUMP_SIGMAS,
     PixelNoise,
+    predict_pose,
     RunScale,
     step_sigmas,
     typical_step,
 )
+from pmba_ros.backend.rig_scale import rescale_map, RigScale
 from pmba_ros.backend.sanity import CostMonitor
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
@@ -79,7 +81,6 @@ from pmba_ros.backend.window import (
     Similarity,
     well_conditioned_features,
 )
-from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.conversions import xyz_to_parallax
 from pmba_ros.core.loss import Loss
@@ -97,10 +98,6 @@ from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
-
-RESCALE_MIN = 1e-3
-"""The map is rescaled once the rig's pending scale steps add up to this (a tenth of a
-percent): every rescaling moves each published pose, and the path is rebuilt whole."""
 
 
 def import_initialization() -> None:
@@ -132,9 +129,9 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
-        self._pending_rescale = 0.0
+        self._rig_scale = RigScale()
         self.map_version = 0
-        """Counts the rescalings of the whole map (:meth:`_follow_rig_scale`)."""
+        """Counts the rescalings of the whole map (:mod:`~pmba_ros.backend.rig_scale`)."""
         self._run_scale = RunScale()
         self._segment = 0   # odom segment of the keyframe being added (as _odom_cov)
         self.pixel_noise = PixelNoise()
@@ -209,7 +206,7 @@ class Estimator:
             return self._maybe_initialize(i)
         if not usable:
             return self._dead_reckon(stamp_ns, odom)
-        R0, C0 = self._predict(odom)
+        R0, C0 = predict_pose(self.kf, self.map_from_odom, self._segment, odom)
         i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov, self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = R0, C0
         info = self._refine()
@@ -371,39 +368,11 @@ class Estimator:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _predict(self, odom: tuple[FloatArray, FloatArray] | None, n: int | None = None,
-                 ) -> tuple[FloatArray, FloatArray]:
-        """Return the pose of keyframe n (default: a new one) from its predecessor's.
-
-        The front-end's relative motion, its translation scaled by map <- odom; constant
-        velocity without front-end poses.
-        """
-        n = self.kf.n if n is None else n
-        prev = n - 1
-        segment = self._segment if n == self.kf.n else int(self.kf.segment[n])
-        # Across a jump of the front-end's frame neither its motion nor map <- odom holds.
-        same_frame = int(self.kf.segment[prev]) == segment
-        if odom is not None and self.kf.has_odom[prev] and same_frame:
-            R_po, C_po = self.kf.R_odom[prev], self.kf.C_odom[prev]
-            R_rel = R_po.T @ odom[0]
-            t_rel = R_po.T @ (odom[1] - C_po)
-            R_p, C_p = self.kf.R_map[prev], self.kf.C_map[prev]
-            return so3.project(R_p @ R_rel), C_p + self.map_from_odom.scale * R_p @ t_rel
-        if odom is not None and same_frame:
-            R, C = self.map_from_odom.apply_poses(odom[0][None], odom[1][None])
-            return R[0], C[0]
-        if n >= 2:  # constant velocity
-            R_a, C_a = self.kf.R_map[n - 2], self.kf.C_map[n - 2]
-            R_b, C_b = self.kf.R_map[prev], self.kf.C_map[prev]
-            R_rel = R_a.T @ R_b
-            return so3.project(R_b @ R_rel), C_b + R_b @ (R_a.T @ (C_b - C_a))
-        return self.kf.R_map[prev].copy(), self.kf.C_map[prev].copy()
-
     def _dead_reckon(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
                      ) -> UpdateInfo:
         if odom is None:
             return UpdateInfo('dropped', message='keyframe without tracks or front-end pose')
-        R, C = self._predict(odom)
+        R, C = predict_pose(self.kf, self.map_from_odom, self._segment, odom)
         i = self.kf.add(stamp_ns, odom, None, KeyframeStatus.DEAD_RECKONED, self._odom_cov,
                         self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = R, C
@@ -505,7 +474,11 @@ class Estimator:
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
-        self._follow_rig_scale(*res.scale_tension)
+        factor = self._rig_scale.take(*res.scale_tension, self.config)
+        if factor is not None:
+            rescale_map(self.kf, self.features, self.landmarks, self._run_scale, factor)
+            self.map_version += 1
+            self._update_similarity()
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
@@ -513,38 +486,6 @@ class Estimator:
         if jumped.size:   # this solve was pulled by the factors across the jump: again without
             info.solve_ms += self._refine(slide=slide).solve_ms
         return info
-
-    def _follow_rig_scale(self, slope: float, curvature: float) -> None:
-        """Rescale the whole map by this solve's share of the scale its rig measures.
-
-        A sliding window holds the older map fixed, and with it the scale the
-        initialization gave the map (the front-end's at the time; it is monocular): a rig
-        whose baseline hardly sees the scene's depth cannot move that scale window by
-        window. A solve's scale tension (the slope and curvature of its cost along a scaling
-        of the whole problem, fixed keyframes too: :func:`~pmba_ros.core.solve.scale_tension`)
-        gives the step the window's metric measurements, the rig's and the front-end's, ask
-        of the map's scale. A keyframe stays in about ``window_size`` solves, so each solve
-        takes ``1 / window_size`` of its step, bounded by its share of
-        ``fallback_max_scale_jump``: the measurements count about once and a persistent pull
-        moves the scale all the way. Steps add up until they reach :data:`RESCALE_MIN`
-        (applying one moves every published pose). About the newest keyframe, which stays.
-        """
-        if not (math.isfinite(slope) and math.isfinite(curvature) and curvature > 0):
-            return
-        share = 1.0 / self.config.window_size
-        bound = share * self.config.fallback_max_scale_jump
-        self._pending_rescale += float(np.clip(-share * slope / curvature, -bound, bound))
-        if abs(self._pending_rescale) < RESCALE_MIN:
-            return
-        factor, self._pending_rescale = 1.0 + self._pending_rescale, 0.0
-        n = self.kf.n
-        center = self.kf.C_map[n - 1].copy()
-        self.kf.C_map[:n] = center + factor * (self.kf.C_map[:n] - center)
-        self.features.points = center + factor * (self.features.points - center)
-        self.landmarks.scale_about(center, factor)
-        self._run_scale.rescale(factor)
-        self.map_version += 1
-        self._update_similarity()
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray,
                       step: float) -> RelativePosePrior | None:
@@ -592,7 +533,8 @@ class Estimator:
         active = self.kf.indices(KeyframeStatus.ACTIVE)
         for i in active[active > 0]:
             odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None
-            self.kf.R_map[i], self.kf.C_map[i] = self._predict(odom, int(i))
+            self.kf.R_map[i], self.kf.C_map[i] = predict_pose(self.kf, self.map_from_odom,
+                                                              self._segment, odom, int(i))
         ids = np.unique(np.concatenate([self.kf.obs[int(i)].ids for i in active
                                         if int(i) in self.kf.obs]))
         self.features.upsert(ids, np.full((ids.shape[0], 3), np.nan))

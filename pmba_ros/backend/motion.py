@@ -29,7 +29,8 @@ import statistics
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore, Similarity
+from pmba_ros.core import so3
 from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges
 
 
@@ -526,3 +527,33 @@ def covariance_weights(kf: KeyframeStore, a: IntArray, b: IntArray, metric_scale
         W_trans[both[pd]] = W[pd]
     if config.motion_prior_rotation_rad > 0:
         w_rot[both[pd]] = 1.0 / np.sqrt(q_rot[pd])
+
+
+def predict_pose(kf: KeyframeStore, map_from_odom: Similarity, segment: int,
+                 odom: tuple[FloatArray, FloatArray] | None,
+                 n: int | None = None) -> tuple[FloatArray, FloatArray]:
+    """Return the map pose of keyframe n (default: a new one) from its predecessor's.
+
+    The front-end's relative motion, its translation scaled by ``map_from_odom``; constant
+    velocity without front-end poses. ``segment``: the odom segment of a new keyframe.
+    """
+    n = kf.n if n is None else n
+    prev = n - 1
+    segment = segment if n == kf.n else int(kf.segment[n])
+    # Across a jump of the front-end's frame neither its motion nor map <- odom holds.
+    same_frame = int(kf.segment[prev]) == segment
+    if odom is not None and kf.has_odom[prev] and same_frame:
+        R_po, C_po = kf.R_odom[prev], kf.C_odom[prev]
+        R_rel = R_po.T @ odom[0]
+        t_rel = R_po.T @ (odom[1] - C_po)
+        R_p, C_p = kf.R_map[prev], kf.C_map[prev]
+        return so3.project(R_p @ R_rel), C_p + map_from_odom.scale * R_p @ t_rel
+    if odom is not None and same_frame:
+        R, C = map_from_odom.apply_poses(odom[0][None], odom[1][None])
+        return R[0], C[0]
+    if n >= 2:  # constant velocity
+        R_a, C_a = kf.R_map[n - 2], kf.C_map[n - 2]
+        R_b, C_b = kf.R_map[prev], kf.C_map[prev]
+        R_rel = R_a.T @ R_b
+        return so3.project(R_b @ R_rel), C_b + R_b @ (R_a.T @ (C_b - C_a))
+    return kf.R_map[prev].copy(), kf.C_map[prev].copy()

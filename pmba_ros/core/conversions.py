@@ -35,6 +35,7 @@ from pmba_ros.core.problem import (
     IdpFeatures,
     ParallaxFeatures,
     Parameterization,
+    subset_features,
     XyzFeatures,
 )
 from pmba_ros.errors import ProblemError
@@ -348,3 +349,28 @@ def to_xyz(R_wc: FloatArray, centers_w: FloatArray,
     if isinstance(feats, IdpFeatures):
         return idp_to_xyz(R_wc, centers_w, feats)
     return np.array(feats.points_w, dtype=float)
+
+
+def initial_features(problem: BAProblem, param: Parameterization,
+                     engine: Engine | None = None) -> tuple[BAProblem, Features]:
+    """Return features of a parameterization from the problem's points (dropping unusable ones).
+
+    ``engine`` searches PMBA's anchor pairs (default: the ``'auto'`` engine).
+
+    Raises:
+        ProblemError: If the problem has no initial points.
+    """
+    if problem.points_w is None:
+        msg = 'problem has no initial points: pass features, or run the global initialization'
+        raise ProblemError(msg)
+    if param is Parameterization.XYZ:
+        return problem, XyzFeatures(np.array(problem.points_w))
+    if param is Parameterization.IDP:
+        return problem, xyz_to_idp(problem, problem.R_wc, problem.centers_w, problem.points_w)
+    feats, ok = xyz_to_parallax(problem, problem.R_wc, problem.centers_w, problem.points_w,
+                                engine=engine)
+    if not np.all(ok):
+        problem = subset_features(problem, ok, 'features_without_anchor_baseline')
+        feats, _ = xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
+                                   np.asarray(problem.points_w), engine=engine)
+    return problem, feats

@@ -18,10 +18,13 @@ coordinate of one more camera's centre with the largest |P_k - P_root| component
 the scale); poses the caller fixes count: one fixed pose replaces the root, two or more fix
 the gauge on their own. :func:`free_gauge` holds nothing but the caller's fixed poses and
 leaves the null space to the damping, as Ceres does; it converges in fewer iterations.
+:func:`scale_tension` measures the cost along the scale direction of that freedom, which a
+rig's baseline (and a front-end's metric steps) make observable.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,3 +132,23 @@ def camera_components(n_cams: int, cam_idx: IntArray, feat_idx: IntArray,
     cams = labels[:n_cams]
     _, groups = np.unique(cams, return_inverse=True)
     return int(groups.max()) + 1 if n_cams else 0, groups.astype(np.int64)
+
+
+SCALE_STEP = 1e-3
+"""Relative step of :func:`scale_tension`'s central differences."""
+
+
+def scale_tension(cost: Callable[[float], float], cost_at_one: float) -> tuple[float, float]:
+    """Return the slope and curvature of ``cost(1 + s)`` at s = 0 (central differences).
+
+    ``cost(c)``: the cost with every camera centre times c, rotations and features as they
+    are. PMBA's features (a parallax angle and a ray on their anchors) scale with the
+    centres, so this is the whole map scaled about the origin: a monocular map's
+    reprojections do not change, a rig's other cameras (their baselines are metric) and the
+    front-end's step lengths do. Fixed poses scale too: where a sliding window holds the
+    older map fixed, the slope is the pull of the window's metric measurements against the
+    scale the fixed keyframes impose on it.
+    """
+    h = SCALE_STEP
+    up, down = cost(1.0 + h), cost(1.0 - h)
+    return (up - down) / (2.0 * h), (up - 2.0 * cost_at_one + down) / (h * h)

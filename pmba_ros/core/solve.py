@@ -34,8 +34,8 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import conversions, dogleg, so3
 from pmba_ros.core import normal_equations as ne
-from pmba_ros.core.engine import Engine, EngineName, resolve
-from pmba_ros.core.gauge import choose_gauge, free_gauge
+from pmba_ros.core.engine import EngineName, resolve
+from pmba_ros.core.gauge import choose_gauge, free_gauge, scale_tension
 from pmba_ros.core.loss import Loss, noise_scale_px
 from pmba_ros.core.models import Evaluation, make_model, Model
 from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
@@ -44,9 +44,7 @@ from pmba_ros.core.problem import (
     Features,
     Parameterization,
     permute_features,
-    subset_features,
     take_features,
-    XyzFeatures,
 )
 from pmba_ros.errors import ProblemError, SolverError
 
@@ -195,7 +193,8 @@ class SolveResult:
             at the last linearization, (M, 6, 6) (:meth:`RelativePosePrior.hat_blocks`),
             NaN where not computed.
         scale_tension: With ``options.scale_tension``, d cost / d s and d^2 cost / d s^2 at
-            the result for centres (1 + s) P, fixed ones too (:func:`scale_tension`); NaN
+            the result for centres (1 + s) P, fixed ones too
+            (:func:`~pmba_ros.core.gauge.scale_tension`); NaN
             where not computed.
     """
 
@@ -254,32 +253,6 @@ class SolveResult:
             'history': [{'cost': h.cost, 'rms_px': h.rms_px, 'accepted': h.accepted,
                          'trust_radius': h.trust_radius, 'time_s': h.time_s}
                         for h in self.history]}
-
-
-def initial_features(problem: BAProblem, param: Parameterization,
-                     engine: Engine | None = None) -> tuple[BAProblem, Features]:
-    """Return features of a parameterization from the problem's points (dropping unusable ones).
-
-    ``engine`` searches PMBA's anchor pairs (default: the ``'auto'`` engine).
-
-    Raises:
-        ProblemError: If the problem has no initial points.
-    """
-    if problem.points_w is None:
-        msg = 'problem has no initial points: pass features, or run the global initialization'
-        raise ProblemError(msg)
-    if param is Parameterization.XYZ:
-        return problem, XyzFeatures(np.array(problem.points_w))
-    if param is Parameterization.IDP:
-        return problem, conversions.xyz_to_idp(problem, problem.R_wc, problem.centers_w,
-                                               problem.points_w)
-    feats, ok = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                            problem.points_w, engine=engine)
-    if not np.all(ok):
-        problem = subset_features(problem, ok, 'features_without_anchor_baseline')
-        feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                               np.asarray(problem.points_w), engine=engine)
-    return problem, feats
 
 
 @dataclass
@@ -400,7 +373,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     engine = resolve(options.engine)
     _check_not_empty(problem)
     if features is None:
-        problem, features = initial_features(problem, options.param, engine)
+        problem, features = conversions.initial_features(problem, options.param, engine)
         _check_not_empty(problem)
     conversions.check_features(problem, features, options.param)
     # The normal equations want features ordered by their number of observations; the
@@ -563,26 +536,6 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                        time.perf_counter() - t0, history, noise_px,
                        state.prior.residuals if state.prior is not None else np.zeros((0, 6)),
                        leverage, tension)
-
-
-SCALE_STEP = 1e-3
-"""Relative step of :func:`scale_tension`'s central differences."""
-
-
-def scale_tension(cost: Callable[[float], float], cost_at_one: float) -> tuple[float, float]:
-    """Return the slope and curvature of ``cost(1 + s)`` at s = 0 (central differences).
-
-    ``cost(c)``: the cost with every camera centre times c, rotations and features as they
-    are. PMBA's features (a parallax angle and a ray on their anchors) scale with the
-    centres, so this is the whole map scaled about the origin: a monocular map's
-    reprojections do not change, a rig's other cameras (their baselines are metric) and the
-    front-end's step lengths do. Fixed poses scale too: where a sliding window holds the
-    older map fixed, the slope is the pull of the window's metric measurements against the
-    scale the fixed keyframes impose on it.
-    """
-    h = SCALE_STEP
-    up, down = cost(1.0 + h), cost(1.0 - h)
-    return (up - down) / (2.0 * h), (up - 2.0 * cost_at_one + down) / (h * h)
 
 
 def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,

@@ -57,9 +57,9 @@ def test_pixel_jacobians_follow_their_observations_and_weigh_the_errors() -> Non
     Rows with a non-finite one are dropped like non-finite bearings; the pixel-weighted
     residuals and the reprojection errors scale with it (twice the pinhole's: twice them).
     """
+    from pmba_ros.core.conversions import initial_features
     from pmba_ros.core.models import ParallaxModel
     from pmba_ros.core.problem import Parameterization
-    from pmba_ros.core.solve import initial_features
     from pmba_ros.sim.scenes import street_scene
 
     problem = street_scene(seed=1).start
