@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.motion import RunScale
-from pmba_ros.backend.rig_scale import RESCALE_MIN, rescale_map, RigScale
+from pmba_ros.backend.rig_scale import rescale_map, RESCALE_MIN, RigScale
 from pmba_ros.backend.window import FeatureMap, KeyframeStatus, KeyframeStore, LandmarkStore
 
 
