@@ -129,7 +129,7 @@ class Estimator:
         self.init_attempts = 0
         self._failures = 0
         self._metric_scale = 1.0
-        self._rig_scale = RigScale()
+        self._rig_scale = RigScale(self.config)
         self.map_version = 0
         """Counts the rescalings of the whole map (:mod:`~pmba_ros.backend.rig_scale`)."""
         self._run_scale = RunScale()
@@ -474,7 +474,7 @@ class Estimator:
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
-        factor = self._rig_scale.take(*res.scale_tension, self.config)
+        factor = self._rig_scale.take(*res.scale_tension)
         if factor is not None:
             rescale_map(self.kf, self.features, self.landmarks, self._run_scale, factor)
             self.map_version += 1

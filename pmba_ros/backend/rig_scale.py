@@ -18,10 +18,19 @@ sliding window holds the older map fixed, and with it that scale: a rig whose ba
 hardly sees the scene's depth cannot move it window by window. A solve's scale tension (the
 slope and curvature of its cost along a scaling of the whole problem, fixed keyframes too:
 :func:`~pmba_ros.core.gauge.scale_tension`) gives the step the window's metric measurements,
-the rig's and the front-end's steps, ask of the map's scale. A keyframe stays in about
-``window_size`` solves, so each solve takes ``1 / window_size`` of its step, bounded by its
-share of ``fallback_max_scale_jump``: the measurements count about once, and a pull that
-persists moves the scale all the way.
+the rig's and the front-end's steps, ask of the map's scale.
+
+The steps are weighed as measurements of one constant, the map's scale error (a scalar
+Kalman filter without process noise): it starts as uncertain as a front-end's scale
+(``motion_prior_translation_rel``), a solve's step counts with the variance
+``window_size / curvature``, and no solve takes more than ``1 / window_size`` of its step,
+as a keyframe's measurements are in about ``window_size`` solves (the curvature is the
+scale's information with the rest of the window held, more than it has with the rest free,
+and the first solves after an initialization are far from converged). Early on a pull that
+persists moves the scale all the way; later solves, each weighed less, cannot walk the
+older map away with the window's local scale (a share that stayed constant summed every
+later window's pull into the first keyframes: a 1,500-keyframe stereo street ended with its
+first half 1 % long).
 """
 
 from __future__ import annotations
@@ -39,23 +48,37 @@ rescaling moves each published pose, and the path is rebuilt whole."""
 
 
 class RigScale:
-    """The solves' scale steps not yet applied to the map."""
+    """The map's scale error as a scalar Kalman filter (gains at most 1 / window_size).
 
-    def __init__(self) -> None:
-        """Start with nothing pending."""
+    Steps wait until they add up to :data:`RESCALE_MIN`.
+
+    Args:
+        config: ``motion_prior_translation_rel`` (the first variance, 5 % if 0),
+            ``window_size`` and ``fallback_max_scale_jump`` (the most a solve moves the
+            scale is its share of that).
+    """
+
+    def __init__(self, config: BackendConfig) -> None:
+        """Start as uncertain as a front-end's scale, with nothing pending."""
+        rel = config.motion_prior_translation_rel
+        self.variance = (rel if rel > 0 else 0.05) ** 2
         self.pending = 0.0
+        self._window = config.window_size
+        self._bound = config.fallback_max_scale_jump / config.window_size
 
-    def take(self, slope: float, curvature: float, config: BackendConfig) -> float | None:
-        """Add one solve's share of its scale step; return the factor to rescale by now, if any.
+    def take(self, slope: float, curvature: float) -> float | None:
+        """Weigh in one solve's scale step; return the factor to rescale by now, if any.
 
         ``slope``, ``curvature``: the solve's ``scale_tension``; NaN, or a curvature that is
         not positive (no metric measurement in the window), adds nothing.
         """
         if not (math.isfinite(slope) and math.isfinite(curvature) and curvature > 0):
             return None
-        share = 1.0 / config.window_size
-        bound = share * config.fallback_max_scale_jump
-        self.pending += float(np.clip(-share * slope / curvature, -bound, bound))
+        noise = self._window / curvature
+        gain = min(self.variance / (self.variance + noise), 1.0 / self._window)
+        self.variance = (1.0 - gain) ** 2 * self.variance + gain ** 2 * noise
+        step = float(np.clip(-gain * slope / curvature, -self._bound, self._bound))
+        self.pending += step
         if abs(self.pending) < RESCALE_MIN:
             return None
         factor, self.pending = 1.0 + self.pending, 0.0

@@ -22,20 +22,35 @@ from pmba_ros.backend.rig_scale import rescale_map, RESCALE_MIN, RigScale
 from pmba_ros.backend.window import FeatureMap, KeyframeStatus, KeyframeStore, LandmarkStore
 
 
-def test_each_solve_takes_its_share_of_the_step_bounded() -> None:
-    """1 / window_size of -slope / curvature, applied once the shares reach RESCALE_MIN."""
-    config = BackendConfig(window_size=20, fallback_max_scale_jump=0.1)
-    scale = RigScale()
+def test_steps_are_weighed_as_measurements_of_one_scale_error() -> None:
+    """Gains min(P / (P + window / curvature), 1 / window), P from the front-end's sigma.
+
+    Steps wait until they reach RESCALE_MIN; none moves the scale by more than its share of
+    the largest jump a solve may make; what cannot be weighed adds nothing.
+    """
+    config = BackendConfig(window_size=20, fallback_max_scale_jump=0.1,
+                           motion_prior_translation_rel=0.05)
+    scale = RigScale(config)
     for slope, curvature in ((np.nan, 1.0), (1.0, 0.0), (1.0, -5.0), (np.inf, 1.0)):
-        assert scale.take(slope, curvature, config) is None
-    assert scale.pending == 0.0
-    # A step of -1 %: -0.05 % per solve, the map rescaled at the second.
-    assert scale.take(10.0, 1000.0, config) is None
-    factor = scale.take(10.0, 1000.0, config)
-    assert factor is not None and abs(factor - (1.0 - 2 * 0.0005)) < 1e-12 <= RESCALE_MIN
-    assert scale.pending == 0.0
-    # No solve moves the scale by more than its share of the largest jump a solve may make.
-    assert scale.take(-1e6, 1.0, config) == 1.0 + 0.1 / 20
+        assert scale.take(slope, curvature) is None
+    assert scale.pending == 0.0 and scale.variance == 0.05 ** 2
+    # Curvature 8,000: a step's variance 20 / 8000, the scale's as large: the Kalman gain
+    # 1/2 is capped at 1/20. A step of -1 %: -0.05 % pending, then -0.1 %: applied.
+    assert 0.0005 < RESCALE_MIN <= 0.001
+    assert scale.take(80.0, 8000.0) is None and abs(scale.pending + 0.0005) < 1e-15
+    assert abs(scale.variance - (0.95 ** 2 * 0.0025 + 0.05 ** 2 * 0.0025)) < 1e-15
+    factor = scale.take(80.0, 8000.0)
+    assert factor is not None and abs(factor - 0.999) < 1e-12 and scale.pending == 0.0
+    # The cap holds while the scale is uncertain; then each solve counts less, so the
+    # window's local scale does not walk the older map away.
+    gains = []
+    for _ in range(100):
+        before = scale.variance
+        scale.take(0.0, 8000.0)
+        gains.append(min(before / (before + 20 / 8000.0), 1 / 20))
+    assert gains[0] == 1 / 20 and np.all(np.diff(gains) <= 0) and gains[-1] < 0.02
+    bounded = RigScale(config)
+    assert bounded.take(-1e9, 1e6) == 1.0 + 0.1 / 20
 
 
 def test_rescaling_keeps_the_newest_keyframe_and_scales_everything_else() -> None:
