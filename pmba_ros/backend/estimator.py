@@ -474,13 +474,13 @@ class Estimator:
         self.pixel_noise.note(res.noise_px)
         if prior is not None:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
+        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
+        self.features.upsert(res.problem.feature_ids, pts)
         factor = self._rig_scale.take(*res.scale_tension)
-        if factor is not None:
+        if factor is not None:   # after the solve's points are in: they scale with the rest
             rescale_map(self.kf, self.features, self.landmarks, self._run_scale, factor)
             self.map_version += 1
             self._update_similarity()
-        pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
-        self.features.upsert(res.problem.feature_ids, pts)
         info.n_cams, info.n_free = res.problem.n_cams, int(np.count_nonzero(free))
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         if jumped.size:   # this solve was pulled by the factors across the jump: again without

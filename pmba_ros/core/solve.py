@@ -194,8 +194,7 @@ class SolveResult:
             NaN where not computed.
         scale_tension: With ``options.scale_tension``, d cost / d s and d^2 cost / d s^2 at
             the result for centres (1 + s) P, fixed ones too
-            (:func:`~pmba_ros.core.gauge.scale_tension`); NaN
-            where not computed.
+            (:func:`~pmba_ros.core.gauge.scale_tension`); NaN where not computed.
     """
 
     R_wc: FloatArray
