@@ -29,8 +29,8 @@ scale's information with the rest of the window held, more than it has with the 
 and the first solves after an initialization are far from converged). Early on a pull that
 persists moves the scale all the way; later solves, each weighed less, cannot walk the
 older map away with the window's local scale (a share that stayed constant summed every
-later window's pull into the first keyframes: a 1,500-keyframe stereo street ended with its
-first half 1 % long).
+later window's local pull into the first keyframes, and a long run's older map drifted off
+its scale with them).
 """
 
 from __future__ import annotations
