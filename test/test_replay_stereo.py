@@ -30,20 +30,30 @@ from pmba_ros.io.bags import iter_messages, list_topics
 from pmba_ros.replay import replay, RESULT_BAG
 from pmba_ros.sim.bag import EUROC_CAM0, groundtruth_path, write_sequence_bag
 from pmba_ros.sim.rig import add_camera, EUROC_CAM1
-from pmba_ros.sim.sequence import simulate_sequence
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 
 CAMERA_INFOS = ('/camera_info', '/camera1/camera_info')
 
 
+def stereo_sequence(scenario: str, n: int, seed: int, camera_seed: int) -> SimSequence:
+    """Return a simulated sequence with EuRoC's cam1 beside cam0 as camera 1."""
+    seq = simulate_sequence(scenario, n_keyframes=n, seed=seed)
+    return add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=camera_seed)
+
+
+def write_stereo_bag(seq: SimSequence, bag: Path, layout: str = 'vins_fusion') -> Path:
+    """Write ``seq`` with EuRoC's cam0 / cam1 on /tf_static and body poses; return ``bag``."""
+    write_sequence_bag(seq, bag, layout=layout, extrinsic=EUROC_CAM0,
+                       rig_extrinsics=[EUROC_CAM1])
+    return bag
+
+
 @pytest.fixture(scope='module')
 def stereo_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Return a 60-keyframe stereo street: EuRoC cam0 / cam1 on /tf_static, body poses."""
-    seq = simulate_sequence('street', n_keyframes=60, seed=2)
-    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=5)
-    bag = tmp_path_factory.mktemp('stereo') / 'bag'
-    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0, rig_extrinsics=[EUROC_CAM1])
-    return bag
+    return write_stereo_bag(stereo_sequence('street', 60, 2, 5),
+                            tmp_path_factory.mktemp('stereo') / 'bag')
 
 
 def _last_transform(bag: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
@@ -109,13 +119,10 @@ def test_camera_without_camera_info_is_counted_and_unused(stereo_bag: Path,
 
 def test_pixel_only_tracks_use_each_cameras_camera_info(tmp_path: Path) -> None:
     """PointCloud2 tracks with pixels only: each camera's pixels go through its CameraInfo."""
-    seq = simulate_sequence('street', n_keyframes=40, seed=3)
-    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
+    seq = stereo_sequence('street', 40, 3, 4)
     frames = [TrackFrame(f.stamp_ns, f.frame_id, f.feature_ids, f.camera_ids, f.pixels, None)
               for f in seq.frames]
-    bag = tmp_path / 'bag'
-    write_sequence_bag(replace(seq, frames=frames), bag, layout='named', extrinsic=EUROC_CAM0,
-                       rig_extrinsics=[EUROC_CAM1])
+    bag = write_stereo_bag(replace(seq, frames=frames), tmp_path / 'bag', layout='named')
     config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS, feature_layout='named')
     report = replay([bag], tmp_path / 'out', config, gt=groundtruth_path(bag), align='se3')
     data = json.loads((tmp_path / 'out' / 'report.json').read_text())
@@ -150,10 +157,7 @@ def test_a_rig_that_barely_sees_depth_keeps_the_front_ends_local_motion(
     to each other, keep the local motion at least as good as the front-end's (seed 3 was
     1.08x it with the lengths held to the scale alone).
     """
-    seq = simulate_sequence('aerial', n_keyframes=60, seed=seed)
-    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=seed + 1)
-    bag = tmp_path / 'bag'
-    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0, rig_extrinsics=[EUROC_CAM1])
+    bag = write_stereo_bag(stereo_sequence('aerial', 60, seed, seed + 1), tmp_path / 'bag')
     config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS)
     report = replay([bag], tmp_path / 'out', config, gt=groundtruth_path(bag), align='se3')
     assert report.complete and report.keyframes_out == 60
@@ -170,11 +174,8 @@ def test_a_vins_mono_rig_is_warned_about_and_read_when_its_cameras_are_named(
     from one place each: a map off by far more than the front-end, said only by a warning
     that names the recorded CameraInfo topics. Named as the rig's, they are read as one.
     """
-    seq = simulate_sequence('street', n_keyframes=40, seed=3)
-    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
-    bag = tmp_path / 'bag'
-    write_sequence_bag(seq, bag, layout='vins_mono', extrinsic=EUROC_CAM0,
-                       rig_extrinsics=[EUROC_CAM1])
+    bag = write_stereo_bag(stereo_sequence('street', 40, 3, 4), tmp_path / 'bag',
+                           layout='vins_mono')
     config = BackendConfig(feature_layout='vins_mono')
     one = replay([bag], tmp_path / 'one', config, gt=groundtruth_path(bag), align='se3')
     assert any('does not tell NUM_OF_CAM: read as num_cams 1' in w
@@ -196,10 +197,7 @@ def test_a_weak_rig_takes_its_scale_from_the_stereo_not_the_initialization(
     towards what the rig measures. Every rescaling rebuilds the published path: it ends as
     the written trajectory.
     """
-    seq = simulate_sequence('aerial', n_keyframes=200, seed=3)
-    seq = add_camera(seq, EUROC_CAM0.inverse() @ EUROC_CAM1, camera_id=1, seed=4)
-    bag = tmp_path / 'bag'
-    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0, rig_extrinsics=[EUROC_CAM1])
+    bag = write_stereo_bag(stereo_sequence('aerial', 200, 3, 4), tmp_path / 'bag')
     config = BackendConfig(num_cams=2, camera_info_topics=CAMERA_INFOS)
     out = tmp_path / 'out'
     report = replay([bag], out, config, gt=groundtruth_path(bag), align='se3')

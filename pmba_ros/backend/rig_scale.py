@@ -91,6 +91,6 @@ def rescale_map(kf: KeyframeStore, features: FeatureMap, landmarks: LandmarkStor
     n = kf.n
     center = kf.C_map[n - 1].copy()
     kf.C_map[:n] = center + factor * (kf.C_map[:n] - center)
-    features.points = center + factor * (features.points - center)
+    features.scale_about(center, factor)
     landmarks.scale_about(center, factor)
     run.rescale(factor)

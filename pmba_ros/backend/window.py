@@ -199,9 +199,9 @@ class FeatureMap:
         self.ids, self.points = self.ids[keep], self.points[keep]
         return removed
 
-    def transform(self, scale: float, rotation: FloatArray, translation: FloatArray) -> None:
-        """Apply X -> scale R X + t to every point."""
-        self.points = scale * self.points @ rotation.T + translation
+    def scale_about(self, center: FloatArray, factor: float) -> None:
+        """Apply X -> center + factor (X - center) to every point (unknown ones stay NaN)."""
+        self.points = center + factor * (self.points - center)
 
 
 class LandmarkStore:

@@ -202,6 +202,11 @@ def _camera_count(frames: list[TrackFrame], layout: str, num_cams: int) -> int:
     return top + 1 if num_cams <= top < MAX_CAMERAS else num_cams
 
 
+def _camera_info_topics(bags: OpenBags) -> list[str]:
+    """Return the recorded CameraInfo topics in name order."""
+    return sorted(t for t, i in bags.topics.items() if i.msgtype in CAMERA_INFO_TYPES)
+
+
 def _camera_count_unknown(bags: OpenBags, config: BackendConfig, warnings: list[str]) -> None:
     """Warn where a vins_mono recording may hold more cameras than ``num_cams``.
 
@@ -209,7 +214,7 @@ def _camera_count_unknown(bags: OpenBags, config: BackendConfig, warnings: list[
     becomes features of the first, each seen from one place, and the map is wrong without an
     error. The ids cannot tell the count; more CameraInfo topics than cameras may.
     """
-    infos = sorted(t for t, i in bags.topics.items() if i.msgtype in CAMERA_INFO_TYPES)
+    infos = _camera_info_topics(bags)
     if len(infos) > config.num_cams:
         _note(warnings, f'tracks in layout vins_mono hold their camera in the id (id * '
                         f'NUM_OF_CAM + cam), which does not tell NUM_OF_CAM: read as '
@@ -228,7 +233,7 @@ def _rig_camera_infos(bags: OpenBags, config: BackendConfig, cameras: int) -> tu
     """
     if config.camera_info_topics or config.camera_id != 0:
         return ()
-    infos = sorted(t for t, i in bags.topics.items() if i.msgtype in CAMERA_INFO_TYPES)
+    infos = _camera_info_topics(bags)
     reference = find_topic(resolve_topic(config.camera_info_topic), infos)
     if reference is not None:
         infos = [reference, *(t for t in infos if t != reference)]
