@@ -35,6 +35,10 @@ from pmba_ros.errors import ProblemError
 
 F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
 
+RAY_TURN_HALVINGS = 5
+"""Halvings of a feature's step that turns a ray away (:meth:`Model.turned_away`) before the
+feature sits the step out."""
+
 
 @dataclass(frozen=True, eq=False)
 class Evaluation:
@@ -99,6 +103,10 @@ class Model(ABC, Generic[F]):
     @abstractmethod
     def parameter_norm_sq(self, feats: F) -> float:
         """Return the squared norm of the feature parameters (for the parameter tolerance)."""
+
+    def turned_away(self, before: Evaluation, after: Evaluation) -> IntArray:
+        """Return the features whose step turned a ray away: none here (PMBA's: its own)."""
+        return np.zeros(0, np.int64)
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,).
@@ -192,6 +200,18 @@ class ParallaxModel(Model[ParallaxFeatures]):
     def retract(self, feats: ParallaxFeatures, delta: FloatArray) -> ParallaxFeatures:
         """Return theta + d theta, Exp(A_n dn) n."""
         return residuals.retract_features(feats, delta, self.engine.sphere_retract)
+
+    def turned_away(self, before: Evaluation, after: Evaluation) -> IntArray:
+        """Return the features with a ray that a step turned away from its bearing.
+
+        Away: from within 90 degrees of the measured bearing to beyond it. The solver halves
+        such a feature's step (:data:`RAY_TURN_HALVINGS`). XYZ and IDP features, the
+        baselines', keep the plain trust region.
+        """
+        v = self.obs.bearings_c
+        was = np.einsum('ki,ki->k', before.rays_c, v) > 0.0
+        now = np.einsum('ki,ki->k', after.rays_c, v) > 0.0
+        return np.unique(self.obs.feat_idx[was & ~now])
 
     def parameter_norm_sq(self, feats: ParallaxFeatures) -> float:
         """Return |theta|^2 + |n|^2."""

@@ -82,6 +82,24 @@ def test_street_twenty_seeds_rotations_and_final_cost(shuffled: bool) -> None:
     assert ok >= 19, (equal, lower)
 
 
+def test_a_far_feature_down_the_street_does_not_stall_the_ba() -> None:
+    """The BA after a 60-camera street's initialization rejects no step and converges.
+
+    The street's farthest features lie almost straight ahead, parallax angle within its
+    noise of zero: a Gauss-Newton step turns some of their rays away from the measurements,
+    where the chordal error jumps towards its bound. Rejecting the whole step for them
+    stalled the BA (rejected steps, the radius halved again and again); their own steps
+    are halved instead.
+    """
+    scene = sim_street(2, n_cams=60)
+    res = global_init(scene.start)
+    assert res.solve.converged, res.solve.summary()
+    rejected = [r.iteration for r in res.solve.history if not r.accepted]
+    assert rejected == [], res.solve.summary()
+    ref = _gt_start_cost(scene.gt, res)
+    assert res.solve.final_cost <= ref * (1 + 1e-4), (res.solve.final_cost, ref)
+
+
 def test_problem_poses_and_points_are_ignored() -> None:
     """The same tracks with garbage poses and points give the same result."""
     scene = sim_street(3, n_cams=8, n_points=200, noise_px=0.5)
