@@ -56,6 +56,16 @@ def stub(monkeypatch: pytest.MonkeyPatch) -> None:
                         lambda config: StubLogic(config, _backend()))
 
 
+@pytest.fixture
+def sigint_raises() -> Iterator[None]:
+    """Python's own SIGINT handler, whatever the runner inherited (a background job ignores it)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Write a 20-keyframe simulated street as a bare MCAP file."""
@@ -237,6 +247,7 @@ def test_second_replay_into_a_folder_in_use_is_refused(bag: Path, tmp_path: Path
     assert replay([bag], out).complete  # released afterwards
 
 
+@pytest.mark.usefixtures('sigint_raises')
 def test_interrupts_wait_for_the_block() -> None:
     """SIGINT inside deferred_interrupts is delivered when the block ends."""
     done = []
@@ -248,6 +259,7 @@ def test_interrupts_wait_for_the_block() -> None:
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+@pytest.mark.usefixtures('sigint_raises')
 def test_interrupt_while_writing_outputs_lets_them_finish(bag: Path, tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch,
                                                           ) -> None:
