@@ -70,9 +70,10 @@ class InitOptions:
             max(track_min_px, track_relative x the median over all tracks) once positions
             are known are dropped as wrong matches before the BA.
         track_relative: See ``track_min_px``.
-        camera_min_px: Cameras whose median residual to the triangulated points (px) exceeds
-            max(camera_min_px, camera_relative x the median over cameras) after the NLS are
-            placed again by resection from the other cameras' points before the BA.
+        camera_min_px: Cameras whose upper-quartile residual to the triangulated points (px)
+            exceeds max(camera_min_px, camera_relative x the median over cameras) after the
+            NLS are placed again by resection from the other cameras' points before the BA
+            (and before the tracks are judged).
         camera_relative: See ``camera_min_px``.
         register_min_points: Cameras left out of the view graph's largest component are
             placed by PnP on the component's triangulated tracks when at least this many of

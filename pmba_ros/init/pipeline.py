@@ -346,13 +346,16 @@ def _complete_tracks(full: BAProblem, eg: BAProblem, eg_feats: ParallaxFeatures,
 
 
 def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options: InitOptions,
+                             fit: BAProblem | None = None,
                              ) -> tuple[FloatArray, IntArray, FloatArray]:
     """Re-place the cameras whose rays miss the triangulated points, before the BA.
 
-    A camera whose median residual (px) exceeds max(camera_min_px, camera_relative x the
-    median over cameras) is placed again by resection (rotation known) from the points
-    triangulated without it and the other outlying cameras. Up to half the cameras are
-    treated so; beyond that the positions are left to the BA.
+    A camera whose residual (px, :func:`~pmba_ros.init.tracks.camera_residuals_px`) exceeds
+    max(camera_min_px, camera_relative x the median over cameras) is placed again by
+    resection (rotation known) from the points triangulated without it and the other
+    outlying cameras, those of ``fit`` (the same cameras, fewer tracks: the ones trusted;
+    default ``problem``'s). Up to half the cameras are treated so; beyond that the positions
+    are left to the BA.
 
     Returns:
         The centres, the resected cameras (indices of ``problem``) and every camera's residual
@@ -365,13 +368,36 @@ def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options:
     bad = np.flatnonzero(cam_px > limit)
     if bad.size == 0 or 2 * bad.size > problem.n_cams:
         return centers_w, np.zeros(0, dtype=np.int64), cam_px
-    good_obs = ~np.isin(problem.obs.cam_idx, bad)
-    X_good = tracks.midpoints(problem, R_wc, centers_w, obs_mask=good_obs)
+    fit = problem if fit is None else fit
+    good_obs = ~np.isin(fit.obs.cam_idx, bad)
+    X_good = tracks.midpoints(fit, R_wc, centers_w, obs_mask=good_obs)
     centers = centers_w.copy()
-    centers[bad] = tracks.resect_centers(problem, R_wc, X_good, bad)
-    logger.info('global_init: resected cameras %s (residuals %s px, limit %.1f px)',
-                bad.tolist(), np.round(cam_px[bad], 1).tolist(), limit)
+    centers[bad] = tracks.resect_centers(fit, R_wc, X_good, bad)
     return centers, bad, cam_px
+
+
+def _wrong_tracks(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
+                  options: InitOptions) -> tracks.TrackCheck:
+    """Return the tracks inconsistent with the positions: wrong matches, not a misplaced camera.
+
+    A camera the positions left far off makes every track through it look wrong (on a long
+    street, a tenth of all tracks): the tracks flagged at the positions are judged again
+    with the outlying cameras (found on every track) re-placed from the others' points on
+    the tracks not flagged (:func:`_resect_outlying_cameras`), and only those wrong both
+    times are flagged.
+    """
+    check = tracks.check_tracks(problem, R_wc, centers_w, min_px=options.track_min_px,
+                                relative=options.track_relative)
+    if not np.any(check.inconsistent):
+        return check
+    clean = subset_features(problem, ~check.inconsistent, 'inconsistent_tracks')
+    placed, resected, _ = _resect_outlying_cameras(problem, centers_w, options, fit=clean)
+    if resected.size == 0:
+        return check
+    again = tracks.check_tracks(problem, R_wc, placed, min_px=options.track_min_px,
+                                relative=options.track_relative)
+    return tracks.TrackCheck(check.rms_px, check.threshold_px,
+                             check.inconsistent & again.inconsistent)
 
 
 def _register(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
@@ -469,9 +495,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                             max_iterations=options.nls_max_iterations)
     # Wrong tracks pull the positions; with positions known they stand out: drop them and
     # refine the positions again without them.
-    check = tracks.check_tracks(full, sub.R_wc, res_nls.centers_w,
-                                min_px=options.track_min_px,
-                                relative=options.track_relative)
+    check = _wrong_tracks(full, sub.R_wc, res_nls.centers_w, options)
     bad_ids = full.feature_ids[check.inconsistent]
     bad_eg = np.isin(sub.feature_ids, bad_ids)
     first_nls = res_nls
@@ -490,6 +514,9 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
 
     full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
     centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
+    if resected.size:
+        logger.info('global_init: resected cameras %s (residuals %s px)', resected.tolist(),
+                    np.round(cam_px[resected], 1).tolist())
     resected_ids, in_component = cam_index[resected], int(np.count_nonzero(cameras_used))
     reg = _register(problem, cameras_used, R_wc, centers, bad_ids, options, check.threshold_px)
     P = reg.centers_w.copy()

@@ -100,6 +100,16 @@ def test_a_far_feature_down_the_street_does_not_stall_the_ba() -> None:
     assert res.solve.final_cost <= ref * (1 + 1e-4), (res.solve.final_cost, ref)
 
 
+def test_a_long_street_keeps_every_track() -> None:
+    """200 cameras: the positions leave one camera far off; its tracks are not dropped."""
+    scene = sim_street(2, n_cams=200)
+    res = global_init(scene.start)
+    assert res.report['tracks']['cameras_resected'], res.report['tracks']
+    assert res.report['tracks']['inconsistent_tracks'] == 0, res.report['tracks']
+    assert res.feature_index.shape[0] == scene.start.n_feats
+    assert res.solve.converged
+
+
 def test_problem_poses_and_points_are_ignored() -> None:
     """The same tracks with garbage poses and points give the same result."""
     scene = sim_street(3, n_cams=8, n_points=200, noise_px=0.5)

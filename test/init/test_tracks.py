@@ -93,3 +93,28 @@ def test_well_placed_cameras_are_left_alone() -> None:
                                                              pipeline.InitOptions())
     assert resected.size == 0
     np.testing.assert_array_equal(centers, gt.centers_w)
+
+
+def test_tracks_through_a_misplaced_camera_are_not_taken_for_wrong_matches() -> None:
+    """One camera far off along its optical axis: only the wrong matches are flagged.
+
+    Forward motion, as the positions of a long street can leave a camera (several steps
+    along the street): the tracks of its near points miss it by tens of pixels, as wrong
+    matches do. Judged once more with that camera re-placed, they are kept.
+    """
+    from pmba_ros.init import pipeline
+
+    for seed in range(4):
+        gt = street_scene(seed, n_cams=40, n_points=400, noise_px=0.5).gt
+        variant = outlier_tracks(gt, 0.05, seed)
+        problem = variant.problem
+        wrong = np.isin(problem.feature_ids, variant.outlier_ids)
+        moved = problem.centers_w.copy()
+        step = np.median(np.linalg.norm(np.diff(moved, axis=0), axis=1))
+        moved[20] += 6 * step * problem.R_wc[20][:, 2]
+        options = pipeline.InitOptions()
+        at_moved = check_tracks(problem, problem.R_wc, moved, min_px=options.track_min_px,
+                                relative=options.track_relative)
+        assert np.count_nonzero(at_moved.inconsistent & ~wrong) > 0, seed   # the case bites
+        judged = pipeline._wrong_tracks(problem, problem.R_wc, moved, options)
+        np.testing.assert_array_equal(judged.inconsistent, wrong, err_msg=f'seed {seed}')
