@@ -55,9 +55,9 @@ def _gt_start_cost(gt: BAProblem, res: InitResult) -> float:
 def test_street_twenty_seeds_rotations_and_final_cost(shuffled: bool) -> None:
     """Collinear street, 0.5 px: rotations < 0.1 deg; final cost = GT-start cost (19/20).
 
-    A seed counts as a success when the costs agree to 1e-6 (relative) or when the
-    initialization reaches a *lower* cost than the start from ground truth (that start can
-    stall at a worse local minimum of a far, near-collinear feature).
+    The costs agree to 1e-6 (relative). The start from ground truth used to stall on a far,
+    near-collinear feature whose steps turned its rays away (a lower cost from the
+    initialization then counted too); those steps are now halved for that feature alone.
     """
     ok, equal, lower = 0, 0, 0
     for seed in range(20):
@@ -79,7 +79,7 @@ def test_street_twenty_seeds_rotations_and_final_cost(shuffled: bool) -> None:
         logger.info('seed %d: rot %.4f deg, cost %.9e vs GT start %.9e (rel %.1e)', seed,
                     rot_err.mean(), res.solve.final_cost, ref, rel)
     logger.info('equal %d, lower %d of 20', equal, lower)
-    assert ok >= 19, (equal, lower)
+    assert ok >= 19 and equal >= 19, (equal, lower)
 
 
 def test_a_far_feature_down_the_street_does_not_stall_the_ba() -> None:
