@@ -737,22 +737,25 @@ def test_wrong_observations_are_not_taken_for_exploding_costs() -> None:
     assert ate(opt, gt, 'sim3').rmse < 0.15 * ate(fe, gt, 'sim3').rmse
 
 
-@pytest.mark.parametrize(('seed', 'attempts'), [(1, 1), (2, 2)])
-def test_an_initialization_the_front_end_contradicts_is_not_followed(seed: int,
-                                                                     attempts: int) -> None:
+@pytest.mark.parametrize(('seed', 'attempts', 'reseeded'), [(1, 1, 0), (2, 2, 1)])
+def test_an_initialization_the_front_end_contradicts_is_not_followed(seed: int, attempts: int,
+                                                                     reseeded: int) -> None:
     """20 % wrong observations: initializations off the front-end's steps are not followed.
 
-    Seed 2's first initialization is 100 % off (median step): it is tried again. Seed 1's,
-    and seed 2's second, have steps several times off here and there: the window starts
-    from the front-end's motion. Taken as they were: seed 2, 19 odom-frame jumps, ATE 11.8x
-    and RPE 109x the front-end's; seed 1 RPE 4.8x, from the initialized keyframes.
+    Seed 2's first initialization is 100 % off (median step): it is tried again. Its second
+    has steps several times off here and there: the window starts from the front-end's
+    motion. Taken as they were: 19 odom-frame jumps, ATE 11.8x and RPE 109x the
+    front-end's. Seed 1's was such a one too (RPE 4.8x taken as it was) until flagged tracks
+    were judged again with the outlying cameras re-placed (``pipeline._wrong_tracks``); it
+    is now close to the front-end's steps and followed.
     """
     seq = _with_outliers(simulate_sequence('street', n_keyframes=200, seed=seed), 0.2, seed)
     logic = BackendLogic(config(), BACKEND)
     run(logic, seq)
     assert logic.estimator.init_attempts == attempts and logic.state == 'tracking'
     counters = logic.stats.counters
-    assert counters['reinitializations'] == 1 and not counters.get('odom_frame_jumps')
+    assert counters.get('reinitializations', 0) == reseeded
+    assert not counters.get('odom_frame_jumps')
     gt, fe, opt = seq.gt_trajectory(), seq.odom_trajectory(), logic.optimized_trajectory()
     assert len(opt) == len(seq)
     assert ate(opt, gt, 'sim3').rmse < 0.5 * ate(fe, gt, 'sim3').rmse
