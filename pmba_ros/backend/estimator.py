@@ -106,6 +106,11 @@ def import_initialization() -> None:
         importlib.import_module('pmba_ros.init.pipeline')
 
 
+INIT_CONTRADICTIONS = 3
+"""Initializations whose steps contradict the front-end's (median) after which the batch is
+seeded from the front-end instead (vision alone fitted wrong tracks that often)."""
+
+
 class Estimator:
     """Keyframe-by-keyframe PMBA estimator (see the module docstring)."""
 
@@ -128,6 +133,7 @@ class Estimator:
         self._next_init_attempt = self.config.init_batch_size
         self.init_attempts = 0
         self._failures = 0
+        self._contradicted = 0
         self._metric_scale = 1.0
         self._rig_scale = RigScale(self.config)
         self.map_version = 0
@@ -248,9 +254,8 @@ class Estimator:
                 info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
-        count = well_conditioned_features(
-            self.kf, batch, cfg.init_min_parallax_px / math.sqrt(self.fx * self.fy),
-            cfg.camera_id)
+        min_angle = cfg.init_min_parallax_px / math.sqrt(self.fx * self.fy)
+        count = well_conditioned_features(self.kf, batch, min_angle, cfg.camera_id)
         if count < cfg.init_min_features:
             self.state = 'waiting_for_parallax'
             self.last_message = (f'waiting for parallax: {count} features with >= '
@@ -294,8 +299,7 @@ class Estimator:
                                       np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), False)
         opts = InitOptions(solve_options=SolveOptions(
             param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss(cfg.loss),
-            loss_scale_px=cfg.loss_scale_px,
-            max_iterations=cfg.init_max_iterations,
+            loss_scale_px=cfg.loss_scale_px, max_iterations=cfg.init_max_iterations,
             function_tolerance=1e-10))
         t0 = time.perf_counter()
         self.init_attempts += 1
@@ -306,8 +310,20 @@ class Estimator:
             result = global_init(problem, opts, progress=lambda *_: self.checkpoint(),
                                  callback=lambda _: self.checkpoint())
             used = batch[result.camera_index]
-            R, C, sim, worst = in_odom_frame(self.kf, used, result.solve.R_wc,
-                                             result.solve.centers_w, cfg.fallback_max_motion_error)
+            try:
+                R, C, sim, worst = in_odom_frame(self.kf, used, result.solve.R_wc,
+                                                 result.solve.centers_w,
+                                                 cfg.fallback_max_motion_error)
+            except InitError:
+                self._contradicted += 1
+                if self._contradicted < INIT_CONTRADICTIONS:
+                    raise
+                # Vision alone keeps fitting something else than the front-end's motion (wrong
+                # tracks): the batch starts from the front-end's poses, re-seeded below.
+                has = used[self.kf.has_odom[used]]
+                near = has[np.abs(has[None, :] - used[:, None]).argmin(axis=1)]
+                R, C, sim, worst = (self.kf.R_odom[near], self.kf.C_odom[near],
+                                    Similarity.identity(), math.inf)
         except (InitError, PmbaError, np.linalg.LinAlgError, ValueError) as err:
             self.state = 'waiting_for_parallax'
             self.last_message = f'waiting for parallax: initialization failed: {err}'

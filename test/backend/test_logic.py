@@ -762,6 +762,28 @@ def test_an_initialization_the_front_end_contradicts_is_not_followed(seed: int, 
     assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
 
 
+def test_a_batch_vision_alone_keeps_misreading_starts_from_the_front_end() -> None:
+    """20 % wrong observations seen from above: every initialization contradicts the front-end.
+
+    After INIT_CONTRADICTIONS of them the batch starts from the front-end's poses and the
+    window solves bring the vision in (before: 17 attempts, each a global initialization of
+    a batch of up to 60 keyframes, and no keyframe optimized).
+    """
+    from pmba_ros.backend.estimator import INIT_CONTRADICTIONS
+
+    seq = _with_outliers(simulate_sequence('aerial', n_keyframes=100, seed=1), 0.2, 1)
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, seq)
+    assert logic.estimator.init_attempts == INIT_CONTRADICTIONS
+    counters = logic.stats.counters
+    assert counters['init_failures'] == INIT_CONTRADICTIONS - 1
+    assert counters['reinitializations'] == 1
+    assert logic.state == 'tracking' and logic.stats.not_optimized == 0
+    gt, fe, opt = seq.gt_trajectory(), seq.odom_trajectory(), logic.optimized_trajectory()
+    assert ate(opt, gt, 'sim3').rmse < 0.5 * ate(fe, gt, 'sim3').rmse
+    assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
+
+
 def test_initialization_gate_counts_features_not_the_median() -> None:
     """Mostly far features: the median parallax stays low, enough near ones initialize."""
     from pmba_ros.backend.window import rotation_compensated_parallax
