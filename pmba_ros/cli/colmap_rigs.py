@@ -133,7 +133,8 @@ class RigInit:
         return report
 
 
-def global_rig_init(rm: RigModel, options: SolveOptions, callback: Any = None) -> RigInit:
+def global_rig_init(rm: RigModel, options: SolveOptions, callback: Any = None,
+                    progress: Any = None) -> RigInit:
     """Run the global initialization over the images, then solve the rig problem from it.
 
     Raises:
@@ -143,7 +144,7 @@ def global_rig_init(rm: RigModel, options: SolveOptions, callback: Any = None) -
     from pmba_ros.init.pipeline import global_init, InitOptions
 
     assert rm.layout is not None
-    init = global_init(rm.images, InitOptions(solve_options=options), progress=None)
+    init = global_init(rm.images, InitOptions(solve_options=options), progress=progress)
     res = init.solve
     poses, R_wr, C_r, scale = rp.frames_from_images(rm.layout, init.camera_index, res.R_wc,
                                                     res.centers_w)

@@ -26,10 +26,11 @@ Usage examples::
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 import math
 from pathlib import Path
 import sys
+import time
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
@@ -95,8 +96,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', type=Path, help='write poses (TUM), points and report here')
     parser.add_argument('--plot', action='store_true', help='with --out: convergence.png')
     parser.add_argument('--quiet', action='store_true',
-                        help='no per-iteration progress lines on stderr (iteration, cost, '
-                        'pixel RMS, trust-region radius, elapsed time, step outcome)')
+                        help='no progress lines on stderr (per iteration: cost, pixel RMS, '
+                        'trust-region radius, elapsed time, step outcome; with --init global '
+                        'also each stage as it ends)')
 
 
 def load_problem(spec: str, fmt: str = 'auto') -> BAProblem:
@@ -262,6 +264,15 @@ def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
     return show
 
 
+def stage_printer() -> Callable[[str, Mapping[str, Any]], None]:
+    """Return a progress callback printing one line as each initialization stage ends."""
+    t0 = time.perf_counter()
+
+    def show(stage: str, entries: Mapping[str, Any]) -> None:
+        print(f'  init {stage:10s} done  {time.perf_counter() - t0:7.2f} s', file=sys.stderr)
+    return show
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
     _check_outputs(args)
@@ -281,16 +292,18 @@ def run(args: argparse.Namespace) -> int:
     for param, solver in runs:
         options = _options(param, solver, args)
         callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
+        progress = None if args.quiet else stage_printer()
         if args.init == 'global' and rigs is not None and rigs.held:
             from pmba_ros.cli.colmap_rigs import global_rig_init
-            init: Any = global_rig_init(rigs, options, callback)
+            init: Any = global_rig_init(rigs, options, callback, progress)
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),
                      'ba_invocations': init.ba_invocations}
             inits.append(init)
         elif args.init == 'global':
             from pmba_ros.init.pipeline import global_init, InitOptions
-            init = global_init(problem, InitOptions(solve_options=options), progress=None)
+            init = global_init(problem, InitOptions(solve_options=options), progress=progress,
+                               callback=callback)
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),
                      'ba_invocations': init.ba_invocations}

@@ -60,6 +60,20 @@ def test_solve_shows_progress_unless_quiet(capsys: pytest.CaptureFixture[str]) -
     assert err.count(' it ') >= 2
 
 
+def test_global_init_shows_its_stages_and_iterations_unless_quiet(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """--init global reports each stage as it ends and the BA's iterations on stderr."""
+    from pmba_ros.init.pipeline import STAGES
+
+    assert main(['solve', 'sim:street', '--init', 'global']) == 0
+    err = capsys.readouterr().err
+    done = [line.split()[1] for line in err.splitlines() if line.startswith('  init ')]
+    assert done == list(STAGES), err
+    assert err.count('pmba-dogleg it ') >= 2
+    assert main(['solve', 'sim:street', '--init', 'global', '--quiet']) == 0
+    assert capsys.readouterr().err == ''
+
+
 def test_solve_warns_when_an_iteration_cap_stops_it(capsys: pytest.CaptureFixture[str]) -> None:
     """A run stopped by --max-iters says so on stderr; a converged run prints no warning."""
     assert main(['solve', 'sim:table3', '--max-iters', '1', '--quiet']) == 0
