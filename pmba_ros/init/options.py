@@ -73,7 +73,7 @@ class InitOptions:
         camera_min_px: Cameras whose upper-quartile residual to the triangulated points (px)
             exceeds max(camera_min_px, camera_relative x the median over cameras) after the
             NLS are placed again by resection from the other cameras' points before the BA
-            (and before the tracks are judged).
+            (and before the tracks flagged as wrong are judged a second time).
         camera_relative: See ``camera_min_px``.
         register_min_points: Cameras left out of the view graph's largest component are
             placed by PnP on the component's triangulated tracks when at least this many of

@@ -371,6 +371,10 @@ def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options:
     fit = problem if fit is None else fit
     good_obs = ~np.isin(fit.obs.cam_idx, bad)
     X_good = tracks.midpoints(fit, R_wc, centers_w, obs_mask=good_obs)
+    # A camera with fewer than three of those points (its tracks flagged, or seen only by
+    # other outlying cameras) has no position to take from them: it is left to the BA.
+    placed = fit.obs.cam_idx[np.all(np.isfinite(X_good[fit.obs.feat_idx]), axis=1)]
+    bad = bad[np.bincount(placed, minlength=problem.n_cams)[bad] >= 3]
     centers = centers_w.copy()
     centers[bad] = tracks.resect_centers(fit, R_wc, X_good, bad)
     return centers, bad, cam_px

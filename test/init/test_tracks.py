@@ -118,3 +118,19 @@ def test_tracks_through_a_misplaced_camera_are_not_taken_for_wrong_matches() -> 
         assert np.count_nonzero(at_moved.inconsistent & ~wrong) > 0, seed   # the case bites
         judged = pipeline._wrong_tracks(problem, problem.R_wc, moved, options)
         np.testing.assert_array_equal(judged.inconsistent, wrong, err_msg=f'seed {seed}')
+
+
+def test_a_misplaced_camera_without_trusted_points_is_left_to_the_ba() -> None:
+    """Every track of the moved camera untrusted: no resection from nothing, no error."""
+    from pmba_ros.core.problem import subset_features
+    from pmba_ros.init import pipeline
+
+    gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.0, far_fraction=0.0).gt
+    moved = gt.centers_w.copy()
+    moved[4] += [0.5, 2.0, -1.0]
+    seen_by_4 = np.isin(np.arange(gt.n_feats), gt.obs.feat_idx[gt.obs.cam_idx == 4])
+    fit = subset_features(gt, ~seen_by_4, 'untrusted')
+    centers, resected, _ = pipeline._resect_outlying_cameras(gt, moved, pipeline.InitOptions(),
+                                                             fit=fit)
+    assert 4 not in resected.tolist()
+    np.testing.assert_array_equal(centers[4], moved[4])
