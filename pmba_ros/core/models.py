@@ -36,8 +36,8 @@ from pmba_ros.errors import ProblemError
 F = TypeVar('F', ParallaxFeatures, XyzFeatures, IdpFeatures)
 
 RAY_TURN_HALVINGS = 5
-"""Halvings of a feature's step that turns a ray away (:meth:`Model.turned_away`) before the
-feature sits the step out."""
+"""Halvings of a feature's step that turns a ray away (:meth:`Model.halve_turning_steps`)
+before the feature sits the step out."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +107,28 @@ class Model(ABC, Generic[F]):
     def turned_away(self, before: Evaluation, after: Evaluation) -> IntArray:
         """Return the features whose step turned a ray away: none here (PMBA's: its own)."""
         return np.zeros(0, np.int64)
+
+    def halve_turning_steps(self, R_wc: FloatArray, centers_w: FloatArray, feats: F,
+                            evaluation: Evaluation, d_feat: FloatArray) -> FloatArray | None:
+        """Return ``d_feat`` with the steps of features that turn a ray away halved (None: none).
+
+        Such a feature has left the region the linear model describes (a far feature along
+        the path: the ray's chordal error jumps towards its bound and the whole step is
+        rejected). Its step is halved, up to :data:`RAY_TURN_HALVINGS` times, then held; the
+        rest of the step goes ahead. Judged with the poses held (``evaluation`` is theirs):
+        a ray the poses' step turns is the trust region's to judge (halving the features
+        for it trapped some at worse minima).
+        """
+        out: FloatArray | None = None
+        for halving in range(RAY_TURN_HALVINGS + 1):
+            step = d_feat if out is None else out
+            own = self.turned_away(evaluation,
+                                   self.evaluate(R_wc, centers_w, self.retract(feats, step)))
+            if own.size == 0:
+                break
+            out = step.copy() if out is None else out
+            out[own] *= 0.5 if halving < RAY_TURN_HALVINGS else 0.0
+        return out
 
     def reprojection_errors_px(self, evaluation: Evaluation) -> FloatArray:
         """Return the pixel reprojection error norm of every observation, shape (K,).
@@ -204,9 +226,9 @@ class ParallaxModel(Model[ParallaxFeatures]):
     def turned_away(self, before: Evaluation, after: Evaluation) -> IntArray:
         """Return the features with a ray that a step turned away from its bearing.
 
-        Away: from within 90 degrees of the measured bearing to beyond it. The solver halves
-        such a feature's step (:data:`RAY_TURN_HALVINGS`). XYZ and IDP features, the
-        baselines', keep the plain trust region.
+        Away: from within 90 degrees of the measured bearing to beyond it
+        (:meth:`halve_turning_steps`). XYZ and IDP features, the baselines', keep the plain
+        trust region.
         """
         v = self.obs.bearings_c
         was = np.einsum('ki,ki->k', before.rays_c, v) > 0.0

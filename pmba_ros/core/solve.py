@@ -37,7 +37,7 @@ from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.core.gauge import choose_gauge, free_gauge, scale_tension
 from pmba_ros.core.loss import Loss, noise_scale_px
-from pmba_ros.core.models import Evaluation, make_model, Model, RAY_TURN_HALVINGS
+from pmba_ros.core.models import Evaluation, make_model, Model
 from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
@@ -486,18 +486,13 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             continue
         invalid = 0
         trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
-        for halving in range(RAY_TURN_HALVINGS + 1):
-            # A feature whose step turns one of its rays away from that camera's measurement
-            # has left the region the linear model describes (a far feature along the path:
-            # the ray's chordal error jumps towards its bound and the whole step is
-            # rejected): its step is halved, the rest of the step goes ahead.
-            turned = model.turned_away(state.evaluation, trial.evaluation)
-            if turned.size == 0:
-                break
-            d_feat = d_feat.copy()
-            d_feat[turned] *= 0.5 if halving < RAY_TURN_HALVINGS else 0.0
-            model_change = lin.model_change(d_pose, d_feat)
-            trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
+        if model.turned_away(state.evaluation, trial.evaluation).size:
+            halved = model.halve_turning_steps(state.R_wc, state.centers_w, state.feats,
+                                               state.evaluation, d_feat)
+            if halved is not None:
+                d_feat = halved
+                model_change = lin.model_change(d_pose, d_feat)
+                trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
         new_cost = trial.cost
         rho = dogleg.step_quality(state.cost, new_cost, model_change)
         accepted = rho > dogleg.MIN_RELATIVE_DECREASE

@@ -83,7 +83,7 @@ def test_street_twenty_seeds_rotations_and_final_cost(shuffled: bool) -> None:
 
 
 def test_a_far_feature_down_the_street_does_not_stall_the_ba() -> None:
-    """The BA after a 60-camera street's initialization rejects no step and converges.
+    """The BA after a 100-camera street's initialization rejects no step and converges.
 
     The street's farthest features lie almost straight ahead, parallax angle within its
     noise of zero: a Gauss-Newton step turns some of their rays away from the measurements,
@@ -91,7 +91,7 @@ def test_a_far_feature_down_the_street_does_not_stall_the_ba() -> None:
     stalled the BA (rejected steps, the radius halved again and again); their own steps
     are halved instead.
     """
-    scene = sim_street(2, n_cams=60)
+    scene = sim_street(2, n_cams=100)
     res = global_init(scene.start)
     assert res.solve.converged, res.solve.summary()
     rejected = [r.iteration for r in res.solve.history if not r.accepted]
