@@ -119,14 +119,12 @@ class Model(ABC, Generic[F]):
         a ray the poses' step turns is the trust region's to judge (halving the features
         for it trapped some at worse minima).
         """
-        out: FloatArray | None = None
+        out = d_feat.copy()
         for halving in range(RAY_TURN_HALVINGS + 1):
-            step = d_feat if out is None else out
             own = self.turned_away(evaluation,
-                                   self.evaluate(R_wc, centers_w, self.retract(feats, step)))
+                                   self.evaluate(R_wc, centers_w, self.retract(feats, out)))
             if own.size == 0:
-                break
-            out = step.copy() if out is None else out
+                return out if halving else None
             out[own] *= 0.5 if halving < RAY_TURN_HALVINGS else 0.0
         return out
 
