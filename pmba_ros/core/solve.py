@@ -584,6 +584,10 @@ def _check_not_empty(problem: BAProblem) -> None:
     """Raise ProblemError if no feature is left to solve for (all were dropped)."""
     if problem.n_feats == 0 or problem.n_obs == 0:
         dropped = ', '.join(f'{k}: {v}' for k, v in problem.dropped.items()) or 'none'
-        msg = ('nothing to solve: no feature is seen by two or more cameras '
-               f'(dropped: {dropped})')
+        # Features seen twice but from one centre are dropped for want of a baseline: "not
+        # seen by two cameras" misnamed a file whose cameras all share a centre.
+        why = ('no feature is seen by two cameras with a baseline between them'
+               if problem.dropped.get('features_without_anchor_baseline') else
+               'no feature is seen by two or more cameras')
+        msg = f'nothing to solve: {why} (dropped: {dropped})'
         raise ProblemError(msg)

@@ -52,6 +52,10 @@ logger = logging.getLogger(__name__)
 _RANK_RTOL = 1e-12
 """Singular values of Sigma_xy below this fraction of the largest count as zero."""
 
+_COINCIDENT_RTOL = 1e3 * float(np.finfo(float).eps)
+"""A point set whose RMS spread about its mean is at most this fraction of its largest
+coordinate coincides: the spread is what rounding the mean leaves."""
+
 
 class UmeyamaResult(NamedTuple):
     """A similarity transform ``y = scale * rotation @ x + translation``.
@@ -121,6 +125,14 @@ def umeyama_alignment(x: FloatArray, y: FloatArray, with_scale: bool = False) ->
     # SVD (text between eq. 38 and 39): Sigma_xy = U D V^T
     U, d, Vt = np.linalg.svd(cov_xy)
     rank = int(np.count_nonzero(d > _RANK_RTOL * max(float(d[0]), np.finfo(float).tiny)))
+    # Points that coincide away from the origin (a static trajectory at 1000 m) keep a spread
+    # of rounding noise, and the rank above is relative to the largest singular value, itself
+    # noise: the noise was taken for a shape, and a Sim(3) scale of 1e-29 mapped any estimate
+    # onto the one point (ATE 0).
+    for pts, centred in ((x, xc), (y, yc)):
+        spread = float(np.sqrt(np.sum(centred * centred) / n))
+        if not spread > _COINCIDENT_RTOL * float(np.max(np.abs(pts))):
+            rank = 0
     if rank < m - 1:
         msg = (f'degenerate point set for Umeyama alignment: covariance rank {rank} < {m - 1} '
                f'({n} points; they must not be collinear or coincident)')

@@ -212,11 +212,18 @@ def _rotations_from_quat(path: str | os.PathLike[str], quat_xyzw: FloatArray,
     Raises:
         FormatError: If a quaternion has (near) zero norm.
     """
-    norms = np.linalg.norm(quat_xyzw, axis=1)
+    with np.errstate(over='ignore'):
+        norms = np.linalg.norm(quat_xyzw, axis=1)
     bad = np.flatnonzero(norms < 1e-6)
     if bad.size:
         msg = f'{path}:{linenos[int(bad[0])]}: {what} quaternion has zero norm'
         raise FormatError(msg)
+    # A quaternion with components beyond ~1e154 is a rotation, but its norm overflowed to
+    # inf and normalizing it gave zeros: a wrong rotation, silently. Scaled down first.
+    huge = ~np.isfinite(norms)
+    if huge.any():
+        quat_xyzw = quat_xyzw.copy()
+        quat_xyzw[huge] /= np.max(np.abs(quat_xyzw[huge]), axis=1, keepdims=True)
     return so3.from_quat_xyzw(quat_xyzw)
 
 

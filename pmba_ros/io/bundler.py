@@ -104,7 +104,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     except ValueError as err:
         msg = f'{path}: non-numeric value ({err})'
         raise FormatError(msg) from err
-    if values.size < 2 or values[0] != int(values[0]) or values[1] != int(values[1]):
+    if values.size < 2 or not (_is_whole(values[0]) and _is_whole(values[1])):
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)
     n_cams, n_points = int(values[0]), int(values[1])
@@ -132,7 +132,13 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
             raise FormatError(msg)
         xyz[j] = values[pos:pos + 3]
         rgb[j] = values[pos + 3:pos + 6]
-        n = int(values[pos + 6])
+        count = values[pos + 6]
+        # A fractional count read as its integer part misaligned every later point (the
+        # error then named the wrong point); NaN or inf would not convert at all.
+        if not _is_whole(count):
+            msg = f'{path}: point {j}: view count {count:g} is not a whole number'
+            raise FormatError(msg)
+        n = int(count)
         end = pos + 7 + 4 * n
         if n < 0 or values.size < end:
             msg = f'{path}: point {j}: view list of {n} views is truncated or invalid'
@@ -151,6 +157,11 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return BundlerModel(cameras, xyz, rgb, offsets, cam, v[:, 1].astype(np.int64),
                         v[:, 2:4].copy())
+
+
+def _is_whole(value: float) -> bool:
+    """Return True if ``value`` is a finite whole number (a count read as a float)."""
+    return bool(np.isfinite(value)) and float(value) == float(np.floor(value))
 
 
 def to_problem(model: BundlerModel) -> tuple[BAProblem, IntArray]:

@@ -57,7 +57,7 @@ from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ER
 from pmba_ros.io.text import MAX_PIXEL
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
     from os import PathLike
 
     from pmba_ros._typing import FloatArray, IntArray
@@ -253,12 +253,13 @@ def _camera(path: Path, where: str, model: str, width: int, height: int,
 
 
 def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
-    cams = {}
+    cams: dict[int, ColmapCamera] = {}
     for n, t in data_lines(path):
         if len(t) < 4:
             msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
             raise FormatError(msg)
         head = integers(path, n, [t[0], t[2], t[3]], 'camera id / size')
+        _check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
                                      numbers(path, n, t[4:], 'camera parameters'))
     return cams
@@ -268,7 +269,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
     with path.open(encoding='utf-8', errors=NAME_ERRORS) as fh:
         lines = [(n, line.split()) for n, line in enumerate(fh, 1)
                  if not line.lstrip().startswith('#')]
-    images = {}
+    images: dict[int, ColmapImage] = {}
     k = 0
     while k < len(lines):
         n, head = lines[k]
@@ -288,6 +289,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
             msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
             raise FormatError(msg)
         xys = numbers(path, n2, pts[0::3] + pts[1::3], 'image points').reshape(2, -1).T
+        _check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
         images[int(ids[0])] = ColmapImage(v[:4], v[4:], int(ids[1]), ' '.join(head[9:]), xys,
                                           integers(path, n2, pts[2::3], 'image points'))
     return images
@@ -296,6 +298,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
 def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
                                           list[IntArray]]:
     ids, xyz, rgb, err, tracks = [], [], [], [], []
+    seen: dict[int, None] = {}
     for n, t in data_lines(path):
         if len(t) < 8 or (len(t) - 8) % 2:
             msg = (f'{path}:{n}: expected "POINT3D_ID X Y Z R G B ERROR" and (IMAGE_ID, '
@@ -306,6 +309,8 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         if np.any((whole[1:4] < 0) | (whole[1:4] > 255)):
             msg = f'{path}:{n}: colour {" ".join(t[4:7])} is not in 0..255'
             raise FormatError(msg)
+        _check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
+        seen[int(whole[0])] = None
         ids.append(int(whole[0]))
         xyz.append(v[:3])
         rgb.append(whole[1:4])
@@ -318,13 +323,14 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
     r = BinaryReader(path)
     count = r.count(24, 'cameras')        # id, model, width, height
-    cams = {}
+    cams: dict[int, ColmapCamera] = {}
     for _ in range(count):
         cid, mid, w, h = r.take('iiQQ')
         if mid not in MODELS:
             msg = f'{path}: camera {cid} has unknown model id {mid}'
             raise FormatError(msg)
         name, n = MODELS[int(mid)]
+        _check_new_id(str(path), 'camera', int(cid), cams)
         cams[int(cid)] = ColmapCamera(name, int(w), int(h),
                                       r.array('<f8', n))
     return cams
@@ -333,7 +339,7 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
 def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
     r = BinaryReader(path)
     count = r.count(73, 'images')         # id, pose, camera id, name's NUL, point count
-    images = {}
+    images: dict[int, ColmapImage] = {}
     for _ in range(count):
         (iid,) = r.take('i')
         pose = r.array('<f8', 7)
@@ -342,6 +348,7 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
         (n_pts,) = r.take('Q')
         rec = r.array('<f8,<f8,<i8', int(n_pts))
         xys = np.stack([rec['f0'], rec['f1']], axis=1)
+        _check_new_id(str(path), 'image', int(iid), images)
         images[int(iid)] = ColmapImage(pose[:4], pose[4:], int(cid),
                                        name, xys, rec['f2'].astype(np.int64))
     return images
@@ -363,7 +370,26 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         rgb[k] = r.array('u1', 3)
         (err[k], length) = r.take('dQ')
         tracks.append(r.array('<i4', 2 * int(length)).astype(np.int64).reshape(-1, 2))
+    if np.unique(ids).size < n:
+        _, first = np.unique(ids, return_index=True)
+        repeated = int(ids[np.setdiff1d(np.arange(n), first).min()])
+        msg = f'{path}: 3-D point id {repeated} appears twice'
+        raise FormatError(msg)
     return ids, xyz, rgb, err, tracks
+
+
+def _check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:
+    """Raise FormatError if ``new_id`` is already among the ``known`` ids of a file.
+
+    ``where`` names the file (and line) in the message.
+
+    A model's ids are unique; read into a dictionary, a repeated one silently replaced the
+    record before it (an image and its observations were lost from the solve and from a
+    written model).
+    """
+    if new_id in known:
+        msg = f'{where}: {what} id {new_id} appears twice'
+        raise FormatError(msg)
 
 
 # ---- conversion --------------------------------------------------------------------------

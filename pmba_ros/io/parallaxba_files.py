@@ -44,7 +44,13 @@ import numpy as np
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import check_numeric, check_pixels, integer_indices, nonblank_lines
+from pmba_ros.io.text import (
+    check_numeric,
+    check_pixels,
+    integer_indices,
+    MAX_COORDINATE,
+    nonblank_lines,
+)
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -154,6 +160,12 @@ def read_parallaxba(directory_or_cam_file: str | PathLike[str],
         intrinsics = Intrinsics.uniform(n_cams, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     R_cw = euler_to_R_cw(cams[:, 0:3])
     centers_w = cams[:, 3:6].copy()
+    # Beyond it the triangulation's squared spreads overflow: a LinAlgError from eigh before.
+    far = np.flatnonzero(np.any(np.abs(centers_w) > MAX_COORDINATE, axis=1))
+    if far.size:
+        msg = (f'{cam_path}:{cam_lines[far[0]]}: camera centre coordinate '
+               f'{np.max(np.abs(centers_w[far[0]])):g} beyond {MAX_COORDINATE:g}')
+        raise FormatError(msg)
 
     cam_idx, feat_idx, pixels, n_feats = _read_features(feat_path, n_cams)
     if xyz_file is not None:

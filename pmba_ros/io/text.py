@@ -81,6 +81,11 @@ MAX_PIXEL = 1e9
 squared residuals of a whole problem stay finite."""
 
 
+MAX_COORDINATE = 1e150
+"""Largest world coordinate magnitude accepted for a camera centre: squared distances between
+centres (a triangulation's spread of its cameras) stay finite up to it."""
+
+
 def check_pixels(path: Path, pixels: FloatArray, line_numbers: Sequence[int]) -> None:
     """Raise FormatError naming the first observation with a non-finite or absurd pixel.
 

@@ -224,6 +224,18 @@ def test_problem_with_no_feature_left_is_a_clear_error(param: str) -> None:
         solve(problem, SolveOptions(param=param))
 
 
+def test_cameras_sharing_one_centre_are_named_as_the_reason() -> None:
+    """Every camera at one centre: the error names the missing baseline, not a track length."""
+    scene = street_scene(seed=8, n_cams=5, n_points=50)
+    p = scene.start
+    problem = make_problem(p.R_wc, np.zeros_like(p.centers_w), p.intrinsics, p.obs.cam_idx,
+                           p.obs.feat_idx, p.obs.pixels, points_w=p.points_w,
+                           n_feats=p.n_feats)
+    with pytest.raises(ProblemError, match=r'nothing to solve: no feature is seen by two '
+                       r'cameras with a baseline between them.*features_without_anchor_baseline'):
+        solve(problem, SolveOptions(param='pmba'))
+
+
 def test_progress_callback_sees_every_iteration() -> None:
     """The callback receives the initial state and one record per iteration."""
     scene = street_scene(seed=8, n_cams=5, n_points=50)

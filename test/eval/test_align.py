@@ -113,6 +113,22 @@ def test_umeyama_raises_on_degenerate_points(points: np.ndarray) -> None:
         umeyama_alignment(points, points + 1.0, with_scale=True)
 
 
+@pytest.mark.parametrize('static_is', ['target', 'source'])
+def test_umeyama_raises_on_points_that_coincide_up_to_rounding(rng: np.random.Generator,
+                                                               static_is: str) -> None:
+    """One point repeated away from the origin is coincident, though its mean is rounded.
+
+    The rounding noise passed for a shape: a static ground truth got a scale of 1e-29 that
+    mapped any estimate onto it (ATE 0), a static estimate a scale from noise.
+    """
+    moving = rng.normal(size=(50, 3)) * 5.0
+    static = np.tile([1000.1, 2000.3, 5.7], (50, 1))
+    assert np.any(static.mean(axis=0) != static[0])   # the noise the test is about
+    x, y = (moving, static) if static_is == 'target' else (static, moving)
+    with pytest.raises(DegenerateGeometryError, match='covariance rank 0'):
+        umeyama_alignment(x, y, with_scale=True)
+
+
 def test_umeyama_raises_on_shape_mismatch() -> None:
     """Both inputs must be (N, m) with the same shape."""
     with pytest.raises(EvaluationError, match='equal shape'):

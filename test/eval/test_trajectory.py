@@ -164,6 +164,15 @@ def test_read_tum_skips_comments_and_blank_lines(tmp_path: Path) -> None:
                                atol=1e-15)
 
 
+def test_read_tum_normalizes_quaternions_whose_norm_overflows(tmp_path: Path) -> None:
+    """A quaternion of 1e200 is the rotation of its direction (was a wrong one, silently)."""
+    path = write_text(tmp_path / 't.txt', '1 0 0 0 0 0 1e200 1e200\n2 0 0 0 1e300 0 0 0\n')
+    traj = read_tum(path)
+    np.testing.assert_allclose(traj.R_wc[0], so3.exp(np.array([0.0, 0.0, np.pi / 2])),
+                               atol=1e-15)
+    np.testing.assert_allclose(traj.R_wc[1], so3.exp(np.array([np.pi, 0.0, 0.0])), atol=1e-15)
+
+
 def test_read_euroc_csv_reads_wxyz_and_nanoseconds(tmp_path: Path) -> None:
     """Rows of EuRoC CSV are t_ns, p, q_wxyz, then ignored columns; 8 columns suffice."""
     rows = ('#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z\n'

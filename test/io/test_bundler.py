@@ -138,6 +138,14 @@ def test_unregistered_cameras_are_left_out_and_written_back(
     ('# Bundle file v0.3\n1 -5\n' + '1 0 0 ' * 5 + '\n', 'negative count'),
     ('# Bundle file v0.3\n-3 2\n', 'negative count'),
     (b'# Bundle file v0.3\n1 1\n\xff\xfe 0 0\n', 'not a text file'),   # a damaged byte
+    # Counts that are no whole number: a ValueError / OverflowError before, and a fractional
+    # view count misaligned the points after it.
+    ('# Bundle file v0.3\nnan 1\n', 'expected "num_cameras num_points"'),
+    ('# Bundle file v0.3\n1 inf\n', 'expected "num_cameras num_points"'),
+    ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\nnan 0 0 1 1\n',
+     'point 0: view count nan is not a whole number'),
+    ('# Bundle file v0.3\n1 2\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n1.5 0 0 1 1\n'
+     '0 0 2\n1 2 3\n1 0 1 1 1\n', 'point 0: view count 1.5 is not a whole number'),
 ])
 def test_malformed_files_are_reported(tmp_path: Path, text: str | bytes, match: str) -> None:
     """Errors name the file and what is wrong."""

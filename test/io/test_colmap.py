@@ -151,6 +151,51 @@ def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, cont
     assert name in str(info.value)
 
 
+@pytest.mark.parametrize(('name', 'content', 'match'), [
+    ('cameras.txt', '1 PINHOLE 640 480 500 500 320 240\n1 PINHOLE 640 480 1 1 1 1\n',
+     r'cameras\.txt:2: camera id 1 appears twice'),
+    ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n\n1 1 0 0 0 0 1 0 1 b.png\n\n',
+     r'images\.txt:3: image id 1 appears twice'),
+    ('points3D.txt', '5 0 0 1 1 1 1 0\n5 0 0 2 1 1 1 0\n',
+     r'points3D\.txt:2: 3-D point id 5 appears twice'),
+])
+def test_repeated_ids_are_refused(tmp_path: Path, name: str, content: str, match: str) -> None:
+    """A repeated id names file and line (the later record silently replaced the earlier)."""
+    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n',
+             'images.txt': '1 1 0 0 0 0 0 0 1 a.png\n\n', 'points3D.txt': ''}
+    files[name] = content
+    for f, c in files.items():
+        (tmp_path / f).write_text(c)
+    with pytest.raises(FormatError, match=match):
+        colmap.read_colmap(tmp_path)
+
+
+@pytest.mark.parametrize('kind', ['cameras', 'images', 'points3D'])
+def test_repeated_ids_in_binary_files_are_refused(tmp_path: Path, scene_problem: BAProblem,
+                                                  kind: str) -> None:
+    """The same in a binary model: an image lost from the solve and the written model before."""
+    model = colmap.from_problem(scene_problem)
+    if kind == 'points3D':
+        ids = model.point_ids.copy()
+        ids[3] = ids[1]
+        model = dataclasses.replace(model, point_ids=ids)
+    colmap.write_colmap(tmp_path, model, binary=True)
+    path = tmp_path / f'{kind}.bin'
+    data = bytearray(path.read_bytes())
+    if kind == 'cameras':   # the second record (id, model, width, height, 4 PINHOLE values)
+        assert model.cameras[1].model == 'PINHOLE'
+        data[8 + 56:8 + 60] = (1).to_bytes(4, 'little')
+    elif kind == 'images':  # the second record, after the first one's points
+        first = model.images[1]
+        size = 4 + 56 + 4 + len(first.name.encode()) + 1 + 8 + 24 * len(first.xys)
+        data[8 + size:8 + size + 4] = (1).to_bytes(4, 'little')
+    path.write_bytes(bytes(data))
+    repeated = {'cameras': 'camera id 1', 'images': 'image id 1',
+                'points3D': f'3-D point id {int(model.point_ids[1])}'}[kind]
+    with pytest.raises(FormatError, match=f'{kind}.bin: {repeated} appears twice'):
+        colmap.read_colmap(tmp_path)
+
+
 @pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
 def test_image_names_that_are_not_utf8_round_trip(tmp_path: Path, scene_problem: BAProblem,
                                                   binary: bool) -> None:

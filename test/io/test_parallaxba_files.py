@@ -228,6 +228,8 @@ def test_missing_or_ambiguous_files_raise(tmp_path: Path) -> None:
     ('Cam4.txt', 2, '0.1 0.2 0.3 1.0 2.0', 'row has 5 values, expected 6 or 8'),
     ('Cam4.txt', 3, '0.1 0.2 0.3 1.0 2.0 abc', "non-numeric token 'abc'"),
     ('Cam4.txt', 4, '0.1 0.2 0.3 1.0 2.0 inf', 'non-finite value'),
+    # Its squares overflowed in the triangulation: a LinAlgError traceback before.
+    ('Cam4.txt', 2, '0.1 0.2 0.3 1e300 2.0 3.0', 'camera centre coordinate 1e\\+300 beyond'),
     ('cal4.txt', 3, '0 0', 'expected 9 values'),
     ('cal4.txt', 2, '0 790 240 7', 'expected 9 values'),
     ('cal4.txt', 1, '800 5 320', 'skew'),
