@@ -456,12 +456,12 @@ class Estimator:
             info.message = f'refine failed, keeping the prediction: {err}'
             logger.warning('%s', info.message)
             return info
-        # The front-end's frame jumped where a solved step stays far off its step (jumps too
-        # small for the pose check): a new odom segment starts there, before map <- odom is
-        # re-estimated. A solve rolled back is no evidence of a jump: the segments stay.
+        # The front-end's frame jumped where a solved step (not a rig's held one) stays far off
+        # its step (jumps too small for the pose check): a new odom segment starts there,
+        # before map <- odom is re-estimated. A rolled-back solve is no evidence: segments stay.
         segments = self.kf.segment[:self.kf.n].copy()
-        jumped = np.zeros(0, dtype=np.int64) if prior is None else cams[
-            prior.b[step_sigmas(prior, res.prior_residuals) > JUMP_SIGMAS]]
+        jumped = np.zeros(0, dtype=np.int64) if prior is None else cams[prior.b[
+            (step_sigmas(prior, res.prior_residuals) > JUMP_SIGMAS) & ~fixed[prior.b]]]
         for k in np.sort(jumped).tolist():
             self.kf.segment[k:self.kf.n] += 1
         free = ~res.problem.fixed

@@ -31,7 +31,7 @@ from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore, Similarity
 from pmba_ros.core import so3
-from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges
+from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges, WindowScale
 
 
 def row_norms(x: FloatArray) -> FloatArray:
@@ -284,22 +284,25 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     """Return the front-end's motion between consecutive problem keyframes as a prior.
 
     Factors join each keyframe of the (ascending) problem ``cams`` with the next one when
-    both have front-end poses and one is free. A step's length enters as two Gaussian
-    factors merged into one:
+    both have front-end poses and one is free (for a rig, held pairs too: below). A step's
+    length enters as two Gaussian factors merged into one:
 
     * against ``metric_scale``, the reference map <- odom scale (the run's, :class:`RunScale`,
       or the initialization's; sigma ``motion_prior_translation_rel``, grown as
       :data:`RUN_SCALE_SPAN` says for a run of ``run_steps`` steps, not at all for 0);
-    * with ``follow_map_scale``, against the map's own scale around the step
-      (:func:`local_scales` over ``window_size`` steps; sigma ``motion_prior_shape_rel``):
-      a front-end's step lengths agree with each other far better than its scale holds.
+    * against the map's own scale around the step (sigma ``motion_prior_shape_rel``): a
+      front-end's step lengths agree with each other far better than its scale holds.
 
     The second keeps the front-end's local motion and leaves the map's scale to the
-    vision, the first slowly pulls that scale back to the run's. As the second also
-    holds back changes of the map's scale, it suits monocular solves, sliding or global,
-    whose vision sees the scale weakly and step by step, not a stereo rig (a metric map):
-    there the steps' lengths are held to each other by step-change factors instead
-    (:func:`rig_length_gain`), which leave the window's scale to the rig's baseline.
+    vision, the first slowly pulls that scale back to the run's. With
+    ``follow_map_scale`` (monocular solves, sliding or global, whose vision sees the scale
+    weakly and step by step) the map's scale is taken before the solve
+    (:func:`local_scales` over ``window_size`` steps), which also holds back changes of it.
+    A stereo rig's map is metric: there the scale is a level and a trend fitted to the
+    solved steps of each run of ``window_size`` steps at every evaluation
+    (:class:`~pmba_ros.core.pose_prior.WindowScale`), which leaves it to the rig's baseline
+    and a front-end's slow scale drift out; the steps between held keyframes of the
+    problem join the fit, so a window's scale continues the held map's.
     Weights: one sigma (of the length, of the direction across it
     ``motion_prior_direction_rel``, each of the step plus :data:`STEP_FLOOR_REL` of a typical one,
     ``typical`` (:func:`typical_step`; 0: the median moving front-end step of ``cams`` in map
@@ -317,7 +320,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         return None
     a_loc = np.arange(cams.shape[0] - 1)
     a, b = cams[:-1], cams[1:]
-    ok = kf.same_odom(a, b) & ~(fixed[:-1] & fixed[1:])
+    ok = kf.same_odom(a, b) & (~(fixed[:-1] & fixed[1:]) | (not follow_map_scale))
     a_loc, a, b = a_loc[ok], a[ok], b[ok]
     R_ab = np.einsum('mji,mjk->mik', kf.R_odom[a], kf.R_odom[b])
     t_odom = np.einsum('mji,mj->mi', kf.R_odom[a], kf.C_odom[b] - kf.C_odom[a])
@@ -326,6 +329,7 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
     P_along = np.einsum('mi,mj->mij', along, along)
     scale = np.full(a.shape[0], metric_scale)
     W_trans = np.zeros((a.shape[0], 3, 3))
+    window_scale = None
     if typical <= 0:
         moving = np.sort(step[step > 0])   # its middle element: np.median without its cost
         typical = metric_scale * (float(moving[moving.size // 2]) if moving.size else 1.0)
@@ -339,6 +343,12 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
             local = local_scales(kf, a, b, t_odom, metric_scale, cfg.window_size, step)
             info_local = 1.0 / (cfg.motion_prior_shape_rel * local * step + floor) ** 2
             scale = (info * metric_scale + info_local * local) / (info + info_local)
+            info = info + info_local
+        elif cfg.motion_prior_shape_rel > 0 and a.shape[0]:
+            info_local = 1.0 / (cfg.motion_prior_shape_rel * metric_scale * step + floor) ** 2
+            groups = max(1, round(a.shape[0] / cfg.window_size))
+            window_scale = WindowScale(info_local / (info + info_local),
+                                       np.arange(a.shape[0]) * groups // a.shape[0])
             info = info + info_local
         # Square-root information: along the step (its length: the scale) and across it
         # (its direction, which a front-end measures much better).
@@ -354,48 +364,23 @@ def frontend_motion_prior(kf: KeyframeStore, cams: IntArray, fixed: BoolArray,
         W_trans = (P_along / k_along + (np.eye(3) - P_along) / k_across) @ W_trans
     w_rot, W_trans = (weight / k_rot) * w_rot, weight * W_trans
     t_ab = scale[:, None] * t_odom
-    length_gain = None
-    if not follow_map_scale and cfg.motion_prior_shape_rel > 0:
-        length_gain = rig_length_gain(step * scale, floor, cfg, run_steps)
     changes = step_changes(a_loc, t_ab, P_along, w_rot, W_trans, noise_factors, white_noise,
-                           cfg.motion_prior_translation_rel, length_gain)
+                           cfg.motion_prior_translation_rel)
     return RelativePosePrior(a_loc, a_loc + 1, R_ab, t_ab, w_rot, W_trans,
-                             huber=PRIOR_HUBER_SIGMAS * weight, changes=changes)
-
-
-def rig_length_gain(step: FloatArray, floor: float, config: BackendConfig,
-                    run_steps: int) -> FloatArray:
-    """Return the gain of a rig's step-change factors on the step lengths (m,) over the steps'.
-
-    The step factors hold a length to the reference scale (``motion_prior_translation_rel``,
-    grown early in a run as :func:`frontend_motion_prior` grows it); the front-end's lengths
-    agree with each other to ``motion_prior_shape_rel``. The step-change factors carry that
-    agreement: a window's steps keep their proportions, their common scale stays free for
-    the rig's baseline to set. Where that baseline hardly sees the scene's depth (a drone's
-    stereo pair from tens of metres up) nothing else in the solve tells one step's length
-    from a tilt, and the lengths jittered by the loose step factors' few percent.
-    ``step``: the steps' lengths in map units; ``floor``: the sigmas' floor
-    (:data:`STEP_FLOOR_REL` of a typical step).
-    """
-    rel = config.motion_prior_translation_rel
-    if rel <= 0:
-        return np.zeros(step.shape[0])
-    if run_steps > 0:
-        rel *= math.sqrt(1.0 + RUN_SCALE_SPAN / run_steps)
-    return (rel * step + floor) / (config.motion_prior_shape_rel * step + floor)
+                             huber=PRIOR_HUBER_SIGMAS * weight, changes=changes,
+                             window_scale=window_scale)
 
 
 def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: FloatArray,
                  W_trans: FloatArray, factors: tuple[float, float, float],
-                 white: tuple[float, float, float] | None, scale_rel: float,
-                 length_gain: FloatArray | None = None) -> StepChanges | None:
+                 white: tuple[float, float, float] | None,
+                 scale_rel: float) -> StepChanges | None:
     """Return the step-change factors of consecutive prior factors (steps a -> a + 1).
 
     The step factors hold each step to ``factors`` (k) times the parameters' sigmas; single
     steps scatter ``white`` (w) times them. The step factors leave, per step and part
     (rotation, length, direction), ``k^2 / w^2 - 1`` times their information (none where
-    w >= k or w is not measured); ``length_gain`` (m,), where given, is the least square
-    root of that share for the lengths (:func:`rig_length_gain`): covariance S. A change of
+    w >= k or w is not measured): covariance S. A change of
     the error from step ab to bc has S_ab + S_bc, and independent factors on consecutive
     changes count its fastest component twice: 2 (S_ab + S_bc). A drift that stays over a
     step cancels in the change; near a stop the larger step's S sets it. The steps are
@@ -412,21 +397,17 @@ def step_changes(a: IntArray, t_ab: FloatArray, P_along: FloatArray, w_rot: Floa
         factors: :attr:`FrontendNoise.factors`.
         white: :attr:`FrontendNoise.white`.
         scale_rel: Relative sigma of the scale the steps were brought to the map with.
-        length_gain: A rig's least gain of the lengths, per step; None: the white noise's.
     """
     k = np.asarray(factors)
     gain = np.zeros(3) if white is None else np.sqrt(
         np.maximum(k * k / np.maximum(np.asarray(white) ** 2, 1e-12) - 1.0, 0.0))
-    along = np.full(a.shape[0], gain[1])
-    if length_gain is not None:
-        np.maximum(along, length_gain, out=along)
     # Not the newest step yet: a jump of the front-end's frame arrives there, and the solve
     # that finds it should not be pulled by more than the step's own factor.
     first = np.flatnonzero(a[1:-1] == a[:-2] + 1)
-    if not (np.any(gain) or np.any(along)) or first.size == 0:
+    if not np.any(gain) or first.size == 0:
         return None
     # Per step, the square-root information the white noise adds, and its covariance.
-    E = (along[:, None, None] * P_along + gain[2] * (np.eye(3) - P_along)) @ W_trans
+    E = (gain[1] * P_along + gain[2] * (np.eye(3) - P_along)) @ W_trans
     info = np.swapaxes(E, 1, 2) @ E
     ridge = 1e-12 * np.max(np.trace(info, axis1=1, axis2=2), initial=1.0)
     S = np.linalg.inv(info + ridge * np.eye(3))

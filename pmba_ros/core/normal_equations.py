@@ -420,6 +420,7 @@ def solve_schur(structure: SchurStructure, eqs: NormalEquations, damp_pose: Floa
 
 def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
                          damp_pose: FloatArray, damp_feat: FloatArray, pose_free: BoolArray,
+                         low_rank: tuple[FloatArray, FloatArray] | None = None,
                          ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
     """Solve (H + diag(damp)) x = -g by the Schur complement on the poses.
 
@@ -430,6 +431,9 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
         damp_feat: Diagonal added to the feature blocks, shape (N, 3).
         pose_free: Pose columns that are solved for, shape (n_blocks, 6); the others (gauge)
             are held at zero.
+        low_rank: Rows u (k, n_blocks * 6) over the pose columns and d (k,): H is less
+            ``sum_k u_k u_k^T / d_k`` (pose columns only, so S is less it too), solved by
+            the Woodbury identity on S's factorization (a dense one would fill S).
 
     Returns:
         x_pose (n_blocks, 6), x_feat (N, 3) and the upper Cholesky factor of the damped S
@@ -445,10 +449,13 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
     free = pose_free.reshape(-1)
     dim = nb * 6
     x = np.zeros(dim)
+    b = rhs.reshape(-1)[free]
+    if low_rank is not None:   # S^-1 u_k with the same factorization, as more columns
+        b = np.column_stack([b, low_rank[0][:, free].T])
     n_free = int(free.sum())
     if n_free <= DENSE_LIMIT or (n_free <= SPARSE_LIMIT and structure.sparse_fill > DENSE_FILL):
         factor = _dense_cholesky(structure, S_blocks, damp_pose, free)
-        x[free], _ = scipy.linalg.lapack.dpotrs(factor, rhs.reshape(-1)[free], lower=False)
+        y, _ = scipy.linalg.lapack.dpotrs(factor, b, lower=False)
     else:
         rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
         cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
@@ -462,12 +469,30 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
              (np.concatenate([r_idx.reshape(-1), c_idx[off].reshape(-1), diag]),
               np.concatenate([c_idx.reshape(-1), r_idx[off].reshape(-1), diag]))),
             shape=(dim, dim))
-        x[free] = _sparse_solve(S_sp[free][:, free].tocsc(), rhs.reshape(-1)[free])
+        y = _sparse_solve(S_sp[free][:, free].tocsc(), b)
+    x[free] = y if low_rank is None else _woodbury(y, low_rank[0][:, free], low_rank[1])
     if not np.all(np.isfinite(x)):
         msg = 'reduced camera system solve produced non-finite values'
         raise ReducedSystemError(msg)
     x_pose = x.reshape(nb, 6)
     return x_pose, structure.plan.back_substitute(eqs, V_inv, x_pose), factor
+
+
+def _woodbury(y: FloatArray, u: FloatArray, d: FloatArray) -> FloatArray:
+    """Return (S - u^T diag(1/d) u)^-1 b from y = S^-1 [b, u^T] (n, 1 + k).
+
+    Raises:
+        ReducedSystemError: If the downdated system is not positive definite.
+    """
+    x, Z = y[:, 0], y[:, 1:]
+    M = np.diag(d) - u @ Z
+    try:
+        c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), u @ x)
+    except np.linalg.LinAlgError as err:
+        msg = 'reduced camera system less the window scales is not positive definite'
+        raise ReducedSystemError(msg) from err
+    out: FloatArray = x + Z @ c
+    return out
 
 
 def _reduced(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatArray,

@@ -39,6 +39,12 @@ on the change of the step error from one step to the next (steps a -> b and b ->
 
 in which a drift that stays over a step cancels (``D``: a diagonal rotation weight and a 3x3
 translation weight).
+
+A stereo rig's map takes its scale from the baseline, yet its step lengths should keep the
+front-end's proportions. :class:`WindowScale` measures part of each step's length against
+the scale of its group of steps (a window), a nuisance set at every evaluation to the value
+that fits the lengths best: the factors then hold the steps to each other and leave the
+group's common scale to the vision.
 """
 
 from __future__ import annotations
@@ -83,6 +89,9 @@ class RelativePosePrior:
             linearly (inf: least squares).
         changes: Factors on the change of the step error between consecutive factors
             (:class:`StepChanges`), with the same Huber threshold; None: none.
+        window_scale: Where given, each step's length is measured partly against its
+            group's own scale (:class:`WindowScale`), and ``t_ab`` holds the lengths at the
+            reference scale.
     """
 
     a: IntArray
@@ -93,6 +102,7 @@ class RelativePosePrior:
     W_trans: FloatArray
     huber: float = math.inf
     changes: StepChanges | None = None
+    window_scale: WindowScale | None = None
 
     def __post_init__(self) -> None:
         """Check shapes and weights.
@@ -122,6 +132,10 @@ class RelativePosePrior:
         if self.changes is not None and not self.changes.fits(self):
             msg = 'pose prior: step changes must join consecutive factors (b of one = a of next)'
             raise ProblemError(msg)
+        if self.window_scale is not None and not self.window_scale.fits(M):
+            msg = ('pose prior: window_scale needs a share in [0, 1] and a group per factor, '
+                   'finite')
+            raise ProblemError(msg)
 
     def __len__(self) -> int:
         """Return the number of factors."""
@@ -133,16 +147,19 @@ class RelativePosePrior:
         RaT_Rb = np.swapaxes(Ra, 1, 2) @ R[self.b]
         omega = so3.log(np.swapaxes(self.R_ab, 1, 2) @ RaT_Rb)   # log(R_ab^T R_a^T R_b)
         rel_t = np.einsum('mji,mj->mi', Ra, P[self.b] - P[self.a])
+        t_ab, held = self.t_ab, 0.0
+        if self.window_scale is not None:
+            t_ab, held = self.window_scale.targets(self, rel_t)
         r = np.empty((len(self), 6))
         np.multiply(self.w_rot[:, None], omega, out=r[:, :3])
-        np.einsum('mij,mj->mi', self.W_trans, rel_t - self.t_ab, out=r[:, 3:])
+        np.einsum('mij,mj->mi', self.W_trans, rel_t - t_ab, out=r[:, 3:])
         # np.sum's reductions (np.add.reduce) without its wrapper: the same sums.
         weights, cost = _huber(r, self.huber)
-        ev = PriorEvaluation(r, cost, Ra, RaT_Rb, omega, rel_t, weights)
+        ev = PriorEvaluation(r, cost + held, Ra, RaT_Rb, omega, rel_t, weights, t_ab)
         if self.changes is None or not len(self.changes):
             return ev
         changes = self.changes.evaluate(self, ev)
-        return replace(ev, cost=cost + changes.cost, changes=changes)
+        return replace(ev, cost=ev.cost + changes.cost, changes=changes)
 
     def residuals(self, R: FloatArray, P: FloatArray) -> FloatArray:
         """Return the weighted residuals, shape (M, 6): rotation, then translation."""
@@ -166,7 +183,7 @@ class RelativePosePrior:
         ``free_block``: pose -> block (-1: held, no covariance). J is the factor's
         Jacobian at ``ev`` with its Huber weight. The diagonal holds the residuals'
         leverages: 1 - leverage is the share of a residual's variance it keeps at the fit
-        (its redundancy).
+        (its redundancy). A factor between held poses has none (NaN): no fit shares in it.
         """
         dim = cov.shape[0]
         padded = np.zeros((dim + 1, dim + 1))   # the last row and column: held poses
@@ -178,7 +195,9 @@ class RelativePosePrior:
 
         idx = np.concatenate([columns(self.a), columns(self.b)], axis=1)
         J = np.sqrt(ev.weights)[:, None, None] * self.jacobian(ev)
-        return np.asarray(J @ padded[idx[:, :, None], idx[:, None, :]] @ np.swapaxes(J, 1, 2))
+        hat = J @ padded[idx[:, :, None], idx[:, None, :]] @ np.swapaxes(J, 1, 2)
+        hat[(free_block[self.a] < 0) & (free_block[self.b] < 0)] = np.nan
+        return np.asarray(hat)
 
     def jacobians(self, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Return d r / d [dphi_a, dP_a] and d r / d [dphi_b, dP_b], each (M, 6, 6)."""
@@ -202,7 +221,7 @@ class RelativePosePrior:
             first = self.changes.first
             poses = np.stack([self.a[first], self.b[first], self.b[first + 1]], axis=1)
             changes = FactorBlocks.bind(structure, free_block, poses)
-        return PriorAssembly(self, steps, changes)
+        return PriorAssembly(self, steps, changes, free_block, structure.n_blocks)
 
     def add_to(self, structure: SchurStructure, eqs: NormalEquations, R: FloatArray,
                P: FloatArray, free_block: IntArray) -> NormalEquations:
@@ -232,6 +251,8 @@ class PriorEvaluation:
         omega: log(R_ab^T R_a^T R_b) (M, 3).
         rel_t: R_a^T (P_b - P_a) (M, 3).
         weights: Each factor's weight in the normal equations, min(1, huber / |r|), (M,).
+        t_ab: The measured steps the residuals are taken against (M, 3): the prior's, or
+            with a :class:`WindowScale` at its groups' scales.
         changes: The step-change factors' evaluation (None without them).
     """
 
@@ -242,6 +263,7 @@ class PriorEvaluation:
     omega: FloatArray
     rel_t: FloatArray
     weights: FloatArray
+    t_ab: FloatArray
     changes: ChangeEvaluation | None = None
 
 
@@ -311,11 +333,51 @@ class PriorAssembly:
         prior: The factors.
         steps: Blocks of the step factors (poses a, b).
         changes: Blocks of the step-change factors (poses a, b, c), or None.
+        free_block: Pose -> block index (-1 for fixed poses).
+        n_blocks: Free pose blocks of the problem.
     """
 
     prior: RelativePosePrior
     steps: FactorBlocks
-    changes: FactorBlocks | None = None
+    changes: FactorBlocks | None
+    free_block: IntArray
+    n_blocks: int
+
+    def low_rank(self, ev: PriorEvaluation) -> tuple[FloatArray, FloatArray] | None:
+        """Return the curvature the window scale takes out of :meth:`add_to`'s, or None.
+
+        A :class:`WindowScale` group's fitted scale follows its steps, so the cost is far
+        less curved along a scaling of the group (or along its trend) than the factors'
+        with the scale held: its Gauss-Newton Hessian is ``J^T J - U_k^T G_k^-1 U_k`` per
+        group k, ``U_k = sum_i w_i q_i |t_i| (1, tau_i) dL_i^T`` (q_i: the information on
+        the length against the group's scale, w_i: the Huber weight, dL_i: the gradient of
+        the solved step's length, G_k: :meth:`WindowScale.fit`'s). Returns the rows
+        ``L_k^-1 U_k`` (``G_k = L_k L_k^T``) over the pose columns (n_blocks * 6) and their
+        divisors (ones), unscaled.
+        """
+        ws = self.prior.window_scale
+        if ws is None or not len(self.prior):
+            return None
+        prior = self.prior
+        _, G, info = ws.fit(prior, ev.rel_t, ev.weights)
+        q = ev.weights * ws.share * info
+        length = np.sqrt(_add(prior.t_ab * prior.t_ab, axis=1))
+        along = prior.t_ab / np.maximum(length, 1e-300)[:, None]
+        grad = np.einsum('mi,mij->mj', along, step_error_jacobian(ev)[:, 3:])   # (M, 12)
+        B = ws.basis()
+        n = G.shape[0]
+        U = np.zeros((n, self.n_blocks + 1, 2, 6))   # the last block: held poses
+        coef = (q * length)[:, None] * B   # (M, 2)
+        for side, pose in enumerate((prior.a, prior.b)):
+            block = np.where(self.free_block[pose] >= 0, self.free_block[pose], self.n_blocks)
+            side_grad = grad[:, None, 6 * side:6 * side + 6]
+            np.add.at(U, (ws.group, block), coef[:, :, None] * side_grad)
+        U = U.transpose(0, 2, 1, 3)
+        # U^T G^-1 U = (L^-1 U)^T (L^-1 U) with G = L L^T: rows with d = 1.
+        L = np.linalg.cholesky(G)
+        rows = np.linalg.solve(L, U[:, :, :-1].reshape(n, 2, -1)).reshape(2 * n, -1)
+        keep = np.any(rows != 0.0, axis=1)
+        return rows[keep], np.ones(int(keep.sum()))
 
     def add_to(self, eqs: NormalEquations, ev: PriorEvaluation) -> NormalEquations:
         """Return ``eqs`` (unscaled) with the factors' J^T J and J^T r at ``ev`` added."""
@@ -363,7 +425,7 @@ class StepChanges:
 
     def evaluate(self, prior: RelativePosePrior, ev: PriorEvaluation) -> ChangeEvaluation:
         """Return the factors at the prior's evaluation ``ev``."""
-        e = np.concatenate([ev.omega, ev.rel_t - prior.t_ab], axis=1)
+        e = np.concatenate([ev.omega, ev.rel_t - ev.t_ab], axis=1)
         d = e[self.first + 1] - e[self.first]
         r = np.empty_like(d)
         np.multiply(self.w_rot[:, None], d[:, :3], out=r[:, :3])
@@ -381,6 +443,88 @@ class StepChanges:
         J = np.concatenate([-E_ab[:, :, :6], E_bc[:, :, :6] - E_ab[:, :, 6:], E_bc[:, :, 6:]],
                            axis=2)
         return _weighted(self.w_rot, self.W_trans, J)
+
+
+@dataclass(frozen=True, eq=False)
+class WindowScale:
+    """Step lengths measured partly against their group's own scale (a stereo rig's window).
+
+    A factor's length part merges two Gaussian factors on the length L of the solved step:
+    against the prior's ``t_ab`` (the reference scale; information share ``1 - share``) and
+    against ``s |t_ab|`` (share ``share``), s the group's scale over the reference's at the
+    factor: a level and a trend along the group, ``s = theta . (1, tau)`` (:meth:`basis`), so
+    that a front-end's slowly drifting scale is not taken for the map's. Each evaluation
+    sets theta to the best fit of the group's lengths (:meth:`fit`). The residuals are taken
+    against the merged target ``t_ab ((1 - share) + share s)``, and the cost adds the part the
+    merge leaves out, ``1/2 sum(i share (1 - share) |t_ab|^2 (s - 1)^2)`` (i: the factor's
+    information on its length): the sum is the cost of both factors at that s. As theta is
+    the best fit for the poses evaluated, the cost's gradient is that of the factors with it
+    held (their Jacobians), and a group scaled as a whole, or along its trend, changes the
+    second part only as its residuals scale (:meth:`PriorAssembly.low_rank`).
+
+    Attributes:
+        share: Each factor's share of its length information against the group's scale,
+            in [0, 1], shape (M,).
+        group: Each factor's group (consecutive steps sharing one scale), shape (M,), >= 0.
+    """
+
+    share: FloatArray
+    group: IntArray
+
+    def fits(self, M: int) -> bool:
+        """Return whether there is one share in [0, 1] and one group >= 0 per factor."""
+        return bool(self.share.shape == (M,) and self.group.shape == (M,)
+                    and np.all(np.isfinite(self.share)) and np.all(self.share >= 0)
+                    and np.all(self.share <= 1) and (M == 0 or self.group.min() >= 0))
+
+    def basis(self) -> FloatArray:
+        """Return each factor's scale basis (1, tau) (M, 2); tau in [-1/2, 1/2] along its group."""
+        M = self.group.shape[0]
+        n = int(self.group.max()) + 1 if M else 0
+        index = np.arange(M, dtype=float)
+        first, last = np.full(n, np.inf), np.full(n, -np.inf)
+        np.minimum.at(first, self.group, index)
+        np.maximum.at(last, self.group, index)
+        tau = (index - 0.5 * (first + last)[self.group]) / np.maximum(last - first, 1.0)[
+            self.group]
+        return np.column_stack([np.ones(M), tau])
+
+    def fit(self, prior: RelativePosePrior, rel_t: FloatArray, weights: FloatArray | None = None,
+            ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return the fitted scale s per factor (M,), normal matrices (n, 2, 2), information (M,).
+
+        The information i is each factor's on its length; theta minimizes
+        ``sum(w share i (L - |t_ab| theta . (1, tau))^2)`` over each group (L: the solved
+        step ``rel_t`` along the measured one; w: the Huber ``weights``, where given), with
+        a vanishing ridge towards the reference (1, 0): a group without information keeps
+        the reference scale.
+        """
+        length = np.sqrt(_add(prior.t_ab * prior.t_ab, axis=1))
+        along = prior.t_ab / np.maximum(length, 1e-300)[:, None]
+        w = np.einsum('mij,mj->mi', prior.W_trans, along)
+        info = _add(w * w, axis=1)
+        q = self.share * info if weights is None else weights * self.share * info
+        B = self.basis()
+        n = int(self.group.max()) + 1
+        G = np.zeros((n, 2, 2))
+        BB = B[:, :, None] * B[:, None, :]
+        np.add.at(G, self.group, (q * length * length)[:, None, None] * BB)
+        rhs = np.zeros((n, 2))
+        np.add.at(rhs, self.group, (q * length * _add(rel_t * along, axis=1))[:, None] * B)
+        trace = G[:, 0, 0] + G[:, 1, 1]
+        ridge = np.where(trace > 0, 1e-12 * trace, 1.0)
+        G += ridge[:, None, None] * np.eye(2)
+        rhs[:, 0] += ridge
+        theta = np.linalg.solve(G, rhs[:, :, None])[:, :, 0]
+        return _add(B * theta[self.group], axis=1), G, info
+
+    def targets(self, prior: RelativePosePrior,
+                rel_t: FloatArray) -> tuple[FloatArray, float]:
+        """Return the merged targets (M, 3) at solved steps ``rel_t``, and the cost left out."""
+        s, _, info = self.fit(prior, rel_t)
+        t_ab = prior.t_ab * ((1.0 - self.share) + self.share * s)[:, None]
+        left = info * self.share * (1.0 - self.share) * _add(prior.t_ab * prior.t_ab, axis=1)
+        return t_ab, 0.5 * float(_add(left * (s - 1.0) ** 2))
 
 
 @dataclass(frozen=True, eq=False)

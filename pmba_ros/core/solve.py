@@ -274,10 +274,15 @@ class _Linearized:
         if loss is not Loss.NONE:
             lin = model.engine.robust_rows(lin, loss, loss_scale)   # the rows are new
         eqs = ne.assemble(structure, lin)
+        low_rank = None
         if prior is not None and state.prior is not None:
             eqs = prior.add_to(eqs, state.prior)
+            low_rank = prior.low_rank(state.prior)
         scaled = model.engine.jacobi_scale(structure, eqs, col_mask, jacobi)
         self.eqs, self.c_pose, self.c_feat = scaled.eqs, scaled.c_pose, scaled.c_feat
+        # The window scales' curvature, taken out of the scaled system (x = d / c).
+        self.low_rank = None if low_rank is None else (
+            low_rank[0] * (scaled.c_pose * col_mask).reshape(-1), low_rank[1])
         self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
         self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
         self.gradient_max = scaled.gradient_max
@@ -293,7 +298,7 @@ class _Linearized:
         if self._cauchy is None:
             g = np.concatenate([self.g_pose.ravel(), self.g_feat.ravel()])
             x_pose = np.where(self.col_mask, self.g_pose / self.D_pose, 0.0)
-            Jg_sq = ne.quadratic_form(self.structure, self.eqs, x_pose, self.g_feat / self.D_feat)
+            Jg_sq = self._quadratic_form(x_pose, self.g_feat / self.D_feat)
             self._cauchy = dogleg.cauchy_alpha(g, Jg_sq)
         return self._cauchy
 
@@ -309,12 +314,21 @@ class _Linearized:
         """
         x_pose, x_feat = d_pose / self.c_pose, d_feat / self.c_feat
         g_x = _sum_products(self.eqs.g_pose, x_pose, self.eqs.g_feat, x_feat)
-        return -(g_x + 0.5 * ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat))
+        return -(g_x + 0.5 * self._quadratic_form(x_pose, x_feat))
+
+    def _quadratic_form(self, x_pose: FloatArray, x_feat: FloatArray) -> float:
+        """Return x^T H x of the scaled system, less the window scales' curvature."""
+        quad = ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat)
+        if self.low_rank is not None:
+            u, d = self.low_rank
+            quad -= float(_add((u @ x_pose.reshape(-1)) ** 2 / d))
+        return quad
 
     def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
         """Solve (J~^T J~ + mu D^2) y = -J~^T r and return the scaled step b = D y."""
         y_pose, y_feat, factor = ne.solve_schur_factored(
-            self.structure, self.eqs, mu * self.D_pose ** 2, mu * self.D_feat ** 2, self.col_mask)
+            self.structure, self.eqs, mu * self.D_pose ** 2, mu * self.D_feat ** 2, self.col_mask,
+            self.low_rank)
         if mu == dogleg.MIN_MU:   # S itself, to rounding: a covariance needs no new one
             self.factor = factor
         return y_pose * self.D_pose, y_feat * self.D_feat
@@ -329,6 +343,10 @@ class _Linearized:
             ev = None
         if ev is None:
             return np.full((len(factors), 6, 6), np.nan)
+        if self.low_rank is not None:   # the inverse of S less u^T diag(1/d) u (Woodbury)
+            u, d = self.low_rank
+            Z = cov @ u.T
+            cov = cov + Z @ np.linalg.solve(np.diag(d) - u @ Z, Z.T)
         c = self.c_pose.reshape(-1)
         return factors.hat_blocks(ev, cov * c[:, None] * c[None, :], free_block)
 

@@ -274,6 +274,46 @@ def test_sparse_reduced_system_is_factored_without_pivots_as_the_dense_one(
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
 
 
+@pytest.mark.parametrize('sparse', [False, True])
+def test_a_low_rank_downdate_is_solved_as_the_dense_system(
+        sparse: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """H less sum_k u_k u_k^T / d_k on the pose columns (Woodbury on S): the dense solution.
+
+    Both factorizations; a held pose column stays zero.
+    """
+    problem = forward_problem(6, n_cams=5, n_points=25)
+    problem = permute_features(problem, ne.feature_order(problem.obs.feat_idx,
+                                                         problem.n_feats))
+    model, feats = _model_and_features(problem, 'pmba')
+    free_block = np.array([-1, 0, 1, 2, 3])
+    st, lin, eqs, J = _held_pose_system(problem, model, feats, free_block, NUMPY)
+    if sparse:
+        monkeypatch.setattr(ne, 'DENSE_LIMIT', 0)
+        monkeypatch.setattr(ne, 'SPARSE_LIMIT', 0)
+    mask = np.ones((st.n_blocks, 6), dtype=bool)
+    mask[0, 3] = False
+    damp_p = np.full((st.n_blocks, 6), 1e-4)
+    damp_f = np.full((problem.n_feats, 3), 1e-4)
+    H = J.T @ J + np.diag(np.concatenate([damp_p.ravel(), damp_f.ravel()]))
+    g = J.T @ lin.residuals.ravel()
+    dim = 6 * st.n_blocks
+    free = np.concatenate([mask.ravel(), np.ones(3 * problem.n_feats, dtype=bool)])
+    u = np.random.default_rng(2).normal(size=(2, dim)) * mask.reshape(-1)
+    # d_k = 4 u_k H^-1 u_k keeps each term below H / 4: the downdated H stays positive.
+    H_f = H[np.ix_(free, free)]
+    u_full = np.zeros((2, H.shape[0]))
+    u_full[:, :dim] = u
+    d = 4.0 * np.einsum('ki,ki->k', u_full[:, free], np.linalg.solve(H_f, u_full[:, free].T).T)
+    x = np.zeros(H.shape[0])
+    x[free] = np.linalg.solve(H_f - (u_full[:, free].T / d) @ u_full[:, free], -g[free])
+    x_p, x_f, _ = ne.solve_schur_factored(st, eqs, damp_p, damp_f, mask, (u, d))
+    np.testing.assert_allclose(np.concatenate([x_p.ravel(), x_f.ravel()]), x,
+                               rtol=1e-6, atol=1e-9 * np.abs(x).max())
+    assert x_p[0, 3] == 0.0
+    plain, _, _ = ne.solve_schur_factored(st, eqs, damp_p, damp_f, mask)
+    assert np.abs(plain - x_p).max() > 1e-3 * np.abs(x_p).max()
+
+
 def _fill(pairs: list[tuple[int, int]], n_blocks: int) -> float:
     """Return SchurStructure.sparse_fill of S's upper pose-block pairs ``pairs``."""
     rows, cols = np.array(pairs).T
