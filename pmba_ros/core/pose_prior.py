@@ -478,7 +478,7 @@ class WindowScale:
                     and np.all(self.share <= 1) and (M == 0 or self.group.min() >= 0))
 
     def basis(self) -> FloatArray:
-        """Return each factor's scale basis (1, tau) (M, 2); tau in [-1/2, 1/2] along its group."""
+        """Return each factor's scale basis, rows (1, tau) (M, 2); tau in [-1/2, 1/2] by group."""
         M = self.group.shape[0]
         n = int(self.group.max()) + 1 if M else 0
         index = np.arange(M, dtype=float)
@@ -520,7 +520,7 @@ class WindowScale:
 
     def targets(self, prior: RelativePosePrior,
                 rel_t: FloatArray) -> tuple[FloatArray, float]:
-        """Return the merged targets (M, 3) at solved steps ``rel_t``, and the cost left out."""
+        """Return each step's merged target (M, 3) at solved steps ``rel_t``; the cost left out."""
         s, _, info = self.fit(prior, rel_t)
         t_ab = prior.t_ab * ((1.0 - self.share) + self.share * s)[:, None]
         left = info * self.share * (1.0 - self.share) * _add(prior.t_ab * prior.t_ab, axis=1)
