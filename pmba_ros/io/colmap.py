@@ -230,7 +230,7 @@ def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
         raise FormatError(msg)
     cameras = readers[0](files[0])
     images = readers[1](files[1])
-    ids, xyz, rgb, err, tracks = readers[2](files[2])
+    ids, xyz, rgb, err, tracks = readers[2](files[2], images)
     for iid, img in images.items():
         if img.camera_id not in cameras:
             msg = f'{files[1]}: image {iid} refers to unknown camera {img.camera_id}'
@@ -249,7 +249,19 @@ def _camera(path: Path, where: str, model: str, width: int, height: int,
     if params.shape[0] != n:
         msg = f'{path}:{where}: {model} has {n} parameters, found {params.shape[0]}'
         raise FormatError(msg)
+    _check_size(f'{path}:{where}', width, height)
     return ColmapCamera(model, width, height, params)
+
+
+def _check_size(where: str, width: int, height: int) -> None:
+    """Raise FormatError naming ``where`` (file, and line or camera) if a size is not positive.
+
+    A camera's image size bounds its pixels and the OpenCV models' undistortion; one of zero
+    or below is a damaged record (a negative one even failed to write as a binary model).
+    """
+    if width <= 0 or height <= 0:
+        msg = f'{where}: image size {width} x {height}: expected a positive width and height'
+        raise FormatError(msg)
 
 
 def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
@@ -295,8 +307,8 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
     return images
 
 
-def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
-                                          list[IntArray]]:
+def _read_points_txt(path: Path, images: Mapping[int, ColmapImage],
+                     ) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray, list[IntArray]]:
     ids, xyz, rgb, err, tracks = [], [], [], [], []
     seen: dict[int, None] = {}
     for n, t in data_lines(path):
@@ -311,11 +323,13 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
             raise FormatError(msg)
         _check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
         seen[int(whole[0])] = None
+        track = whole[4:].reshape(-1, 2)
+        _check_track(f'{path}:{n}', int(whole[0]), track, images)
         ids.append(int(whole[0]))
         xyz.append(v[:3])
         rgb.append(whole[1:4])
         err.append(v[3])
-        tracks.append(whole[4:].reshape(-1, 2))
+        tracks.append(track)
     return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
 
@@ -331,6 +345,7 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
             raise FormatError(msg)
         name, n = MODELS[int(mid)]
         _check_new_id(str(path), 'camera', int(cid), cams)
+        _check_size(f'{path}: camera {cid}', int(w), int(h))
         cams[int(cid)] = ColmapCamera(name, int(w), int(h),
                                       r.array('<f8', n))
     return cams
@@ -354,8 +369,8 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
     return images
 
 
-def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
-                                          list[IntArray]]:
+def _read_points_bin(path: Path, images: Mapping[int, ColmapImage],
+                     ) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray, list[IntArray]]:
     r = BinaryReader(path)
     n = r.count(51, 'points')             # id, xyz, rgb, error, track length
     ids = np.empty(n, dtype=np.int64)
@@ -370,12 +385,32 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         rgb[k] = r.array('u1', 3)
         (err[k], length) = r.take('dQ')
         tracks.append(r.array('<i4', 2 * int(length)).astype(np.int64).reshape(-1, 2))
+        _check_track(str(path), int(pid), tracks[-1], images)
     if np.unique(ids).size < n:
         _, first = np.unique(ids, return_index=True)
         repeated = int(ids[np.setdiff1d(np.arange(n), first).min()])
         msg = f'{path}: 3-D point id {repeated} appears twice'
         raise FormatError(msg)
     return ids, xyz, rgb, err, tracks
+
+
+def _check_track(where: str, point_id: int, track: IntArray,
+                 images: Mapping[int, ColmapImage]) -> None:
+    """Raise FormatError naming ``where`` if a track element names no image or 2-D point.
+
+    The solve takes its observations from the images, not from the tracks, so a damaged
+    track went unnoticed and was written back with ``--out`` into a model COLMAP refuses.
+    """
+    for image_id, index in track.tolist():
+        if image_id not in images:
+            msg = (f'{where}: the track of 3-D point {point_id} refers to unknown image '
+                   f'{image_id}')
+            raise FormatError(msg)
+        n_points = images[image_id].xys.shape[0]
+        if not 0 <= index < n_points:
+            msg = (f'{where}: the track of 3-D point {point_id} refers to 2-D point {index} of '
+                   f'image {image_id}, which has {n_points} 2-D points')
+            raise FormatError(msg)
 
 
 def _check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:
@@ -569,7 +604,9 @@ def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
     intr = problem.intrinsics
     cameras = {}
     for k in range(problem.n_cams):
-        w, h = image_size or (round(2 * intr.cx[k]), round(2 * intr.cy[k]))
+        # At least one pixel: a principal point at the origin (BAL's) would give a size of
+        # zero, which the reader refuses.
+        w, h = image_size or (max(1, round(2 * intr.cx[k])), max(1, round(2 * intr.cy[k])))
         fx, fy, cx, cy, k1, k2 = (float(getattr(intr, f)[k])
                                   for f in ('fx', 'fy', 'cx', 'cy', 'k1', 'k2'))
         if k1 == 0.0 and k2 == 0.0:
