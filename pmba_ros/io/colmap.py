@@ -53,7 +53,14 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
-from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ERRORS, numbers
+from pmba_ros.io.colmap_files import (
+    BinaryReader,
+    check_new_id,
+    data_lines,
+    integers,
+    NAME_ERRORS,
+    numbers,
+)
 from pmba_ros.io.text import MAX_PIXEL
 
 if TYPE_CHECKING:
@@ -271,7 +278,7 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
             msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
             raise FormatError(msg)
         head = integers(path, n, [t[0], t[2], t[3]], 'camera id / size')
-        _check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
+        check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
                                      numbers(path, n, t[4:], 'camera parameters'))
     return cams
@@ -301,7 +308,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
             msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
             raise FormatError(msg)
         xys = numbers(path, n2, pts[0::3] + pts[1::3], 'image points').reshape(2, -1).T
-        _check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
+        check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
         images[int(ids[0])] = ColmapImage(v[:4], v[4:], int(ids[1]), ' '.join(head[9:]), xys,
                                           integers(path, n2, pts[2::3], 'image points'))
     return images
@@ -321,7 +328,7 @@ def _read_points_txt(path: Path, images: Mapping[int, ColmapImage],
         if np.any((whole[1:4] < 0) | (whole[1:4] > 255)):
             msg = f'{path}:{n}: colour {" ".join(t[4:7])} is not in 0..255'
             raise FormatError(msg)
-        _check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
+        check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
         seen[int(whole[0])] = None
         track = whole[4:].reshape(-1, 2)
         _check_track(f'{path}:{n}', int(whole[0]), track, images)
@@ -344,7 +351,7 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
             msg = f'{path}: camera {cid} has unknown model id {mid}'
             raise FormatError(msg)
         name, n = MODELS[int(mid)]
-        _check_new_id(str(path), 'camera', int(cid), cams)
+        check_new_id(str(path), 'camera', int(cid), cams)
         _check_size(f'{path}: camera {cid}', int(w), int(h))
         cams[int(cid)] = ColmapCamera(name, int(w), int(h),
                                       r.array('<f8', n))
@@ -363,7 +370,7 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
         (n_pts,) = r.take('Q')
         rec = r.array('<f8,<f8,<i8', int(n_pts))
         xys = np.stack([rec['f0'], rec['f1']], axis=1)
-        _check_new_id(str(path), 'image', int(iid), images)
+        check_new_id(str(path), 'image', int(iid), images)
         images[int(iid)] = ColmapImage(pose[:4], pose[4:], int(cid),
                                        name, xys, rec['f2'].astype(np.int64))
     return images
@@ -411,20 +418,6 @@ def _check_track(where: str, point_id: int, track: IntArray,
             msg = (f'{where}: the track of 3-D point {point_id} refers to 2-D point {index} of '
                    f'image {image_id}, which has {n_points} 2-D points')
             raise FormatError(msg)
-
-
-def _check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:
-    """Raise FormatError if ``new_id`` is already among the ``known`` ids of a file.
-
-    ``where`` names the file (and line) in the message.
-
-    A model's ids are unique; read into a dictionary, a repeated one silently replaced the
-    record before it (an image and its observations were lost from the solve and from a
-    written model).
-    """
-    if new_id in known:
-        msg = f'{where}: {what} id {new_id} appears twice'
-        raise FormatError(msg)
 
 
 # ---- conversion --------------------------------------------------------------------------
