@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         EvaluationError: If the trajectories cannot be associated or aligned.
         PmbaError: If the report cannot be written.
     """
-    from pmba_ros.eval.metrics import association_warning, evaluate
+    from pmba_ros.eval.metrics import association_warning, evaluate, repeated_stamps_warning
     from pmba_ros.eval.trajectory import read_trajectory
 
     if args.report is not None:
@@ -96,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     est = read_trajectory(args.est, args.est_format, times=getattr(args, 'times', None))
     gt = read_trajectory(args.gt, args.gt_format, times=getattr(args, 'gt_times', None))
     warnings = _length_warnings(est, gt)
+    warnings += [text for text in (repeated_stamps_warning(est, 'estimated'),
+                                   repeated_stamps_warning(gt, 'ground-truth')) if text]
     for text in warnings:
         print(f'warning: {text}', file=sys.stderr)
     results = evaluate(est, gt, align=args.align, max_diff_s=args.max_diff, delta=args.delta,

@@ -399,8 +399,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     order = ne.feature_order(problem.obs.feat_idx, problem.n_feats)
     permuted = bool(np.any(order != np.arange(problem.n_feats)))
     solved = permute_features(problem, order) if permuted else problem
-    model: Model[Any] = make_model(options.param, solved,
-                                   pixel_weighted=options.pixel_weighted, engine=engine)
+    # The pixel weights of an absurd focal length overflow: the start's check below names
+    # its camera, numpy's warnings would only precede that message.
+    with np.errstate(over='ignore', invalid='ignore'):
+        model: Model[Any] = make_model(options.param, solved,
+                                       pixel_weighted=options.pixel_weighted, engine=engine)
     if options.fix_gauge:
         gauge = choose_gauge(problem.centers_w, problem.fixed, problem.obs.cam_idx,
                              problem.obs.feat_idx, problem.n_feats,
@@ -437,10 +440,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     def rms_of(err: FloatArray) -> float:
         return math.sqrt(float(_add(err * err, axis=None)) / err.size) if err.size else 0.0
 
-    state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
+    # A start that overflows is reported by the check below, naming its cameras, as above.
+    with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+        state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
     if not math.isfinite(state.cost):
-        msg = 'residuals are not finite at the initial point'
-        raise SolverError(msg)
+        raise SolverError(_non_finite_start(state.evaluation.residuals, solved))
     x_norm = norm_of(state)
     errors = model.reprojection_errors_px(state.evaluation)  # also for the noise estimate
     initial_cost, initial_rms = state.cost, rms_of(errors)
@@ -609,3 +613,41 @@ def _check_not_empty(problem: BAProblem) -> None:
                'no feature is seen by two or more cameras')
         msg = f'nothing to solve: {why} (dropped: {dropped})'
         raise ProblemError(msg)
+
+
+_NAMED_CAMERAS = 5
+"""Cameras named by the message of a non-finite start; the rest are counted."""
+
+
+def _non_finite_start(residuals: FloatArray, problem: BAProblem) -> str:
+    """Return the message of a start whose cost is not finite, naming the cameras at fault.
+
+    Those whose observations have residuals that are not finite, or so large that their
+    squares sum past the largest float; and among them first those whose centre or focal
+    length squares past it (a PMBA feature anchored at such a camera spoils the residuals
+    of every camera that sees it, which alone would hide the culprit).
+
+    Args:
+        residuals: Residuals at the start, shape (K, d).
+        problem: The problem solved (its observations in the order of ``residuals``).
+    """
+    with np.errstate(over='ignore', invalid='ignore'):
+        squares = np.sum(residuals * residuals, axis=1)
+        own = (np.sum(problem.centers_w ** 2, axis=1) + problem.intrinsics.fx ** 2
+               + problem.intrinsics.fy ** 2)
+    bad = ~np.isfinite(squares)
+    if not bad.any() and squares.size:
+        bad = squares > np.finfo(float).max / squares.size
+    msg = 'residuals are not finite at the initial point'
+    if not bad.any():   # the pose prior's cost, or a loss that overflows
+        return msg
+    cameras = np.unique(problem.obs.cam_idx[bad])
+    absurd = np.flatnonzero(~np.isfinite(own))
+    cameras = np.concatenate([absurd, np.setdiff1d(cameras, absurd)])
+    more = (f' and {cameras.size - _NAMED_CAMERAS} more' if cameras.size > _NAMED_CAMERAS
+            else '')
+    named = (f'; of these, camera(s) {absurd[:_NAMED_CAMERAS].tolist()} have a centre or '
+             'focal length beyond about 1e154' if absurd.size else '')
+    return (f'{msg}: {int(np.count_nonzero(bad))} observations of camera(s) '
+            f'{cameras[:_NAMED_CAMERAS].tolist()}{more}{named}; check their focal lengths '
+            'and poses, and the points they see')

@@ -313,6 +313,31 @@ def association_warning(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.
             'offset), --max-diff against their rates, and the gaps of the ground truth')
 
 
+def repeated_stamps_warning(traj: Trajectory, name: str) -> str:
+    """Return a warning when poses of a trajectory share a stamp ('' if none do).
+
+    Such poses are kept, each matched as a pose of its own, as evo does: real files repeat
+    a few stamps (evo's own V102 estimate does) and the results equal evo's on them. But a
+    file whose poses share few stamps (all one, say) matched every pose with one partner and
+    reported them all matched, without a word: the count names it.
+
+    Args:
+        traj: The trajectory.
+        name: What it is, for the message (e.g. 'estimated').
+
+    Returns:
+        One line counting the poses whose stamp an earlier pose has, or ''.
+    """
+    n = len(traj)
+    distinct = int(np.unique(traj.stamps_s).size)
+    if distinct == n:
+        return ''
+    return (f'{n - distinct} of the {n} {name} poses repeat the stamp of an earlier pose '
+            f'(distinct stamps: {distinct}): each is matched as a pose of its own, as evo '
+            'does, so the poses of one stamp share their partner; check how the file was '
+            'written')
+
+
 def _span(traj: Trajectory) -> str:
     """Describe the stamp range of a trajectory for error messages."""
     if len(traj) == 0:

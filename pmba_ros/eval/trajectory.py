@@ -54,6 +54,10 @@ FORMATS = ('auto', 'tum', 'euroc', 'kitti')
 _ROTATION_TOL = 1e-3
 """Largest accepted ``|R^T R - I|`` entry of a KITTI rotation before projection onto SO(3)."""
 
+MAX_COORDINATE = 1e150
+"""Largest position coordinate magnitude accepted, m (as ``io.text.MAX_COORDINATE`` for
+camera centres): the squares that the alignment and the errors sum stay finite up to it."""
+
 
 def _readonly(arr: np.ndarray) -> np.ndarray:
     """Return a C-contiguous float64 copy of ``arr`` that cannot be written to."""
@@ -227,6 +231,25 @@ def _rotations_from_quat(path: str | os.PathLike[str], quat_xyzw: FloatArray,
     return so3.from_quat_xyzw(quat_xyzw)
 
 
+def _check_positions(path: str | os.PathLike[str], positions: FloatArray,
+                     linenos: list[int], what: str) -> None:
+    """Refuse the first pose with a position coordinate beyond :data:`MAX_COORDINATE`.
+
+    Such a coordinate is finite, but the squares of the alignment and of the errors
+    overflowed: ATE / RPE were printed as inf / nan and the evaluation passed.
+
+    Raises:
+        FormatError: Naming the file, the line and the coordinate.
+    """
+    bad = np.flatnonzero(np.any(np.abs(positions) > MAX_COORDINATE, axis=1))
+    if bad.size:
+        k = int(bad[0])
+        value = positions[k][int(np.argmax(np.abs(positions[k])))]
+        msg = (f'{path}:{linenos[k]}: {what} position coordinate {value:g} is beyond '
+               f'{MAX_COORDINATE:g} m')
+        raise FormatError(msg)
+
+
 # --------------------------------------------------------------------------------------------
 # Readers and writers
 # --------------------------------------------------------------------------------------------
@@ -234,6 +257,7 @@ def _rotations_from_quat(path: str | os.PathLike[str], quat_xyzw: FloatArray,
 def _tum_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
     """Parse TUM text (see :func:`read_tum`)."""
     mat, linenos = _parse_matrix(path, text, delimiter=None, n_cols=8, exact=True, what='TUM')
+    _check_positions(path, mat[:, 1:4], linenos, 'TUM')
     rotations = _rotations_from_quat(path, mat[:, 4:8], linenos, 'TUM')
     logger.debug('Read %d TUM poses from %s', mat.shape[0], path)
     return Trajectory(mat[:, 0], mat[:, 1:4], rotations)
@@ -243,6 +267,7 @@ def _euroc_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
     """Parse EuRoC CSV text (see :func:`read_euroc_csv`)."""
     mat, linenos = _parse_matrix(path, text, delimiter=',', n_cols=8, exact=False,
                                  what='EuRoC CSV')
+    _check_positions(path, mat[:, 1:4], linenos, 'EuRoC CSV')
     quat_xyzw = mat[:, [5, 6, 7, 4]]  # file order is w, x, y, z
     rotations = _rotations_from_quat(path, quat_xyzw, linenos, 'EuRoC CSV')
     logger.debug('Read %d EuRoC poses from %s', mat.shape[0], path)
@@ -257,6 +282,7 @@ def _kitti_from_text(path: str | os.PathLike[str], text: str,
     mat, linenos = _parse_matrix(path, text, delimiter=None, n_cols=12, exact=True,
                                  what='KITTI')
     pose = mat.reshape(-1, 3, 4)
+    _check_positions(path, pose[:, :, 3], linenos, 'KITTI')
     rotations = pose[:, :, :3]
     ortho_err = np.abs(np.einsum('nji,njk->nik', rotations, rotations) - np.eye(3))
     bad = np.flatnonzero(ortho_err.reshape(-1, 9).max(axis=1) > _ROTATION_TOL)

@@ -46,7 +46,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import utf8_text
+from pmba_ros.io.text import MAX_PIXEL, utf8_text
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -123,7 +123,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         raise FormatError(msg)
     cameras = values[2:pos].reshape(n_cams, 15)
     xyz = np.empty((n_points, 3))
-    rgb = np.empty((n_points, 3), dtype=np.int64)
+    rgb = np.empty((n_points, 3))   # as read: made integers once checked
     counts = np.empty(n_points, dtype=np.int64)
     views = []
     for j in range(n_points):
@@ -155,8 +155,49 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         msg = f'{path}: a view refers to a camera outside 0..{n_cams - 1}'
         raise FormatError(msg)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return BundlerModel(cameras, xyz, rgb, offsets, cam, v[:, 1].astype(np.int64),
-                        v[:, 2:4].copy())
+    _check_colours(path, rgb)
+    _check_views(path, v, offsets)
+    return BundlerModel(cameras, xyz, rgb.astype(np.int64), offsets, cam,
+                        v[:, 1].astype(np.int64), v[:, 2:4].copy())
+
+
+_MAX_KEY = 2 ** 31
+"""Bound on a key's magnitude: Bundler's keys are C ints (indices into an image's keys)."""
+
+
+def _check_colours(path: Path, rgb: FloatArray) -> None:
+    """Refuse the first point whose colour is not three whole numbers in 0..255.
+
+    As the COLMAP reader does: a damaged colour (NaN, negative, huge) was read as an
+    arbitrary integer and written back with ``--out``.
+    """
+    bad = np.flatnonzero(~np.all((rgb >= 0) & (rgb <= 255) & (rgb == np.floor(rgb)), axis=1))
+    if bad.size:
+        j = int(bad[0])
+        msg = f'{path}: point {j}: colour {" ".join(f"{c:g}" for c in rgb[j])} is not in 0..255'
+        raise FormatError(msg)
+
+
+def _check_views(path: Path, views: FloatArray, offsets: IntArray) -> None:
+    """Refuse the first view (camera, key, x, y) whose key or image coordinates are absurd.
+
+    Keys must be C ints as Bundler writes them; a NaN or huge key was cast to an arbitrary
+    integer and written back with ``--out``. Image coordinates are bounded as BAL's and
+    COLMAP's pixels are (:data:`~pmba_ros.io.text.MAX_PIXEL`).
+    """
+    key, xy = views[:, 1], views[:, 2:4]
+    bad_key = ~((np.abs(key) < _MAX_KEY) & (key == np.floor(key)))
+    bad_xy = ~np.all(np.abs(xy) <= MAX_PIXEL, axis=1)
+    bad = np.flatnonzero(bad_key | bad_xy)
+    if bad.size:
+        k = int(bad[0])
+        j = int(np.searchsorted(offsets, k, side='right')) - 1
+        where = f'{path}: point {j}: view {k - int(offsets[j])} (camera {int(views[k, 0])})'
+        what = (f'key {key[k]:g} is not a whole number of magnitude below 2^31' if bad_key[k]
+                else f'image coordinates ({xy[k, 0]:g}, {xy[k, 1]:g}) are not finite or beyond '
+                f'{MAX_PIXEL:g}')
+        msg = f'{where}: {what}'
+        raise FormatError(msg)
 
 
 def _is_whole(value: float) -> bool:

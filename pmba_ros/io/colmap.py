@@ -53,7 +53,14 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
-from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, NAME_ERRORS, numbers
+from pmba_ros.io.colmap_files import (
+    BinaryReader,
+    check_new_id,
+    data_lines,
+    integers,
+    NAME_ERRORS,
+    numbers,
+)
 from pmba_ros.io.text import MAX_PIXEL
 
 if TYPE_CHECKING:
@@ -230,7 +237,7 @@ def read_colmap(directory: str | PathLike[str]) -> ColmapModel:
         raise FormatError(msg)
     cameras = readers[0](files[0])
     images = readers[1](files[1])
-    ids, xyz, rgb, err, tracks = readers[2](files[2])
+    ids, xyz, rgb, err, tracks = readers[2](files[2], images)
     for iid, img in images.items():
         if img.camera_id not in cameras:
             msg = f'{files[1]}: image {iid} refers to unknown camera {img.camera_id}'
@@ -249,7 +256,19 @@ def _camera(path: Path, where: str, model: str, width: int, height: int,
     if params.shape[0] != n:
         msg = f'{path}:{where}: {model} has {n} parameters, found {params.shape[0]}'
         raise FormatError(msg)
+    _check_size(f'{path}:{where}', width, height)
     return ColmapCamera(model, width, height, params)
+
+
+def _check_size(where: str, width: int, height: int) -> None:
+    """Raise FormatError naming ``where`` (file, and line or camera) if a size is not positive.
+
+    A camera's image size bounds its pixels and the OpenCV models' undistortion; one of zero
+    or below is a damaged record (a negative one even failed to write as a binary model).
+    """
+    if width <= 0 or height <= 0:
+        msg = f'{where}: image size {width} x {height}: expected a positive width and height'
+        raise FormatError(msg)
 
 
 def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
@@ -259,7 +278,7 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
             msg = f'{path}:{n}: expected "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"'
             raise FormatError(msg)
         head = integers(path, n, [t[0], t[2], t[3]], 'camera id / size')
-        _check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
+        check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
                                      numbers(path, n, t[4:], 'camera parameters'))
     return cams
@@ -289,14 +308,14 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
             msg = f'{path}:{n2}: 2-D points must be "X Y POINT3D_ID" triples'
             raise FormatError(msg)
         xys = numbers(path, n2, pts[0::3] + pts[1::3], 'image points').reshape(2, -1).T
-        _check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
+        check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
         images[int(ids[0])] = ColmapImage(v[:4], v[4:], int(ids[1]), ' '.join(head[9:]), xys,
                                           integers(path, n2, pts[2::3], 'image points'))
     return images
 
 
-def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
-                                          list[IntArray]]:
+def _read_points_txt(path: Path, images: Mapping[int, ColmapImage],
+                     ) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray, list[IntArray]]:
     ids, xyz, rgb, err, tracks = [], [], [], [], []
     seen: dict[int, None] = {}
     for n, t in data_lines(path):
@@ -309,13 +328,15 @@ def _read_points_txt(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         if np.any((whole[1:4] < 0) | (whole[1:4] > 255)):
             msg = f'{path}:{n}: colour {" ".join(t[4:7])} is not in 0..255'
             raise FormatError(msg)
-        _check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
+        check_new_id(f'{path}:{n}', '3-D point', int(whole[0]), seen)
         seen[int(whole[0])] = None
+        track = whole[4:].reshape(-1, 2)
+        _check_track(f'{path}:{n}', int(whole[0]), track, images)
         ids.append(int(whole[0]))
         xyz.append(v[:3])
         rgb.append(whole[1:4])
         err.append(v[3])
-        tracks.append(whole[4:].reshape(-1, 2))
+        tracks.append(track)
     return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
 
@@ -330,7 +351,8 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
             msg = f'{path}: camera {cid} has unknown model id {mid}'
             raise FormatError(msg)
         name, n = MODELS[int(mid)]
-        _check_new_id(str(path), 'camera', int(cid), cams)
+        check_new_id(str(path), 'camera', int(cid), cams)
+        _check_size(f'{path}: camera {cid}', int(w), int(h))
         cams[int(cid)] = ColmapCamera(name, int(w), int(h),
                                       r.array('<f8', n))
     return cams
@@ -348,14 +370,14 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
         (n_pts,) = r.take('Q')
         rec = r.array('<f8,<f8,<i8', int(n_pts))
         xys = np.stack([rec['f0'], rec['f1']], axis=1)
-        _check_new_id(str(path), 'image', int(iid), images)
+        check_new_id(str(path), 'image', int(iid), images)
         images[int(iid)] = ColmapImage(pose[:4], pose[4:], int(cid),
                                        name, xys, rec['f2'].astype(np.int64))
     return images
 
 
-def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray,
-                                          list[IntArray]]:
+def _read_points_bin(path: Path, images: Mapping[int, ColmapImage],
+                     ) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray, list[IntArray]]:
     r = BinaryReader(path)
     n = r.count(51, 'points')             # id, xyz, rgb, error, track length
     ids = np.empty(n, dtype=np.int64)
@@ -370,6 +392,7 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
         rgb[k] = r.array('u1', 3)
         (err[k], length) = r.take('dQ')
         tracks.append(r.array('<i4', 2 * int(length)).astype(np.int64).reshape(-1, 2))
+        _check_track(str(path), int(pid), tracks[-1], images)
     if np.unique(ids).size < n:
         _, first = np.unique(ids, return_index=True)
         repeated = int(ids[np.setdiff1d(np.arange(n), first).min()])
@@ -378,18 +401,23 @@ def _read_points_bin(path: Path) -> tuple[IntArray, FloatArray, np.ndarray, Floa
     return ids, xyz, rgb, err, tracks
 
 
-def _check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:
-    """Raise FormatError if ``new_id`` is already among the ``known`` ids of a file.
+def _check_track(where: str, point_id: int, track: IntArray,
+                 images: Mapping[int, ColmapImage]) -> None:
+    """Raise FormatError naming ``where`` if a track element names no image or 2-D point.
 
-    ``where`` names the file (and line) in the message.
-
-    A model's ids are unique; read into a dictionary, a repeated one silently replaced the
-    record before it (an image and its observations were lost from the solve and from a
-    written model).
+    The solve takes its observations from the images, not from the tracks, so a damaged
+    track went unnoticed and was written back with ``--out`` into a model COLMAP refuses.
     """
-    if new_id in known:
-        msg = f'{where}: {what} id {new_id} appears twice'
-        raise FormatError(msg)
+    for image_id, index in track.tolist():
+        if image_id not in images:
+            msg = (f'{where}: the track of 3-D point {point_id} refers to unknown image '
+                   f'{image_id}')
+            raise FormatError(msg)
+        n_points = images[image_id].xys.shape[0]
+        if not 0 <= index < n_points:
+            msg = (f'{where}: the track of 3-D point {point_id} refers to 2-D point {index} of '
+                   f'image {image_id}, which has {n_points} 2-D points')
+            raise FormatError(msg)
 
 
 # ---- conversion --------------------------------------------------------------------------
@@ -569,7 +597,9 @@ def from_problem(problem: BAProblem, points_w: FloatArray | None = None,
     intr = problem.intrinsics
     cameras = {}
     for k in range(problem.n_cams):
-        w, h = image_size or (round(2 * intr.cx[k]), round(2 * intr.cy[k]))
+        # At least one pixel: a principal point at the origin (BAL's) would give a size of
+        # zero, which the reader refuses.
+        w, h = image_size or (max(1, round(2 * intr.cx[k])), max(1, round(2 * intr.cy[k])))
         fx, fy, cx, cy, k1, k2 = (float(getattr(intr, f)[k])
                                   for f in ('fx', 'fy', 'cx', 'cy', 'k1', 'k2'))
         if k1 == 0.0 and k2 == 0.0:

@@ -26,11 +26,12 @@ import numpy as np
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
     from pathlib import Path
 
     from pmba_ros._typing import FloatArray, IntArray
 
-__all__ = ['NAME_ERRORS', 'BinaryReader', 'data_lines', 'integers', 'numbers']
+__all__ = ['NAME_ERRORS', 'BinaryReader', 'check_new_id', 'data_lines', 'integers', 'numbers']
 
 NAME_ERRORS = 'surrogateescape'
 """How bytes that are not UTF-8 are read and written: COLMAP stores an image name as the
@@ -65,6 +66,20 @@ def integers(path: Path, n: int, tokens: list[str], what: str) -> IntArray:
     except (ValueError, OverflowError) as err:
         msg = f'{path}:{n}: not an integer in {what}: {err}'
         raise FormatError(msg) from err
+
+
+def check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:
+    """Raise FormatError if ``new_id`` is already among the ``known`` ids of a file.
+
+    ``where`` names the file (and line) in the message.
+
+    A model's ids are unique; read into a dictionary, a repeated one silently replaced the
+    record before it (an image and its observations were lost from the solve and from a
+    written model).
+    """
+    if new_id in known:
+        msg = f'{where}: {what} id {new_id} appears twice'
+        raise FormatError(msg)
 
 
 class BinaryReader:

@@ -34,7 +34,7 @@ from typing import BinaryIO, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.errors import FormatError
-from pmba_ros.io.colmap_files import BinaryReader, data_lines, integers, numbers
+from pmba_ros.io.colmap_files import BinaryReader, check_new_id, data_lines, integers, numbers
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -219,7 +219,7 @@ def _sensor_type(path: Path, where: str, token: str) -> int:
 
 
 def _read_rigs_txt(path: Path) -> dict[int, ColmapRig]:
-    rigs = {}
+    rigs: dict[int, ColmapRig] = {}
     for n, t in data_lines(path):
         head = integers(path, n, t[:2], 'rig id / number of sensors')
         if head.shape[0] < 2:
@@ -249,12 +249,13 @@ def _read_rigs_txt(path: Path) -> dict[int, ColmapRig]:
         if k != len(t):
             msg = f'{path}:{n}: {len(t) - k} values after the {count} sensors'
             raise FormatError(msg)
+        check_new_id(f'{path}:{n}', 'rig', int(head[0]), rigs)
         rigs[int(head[0])] = ColmapRig(ref_type, ref_id, tuple(sensors))
     return rigs
 
 
 def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
-    frames = {}
+    frames: dict[int, ColmapFrame] = {}
     for n, t in data_lines(path):
         if len(t) < 10:
             msg = (f'{path}:{n}: expected "FRAME_ID RIG_ID QW QX QY QZ TX TY TZ NUM_DATA_IDS '
@@ -272,6 +273,7 @@ def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
         for j in range(count):
             ids[j, 0] = _sensor_type(path, str(n), rest[3 * j])
             ids[j, 1:] = integers(path, n, rest[3 * j + 1:3 * j + 3], 'data id')
+        check_new_id(f'{path}:{n}', 'frame', int(head[0]), frames)
         frames[int(head[0])] = ColmapFrame(int(head[1]), v[:4], v[4:], ids)
     return frames
 
@@ -279,7 +281,7 @@ def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
 def _read_rigs_bin(path: Path) -> dict[int, ColmapRig]:
     r = BinaryReader(path)
     count = r.count(8, 'rigs')               # id, number of sensors
-    rigs = {}
+    rigs: dict[int, ColmapRig] = {}
     for _ in range(count):
         rid, n_sensors = r.take('II')
         ref_type, ref_id, sensors = None, 0, []
@@ -289,6 +291,7 @@ def _read_rigs_bin(path: Path) -> dict[int, ColmapRig]:
             stype, sid, has_pose = r.take('iIB')
             pose = r.array('<f8', 7) if has_pose else None
             sensors.append(ColmapSensor(int(stype), int(sid), pose))
+        check_new_id(str(path), 'rig', int(rid), rigs)
         rigs[int(rid)] = ColmapRig(ref_type, int(ref_id), tuple(sensors))
     _check_end(r)
     return rigs
@@ -297,13 +300,14 @@ def _read_rigs_bin(path: Path) -> dict[int, ColmapRig]:
 def _read_frames_bin(path: Path) -> dict[int, ColmapFrame]:
     r = BinaryReader(path)
     count = r.count(68, 'frames')            # ids, pose, number of data ids
-    frames = {}
+    frames: dict[int, ColmapFrame] = {}
     for _ in range(count):
         fid, rid = r.take('II')
         pose = r.array('<f8', 7)
         (n_data,) = r.take('I')
         rec = r.array('<i4,<u4,<u8', int(n_data))
         ids = np.column_stack([rec['f0'], rec['f1'], rec['f2']]).astype(np.int64)
+        check_new_id(str(path), 'frame', int(fid), frames)
         frames[int(fid)] = ColmapFrame(int(rid), pose[:4], pose[4:], ids.reshape(-1, 3))
     _check_end(r)
     return frames

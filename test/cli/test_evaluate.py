@@ -193,3 +193,24 @@ def test_few_matched_poses_warn(tmp_path: Path, capsys: pytest.CaptureFixture[st
                           '--report', str(report)])) == 0
     assert 'warning: only 8 of the 39 estimated poses' in capsys.readouterr().err
     assert json.loads(report.read_text())['warnings'][0].startswith('only 8 of the 39')
+
+
+def test_repeated_stamps_are_counted_in_a_warning(tum_pair: tuple[Path, Path], tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """An estimate whose poses all share one stamp: counted, on stderr and in the report.
+
+    Before, it reported "matched 60 of 60" without a word. The poses are kept (each matched
+    on its own, as evo does, whose parity on real files with a few repeats stays).
+    """
+    est, gt = tum_pair
+    traj = read_trajectory(est)
+    write_tum(tmp_path / 'same.txt', Trajectory(np.full(len(traj), traj.stamps_s[10]),
+                                                traj.positions_xyz, traj.R_wc))
+    report = tmp_path / 'r.json'
+    assert cli.run(parse([str(tmp_path / 'same.txt'), str(gt), '--report', str(report)])) == 0
+    text = ('59 of the 60 estimated poses repeat the stamp of an earlier pose (distinct '
+            'stamps: 1)')
+    assert f'warning: {text}' in capsys.readouterr().err
+    assert json.loads(report.read_text())['warnings'][0].startswith(text)
+    assert cli.run(parse([str(est), str(gt), '--report', str(report)])) == 0
+    assert json.loads(report.read_text())['warnings'] == []

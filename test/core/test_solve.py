@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import ClassVar
 from unittest import mock
+import warnings
 
 import numpy as np
 from pmba_ros.core import so3
@@ -209,6 +210,32 @@ def test_non_finite_start_is_a_clear_error() -> None:
                            points_w=X)
     with pytest.raises(SolverError, match='not finite at the initial point'):
         solve(problem, SolveOptions(param='xyz'))
+
+
+@pytest.mark.parametrize(('param', 'what'), [
+    ('pmba', 'focal'), ('xyz', 'focal'), ('idp', 'focal'), ('pmba', 'centre')])
+def test_non_finite_start_names_the_cameras(param: str, what: str) -> None:
+    """A focal length or a centre of 1e300 names its camera first (the message named none).
+
+    A PMBA feature anchored at the far camera spoils every camera that sees it: the far
+    camera is named first all the same. Nor is a numpy warning printed before the error.
+    """
+    p = street_scene(1, n_cams=6, n_points=60, max_track_length=4).start
+    fx, centers = p.intrinsics.fx.copy(), p.centers_w.copy()
+    if what == 'focal':
+        fx[2] = 1e300
+    else:
+        centers[2] = 1e300
+    intr = Intrinsics(fx, fx, p.intrinsics.cx, p.intrinsics.cy, p.intrinsics.k1,
+                      p.intrinsics.k2)
+    problem = make_problem(p.R_wc, centers, intr, p.obs.cam_idx, p.obs.feat_idx, p.obs.pixels,
+                           points_w=p.points_w, n_feats=p.n_feats)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        with pytest.raises(SolverError, match=r'not finite at the initial point: \d+ '
+                           r'observations of camera\(s\) \[2[],].*; of these, camera\(s\) '
+                           r'\[2\] have a centre or focal length beyond'):
+            solve(problem, SolveOptions(param=param, max_iterations=3))
 
 
 @pytest.mark.parametrize('param', ['pmba', 'xyz', 'idp'])

@@ -228,6 +228,28 @@ def test_readers_raise_format_error_naming_file_and_line(tmp_path: Path, text: s
         reader(path)  # type: ignore[operator]
 
 
+@pytest.mark.parametrize(('text', 'reader', 'match'), [
+    ('1 0 0 0 0 0 0 1\n2 0 1e300 0 0 0 0 1\n', read_tum,
+     r'bad\.txt:2: TUM position coordinate 1e\+300 is beyond 1e\+150 m'),
+    ('1,0,0,0,1,0,0,0\n2,0,0,-1e200,1,0,0,0\n', read_euroc_csv,
+     r'bad\.txt:2: EuRoC CSV position coordinate -1e\+200 is beyond'),
+    ('1 0 0 1e151 0 1 0 0 0 0 1 0\n', read_kitti,
+     r'bad\.txt:1: KITTI position coordinate 1e\+151'),
+])
+def test_absurd_positions_are_refused_naming_file_and_line(tmp_path: Path, text: str,
+                                                           reader: object, match: str) -> None:
+    """A coordinate of 1e300 m: a FormatError (ATE / RPE were printed as inf / nan, exit 0)."""
+    path = write_text(tmp_path / 'bad.txt', text)
+    with pytest.raises(FormatError, match=match):
+        reader(path)  # type: ignore[operator]
+
+
+def test_positions_up_to_the_bound_are_read(tmp_path: Path) -> None:
+    """A coordinate of 1e150 m is read (nothing a real trajectory holds is refused)."""
+    path = write_text(tmp_path / 't.txt', '1 1e150 -1e150 0 0 0 0 1\n')
+    np.testing.assert_array_equal(read_tum(path).positions_xyz, [[1e150, -1e150, 0]])
+
+
 def test_read_kitti_raises_on_stamp_count_mismatch(tmp_path: Path) -> None:
     """Given stamps must have one entry per pose."""
     path = write_text(tmp_path / 'k.txt', '1 0 0 0 0 1 0 0 0 0 1 0\n')

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import warnings
 
 import numpy as np
 from pmba_ros.core.camera import Intrinsics
@@ -154,6 +155,47 @@ def test_malformed_files_are_reported(tmp_path: Path, text: str | bytes, match: 
     with pytest.raises(FormatError, match=match) as info:
         bundler.read_bundler(path)
     assert 'bad.out' in str(info.value)
+
+
+_ONE_CAMERA = '# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n'
+
+
+@pytest.mark.parametrize(('point', 'match'), [
+    ('nan 20 30\n1 0 7 1 1', r'point 0: colour nan 20 30 is not in 0\.\.255'),
+    ('-1 20 30\n1 0 7 1 1', r'point 0: colour -1 20 30 is not in 0\.\.255'),
+    ('10 256 30\n1 0 7 1 1', r'point 0: colour 10 256 30 is not in 0\.\.255'),
+    ('10 20 1e300\n1 0 7 1 1', r'point 0: colour 10 20 1e\+300 is not in 0\.\.255'),
+    ('10 20 30.5\n1 0 7 1 1', r'point 0: colour 10 20 30\.5 is not in 0\.\.255'),
+    ('10 20 30\n1 0 nan 1 1', r'point 0: view 0 \(camera 0\): key nan is not a whole number'),
+    ('10 20 30\n1 0 1e12 1 1', r'point 0: view 0 \(camera 0\): key 1e\+12 is not a whole'),
+    ('10 20 30\n2 0 7 1 1 0 8 1e12 1',
+     (r'point 0: view 1 \(camera 0\): image coordinates \(1e\+12, 1\) are not finite or '
+      r'beyond 1e\+09')),
+    ('10 20 30\n1 0 7 1 nan', r'image coordinates \(1, nan\) are not finite'),
+])
+def test_absurd_colours_keys_and_pixels_are_refused(tmp_path: Path, point: str,
+                                                    match: str) -> None:
+    """A colour outside 0..255, a key that is no C int, a pixel beyond 1e9: a FormatError.
+
+    As the COLMAP and BAL readers refuse them; NaN / huge colours and keys were cast to
+    arbitrary integers and written back with ``--out``, a pixel of 1e12 was solved.
+    """
+    path = tmp_path / 'bad.out'
+    path.write_text(f'{_ONE_CAMERA}{point}\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')   # nor a numpy cast warning before the error
+        with pytest.raises(FormatError, match=match) as info:
+            bundler.read_bundler(path)
+    assert 'bad.out' in str(info.value)
+
+
+def test_whole_colours_keys_and_pixels_at_the_bounds_are_read(tmp_path: Path) -> None:
+    """Colours 0 and 255, keys 0 and 2^31 - 1 and a pixel of 1e9 are valid and read."""
+    path = tmp_path / 'ok.out'
+    path.write_text(f'{_ONE_CAMERA}0 255 0\n2 0 0 -1e9 1 0 2147483647 1 1e9\n')
+    model = bundler.read_bundler(path)
+    assert model.rgb.tolist() == [[0, 255, 0]]
+    assert model.view_key.tolist() == [0, 2 ** 31 - 1]
 
 
 @pytest.mark.parametrize(('scale_row', 'factor', 'match'), [

@@ -170,6 +170,66 @@ def test_repeated_ids_are_refused(tmp_path: Path, name: str, content: str, match
         colmap.read_colmap(tmp_path)
 
 
+@pytest.mark.parametrize(('name', 'content', 'match'), [
+    ('cameras.txt', '1 PINHOLE 640 0 500 500 320 240\n',
+     r'cameras\.txt:1: image size 640 x 0: expected a positive width and height'),
+    ('cameras.txt', '1 PINHOLE -640 480 500 500 320 240\n', 'image size -640 x 480'),
+    ('points3D.txt', '5 0 0 10 255 0 0 0.5 1 0 9 0\n',
+     r'points3D\.txt:1: the track of 3-D point 5 refers to unknown image 9'),
+    ('points3D.txt', '5 0 0 10 255 0 0 0.5 1 0 1 1\n',
+     r'points3D\.txt:1: the track of 3-D point 5 refers to 2-D point 1 of image 1, which has 1'),
+    ('points3D.txt', '5 0 0 10 255 0 0 0.5 1 -1\n', 'refers to 2-D point -1 of image 1'),
+])
+def test_bad_sizes_and_tracks_are_refused(tmp_path: Path, name: str, content: str,
+                                          match: str) -> None:
+    """A size not above zero or a track naming no image / 2-D point names file and line.
+
+    Both were read silently and written back with ``--out`` (a negative size failed to
+    write as a binary model; COLMAP refuses the damaged track).
+    """
+    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n',
+             'images.txt': '1 1 0 0 0 0 0 0 1 a.png\n10 20 5\n', 'points3D.txt': ''}
+    files[name] = content
+    for f, c in files.items():
+        (tmp_path / f).write_text(c)
+    with pytest.raises(FormatError, match=match):
+        colmap.read_colmap(tmp_path)
+
+
+@pytest.mark.parametrize('kind', ['size', 'image', 'index'])
+def test_bad_sizes_and_tracks_in_binary_files_are_refused(tmp_path: Path,
+                                                          scene_problem: BAProblem,
+                                                          kind: str) -> None:
+    """The same in a binary model (the camera or 3-D point id named with the file)."""
+    model = colmap.from_problem(scene_problem)
+    tracks = [t.copy() for t in model.tracks]
+    if kind == 'size':
+        model.cameras[2] = dataclasses.replace(model.cameras[2], height=0)
+    elif kind == 'image':
+        tracks[0][0, 0] = 99
+    else:
+        tracks[0][0, 1] = 10 ** 6
+    colmap.write_colmap(tmp_path, dataclasses.replace(model, tracks=tracks), binary=True)
+    pid = int(model.point_ids[0])
+    match = {'size': r'cameras\.bin: camera 2: image size 640 x 0',
+             'image': rf'points3D\.bin: the track of 3-D point {pid} refers to unknown image 99',
+             'index': rf'points3D\.bin: the track of 3-D point {pid} refers to 2-D point '
+                      '1000000'}[kind]
+    with pytest.raises(FormatError, match=match):
+        colmap.read_colmap(tmp_path)
+
+
+def test_a_principal_point_at_the_origin_writes_a_readable_size(
+        tmp_path: Path, scene_problem: BAProblem) -> None:
+    """from_problem of a BAL-like camera (cx = cy = 0) writes a size of one pixel, not zero."""
+    intr = scene_problem.intrinsics
+    zero = np.zeros(scene_problem.n_cams)
+    centred = dataclasses.replace(scene_problem, intrinsics=Intrinsics(
+        intr.fx, intr.fy, zero, zero, intr.k1, intr.k2))
+    colmap.write_colmap(tmp_path, colmap.from_problem(centred))
+    assert {(c.width, c.height) for c in colmap.read_colmap(tmp_path).cameras.values()} == {(1, 1)}
+
+
 @pytest.mark.parametrize('kind', ['cameras', 'images', 'points3D'])
 def test_repeated_ids_in_binary_files_are_refused(tmp_path: Path, scene_problem: BAProblem,
                                                   kind: str) -> None:

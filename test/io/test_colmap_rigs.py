@@ -149,3 +149,31 @@ def test_an_image_in_two_frames_is_refused(tmp_path: Path) -> None:
         binary=True)
     with pytest.raises(FormatError, match=r'frames\.bin: image \d+ is in frames'):
         colmap_rigs.read_rigs(tmp_path, images)
+
+
+@pytest.mark.parametrize('name', ['rigs', 'frames'])
+@pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
+def test_repeated_rig_and_frame_ids_are_refused(tmp_path: Path, name: str,
+                                                binary: bool) -> None:
+    """A rig or frame id that appears twice names the file (and line); it replaced the first."""
+    synthesize(tmp_path / 'in', binary)
+    images = colmap.read_colmap(tmp_path / 'in').images
+    rigs = colmap_rigs.read_rigs(tmp_path / 'in', images)
+    assert rigs is not None
+    path = tmp_path / 'in' / f'{name}{".bin" if binary else ".txt"}'
+    if binary:   # the first record again at the end (written alone), the count one more
+        first = dataclasses.replace(rigs, rigs={1: rigs.rigs[1]}, frames={1: rigs.frames[1]})
+        colmap_rigs.write_rigs(tmp_path / 'one', first, binary=True)
+        record = (tmp_path / 'one' / path.name).read_bytes()[8:]
+        data = path.read_bytes()
+        count = int.from_bytes(data[:8], 'little') + 1
+        path.write_bytes(count.to_bytes(8, 'little') + data[8:] + record)
+        where = rf'{name}\.bin'
+    else:
+        lines = path.read_text().splitlines()
+        first = next(line for line in lines if not line.startswith('#'))
+        path.write_text('\n'.join([*lines, first]) + '\n')
+        where = rf'{name}\.txt:{len(lines) + 1}'
+    what = name[:-1]
+    with pytest.raises(FormatError, match=f'{where}: {what} id 1 appears twice'):
+        colmap_rigs.read_rigs(tmp_path / 'in', images)

@@ -146,3 +146,54 @@ def test_folder_listing_a_missing_file_reads_the_others(tmp_path: Path) -> None:
     with open_bags([bag]) as opened:
         assert _xs(opened) == [0.0, 1.0, 2.0, 3.0, 4.0]
         assert len(opened.damage) == 1 and 'split_1.mcap' in opened.damage[0]
+
+
+def _records(data: bytes | bytearray, pos: int) -> list[tuple[int, int]]:
+    """Return the (offset, opcode) of the MCAP records from ``pos`` to the footer's."""
+    out = []
+    while data[pos] != 0x02:
+        out.append((pos, data[pos]))
+        pos += 9 + struct.unpack_from('<Q', data, pos + 1)[0]
+    return out
+
+
+def test_damaged_summary_length_names_the_record_and_is_salvaged(tmp_path: Path) -> None:
+    """A summary record of 2**40 bytes (flipped bits): the error names it, the data is read.
+
+    rosbags asked for a 1 TiB buffer ("cannot open bag (...): MemoryError", no record named).
+    """
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200)
+    data = bytearray(bad.read_bytes())
+    summary = struct.unpack_from('<Q', data, len(data) - 37 + 9)[0]
+    schema = next(pos for pos, op in _records(data, summary) if op == 0x03)
+    data[schema + 1:schema + 9] = struct.pack('<Q', 2**40)
+    bad.write_bytes(bytes(data))
+    named = (rf'the MCAP record at byte {schema} \(opcode 0x03\) is damaged: its length '
+             rf'1099511627776 runs \d+ bytes past the end of the file \({len(data)} bytes\)')
+    with pytest.raises(BagError, match=r'bad\.mcap: cannot open bag .*' + named):
+        list(iter_messages([bad]))   # reading without open_bags stays strict
+    with open_bags([bad]) as opened:
+        assert _xs(opened) == list(range(200))
+        assert len(opened.damage) == 1
+        assert opened.damage[0].startswith(f'{bad}: cannot be opened (the MCAP record at byte '
+                                           f'{schema} (opcode 0x03) is damaged')
+
+
+def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
+    """A killed recorder's chunk of 1 GiB (flipped bits): the chunks after it are read too.
+
+    Below the mcap reader's 4 GiB limit, the length asked for a 1 GiB buffer and the file's
+    end was taken to be there: every message after the damaged chunk was lost.
+    """
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200)
+    data = bytearray(bad.read_bytes())
+    chunks = [pos for pos, op in _records(data, 8) if op == 0x06]
+    data[chunks[10] + 1:chunks[10] + 9] = struct.pack('<Q', 2**30)
+    summary = struct.unpack_from('<Q', data, len(data) - 37 + 9)[0]
+    bad.write_bytes(bytes(data[:summary]))   # no summary: a killed recorder
+    with open_bags([bad]) as opened:
+        xs = _xs(opened)
+        assert 'skipped (damaged)' in opened.damage[0]
+    assert xs == sorted(xs) and xs[-1] == 199 and 180 < len(xs) < 200

@@ -78,8 +78,13 @@ def _records(path: Path, walk: _Walk) -> Iterator[Any]:
         pos, size = 0, len(data)
         while pos < size:
             fh.seek(pos)
+            # No record is longer than the rest of the file: a damaged length beyond it is
+            # refused before the reader asks for a buffer of it (up to its 4 GiB limit), and
+            # stepped over as other damage is.
+            reader = StreamReader(fh, skip_magic=pos > 0, validate_crcs=True,
+                                  record_size_limit=size - pos)
             try:
-                yield from StreamReader(fh, skip_magic=pos > 0, validate_crcs=True).records
+                yield from reader.records
                 return
             except EndOfFile:
                 walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'

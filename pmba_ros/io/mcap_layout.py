@@ -1,0 +1,131 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The record lengths of an MCAP file that rosbags reads by, checked before it reads them.
+
+rosbags reads an MCAP file's header, summary and chunks by the lengths stored in them, with
+a file read of that many bytes: a damaged length (flipped bits, a summary offset that no
+longer points at a record) asked for a buffer of up to 2**64 bytes, and the bag "could not
+be opened: MemoryError", naming no record. :func:`mcap_damage` walks the records rosbags
+reads when it opens a file (the header, and the summary, or the data section of a file
+without one) and the chunks the summary's chunk indexes point at, reading nine bytes per
+record, and names the first whose length runs past the end of the file. Everything else
+(a record cut short, an unknown opcode, a bad CRC) is left to rosbags, which names it
+itself; the file is then salvaged as any other that cannot be opened
+(:mod:`pmba_ros.io.salvage`).
+"""
+
+from __future__ import annotations
+
+import mmap
+from pathlib import Path
+import struct
+
+__all__ = ['mcap_damage']
+
+_MAGIC = b'\x89MCAP0\r\n'
+_HEADER, _FOOTER, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x08, 0x0E
+_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
+"""Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
+
+
+def mcap_damage(path: Path) -> str | None:
+    """Return which record of an MCAP file has a length past the end of the file, or None.
+
+    Only the records rosbags reads at opening, and the chunks it reads messages from, are
+    checked (see the module docstring), and only against the end of the file: a length that
+    stays inside it asks for no more than the file holds, and rosbags reads it or names
+    what is wrong. None for a file too short or without the end magic, which rosbags
+    refuses itself.
+
+    Raises:
+        OSError: If the file cannot be read.
+    """
+    size = path.stat().st_size
+    if size < len(_MAGIC) + 9 + _FOOTER_SIZE:
+        return None
+    with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        footer = size - _FOOTER_SIZE
+        if data[:8] != _MAGIC or data[-8:] != _MAGIC or data[footer] != _FOOTER:
+            return None
+        if data[len(_MAGIC)] != _HEADER:
+            return None   # rosbags: "Unexpected record"
+        if (damage := _overrun(data, len(_MAGIC))) is not None:
+            return damage
+        (header_length,) = struct.unpack_from('<Q', data, len(_MAGIC) + 1)
+        data_start = len(_MAGIC) + 9 + header_length
+        (summary_start,) = struct.unpack_from('<Q', data, footer + 9)
+        if not summary_start:   # rosbags scans the data section
+            return _walk(data, data_start, footer, summary=False)
+        if not data_start <= summary_start <= footer:
+            return None   # rosbags: "Invalid MCAP summary offset"
+        return _walk(data, summary_start, footer, summary=True)
+
+
+def _overrun(data: mmap.mmap, pos: int) -> str | None:
+    """Return the message for the record at ``pos`` if its length runs past the file's end."""
+    left = len(data) - pos - 9
+    if left < 0:
+        return None   # cut short: rosbags reads the nine bytes and says so
+    (length,) = struct.unpack_from('<Q', data, pos + 1)
+    if length <= left:
+        return None
+    return (f'the MCAP record at byte {pos} (opcode 0x{data[pos]:02x}) is damaged: its length '
+            f'{length} runs {length - left} bytes past the end of the file ({len(data)} bytes)')
+
+
+def _walk(data: mmap.mmap, pos: int, end: int, summary: bool) -> str | None:
+    """Check the records from ``pos`` up to ``end``, as rosbags reads them.
+
+    In the ``summary``, up to a footer or summary offset record, and the chunks its chunk
+    indexes point at too.
+    """
+    while pos < end:
+        if summary and data[pos] in (_FOOTER, _SUMMARY_OFFSET):
+            return None   # where rosbags stops reading the summary
+        if (damage := _overrun(data, pos)) is not None or pos + 9 > end:
+            return damage
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        if summary and data[pos] == _CHUNK_INDEX:
+            if (damage := _indexed_chunk(data, pos, length)) is not None:
+                return damage
+        pos += 9 + length
+    return None
+
+
+def _indexed_chunk(data: mmap.mmap, pos: int, length: int) -> str | None:
+    """Check the read of the chunk a chunk index record at ``pos`` points at.
+
+    rosbags reads the chunk's compressed records by the index's ``compressed_size``, past
+    the chunk's head at the index's ``chunk_start_offset`` (not by the chunk record's own
+    length, which it does not read).
+    """
+    body = pos + 9
+    if length < 40:
+        return None   # rosbags' parse of the record fails without reading the file
+    (start,) = struct.unpack_from('<Q', data, body + 16)
+    (offsets_size,) = struct.unpack_from('<I', data, body + 32)
+    at = body + 36 + offsets_size + 8   # past the message index offsets and their length
+    if at + 4 > body + length:
+        return None
+    (name_size,) = struct.unpack_from('<I', data, at)
+    at += 4 + name_size
+    if at + 8 > body + length:
+        return None
+    (compressed_size,) = struct.unpack_from('<Q', data, at)
+    first = start + 9 + 40 + name_size   # where rosbags starts reading the compressed bytes
+    if first + compressed_size <= len(data):
+        return None
+    return (f'the MCAP chunk index at byte {pos} is damaged: its chunk at byte {start} with '
+            f'{compressed_size} compressed bytes runs past the end of the file '
+            f'({len(data)} bytes)')
