@@ -39,6 +39,10 @@ class SolverError(PmbaError):
     """The solver cannot proceed (no free parameters, non-finite start, ...)."""
 
 
+class ReducedSystemError(SolverError):
+    """The reduced camera system is not positive definite."""
+
+
 class InitError(PmbaError):
     """Global initialization cannot produce a problem from the given tracks."""
 

@@ -35,6 +35,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 from pmba_ros.io import colmap, colmap_rigs
 from pmba_ros.io import colmap_rig_problem as rp
+from pmba_ros.io.colmap_poses import poses_from_colmap
 from pmba_ros.io.solution_frame import finite_points, in_model_frame
 
 if TYPE_CHECKING:
@@ -191,7 +192,7 @@ def write_frames_of_images(out: Path, source: Path, rm: RigModel) -> None:
     image_ids = np.array(sorted(model.images), dtype=np.int64)   # the layout's order
     q = np.array([model.images[int(i)].qvec for i in image_ids])
     t = np.array([model.images[int(i)].tvec for i in image_ids])
-    R_wc, centers = colmap.poses_from_colmap(q, t)
+    R_wc, centers = poses_from_colmap(q, t)
     poses, R_wr, C_r, _ = rp.frames_from_images(rm.layout, np.arange(image_ids.shape[0]),
                                                 R_wc, centers, fit_scale=False)
     colmap_rigs.write_rigs(out, rp.updated_frames(rm.rigs, rm.layout, poses, R_wr, C_r),

@@ -47,6 +47,8 @@ import numpy as np
 from pmba_ros._threads import blas_threads_for
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.jacobian import Linearization
+from pmba_ros.core.sparse_factor import sparse_reduced_matrix, sparse_solve
+from pmba_ros.errors import ReducedSystemError as ReducedSystemError
 from pmba_ros.errors import SolverError
 import scipy.linalg
 import scipy.linalg.lapack
@@ -65,10 +67,6 @@ SPARSE_LIMIT = 20000
 #: scene, and SuperLU on a factor that fills most of the triangle runs several times slower
 #: than LAPACK's dense Cholesky (and the sparse matrix costs more to build).
 DENSE_FILL = 0.25
-
-#: Largest normwise backward error |S x - b| / (|S| |x| + |b|) (1-norms) accepted from the
-#: sparse solve without pivoting; SuperLU's solves of BA systems reach ~1e-16.
-_BACKWARD_TOLERANCE = 1e-12
 
 
 def feature_order(feat_idx: IntArray, n_feats: int) -> IntArray:
@@ -205,10 +203,6 @@ class NormalEquations:
     g_feat: FloatArray
 
 
-class ReducedSystemError(SolverError):
-    """The reduced camera system is not positive definite."""
-
-
 class SchurPlan(Protocol):
     """An engine's way of forming the normal equations and the Schur complement.
 
@@ -312,8 +306,8 @@ class SchurStructure:
         """Return the share of the lower triangle a sparse factorization of S fills.
 
         Predicted on S's pattern of pose blocks (one entry per 6 x 6 block, 36 times
-        smaller), factored as :func:`_sparse_solve` factors S: the fill follows the
-        blocks, whose orderings agree.
+        smaller), factored as :func:`~pmba_ros.core.sparse_factor.sparse_solve` does: the
+        fill follows the blocks, whose orderings agree.
         """
         nb = self.n_blocks
         if nb < 2:
@@ -457,19 +451,9 @@ def solve_schur_factored(structure: SchurStructure, eqs: NormalEquations,
         factor = _dense_cholesky(structure, S_blocks, damp_pose, free)
         y, _ = scipy.linalg.lapack.dpotrs(factor, b, lower=False)
     else:
-        rows = (structure.pair_rows[:, None] * 6 + np.arange(6)[None, :])
-        cols = (structure.pair_cols[:, None] * 6 + np.arange(6)[None, :])
-        off = structure.pair_rows != structure.pair_cols
-        r_idx = np.broadcast_to(rows[:, :, None], S_blocks.shape)
-        c_idx = np.broadcast_to(cols[:, None, :], S_blocks.shape)
-        diag = np.arange(dim)
-        S_sp = scipy.sparse.csc_matrix(
-            (np.concatenate([S_blocks.reshape(-1), S_blocks[off].reshape(-1),
-                             damp_pose.reshape(-1)]),
-             (np.concatenate([r_idx.reshape(-1), c_idx[off].reshape(-1), diag]),
-              np.concatenate([c_idx.reshape(-1), r_idx[off].reshape(-1), diag]))),
-            shape=(dim, dim))
-        y = _sparse_solve(S_sp[free][:, free].tocsc(), b)
+        S_sp = sparse_reduced_matrix(structure.pair_rows, structure.pair_cols, S_blocks,
+                                     damp_pose)
+        y = sparse_solve(S_sp[free][:, free].tocsc(), b)
     x[free] = y if low_rank is None else _woodbury(y, low_rank[0][:, free], low_rank[1])
     if not np.all(np.isfinite(x)):
         msg = 'reduced camera system solve produced non-finite values'
@@ -503,39 +487,6 @@ def _reduced(structure: SchurStructure, eqs: NormalEquations, damp_feat: FloatAr
         msg = 'singular feature block'
         raise ReducedSystemError(msg)
     return S_blocks, rhs, V_inv
-
-
-def _sparse_solve(S: scipy.sparse.csc_matrix, b: FloatArray) -> FloatArray:
-    """Return S^-1 b for the symmetric reduced system S, factored by SuperLU.
-
-    Diagonal pivots first, as Cholesky would take them (S is positive definite): symmetric
-    mode orders rows and columns alike by minimum degree on S + S^T, and no pivot search
-    follows; the fill is that of partial pivoting, the factorization 15-30 % faster (aerial
-    grids of 3000 / 6000 cameras). Unpivoted elimination does not guard against small
-    pivots, so a solve whose backward error is not at rounding level (S nearly singular or
-    indefinite), or that SuperLU finds singular, is done again with partial pivoting.
-
-    Raises:
-        ReducedSystemError: If S is singular with partial pivoting too.
-    """
-    try:
-        x: FloatArray = scipy.sparse.linalg.splu(
-            S, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-            options={'SymmetricMode': True}).solve(b)
-    except RuntimeError:  # SuperLU's "Factor is exactly singular": pivoting may still solve it
-        pass
-    else:
-        scale = float(scipy.sparse.linalg.norm(S, 1)) * float(np.linalg.norm(x, 1))
-        backward = float(np.linalg.norm(S @ x - b, 1)) / (scale + float(np.linalg.norm(b, 1)))
-        if backward < _BACKWARD_TOLERANCE:  # False for NaN too
-            return x
-    try:
-        lu = scipy.sparse.linalg.splu(S, permc_spec='MMD_AT_PLUS_A')
-    except RuntimeError as err:
-        msg = 'reduced camera system is singular'
-        raise ReducedSystemError(msg) from err
-    pivoted: FloatArray = lu.solve(b)
-    return pivoted
 
 
 def _dense_cholesky(structure: SchurStructure, S_blocks: FloatArray, damp_pose: FloatArray,

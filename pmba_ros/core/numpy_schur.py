@@ -33,7 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.jacobian import ANCHOR_START, Linearization
-from pmba_ros.core.normal_equations import NormalEquations, ReducedSystemError, SchurLayout
+from pmba_ros.core.normal_equations import NormalEquations, SchurLayout
+from pmba_ros.errors import ReducedSystemError
 import scipy.sparse
 
 #: Observations (or 6x6 blocks) per vectorized chunk; bounds temporary memory.

@@ -46,7 +46,8 @@ from pmba_ros.core.problem import (
     permute_features,
     take_features,
 )
-from pmba_ros.errors import ProblemError, SolverError
+from pmba_ros.core.start_checks import check_not_empty, non_finite_start_message
+from pmba_ros.errors import SolverError
 
 
 class SolverKind(str, Enum):
@@ -280,8 +281,7 @@ class _Linearized:
             low_rank = prior.low_rank(state.prior)
         scaled = model.engine.jacobi_scale(structure, eqs, col_mask, jacobi)
         self.eqs, self.c_pose, self.c_feat = scaled.eqs, scaled.c_pose, scaled.c_feat
-        # The window scales' curvature, taken out of the scaled system (x = d / c).
-        self.low_rank = None if low_rank is None else (
+        self.low_rank = None if low_rank is None else (   # in the scaled system's x = d / c
             low_rank[0] * (scaled.c_pose * col_mask).reshape(-1), low_rank[1])
         self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
         self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
@@ -320,8 +320,7 @@ class _Linearized:
         """Return x^T H x of the scaled system, less the window scales' curvature."""
         quad = ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat)
         if self.low_rank is not None:
-            u, d = self.low_rank
-            quad -= float(_add((u @ x_pose.reshape(-1)) ** 2 / d))
+            quad -= float(_add((self.low_rank[0] @ x_pose.reshape(-1)) ** 2 / self.low_rank[1]))
         return quad
 
     def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
@@ -344,9 +343,8 @@ class _Linearized:
         if ev is None:
             return np.full((len(factors), 6, 6), np.nan)
         if self.low_rank is not None:   # the inverse of S less u^T diag(1/d) u (Woodbury)
-            u, d = self.low_rank
-            Z = cov @ u.T
-            cov = cov + Z @ np.linalg.solve(np.diag(d) - u @ Z, Z.T)
+            u, Z = self.low_rank[0], cov @ self.low_rank[0].T
+            cov = cov + Z @ np.linalg.solve(np.diag(self.low_rank[1]) - u @ Z, Z.T)
         c = self.c_pose.reshape(-1)
         return factors.hat_blocks(ev, cov * c[:, None] * c[None, :], free_block)
 
@@ -388,10 +386,10 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     options = options or SolveOptions()
     t0 = time.perf_counter()
     engine = resolve(options.engine)
-    _check_not_empty(problem)
+    check_not_empty(problem)
     if features is None:
         problem, features = conversions.initial_features(problem, options.param, engine)
-        _check_not_empty(problem)
+        check_not_empty(problem)
     conversions.check_features(problem, features, options.param)
     # The normal equations want features ordered by their number of observations; the
     # solve runs on that order and the result is returned in the caller's (a caller that
@@ -444,7 +442,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
         state = evaluate(np.array(problem.R_wc), np.array(problem.centers_w), features)
     if not math.isfinite(state.cost):
-        raise SolverError(_non_finite_start(state.evaluation.residuals, solved))
+        raise SolverError(non_finite_start_message(state.evaluation.residuals, solved))
     x_norm = norm_of(state)
     errors = model.reprojection_errors_px(state.evaluation)  # also for the noise estimate
     initial_cost, initial_rms = state.cost, rms_of(errors)
@@ -600,54 +598,3 @@ _add = np.add.reduce
 def _sum_products(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray) -> float:
     """Return np.sum(a * b) + np.sum(c * d) (x ** 2 is x * x: squared norms too)."""
     return float(_add(a * b, axis=None) + _add(c * d, axis=None))
-
-
-def _check_not_empty(problem: BAProblem) -> None:
-    """Raise ProblemError if no feature is left to solve for (all were dropped)."""
-    if problem.n_feats == 0 or problem.n_obs == 0:
-        dropped = ', '.join(f'{k}: {v}' for k, v in problem.dropped.items()) or 'none'
-        # Features seen twice but from one centre are dropped for want of a baseline: "not
-        # seen by two cameras" misnamed a file whose cameras all share a centre.
-        why = ('no feature is seen by two cameras with a baseline between them'
-               if problem.dropped.get('features_without_anchor_baseline') else
-               'no feature is seen by two or more cameras')
-        msg = f'nothing to solve: {why} (dropped: {dropped})'
-        raise ProblemError(msg)
-
-
-_NAMED_CAMERAS = 5
-"""Cameras named by the message of a non-finite start; the rest are counted."""
-
-
-def _non_finite_start(residuals: FloatArray, problem: BAProblem) -> str:
-    """Return the message of a start whose cost is not finite, naming the cameras at fault.
-
-    Those whose observations have residuals that are not finite, or so large that their
-    squares sum past the largest float; and among them first those whose centre or focal
-    length squares past it (a PMBA feature anchored at such a camera spoils the residuals
-    of every camera that sees it, which alone would hide the culprit).
-
-    Args:
-        residuals: Residuals at the start, shape (K, d).
-        problem: The problem solved (its observations in the order of ``residuals``).
-    """
-    with np.errstate(over='ignore', invalid='ignore'):
-        squares = np.sum(residuals * residuals, axis=1)
-        own = (np.sum(problem.centers_w ** 2, axis=1) + problem.intrinsics.fx ** 2
-               + problem.intrinsics.fy ** 2)
-    bad = ~np.isfinite(squares)
-    if not bad.any() and squares.size:
-        bad = squares > np.finfo(float).max / squares.size
-    msg = 'residuals are not finite at the initial point'
-    if not bad.any():   # the pose prior's cost, or a loss that overflows
-        return msg
-    cameras = np.unique(problem.obs.cam_idx[bad])
-    absurd = np.flatnonzero(~np.isfinite(own))
-    cameras = np.concatenate([absurd, np.setdiff1d(cameras, absurd)])
-    more = (f' and {cameras.size - _NAMED_CAMERAS} more' if cameras.size > _NAMED_CAMERAS
-            else '')
-    named = (f'; of these, camera(s) {absurd[:_NAMED_CAMERAS].tolist()} have a centre or '
-             'focal length beyond about 1e154' if absurd.size else '')
-    return (f'{msg}: {int(np.count_nonzero(bad))} observations of camera(s) '
-            f'{cameras[:_NAMED_CAMERAS].tolist()}{more}{named}; check their focal lengths '
-            'and poses, and the points they see')

@@ -39,9 +39,9 @@ from pathlib import Path
 import struct
 from typing import Any, NamedTuple
 
-from pmba_ros.errors import BagError, FormatError
+from pmba_ros.errors import BagError
 from pmba_ros.io import cloud_decode
-from pmba_ros.io.mcap_layout import mcap_damage
+from pmba_ros.io.mcap_layout import check_mcap_lengths
 
 logger = logging.getLogger(__name__)
 
@@ -202,7 +202,7 @@ def any_reader(paths: Sequence[Path]) -> Iterator[Any]:
     """
     from rosbags.highlevel import AnyReader
     errors = _reader_errors()
-    _check_mcap_lengths(paths)
+    check_mcap_lengths(f for p in paths for f in (storage_files(p) or [p]))
     try:
         reader = AnyReader(list(paths), default_typestore=jazzy_typestore())
         reader.open()
@@ -220,30 +220,6 @@ def any_reader(paths: Sequence[Path]) -> Iterator[Any]:
             reader.close()
         except errors as err:  # pragma: no cover - closing a read-only file rarely fails
             logger.debug('closing %s failed: %s', _describe(paths), err)
-
-
-def _check_mcap_lengths(paths: Sequence[Path]) -> None:
-    """Refuse an MCAP file with a record length past its section before rosbags reads it.
-
-    rosbags asked for a buffer of the damaged length (MemoryError, naming no record); the
-    message names the record and its offset, and the file is salvaged as any other that
-    cannot be opened (:func:`open_bags`).
-
-    Raises:
-        BagError: Naming the file and the damaged record; its cause, a FormatError, names
-            the record alone.
-    """
-    for file in (f for p in paths for f in (storage_files(p) or [p])):
-        if file.suffix != '.mcap' or not file.is_file():
-            continue
-        try:
-            damage = mcap_damage(file)
-        except (OSError, ValueError):   # unreadable, or empty (mmap): rosbags says so
-            continue
-        if damage is not None:
-            cause = FormatError(damage)
-            msg = f'{file}: cannot open bag (not a bag, truncated or corrupt?): {damage}'
-            raise BagError(msg) from cause
 
 
 def error_text(err: BaseException) -> str:

@@ -42,7 +42,7 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics, project, projection_jacobian
 from pmba_ros.core.problem import make_problem, Rig
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.colmap import check_poses, poses_from_colmap, poses_to_colmap
+from pmba_ros.io.colmap_poses import check_poses, poses_from_colmap, poses_to_colmap
 
 if TYPE_CHECKING:
     from pmba_ros._typing import BoolArray, FloatArray, IntArray

@@ -27,16 +27,43 @@ itself; the file is then salvaged as any other that cannot be opened
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 import mmap
 from pathlib import Path
 import struct
 
-__all__ = ['mcap_damage']
+from pmba_ros.errors import BagError, FormatError
+
+__all__ = ['check_mcap_lengths', 'mcap_damage']
 
 _MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x08, 0x0E
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
+
+
+def check_mcap_lengths(files: Iterable[Path]) -> None:
+    """Refuse an MCAP file with a record length past its section before rosbags reads it.
+
+    rosbags asked for a buffer of the damaged length (MemoryError, naming no record); the
+    message names the record and its offset, and the file is salvaged as any other that
+    cannot be opened (:func:`pmba_ros.io.bags.open_bags`). Other files are left alone.
+
+    Raises:
+        BagError: Naming the file and the damaged record; its cause, a FormatError, names
+            the record alone.
+    """
+    for file in files:
+        if file.suffix != '.mcap' or not file.is_file():
+            continue
+        try:
+            damage = mcap_damage(file)
+        except (OSError, ValueError):   # unreadable, or empty (mmap): rosbags says so
+            continue
+        if damage is not None:
+            cause = FormatError(damage)
+            msg = f'{file}: cannot open bag (not a bag, truncated or corrupt?): {damage}'
+            raise BagError(msg) from cause
 
 
 def mcap_damage(path: Path) -> str | None:

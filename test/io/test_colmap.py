@@ -27,7 +27,7 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.core.solve import solve
 from pmba_ros.errors import FormatError
-from pmba_ros.io import colmap
+from pmba_ros.io import colmap, colmap_poses
 from pmba_ros.sim.scenes import street_scene
 import pytest
 
@@ -68,10 +68,10 @@ def test_quaternions_round_trip_every_branch(rng: np.random.Generator) -> None:
     R = so3.exp(rng.normal(size=(200, 3)))
     near_pi = so3.exp(np.eye(3) * (np.pi - 1e-3))
     R = np.concatenate([R, near_pi, np.eye(3)[None]])
-    q = colmap.R_to_quat(R)
+    q = colmap_poses.R_to_quat(R)
     assert np.all(q[:, 0] >= 0)
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(colmap.quat_to_R(q), R, atol=1e-12)
+    np.testing.assert_allclose(colmap_poses.quat_to_R(q), R, atol=1e-12)
 
 
 @pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from pmba_ros.cli.main import main
 from pmba_ros.core.solve import solve
-from pmba_ros.io import colmap, colmap_rigs
+from pmba_ros.io import colmap, colmap_poses, colmap_rigs
 from pmba_ros.io import colmap_rig_problem as rp
 import pytest
 
@@ -53,8 +53,8 @@ def _check_written(out: Path) -> None:
     ours = colmap.read_colmap(out)
     for iid, image in rec.images.items():
         matrix = _pose(image).matrix()
-        np.testing.assert_allclose(matrix[:, :3], colmap.quat_to_R(ours.images[iid].qvec[None])[0],
-                                   atol=1e-12)
+        R = colmap_poses.quat_to_R(ours.images[iid].qvec[None])[0]
+        np.testing.assert_allclose(matrix[:, :3], R, atol=1e-12)
         np.testing.assert_allclose(matrix[:, 3], ours.images[iid].tvec, atol=1e-9)
     for frame in rec.frames.values():
         rig = rec.rigs[frame.rig_id]

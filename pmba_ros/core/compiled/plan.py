@@ -27,7 +27,8 @@ import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.core.compiled import assembly, schur
 from pmba_ros.core.jacobian import Linearization
-from pmba_ros.core.normal_equations import NormalEquations, ReducedSystemError, SchurLayout
+from pmba_ros.core.normal_equations import NormalEquations, SchurLayout
+from pmba_ros.errors import ReducedSystemError
 
 
 @dataclass(frozen=True, eq=False)
