@@ -151,6 +151,17 @@ def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, cont
     assert name in str(info.value)
 
 
+def _refused(tmp_path: Path, images: str, name: str, content: str, match: str) -> None:
+    """Write a one-camera text model, ``name`` replaced by ``content``; expect FormatError."""
+    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n', 'images.txt': images,
+             'points3D.txt': ''}
+    files[name] = content
+    for f, c in files.items():
+        (tmp_path / f).write_text(c)
+    with pytest.raises(FormatError, match=match):
+        colmap.read_colmap(tmp_path)
+
+
 @pytest.mark.parametrize(('name', 'content', 'match'), [
     ('cameras.txt', '1 PINHOLE 640 480 500 500 320 240\n1 PINHOLE 640 480 1 1 1 1\n',
      r'cameras\.txt:2: camera id 1 appears twice'),
@@ -161,13 +172,7 @@ def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, cont
 ])
 def test_repeated_ids_are_refused(tmp_path: Path, name: str, content: str, match: str) -> None:
     """A repeated id names file and line (the later record silently replaced the earlier)."""
-    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n',
-             'images.txt': '1 1 0 0 0 0 0 0 1 a.png\n\n', 'points3D.txt': ''}
-    files[name] = content
-    for f, c in files.items():
-        (tmp_path / f).write_text(c)
-    with pytest.raises(FormatError, match=match):
-        colmap.read_colmap(tmp_path)
+    _refused(tmp_path, '1 1 0 0 0 0 0 0 1 a.png\n\n', name, content, match)
 
 
 @pytest.mark.parametrize(('name', 'content', 'match'), [
@@ -187,13 +192,7 @@ def test_bad_sizes_and_tracks_are_refused(tmp_path: Path, name: str, content: st
     Both were read silently and written back with ``--out`` (a negative size failed to
     write as a binary model; COLMAP refuses the damaged track).
     """
-    files = {'cameras.txt': '1 PINHOLE 640 480 500 500 320 240\n',
-             'images.txt': '1 1 0 0 0 0 0 0 1 a.png\n10 20 5\n', 'points3D.txt': ''}
-    files[name] = content
-    for f, c in files.items():
-        (tmp_path / f).write_text(c)
-    with pytest.raises(FormatError, match=match):
-        colmap.read_colmap(tmp_path)
+    _refused(tmp_path, '1 1 0 0 0 0 0 0 1 a.png\n10 20 5\n', name, content, match)
 
 
 @pytest.mark.parametrize('kind', ['size', 'image', 'index'])
