@@ -242,7 +242,9 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
                                  'frontend_white': None if white is None
                                  else [round(w, 4) for w in white]}
     fallbacks = {'solve_rollbacks': 'window solves rolled back (inconsistent with the front-end)',
-                 'reinitializations': 'window re-initializations from the front-end'}
+                 'reinitializations': 'window re-initializations from the front-end',
+                 'scale_steps_left_out': "steps of the rig's map scale left out (beyond 3 "
+                                         "sigmas of its scale filter's expectation)"}
     for name, what in fallbacks.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {what}')

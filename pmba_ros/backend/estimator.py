@@ -492,7 +492,7 @@ class Estimator:
             self.frontend_noise.note(prior, res.prior_residuals, res.prior_leverage, step)
         pts = np.where(finite_rows(res.points_w)[:, None], res.points_w, np.nan)
         self.features.upsert(res.problem.feature_ids, pts)
-        factor = self._rig_scale.take(*res.scale_tension)
+        factor, info.dropped['scale_steps_left_out'] = self._rig_scale.take(*res.scale_tension)
         if factor is not None:   # after the solve's points are in: they scale with the rest
             rescale_map(self.kf, self.features, self.landmarks, self._run_scale, factor)
             self.map_version += 1

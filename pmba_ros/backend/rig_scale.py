@@ -46,6 +46,13 @@ RESCALE_MIN = 1e-3
 """The map is rescaled once the pending steps add up to this (a tenth of a percent): every
 rescaling moves each published pose, and the path is rebuilt whole."""
 
+GATE_SIGMAS = 3.0
+"""A solve's step beyond this many sigmas of what the filter expects (the scale's variance
+plus the step's) measures something else than the map's scale, and is left out: a window
+at rest turning on the spot sees its new features placed by the rig's baseline alone, and
+its tension asked for steps of 30-40 %, which the bound per solve had let through as
+0.5 % each, stretching the whole map by 3 %."""
+
 
 class RigScale:
     """The map's scale error as a scalar Kalman filter (gains at most 1 / window_size).
@@ -66,23 +73,26 @@ class RigScale:
         self._window = config.window_size
         self._bound = config.fallback_max_scale_jump / config.window_size
 
-    def take(self, slope: float, curvature: float) -> float | None:
+    def take(self, slope: float, curvature: float) -> tuple[float | None, int]:
         """Weigh in one solve's scale step; return the factor to rescale by now, if any.
 
         ``slope``, ``curvature``: the solve's ``scale_tension``; NaN, or a curvature that is
-        not positive (no metric measurement in the window), adds nothing.
+        not positive (no metric measurement in the window), adds nothing. Also returns 1
+        for a step left out beyond :data:`GATE_SIGMAS` (else 0).
         """
         if not (math.isfinite(slope) and math.isfinite(curvature) and curvature > 0):
-            return None
+            return None, 0
         noise = self._window / curvature
+        if (slope / curvature) ** 2 > GATE_SIGMAS ** 2 * (self.variance + noise):
+            return None, 1
         gain = min(self.variance / (self.variance + noise), 1.0 / self._window)
         self.variance = (1.0 - gain) ** 2 * self.variance + gain ** 2 * noise
         step = float(np.clip(-gain * slope / curvature, -self._bound, self._bound))
         self.pending += step
         if abs(self.pending) < RESCALE_MIN:
-            return None
+            return None, 0
         factor, self.pending = 1.0 + self.pending, 0.0
-        return factor
+        return factor, 0
 
 
 def rescale_map(kf: KeyframeStore, features: FeatureMap, landmarks: LandmarkStore,
