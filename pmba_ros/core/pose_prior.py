@@ -521,6 +521,8 @@ class WindowScale:
     def targets(self, prior: RelativePosePrior,
                 rel_t: FloatArray) -> tuple[FloatArray, float]:
         """Return each step's merged target (M, 3) at solved steps ``rel_t``; the cost left out."""
+        if not self.group.size:
+            return prior.t_ab, 0.0
         s, _, info = self.fit(prior, rel_t)
         t_ab = prior.t_ab * ((1.0 - self.share) + self.share * s)[:, None]
         left = info * self.share * (1.0 - self.share) * _add(prior.t_ab * prior.t_ab, axis=1)
