@@ -318,12 +318,13 @@ class Estimator:
                 self._contradicted += 1
                 if self._contradicted < INIT_CONTRADICTIONS:
                     raise
-                # Vision alone keeps fitting something else than the front-end's motion (wrong
-                # tracks): the batch starts from the front-end's poses, re-seeded below.
+                worst = math.inf   # vision alone keeps fitting something else (wrong tracks)
+            if worst > cfg.fallback_max_motion_error:
+                # Steps far off the front-end's: the batch starts from its poses, re-seeded
+                # below, at its scale (the fit of which the wrong tracks spoil too).
                 has = used[self.kf.has_odom[used]]
                 near = has[np.abs(has[None, :] - used[:, None]).argmin(axis=1)]
-                R, C, sim, worst = (self.kf.R_odom[near], self.kf.C_odom[near],
-                                    Similarity.identity(), math.inf)
+                R, C, sim = self.kf.R_odom[near], self.kf.C_odom[near], Similarity.identity()
         except (InitError, PmbaError, np.linalg.LinAlgError, ValueError) as err:
             self.state = 'waiting_for_parallax'
             self.last_message = f'waiting for parallax: initialization failed: {err}'
@@ -354,9 +355,7 @@ class Estimator:
                           n_free=res.problem.n_cams, n_feats=res.problem.n_feats,
                           n_obs=res.problem.n_obs,
                           message=f'initialized {used.shape[0]} of {M} keyframes')
-        if worst > cfg.fallback_max_motion_error:
-            # Some of its steps are far off the front-end's (wrong tracks it fitted): the
-            # window starts from the front-end's motion, and the solves bring the vision in.
+        if worst > cfg.fallback_max_motion_error:   # the solves bring the vision in
             self._reseed_window()
             info.dropped['reinitializations'] = 1
             info.message += "; steps off the front-end's: re-seeded from it"
