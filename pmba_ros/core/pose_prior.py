@@ -51,6 +51,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 import math
+from typing import NamedTuple
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
@@ -359,11 +360,10 @@ class PriorAssembly:
         if ws is None or not len(self.prior):
             return None
         prior = self.prior
-        _, G, info = ws.fit(prior, ev.rel_t, ev.weights)
-        q = ev.weights * ws.share * info
-        length = np.sqrt(_add(prior.t_ab * prior.t_ab, axis=1))
-        along = prior.t_ab / np.maximum(length, 1e-300)[:, None]
-        grad = np.einsum('mi,mij->mj', along, step_error_jacobian(ev)[:, 3:])   # (M, 12)
+        fit = ws.fit(prior, ev.rel_t, ev.weights)
+        G, length = fit.normal, fit.length
+        q = ev.weights * ws.share * fit.info
+        grad = np.einsum('mi,mij->mj', fit.along, step_error_jacobian(ev)[:, 3:])   # (M, 12)
         B = ws.basis()
         n = G.shape[0]
         U = np.zeros((n, self.n_blocks + 1, 2, 6))   # the last block: held poses
@@ -489,11 +489,11 @@ class WindowScale:
             self.group]
         return np.column_stack([np.ones(M), tau])
 
-    def fit(self, prior: RelativePosePrior, rel_t: FloatArray, weights: FloatArray | None = None,
-            ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Return the fitted scale s per factor (M,), normal matrices (n, 2, 2), information (M,).
+    def fit(self, prior: RelativePosePrior, rel_t: FloatArray,
+            weights: FloatArray | None = None) -> ScaleFit:
+        """Return the groups' fitted scales at solved steps ``rel_t`` (:class:`ScaleFit`).
 
-        The information i is each factor's on its length; theta minimizes
+        With i each factor's information on its length, theta minimizes
         ``sum(w share i (L - |t_ab| theta . (1, tau))^2)`` over each group (L: the solved
         step ``rel_t`` along the measured one; w: the Huber ``weights``, where given), with
         a vanishing ridge towards the reference (1, 0): a group without information keeps
@@ -516,17 +516,35 @@ class WindowScale:
         G += ridge[:, None, None] * np.eye(2)
         rhs[:, 0] += ridge
         theta = np.linalg.solve(G, rhs[:, :, None])[:, :, 0]
-        return _add(B * theta[self.group], axis=1), G, info
+        return ScaleFit(_add(B * theta[self.group], axis=1), G, info, length, along)
 
     def targets(self, prior: RelativePosePrior,
                 rel_t: FloatArray) -> tuple[FloatArray, float]:
         """Return each step's merged target (M, 3) at solved steps ``rel_t``; the cost left out."""
         if not self.group.size:
             return prior.t_ab, 0.0
-        s, _, info = self.fit(prior, rel_t)
-        t_ab = prior.t_ab * ((1.0 - self.share) + self.share * s)[:, None]
-        left = info * self.share * (1.0 - self.share) * _add(prior.t_ab * prior.t_ab, axis=1)
-        return t_ab, 0.5 * float(_add(left * (s - 1.0) ** 2))
+        fit = self.fit(prior, rel_t)
+        t_ab = prior.t_ab * ((1.0 - self.share) + self.share * fit.scale)[:, None]
+        left = fit.info * self.share * (1.0 - self.share) * fit.length ** 2
+        return t_ab, 0.5 * float(_add(left * (fit.scale - 1.0) ** 2))
+
+
+class ScaleFit(NamedTuple):
+    """A :class:`WindowScale` fit at one pose estimate.
+
+    Attributes:
+        scale: Each factor's fitted scale s over the reference's, shape (M,).
+        normal: Each group's normal matrix of theta (with its ridge), shape (n, 2, 2).
+        info: Each factor's information on its length, shape (M,).
+        length: The measured steps' lengths ``|t_ab|``, shape (M,).
+        along: Their directions, shape (M, 3).
+    """
+
+    scale: FloatArray
+    normal: FloatArray
+    info: FloatArray
+    length: FloatArray
+    along: FloatArray
 
 
 @dataclass(frozen=True, eq=False)
