@@ -50,8 +50,8 @@ GATE_SIGMAS = 3.0
 """A solve's step beyond this many sigmas of what the filter expects (the scale's variance
 plus the step's) measures something else than the map's scale, and is left out: a window
 at rest turning on the spot sees its new features placed by the rig's baseline alone, and
-its tension asked for steps of 30-40 %, which the bound per solve had let through as
-0.5 % each, stretching the whole map by 3 %."""
+its tension asks for steps of tens of percent, which the bound per solve would let
+through a little at a time, stretching the whole map."""
 
 
 class RigScale:
