@@ -83,8 +83,8 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
         FormatError: If the file is not a well-formed BAL file (the message names file, line
             and problem): bad header, truncated file, wrong value counts, non-numeric tokens,
             out-of-range or non-integer indices, non-finite values, a focal length not positive
-            or beyond :data:`~pmba_ros.io.text.MAX_FOCAL`, a translation coordinate beyond
-            :data:`~pmba_ros.io.text.MAX_COORDINATE`.
+            or beyond :data:`~pmba_ros.io.text.MAX_FOCAL`, a rotation or translation coordinate
+            beyond :data:`~pmba_ros.io.text.MAX_COORDINATE`.
         OSError: If the file cannot be read.
     """
     path = Path(path)
@@ -242,15 +242,17 @@ def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params
 
 def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: list[str],
                       line_no: list[int]) -> None:
-    """Refuse non-finite values, and cameras with absurd focal lengths or translations.
+    """Refuse non-finite values, and cameras with absurd focal length, rotation or translation.
 
     The translation's norm is the camera centre's distance from the origin; beyond
     :data:`~pmba_ros.io.text.MAX_COORDINATE` the residuals of an XYZ or IDP solve stay finite
     but meaningless (such a solve reported a converged answer), while PMBA's overflow: refused
-    here, every parameterization fails alike, naming the camera and line.
+    here, every parameterization fails alike, naming the camera and line. A rotation vector
+    beyond the same bound has an angle whose square overflows (numpy warnings, then a pose
+    refused without its line).
     """
     f = cams[:, 6]
-    far = np.any(np.abs(cams[:, 3:6]) > MAX_COORDINATE, axis=1)
+    far = np.any(np.abs(cams[:, 0:6]) > MAX_COORDINATE, axis=1)
     if np.all(np.isfinite(params)) and np.all((f > 0) & (f <= MAX_FOCAL)) and not far.any():
         return
     param_lines = _value_lines(lines, line_no)
@@ -260,9 +262,10 @@ def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: l
         raise FormatError(msg)
     i = int(np.flatnonzero((f <= 0) | (f > MAX_FOCAL) | far)[0])
     if far[i]:
-        j = int(np.argmax(np.abs(cams[i, 3:6])))
-        msg = (f'{path}:{param_lines[9 * i + 3 + j]}: camera {i} has translation coordinate '
-               f'{cams[i, 3 + j]:g} beyond {MAX_COORDINATE:g}')
+        j = int(np.argmax(np.abs(cams[i, 0:6])))
+        what = 'rotation vector' if j < 3 else 'translation'
+        msg = (f'{path}:{param_lines[9 * i + j]}: camera {i} has {what} coordinate '
+               f'{cams[i, j]:g} beyond {MAX_COORDINATE:g}')
     elif f[i] <= 0:
         msg = (f'{path}:{param_lines[9 * i + 6]}: camera {i} has non-positive focal length '
                f'{f[i]:g}')
