@@ -274,6 +274,24 @@ def test_gt_without_overlap_is_one_evaluation_error(street_bag: Path, tmp_path: 
 
 
 @pytest.mark.usefixtures('stub')
+def test_gt_repeating_stamps_is_a_warning(street_bag: Path, tmp_path: Path) -> None:
+    """Ground truth whose every pose is written twice: counted in a warning, as evaluate does.
+
+    Before, the replay's accuracy block matched each keyframe with its stamp's poses and said
+    nothing of the repeats.
+    """
+    gt = read_tum(groundtruth_path(street_bag))
+    twice = tmp_path / 'twice.tum'
+    write_tum(twice, Trajectory(np.repeat(gt.stamps_s, 2), np.repeat(gt.positions_xyz, 2, 0),
+                                np.repeat(gt.R_wc, 2, 0)))
+    report = replay([street_bag], tmp_path / 'o', gt=twice)
+    text = (f'{len(gt)} of the {2 * len(gt)} ground-truth poses repeat the stamp of an earlier '
+            f'pose (distinct stamps: {len(gt)})')
+    assert any(w.startswith(text) for w in report.warnings)
+    assert not any('front-end keyframe poses repeat' in w for w in report.warnings)
+
+
+@pytest.mark.usefixtures('stub')
 def test_interrupted_replay_leaves_valid_result_bag(street_bag: Path, tmp_path: Path) -> None:
     """An interrupt mid-replay still finalizes result.mcap with what was written."""
     calls = {'n': 0}

@@ -60,9 +60,12 @@ def frame_observations(frame: TrackFrame, usable: dict[int, CameraModel | None],
     elif frame.pixels is not None and all(c in models for c in np.unique(cams).tolist()):
         pixels = frame.pixels[sel]
         xy = np.empty_like(pixels)
-        for cam in np.unique(cams).tolist():
-            on = cams == cam
-            xy[on] = models[cam].normalize(pixels[on])
+        # A damaged pixel overflows the undistortion's Newton steps: it comes out NaN and is
+        # counted as not finite below, so numpy's warnings would only be noise.
+        with np.errstate(over='ignore', invalid='ignore'):
+            for cam in np.unique(cams).tolist():
+                on = cams == cam
+                xy[on] = models[cam].normalize(pixels[on])
     else:
         msg = 'tracks without normalized coordinates need a CameraInfo'
         raise MessageError(msg)
@@ -84,15 +87,19 @@ def _pixel_jacobians(bearings: FloatArray, cams: IntArray,
     problem's builder takes those. Among cameras that have one, the others get their
     pinhole's; a camera without a model NaN rows (the builder's pinhole).
     """
-    jacobians = {c: models[c].pixel_jacobian(bearings[cams == c])
-                 for c in np.unique(cams).tolist() if c in models}
-    if all(j is None for j in jacobians.values()):
-        return None
-    out = np.full((bearings.shape[0], 2, 3), np.nan, dtype=np.float32)
-    for c, jac in jacobians.items():
-        on = cams == c
-        out[on] = jac if jac is not None else pinhole_jacobian(bearings[on], models[c].fx,
-                                                               models[c].fy)
+    # A damaged observation far off axis has a Jacobian that overflows (the distortion
+    # polynomial, or the float32 cast): its row goes inf / NaN, and the problem's builder
+    # drops observations whose Jacobian is not finite, so numpy's warnings would only be noise.
+    with np.errstate(over='ignore', invalid='ignore'):
+        jacobians = {c: models[c].pixel_jacobian(bearings[cams == c])
+                     for c in np.unique(cams).tolist() if c in models}
+        if all(j is None for j in jacobians.values()):
+            return None
+        out = np.full((bearings.shape[0], 2, 3), np.nan, dtype=np.float32)
+        for c, jac in jacobians.items():
+            on = cams == c
+            out[on] = jac if jac is not None else pinhole_jacobian(bearings[on], models[c].fx,
+                                                                   models[c].fy)
     return out
 
 

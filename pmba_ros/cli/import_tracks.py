@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pmba_ros.cli.argtypes import non_negative_int, positive_int
-from pmba_ros.errors import PmbaError
 
 if TYPE_CHECKING:
     import argparse
@@ -92,22 +91,16 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         PmbaError: If an input is missing or malformed, or the bag cannot be written.
     """
-    import numpy as np
     from pmba_ros.backend.extrinsics import Rigid
-    from pmba_ros.eval.trajectory import read_kitti
+    from pmba_ros.eval.trajectory import read_kitti, read_times
     from pmba_ros.io.kitti_tracks import kitti_sequence, read_kitti_tracks, right_camera
     from pmba_ros.sim.bag import write_sequence_bag
 
     stereo = bool(getattr(args, 'stereo', False))
     tracks = read_kitti_tracks(args.tracks_dir, stereo=stereo)
     times_path, gt_path = _optional(args.times), _optional(args.gt)
-    times = None
-    if times_path is not None:
-        try:
-            times = np.loadtxt(times_path, ndmin=1)
-        except (OSError, ValueError) as err:
-            msg = f'{times_path}: cannot read KITTI times: {err}'
-            raise PmbaError(msg) from err
+    # Read as evaluate reads them: a line that is no time, or an absurd time, is named.
+    times = read_times(times_path) if times_path is not None else None
     gt = read_kitti(gt_path, times) if gt_path is not None else None
     seq = kitti_sequence(tracks, times, gt, first_frame=args.first_frame, stride=args.stride)
     # Stereo: the keyframe poses are the left camera's, the body frame of a two-camera rig.

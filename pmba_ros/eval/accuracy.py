@@ -19,7 +19,7 @@ import logging
 from typing import Any, TYPE_CHECKING
 
 from pmba_ros.errors import EvaluationError
-from pmba_ros.eval.metrics import association_warning, evaluate
+from pmba_ros.eval.metrics import association_warning, evaluate, repeated_stamps_warning
 
 if TYPE_CHECKING:
     from pmba_ros.eval.trajectory import Trajectory
@@ -39,7 +39,10 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
         align: Alignment mode for both ('sim3', 'se3' or 'none').
         max_diff_s: Largest stamp difference for association, s.
         warnings: Appended to: one line per trajectory of which few keyframes found a
-            ground-truth pose (:func:`~pmba_ros.eval.metrics.association_warning`).
+            ground-truth pose (:func:`~pmba_ros.eval.metrics.association_warning`), and one
+            per trajectory whose poses repeat stamps
+            (:func:`~pmba_ros.eval.metrics.repeated_stamps_warning`), as ``pmba evaluate``
+            warns.
 
     Returns:
         ``ate_frontend_m``, ``ate_optimized_m``, ``ate_ratio`` (optimized / front-end),
@@ -51,6 +54,7 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
         EvaluationError: If a trajectory has no stamps overlapping the ground truth, or
             one of them is a KITTI file without times and the other is not.
     """
+    _warn_repeated_stamps(frontend, optimized, gt, warnings)
     results = {}
     for name, traj in (('frontend', frontend), ('optimized', optimized)):
         if len(traj) == 0 and name == 'optimized':
@@ -83,3 +87,18 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
         'frontend': {k: v.to_dict() for k, v in results['frontend'].items()},
         'optimized': {k: v.to_dict() for k, v in opt.items()} if opt is not None else None,
     }
+
+
+def _warn_repeated_stamps(frontend: Trajectory, optimized: Trajectory, gt: Trajectory,
+                          warnings: list[str] | None) -> None:
+    """Warn of each trajectory whose poses repeat stamps, as ``pmba evaluate`` does.
+
+    Such poses are each matched on their own, so a ground truth of one stamp matched every
+    keyframe with one pose and the replay reported them all matched, without a word.
+    """
+    for traj, name in ((gt, 'ground-truth'), (frontend, 'front-end keyframe'),
+                       (optimized, 'optimized keyframe')):
+        if text := repeated_stamps_warning(traj, name):
+            logger.warning('%s', text)
+            if warnings is not None:
+                warnings.append(text)

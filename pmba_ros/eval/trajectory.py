@@ -54,6 +54,11 @@ FORMATS = ('auto', 'tum', 'euroc', 'kitti')
 _ROTATION_TOL = 1e-3
 """Largest accepted ``|R^T R - I|`` entry of a KITTI rotation before projection onto SO(3)."""
 
+MAX_TIME_S = 2.0 ** 31
+"""Largest KITTI time magnitude accepted, s: the bags written from these times
+(``pmba import-tracks``) stamp messages with them, whose seconds are an int32; beyond it the
+stamps overflowed and writing failed deep in serialization."""
+
 MAX_COORDINATE = 1e150
 """Largest position coordinate magnitude accepted, m (as ``io.text.MAX_COORDINATE`` for
 camera centres): the squares that the alignment and the errors sum stay finite up to it."""
@@ -410,10 +415,16 @@ def read_times(path: str | os.PathLike[str]) -> FloatArray:
         The times, shape (N,).
 
     Raises:
-        FormatError: If the file cannot be read or a line is not exactly one finite number.
+        FormatError: If the file cannot be read, a line is not exactly one finite number, or
+            a time is beyond :data:`MAX_TIME_S`.
     """
-    mat, _ = _parse_matrix(path, _read_text(path), delimiter=None, n_cols=1, exact=True,
-                           what='times')
+    mat, line_no = _parse_matrix(path, _read_text(path), delimiter=None, n_cols=1,
+                                 exact=True, what='times')
+    bad = np.flatnonzero(np.abs(mat[:, 0]) >= MAX_TIME_S)
+    if bad.size:
+        msg = (f'{path}:{line_no[bad[0]]}: time {mat[bad[0], 0]:g} s is beyond '
+               f'{MAX_TIME_S:g} s (a ROS stamp holds whole seconds in an int32)')
+        raise FormatError(msg)
     return mat[:, 0]
 
 

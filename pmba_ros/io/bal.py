@@ -45,7 +45,14 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import check_numeric, check_pixels, integer_indices, nonblank_lines
+from pmba_ros.io.text import (
+    check_numeric,
+    check_pixels,
+    integer_indices,
+    MAX_COORDINATE,
+    MAX_FOCAL,
+    nonblank_lines,
+)
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -75,7 +82,9 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
     Raises:
         FormatError: If the file is not a well-formed BAL file (the message names file, line
             and problem): bad header, truncated file, wrong value counts, non-numeric tokens,
-            out-of-range or non-integer indices, non-finite values, non-positive focal length.
+            out-of-range or non-integer indices, non-finite values, a focal length not positive
+            or beyond :data:`~pmba_ros.io.text.MAX_FOCAL`, a rotation or translation coordinate
+            beyond :data:`~pmba_ros.io.text.MAX_COORDINATE`.
         OSError: If the file cannot be read.
     """
     path = Path(path)
@@ -100,22 +109,11 @@ def read_bal(path: str | PathLike[str]) -> BAProblem:
                                last_line=line_no[-1])
     cams = params[:9 * n_cams].reshape(n_cams, 9)
     points = params[9 * n_cams:].reshape(n_points, 3)
-    param_lines = _value_lines(lines[1 + n_obs:], line_no[1 + n_obs:]) if (
-        not np.all(np.isfinite(params)) or np.any(cams[:, 6] <= 0)) else None
-    if param_lines is not None:
-        bad = np.flatnonzero(~np.isfinite(params))
-        if bad.size:
-            msg = f'{path}:{param_lines[bad[0]]}: non-finite parameter value'
-            raise FormatError(msg)
-        i = int(np.flatnonzero(cams[:, 6] <= 0)[0])
-        msg = (f'{path}:{param_lines[9 * i + 6]}: camera {i} has non-positive focal length '
-               f'{cams[i, 6]:g}')
-        raise FormatError(msg)
+    _check_parameters(path, params, cams, lines[1 + n_obs:], line_no[1 + n_obs:])
 
     R_bal = so3.exp(cams[:, 0:3])
-    t_bal = cams[:, 3:6]
     R_wc = np.swapaxes(_FLIP @ R_bal, 1, 2)
-    centers_w = -np.einsum('mji,mj->mi', R_bal, t_bal)
+    centers_w = -np.einsum('mji,mj->mi', R_bal, cams[:, 3:6])
     f = cams[:, 6]
     intrinsics = Intrinsics(f.copy(), f.copy(), np.zeros(n_cams), np.zeros(n_cams),
                             cams[:, 7].copy(), cams[:, 8].copy())
@@ -240,6 +238,41 @@ def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params
                f'values after the observations, found {values.size}')
         raise FormatError(msg)
     return values
+
+
+def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: list[str],
+                      line_no: list[int]) -> None:
+    """Refuse non-finite values, and cameras with absurd focal length, rotation or translation.
+
+    The translation's norm is the camera centre's distance from the origin; beyond
+    :data:`~pmba_ros.io.text.MAX_COORDINATE` the residuals of an XYZ or IDP solve stay finite
+    but meaningless (such a solve reported a converged answer), while PMBA's overflow: refused
+    here, every parameterization fails alike, naming the camera and line. A rotation vector
+    beyond the same bound has an angle whose square overflows (numpy warnings, then a pose
+    refused without its line).
+    """
+    f = cams[:, 6]
+    far = np.any(np.abs(cams[:, 0:6]) > MAX_COORDINATE, axis=1)
+    if np.all(np.isfinite(params)) and np.all((f > 0) & (f <= MAX_FOCAL)) and not far.any():
+        return
+    param_lines = _value_lines(lines, line_no)
+    bad = np.flatnonzero(~np.isfinite(params))
+    if bad.size:
+        msg = f'{path}:{param_lines[bad[0]]}: non-finite parameter value'
+        raise FormatError(msg)
+    i = int(np.flatnonzero((f <= 0) | (f > MAX_FOCAL) | far)[0])
+    if far[i]:
+        j = int(np.argmax(np.abs(cams[i, 0:6])))
+        what = 'rotation vector' if j < 3 else 'translation'
+        msg = (f'{path}:{param_lines[9 * i + j]}: camera {i} has {what} coordinate '
+               f'{cams[i, j]:g} beyond {MAX_COORDINATE:g}')
+    elif f[i] <= 0:
+        msg = (f'{path}:{param_lines[9 * i + 6]}: camera {i} has non-positive focal length '
+               f'{f[i]:g}')
+    else:
+        msg = (f'{path}:{param_lines[9 * i + 6]}: camera {i} has focal length {f[i]:g} beyond '
+               f'{MAX_FOCAL:g} px')
+    raise FormatError(msg)
 
 
 def _value_lines(lines: list[str], line_no: list[int]) -> list[int]:

@@ -150,10 +150,11 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         msg = f'{path}: {values.size - pos} unexpected values after the last point'
         raise FormatError(msg)
     v = np.concatenate(views) if views else np.zeros((0, 4))
-    cam = v[:, 0].astype(np.int64)
-    if np.any((cam < 0) | (cam >= n_cams)) or np.any(v[:, 0] != cam):
+    # Checked before the cast: casting a NaN or huge index warned (numpy) before the error.
+    if not np.all((v[:, 0] >= 0) & (v[:, 0] < n_cams) & (v[:, 0] == np.floor(v[:, 0]))):
         msg = f'{path}: a view refers to a camera outside 0..{n_cams - 1}'
         raise FormatError(msg)
+    cam = v[:, 0].astype(np.int64)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     _check_colours(path, rgb)
     _check_views(path, v, offsets)

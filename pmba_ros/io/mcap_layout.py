@@ -19,7 +19,8 @@ longer points at a record) asked for a buffer of up to 2**64 bytes, and the bag 
 be opened: MemoryError", naming no record. :func:`mcap_damage` walks the records rosbags
 reads when it opens a file (the header, and the summary, or the data section of a file
 without one) and the chunks the summary's chunk indexes point at, reading nine bytes per
-record, and names the first whose length runs past the end of the file. Everything else
+record, and names the first whose length runs past the end of the file, or whose chunk index
+claims more uncompressed bytes than any compression expands its chunk to. Everything else
 (a record cut short, an unknown opcode, a bad CRC) is left to rosbags, which names it
 itself; the file is then salvaged as any other that cannot be opened
 (:mod:`pmba_ros.io.salvage`).
@@ -40,6 +41,15 @@ _MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x08, 0x0E
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
+
+MAX_EXPANSION = 32768
+"""Most uncompressed bytes per compressed byte of a chunk, by any compression MCAP uses.
+
+zstd expands most: its densest block, a run of one byte, is a 3-byte header and that byte
+for at most 128 KiB (131072 / 4); lz4 stays below 255, no compression at 1. A chunk index
+that claims more was damaged: rosbags failed on the chunk mid-read ("Chunk size mismatch"),
+losing its messages, and the mcap reader asked for a buffer of up to 2**64 bytes ("Python
+int too large to convert to C ssize_t")."""
 
 
 def check_mcap_lengths(files: Iterable[Path]) -> None:
@@ -151,8 +161,20 @@ def _indexed_chunk(data: mmap.mmap, pos: int, length: int) -> str | None:
         return None
     (compressed_size,) = struct.unpack_from('<Q', data, at)
     first = start + 9 + 40 + name_size   # where rosbags starts reading the compressed bytes
-    if first + compressed_size <= len(data):
+    if first + compressed_size > len(data):
+        return (f'the MCAP chunk index at byte {pos} is damaged: its chunk at byte {start} '
+                f'with {compressed_size} compressed bytes runs past the end of the file '
+                f'({len(data)} bytes)')
+    if at + 16 > body + length:
         return None
-    return (f'the MCAP chunk index at byte {pos} is damaged: its chunk at byte {start} with '
-            f'{compressed_size} compressed bytes runs past the end of the file '
-            f'({len(data)} bytes)')
+    (uncompressed_size,) = struct.unpack_from('<Q', data, at + 8)
+    return _expansion(f'the MCAP chunk index at byte {pos}', compressed_size, uncompressed_size)
+
+
+def _expansion(what: str, compressed_size: int, uncompressed_size: int) -> str | None:
+    """Return the damage of a chunk claiming more than :data:`MAX_EXPANSION` times its data."""
+    if uncompressed_size <= MAX_EXPANSION * compressed_size:
+        return None
+    return (f'{what} is damaged: its {uncompressed_size} uncompressed bytes are more than '
+            f'{MAX_EXPANSION} times its {compressed_size} compressed bytes, more than any '
+            'compression expands to')

@@ -86,6 +86,12 @@ MAX_COORDINATE = 1e150
 centres (a triangulation's spread of its cameras) stay finite up to it."""
 
 
+MAX_FOCAL = MAX_PIXEL
+"""Largest focal length accepted, px: beyond the largest pixel coordinate accepted, every ray
+more than 45 degrees off axis would project past it, and no lens comes near it; a larger
+value is a unit mistake or damage, whose residuals dwarf every other camera's."""
+
+
 def check_pixels(path: Path, pixels: FloatArray, line_numbers: Sequence[int]) -> None:
     """Raise FormatError naming the first observation with a non-finite or absurd pixel.
 

@@ -236,3 +236,33 @@ def test_frame_observations_count_other_cameras_and_non_finite_apart() -> None:
     expected = fisheye.pixel_jacobian(obs.bearings)
     assert expected is not None
     np.testing.assert_allclose(obs.pixel_jac, expected, rtol=1e-6)
+
+
+def test_frame_observations_overflowing_pixel_jacobian_is_not_finite_without_warning() -> None:
+    """A damaged observation far off axis: its Jacobian row is not finite, and no numpy warning.
+
+    The problem's builder drops (and counts) observations whose Jacobian is not finite; the
+    overflow of the distortion polynomial and of the float32 cast printed warnings before,
+    as did a damaged raw pixel's undistortion (counted as not finite).
+    """
+    import warnings
+
+    from pmba_ros.backend.cameras import frame_observations
+    from pmba_ros.backend.types import CameraModel, TrackFrame
+
+    camera = CameraModel(250.0, 250.0, 320.0, 240.0, 'plumb_bob',
+                         np.array([0.01, 0.001, 0.0, 0.0, 0.0]))
+    normalized = np.array([[0.1, 0.2], [1e10, 0.1], [1e100, 0.1], [0.3, 0.1]])
+    frame = TrackFrame(0, 'camera', [1, 2, 3, 4], [0, 0, 0, 0], None, normalized)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        obs, _, _ = frame_observations(frame, {0: camera})
+    assert obs.pixel_jac is not None
+    finite = np.all(np.isfinite(obs.pixel_jac), axis=(1, 2))
+    assert finite.tolist() == [True, False, False, True]
+    pixels = np.array([[300.0, 200.0], [1e40, 10.0], [400.0, 300.0]])
+    frame = TrackFrame(0, 'camera', [1, 2, 3], [0, 0, 0], pixels, None)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        obs, _, non_finite = frame_observations(frame, {0: camera})
+    assert (obs.ids.tolist(), non_finite) == ([1, 3], 1)

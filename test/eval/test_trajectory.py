@@ -24,6 +24,7 @@ from pmba_ros.eval.trajectory import (
     detect_format,
     read_euroc_csv,
     read_kitti,
+    read_times,
     read_trajectory,
     read_tum,
     Trajectory,
@@ -255,6 +256,22 @@ def test_read_kitti_raises_on_stamp_count_mismatch(tmp_path: Path) -> None:
     path = write_text(tmp_path / 'k.txt', '1 0 0 0 0 1 0 0 0 0 1 0\n')
     with pytest.raises(FormatError, match='1 KITTI poses but 2 stamps'):
         read_kitti(path, stamps=[0.0, 1.0])
+
+
+def test_read_times_refuses_a_time_beyond_a_ros_stamp(tmp_path: Path) -> None:
+    """A KITTI time of 1e300 s: a FormatError naming file and line.
+
+    ``pmba import-tracks`` stamped its bag with it: numpy overflow warnings, then a failure
+    deep in serialization ("'i' format requires ..."), naming neither.
+    """
+    path = write_text(tmp_path / 'times.txt', '0.0\n# comment\n0.1\n1e300\n0.3\n')
+    with pytest.raises(FormatError, match=r'times\.txt:4: time 1e\+300 s is beyond'):
+        read_times(path)
+    path = write_text(tmp_path / 'times.txt', '0.0\n-3e9\n')
+    with pytest.raises(FormatError, match=r'times\.txt:2: time -3e\+09 s is beyond'):
+        read_times(path)
+    np.testing.assert_array_equal(read_times(write_text(tmp_path / 'ok.txt', '0\n470.5\n')),
+                                  [0.0, 470.5])
 
 
 def test_read_trajectory_raises_on_missing_file(tmp_path: Path) -> None:

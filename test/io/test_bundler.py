@@ -172,6 +172,8 @@ _ONE_CAMERA = '# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n'
      (r'point 0: view 1 \(camera 0\): image coordinates \(1e\+12, 1\) are not finite or '
       r'beyond 1e\+09')),
     ('10 20 30\n1 0 7 1 nan', r'image coordinates \(1, nan\) are not finite'),
+    ('10 20 30\n1 nan 7 1 1', r'a view refers to a camera outside 0\.\.0'),
+    ('10 20 30\n1 1e300 7 1 1', r'a view refers to a camera outside 0\.\.0'),
 ])
 def test_absurd_colours_keys_and_pixels_are_refused(tmp_path: Path, point: str,
                                                     match: str) -> None:

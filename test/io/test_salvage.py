@@ -197,3 +197,31 @@ def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
         xs = _xs(opened)
         assert 'skipped (damaged)' in opened.damage[0]
     assert xs == sorted(xs) and xs[-1] == 199 and 180 < len(xs) < 200
+
+
+def _chunk_index_sizes(data: bytearray, pos: int) -> int:
+    """Return the offset of the (compressed, uncompressed) sizes of a chunk index at ``pos``."""
+    body = pos + 9
+    offsets_size = struct.unpack_from('<I', data, body + 32)[0]
+    at = body + 36 + offsets_size + 8
+    return at + 4 + struct.unpack_from('<I', data, at)[0]
+
+
+def test_absurd_chunk_uncompressed_size_names_the_index_and_is_salvaged(tmp_path: Path) -> None:
+    """A chunk index claiming 2**64 - 1 uncompressed bytes: named, and every message read.
+
+    More than any compression expands its chunk to; rosbags failed on it mid-read ("Chunk
+    size mismatch"), and the mcap reader with "Python int too large to convert to C ssize_t".
+    """
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200)
+    data = bytearray(bad.read_bytes())
+    summary = struct.unpack_from('<Q', data, len(data) - 37 + 9)[0]
+    index = [pos for pos, op in _records(data, summary) if op == 0x08][10]
+    struct.pack_into('<Q', data, _chunk_index_sizes(data, index) + 8, 2**64 - 1)
+    bad.write_bytes(bytes(data))
+    with open_bags([bad]) as opened:
+        assert _xs(opened) == list(range(200))
+        assert opened.damage[0].startswith(
+            f'{bad}: cannot be opened (the MCAP chunk index at byte {index} is damaged: its '
+            '18446744073709551615 uncompressed bytes are more than 32768 times its')
