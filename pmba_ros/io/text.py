@@ -86,10 +86,10 @@ MAX_COORDINATE = 1e150
 centres (a triangulation's spread of its cameras) stay finite up to it."""
 
 
-MAX_FOCAL = MAX_PIXEL
-"""Largest focal length accepted, px: beyond the largest pixel coordinate accepted, every ray
-more than 45 degrees off axis would project past it, and no lens comes near it; a larger
-value is a unit mistake or damage, whose residuals dwarf every other camera's."""
+MAX_FOCAL = MAX_COORDINATE
+"""Largest focal length accepted, px: up to it a problem's squared pixel residuals stay
+finite. Smaller ones that no lens has (focal lengths not in pixels) are solved, with a
+warning naming them (:mod:`pmba_ros.cli.solve`)."""
 
 
 def check_pixels(path: Path, pixels: FloatArray, line_numbers: Sequence[int]) -> None:

@@ -208,7 +208,7 @@ def _replace(lines: list[str], line_no: int, text: str | None) -> list[str]:
      r'camera 1 has translation coordinate -1e\+300 beyond 1e\+150'),
     (lambda ls: _replace(ls, 16, '1e200'), 16,
      r'camera 1 has rotation vector coordinate 1e\+200 beyond 1e\+150'),
-    (lambda ls: _replace(ls, 21, '1e100'), 21, r'camera 1 has focal length 1e\+100 beyond'),
+    (lambda ls: _replace(ls, 21, '1e200'), 21, r'camera 1 has focal length 1e\+200 beyond'),
     (lambda ls: ls[:-1], 28, 'truncated file: expected 24 camera and point values'),
     (lambda ls: [*ls, '7.0', '8.0'], 30, 'unexpected extra values'),
     (lambda ls: ls[:3], 3, 'truncated file: header announces 4 observation lines'),
