@@ -342,7 +342,12 @@ def _span(traj: Trajectory) -> str:
     """Describe the stamp range of a trajectory for error messages."""
     if len(traj) == 0:
         return 'no stamps'
-    return f'stamps {traj.stamps_s.min():.6f}..{traj.stamps_s.max():.6f} s'
+    return f'stamps {_stamp(traj.stamps_s.min())}..{_stamp(traj.stamps_s.max())} s'
+
+
+def _stamp(t: float) -> str:
+    """Format a stamp to the microsecond; beyond any clock (an absurd one), in exponent form."""
+    return f'{t:.6f}' if abs(t) < 1e15 else f'{t:.6g}'
 
 
 # --------------------------------------------------------------------------------------------

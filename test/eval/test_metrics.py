@@ -120,6 +120,18 @@ def test_associate_pairs_poses_in_time_order(rng: np.random.Generator, shuffled:
     np.testing.assert_array_equal(est_a.stamps_s, ref_a.stamps_s)
 
 
+def test_no_matching_stamps_names_absurd_spans_in_a_short_message(
+        rng: np.random.Generator) -> None:
+    """Stamps of 1e300 s print in exponent form (fixed-point gave hundreds of digits)."""
+    ref = random_trajectory(rng, 10)
+    est = Trajectory(ref.stamps_s + 1e300, ref.positions_xyz, ref.R_wc)
+    with pytest.raises(EvaluationError, match=r'stamps 1e\+300\.\.1e\+300 s') as err:
+        associate(est, ref)
+    assert len(str(err.value)) < 300
+    with pytest.raises(EvaluationError, match=r'stamps \d+\.\d{6}\.\.'):
+        associate(Trajectory(ref.stamps_s - 100.0, ref.positions_xyz, ref.R_wc), ref)
+
+
 def test_associate_applies_offset_to_estimate(rng: np.random.Generator) -> None:
     """A constant clock offset is compensated; returned stamps stay unshifted."""
     ref = random_trajectory(rng, 40)
