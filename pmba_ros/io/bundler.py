@@ -51,7 +51,7 @@ from pmba_ros.io.text import MAX_PIXEL, utf8_text
 if TYPE_CHECKING:
     from os import PathLike
 
-    from pmba_ros._typing import FloatArray, IntArray
+    from pmba_ros._typing import BoolArray, FloatArray, IntArray
     from pmba_ros.core.problem import BAProblem
 
 logger = logging.getLogger(__name__)
@@ -104,7 +104,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     except ValueError as err:
         msg = f'{path}: non-numeric value ({err})'
         raise FormatError(msg) from err
-    if values.size < 2 or not (_is_whole(values[0]) and _is_whole(values[1])):
+    if values.size < 2 or not np.all(_whole(values[:2])):
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)
     n_cams, n_points = int(values[0]), int(values[1])
@@ -135,7 +135,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         count = values[pos + 6]
         # A fractional count read as its integer part misaligned every later point (the
         # error then named the wrong point); NaN or inf would not convert at all.
-        if not _is_whole(count):
+        if not _whole(count):
             msg = f'{path}: point {j}: view count {count:g} is not a whole number'
             raise FormatError(msg)
         n = int(count)
@@ -151,7 +151,7 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
         raise FormatError(msg)
     v = np.concatenate(views) if views else np.zeros((0, 4))
     # Checked before the cast: casting a NaN or huge index warned (numpy) before the error.
-    if not np.all((v[:, 0] >= 0) & (v[:, 0] < n_cams) & (v[:, 0] == np.floor(v[:, 0]))):
+    if not np.all((v[:, 0] >= 0) & (v[:, 0] < n_cams) & _whole(v[:, 0])):
         msg = f'{path}: a view refers to a camera outside 0..{n_cams - 1}'
         raise FormatError(msg)
     cam = v[:, 0].astype(np.int64)
@@ -172,7 +172,7 @@ def _check_colours(path: Path, rgb: FloatArray) -> None:
     As the COLMAP reader does: a damaged colour (NaN, negative, huge) was read as an
     arbitrary integer and written back with ``--out``.
     """
-    bad = np.flatnonzero(~np.all((rgb >= 0) & (rgb <= 255) & (rgb == np.floor(rgb)), axis=1))
+    bad = np.flatnonzero(~np.all((rgb >= 0) & (rgb <= 255) & _whole(rgb), axis=1))
     if bad.size:
         j = int(bad[0])
         msg = f'{path}: point {j}: colour {" ".join(f"{c:g}" for c in rgb[j])} is not in 0..255'
@@ -187,7 +187,7 @@ def _check_views(path: Path, views: FloatArray, offsets: IntArray) -> None:
     COLMAP's pixels are (:data:`~pmba_ros.io.text.MAX_PIXEL`).
     """
     key, xy = views[:, 1], views[:, 2:4]
-    bad_key = ~((np.abs(key) < _MAX_KEY) & (key == np.floor(key)))
+    bad_key = ~((np.abs(key) < _MAX_KEY) & _whole(key))
     bad_xy = ~np.all(np.abs(xy) <= MAX_PIXEL, axis=1)
     bad = np.flatnonzero(bad_key | bad_xy)
     if bad.size:
@@ -201,9 +201,9 @@ def _check_views(path: Path, views: FloatArray, offsets: IntArray) -> None:
         raise FormatError(msg)
 
 
-def _is_whole(value: float) -> bool:
-    """Return True if ``value`` is a finite whole number (a count read as a float)."""
-    return bool(np.isfinite(value)) and float(value) == float(np.floor(value))
+def _whole(values: FloatArray | float) -> BoolArray:
+    """Return where ``values`` are finite whole numbers (counts, indices read as floats)."""
+    return np.asarray(np.isfinite(values) & (np.floor(values) == values))
 
 
 def to_problem(model: BundlerModel) -> tuple[BAProblem, IntArray]:
