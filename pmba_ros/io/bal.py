@@ -46,6 +46,7 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.text import (
+    check_bounded,
     check_numeric,
     check_pixels,
     integer_indices,
@@ -55,6 +56,7 @@ from pmba_ros.io.text import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from os import PathLike
 
     from pmba_ros._typing import FloatArray
@@ -242,7 +244,7 @@ def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params
 
 def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: list[str],
                       line_no: list[int]) -> None:
-    """Refuse non-finite values, and cameras with absurd focal length, rotation or translation.
+    """Refuse non-finite values, and absurd cameras (focal length, distortion, pose) and points.
 
     The translation's norm is the camera centre's distance from the origin; beyond
     :data:`~pmba_ros.io.text.MAX_COORDINATE` the residuals of an XYZ or IDP solve stay finite
@@ -253,7 +255,17 @@ def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: l
     """
     f = cams[:, 6]
     far = np.any(np.abs(cams[:, 0:6]) > MAX_COORDINATE, axis=1)
+
+    def where(first: int, size: int, what: str) -> Callable[[int, int], str]:
+        return lambda k, j: (f'{path}:{_value_lines(lines, line_no)[first + size * k + j]}: '
+                             f'{what} {k}')
+
     if np.all(np.isfinite(params)) and np.all((f > 0) & (f <= MAX_FOCAL)) and not far.any():
+        # Distortion and points overflowed as a focal length does, or the XYZ solve of a
+        # point of 1e300 reported a converged answer with the point where it was.
+        check_bounded(cams[:, 7:9], MAX_FOCAL, 'distortion coefficient', where(7, 9, 'camera'))
+        check_bounded(params[cams.size:].reshape(-1, 3), MAX_COORDINATE, 'coordinate',
+                      where(cams.size, 3, 'point'))
         return
     param_lines = _value_lines(lines, line_no)
     bad = np.flatnonzero(~np.isfinite(params))
