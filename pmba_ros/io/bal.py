@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import python_only
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
@@ -49,6 +50,7 @@ from pmba_ros.io.text import (
     check_bounded,
     check_numeric,
     check_pixels,
+    float_values,
     integer_indices,
     MAX_COORDINATE,
     MAX_FOCAL,
@@ -189,7 +191,7 @@ def _parse_header(path: Path, line: str, line_no: int) -> tuple[int, int, int]:
     """Parse ``n_cams n_points n_obs``."""
     tokens = line.split()
     try:
-        counts = [int(t) for t in tokens]
+        counts = [] if python_only(line) else [int(t) for t in tokens]
     except ValueError:
         counts = []
     if len(tokens) != 3 or len(counts) != 3 or min(counts) < 0 or counts[0] == 0:
@@ -223,13 +225,7 @@ def _parse_observations(path: Path, lines: list[str], line_no: list[int]) -> Flo
 def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params: int,
                       last_line: int) -> FloatArray:
     """Parse the camera and point values that follow the observations (exactly n_params)."""
-    tokens = ' '.join(lines).split()
-    try:
-        values = np.array(tokens, dtype=float)
-    except ValueError:
-        for s, n in zip(lines, line_no, strict=True):
-            check_numeric(path, s.split(), n)
-        raise  # pragma: no cover
+    values = float_values(path, lines, line_no)
     if values.size < n_params:
         msg = (f'{path}:{last_line}: truncated file: expected {n_params} camera and point '
                f'values after the observations, found {values.size}')

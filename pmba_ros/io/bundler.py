@@ -48,6 +48,7 @@ from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.text import (
     check_bounded,
+    float_values,
     MAX_COORDINATE,
     MAX_FOCAL,
     MAX_PIXEL,
@@ -108,11 +109,8 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     elif 'v0.3' not in first:
         msg = f'{path}:1: unsupported header {first.strip()!r}, expected {_HEADER!r}'
         raise FormatError(msg)
-    try:
-        values = np.array(rest.split(), dtype=float)
-    except ValueError as err:
-        msg = f'{path}: non-numeric value ({err})'
-        raise FormatError(msg) from err
+    lines = rest.splitlines()
+    values = float_values(path, lines, range(first_line, first_line + len(lines)))
     if values.size < 2 or not np.all(_whole(values[:2])):
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import is_number, python_only
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:
@@ -171,10 +172,30 @@ def detect_problem_format(path: Path) -> str:
 
 
 def check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
-    """Raise FormatError naming the first token that is not a number."""
+    """Raise FormatError naming the first token that is not a number.
+
+    Numbers only Python reads ('1_000', :mod:`pmba_ros._numbers`) are not numbers here.
+    """
     for tok in tokens:
-        try:
-            float(tok)
-        except ValueError:
+        if not is_number(tok):
             msg = f'{path}:{line_no}: non-numeric token {tok!r}'
-            raise FormatError(msg) from None
+            raise FormatError(msg)
+
+
+def float_values(path: Path, lines: Sequence[str], line_no: Sequence[int]) -> FloatArray:
+    """Return the whitespace-separated numbers of ``lines`` as one array.
+
+    Raises:
+        FormatError: Naming the file, line and first token that is not a number.
+    """
+    text = ' '.join(lines)
+    try:
+        if not python_only(text):
+            return np.array(text.split(), dtype=float)
+    except ValueError:
+        pass
+    for s, n in zip(lines, line_no, strict=True):
+        check_numeric(path, s.split(), n)
+    # Numbers that only Python reads are named above: what is left is separated by other
+    # whitespace (a no-break space), as str.split() takes it.
+    return np.array(text.split(), dtype=float)

@@ -202,6 +202,12 @@ def _replace(lines: list[str], line_no: int, text: str | None) -> list[str]:
     (lambda ls: _replace(ls, 5, '1 -1 2.0 0.5'), 5, 'point index -1'),
     (lambda ls: _replace(ls, 3, '1 0 nan 2.5'), 3, 'non-finite pixel'),
     (lambda ls: _replace(ls, 12, 'oops'), 12, "non-numeric token 'oops'"),
+    # Numbers only Python's float() reads ('1_000', other scripts' digits): an observation
+    # line was refused without its line, a parameter or a header count read.
+    (lambda ls: _replace(ls, 3, '1 0 -1_0 2.5'), 3, "non-numeric token '-1_0'"),
+    (lambda ls: _replace(ls, 4, '0 1 \uff13.0 -1.0'), 4, "non-numeric token '\uff13.0'"),
+    (lambda ls: _replace(ls, 21, '5_00.0'), 21, "non-numeric token '5_00.0'"),
+    (lambda ls: _replace(ls, 1, '2 2 0_4'), 1, 'bad header'),
     (lambda ls: _replace(ls, 21, '-500.0'), 21, 'camera 1 has non-positive focal length'),
     (lambda ls: _replace(ls, 25, 'inf'), 25, 'non-finite parameter'),
     (lambda ls: _replace(ls, 19, '-1e300'), 19,

@@ -132,7 +132,12 @@ def test_unregistered_cameras_are_left_out_and_written_back(
      'outside 0..0'),
     ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n3 0 0 1 1\n',
      'point 0: view list'),
-    ('# Bundle file v0.3\n1 x\n', 'non-numeric'),
+    ('# Bundle file v0.3\n1 x\n', r"bad\.out:2: non-numeric token 'x'"),
+    # Numbers only Python's float() reads: '1_0' was read as 10.
+    ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1_0\n1 2 3\n1 0 0 1 1\n',
+     r"bad\.out:4: non-numeric token '1_0'"),
+    ('1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n1 0 0 \u0661 1\n',
+     r"bad\.out:5: non-numeric token '\u0661'"),
     # Damaged counts: a MemoryError (224 GiB asked for) and ValueErrors before.
     ('# Bundle file v0.3\n1 10000000000\n' + '1 0 0 ' * 5 + '\n',
      'truncated file: 10000000000 points need'),

@@ -137,6 +137,12 @@ def test_unsupported_camera_models_are_named(tmp_path: Path, line: str, match: s
     ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 2 nan\n', 'not an integer in image points'),
     ('points3D.txt', '1 0 0 1 1 1 1 0 1 99999999999999999999\n', 'not an integer in point'),
     ('points3D.txt', '1 0 0 1 300 1 1 0\n', 'colour 300 1 1 is not in 0..255'),
+    # Numbers only Python's float() / int() read ('1_0', other scripts' digits) were read.
+    ('points3D.txt', '1 0 0 1_0 1 1 1 0\n', r":1: non-numeric value in point: '1_0'"),
+    ('cameras.txt', '1 PINHOLE 640 4_80 500 500 320 240\n',
+     r":1: not an integer in camera id / size: '4_80'"),
+    ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 \uff12 -1\n',
+     r":2: non-numeric value in image points: '\uff12'"),
 ])
 def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, content: str,
                                                  match: str) -> None:
