@@ -24,7 +24,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / 'pmba_ros'
 
 #: Rank of each top-level part of the package: a module may import ranks <= its own.
 RANKS = {
-    'errors': 0, '_typing': 0, '_json': 0, '_heap': 0, '_threads': 0, '_process': 0, '': 0,
+    'errors': 0, '_typing': 0, '_json': 0, '_numbers': 0, '_heap': 0, '_threads': 0,
+    '_process': 0, '': 0,
     'core': 1,
     'init': 2, 'eval': 2,
     'backend': 3,

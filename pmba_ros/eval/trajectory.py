@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import NoReturn, TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import is_number, python_only
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError
@@ -189,6 +190,8 @@ def _parse_matrix(path: str | os.PathLike[str], text: str, *, delimiter: str | N
                f'separated by {sep}, got {counts[k]}')
         raise FormatError(msg)
     flat = [tok for row in rows for tok in row[:n_cols]]
+    if python_only(''.join(flat)):
+        _raise_bad_value(path, lines, rows, n_cols, what)
     try:
         mat = np.array(flat, dtype=np.float64).reshape(len(rows), n_cols)
     except ValueError:
@@ -203,11 +206,7 @@ def _raise_bad_value(path: str | os.PathLike[str], lines: list[tuple[int, str]],
     """Find the first value that is not a finite number and raise a FormatError naming it."""
     for (lineno, _), row in zip(lines, rows, strict=True):
         for col, tok in enumerate(row[:n_cols], start=1):
-            try:
-                value = float(tok)
-            except ValueError:
-                value = None
-            if value is None or not np.isfinite(value):
+            if not (is_number(tok) and np.isfinite(float(tok))):
                 msg = f'{path}:{lineno}: {what} column {col} is not a finite number: {tok!r}'
                 raise FormatError(msg)
     msg = f'{path}: {what} values are not finite numbers'  # pragma: no cover

@@ -41,13 +41,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import python_only
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.text import (
+    check_bounded,
     check_numeric,
     check_pixels,
+    float_values,
     integer_indices,
     MAX_COORDINATE,
     MAX_FOCAL,
@@ -55,6 +58,7 @@ from pmba_ros.io.text import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from os import PathLike
 
     from pmba_ros._typing import FloatArray
@@ -187,7 +191,7 @@ def _parse_header(path: Path, line: str, line_no: int) -> tuple[int, int, int]:
     """Parse ``n_cams n_points n_obs``."""
     tokens = line.split()
     try:
-        counts = [int(t) for t in tokens]
+        counts = [] if python_only(line) else [int(t) for t in tokens]
     except ValueError:
         counts = []
     if len(tokens) != 3 or len(counts) != 3 or min(counts) < 0 or counts[0] == 0:
@@ -221,13 +225,7 @@ def _parse_observations(path: Path, lines: list[str], line_no: list[int]) -> Flo
 def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params: int,
                       last_line: int) -> FloatArray:
     """Parse the camera and point values that follow the observations (exactly n_params)."""
-    tokens = ' '.join(lines).split()
-    try:
-        values = np.array(tokens, dtype=float)
-    except ValueError:
-        for s, n in zip(lines, line_no, strict=True):
-            check_numeric(path, s.split(), n)
-        raise  # pragma: no cover
+    values = float_values(path, lines, line_no)
     if values.size < n_params:
         msg = (f'{path}:{last_line}: truncated file: expected {n_params} camera and point '
                f'values after the observations, found {values.size}')
@@ -242,7 +240,7 @@ def _parse_parameters(path: Path, lines: list[str], line_no: list[int], n_params
 
 def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: list[str],
                       line_no: list[int]) -> None:
-    """Refuse non-finite values, and cameras with absurd focal length, rotation or translation.
+    """Refuse non-finite values, and absurd cameras (focal length, distortion, pose) and points.
 
     The translation's norm is the camera centre's distance from the origin; beyond
     :data:`~pmba_ros.io.text.MAX_COORDINATE` the residuals of an XYZ or IDP solve stay finite
@@ -253,7 +251,17 @@ def _check_parameters(path: Path, params: FloatArray, cams: FloatArray, lines: l
     """
     f = cams[:, 6]
     far = np.any(np.abs(cams[:, 0:6]) > MAX_COORDINATE, axis=1)
+
+    def where(first: int, size: int, what: str) -> Callable[[int, int], str]:
+        return lambda k, j: (f'{path}:{_value_lines(lines, line_no)[first + size * k + j]}: '
+                             f'{what} {k}')
+
     if np.all(np.isfinite(params)) and np.all((f > 0) & (f <= MAX_FOCAL)) and not far.any():
+        # Distortion and points overflowed as a focal length does, or the XYZ solve of a
+        # point of 1e300 reported a converged answer with the point where it was.
+        check_bounded(cams[:, 7:9], MAX_FOCAL, 'distortion coefficient', where(7, 9, 'camera'))
+        check_bounded(params[cams.size:].reshape(-1, 3), MAX_COORDINATE, 'coordinate',
+                      where(cams.size, 3, 'point'))
         return
     param_lines = _value_lines(lines, line_no)
     bad = np.flatnonzero(~np.isfinite(params))

@@ -46,9 +46,18 @@ from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
-from pmba_ros.io.text import MAX_PIXEL, utf8_text
+from pmba_ros.io.text import (
+    check_bounded,
+    float_values,
+    MAX_COORDINATE,
+    MAX_FOCAL,
+    MAX_PIXEL,
+    utf8_text,
+    value_line,
+)
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from os import PathLike
 
     from pmba_ros._typing import BoolArray, FloatArray, IntArray
@@ -94,16 +103,14 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     path = Path(path)
     text = utf8_text(path)
     first, _, rest = text.partition('\n')
+    first_line = 2
     if not first.lstrip().startswith('#'):
-        rest = text
+        rest, first_line = text, 1
     elif 'v0.3' not in first:
         msg = f'{path}:1: unsupported header {first.strip()!r}, expected {_HEADER!r}'
         raise FormatError(msg)
-    try:
-        values = np.array(rest.split(), dtype=float)
-    except ValueError as err:
-        msg = f'{path}: non-numeric value ({err})'
-        raise FormatError(msg) from err
+    lines = rest.splitlines()
+    values = float_values(path, lines, range(first_line, first_line + len(lines)))
     if values.size < 2 or not np.all(_whole(values[:2])):
         msg = f'{path}: expected "num_cameras num_points" after the header'
         raise FormatError(msg)
@@ -125,11 +132,13 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     xyz = np.empty((n_points, 3))
     rgb = np.empty((n_points, 3))   # as read: made integers once checked
     counts = np.empty(n_points, dtype=np.int64)
+    starts = np.empty(n_points, dtype=np.int64)
     views = []
     for j in range(n_points):
         if values.size < pos + 7:
             msg = f'{path}: truncated file in point {j} of {n_points}'
             raise FormatError(msg)
+        starts[j] = pos
         xyz[j] = values[pos:pos + 3]
         rgb[j] = values[pos + 3:pos + 6]
         count = values[pos + 6]
@@ -149,6 +158,8 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     if values.size != pos:
         msg = f'{path}: {values.size - pos} unexpected values after the last point'
         raise FormatError(msg)
+    _check_magnitudes(path, lambda index: value_line(rest, index, first_line), cameras, xyz,
+                      starts)
     v = np.concatenate(views) if views else np.zeros((0, 4))
     # Checked before the cast: casting a NaN or huge index warned (numpy) before the error.
     if not np.all((v[:, 0] >= 0) & (v[:, 0] < n_cams) & _whole(v[:, 0])):
@@ -160,6 +171,33 @@ def read_bundler(path: str | PathLike[str]) -> BundlerModel:
     _check_views(path, v, offsets)
     return BundlerModel(cameras, xyz, rgb.astype(np.int64), offsets, cam,
                         v[:, 1].astype(np.int64), v[:, 2:4].copy())
+
+
+def _check_magnitudes(path: Path, line: Callable[[int], int], cameras: FloatArray,
+                      xyz: FloatArray, starts: IntArray) -> None:
+    """Refuse absurd focal lengths, distortion, translations and points, naming their line.
+
+    Bounded as BAL's are (:data:`~pmba_ros.io.text.MAX_FOCAL`,
+    :data:`~pmba_ros.io.text.MAX_COORDINATE`): beyond them the solve stopped at non-finite
+    residuals of a camera index, or the XYZ solve reported a converged answer.
+
+    Args:
+        path: The file (for the message).
+        line: The line of a value, by its index among the file's values.
+        cameras: The cameras (C, 15), values 2 + 15 i on.
+        xyz: The points (N, 3).
+        starts: Index of each point's first value (N,).
+    """
+    def camera(i: int, j: int, first: int) -> str:
+        return f'{path}:{line(2 + 15 * i + first + j)}: camera {i}'
+
+    check_bounded(cameras[:, 0], MAX_FOCAL, 'focal length', lambda i, j: camera(i, j, 0))
+    check_bounded(cameras[:, 1:3], MAX_FOCAL, 'distortion coefficient',
+                  lambda i, j: camera(i, j, 1))
+    check_bounded(cameras[:, 12:15], MAX_COORDINATE, 'translation coordinate',
+                  lambda i, j: camera(i, j, 12))
+    check_bounded(xyz, MAX_COORDINATE, 'coordinate',
+                  lambda k, j: f'{path}:{line(int(starts[k]) + j)}: point {k}')
 
 
 _MAX_KEY = 2 ** 31

@@ -61,11 +61,16 @@ from pmba_ros.io.colmap_files import (
     NAME_ERRORS,
     numbers,
 )
-from pmba_ros.io.colmap_poses import check_poses, poses_from_colmap, poses_to_colmap
-from pmba_ros.io.text import MAX_PIXEL
+from pmba_ros.io.colmap_poses import (
+    check_poses,
+    check_translation,
+    poses_from_colmap,
+    poses_to_colmap,
+)
+from pmba_ros.io.text import check_bounded, MAX_COORDINATE, MAX_FOCAL, MAX_PIXEL
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Callable, Mapping
     from os import PathLike
 
     from pmba_ros._typing import FloatArray, IntArray
@@ -201,6 +206,16 @@ def _check_size(where: str, width: int, height: int) -> None:
         raise FormatError(msg)
 
 
+def _check_parameters(where: str, camera: ColmapCamera) -> None:
+    """Refuse a camera parameter beyond :data:`~pmba_ros.io.text.MAX_FOCAL`, as BAL's focal length.
+
+    Beyond it the squared pixels overflow: the solve stopped at non-finite residuals of a
+    camera index, without the file's camera or line.
+    """
+    check_bounded(camera.params[None], MAX_FOCAL, f'{camera.model} parameter',
+                  lambda _k, _j: where)
+
+
 def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
     cams: dict[int, ColmapCamera] = {}
     for n, t in data_lines(path):
@@ -211,6 +226,7 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
         check_new_id(f'{path}:{n}', 'camera', int(head[0]), cams)
         cams[int(head[0])] = _camera(path, str(n), t[1], int(head[1]), int(head[2]),
                                      numbers(path, n, t[4:], 'camera parameters'))
+        _check_parameters(f'{path}:{n}: camera {int(head[0])}', cams[int(head[0])])
     return cams
 
 
@@ -239,6 +255,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
             raise FormatError(msg)
         xys = numbers(path, n2, pts[0::3] + pts[1::3], 'image points').reshape(2, -1).T
         check_new_id(f'{path}:{n}', 'image', int(ids[0]), images)
+        check_translation(f'{path}:{n}: image {int(ids[0])}', v[4:])
         images[int(ids[0])] = ColmapImage(v[:4], v[4:], int(ids[1]), ' '.join(head[9:]), xys,
                                           integers(path, n2, pts[2::3], 'image points'))
     return images
@@ -246,7 +263,7 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
 
 def _read_points_txt(path: Path, images: Mapping[int, ColmapImage],
                      ) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray, list[IntArray]]:
-    ids, xyz, rgb, err, tracks = [], [], [], [], []
+    ids, xyz, rgb, err, tracks, lines = [], [], [], [], [], []
     seen: dict[int, None] = {}
     for n, t in data_lines(path):
         if len(t) < 8 or (len(t) - 8) % 2:
@@ -267,7 +284,10 @@ def _read_points_txt(path: Path, images: Mapping[int, ColmapImage],
         rgb.append(whole[1:4])
         err.append(v[3])
         tracks.append(track)
-    return (np.array(ids, dtype=np.int64), np.array(xyz, dtype=float).reshape(-1, 3),
+        lines.append(n)
+    xyz_array = np.array(xyz, dtype=float).reshape(-1, 3)
+    _check_points(xyz_array, lambda k: f'{path}:{lines[k]}: 3-D point {ids[k]}')
+    return (np.array(ids, dtype=np.int64), xyz_array,
             np.array(rgb, dtype=np.uint8).reshape(-1, 3), np.array(err, dtype=float), tracks)
 
 
@@ -285,6 +305,7 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
         _check_size(f'{path}: camera {cid}', int(w), int(h))
         cams[int(cid)] = ColmapCamera(name, int(w), int(h),
                                       r.array('<f8', n))
+        _check_parameters(f'{path}: camera {cid}', cams[int(cid)])
     return cams
 
 
@@ -301,6 +322,7 @@ def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
         rec = r.array('<f8,<f8,<i8', int(n_pts))
         xys = np.stack([rec['f0'], rec['f1']], axis=1)
         check_new_id(str(path), 'image', int(iid), images)
+        check_translation(f'{path}: image {iid}', pose[4:])
         images[int(iid)] = ColmapImage(pose[:4], pose[4:], int(cid),
                                        name, xys, rec['f2'].astype(np.int64))
     return images
@@ -328,7 +350,17 @@ def _read_points_bin(path: Path, images: Mapping[int, ColmapImage],
         repeated = int(ids[np.setdiff1d(np.arange(n), first).min()])
         msg = f'{path}: 3-D point id {repeated} appears twice'
         raise FormatError(msg)
+    _check_points(xyz, lambda k: f'{path}: 3-D point {ids[k]}')
     return ids, xyz, rgb, err, tracks
+
+
+def _check_points(xyz: FloatArray, where: Callable[[int], str]) -> None:
+    """Refuse a 3-D point coordinate beyond :data:`~pmba_ros.io.text.MAX_COORDINATE`.
+
+    ``where(k)`` names the file, line and id of point k. The XYZ solve of a point at 1e300
+    reported a converged answer with the point where it was.
+    """
+    check_bounded(xyz, MAX_COORDINATE, 'coordinate', lambda k, _j: where(k))
 
 
 def _check_track(where: str, point_id: int, track: IntArray,

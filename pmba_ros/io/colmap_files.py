@@ -23,6 +23,7 @@ import struct
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import python_only
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:
@@ -53,7 +54,7 @@ def data_lines(path: Path) -> list[tuple[int, list[str]]]:
 def numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
     """Return tokens as floats; FormatError naming the file, line ``n`` and ``what``."""
     try:
-        return np.array(tokens, dtype=float)
+        return np.array(_c_numbers(tokens), dtype=float)
     except ValueError as err:
         msg = f'{path}:{n}: non-numeric value in {what}: {err}'
         raise FormatError(msg) from err
@@ -62,10 +63,22 @@ def numbers(path: Path, n: int, tokens: list[str], what: str) -> FloatArray:
 def integers(path: Path, n: int, tokens: list[str], what: str) -> IntArray:
     """Return tokens as int64; FormatError naming the file, line ``n`` and ``what``."""
     try:
-        return np.array(tokens, dtype=np.int64)
+        return np.array(_c_numbers(tokens), dtype=np.int64)
     except (ValueError, OverflowError) as err:
         msg = f'{path}:{n}: not an integer in {what}: {err}'
         raise FormatError(msg) from err
+
+
+def _c_numbers(tokens: list[str]) -> list[str]:
+    """Return ``tokens``, or raise ValueError naming the first number only Python reads.
+
+    numpy converts strings with Python's float() and int(), which read '1_000' and the
+    digits of other scripts; COLMAP does not (:mod:`pmba_ros._numbers`).
+    """
+    if python_only(''.join(tokens)):
+        bad = next(t for t in tokens if python_only(t))
+        raise ValueError(repr(bad))
+    return tokens
 
 
 def check_new_id(where: str, what: str, new_id: int, known: Mapping[int, object]) -> None:

@@ -19,13 +19,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from pmba_ros.errors import FormatError
+from pmba_ros.io.text import check_bounded, MAX_COORDINATE
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from pmba_ros._typing import FloatArray
 
-__all__ = ['R_to_quat', 'check_poses', 'poses_from_colmap', 'poses_to_colmap', 'quat_to_R']
+__all__ = ['R_to_quat', 'check_poses', 'check_translation', 'poses_from_colmap',
+           'poses_to_colmap', 'quat_to_R']
 
 
 def check_poses(q: FloatArray, t: FloatArray, names: Sequence[str]) -> None:
@@ -45,6 +47,16 @@ def check_poses(q: FloatArray, t: FloatArray, names: Sequence[str]) -> None:
                f'translation {" ".join(f"{v:g}" for v in t[k])}) is not a rotation and a '
                'translation')
         raise FormatError(msg)
+
+
+def check_translation(where: str, tvec: FloatArray) -> None:
+    """Refuse a translation coordinate beyond :data:`~pmba_ros.io.text.MAX_COORDINATE`.
+
+    ``where`` names the file, line and record. The translation's norm is the camera centre's
+    distance from the origin (or the offset of a rig's camera): beyond it the solve stopped at
+    non-finite residuals, and the XYZ solve reported a converged answer.
+    """
+    check_bounded(tvec[None], MAX_COORDINATE, 'translation coordinate', lambda _k, _j: where)
 
 
 def quat_to_R(q: FloatArray) -> FloatArray:

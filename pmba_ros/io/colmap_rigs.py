@@ -35,6 +35,7 @@ from typing import BinaryIO, TYPE_CHECKING
 import numpy as np
 from pmba_ros.errors import FormatError
 from pmba_ros.io.colmap_files import BinaryReader, check_new_id, data_lines, integers, numbers
+from pmba_ros.io.colmap_poses import check_translation
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -218,6 +219,11 @@ def _sensor_type(path: Path, where: str, token: str) -> int:
     return _SENSOR_NUMBERS[token]
 
 
+def _sensor(rig_id: int, sensor_type: int, sensor_id: int) -> str:
+    """Name a rig's sensor in a message, e.g. 'rig 1 camera 2'."""
+    return f'rig {rig_id} {SENSOR_TYPES.get(sensor_type, str(sensor_type)).lower()} {sensor_id}'
+
+
 def _read_rigs_txt(path: Path) -> dict[int, ColmapRig]:
     rigs: dict[int, ColmapRig] = {}
     for n, t in data_lines(path):
@@ -249,6 +255,10 @@ def _read_rigs_txt(path: Path) -> dict[int, ColmapRig]:
         if k != len(t):
             msg = f'{path}:{n}: {len(t) - k} values after the {count} sensors'
             raise FormatError(msg)
+        for sensor in sensors:
+            if sensor.pose is not None:
+                where = _sensor(int(head[0]), sensor.sensor_type, sensor.sensor_id)
+                check_translation(f'{path}:{n}: {where}', sensor.pose[4:])
         check_new_id(f'{path}:{n}', 'rig', int(head[0]), rigs)
         rigs[int(head[0])] = ColmapRig(ref_type, ref_id, tuple(sensors))
     return rigs
@@ -263,6 +273,7 @@ def _read_frames_txt(path: Path) -> dict[int, ColmapFrame]:
             raise FormatError(msg)
         v = numbers(path, n, t[2:9], 'frame pose')
         head = integers(path, n, t[:2] + t[9:10], 'frame id / rig id / number of data ids')
+        check_translation(f'{path}:{n}: frame {int(head[0])}', v[4:])
         count = int(head[2])
         rest = t[10:]
         if len(rest) != 3 * count:
@@ -290,6 +301,8 @@ def _read_rigs_bin(path: Path) -> dict[int, ColmapRig]:
         for _ in range(max(n_sensors - 1, 0)):
             stype, sid, has_pose = r.take('iIB')
             pose = r.array('<f8', 7) if has_pose else None
+            if pose is not None:
+                check_translation(f'{path}: {_sensor(rid, stype, sid)}', pose[4:])
             sensors.append(ColmapSensor(int(stype), int(sid), pose))
         check_new_id(str(path), 'rig', int(rid), rigs)
         rigs[int(rid)] = ColmapRig(ref_type, int(ref_id), tuple(sensors))
@@ -304,6 +317,7 @@ def _read_frames_bin(path: Path) -> dict[int, ColmapFrame]:
     for _ in range(count):
         fid, rid = r.take('II')
         pose = r.array('<f8', 7)
+        check_translation(f'{path}: frame {fid}', pose[4:])
         (n_data,) = r.take('I')
         rec = r.array('<i4,<u4,<u8', int(n_data))
         ids = np.column_stack([rec['f0'], rec['f1'], rec['f2']]).astype(np.int64)

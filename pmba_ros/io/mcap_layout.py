@@ -20,25 +20,29 @@ be opened: MemoryError", naming no record. :func:`mcap_damage` walks the records
 reads when it opens a file (the header, and the summary, or the data section of a file
 without one) and the chunks the summary's chunk indexes point at, reading nine bytes per
 record, and names the first whose length runs past the end of the file, or whose chunk index
-claims more uncompressed bytes than any compression expands its chunk to. Everything else
-(a record cut short, an unknown opcode, a bad CRC) is left to rosbags, which names it
-itself; the file is then salvaged as any other that cannot be opened
-(:mod:`pmba_ros.io.salvage`).
+claims more uncompressed bytes than any compression expands its chunk to; then the chunks
+whose records carry a CRC, the first whose records do not match it (rosbags stopped reading
+there, "Chunk checksum mismatch.", naming no chunk). Everything else (a record cut short, an
+unknown opcode, a chunk that does not decompress) is left to rosbags, which names it itself;
+the file is then salvaged as any other that cannot be opened (:mod:`pmba_ros.io.salvage`),
+which steps over a chunk whose CRC fails.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 import mmap
 from pathlib import Path
 import struct
+from typing import Any
+import zlib
 
 from pmba_ros.errors import BagError, FormatError
 
 __all__ = ['check_mcap_lengths', 'mcap_damage']
 
 _MAGIC = b'\x89MCAP0\r\n'
-_HEADER, _FOOTER, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x08, 0x0E
+_HEADER, _FOOTER, _CHUNK, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x06, 0x08, 0x0E
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
 
@@ -103,10 +107,13 @@ def mcap_damage(path: Path) -> str | None:
         data_start = len(_MAGIC) + 9 + header_length
         (summary_start,) = struct.unpack_from('<Q', data, footer + 9)
         if not summary_start:   # rosbags scans the data section
-            return _walk(data, data_start, footer, summary=False)
-        if not data_start <= summary_start <= footer:
+            damage, data_end = _walk(data, data_start, footer, summary=False), footer
+        elif not data_start <= summary_start <= footer:
             return None   # rosbags: "Invalid MCAP summary offset"
-        return _walk(data, summary_start, footer, summary=True)
+        else:
+            damage = _walk(data, summary_start, footer, summary=True)
+            data_end = summary_start
+        return damage or _failed_crc(data, data_start, data_end)
 
 
 def _overrun(data: mmap.mmap, pos: int) -> str | None:
@@ -178,3 +185,60 @@ def _expansion(what: str, compressed_size: int, uncompressed_size: int) -> str |
     return (f'{what} is damaged: its {uncompressed_size} uncompressed bytes are more than '
             f'{MAX_EXPANSION} times its {compressed_size} compressed bytes, more than any '
             'compression expands to')
+
+
+def _failed_crc(data: mmap.mmap, pos: int, end: int) -> str | None:
+    """Return the damage of the first chunk from ``pos`` to ``end`` whose records fail their CRC.
+
+    A chunk without a CRC (0: not computed), or that does not decompress, is left to rosbags;
+    so is a record length past ``end``. Decompressing every chunk once more costs little
+    beside reading its messages, and only chunks with a CRC are.
+    """
+    while pos + 9 <= end:
+        (length,) = struct.unpack_from('<Q', data, pos + 1)
+        if length > end - pos - 9:
+            return None
+        if data[pos] == _CHUNK and length >= 40:
+            body = pos + 9
+            start, stop, size, crc, name_size = struct.unpack_from('<QQQII', data, body)
+            at = body + 32 + name_size
+            records = struct.unpack_from('<Q', data, at)[0] if at + 8 <= body + length else -1
+            decompress = _DECOMPRESS.get(bytes(data[body + 32:at]))
+            if crc and decompress is not None and 0 <= records <= body + length - at - 8:
+                raw = _decompressed(decompress, data[at + 8:at + 8 + records], size)
+                if raw is not None and zlib.crc32(raw) != crc:
+                    return (f'the MCAP chunk at byte {pos} (log times {start} to {stop} ns) is '
+                            f'damaged: its records do not match their CRC (0x{crc:08x}, '
+                            f'computed 0x{zlib.crc32(raw):08x})')
+        pos += 9 + length
+    return None
+
+
+def _zstd() -> Any:
+    """Return the zstd module rosbags decompresses MCAP chunks with."""
+    try:
+        from compression import zstd  # type: ignore[import-not-found, unused-ignore]
+    except ImportError:   # Python < 3.14
+        from backports import zstd  # type: ignore[import-not-found, no-redef, unused-ignore]
+    return zstd
+
+
+def _lz4(data: bytes) -> bytes:
+    from lz4.frame import decompress
+    out: bytes = decompress(data)
+    return out
+
+
+_DECOMPRESS: dict[bytes, Callable[[bytes], bytes]] = {
+    b'': bytes, b'zstd': lambda data: bytes(_zstd().decompress(data)), b'lz4': _lz4}
+"""A chunk's decompression by its compression's name: the three MCAP has, as rosbags reads them."""
+
+
+def _decompressed(decompress: Callable[[bytes], bytes], data: bytes, size: int) -> bytes | None:
+    """Return a chunk's records decompressed, or None where that fails (rosbags then says so)."""
+    try:
+        raw = decompress(data)
+    except (ValueError, RuntimeError, MemoryError, OverflowError, EOFError,
+            _zstd().ZstdError):
+        return None
+    return raw if len(raw) == size else None

@@ -47,6 +47,7 @@ from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.text import (
     check_numeric,
     check_pixels,
+    float_values,
     integer_indices,
     MAX_COORDINATE,
     nonblank_lines,
@@ -319,9 +320,7 @@ def _read_table(path: Path, n_cols: tuple[int, ...],
 def _read_k(path: Path) -> FloatArray:
     """Read a 3x3 calibration matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
     lines, numbers = nonblank_lines(path)
-    for s, n in zip(lines, numbers, strict=True):
-        check_numeric(path, s.split(), n)
-    values = np.array(' '.join(lines).split(), dtype=float)
+    values = float_values(path, lines, numbers)
     if values.size != 9:
         bad_rows = [n for s, n in zip(lines, numbers, strict=True) if len(s.split()) != 3]
         where = bad_rows[0] if bad_rows else (numbers[-1] if numbers else 1)
@@ -347,12 +346,7 @@ def _read_features(path: Path, n_cams: int) -> tuple[IntArray, IntArray, FloatAr
         msg = f'{path}: empty feature file'
         raise FormatError(msg)
     counts = np.array([len(s.split()) for s in lines], dtype=np.int64)
-    try:
-        values = np.array(' '.join(lines).split(), dtype=float)
-    except ValueError:
-        for s, n in zip(lines, numbers, strict=True):
-            check_numeric(path, s.split(), n)
-        raise  # pragma: no cover
+    values = float_values(path, lines, numbers)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     n_obs = values[starts]
     bad = ~np.isfinite(n_obs) | (n_obs != np.round(n_obs)) | (n_obs < 0) | (

@@ -19,10 +19,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros._numbers import is_number, python_only
 from pmba_ros.errors import FormatError
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from pmba_ros._typing import FloatArray, IntArray
 
@@ -82,14 +83,53 @@ squared residuals of a whole problem stay finite."""
 
 
 MAX_COORDINATE = 1e150
-"""Largest world coordinate magnitude accepted for a camera centre: squared distances between
-centres (a triangulation's spread of its cameras) stay finite up to it."""
+"""Largest world coordinate magnitude accepted for a camera centre (or a translation, whose
+norm is the centre's) or a point: squared distances between centres (a triangulation's spread
+of its cameras) stay finite up to it."""
 
 
 MAX_FOCAL = MAX_COORDINATE
 """Largest focal length accepted, px: up to it a problem's squared pixel residuals stay
 finite. Smaller ones that no lens has (focal lengths not in pixels) are solved, with a
 warning naming them (:mod:`pmba_ros.cli.solve`)."""
+
+
+def check_bounded(values: FloatArray, bound: float, what: str,
+                  where: Callable[[int, int], str]) -> None:
+    """Refuse the first finite value of ``values`` whose magnitude is beyond ``bound``.
+
+    Non-finite values are left to the checks that name them as such.
+
+    Args:
+        values: One row per record (camera, image, point), shape (K, d) or (K,).
+        bound: E.g. :data:`MAX_COORDINATE` or :data:`MAX_FOCAL`.
+        what: What the values are, e.g. 'translation coordinate'.
+        where: The file, line and record of row k, column j, e.g. ``f.txt:12: image 3``
+            (called only for the message).
+
+    Raises:
+        FormatError: ``{where} has {what} {value} beyond {bound}``.
+    """
+    v = np.asarray(values, dtype=float)
+    v = v[:, None] if v.ndim == 1 else v
+    big = np.abs(np.where(np.isfinite(v), v, 0.0)) > bound
+    if np.any(big):
+        k, j = (int(i) for i in np.argwhere(big)[0])
+        msg = f'{where(k, j)} has {what} {v[k, j]:g} beyond {bound:g}'
+        raise FormatError(msg)
+
+
+def value_line(text: str, index: int, first_line: int = 1) -> int:
+    """Return the line of the ``index``-th whitespace-separated value of ``text``.
+
+    For the messages of readers that take a file's values as one stream (line breaks free),
+    counting lines only when one is needed.
+    """
+    for n, line in enumerate(text.splitlines(), start=first_line):
+        index -= len(line.split())
+        if index < 0:
+            return n
+    return first_line + len(text.splitlines())
 
 
 def check_pixels(path: Path, pixels: FloatArray, line_numbers: Sequence[int]) -> None:
@@ -132,10 +172,30 @@ def detect_problem_format(path: Path) -> str:
 
 
 def check_numeric(path: Path, tokens: list[str], line_no: int) -> None:
-    """Raise FormatError naming the first token that is not a number."""
+    """Raise FormatError naming the first token that is not a number.
+
+    Numbers only Python reads ('1_000', :mod:`pmba_ros._numbers`) are not numbers here.
+    """
     for tok in tokens:
-        try:
-            float(tok)
-        except ValueError:
+        if not is_number(tok):
             msg = f'{path}:{line_no}: non-numeric token {tok!r}'
-            raise FormatError(msg) from None
+            raise FormatError(msg)
+
+
+def float_values(path: Path, lines: Sequence[str], line_no: Sequence[int]) -> FloatArray:
+    """Return the whitespace-separated numbers of ``lines`` as one array.
+
+    Raises:
+        FormatError: Naming the file, line and first token that is not a number.
+    """
+    text = ' '.join(lines)
+    try:
+        if not python_only(text):
+            return np.array(text.split(), dtype=float)
+    except ValueError:
+        pass
+    for s, n in zip(lines, line_no, strict=True):
+        check_numeric(path, s.split(), n)
+    # Numbers that only Python reads are named above: what is left is separated by other
+    # whitespace (a no-break space), as str.split() takes it.
+    return np.array(text.split(), dtype=float)

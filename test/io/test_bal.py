@@ -202,6 +202,12 @@ def _replace(lines: list[str], line_no: int, text: str | None) -> list[str]:
     (lambda ls: _replace(ls, 5, '1 -1 2.0 0.5'), 5, 'point index -1'),
     (lambda ls: _replace(ls, 3, '1 0 nan 2.5'), 3, 'non-finite pixel'),
     (lambda ls: _replace(ls, 12, 'oops'), 12, "non-numeric token 'oops'"),
+    # Numbers only Python's float() reads ('1_000', other scripts' digits): an observation
+    # line was refused without its line, a parameter or a header count read.
+    (lambda ls: _replace(ls, 3, '1 0 -1_0 2.5'), 3, "non-numeric token '-1_0'"),
+    (lambda ls: _replace(ls, 4, '0 1 \uff13.0 -1.0'), 4, "non-numeric token '\uff13.0'"),
+    (lambda ls: _replace(ls, 21, '5_00.0'), 21, "non-numeric token '5_00.0'"),
+    (lambda ls: _replace(ls, 1, '2 2 0_4'), 1, 'bad header'),
     (lambda ls: _replace(ls, 21, '-500.0'), 21, 'camera 1 has non-positive focal length'),
     (lambda ls: _replace(ls, 25, 'inf'), 25, 'non-finite parameter'),
     (lambda ls: _replace(ls, 19, '-1e300'), 19,
@@ -209,6 +215,9 @@ def _replace(lines: list[str], line_no: int, text: str | None) -> list[str]:
     (lambda ls: _replace(ls, 16, '1e200'), 16,
      r'camera 1 has rotation vector coordinate 1e\+200 beyond 1e\+150'),
     (lambda ls: _replace(ls, 21, '1e200'), 21, r'camera 1 has focal length 1e\+200 beyond'),
+    (lambda ls: _replace(ls, 22, '1e300'), 22,
+     r'camera 1 has distortion coefficient 1e\+300 beyond 1e\+150'),
+    (lambda ls: _replace(ls, 25, '-1e300'), 25, r'point 0 has coordinate -1e\+300 beyond 1e\+150'),
     (lambda ls: ls[:-1], 28, 'truncated file: expected 24 camera and point values'),
     (lambda ls: [*ls, '7.0', '8.0'], 30, 'unexpected extra values'),
     (lambda ls: ls[:3], 3, 'truncated file: header announces 4 observation lines'),

@@ -132,7 +132,12 @@ def test_unregistered_cameras_are_left_out_and_written_back(
      'outside 0..0'),
     ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n3 0 0 1 1\n',
      'point 0: view list'),
-    ('# Bundle file v0.3\n1 x\n', 'non-numeric'),
+    ('# Bundle file v0.3\n1 x\n', r"bad\.out:2: non-numeric token 'x'"),
+    # Numbers only Python's float() reads: '1_0' was read as 10.
+    ('# Bundle file v0.3\n1 1\n' + '1 0 0 ' * 5 + '\n0 0 1_0\n1 2 3\n1 0 0 1 1\n',
+     r"bad\.out:4: non-numeric token '1_0'"),
+    ('1 1\n' + '1 0 0 ' * 5 + '\n0 0 1\n1 2 3\n1 0 0 \u0661 1\n',
+     r"bad\.out:5: non-numeric token '\u0661'"),
     # Damaged counts: a MemoryError (224 GiB asked for) and ValueErrors before.
     ('# Bundle file v0.3\n1 10000000000\n' + '1 0 0 ' * 5 + '\n',
      'truncated file: 10000000000 points need'),
@@ -189,6 +194,47 @@ def test_absurd_colours_keys_and_pixels_are_refused(tmp_path: Path, point: str,
         with pytest.raises(FormatError, match=match) as info:
             bundler.read_bundler(path)
     assert 'bad.out' in str(info.value)
+
+
+_LINES = ['# Bundle file v0.3', '1 1', '500 0 0', '1 0 0', '0 1 0', '0 0 1', '0 0 0', '0 0 -5',
+          '10 20 30', '1 0 7 1 1']
+"""One camera (lines 3-7: f k1 k2, R, t) and one point (lines 8-10)."""
+
+
+@pytest.mark.parametrize(('line', 'text', 'match'), [
+    (3, '1e200 0 0', r'bad\.out:3: camera 0 has focal length 1e\+200 beyond 1e\+150'),
+    (3, '500 0 -1e300', r'bad\.out:3: camera 0 has distortion coefficient -1e\+300 beyond'),
+    (7, '0 -1e300 0', r'bad\.out:7: camera 0 has translation coordinate -1e\+300 beyond 1e\+150'),
+    (8, '0 0 1e300', r'bad\.out:8: point 0 has coordinate 1e\+300 beyond 1e\+150'),
+    (1, '', r'bad\.out:7: point 0 has coordinate 1e\+300 beyond'),   # no header line
+])
+def test_absurd_cameras_and_points_are_refused_naming_the_line(tmp_path: Path, line: int,
+                                                               text: str, match: str) -> None:
+    """A focal length, distortion, translation or point coordinate beyond 1e150: a FormatError.
+
+    As BAL's are refused (io.text.MAX_FOCAL, MAX_COORDINATE): they stopped the solve with
+    non-finite residuals of a camera index, and the XYZ solve of a translation or point of
+    1e300 reported a converged answer.
+    """
+    lines = list(_LINES)
+    lines[line - 1] = text
+    if not text:   # the header removed: the point's coordinates one line up
+        lines = lines[1:]
+        lines[6] = '0 0 1e300'
+    path = tmp_path / 'bad.out'
+    path.write_text('\n'.join(lines) + '\n')
+    with pytest.raises(FormatError, match=match):
+        bundler.read_bundler(path)
+
+
+def test_cameras_and_points_at_the_bounds_are_read(tmp_path: Path) -> None:
+    """Magnitudes of 1e150 are read (refused only beyond, as BAL's)."""
+    lines = list(_LINES)
+    lines[2], lines[6], lines[7] = '1e150 0 1e150', '0 -1e150 0', '0 0 1e150'
+    path = tmp_path / 'ok.out'
+    path.write_text('\n'.join(lines) + '\n')
+    model = bundler.read_bundler(path)
+    assert model.cameras[0, 0] == 1e150 and model.xyz[0, 2] == 1e150
 
 
 def test_whole_colours_keys_and_pixels_at_the_bounds_are_read(tmp_path: Path) -> None:

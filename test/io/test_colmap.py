@@ -137,6 +137,12 @@ def test_unsupported_camera_models_are_named(tmp_path: Path, line: str, match: s
     ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 2 nan\n', 'not an integer in image points'),
     ('points3D.txt', '1 0 0 1 1 1 1 0 1 99999999999999999999\n', 'not an integer in point'),
     ('points3D.txt', '1 0 0 1 300 1 1 0\n', 'colour 300 1 1 is not in 0..255'),
+    # Numbers only Python's float() / int() read ('1_0', other scripts' digits) were read.
+    ('points3D.txt', '1 0 0 1_0 1 1 1 0\n', r":1: non-numeric value in point: '1_0'"),
+    ('cameras.txt', '1 PINHOLE 640 4_80 500 500 320 240\n',
+     r":1: not an integer in camera id / size: '4_80'"),
+    ('images.txt', '1 1 0 0 0 0 0 0 1 a.png\n1 \uff12 -1\n',
+     r":2: non-numeric value in image points: '\uff12'"),
 ])
 def test_malformed_text_files_name_file_and_line(tmp_path: Path, name: str, content: str,
                                                  match: str) -> None:
@@ -333,6 +339,62 @@ def test_absurd_cameras_and_pixels_are_refused(tmp_path: Path, camera: str, poin
     (tmp_path / 'points3D.txt').write_text('5 0 0 10 255 0 0 0.5 1 0 2 0\n')
     with pytest.raises(FormatError, match=match):
         colmap.to_problem(colmap.read_colmap(tmp_path))
+
+
+@pytest.mark.parametrize(('name', 'content', 'match'), [
+    ('cameras.txt', '1 PINHOLE 640 480 1e200 500 320 240\n',
+     r'cameras\.txt:1: camera 1 has PINHOLE parameter 1e\+200 beyond 1e\+150'),
+    ('cameras.txt', '1 RADIAL 640 480 500 320 240 -1e300 0\n',
+     r'cameras\.txt:1: camera 1 has RADIAL parameter -1e\+300 beyond 1e\+150'),
+    ('images.txt', '# an image\n1 1 0 0 0 0 1e300 0 1 a.png\n10 20 5\n',
+     r'images\.txt:2: image 1 has translation coordinate 1e\+300 beyond 1e\+150'),
+    ('points3D.txt', '5 0 -1e300 10 255 0 0 0.5 1 0\n',
+     r'points3D\.txt:1: 3-D point 5 has coordinate -1e\+300 beyond 1e\+150'),
+])
+def test_absurd_parameters_translations_and_points_are_refused(tmp_path: Path, name: str,
+                                                               content: str, match: str) -> None:
+    """A camera parameter, translation or 3-D point coordinate beyond 1e150 names file and line.
+
+    As BAL's are refused (io.text.MAX_FOCAL, MAX_COORDINATE): a focal length of 1e200 or a
+    translation of 1e300 stopped the solve with non-finite residuals of a camera index, and
+    the XYZ solve of such a translation or point reported a converged answer.
+    """
+    _refused(tmp_path, '1 1 0 0 0 0 0 0 1 a.png\n10 20 5\n', name, content, match)
+
+
+@pytest.mark.parametrize('kind', ['cameras', 'images', 'points3D'])
+def test_absurd_parameters_translations_and_points_in_binary_files_are_refused(
+        tmp_path: Path, scene_problem: BAProblem, kind: str) -> None:
+    """The same in a binary model (the camera, image or 3-D point id named with the file)."""
+    model = colmap.from_problem(scene_problem)
+    if kind == 'cameras':
+        params = model.cameras[2].params.copy()
+        params[1] = 1e200
+        model.cameras[2] = dataclasses.replace(model.cameras[2], params=params)
+    elif kind == 'images':
+        tvec = model.images[3].tvec.copy()
+        tvec[2] = -1e300
+        model.images[3] = dataclasses.replace(model.images[3], tvec=tvec)
+    else:
+        xyz = model.xyz.copy()
+        xyz[4, 1] = 1e160
+        model = dataclasses.replace(model, xyz=xyz)
+    colmap.write_colmap(tmp_path, model, binary=True)
+    pid = int(model.point_ids[4])
+    match = {'cameras': r'cameras\.bin: camera 2 has PINHOLE parameter 1e\+200 beyond 1e\+150',
+             'images': r'images\.bin: image 3 has translation coordinate -1e\+300 beyond',
+             'points3D': rf'points3D\.bin: 3-D point {pid} has coordinate 1e\+160 beyond'}[kind]
+    with pytest.raises(FormatError, match=match):
+        colmap.read_colmap(tmp_path)
+
+
+def test_parameters_translations_and_points_at_the_bounds_are_read(tmp_path: Path) -> None:
+    """Values of magnitude 1e150 are read (refused only beyond, as BAL's)."""
+    (tmp_path / 'cameras.txt').write_text('1 PINHOLE 640 480 1e150 500 320 240\n')
+    (tmp_path / 'images.txt').write_text('1 1 0 0 0 -1e150 0 0 1 a.png\n10 20 5\n')
+    (tmp_path / 'points3D.txt').write_text('5 0 1e150 10 255 0 0 0.5 1 0\n')
+    model = colmap.read_colmap(tmp_path)
+    assert model.cameras[1].params[0] == 1e150 and model.xyz[0, 1] == 1e150
 
 
 def test_point_id_beyond_int64_is_read_not_a_crash(tmp_path: Path,

@@ -134,6 +134,36 @@ def test_damaged_binary_frames_are_refused_naming_the_file(tmp_path: Path) -> No
         colmap_rigs.read_rigs(tmp_path, images)
 
 
+@pytest.mark.parametrize('name', ['rigs', 'frames'])
+@pytest.mark.parametrize('binary', [False, True], ids=['text', 'binary'])
+def test_absurd_rig_and_frame_translations_are_refused(tmp_path: Path, name: str,
+                                                       binary: bool) -> None:
+    """A rig camera's offset or a frame's translation beyond 1e150 names file and line."""
+    synthesize(tmp_path, binary)
+    images = colmap.read_colmap(tmp_path).images
+    rigs = colmap_rigs.read_rigs(tmp_path, images)
+    assert rigs is not None
+    rig = rigs.rigs[1]
+    assert rig.sensors[0].pose is not None
+    if name == 'rigs':
+        pose = rig.sensors[0].pose.copy()
+        pose[5] = -1e300
+        sensor = dataclasses.replace(rig.sensors[0], pose=pose)
+        rigs = dataclasses.replace(rigs, rigs={**rigs.rigs, 1: dataclasses.replace(
+            rig, sensors=(sensor, *rig.sensors[1:]))})
+        what = f'rig 1 camera {sensor.sensor_id} has translation coordinate -1e\\+300 beyond'
+    else:
+        tvec = rigs.frames[1].tvec.copy()
+        tvec[0] = -1e300
+        rigs = dataclasses.replace(rigs, frames={
+            **rigs.frames, 1: dataclasses.replace(rigs.frames[1], tvec=tvec)})
+        what = 'frame 1 has translation coordinate -1e\\+300 beyond 1e\\+150'
+    colmap_rigs.write_rigs(tmp_path, rigs, binary=binary)
+    where = f'{name}\\.bin' if binary else f'{name}\\.txt:\\d+'
+    with pytest.raises(FormatError, match=f'{where}: {what}'):
+        colmap_rigs.read_rigs(tmp_path, images)
+
+
 def test_an_image_in_two_frames_is_refused(tmp_path: Path) -> None:
     """Each image belongs to one frame."""
     synthesize(tmp_path, binary=True)

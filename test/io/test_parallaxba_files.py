@@ -227,6 +227,10 @@ def test_missing_or_ambiguous_files_raise(tmp_path: Path) -> None:
     ('Feature4.txt', 4, '2 0 1.0 nan 1 1.0 2.0', 'non-finite pixel'),
     ('Cam4.txt', 2, '0.1 0.2 0.3 1.0 2.0', 'row has 5 values, expected 6 or 8'),
     ('Cam4.txt', 3, '0.1 0.2 0.3 1.0 2.0 abc', "non-numeric token 'abc'"),
+    # Numbers only Python's float() reads: read, or 'rows have 6 values, expected 6 or 8'.
+    ('Cam4.txt', 3, '0.1 0.2 0.3 1.0 2.0 3_0', "non-numeric token '3_0'"),
+    ('Feature4.txt', 2, '2 0 1.0 2.0 1 1_0 2.0', "non-numeric token '1_0'"),
+    ('cal4.txt', 2, '0 7_90 240', "non-numeric token '7_90'"),
     ('Cam4.txt', 4, '0.1 0.2 0.3 1.0 2.0 inf', 'non-finite value'),
     # Its squares overflowed in the triangulation: a LinAlgError traceback before.
     ('Cam4.txt', 2, '0.1 0.2 0.3 1e300 2.0 3.0', 'camera centre coordinate 1e\\+300 beyond'),

@@ -171,13 +171,22 @@ def test_damaged_summary_length_names_the_record_and_is_salvaged(tmp_path: Path)
     bad.write_bytes(bytes(data))
     named = (rf'the MCAP record at byte {schema} \(opcode 0x03\) is damaged: its length '
              rf'1099511627776 runs \d+ bytes past the end of the file \({len(data)} bytes\)')
+    xs, damage = _named_and_salvaged(bad, named,
+                                     f'the MCAP record at byte {schema} (opcode 0x03) is damaged')
+    assert xs == list(range(200)) and len(damage) == 1
+
+
+def _named_and_salvaged(bad: Path, named: str, start: str) -> tuple[list[float], tuple[str, ...]]:
+    """Check the damage of ``bad`` is named (regex ``named``), then return what open_bags reads.
+
+    Reading without open_bags stays strict; open_bags salvages the file and says why, in words
+    starting with ``start``. Returns the messages' x and the damage lines.
+    """
     with pytest.raises(BagError, match=r'bad\.mcap: cannot open bag .*' + named):
-        list(iter_messages([bad]))   # reading without open_bags stays strict
+        list(iter_messages([bad]))
     with open_bags([bad]) as opened:
-        assert _xs(opened) == list(range(200))
-        assert len(opened.damage) == 1
-        assert opened.damage[0].startswith(f'{bad}: cannot be opened (the MCAP record at byte '
-                                           f'{schema} (opcode 0x03) is damaged')
+        assert opened.damage[0].startswith(f'{bad}: cannot be opened ({start}')
+        return _xs(opened), opened.damage
 
 
 def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
@@ -197,6 +206,28 @@ def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
         xs = _xs(opened)
         assert 'skipped (damaged)' in opened.damage[0]
     assert xs == sorted(xs) and xs[-1] == 199 and 180 < len(xs) < 200
+
+
+def test_chunk_failing_its_crc_is_named_and_skipped(tmp_path: Path) -> None:
+    """A bit flipped in a chunk's records (its CRC computed): the chunk named, the others read.
+
+    rosbags stopped reading at it ("bag is corrupt or truncated: Chunk checksum mismatch.",
+    no chunk or byte named); now the file is salvaged as one with a corrupt chunk is: that
+    chunk's messages are lost, and said so.
+    """
+    bad = tmp_path / 'bad.mcap'
+    write_chunked(bad, 200, compressed=False)
+    data = bytearray(bad.read_bytes())
+    chunk = [pos for pos, op in _records(data, 8) if op == 0x06][10]
+    assert struct.unpack_from('<I', data, chunk + 9 + 24)[0] != 0   # the CRC is computed
+    length = struct.unpack_from('<Q', data, chunk + 1)[0]
+    data[chunk + 9 + length - 30] ^= 0x10   # in the chunk's last message
+    bad.write_bytes(bytes(data))
+    named = (rf'the MCAP chunk at byte {chunk} \(log times \d+ to \d+ ns\) is damaged: its '
+             r'records do not match their CRC')
+    xs, damage = _named_and_salvaged(bad, named, f'the MCAP chunk at byte {chunk} ')
+    assert 'skipped (damaged)' in damage[0]
+    assert xs == sorted(xs) and xs[-1] == 199 and 190 < len(xs) < 200
 
 
 def _chunk_index_sizes(data: bytearray, pos: int) -> int:
