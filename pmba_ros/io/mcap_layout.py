@@ -39,12 +39,15 @@ import zlib
 
 from pmba_ros.errors import BagError, FormatError
 
-__all__ = ['check_mcap_lengths', 'mcap_damage']
+__all__ = ['CHUNK_HEAD', 'check_mcap_lengths', 'chunk_body_length', 'mcap_damage']
 
 _MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x06, 0x08, 0x0E
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
+
+CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8
+"""A chunk record's least body: start and end time, sizes, CRC, compression, records length."""
 
 MAX_EXPANSION = 32768
 """Most uncompressed bytes per compressed byte of a chunk, by any compression MCAP uses.
@@ -114,6 +117,23 @@ def mcap_damage(path: Path) -> str | None:
             damage = _walk(data, summary_start, footer, summary=True)
             data_end = summary_start
         return damage or _failed_crc(data, data_start, data_end)
+
+
+def chunk_body_length(data: mmap.mmap, pos: int) -> int | None:
+    """Return the body length of the chunk record at ``pos`` by its own head, or None.
+
+    The head's compression name and records length give it whatever the record's length
+    field says: the field damaged, the chunk still reads. None if the head runs past the end
+    of ``data``.
+    """
+    body = pos + 9
+    if body + CHUNK_HEAD > len(data):
+        return None
+    (name_size,) = struct.unpack_from('<I', data, body + 28)
+    if body + CHUNK_HEAD + name_size > len(data):
+        return None
+    (records,) = struct.unpack_from('<Q', data, body + 32 + name_size)
+    return CHUNK_HEAD + name_size + records
 
 
 def _overrun(data: mmap.mmap, pos: int) -> str | None:
