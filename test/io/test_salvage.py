@@ -100,8 +100,9 @@ def test_record_length_past_any_file_is_damage_read_up_to(tmp_path: Path) -> Non
     assert xs == sorted(xs) and xs[:50] == list(range(50)) and 150 < len(xs) < 200
     lost = len(set(range(int(xs[-1]) + 1)) - set(xs))
     assert 0 < lost < 10
-    # Named from the chunk's own offset (before: from its end, where reading failed).
-    assert f'bytes {pos}-' in damage and 'skipped (damaged)' in damage
+    # Named from the chunk's own offset (before: from its end, where reading failed), with
+    # the messages its message indexes count (before: not counted).
+    assert f'bytes {pos}-' in damage and f'skipped (damaged) with their {lost} messages' in damage
 
 
 def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:
@@ -112,6 +113,7 @@ def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:
     with open_bags([bad]) as opened:
         xs = _xs(opened)
         assert 'bytes 0-' in opened.damage[0]   # the magic's own offset, not after it
+        assert '200 messages read of the 200 its summary counts (0 lost)' in opened.damage[0]
     assert xs == list(range(200))
 
 
@@ -271,8 +273,12 @@ def test_chunk_failing_its_crc_is_named_and_skipped(tmp_path: Path, which: int) 
              r'records do not match their CRC')
     xs, damage = _named_and_salvaged(bad, named, f'the MCAP chunk at byte {chunk} ')
     assert xs == sorted(xs) and (xs[-1] == 199) == (which != -1) and 190 < len(xs) < 200
-    # The chunk's own bytes (before: the bytes after the chunk).
-    assert f'bytes {chunk}-' in damage[0] and 'skipped (damaged)' in damage[0]
+    # The chunk's own bytes (before: the bytes after the chunk), and the messages lost as the
+    # summary and the message indexes count them (before: not counted).
+    lost = 200 - len(xs)
+    assert (f'{len(xs)} messages read of the 200 its summary counts ({lost} lost), '
+            f'bytes {chunk}-') in damage[0]
+    assert f'skipped (damaged) with their {lost} messages' in damage[0]
     assert damage[0].endswith('reading stopped at the end of the file')
 
 

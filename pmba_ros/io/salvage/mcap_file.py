@@ -38,6 +38,7 @@ from typing import Any
 
 from pmba_ros.io.mcap_layout import chunk_body_length, CHUNK_HEAD
 from pmba_ros.io.salvage.common import Salvaged
+from pmba_ros.io.salvage.mcap_counts import stretch_messages, summary_messages
 
 __all__ = ['salvage_mcap']
 
@@ -286,19 +287,34 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     if not messages:
         dest.unlink(missing_ok=True)
         return None
-    return Salvaged(dest, messages, _damage(walk, messages, reason))
+    return Salvaged(dest, messages, _damage(path, walk, messages, reason))
 
 
-def _damage(walk: _Walk, messages: int, reason: str) -> str:
-    """Return what was wrong with the file, what was repaired and what reading it lost."""
+def _damage(path: Path, walk: _Walk, messages: int, reason: str) -> str:
+    """Return what was wrong with ``path``, what was repaired and what reading it lost.
+
+    The messages lost are counted where the file still counts them
+    (:mod:`.mcap_counts`): in all by its summary, in a skipped stretch by its message
+    indexes.
+    """
+    with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        total = summary_messages(data)
+        held = [stretch_messages(data, a, b) for a, b in walk.skipped]
+    read = f'{messages} messages read'
+    if total is not None:
+        read += f' of the {total} its summary counts ({max(total - messages, 0)} lost)'
     repaired = ''.join(f', the chunk at byte {at} read by the length its head gives ({body} '
                        f'bytes: its record length {stored} is damaged)'
                        for at, stored, body in walk.repaired[:3])
     if len(walk.repaired) > 3:
         repaired += f' and {len(walk.repaired) - 3} more chunks so'
-    skipped = ''.join(f', bytes {a}-{b} skipped (damaged)' for a, b in walk.skipped[:3])
+    skipped = ''.join(f', bytes {a}-{b} skipped (damaged)'
+                      + ('' if n is None else f' with their {n} messages' if n else
+                         ' holding no message')
+                      for (a, b), n in zip(walk.skipped[:3], held, strict=False))
     if len(walk.skipped) > 3:
         skipped += f' and {len(walk.skipped) - 3} more damaged stretches'
+        if None not in held[3:]:
+            skipped += f' with {sum(n for n in held[3:] if n is not None)} messages'
     lost = '' if walk.stopped == _Walk.stopped else ', the rest of the file is lost'
-    return (f'{reason}; {messages} messages read{repaired}{skipped}; reading stopped '
-            f'{walk.stopped}{lost}')
+    return f'{reason}; {read}{repaired}{skipped}; reading stopped {walk.stopped}{lost}'
