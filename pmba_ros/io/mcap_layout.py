@@ -39,11 +39,12 @@ import zlib
 
 from pmba_ros.errors import BagError, FormatError
 
-__all__ = ['CHUNK_HEAD', 'check_mcap_lengths', 'chunk_body_length', 'mcap_damage']
+__all__ = ['CHUNK_HEAD', 'FOOTER_SIZE', 'MAGIC', 'check_mcap_lengths', 'chunk_body_length',
+           'mcap_damage']
 
-_MAGIC = b'\x89MCAP0\r\n'
+MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x06, 0x08, 0x0E
-_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
+FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
 
 CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8
@@ -96,18 +97,18 @@ def mcap_damage(path: Path) -> str | None:
         OSError: If the file cannot be read.
     """
     size = path.stat().st_size
-    if size < len(_MAGIC) + 9 + _FOOTER_SIZE:
+    if size < len(MAGIC) + 9 + FOOTER_SIZE:
         return None
     with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-        footer = size - _FOOTER_SIZE
-        if data[:8] != _MAGIC or data[-8:] != _MAGIC or data[footer] != _FOOTER:
+        footer = size - FOOTER_SIZE
+        if data[:8] != MAGIC or data[-8:] != MAGIC or data[footer] != _FOOTER:
             return None
-        if data[len(_MAGIC)] != _HEADER:
+        if data[len(MAGIC)] != _HEADER:
             return None   # rosbags: "Unexpected record"
-        if (damage := _overrun(data, len(_MAGIC))) is not None:
+        if (damage := _overrun(data, len(MAGIC))) is not None:
             return damage
-        (header_length,) = struct.unpack_from('<Q', data, len(_MAGIC) + 1)
-        data_start = len(_MAGIC) + 9 + header_length
+        (header_length,) = struct.unpack_from('<Q', data, len(MAGIC) + 1)
+        data_start = len(MAGIC) + 9 + header_length
         (summary_start,) = struct.unpack_from('<Q', data, footer + 9)
         if not summary_start:   # rosbags scans the data section
             damage, data_end = _walk(data, data_start, footer, summary=False), footer

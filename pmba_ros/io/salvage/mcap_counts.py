@@ -26,17 +26,13 @@ from __future__ import annotations
 import mmap
 import struct
 
-from pmba_ros.io.mcap_layout import chunk_body_length
+from pmba_ros.io.mcap_layout import chunk_body_length, FOOTER_SIZE, MAGIC
 
 __all__ = ['stretch_messages', 'summary_messages']
 
-_MAGIC = b'\x89MCAP0\r\n'
 _FOOTER, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _STATISTICS = 0x02, 0x05, 0x06, 0x07, 0x0B
 _OPCODES = range(0x01, 0x10)
 """The opcodes the MCAP specification defines; a damaged stretch holding another is not counted."""
-
-_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
-"""Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
 
 _INDEX_ENTRY = 8 + 8
 """A message index entry: the message's log time and its offset in the chunk."""
@@ -106,11 +102,11 @@ def summary_messages(data: mmap.mmap) -> int | None:
 
     Only from a summary whose records follow each other from its start to the footer.
     """
-    footer = len(data) - _FOOTER_SIZE
-    if footer < len(_MAGIC) or data[-len(_MAGIC):] != _MAGIC or data[footer] != _FOOTER:
+    footer = len(data) - FOOTER_SIZE
+    if footer < len(MAGIC) or data[-len(MAGIC):] != MAGIC or data[footer] != _FOOTER:
         return None
     (pos,) = struct.unpack_from('<Q', data, footer + 9)
-    if pos < len(_MAGIC):   # 0: no summary
+    if pos < len(MAGIC):   # 0: no summary
         return None
     count = None
     while pos < footer:

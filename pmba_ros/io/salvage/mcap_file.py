@@ -36,13 +36,12 @@ from pathlib import Path
 import struct
 from typing import Any
 
-from pmba_ros.io.mcap_layout import chunk_body_length, CHUNK_HEAD
+from pmba_ros.io.mcap_layout import chunk_body_length, CHUNK_HEAD, MAGIC
 from pmba_ros.io.salvage.common import Salvaged
 from pmba_ros.io.salvage.mcap_counts import stretch_messages, summary_messages
 
 __all__ = ['salvage_mcap']
 
-_MAGIC = b'\x89MCAP0\r\n'
 _FOOTER, _CHUNK = 0x02, 0x06
 _OPCODES = range(0x01, 0x10)
 """The opcodes the MCAP specification defines (0x00 is none: zeroed bytes)."""
@@ -93,9 +92,9 @@ def _records(path: Path, walk: _Walk) -> Iterator[Any]:
         walk.stopped = 'at once: the file is empty'
         return
     with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-        pos: int | None = len(_MAGIC)
-        if data[:len(_MAGIC)] != _MAGIC:
-            walk.skip(0, len(_MAGIC))
+        pos: int | None = len(MAGIC)
+        if data[:len(MAGIC)] != MAGIC:
+            walk.skip(0, len(MAGIC))
         while pos is not None and pos < len(data):
             records, pos = _read(data, pos, walk, errors)
             yield from records
