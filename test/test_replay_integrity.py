@@ -350,6 +350,28 @@ def test_truncated_recording_keeps_the_keyframes_before_the_cut(bag: Path,
     assert len(read_tum(out / 'keyframes_frontend.tum')) == report.keyframes_out
 
 
+def test_killed_recording_whose_chunk_length_is_damaged_replays_whole(bag: Path,
+                                                                      tmp_path: Path) -> None:
+    """A recorder killed after its one chunk, whose length field reads 2**63: every keyframe.
+
+    The chunk holds the schemas and channels: before, the file was refused whole (exit 1,
+    "cannot open bag (...): File end magic is invalid."). Now it is read by the length its
+    head gives, and the report says so (exit 3, as for any damaged recording).
+    """
+    data = bytearray(bag.read_bytes())
+    chunk = 8 + 9 + struct.unpack_from('<Q', data, 8 + 1)[0]   # past the magic and header
+    assert data[chunk] == 0x06
+    struct.pack_into('<Q', data, chunk + 1, 2**63)
+    killed = tmp_path / 'killed.mcap'
+    killed.write_bytes(data[:struct.unpack_from('<Q', data, len(data) - 37 + 9)[0]])
+    out = tmp_path / 'o'
+    assert main(['replay', str(killed), '--out', str(out), '--quiet']) == 3
+    report = json.loads((out / 'report.json').read_text())
+    assert report['damaged_parts'] == 1 and report['read_error'].startswith(str(killed))
+    assert f'the chunk at byte {chunk} read by the length its head gives' in report['read_error']
+    assert len(read_tum(out / 'keyframes_frontend.tum')) == N_KF
+
+
 def _damaged(bag: Path, folder: Path, kind: str) -> Path:
     """Return the street recorded as ``kind`` and damaged as a killed recorder leaves it."""
     from rosbags.convert.converter import convert

@@ -39,12 +39,16 @@ import zlib
 
 from pmba_ros.errors import BagError, FormatError
 
-__all__ = ['check_mcap_lengths', 'mcap_damage']
+__all__ = ['CHUNK_HEAD', 'FOOTER_SIZE', 'MAGIC', 'check_mcap_lengths', 'chunk_body_length',
+           'mcap_damage']
 
-_MAGIC = b'\x89MCAP0\r\n'
+MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x06, 0x08, 0x0E
-_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
+FOOTER_SIZE = 1 + 8 + 8 + 8 + 4 + 8
 """Footer record (opcode, length, summary start, summary offset start, CRC) and end magic."""
+
+CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8
+"""A chunk record's least body: start and end time, sizes, CRC, compression, records length."""
 
 MAX_EXPANSION = 32768
 """Most uncompressed bytes per compressed byte of a chunk, by any compression MCAP uses.
@@ -93,18 +97,18 @@ def mcap_damage(path: Path) -> str | None:
         OSError: If the file cannot be read.
     """
     size = path.stat().st_size
-    if size < len(_MAGIC) + 9 + _FOOTER_SIZE:
+    if size < len(MAGIC) + 9 + FOOTER_SIZE:
         return None
     with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-        footer = size - _FOOTER_SIZE
-        if data[:8] != _MAGIC or data[-8:] != _MAGIC or data[footer] != _FOOTER:
+        footer = size - FOOTER_SIZE
+        if data[:8] != MAGIC or data[-8:] != MAGIC or data[footer] != _FOOTER:
             return None
-        if data[len(_MAGIC)] != _HEADER:
+        if data[len(MAGIC)] != _HEADER:
             return None   # rosbags: "Unexpected record"
-        if (damage := _overrun(data, len(_MAGIC))) is not None:
+        if (damage := _overrun(data, len(MAGIC))) is not None:
             return damage
-        (header_length,) = struct.unpack_from('<Q', data, len(_MAGIC) + 1)
-        data_start = len(_MAGIC) + 9 + header_length
+        (header_length,) = struct.unpack_from('<Q', data, len(MAGIC) + 1)
+        data_start = len(MAGIC) + 9 + header_length
         (summary_start,) = struct.unpack_from('<Q', data, footer + 9)
         if not summary_start:   # rosbags scans the data section
             damage, data_end = _walk(data, data_start, footer, summary=False), footer
@@ -114,6 +118,23 @@ def mcap_damage(path: Path) -> str | None:
             damage = _walk(data, summary_start, footer, summary=True)
             data_end = summary_start
         return damage or _failed_crc(data, data_start, data_end)
+
+
+def chunk_body_length(data: mmap.mmap, pos: int) -> int | None:
+    """Return the body length of the chunk record at ``pos`` by its own head, or None.
+
+    The head's compression name and records length give it whatever the record's length
+    field says: the field damaged, the chunk still reads. None if the head runs past the end
+    of ``data``.
+    """
+    body = pos + 9
+    if body + CHUNK_HEAD > len(data):
+        return None
+    (name_size,) = struct.unpack_from('<I', data, body + 28)
+    if body + CHUNK_HEAD + name_size > len(data):
+        return None
+    (records,) = struct.unpack_from('<Q', data, body + 32 + name_size)
+    return CHUNK_HEAD + name_size + records
 
 
 def _overrun(data: mmap.mmap, pos: int) -> str | None:

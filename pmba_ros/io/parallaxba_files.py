@@ -45,11 +45,13 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.text import (
+    check_bounded,
     check_numeric,
     check_pixels,
     float_values,
     integer_indices,
     MAX_COORDINATE,
+    MAX_FOCAL,
     nonblank_lines,
 )
 
@@ -149,6 +151,10 @@ def read_parallaxba(directory_or_cam_file: str | PathLike[str],
         if bad.size:
             msg = f'{cam_path}:{cam_lines[bad[0]]}: focal lengths must be positive'
             raise FormatError(msg)
+        # Beyond it the squared residuals overflow: the solve stopped at non-finite residuals
+        # naming a camera index, not the line.
+        check_bounded(cams[:, 6:8], MAX_FOCAL, 'focal length',
+                      lambda k, _j: f'{cam_path}:{cam_lines[k]}: camera {k}')
         intrinsics = Intrinsics(fx, fy, np.zeros(n_cams), np.zeros(n_cams),
                                 np.zeros(n_cams), np.zeros(n_cams))
         if k_file is not None:
@@ -177,7 +183,10 @@ def read_parallaxba(directory_or_cam_file: str | PathLike[str],
         xyz_path = None
     points_w = None
     if xyz_path is not None:
-        points_w, _ = _read_table(xyz_path, (3,), 'X Y Z')
+        points_w, xyz_lines = _read_table(xyz_path, (3,), 'X Y Z')
+        # The XYZ solve of a point of 1e300 reported a converged answer with it where it was.
+        check_bounded(points_w, MAX_COORDINATE, 'coordinate',
+                      lambda k, _j: f'{xyz_path}:{xyz_lines[k]}: point {k}')
         if points_w.shape[0] != n_feats:
             msg = (f'{xyz_path}: {points_w.shape[0]} points for {n_feats} features in '
                    f'{feat_path}')
@@ -336,6 +345,12 @@ def _read_k(path: Path) -> FloatArray:
     if abs(K[0, 1]) > 1e-9 * K[0, 0]:
         msg = f'{path}: skew K[0,1] = {K[0, 1]:g} is not supported'
         raise FormatError(msg)
+    # Bounded as the Cam file's focal lengths are; the values may share or split lines.
+    value_lines = np.repeat(numbers, [len(s.split()) for s in lines])
+    check_bounded(np.diag(K)[:2], MAX_FOCAL, 'focal length',
+                  lambda k, _j: f'{path}:{value_lines[4 * k]}: K')
+    check_bounded(K[:2, 2], MAX_FOCAL, 'principal point coordinate',
+                  lambda k, _j: f'{path}:{value_lines[3 * k + 2]}: K')
     return K
 
 

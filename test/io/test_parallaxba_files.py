@@ -242,10 +242,36 @@ def test_malformed_parallaxba_files_raise_with_line(
         tmp_path: Path, file_name: str, line: int, text: str, match: str) -> None:
     """Malformed files raise FormatError naming the file, the line and the problem."""
     _write_dataset(tmp_path, np.random.default_rng(8))
-    path = tmp_path / file_name
+    _refused_with_line(tmp_path, file_name, line, text, match)
+
+
+def _refused_with_line(directory: Path, file_name: str, line: int, text: str,
+                       match: str) -> None:
+    """Replace ``line`` of ``file_name`` by ``text``: the read names the file, line, ``match``."""
+    path = directory / file_name
     lines = path.read_text().splitlines()
     lines[line - 1] = text
     path.write_text('\n'.join(lines) + '\n')
     prefix = re.escape(str(path)) + (f':{line}: ' if 'skew' not in match else ': ')
     with pytest.raises(FormatError, match=f'{prefix}.*{match}'):
-        read_parallaxba(tmp_path)
+        read_parallaxba(directory)
+
+
+@pytest.mark.parametrize(('file_name', 'line', 'text', 'match'), [
+    ('Cam4.txt', 2, '0.1 0.2 0.3 0.5 0.0 0.0 1e200 790',
+     r'camera 1 has focal length 1e\+200 beyond 1e\+150'),
+    ('cal4.txt', 2, '0 1e200 240', r'K has focal length 1e\+200 beyond 1e\+150'),
+    ('cal4.txt', 1, '800 0 -1e200', r'K has principal point coordinate -1e\+200 beyond'),
+    ('XYZ4.txt', 3, '1e300 1 7', r'point 2 has coordinate 1e\+300 beyond 1e\+150'),
+])
+def test_absurd_focal_lengths_and_points_are_refused_with_line(
+        tmp_path: Path, file_name: str, line: int, text: str, match: str) -> None:
+    """Focal lengths and principal points beyond 1e150 and points beyond 1e150 are refused.
+
+    Bounded as the BAL, COLMAP and Bundler readers bound them (io.text.check_bounded). Before,
+    a focal length of 1e200 stopped the solve at non-finite residuals naming a camera index,
+    not the file or line, and the XYZ solve of a point of 1e300 reported a converged answer.
+    """
+    _write_dataset(tmp_path, np.random.default_rng(8), eight_columns=file_name == 'Cam4.txt',
+                   with_xyz=file_name == 'XYZ4.txt')
+    _refused_with_line(tmp_path, file_name, line, text, match)

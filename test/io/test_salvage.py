@@ -95,10 +95,14 @@ def test_record_length_past_any_file_is_damage_read_up_to(tmp_path: Path) -> Non
     bad.write_bytes(bytes(data[:pos + 2000]))   # no summary: a killed recorder
     with open_bags([bad]) as opened:
         xs = _xs(opened)
-        assert 'skipped (damaged)' in opened.damage[0]
+        damage = opened.damage[0]
     # The damaged chunk's messages are lost; those of the chunks before and after are read.
     assert xs == sorted(xs) and xs[:50] == list(range(50)) and 150 < len(xs) < 200
-    assert len(set(range(int(xs[-1]) + 1)) - set(xs)) < 10
+    lost = len(set(range(int(xs[-1]) + 1)) - set(xs))
+    assert 0 < lost < 10
+    # Named from the chunk's own offset (before: from its end, where reading failed), with
+    # the messages its message indexes count (before: not counted).
+    assert f'bytes {pos}-' in damage and f'skipped (damaged) with their {lost} messages' in damage
 
 
 def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:
@@ -108,7 +112,8 @@ def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:
     bad.write_bytes(bytes(20) + bad.read_bytes()[20:])
     with open_bags([bad]) as opened:
         xs = _xs(opened)
-        assert 'bytes 8-' in opened.damage[0]
+        assert 'bytes 0-' in opened.damage[0]   # the magic's own offset, not after it
+        assert '200 messages read of the 200 its summary counts (0 lost)' in opened.damage[0]
     assert xs == list(range(200))
 
 
@@ -189,36 +194,77 @@ def _named_and_salvaged(bad: Path, named: str, start: str) -> tuple[list[float],
         return _xs(opened), opened.damage
 
 
-def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
-    """A killed recorder's chunk of 1 GiB (flipped bits): the chunks after it are read too.
+def _killed_with_chunk_length(bad: Path, which: int, length: int,
+                              records_length: int | None = None) -> int:
+    """Write to ``bad`` a killed recorder's file whose ``which``-th chunk has a damaged length.
 
-    Below the mcap reader's 4 GiB limit, the length asked for a 1 GiB buffer and the file's
-    end was taken to be there: every message after the damaged chunk was lost.
+    200 messages in many chunks, without the summary; the chunk's record length is
+    ``length``, and its head's records length ``records_length`` if given. Returns the
+    chunk's offset.
     """
-    bad = tmp_path / 'bad.mcap'
     write_chunked(bad, 200)
     data = bytearray(bad.read_bytes())
-    chunks = [pos for pos, op in _records(data, 8) if op == 0x06]
-    data[chunks[10] + 1:chunks[10] + 9] = struct.pack('<Q', 2**30)
+    chunk = [pos for pos, op in _records(data, 8) if op == 0x06][which]
+    struct.pack_into('<Q', data, chunk + 1, length)
+    if records_length is not None:   # past the head's times, sizes, CRC and compression
+        name_size = struct.unpack_from('<I', data, chunk + 9 + 28)[0]
+        struct.pack_into('<Q', data, chunk + 9 + 32 + name_size, records_length)
     summary = struct.unpack_from('<Q', data, len(data) - 37 + 9)[0]
-    bad.write_bytes(bytes(data[:summary]))   # no summary: a killed recorder
+    bad.write_bytes(bytes(data[:summary]))
+    return chunk
+
+
+def test_chunk_length_past_the_file_is_stepped_over(tmp_path: Path) -> None:
+    """A killed recorder's chunk of 1 GiB, its head damaged too: the chunks after it are read.
+
+    Below the mcap reader's 4 GiB limit, the length asked for a 1 GiB buffer and the file's
+    end was taken to be there: every message after the damaged chunk was lost. The bytes
+    skipped start at the chunk's own offset (before: after its length field).
+    """
+    bad = tmp_path / 'bad.mcap'
+    chunk = _killed_with_chunk_length(bad, 10, 2**30, records_length=2**40)
     with open_bags([bad]) as opened:
         xs = _xs(opened)
+        assert f'bytes {chunk}-' in opened.damage[0]
         assert 'skipped (damaged)' in opened.damage[0]
     assert xs == sorted(xs) and xs[-1] == 199 and 180 < len(xs) < 200
 
 
-def test_chunk_failing_its_crc_is_named_and_skipped(tmp_path: Path) -> None:
+@pytest.mark.parametrize('length', [2**63, 2**40])
+@pytest.mark.parametrize('which', [0, -1])
+def test_chunk_length_past_the_file_is_read_by_its_head(tmp_path: Path, which: int,
+                                                        length: int) -> None:
+    """A killed recorder's first or last chunk with a length past the file: read, and said so.
+
+    Its head (compression name, records length) gives the length; the chunk is taken as it
+    reads whole there. Before, a damaged first chunk, which holds the schemas and channels,
+    refused the whole file ("cannot open bag (...): File end magic is invalid."), and a
+    damaged last chunk's messages were lost (reading stopped at RecordLengthLimitExceeded).
+    """
+    bad = tmp_path / 'bad.mcap'
+    chunk = _killed_with_chunk_length(bad, which, length)
+    with open_bags([bad]) as opened:
+        assert _xs(opened) == list(range(200))
+        assert (f'the chunk at byte {chunk} read by the length its head gives (' in
+                opened.damage[0])
+        assert f'its record length {length} is damaged' in opened.damage[0]
+        assert 'skipped' not in opened.damage[0]
+
+
+@pytest.mark.parametrize('which', [10, -1])
+def test_chunk_failing_its_crc_is_named_and_skipped(tmp_path: Path, which: int) -> None:
     """A bit flipped in a chunk's records (its CRC computed): the chunk named, the others read.
 
     rosbags stopped reading at it ("bag is corrupt or truncated: Chunk checksum mismatch.",
     no chunk or byte named); now the file is salvaged as one with a corrupt chunk is: that
-    chunk's messages are lost, and said so.
+    chunk's messages are lost, and said so. The last chunk too: no chunk follows, and
+    reading goes on after it by its length (before: it stopped there, "the rest of the file
+    is lost").
     """
     bad = tmp_path / 'bad.mcap'
     write_chunked(bad, 200, compressed=False)
     data = bytearray(bad.read_bytes())
-    chunk = [pos for pos, op in _records(data, 8) if op == 0x06][10]
+    chunk = [pos for pos, op in _records(data, 8) if op == 0x06][which]
     assert struct.unpack_from('<I', data, chunk + 9 + 24)[0] != 0   # the CRC is computed
     length = struct.unpack_from('<Q', data, chunk + 1)[0]
     data[chunk + 9 + length - 30] ^= 0x10   # in the chunk's last message
@@ -226,8 +272,14 @@ def test_chunk_failing_its_crc_is_named_and_skipped(tmp_path: Path) -> None:
     named = (rf'the MCAP chunk at byte {chunk} \(log times \d+ to \d+ ns\) is damaged: its '
              r'records do not match their CRC')
     xs, damage = _named_and_salvaged(bad, named, f'the MCAP chunk at byte {chunk} ')
-    assert 'skipped (damaged)' in damage[0]
-    assert xs == sorted(xs) and xs[-1] == 199 and 190 < len(xs) < 200
+    assert xs == sorted(xs) and (xs[-1] == 199) == (which != -1) and 190 < len(xs) < 200
+    # The chunk's own bytes (before: the bytes after the chunk), and the messages lost as the
+    # summary and the message indexes count them (before: not counted).
+    lost = 200 - len(xs)
+    assert (f'{len(xs)} messages read of the 200 its summary counts ({lost} lost), '
+            f'bytes {chunk}-') in damage[0]
+    assert f'skipped (damaged) with their {lost} messages' in damage[0]
+    assert damage[0].endswith('reading stopped at the end of the file')
 
 
 def _chunk_index_sizes(data: bytearray, pos: int) -> int:

@@ -17,9 +17,13 @@
 recorder that is killed, or a disk that fills up, leaves a file without one, and rosbags
 refuses the whole file ("File end magic is invalid"): every keyframe before the damage was
 lost. :func:`salvage_mcap` copies the complete chunks of such a file into a new, indexed
-file, as ``mcap recover`` does, and says what was lost. A damaged record is stepped over:
-reading starts again at the next chunk whose record parses and whose CRC holds, and the
-schemas and channels are taken from wherever they read (a later chunk, the summary).
+file, as ``mcap recover`` does, and says what was lost. A damaged record is stepped over,
+named by its own offset: reading starts again at the next chunk that reads whole (or, with
+no chunk after it, at the record after it by its length), and the schemas and channels are
+taken from wherever they read (a later chunk, the summary). A chunk whose length field alone
+is damaged (past the end of the file: flipped bits) is read by the length its own head
+gives, where it reads whole there, and said so: the first chunk holds the schemas and
+channels, and its loss had lost every message of the file.
 """
 
 from __future__ import annotations
@@ -32,23 +36,24 @@ from pathlib import Path
 import struct
 from typing import Any
 
+from pmba_ros.io.mcap_layout import chunk_body_length, CHUNK_HEAD, MAGIC
 from pmba_ros.io.salvage.common import Salvaged
+from pmba_ros.io.salvage.mcap_counts import stretch_messages, summary_messages
 
 __all__ = ['salvage_mcap']
 
-_CHUNK = 0x06
-"""The opcode of a chunk record."""
-
-_CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8
-"""A chunk record's least body: start and end time, sizes, CRC, compression, records length."""
+_FOOTER, _CHUNK = 0x02, 0x06
+_OPCODES = range(0x01, 0x10)
+"""The opcodes the MCAP specification defines (0x00 is none: zeroed bytes)."""
 
 
 def _stream_errors() -> tuple[type[BaseException], ...]:
-    """Return what the mcap stream reader raises on a truncated or corrupt file."""
+    """Return what the mcap readers raise on a truncated or corrupt record."""
     from mcap.exceptions import McapError
     # A damaged length asks a buffer for more than it can hold: OverflowError, MemoryError.
     errors: list[type[BaseException]] = [McapError, EOFError, ValueError, KeyError,
-                                         struct.error, OSError, ArithmeticError, MemoryError]
+                                         StopIteration, struct.error, OSError,
+                                         ArithmeticError, MemoryError]
     try:
         import zstandard
         errors.append(zstandard.ZstdError)
@@ -59,69 +64,173 @@ def _stream_errors() -> tuple[type[BaseException], ...]:
 
 @dataclass
 class _Walk:
-    """What reading a damaged file met: the stretches skipped and where it stopped."""
+    """What reading a damaged file met: the stretches skipped, chunks repaired, where it stopped.
+
+    ``repaired`` holds (offset, stored length, length read by) of each chunk record whose
+    length field was damaged.
+    """
 
     skipped: list[tuple[int, int]] = field(default_factory=list)
+    repaired: list[tuple[int, int, int]] = field(default_factory=list)
     stopped: str = 'at the end of the file'
+
+    def skip(self, start: int, end: int) -> None:
+        """Note the bytes from ``start`` to ``end`` as skipped: one stretch with one before."""
+        if self.skipped and self.skipped[-1][1] == start:
+            start = self.skipped.pop()[0]
+        self.skipped.append((start, end))
 
 
 def _records(path: Path, walk: _Walk) -> Iterator[Any]:
-    """Yield the records of an MCAP file, stepping over damaged ones to the next chunk."""
-    from mcap.exceptions import EndOfFile
-    from mcap.stream_reader import StreamReader
+    """Yield the records of an MCAP file, stepping over damaged ones to the next chunk.
 
+    Record by record, each by its own length: a damaged record is named by its own offset,
+    and a chunk whose length field alone is damaged is read by the length its head gives.
+    """
     errors = _stream_errors()
     if path.stat().st_size == 0:   # nothing to map
         walk.stopped = 'at once: the file is empty'
         return
     with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-        pos, size = 0, len(data)
-        while pos < size:
-            fh.seek(pos)
-            # No record is longer than the rest of the file: a damaged length beyond it is
-            # refused before the reader asks for a buffer of it (up to its 4 GiB limit), and
-            # stepped over as other damage is.
-            reader = StreamReader(fh, skip_magic=pos > 0, validate_crcs=True,
-                                  record_size_limit=size - pos)
-            try:
-                yield from reader.records
-                return
-            except EndOfFile:
-                walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'
-                return
-            except errors as err:
-                bad = fh.tell()
-                nxt = _next_chunk(data, bad, errors)
-                if nxt is None:
-                    walk.stopped = f'at byte {bad} of {size} ({type(err).__name__}: {err})'
-                    return
-                walk.skipped.append((bad, nxt))
-                pos = nxt
+        pos: int | None = len(MAGIC)
+        if data[:len(MAGIC)] != MAGIC:
+            walk.skip(0, len(MAGIC))
+        while pos is not None and pos < len(data):
+            records, pos = _read(data, pos, walk, errors)
+            yield from records
+
+
+def _read(data: mmap.mmap, pos: int, walk: _Walk,
+          errors: tuple[type[BaseException], ...]) -> tuple[list[Any], int | None]:
+    """Return the records of the record at ``pos`` and where reading goes on (None: stop)."""
+    size = len(data)
+    if pos + 9 > size:
+        walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'
+        return [], None
+    opcode = data[pos]
+    (length,) = struct.unpack_from('<Q', data, pos + 1)
+    if opcode == _FOOTER:   # the end magic follows
+        return [], None
+    fits = length <= size - pos - 9
+    if not opcode:
+        why = 'opcode 0x00 is no MCAP record'
+    elif fits:
+        try:
+            return _parsed(data, pos, length), pos + 9 + length
+        except errors as err:
+            why = f'{type(err).__name__}: {err}'
+    elif opcode == _CHUNK and (repaired := _repaired_chunk(data, pos, errors)) is not None:
+        records, body = repaired
+        walk.repaired.append((pos, length, body))
+        return records, pos + 9 + body
+    else:
+        implied = chunk_body_length(data, pos) if opcode == _CHUNK else length
+        cut = implied is None or (length <= size and implied > size - pos - 9)
+        # A record no longer than the file may be one a killed recorder was writing.
+        why = '' if cut else (f'record 0x{opcode:02x} of {length} bytes runs past the end '
+                              'of the file')
+    nxt = _next_chunk(data, pos, errors)
+    if nxt is None and opcode and fits:
+        # No chunk follows, but other records may (the chunk's message indexes, the
+        # summary's schemas and channels): reading goes on after this one, by its length.
+        nxt = pos + 9 + length
+    if nxt is not None:
+        walk.skip(pos, nxt)
+    elif why:
+        walk.stopped = f'at byte {pos} of {size} ({why})'
+    else:
+        walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'
+    return [], nxt
+
+
+def _parsed(data: mmap.mmap, pos: int, length: int) -> list[Any]:
+    """Return the records of the record at ``pos`` of ``length`` bytes (a chunk's, broken up).
+
+    Raises:
+        What :func:`_stream_errors` names: the record does not parse, or is a chunk whose
+        records do not fit in it or fail their CRC.
+    """
+    from mcap.stream_reader import breakup_chunk, StreamReader
+
+    if data[pos] == _CHUNK:
+        return breakup_chunk(_chunk(data, pos, length), validate_crc=True)
+    if data[pos] not in _OPCODES:   # reserved for later versions or private: skipped
+        return []
+    reader = StreamReader(io.BytesIO(data[pos:pos + 9 + length]), skip_magic=True)
+    return [next(iter(reader.records))]
+
+
+def _chunk(data: mmap.mmap, pos: int, length: int) -> Any:
+    """Return the chunk record at ``pos`` read as ``length`` bytes long.
+
+    Raises:
+        ValueError: If its records run past ``length`` (the reader reads what is there).
+    """
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    body = chunk_body_length(data, pos)
+    if body is None or body > length:
+        msg = f'the chunk at byte {pos} holds more than its {length} bytes'
+        raise ValueError(msg)
+    return Chunk.read(ReadDataStream(io.BytesIO(data[pos + 9:pos + 9 + body])))
+
+
+def _whole_chunk(data: mmap.mmap, pos: int, length: int,
+                 errors: tuple[type[BaseException], ...]) -> list[Any] | None:
+    """Return the records of the chunk at ``pos`` read as ``length`` bytes, if it reads whole.
+
+    Whole: its records decompress to the size its head gives, match its CRC (when it has
+    one) and parse. Where reading goes on rests on this, so it is stricter than the reading
+    of a chunk met in order.
+    """
+    from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
+
+    try:
+        chunk = _chunk(data, pos, length)
+        if get_chunk_data_stream(chunk, validate_crc=True)[1] != chunk.uncompressed_size:
+            return None
+        records: list[Any] = breakup_chunk(chunk)
+    except errors:
+        return None
+    return records
+
+
+def _repaired_chunk(data: mmap.mmap, pos: int,
+                    errors: tuple[type[BaseException], ...]) -> tuple[list[Any], int] | None:
+    """Return the records and body length of the chunk at ``pos``, read by its head's length.
+
+    For a chunk whose length field runs past the end of the file (flipped bits): the length
+    its head gives is taken if the chunk then reads whole and its end is one: a record
+    starts there, or the file ends, unless its CRC already vouches for its records.
+    """
+    body = chunk_body_length(data, pos)
+    if body is None or body > len(data) - pos - 9:
+        return None
+    end = pos + 9 + body
+    (crc,) = struct.unpack_from('<I', data, pos + 9 + 24)
+    if not crc and end < len(data) and data[end] not in _OPCODES:
+        return None
+    records = _whole_chunk(data, pos, body, errors)
+    return None if records is None else (records, body)
 
 
 def _next_chunk(data: mmap.mmap, start: int,
                 errors: tuple[type[BaseException], ...]) -> int | None:
-    """Return the offset of the first chunk record after ``start`` that reads whole, or None."""
-    from mcap.records import Chunk
-    from mcap.stream_reader import breakup_chunk, StreamReader
+    """Return the offset of the first chunk record after ``start`` that reads whole, or None.
 
-    unreadable: tuple[type[BaseException], ...] = (StopIteration, *errors)
+    By its length, or by its head's where that runs past the end of the file.
+    """
     at = start
     while (at := data.find(bytes([_CHUNK]), at + 1)) >= 0:
-        if at + 9 + _CHUNK_HEAD > len(data):
+        if at + 9 + CHUNK_HEAD > len(data):
             return None
         (length,) = struct.unpack_from('<Q', data, at + 1)
-        if not _CHUNK_HEAD <= length <= len(data) - at - 9:
-            continue
-        try:
-            reader = StreamReader(io.BytesIO(data[at:at + 9 + length]), skip_magic=True,
-                                  emit_chunks=True)
-            record = next(iter(reader.records))
-            if isinstance(record, Chunk):
-                breakup_chunk(record, validate_crc=True)
+        if CHUNK_HEAD <= length <= len(data) - at - 9:
+            if _whole_chunk(data, at, length, errors) is not None:
                 return at
-        except unreadable:
-            continue
+        elif length > len(data) - at - 9 and _repaired_chunk(data, at, errors) is not None:
+            return at
     return None
 
 
@@ -177,9 +286,34 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     if not messages:
         dest.unlink(missing_ok=True)
         return None
-    skipped = ''.join(f', bytes {a}-{b} skipped (damaged)' for a, b in walk.skipped[:3])
+    return Salvaged(dest, messages, _damage(path, walk, messages, reason))
+
+
+def _damage(path: Path, walk: _Walk, messages: int, reason: str) -> str:
+    """Return what was wrong with ``path``, what was repaired and what reading it lost.
+
+    The messages lost are counted where the file still counts them
+    (:mod:`.mcap_counts`): in all by its summary, in a skipped stretch by its message
+    indexes.
+    """
+    with path.open('rb') as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        total = summary_messages(data)
+        held = [stretch_messages(data, a, b) for a, b in walk.skipped]
+    read = f'{messages} messages read'
+    if total is not None:
+        read += f' of the {total} its summary counts ({max(total - messages, 0)} lost)'
+    repaired = ''.join(f', the chunk at byte {at} read by the length its head gives ({body} '
+                       f'bytes: its record length {stored} is damaged)'
+                       for at, stored, body in walk.repaired[:3])
+    if len(walk.repaired) > 3:
+        repaired += f' and {len(walk.repaired) - 3} more chunks so'
+    skipped = ''.join(f', bytes {a}-{b} skipped (damaged)'
+                      + ('' if n is None else f' with their {n} messages' if n else
+                         ' holding no message')
+                      for (a, b), n in zip(walk.skipped[:3], held, strict=False))
     if len(walk.skipped) > 3:
         skipped += f' and {len(walk.skipped) - 3} more damaged stretches'
+        if None not in held[3:]:
+            skipped += f' with {sum(n for n in held[3:] if n is not None)} messages'
     lost = '' if walk.stopped == _Walk.stopped else ', the rest of the file is lost'
-    damage = f'{reason}; {messages} messages read{skipped}; reading stopped {walk.stopped}{lost}'
-    return Salvaged(dest, messages, damage)
+    return f'{reason}; {read}{repaired}{skipped}; reading stopped {walk.stopped}{lost}'
