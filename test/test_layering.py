@@ -50,7 +50,8 @@ CORE_RANKS = {
 #: Third-party modules allowed only in some places (top-level or lazy imports alike).
 RESTRICTED = {
     'rclpy': {'node'},
-    'rosbags': {'io.bags', 'io.bag_writer', 'io.salvage.ros1_file', 'backend.msg_backend'},
+    'rosbags': {'io.bags', 'io.typestores', 'io.bag_writer', 'io.salvage.ros1_file',
+                'backend.msg_backend'},
     'mcap': {'io.bags', 'io.salvage.mcap_file'},
     'mcap_ros2': {'io.bags'},
     'apsw': {'io.bags', 'io.salvage.sqlite_file'},

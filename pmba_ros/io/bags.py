@@ -28,11 +28,9 @@ Every failure is raised as :class:`~pmba_ros.errors.BagError` naming the bag and
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator, Iterator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 from contextlib import closing, contextmanager, ExitStack, nullcontext
 from dataclasses import dataclass, field
-import functools
-from functools import lru_cache
 import importlib
 import logging
 from pathlib import Path
@@ -42,25 +40,12 @@ from typing import Any, NamedTuple
 from pmba_ros.errors import BagError
 from pmba_ros.io import cloud_decode
 from pmba_ros.io.mcap_layout import check_mcap_lengths
+from pmba_ros.io.typestores import deserializer, jazzy_typestore, noetic_typestore
 
 logger = logging.getLogger(__name__)
 
 STORAGE_SUFFIXES = ('.mcap', '.db3')
 """Suffixes of rosbag2 storage files that can be opened without their folder."""
-
-
-@lru_cache(maxsize=1)
-def jazzy_typestore() -> Any:
-    """Return the pinned ROS 2 Jazzy rosbags typestore (``Stores.LATEST`` is Kilted)."""
-    from rosbags.typesys import get_typestore, Stores
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-@lru_cache(maxsize=1)
-def noetic_typestore() -> Any:
-    """Return rosbags' ROS 1 Noetic typestore (the standard ROS 1 message definitions)."""
-    from rosbags.typesys import get_typestore, Stores
-    return get_typestore(Stores.ROS1_NOETIC)
 
 
 class BagMessage(NamedTuple):
@@ -302,7 +287,12 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
                 error = err
         if reader is None:
             checked, damage = salvage.readable_parts(given, error, stack)
-            reader = stack.enter_context(any_reader(checked))
+            try:
+                reader = stack.enter_context(any_reader(checked))
+            except BagError as err:   # it names the salvaged copies, in a temporary folder
+                msg = (f'{_describe(given)}: cannot open bag, not even the parts salvaged '
+                       f'({"; ".join(damage)}): {error_text(err.__cause__ or err)}')
+                raise BagError(msg) from err
         yield OpenBags(checked, reader, _topics_of(reader), damage)
 
 
@@ -469,7 +459,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             reference = jazzy_typestore() if reader.is2 else noetic_typestore()
             fast = {c.msgtype: cloud_decode.fast_decoder(reader.typestore, c.msgtype, reference,
                                                          ros1=not reader.is2) for c in conns}
-        deserialize = {c.msgtype: _deserializer(reader, c.msgtype) for c in conns}
+        deserialize = {c.msgtype: deserializer(reader, c.msgtype) for c in conns}
         try:
             for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
                 decode = fast.get(conn.msgtype)
@@ -491,49 +481,6 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             if damage is None:
                 raise
             damage._pending = str(err)
-
-
-def _deserializer(reader: Any, msgtype: str) -> Callable[[bytes | memoryview], Any]:
-    """Return ``raw -> message`` for ``msgtype`` of an open reader.
-
-    rosbags builds a reader's typestore from the bag's message definitions at every opening,
-    and generates a type's (de)serializers at its first message. A ROS 2 type defined exactly
-    as in Jazzy, nested types included, is read with the process' Jazzy typestore instead,
-    whose generated code stays (the result bag's writer shares it): the same values, and
-    errors raised as the reader raises them.
-    """
-    jazzy = jazzy_typestore()
-    if not reader.is2 or not _defined_alike(reader.typestore.fielddefs, jazzy.fielddefs,
-                                            msgtype, set()):
-        return functools.partial(reader.deserialize, typ=msgtype)
-    from rosbags.highlevel import AnyReaderError
-    from rosbags.serde import SerdeError
-
-    def deserialize(raw: bytes | memoryview) -> Any:
-        try:
-            return jazzy.deserialize_cdr(raw, msgtype)
-        except SerdeError as err:   # as AnyReader.deserialize converts it
-            raise AnyReaderError(*err.args) from None
-    return deserialize
-
-
-def _defined_alike(defs: dict[str, Any], reference: dict[str, Any], msgtype: str,
-                   seen: set[str]) -> bool:
-    """Return True if ``msgtype`` and the types it nests have the same fields in both."""
-    if msgtype in seen:
-        return True
-    seen.add(msgtype)
-    if msgtype not in defs or defs[msgtype] != reference.get(msgtype):
-        return False
-    nested: list[Any] = [desc for _, desc in defs[msgtype][1]]
-    while nested:
-        item = nested.pop()
-        if isinstance(item, tuple):
-            nested.extend(item)
-        elif isinstance(item, str) and item in defs and \
-                not _defined_alike(defs, reference, item, seen):
-            return False
-    return True
 
 
 class _CorruptStorage(BagError):

@@ -266,7 +266,7 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
 
     Also when only a nested type differs.
     """
-    from pmba_ros.io.bags import _deserializer
+    from pmba_ros.io.typestores import deserializer
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     out = tmp_path / 'b.mcap'
@@ -274,7 +274,7 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
     with AnyReader([out], default_typestore=jazzy_typestore()) as reader:
         (conn,) = reader.connections
         raws = [raw for _, _, raw in reader.messages()]
-        read = _deserializer(reader, conn.msgtype)
+        read = deserializer(reader, conn.msgtype)
         assert read.__name__ == 'deserialize'   # the Jazzy typestore's
         assert [repr(read(raw)) for raw in raws] == \
             [repr(reader.deserialize(raw, conn.msgtype)) for raw in raws]
@@ -283,6 +283,6 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
         point = reader.typestore.fielddefs['geometry_msgs/msg/Point']
         reader.typestore.fielddefs['geometry_msgs/msg/Point'] = (point[0], point[1][:2])
         try:
-            assert _deserializer(reader, conn.msgtype).func == reader.deserialize
+            assert deserializer(reader, conn.msgtype).func == reader.deserialize
         finally:
             reader.typestore.fielddefs['geometry_msgs/msg/Point'] = point

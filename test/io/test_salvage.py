@@ -131,6 +131,26 @@ def test_nothing_readable_stays_the_open_error(tmp_path: Path) -> None:
         pass
 
 
+def test_salvaged_parts_that_do_not_open_name_the_recording(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The error names the file given and its damage, not the copy in a temporary folder."""
+    from pmba_ros.io import salvage
+    whole = tmp_path / 'whole.mcap'
+    write_chunked(whole, 20)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(whole.read_bytes()[:-100])
+    garbage = tmp_path / 'scratch' / '1_cut.mcap'
+    garbage.parent.mkdir()
+    garbage.write_bytes(b'\x89MCAP0\r\n' + bytes(64))
+    monkeypatch.setattr(salvage, 'readable_parts',
+                        lambda *_: ([garbage], (f'{cut}: the summary is damaged',)))
+    with pytest.raises(BagError) as err, open_bags([cut]):
+        pass
+    text = str(err.value)
+    assert text.startswith(f'{cut}: cannot open bag, not even the parts salvaged')
+    assert 'the summary is damaged' in text and 'scratch' not in text
+
+
 def test_folder_listing_a_missing_file_reads_the_others(tmp_path: Path) -> None:
     """A split recording with a part gone: the parts there are, and the damage named."""
     from rosbags.rosbag2 import StoragePlugin, Writer
