@@ -29,6 +29,7 @@ from pmba_ros.core.problem import (
     IdpFeatures,
     ParallaxFeatures,
     Parameterization,
+    restrict_features,
     XyzFeatures,
 )
 from pmba_ros.errors import ProblemError
@@ -74,6 +75,16 @@ class Model(ABC, Generic[F]):
         self.problem = problem
         self.obs = problem.obs
         self.engine = engine or default_engine()
+
+    @abstractmethod
+    def bound_to(self, problem: BAProblem) -> Model[F]:
+        """Return a model like this one (its options and engine) bound to another problem."""
+
+    def restricted(self, which: IntArray) -> Model[F]:
+        """Return this model of the features ``which`` (ascending) and their observations alone."""
+        keep = np.zeros(self.problem.n_feats, bool)
+        keep[which] = True
+        return self.bound_to(restrict_features(self.problem, keep))
 
     @abstractmethod
     def slots(self, feats: F) -> IntArray:
@@ -182,6 +193,10 @@ class ParallaxModel(Model[ParallaxFeatures]):
                 jac = self.engine.projection_jacobian(v, problem.intrinsics, problem.obs.cam_idx)
             self._weights = residuals.pixel_weights(jac, v)
 
+    def bound_to(self, problem: BAProblem) -> ParallaxModel:
+        """Return a PMBA model with this one's weighting and engine, bound to ``problem``."""
+        return ParallaxModel(problem, self.pixel_weighted, self.engine)
+
     def slots(self, feats: ParallaxFeatures) -> IntArray:
         """Return the observer, main and associate pose of each observation."""
         slots = residuals.pose_slots(feats, self._ray_obs)
@@ -242,6 +257,10 @@ class _PixelErrorModel(Model[F]):
     """A parameterization whose residual is the reprojection error pi(h) - (u, v) itself."""
 
     pixel_residuals = True
+
+    def bound_to(self, problem: BAProblem) -> Model[F]:
+        """Return a model of this parameterization with this one's engine, bound to ``problem``."""
+        return type(self)(problem, self.engine)
 
     @abstractmethod
     def camera_rays(self, R_wc: FloatArray, centers_w: FloatArray, feats: F) -> FloatArray:

@@ -493,16 +493,20 @@ def subset_features(problem: BAProblem, keep: BoolArray, reason: str) -> BAProbl
         raise ProblemError(msg)
     if np.all(keep):
         return problem
-    new_index = np.cumsum(keep) - 1
-    obs_keep = keep[problem.obs.feat_idx]
-    obs = problem.obs.take(obs_keep)
-    obs = obs.reindexed(new_index[obs.feat_idx])
     dropped = dict(problem.dropped)
     _count(dropped, reason, int(np.sum(~keep)))
     logger.info('dropped %d features (%s)', int(np.sum(~keep)), reason)
+    return replace(restrict_features(problem, keep), dropped=dropped)
+
+
+def restrict_features(problem: BAProblem, keep: BoolArray) -> BAProblem:
+    """Return the problem of the features where ``keep`` (N,) is True, nothing counted."""
+    new_index = np.cumsum(keep) - 1
+    obs = problem.obs.take(keep[problem.obs.feat_idx])
+    obs = obs.reindexed(new_index[obs.feat_idx])
     pts = None if problem.points_w is None else _readonly(problem.points_w[keep])
     return replace(problem, obs=obs, n_feats=int(np.sum(keep)), points_w=pts,
-                   feature_ids=_readonly(problem.feature_ids[keep]), dropped=dropped)
+                   feature_ids=_readonly(problem.feature_ids[keep]))
 
 
 def permute_features(problem: BAProblem, order: IntArray) -> BAProblem:

@@ -32,13 +32,13 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray
-from pmba_ros.core import conversions, dogleg, so3
+from pmba_ros.core import conversions, dogleg
 from pmba_ros.core import normal_equations as ne
 from pmba_ros.core.engine import EngineName, resolve
 from pmba_ros.core.gauge import choose_gauge, free_gauge, scale_tension
 from pmba_ros.core.loss import Loss, noise_scale_px
-from pmba_ros.core.models import Evaluation, make_model, Model
-from pmba_ros.core.pose_prior import PriorAssembly, PriorEvaluation, RelativePosePrior
+from pmba_ros.core.models import make_model, Model
+from pmba_ros.core.pose_prior import RelativePosePrior
 from pmba_ros.core.problem import (
     BAProblem,
     Features,
@@ -47,6 +47,7 @@ from pmba_ros.core.problem import (
     take_features,
 )
 from pmba_ros.core.start_checks import check_not_empty, non_finite_start_message
+from pmba_ros.core.trust_step import add, Linearized, State, sum_products, trial_state
 from pmba_ros.errors import SolverError
 
 
@@ -255,111 +256,6 @@ class SolveResult:
                         for h in self.history]}
 
 
-@dataclass
-class _State:
-    R_wc: FloatArray
-    centers_w: FloatArray
-    feats: Any
-    cost: float
-    evaluation: Evaluation
-    prior: PriorEvaluation | None = None
-
-
-class _Linearized:
-    """Scaled normal equations at one state, and what dogleg retries reuse."""
-
-    def __init__(self, model: Model[Any], structure: ne.SchurStructure, state: _State,
-                 loss: Loss, loss_scale: float, jacobi: bool, col_mask: np.ndarray,
-                 prior: PriorAssembly | None = None) -> None:
-        lin = model.linearize(state.R_wc, state.centers_w, state.feats, state.evaluation)
-        if loss is not Loss.NONE:
-            lin = model.engine.robust_rows(lin, loss, loss_scale)   # the rows are new
-        eqs = ne.assemble(structure, lin)
-        low_rank = None
-        if prior is not None and state.prior is not None:
-            eqs = prior.add_to(eqs, state.prior)
-            low_rank = prior.low_rank(state.prior)
-        scaled = model.engine.jacobi_scale(structure, eqs, col_mask, jacobi)
-        self.eqs, self.c_pose, self.c_feat = scaled.eqs, scaled.c_pose, scaled.c_feat
-        self.low_rank = None if low_rank is None else (   # in the scaled system's x = d / c
-            low_rank[0] * (scaled.c_pose * col_mask).reshape(-1), low_rank[1])
-        self.D_pose, self.D_feat = scaled.D_pose, scaled.D_feat
-        self.g_pose, self.g_feat = scaled.g_pose, scaled.g_feat
-        self.gradient_max = scaled.gradient_max
-        self.prior_evaluation = state.prior
-        self.col_mask = col_mask
-        self.structure = structure
-        self.gn: tuple[np.ndarray, np.ndarray] | None = None
-        self.factor: FloatArray | None = None
-        self._cauchy: float | None = None
-
-    def cauchy_alpha(self) -> float:
-        """Return the Cauchy step length of this linearization (computed once)."""
-        if self._cauchy is None:
-            g = np.concatenate([self.g_pose.ravel(), self.g_feat.ravel()])
-            x_pose = np.where(self.col_mask, self.g_pose / self.D_pose, 0.0)
-            Jg_sq = self._quadratic_form(x_pose, self.g_feat / self.D_feat)
-            self._cauchy = dogleg.cauchy_alpha(g, Jg_sq)
-        return self._cauchy
-
-    def to_delta(self, z_pose: FloatArray, z_feat: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Map a scaled-space step z to parameter increments delta = c * z / D."""
-        return (np.where(self.col_mask, z_pose / self.D_pose * self.c_pose, 0.0),
-                z_feat / self.D_feat * self.c_feat)
-
-    def model_change(self, d_pose: FloatArray, d_feat: FloatArray) -> float:
-        """Return the predicted cost decrease -(J d)^T (r + J d / 2) = -(g^T d + d^T H d / 2).
-
-        Evaluated on the normal equations of the scaled Jacobian, x = d / c.
-        """
-        x_pose, x_feat = d_pose / self.c_pose, d_feat / self.c_feat
-        g_x = _sum_products(self.eqs.g_pose, x_pose, self.eqs.g_feat, x_feat)
-        return -(g_x + 0.5 * self._quadratic_form(x_pose, x_feat))
-
-    def _quadratic_form(self, x_pose: FloatArray, x_feat: FloatArray) -> float:
-        """Return x^T H x of the scaled system, less the window scales' curvature."""
-        quad = ne.quadratic_form(self.structure, self.eqs, x_pose, x_feat)
-        if self.low_rank is not None:
-            quad -= float(_add((self.low_rank[0] @ x_pose.reshape(-1)) ** 2 / self.low_rank[1]))
-        return quad
-
-    def solve(self, mu: float) -> tuple[FloatArray, FloatArray]:
-        """Solve (J~^T J~ + mu D^2) y = -J~^T r and return the scaled step b = D y."""
-        y_pose, y_feat, factor = ne.solve_schur_factored(
-            self.structure, self.eqs, mu * self.D_pose ** 2, mu * self.D_feat ** 2, self.col_mask,
-            self.low_rank)
-        if mu == dogleg.MIN_MU:   # S itself, to rounding: a covariance needs no new one
-            self.factor = factor
-        return y_pose * self.D_pose, y_feat * self.D_feat
-
-    def prior_leverage(self, factors: RelativePosePrior, free_block: np.ndarray) -> FloatArray:
-        """Return the prior's hat-matrix blocks (Sigma: C Sigma_y C, y = d/c); NaN if singular."""
-        ev = self.prior_evaluation
-        try:
-            cov = ne.pose_covariance(self.structure, self.eqs, dogleg.MIN_MU * self.D_feat ** 2,
-                                     self.col_mask, self.factor)
-        except ne.ReducedSystemError:
-            ev = None
-        if ev is None:
-            return np.full((len(factors), 6, 6), np.nan)
-        if self.low_rank is not None:   # the inverse of S less u^T diag(1/d) u (Woodbury)
-            u, Z = self.low_rank[0], cov @ self.low_rank[0].T
-            cov = cov + Z @ np.linalg.solve(np.diag(self.low_rank[1]) - u @ Z, Z.T)
-        c = self.c_pose.reshape(-1)
-        return factors.hat_blocks(ev, cov * c[:, None] * c[None, :], free_block)
-
-
-def _retract(model: Model[Any], state: _State, free_block: np.ndarray, d_pose: FloatArray,
-             d_feat: FloatArray) -> tuple[FloatArray, FloatArray, Any]:
-    R = state.R_wc.copy()
-    P = state.centers_w.copy()
-    free = free_block >= 0
-    blocks = free_block[free]
-    R[free] = R[free] @ so3.exp(d_pose[blocks, :3])
-    P[free] = P[free] + d_pose[blocks, 3:]
-    return R, P, model.retract(state.feats, d_feat)
-
-
 def solve(problem: BAProblem, options: SolveOptions | None = None,
           features: Features | None = None, *,
           callback: Callable[[IterationRecord], None] | None = None,
@@ -423,20 +319,20 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     factors = pose_prior if pose_prior is not None and len(pose_prior) else None
     prior = factors.bind(structure, free_block) if factors is not None else None
 
-    def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> _State:
+    def evaluate(R: FloatArray, P: FloatArray, feats: Any) -> State:
         ev = model.evaluate(R, P, feats)
         pe = factors.evaluate(R, P) if factors is not None else None
         prior_cost = pe.cost if pe is not None else 0.0
-        return _State(R, P, feats, engine.robust_cost(ev.residuals, options.loss, loss_scale)
-                      + prior_cost, ev, pe)
+        return State(R, P, feats, engine.robust_cost(ev.residuals, options.loss, loss_scale)
+                     + prior_cost, ev, pe)
 
-    def norm_of(state: _State) -> float:
+    def norm_of(state: State) -> float:
         """|x| of the parameters (rotations count 1 each), for the parameter tolerance."""
-        return math.sqrt(problem.n_cams + float(_add(state.centers_w ** 2, axis=None))
+        return math.sqrt(problem.n_cams + float(add(state.centers_w ** 2, axis=None))
                          + model.parameter_norm_sq(state.feats))
 
     def rms_of(err: FloatArray) -> float:
-        return math.sqrt(float(_add(err * err, axis=None)) / err.size) if err.size else 0.0
+        return math.sqrt(float(add(err * err, axis=None)) / err.size) if err.size else 0.0
 
     # A start that overflows is reported by the check below, naming its cameras, as above.
     with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
@@ -457,8 +353,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     accepted_steps = 0
     invalid = 0
     termination = TerminationReason.MAX_ITERATIONS
-    lin: _Linearized | None = None
-    last_lin: _Linearized | None = None
+    lin: Linearized | None = None
+    last_lin: Linearized | None = None
     rms = initial_rms
     it = 0
     while True:
@@ -471,8 +367,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
             termination = TerminationReason.MAX_TIME
             break
         if lin is None:
-            lin = last_lin = _Linearized(model, structure, state, options.loss, loss_scale,
-                                         options.jacobi_scaling, col_mask, prior)
+            lin = last_lin = Linearized(model, structure, state, options.loss, loss_scale,
+                                        options.jacobi_scaling, col_mask, prior)
             if lin.gradient_max <= options.gradient_tolerance:
                 termination = TerminationReason.GRADIENT_TOLERANCE
                 break
@@ -489,9 +385,9 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                 break
             continue
         linear_solves += lin_solved
-        step_norm = math.sqrt(_sum_products(z_pose, z_pose, z_feat, z_feat))
+        step_norm = math.sqrt(sum_products(z_pose, z_pose, z_feat, z_feat))
         d_pose, d_feat = lin.to_delta(z_pose, z_feat)
-        delta_norm = math.sqrt(_sum_products(d_pose, d_pose, d_feat, d_feat))
+        delta_norm = math.sqrt(sum_products(d_pose, d_pose, d_feat, d_feat))
         if delta_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = TerminationReason.PARAMETER_TOLERANCE
             break
@@ -505,14 +401,8 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                 break
             continue
         invalid = 0
-        trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
-        if model.turned_away(state.evaluation, trial.evaluation).size:
-            halved = model.halve_turning_steps(state.R_wc, state.centers_w, state.feats,
-                                               state.evaluation, d_feat)
-            if halved is not None:
-                d_feat = halved
-                model_change = lin.model_change(d_pose, d_feat)
-                trial = evaluate(*_retract(model, state, free_block, d_pose, d_feat))
+        trial, model_change = trial_state(model, lin, state, free_block, d_pose, d_feat,
+                                          model_change, evaluate, options.loss, loss_scale)
         new_cost = trial.cost
         rho = dogleg.step_quality(state.cost, new_cost, model_change)
         accepted = rho > dogleg.MIN_RELATIVE_DECREASE
@@ -564,7 +454,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                        leverage, tension)
 
 
-def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
+def _propose(lin: Linearized, solver: SolverKind, radius: float, mu: float,
              ) -> tuple[FloatArray, FloatArray, int]:
     """Return a scaled step (pose, feature) and how many linear solves it took."""
     if solver is SolverKind.DOGLEG:
@@ -586,15 +476,6 @@ def _propose(lin: _Linearized, solver: SolverKind, radius: float, mu: float,
     if lin.gn is None:
         lin.gn = lin.solve(dogleg.MIN_MU)
         solves = 1
-    norm = math.sqrt(_sum_products(lin.gn[0], lin.gn[0], lin.gn[1], lin.gn[1]))
+    norm = math.sqrt(sum_products(lin.gn[0], lin.gn[0], lin.gn[1], lin.gn[1]))
     shrink = min(1.0, radius / norm) if norm > 0 else 1.0
     return lin.gn[0] * shrink, lin.gn[1] * shrink, solves
-
-
-#: np.sum(x) is this reduction behind a generic wrapper: the same sum, for less.
-_add = np.add.reduce
-
-
-def _sum_products(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray) -> float:
-    """Return np.sum(a * b) + np.sum(c * d) (x ** 2 is x * x: squared norms too)."""
-    return float(_add(a * b, axis=None) + _add(c * d, axis=None))
