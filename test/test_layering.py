@@ -42,8 +42,8 @@ CORE_RANKS = {
     'residuals': 2, 'baselines': 2, 'anchor_search': 2, 'normal_equations': 2,
     'numpy_schur': 2, 'compiled': 2,
     'engine': 3,
-    'conversions': 4, 'models': 4,
-    'solve': 5,
+    'conversions': 4, 'models': 4, 'refit': 4,
+    'trust_step': 5, 'solve': 5,
     'warmup': 6,
 }
 
