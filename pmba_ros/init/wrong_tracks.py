@@ -50,6 +50,10 @@ READMIT_RELATIVE = 3.0
 this many times the median of the tracks the BA kept: as the kept ones fit, not as far off
 as a wrong match."""
 
+MIN_VIEWS = 3
+"""Observations a dropped track needs to be taken back. Two rays leave a point one degree
+of freedom to miss by: a wrong match whose pixel lies near its epipolar line fits them."""
+
 REFIT_ITERATIONS = 30
 """Damped Gauss-Newton iterations of a dropped track's point, from its rays' midpoint."""
 
@@ -142,10 +146,10 @@ def readmitted(solved: SolveResult, started: ParallaxFeatures, dropped: BAProble
     So every dropped track is triangulated at the BA's poses, its point fitted to them
     (:func:`~pmba_ros.core.refit.refit_features`), and the BA resumed with all of them under
     a Cauchy loss (``options``' own loss if it has one), which bounds what a wrong match
-    pulls. Those whose RMS reprojection error then is within :data:`READMIT_RELATIVE` times
-    the median of the BA's own tracks are kept, and the BA is resumed once more, with the
-    caller's loss, without the others (not needed when all fit and the loss was the
-    caller's).
+    pulls. Those seen :data:`MIN_VIEWS` times or more whose RMS reprojection error then is
+    within :data:`READMIT_RELATIVE` times the median of the BA's own tracks are kept, and
+    the BA is resumed once more, with the caller's loss, without the others (not needed
+    when all fit and the loss was the caller's).
 
     Args:
         solved: The BA's result.
@@ -166,8 +170,9 @@ def readmitted(solved: SolveResult, started: ParallaxFeatures, dropped: BAProble
     assert isinstance(final, ParallaxFeatures)
     n_own = solved.problem.n_feats
     rms = _track_rms_px(merged, wide.R_wc, wide.centers_w, final, options)
+    seen = np.bincount(merged.obs.feat_idx, minlength=merged.n_feats)
     keep = np.arange(merged.n_feats) < n_own
-    keep |= rms <= READMIT_RELATIVE * float(np.median(rms[:n_own]))
+    keep |= (rms <= READMIT_RELATIVE * float(np.median(rms[:n_own]))) & (seen >= MIN_VIEWS)
     if not np.any(keep[n_own:]):
         return Readmission(solved, started, np.zeros(0, np.int64), 1, wide.iterations)
     taken = np.asarray(merged.feature_ids[n_own:][keep[n_own:]])
