@@ -513,8 +513,8 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         dropped, _ = _subproblem(problem, cameras_used, reg.R_wc,
                                  np.isin(np.arange(problem.n_feats), bad_ids))
         # DEVIATION(Fig. 5): the BA resumed with the dropped tracks that fit its poses.
-        back = wrong_tracks.readmitted(result, feats, dropped, options.solve_options,
-                                       callback)
+        back = wrong_tracks.readmitted(result, feats, dropped, check.threshold_px,
+                                       options.solve_options, callback)
     if back is not None:
         init_problem, feats, result = back.result.problem, back.features, back.result
         iterations += back.iterations

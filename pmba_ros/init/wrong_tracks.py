@@ -54,6 +54,10 @@ MIN_VIEWS = 3
 """Observations a dropped track needs to be taken back. Two rays leave a point one degree
 of freedom to miss by: a wrong match whose pixel lies near its epipolar line fits them."""
 
+READMIT_ITERATIONS = 20
+"""Most iterations of the BA resumed with the dropped tracks under a Cauchy loss: its poses
+judge them, the BA that follows converges."""
+
 REFIT_ITERATIONS = 30
 """Damped Gauss-Newton iterations of a dropped track's point, from its rays' midpoint."""
 
@@ -137,46 +141,50 @@ class Readmission:
 
 
 def readmitted(solved: SolveResult, started: ParallaxFeatures, dropped: BAProblem,
-               options: SolveOptions, callback: Callable[[IterationRecord], None] | None = None,
+               threshold_px: float, options: SolveOptions,
+               callback: Callable[[IterationRecord], None] | None = None,
                ) -> Readmission | None:
     """Return the BA resumed with the dropped tracks that fit (None: no track to try).
 
     The BA without them can bend where they were the only near features (on a long street
     they hold its scale there): at its poses, good tracks can still miss by tens of pixels.
     So every dropped track is triangulated at the BA's poses, its point fitted to them
-    (:func:`~pmba_ros.core.refit.refit_features`), and the BA resumed with all of them under
-    a Cauchy loss (``options``' own loss if it has one), which bounds what a wrong match
-    pulls. Those seen :data:`MIN_VIEWS` times or more whose RMS reprojection error then is
-    within :data:`READMIT_RELATIVE` times the median of the BA's own tracks are kept, and
-    the BA is resumed once more, with the caller's loss, without the others (not needed
-    when all fit and the loss was the caller's).
+    (:func:`~pmba_ros.core.refit.refit_features`), and the BA resumed, for up to
+    :data:`READMIT_ITERATIONS`, with those that pass at these poses the judgement they
+    failed at the positions, under a Cauchy loss (the BA's own loss if it has one), which
+    bounds what a wrong match pulls. Of those seen :data:`MIN_VIEWS` times
+    or more, the tracks whose RMS reprojection error then is within
+    :data:`READMIT_RELATIVE` times the median of the BA's own tracks are kept, and the BA is
+    resumed once more, with its own options, without the others (not needed when all fit,
+    the BA converged and the loss was the BA's own).
 
     Args:
         solved: The BA's result.
         started: The features that BA started from.
         dropped: The dropped tracks, on the BA's cameras (their poses are replaced).
+        threshold_px: The RMS above which the tracks were judged wrong at the positions.
         options: The BA's options.
         callback: The BAs' iteration callback.
 
     Returns:
         The last BA, which is ``solved`` itself (and ``started``) where no track fits.
     """
-    merged, feats = _appended(solved, dropped, options)
+    merged, feats = _appended(solved, dropped, threshold_px, options)
     if merged is None or feats is None:
         return None
-    robust = options if options.loss is not Loss.NONE else replace(options, loss=Loss.CAUCHY)
+    robust = replace(options, max_iterations=min(options.max_iterations, READMIT_ITERATIONS),
+                     loss=Loss.CAUCHY if options.loss is Loss.NONE else options.loss)
     wide = solve(merged, robust, feats, callback=callback)
     final = wide.features
     assert isinstance(final, ParallaxFeatures)
     n_own = solved.problem.n_feats
     rms = _track_rms_px(merged, wide.R_wc, wide.centers_w, final, options)
-    seen = np.bincount(merged.obs.feat_idx, minlength=merged.n_feats)
     keep = np.arange(merged.n_feats) < n_own
-    keep |= (rms <= READMIT_RELATIVE * float(np.median(rms[:n_own]))) & (seen >= MIN_VIEWS)
+    keep |= rms <= READMIT_RELATIVE * float(np.median(rms[:n_own]))
     if not np.any(keep[n_own:]):
         return Readmission(solved, started, np.zeros(0, np.int64), 1, wide.iterations)
     taken = np.asarray(merged.feature_ids[n_own:][keep[n_own:]])
-    if np.all(keep) and robust is options:
+    if np.all(keep) and robust.loss is options.loss and wide.converged:
         return Readmission(wide, feats, taken, 1, wide.iterations)
     start = take_features(final, np.flatnonzero(keep))
     assert isinstance(start, ParallaxFeatures)
@@ -185,12 +193,13 @@ def readmitted(solved: SolveResult, started: ParallaxFeatures, dropped: BAProble
     return Readmission(last, start, taken, 2, wide.iterations + last.iterations)
 
 
-def _appended(solved: SolveResult, dropped: BAProblem, options: SolveOptions,
-              ) -> tuple[BAProblem | None, ParallaxFeatures | None]:
-    """Return the BA's problem and final features with the dropped tracks appended.
+def _appended(solved: SolveResult, dropped: BAProblem, threshold_px: float,
+              options: SolveOptions) -> tuple[BAProblem | None, ParallaxFeatures | None]:
+    """Return the BA's problem and final features with the dropped tracks worth a try appended.
 
-    Each dropped track's point is fitted to the BA's poses; tracks without a usable point
-    (their rays parallel, no pair of observers with a baseline) are left out.
+    Each dropped track's point is fitted to the BA's poses. Those seen :data:`MIN_VIEWS`
+    times or more whose RMS is within ``threshold_px`` there are worth a try; those without
+    a usable point (rays parallel, no pair of observers with a baseline) are not.
     """
     R, C, f = solved.R_wc, solved.centers_w, solved.features
     at_ba = replace(dropped, R_wc=R, centers_w=C)
@@ -204,6 +213,13 @@ def _appended(solved: SolveResult, dropped: BAProblem, options: SolveOptions,
                            options.loss_scale_px if model.pixel_residuals
                            else options.loss_scale_px / back.intrinsics.median_focal,
                            iterations=REFIT_ITERATIONS)
+    worth = _track_rms_px(back, R, C, feats, options) <= threshold_px
+    worth &= np.bincount(back.obs.feat_idx, minlength=back.n_feats) >= MIN_VIEWS
+    if not np.any(worth):
+        return None, None
+    back = restrict_features(back, worth)
+    tried = take_features(feats, np.flatnonzero(worth))
+    assert isinstance(tried, ParallaxFeatures)
     own, obs, new = solved.problem, solved.problem.obs, back.obs
     merged = make_problem(
         R, C, own.intrinsics, np.concatenate([obs.cam_idx, new.cam_idx]),
@@ -214,7 +230,7 @@ def _appended(solved: SolveResult, dropped: BAProblem, options: SolveOptions,
         feature_ids=np.concatenate([own.feature_ids, back.feature_ids]),
         pixel_jac=(None if obs.pixel_jac is None or new.pixel_jac is None
                    else np.concatenate([obs.pixel_jac, new.pixel_jac])))
-    both = ParallaxFeatures(*(np.concatenate([getattr(f, k), getattr(feats, k)])
+    both = ParallaxFeatures(*(np.concatenate([getattr(f, k), getattr(tried, k)])
                               for k in ('theta', 'n', 'main_idx', 'assoc_idx')))
     return merged, both
 

@@ -42,7 +42,7 @@ def test_dropped_tracks_that_fit_the_bas_poses_are_taken_back_and_wrong_ones_not
     kept, started = _start(subset_features(problem, ~(good_dropped | wrong), 'dropped'))
     first = solve(kept, options, started)
     back = readmitted(first, started, subset_features(problem, good_dropped | wrong, 'kept'),
-                      options)
+                      10.0, options)
     assert back is not None
     np.testing.assert_array_equal(np.sort(back.taken), np.sort(ids[good_dropped]))
     assert back.invocations == 2    # a robust BA with every dropped track, then the plain one
@@ -55,12 +55,12 @@ def test_dropped_tracks_that_fit_the_bas_poses_are_taken_back_and_wrong_ones_not
 
 
 def test_nothing_to_take_back_when_every_dropped_track_is_wrong() -> None:
-    """Only wrong tracks dropped: none fits, the first BA's result stands."""
+    """Only wrong tracks dropped: none is worth a BA, the first BA's result stands."""
     variant = outlier_tracks(forward_problem(seed=4, n_cams=8, n_points=60), 0.1, seed=5)
     problem = variant.problem
     wrong = np.isin(problem.feature_ids, variant.outlier_ids)
     kept, started = _start(subset_features(problem, ~wrong, 'wrong'))
     first = solve(kept, SolveOptions(), started)
-    back = readmitted(first, started, subset_features(problem, wrong, 'kept'), SolveOptions())
-    assert back is not None and back.taken.size == 0
-    assert back.result is first and back.features is started
+    back = readmitted(first, started, subset_features(problem, wrong, 'kept'), 10.0,
+                      SolveOptions())
+    assert back is None     # none passes the tracks' first judgement at the BA's poses
