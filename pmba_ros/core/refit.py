@@ -34,17 +34,19 @@ from pmba_ros.core.models import F, Model
 from pmba_ros.core.problem import take_features
 
 REFIT_ITERATIONS = 10
-"""Damped Gauss-Newton iterations of a re-fit."""
+"""Damped Gauss-Newton iterations of a re-fit (a trial's features start near their fit)."""
 
 _DAMPING = (1e-4, 10.0, 1e8)
 """Levenberg-Marquardt damping per feature: start, factor on a failed step, most."""
 
 
 def refit_features(model: Model[F], R_wc: FloatArray, centers_w: FloatArray, feats: F,
-                   which: IntArray, loss: Loss, loss_scale: float) -> F:
+                   which: IntArray, loss: Loss, loss_scale: float,
+                   iterations: int = REFIT_ITERATIONS) -> F:
     """Return ``feats`` with the features ``which`` (ascending) fitted to the poses held.
 
-    Each moves only where its own robust cost falls; the other features are untouched.
+    Each moves only where its own robust cost falls, for up to ``iterations`` damped
+    Gauss-Newton steps; the other features are untouched.
     """
     sub = model.restricted(which)
     starts = sub.problem.feature_offsets()[:-1]
@@ -58,7 +60,7 @@ def refit_features(model: Model[F], R_wc: FloatArray, centers_w: FloatArray, fea
 
     cost = costs(fit)
     damping = np.full(which.size, _DAMPING[0])
-    for _ in range(REFIT_ITERATIONS):
+    for _ in range(iterations):
         lin = sub.linearize(R_wc, centers_w, fit)
         if loss is not Loss.NONE:
             lin = sub.engine.robust_rows(lin, loss, loss_scale)

@@ -158,7 +158,8 @@ class InitResult:
         feature_index: Input feature index of each feature of ``problem``, shape (N',).
         cameras_used: Mask (M,) of input cameras that are in ``problem``.
         report: Per-stage report (see :meth:`to_report`).
-        ba_invocations: Number of BA solves (always 1).
+        ba_invocations: Number of BA solves: 1, or 2 where tracks dropped before the first
+            fit its poses and were taken back (:func:`~pmba_ros.init.wrong_tracks.readmitted`).
     """
 
     problem: BAProblem

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Global initialization: from feature tracks alone to a converged PMBA, in one BA.
+"""Global initialization: from feature tracks alone to a converged PMBA, in one BA (or two).
 
 The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
 
@@ -29,7 +29,9 @@ The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
    (the NLS re-run without them if any was EG-anchored); cameras whose rays miss the
    triangulated points re-placed by resection; features without an EG anchor pair
    anchored on their widest pair of cameras with a baseline (instead of being dropped).
-8. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`), the only BA invocation.
+8. ``ba``: full PMBA with Dogleg (:func:`pmba_ros.core.solve.solve`); the tracks dropped in
+   ``tracks`` that fit its poses are taken back, and the BA resumed with them (a second
+   invocation, only then: :func:`pmba_ros.init.wrong_tracks.readmitted`).
 
 Only the input problem's observations and intrinsics are used; its poses and points are
 ignored. The result's problem holds only the cameras of the largest component of the view
@@ -47,6 +49,8 @@ Deviations from the paper (tagged ``DEVIATION`` in the code, pmba.md §8):
 - Remark 5: features whose rotation-only parallax is below ``theta_floor_px`` start the BA at
   infinity (theta = 0), and anchors are swapped when only the other order gives a valid
   triangle (pmba.md §3.3); otherwise near-collinear features can stall the BA.
+- Fig. 5: a second BA where tracks dropped at the positions fit the first BA's poses (a
+  camera the positions left off had made them look wrong).
 
 The CLS and NLS assemble their normal matrices in the non-zero 3x3 blocks of co-visible camera
 pairs (:mod:`pmba_ros.init.normal_blocks`) and factor them sparse above about 200 cameras:
@@ -78,9 +82,9 @@ from pmba_ros.init import (
     pair_selection,
     register,
     rotation_averaging,
-    tracks,
     two_view,
     view_graph,
+    wrong_tracks,
 )
 from pmba_ros.init.options import InitOptions, InitResult
 
@@ -345,65 +349,6 @@ def _complete_tracks(full: BAProblem, eg: BAProblem, eg_feats: ParallaxFeatures,
     return done, feats, entries
 
 
-def _resect_outlying_cameras(problem: BAProblem, centers_w: FloatArray, options: InitOptions,
-                             fit: BAProblem | None = None,
-                             ) -> tuple[FloatArray, IntArray, FloatArray]:
-    """Re-place the cameras whose rays miss the triangulated points, before the BA.
-
-    A camera whose residual (px, :func:`~pmba_ros.init.tracks.camera_residuals_px`) exceeds
-    max(camera_min_px, camera_relative x the median over cameras) is placed again by
-    resection (rotation known) from the points triangulated without it and the other
-    outlying cameras, those of ``fit`` (the same cameras, fewer tracks: the ones trusted;
-    default ``problem``'s). Up to half the cameras are treated so; beyond that the positions
-    are left to the BA.
-
-    Returns:
-        The centres, the resected cameras (indices of ``problem``) and every camera's residual
-        before resection (px).
-    """
-    R_wc = problem.R_wc
-    X = tracks.midpoints(problem, R_wc, centers_w)
-    cam_px = tracks.camera_residuals_px(problem, R_wc, centers_w, X)
-    limit = max(options.camera_min_px, options.camera_relative * float(np.median(cam_px)))
-    bad = np.flatnonzero(cam_px > limit)
-    if bad.size == 0 or 2 * bad.size > problem.n_cams:
-        return centers_w, np.zeros(0, dtype=np.int64), cam_px
-    fit = problem if fit is None else fit
-    good_obs = ~np.isin(fit.obs.cam_idx, bad)
-    X_good = tracks.midpoints(fit, R_wc, centers_w, obs_mask=good_obs)
-    # A camera with fewer than three of those points (its tracks flagged, or seen only by
-    # other outlying cameras) has no position to take from them: it is left to the BA.
-    placed = fit.obs.cam_idx[np.all(np.isfinite(X_good[fit.obs.feat_idx]), axis=1)]
-    bad = bad[np.bincount(placed, minlength=problem.n_cams)[bad] >= 3]
-    centers = centers_w.copy()
-    centers[bad] = tracks.resect_centers(fit, R_wc, X_good, bad)
-    return centers, bad, cam_px
-
-
-def _wrong_tracks(problem: BAProblem, R_wc: FloatArray, centers_w: FloatArray,
-                  options: InitOptions) -> tracks.TrackCheck:
-    """Return the tracks inconsistent with the positions: wrong matches, not a misplaced camera.
-
-    A camera the positions left far off makes every track through it look wrong (on a long
-    street, a tenth of all tracks): the tracks flagged at the positions are judged again
-    with the outlying cameras (found on every track) re-placed from the others' points on
-    the tracks not flagged (:func:`_resect_outlying_cameras`), and only those wrong both
-    times are flagged.
-    """
-    check = tracks.check_tracks(problem, R_wc, centers_w, min_px=options.track_min_px,
-                                relative=options.track_relative)
-    if not np.any(check.inconsistent):
-        return check
-    clean = subset_features(problem, ~check.inconsistent, 'inconsistent_tracks')
-    placed, resected, _ = _resect_outlying_cameras(problem, centers_w, options, fit=clean)
-    if resected.size == 0:
-        return check
-    again = tracks.check_tracks(problem, R_wc, placed, min_px=options.track_min_px,
-                                relative=options.track_relative)
-    return tracks.TrackCheck(check.rms_px, check.threshold_px,
-                             check.inconsistent & again.inconsistent)
-
-
 def _register(problem: BAProblem, cameras: BoolArray, R_wc: FloatArray,
               component_centers: FloatArray, bad_ids: IntArray, options: InitOptions,
               max_px: float) -> register.Registration:
@@ -438,7 +383,7 @@ def _orient(problem: BAProblem, feats: ParallaxFeatures, d_ma: FloatArray,
 def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                 progress: ProgressCallback | None = None,
                 callback: Callable[[IterationRecord], None] | None = None) -> InitResult:
-    """Initialize and solve a PMBA problem from its feature tracks alone, with one BA.
+    """Initialize and solve a PMBA problem from its feature tracks alone, with one BA (or two).
 
     Args:
         problem: Observations (tracks) and intrinsics; its poses and points are ignored.
@@ -499,7 +444,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                             max_iterations=options.nls_max_iterations)
     # Wrong tracks pull the positions; with positions known they stand out: drop them and
     # refine the positions again without them.
-    check = _wrong_tracks(full, sub.R_wc, res_nls.centers_w, options)
+    check = wrong_tracks.wrong_tracks(full, sub.R_wc, res_nls.centers_w, options)
     bad_ids = full.feature_ids[check.inconsistent]
     bad_eg = np.isin(sub.feature_ids, bad_ids)
     first_nls = res_nls
@@ -517,7 +462,8 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
                     'rerun_without_inconsistent_tracks': bool(np.any(bad_eg))})
 
     full = subset_features(full, ~check.inconsistent, 'inconsistent_tracks')
-    centers, resected, cam_px = _resect_outlying_cameras(full, res_nls.centers_w, options)
+    centers, resected, cam_px = wrong_tracks.resect_outlying_cameras(full, res_nls.centers_w,
+                                                                     options)
     if resected.size:
         logger.info('global_init: resected cameras %s (residuals %s px)', resected.tolist(),
                     np.round(cam_px[resected], 1).tolist())
@@ -562,11 +508,23 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     feats = ParallaxFeatures(np.where(low, 0.0, feats.theta), feats.n, feats.main_idx,
                              feats.assoc_idx)
     result = solve(init_problem, options.solve_options, feats, callback=callback)
+    iterations, back = result.iterations, None
+    if bad_ids.size:
+        dropped, _ = _subproblem(problem, cameras_used, reg.R_wc,
+                                 np.isin(np.arange(problem.n_feats), bad_ids))
+        # DEVIATION(Fig. 5): the BA resumed with the dropped tracks that fit its poses.
+        back = wrong_tracks.readmitted(result, feats, dropped, check.threshold_px,
+                                       options.solve_options, callback)
+    if back is not None:
+        init_problem, feats, result = back.result.problem, back.features, back.result
+        iterations += back.iterations
+    invocations = 1 + (0 if back is None else back.invocations)
     st.done('ba', {'anchors_swapped_before_ba': report_swaps,
                    'features_started_at_infinity': int(np.sum(low)),
+                   'tracks_readmitted': 0 if back is None else int(back.taken.size),
                    'initial_cost': result.initial_cost, 'final_cost': result.final_cost,
                    'initial_rms_px': result.initial_rms_px,
-                   'final_rms_px': result.final_rms_px, 'iterations': result.iterations,
+                   'final_rms_px': result.final_rms_px, 'iterations': iterations,
                    'linear_solves': result.linear_solves, 'converged': result.converged,
                    'termination': result.termination.value})
     st.finish()
@@ -581,13 +539,14 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         'features_used': init_problem.n_feats,
         'features_recovered': report['tracks']['features_recovered'],
         'inconsistent_tracks': report['tracks']['inconsistent_tracks'],
+        'tracks_readmitted': report['ba']['tracks_readmitted'],
         'cameras_resected': report['tracks']['cameras_resected'],
         'cameras_registered': report['tracks']['cameras_registered'],
         'final_rms_px': result.final_rms_px, 'ba_converged': result.converged,
-        'ba_termination': result.termination.value, 'ba_invocations': 1}
+        'ba_termination': result.termination.value, 'ba_invocations': invocations}
     return InitResult(init_problem, feats, result, cam_index,
                       np.asarray(init_problem.feature_ids, dtype=np.int64), cameras_used, report,
-                      1)
+                      invocations)
 
 
 __all__ = ['STAGES', 'InitOptions', 'InitResult', 'ProgressCallback', 'global_init']

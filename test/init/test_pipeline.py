@@ -67,7 +67,8 @@ def test_street_twenty_seeds_rotations_and_final_cost(shuffled: bool) -> None:
         gt = scene.gt
         res = global_init(gt, _TIGHT)
         ci = res.camera_index
-        assert res.ba_invocations == 1
+        # One BA; more only where dropped tracks were tried again.
+        assert res.ba_invocations == 1 or res.report['summary']['inconsistent_tracks'] > 0
         assert ci.shape[0] == gt.n_cams
         rot_err = _rotation_error_deg(res.problem.R_wc, gt.R_wc[ci])
         assert rot_err.mean() < 0.1, (seed, rot_err.mean())

@@ -42,7 +42,8 @@ def _sweep(problem: BAProblem, names: list[str], original: bool = True) -> None:
                           outlier_ids=variant.outlier_ids)
         logger.info('%s: %s', variant.name, row)
         json.dumps(row.to_dict())  # the benchmark writes these rows as JSON
-        assert res.ba_invocations == 1
+        # One BA; more only where dropped tracks were tried again.
+        assert res.ba_invocations == 1 or res.report['summary']['inconsistent_tracks'] > 0
         if not row.passed():
             failed.append((variant.name, row))
     assert not failed, failed

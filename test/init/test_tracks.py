@@ -67,7 +67,7 @@ def test_global_init_drops_wrong_tracks_before_its_one_ba() -> None:
 
 def test_a_misplaced_camera_is_flagged_and_resected_back() -> None:
     """One camera moved by 2 m: its residual stands out and resection puts it back."""
-    from pmba_ros.init import pipeline
+    from pmba_ros.init import pipeline, wrong_tracks
     from pmba_ros.init.tracks import camera_residuals_px, midpoints, resect_centers
 
     gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.0, far_fraction=0.0).gt
@@ -78,7 +78,7 @@ def test_a_misplaced_camera_is_flagged_and_resected_back() -> None:
     moved[4] += [0.5, 2.0, -1.0]
     px = camera_residuals_px(gt, gt.R_wc, moved, midpoints(gt, gt.R_wc, moved))
     assert np.argmax(px) == 4 and px[4] > 5 * np.median(px)
-    centers, resected, _ = pipeline._resect_outlying_cameras(gt, moved, pipeline.InitOptions())
+    centers, resected, _ = wrong_tracks.resect_outlying_cameras(gt, moved, pipeline.InitOptions())
     assert resected.tolist() == [4]
     np.testing.assert_allclose(centers[4], gt.centers_w[4], atol=0.05)
     np.testing.assert_array_equal(np.delete(centers, 4, 0), np.delete(moved, 4, 0))
@@ -86,11 +86,11 @@ def test_a_misplaced_camera_is_flagged_and_resected_back() -> None:
 
 def test_well_placed_cameras_are_left_alone() -> None:
     """Noisy but right positions: no camera is resected."""
-    from pmba_ros.init import pipeline
+    from pmba_ros.init import pipeline, wrong_tracks
 
     gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.5).gt
-    centers, resected, _ = pipeline._resect_outlying_cameras(gt, gt.centers_w,
-                                                             pipeline.InitOptions())
+    centers, resected, _ = wrong_tracks.resect_outlying_cameras(gt, gt.centers_w,
+                                                                pipeline.InitOptions())
     assert resected.size == 0
     np.testing.assert_array_equal(centers, gt.centers_w)
 
@@ -102,7 +102,7 @@ def test_tracks_through_a_misplaced_camera_are_not_taken_for_wrong_matches() -> 
     along the street): the tracks of its near points miss it by tens of pixels, as wrong
     matches do. Judged once more with that camera re-placed, they are kept.
     """
-    from pmba_ros.init import pipeline
+    from pmba_ros.init import pipeline, wrong_tracks
 
     for seed in range(4):
         gt = street_scene(seed, n_cams=40, n_points=400, noise_px=0.5).gt
@@ -116,21 +116,21 @@ def test_tracks_through_a_misplaced_camera_are_not_taken_for_wrong_matches() -> 
         at_moved = check_tracks(problem, problem.R_wc, moved, min_px=options.track_min_px,
                                 relative=options.track_relative)
         assert np.count_nonzero(at_moved.inconsistent & ~wrong) > 0, seed   # the case bites
-        judged = pipeline._wrong_tracks(problem, problem.R_wc, moved, options)
+        judged = wrong_tracks.wrong_tracks(problem, problem.R_wc, moved, options)
         np.testing.assert_array_equal(judged.inconsistent, wrong, err_msg=f'seed {seed}')
 
 
 def test_a_misplaced_camera_without_trusted_points_is_left_to_the_ba() -> None:
     """Every track of the moved camera untrusted: no resection from nothing, no error."""
     from pmba_ros.core.problem import subset_features
-    from pmba_ros.init import pipeline
+    from pmba_ros.init import pipeline, wrong_tracks
 
     gt = street_scene(3, n_cams=10, n_points=400, noise_px=0.0, far_fraction=0.0).gt
     moved = gt.centers_w.copy()
     moved[4] += [0.5, 2.0, -1.0]
     seen_by_4 = np.isin(np.arange(gt.n_feats), gt.obs.feat_idx[gt.obs.cam_idx == 4])
     fit = subset_features(gt, ~seen_by_4, 'untrusted')
-    centers, resected, _ = pipeline._resect_outlying_cameras(gt, moved, pipeline.InitOptions(),
-                                                             fit=fit)
+    centers, resected, _ = wrong_tracks.resect_outlying_cameras(gt, moved, pipeline.InitOptions(),
+                                                                fit=fit)
     assert 4 not in resected.tolist()
     np.testing.assert_array_equal(centers[4], moved[4])
