@@ -290,6 +290,7 @@ def run(args: argparse.Namespace) -> int:
     inits: list[Any] = []
     report: dict[str, Any] = {}
     for param, solver in runs:
+        resumed = ''
         options = _options(param, solver, args)
         callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
         progress = None if args.quiet else stage_printer()
@@ -304,6 +305,7 @@ def run(args: argparse.Namespace) -> int:
             from pmba_ros.init.pipeline import global_init, InitOptions
             init = global_init(problem, InitOptions(solve_options=options), progress=progress,
                                callback=callback)
+            resumed = _resumed(init.report) if init.ba_invocations > 1 else ''
             result = init.solve
             entry = {**result.to_report(), 'init': init.to_report(),
                      'ba_invocations': init.ba_invocations}
@@ -316,6 +318,8 @@ def run(args: argparse.Namespace) -> int:
         report[f'{param}-{solver}'] = entry
         if not args.compare:
             print(result.summary())
+            if resumed:
+                print(resumed)
     if args.compare:
         print(_table(results))
     if args.init != 'global':
@@ -493,6 +497,15 @@ def _warn_left_out(problem: BAProblem, init: Any, report: dict[str, Any]) -> Non
               'placed (outside the largest group of views joined by two-view geometry, or '
               "without enough features; the report's init says which) and were not solved; "
               'a written model keeps them as read')
+
+
+def _resumed(init_report: dict[str, Any]) -> str:
+    """Return the line saying that the initialization's BA was resumed, and why."""
+    ba, summary = init_report['ba'], init_report['summary']
+    return (f'  global initialization: the BA above is the last of {summary["ba_invocations"]}'
+            f' ({ba["iterations"]} iterations in all), resumed to try the '
+            f'{summary["inconsistent_tracks"]} tracks dropped before it again: '
+            f'{summary["tracks_readmitted"]} taken back')
 
 
 def _warn(report: dict[str, Any], text: str) -> None:

@@ -93,6 +93,31 @@ def test_solve_global_init_reports_stages(tmp_path: Path) -> None:
     assert 'init' in data and data['converged']
 
 
+def test_solve_says_when_the_initializations_ba_was_resumed(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The summary printed is the last BA's: a line says it was resumed, and why."""
+    from dataclasses import replace
+
+    from pmba_ros.init import pipeline
+    real = pipeline.global_init
+
+    def resumed(*args: object, **kwargs: object) -> object:
+        res = real(*args, **kwargs)  # type: ignore[arg-type]
+        res.report['summary'].update(ba_invocations=3, inconsistent_tracks=5,
+                                     tracks_readmitted=4)
+        res.report['ba']['iterations'] = 17
+        return replace(res, ba_invocations=3)
+
+    monkeypatch.setattr(pipeline, 'global_init', resumed)
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet']) == 0
+    out = capsys.readouterr().out
+    assert ('global initialization: the BA above is the last of 3 (17 iterations in all), '
+            'resumed to try the 5 tracks dropped before it again: 4 taken back') in out
+    monkeypatch.setattr(pipeline, 'global_init', real)
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet']) == 0
+    assert 'resumed' not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(('content', 'match'), [
     ('3 2\n', 'bad.txt:1:'),
     ('1 1 1\n0 0 1.0 x\n', 'bad.txt:2:'),
