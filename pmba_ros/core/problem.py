@@ -548,3 +548,10 @@ def take_features(feats: Features, index: IntArray) -> Features:
     """Return the features selected (or permuted) by ``index`` (every field is per feature)."""
     columns = {f.name: np.asarray(getattr(feats, f.name))[index] for f in fields(feats)}
     return type(feats)(**columns)
+
+
+def join_features(first: Features, then: Features) -> Features:
+    """Return the features of ``first`` followed by those of ``then`` (of the same type)."""
+    columns = {f.name: np.concatenate([getattr(first, f.name), getattr(then, f.name)])
+               for f in fields(first)}
+    return type(first)(**columns)

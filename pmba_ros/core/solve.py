@@ -140,6 +140,12 @@ class SolveOptions:
             msg = '`loss_scale_px` and `initial_trust_region_radius` must be positive'
             raise ValueError(msg)
 
+    def loss_scale(self, model: Model[Any]) -> float:
+        """Return the loss scale in the model's residual units (ray errors: px / median focal)."""
+        if model.pixel_residuals:
+            return self.loss_scale_px
+        return self.loss_scale_px / model.problem.intrinsics.median_focal
+
 
 @dataclass(frozen=True, slots=True)
 class IterationRecord:
@@ -311,8 +317,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                                         model.anchor_cols, engine.schur_plan,
                                         engine.schur_anchors)
     col_mask = gauge.column_mask()
-    loss_scale = (options.loss_scale_px if model.pixel_residuals
-                  else options.loss_scale_px / problem.intrinsics.median_focal)
+    loss_scale = options.loss_scale(model)
 
     # The prior's residuals at a state serve its cost and, once the state is accepted, its
     # linearization; where its blocks go in the equations is found once per solve.

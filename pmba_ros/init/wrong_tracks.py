@@ -33,6 +33,7 @@ from pmba_ros.core.loss import Loss
 from pmba_ros.core.models import ParallaxModel
 from pmba_ros.core.problem import (
     BAProblem,
+    join_features,
     make_problem,
     ParallaxFeatures,
     Parameterization,
@@ -210,9 +211,7 @@ def _appended(solved: SolveResult, dropped: BAProblem, threshold_px: float,
         return None, None
     model = ParallaxModel(back, options.pixel_weighted)
     feats = refit_features(model, R, C, found, np.arange(back.n_feats), options.loss,
-                           options.loss_scale_px if model.pixel_residuals
-                           else options.loss_scale_px / back.intrinsics.median_focal,
-                           iterations=REFIT_ITERATIONS)
+                           options.loss_scale(model), iterations=REFIT_ITERATIONS)
     worth = _track_rms_px(back, R, C, feats, options) <= threshold_px
     worth &= np.bincount(back.obs.feat_idx, minlength=back.n_feats) >= MIN_VIEWS
     if not np.any(worth):
@@ -230,8 +229,8 @@ def _appended(solved: SolveResult, dropped: BAProblem, threshold_px: float,
         feature_ids=np.concatenate([own.feature_ids, back.feature_ids]),
         pixel_jac=(None if obs.pixel_jac is None or new.pixel_jac is None
                    else np.concatenate([obs.pixel_jac, new.pixel_jac])))
-    both = ParallaxFeatures(*(np.concatenate([getattr(f, k), getattr(tried, k)])
-                              for k in ('theta', 'n', 'main_idx', 'assoc_idx')))
+    both = join_features(f, tried)
+    assert isinstance(both, ParallaxFeatures)
     return merged, both
 
 
