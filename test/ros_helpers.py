@@ -34,9 +34,12 @@ def domain_id() -> int:
     return (os.getpid() * 7 + next(_COUNTER) * 13) % 100 + 1
 
 
-def isolated_env(domain: int) -> dict[str, str]:
-    """Return the environment of a child process on its own localhost-only DDS domain."""
-    env = dict(os.environ)
+def isolated_env(domain: int, base: dict[str, str] | None = None) -> dict[str, str]:
+    """Return the environment of a child process on its own localhost-only DDS domain.
+
+    ``base``: the environment to start from (this process's by default).
+    """
+    env = dict(os.environ if base is None else base)
     env['ROS_DOMAIN_ID'] = str(domain)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env.pop('ROS_LOCALHOST_ONLY', None)

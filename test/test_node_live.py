@@ -18,14 +18,17 @@ Each test runs the node with ``--ros-args --params-file config/pmba.yaml`` plus 
 its own ``ROS_DOMAIN_ID`` (localhost discovery only), publishes a recording at its recorded
 rate (``pmba play`` as a second process, or a driver node here), and checks what comes
 back: every keyframe in the path, odometry for every keyframe, diagnostics, the services
-through real clients, and the exit on SIGINT / SIGTERM.
+through real clients, and the exit on SIGINT / SIGTERM. One runs the node as ``colcon build``
+installs it and ``ros2 run`` starts it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+import os
 from pathlib import Path
+import shutil
 import signal
 import subprocess
 import sys
@@ -80,17 +83,21 @@ main(sys.argv[1:])
 
 
 def start_node(domain: int, log: Path, *ros_args: str,
-               program: tuple[str, str] = ('-m', 'pmba_ros.node')) -> subprocess.Popen[str]:
+               program: tuple[str, ...] = (sys.executable, '-m', 'pmba_ros.node'),
+               params: Path = PARAMS, env: dict[str, str] | None = None,
+               ) -> subprocess.Popen[str]:
     """Start pmba_node with the params file and ``ros_args`` on ``domain``, logging to ``log``.
 
-    A file, not a pipe: a pipe nobody reads while the node runs blocks it once full.
+    ``program``: the command line before ``--ros-args``; ``env``: the environment to isolate
+    (this process's by default). A file, not a pipe: a pipe nobody reads while the node runs
+    blocks it once full.
     """
     with log.open('w', encoding='utf-8') as out_file:
         return subprocess.Popen(
-            [sys.executable, *program, '--ros-args', '--params-file',
-             str(PARAMS), '-p', 'init_batch_size:=10', *ros_args],
-            env=isolated_env(domain), stdout=out_file, stderr=subprocess.STDOUT, text=True,
-            preexec_fn=_default_sigint)
+            [*program, '--ros-args', '--params-file', str(params), '-p', 'init_batch_size:=10',
+             *ros_args],
+            env=isolated_env(domain, env), stdout=out_file, stderr=subprocess.STDOUT,
+            text=True, preexec_fn=_default_sigint)
 
 
 @dataclass
@@ -335,7 +342,7 @@ def test_a_signal_during_a_long_solve_ends_it(listener: Listener, tmp_path: Path
     log = tmp_path / 'node.log'
     saved = tmp_path / 'saved'
     node = start_node(domain, log, *LATCHED_INPUTS, '-p', f'save_directory:={saved}',
-                      program=('-c', SLOW_INIT_NODE))
+                      program=(sys.executable, '-c', SLOW_INIT_NODE))
     seq = simulate_sequence('street', n_keyframes=12, seed=4)
     backend = RclpyBackend()
     driver = listener.node
@@ -375,3 +382,102 @@ def test_bad_parameter_is_one_fatal_line(listener: Listener, tmp_path: Path) -> 
     fatal = [line for line in stderr.splitlines() if '[FATAL]' in line]
     assert len(fatal) == 1 and 'loss' in fatal[0]
     assert 'Traceback' not in stderr
+
+
+# What a checkout holds besides the package: a workspace copy leaves it out (the venv's ROS
+# wheels carry package.xml files colcon would take for packages of the workspace).
+NOT_PACKAGE = shutil.ignore_patterns('.git', '.venv', 'build', 'install', 'log', 'out',
+                                     '__pycache__', '*.egg-info', '.*_cache')
+
+
+@pytest.fixture(scope='module')
+def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Return the ``install`` folder of a workspace where ``colcon build`` built this package."""
+    colcon = Path(sys.executable).with_name('colcon')
+    if not colcon.exists():
+        pytest.skip('colcon is not installed (scripts/setup_venv installs it with the test '
+                    'extras)')
+    ws = tmp_path_factory.mktemp('ros2_ws')
+    shutil.copytree(ROOT, ws / 'src' / 'pmba_ros', ignore=NOT_PACKAGE)
+    proc = subprocess.run([str(colcon), 'build', '--packages-select', 'pmba_ros'], cwd=ws,
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return ws / 'install'
+
+
+def sourced_env(setup: Path) -> dict[str, str]:
+    """Return the environment after ``source setup`` (a colcon ``setup.bash``) in bash."""
+    proc = subprocess.run(['bash', '-c', f'source "{setup}" && env -0'], capture_output=True,
+                          timeout=60, check=True)
+    pairs = (item.split(b'=', 1) for item in proc.stdout.split(b'\0') if b'=' in item)
+    return {k.decode(): v.decode() for k, v in pairs}
+
+
+def package_prefix(env: dict[str, str], package: str) -> Path:
+    """Return the prefix ``ros2 run`` takes a package's executables from (ament_index_python).
+
+    The first of ``AMENT_PREFIX_PATH`` with the package's ament index marker.
+    """
+    for prefix in env.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        marker = Path(prefix, 'share', 'ament_index', 'resource_index', 'packages', package)
+        if prefix and marker.is_file():
+            return Path(prefix)
+    pytest.fail(f'{package} is in no prefix of AMENT_PREFIX_PATH: {env.get("AMENT_PREFIX_PATH")}')
+
+
+@pytest.mark.slow
+def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path,
+                                              colcon_install: Path) -> None:
+    """The README's ROS way: ``colcon build``, ``source install/setup.bash``, ``ros2 run``.
+
+    ros2cli is not on PyPI: the node is started as ``ros2 run pmba_ros pmba_node`` starts it,
+    the executable under ``lib/pmba_ros`` of the prefix the ament index gives, with the
+    installed parameter file, and the installed ``pmba play`` feeds it. The installed copy
+    runs, not this checkout. Its compiled loops are left off (``PMBA_NUMBA=0``): a fresh
+    install compiles them once, for tens of seconds (other tests cover them).
+    """
+    env = sourced_env(colcon_install / 'setup.bash')
+    prefix = package_prefix(env, 'pmba_ros')
+    assert prefix == colcon_install / 'pmba_ros'
+    share, lib = prefix / 'share' / 'pmba_ros', prefix / 'lib' / 'pmba_ros'
+    for name in ('package.xml', 'config/pmba.yaml', 'launch/pmba.launch.py'):
+        assert (share / name).is_file(), name
+    for name in ('pmba_node', 'pmba', 'pmba_bag_replay'):
+        assert os.access(lib / name, os.X_OK), name
+    where = subprocess.run([sys.executable, '-c', 'import pmba_ros; print(pmba_ros.__file__)'],
+                           env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+                           check=True)
+    assert Path(where.stdout.strip()).is_relative_to(prefix), where.stdout
+
+    bag = tmp_path / 'street'
+    env['PMBA_NUMBA'] = '0'
+    made = subprocess.run([str(lib / 'pmba'), 'simulate', '--keyframes', str(N_KEYFRAMES),
+                           '--seed', '5', '--out', str(bag)], env=env, capture_output=True,
+                          text=True, timeout=120, check=False)
+    assert made.returncode == 0, made.stderr
+    domain = listener.domain  # type: ignore[attr-defined]
+    log = tmp_path / 'node.log'
+    node = start_node(domain, log, *LATCHED_INPUTS, '-p', 'max_time_s:=1',
+                      program=(str(lib / 'pmba_node'),), params=share / 'config' / 'pmba.yaml',
+                      env=env)
+    player = None
+    try:
+        wait_until_up(listener, node, log)
+        player = subprocess.Popen(
+            [str(lib / 'pmba'), 'play', str(bag), '--wait-for-subscribers', '30', '--topics',
+             '/features', '/keyframe_pose', '/camera_info'],
+            env=isolated_env(domain, env), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True)
+        from pmba_ros.io.bags import iter_messages
+        stamps = np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
+                           for m in iter_messages([bag], ['/keyframe_pose'])])
+        check_outputs(listener, stamps)
+        assert player.wait(timeout=30) == 0
+        _, text = stop(node, signal.SIGINT, log)
+        assert node.returncode == 0, text
+        assert 'Traceback' not in text
+    finally:
+        for proc in (node, player):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
