@@ -390,19 +390,22 @@ NOT_PACKAGE = shutil.ignore_patterns('.git', '.venv', 'build', 'install', 'log',
                                      '__pycache__', '*.egg-info', '.*_cache')
 
 
-@pytest.fixture(scope='module')
-def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Return the ``install`` folder of a workspace where ``colcon build`` built this package."""
+@pytest.fixture(scope='module', params=[(), ('--symlink-install',)],
+                ids=['install', 'symlink_install'])
+def colcon_workspace(request: pytest.FixtureRequest,
+                     tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Return a workspace in which ``colcon build`` (with ``request.param``) built this package."""
     colcon = Path(sys.executable).with_name('colcon')
     if not colcon.exists():
         pytest.skip('colcon is not installed (scripts/setup_venv installs it with the test '
                     'extras)')
     ws = tmp_path_factory.mktemp('ros2_ws')
     shutil.copytree(ROOT, ws / 'src' / 'pmba_ros', ignore=NOT_PACKAGE)
-    proc = subprocess.run([str(colcon), 'build', '--packages-select', 'pmba_ros'], cwd=ws,
-                          capture_output=True, text=True, timeout=600, check=False)
+    proc = subprocess.run([str(colcon), 'build', '--packages-select', 'pmba_ros',
+                           *request.param], cwd=ws, capture_output=True, text=True,
+                          timeout=600, check=False)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    return ws / 'install'
+    return ws
 
 
 def sourced_env(setup: Path) -> dict[str, str]:
@@ -427,18 +430,20 @@ def package_prefix(env: dict[str, str], package: str) -> Path:
 
 @pytest.mark.slow
 def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path,
-                                              colcon_install: Path) -> None:
+                                              colcon_workspace: Path) -> None:
     """The README's ROS way: ``colcon build``, ``source install/setup.bash``, ``ros2 run``.
 
     ros2cli is not on PyPI: the node is started as ``ros2 run pmba_ros pmba_node`` starts it,
     the executable under ``lib/pmba_ros`` of the prefix the ament index gives, with the
-    installed parameter file, and the installed ``pmba play`` feeds it. The installed copy
-    runs, not this checkout. Its compiled loops are left off (``PMBA_NUMBA=0``): a fresh
-    install compiles them once, for tens of seconds (other tests cover them).
+    installed parameter file, and the installed ``pmba play`` feeds it. The workspace's copy
+    runs (installed, or linked from ``build`` with ``--symlink-install``), not this checkout.
+    Its compiled loops are left off (``PMBA_NUMBA=0``): a fresh install compiles them once,
+    for tens of seconds (other tests cover them).
     """
-    env = sourced_env(colcon_install / 'setup.bash')
+    install = colcon_workspace / 'install'
+    env = sourced_env(install / 'setup.bash')
     prefix = package_prefix(env, 'pmba_ros')
-    assert prefix == colcon_install / 'pmba_ros'
+    assert prefix == install / 'pmba_ros'
     share, lib = prefix / 'share' / 'pmba_ros', prefix / 'lib' / 'pmba_ros'
     for name in ('package.xml', 'config/pmba.yaml', 'launch/pmba.launch.py'):
         assert (share / name).is_file(), name
@@ -447,7 +452,7 @@ def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path
     where = subprocess.run([sys.executable, '-c', 'import pmba_ros; print(pmba_ros.__file__)'],
                            env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
                            check=True)
-    assert Path(where.stdout.strip()).is_relative_to(prefix), where.stdout
+    assert Path(where.stdout.strip()).is_relative_to(colcon_workspace), where.stdout
 
     bag = tmp_path / 'street'
     env['PMBA_NUMBA'] = '0'
