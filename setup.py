@@ -57,8 +57,9 @@ setup(
                  'pyflakes==3.2.0', 'pycodestyle==2.11.1', 'flake8-builtins==2.1.0',
                  'flake8-comprehensions==3.14.0', 'flake8-docstrings==1.7.0',
                  'flake8-import-order==0.18.2', 'flake8-quotes==3.3.2', 'pycolmap',
-                 # `colcon build` of the README's ROS way, run by test_node_live.py.
-                 'colcon-common-extensions'],
+                 # `colcon build` of the README's ROS way and ros2 run's package lookup, run
+                 # by test_node_live.py.
+                 'colcon-common-extensions', 'ros-jazzy-ament-index-python'],
         'plot': ['matplotlib'],
         # rclpy and the message packages as PyPI wheels (Python 3.11), for pmba_node and
         # `pmba play` without a ROS installation; on a ROS machine they come from rosdep.

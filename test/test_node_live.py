@@ -416,16 +416,21 @@ def sourced_env(setup: Path) -> dict[str, str]:
     return {k.decode(): v.decode() for k, v in pairs}
 
 
-def package_prefix(env: dict[str, str], package: str) -> Path:
-    """Return the prefix ``ros2 run`` takes a package's executables from (ament_index_python).
+def ament_lookup(env: dict[str, str]) -> tuple[Path, Path]:
+    """Return pmba_ros' prefix and share folder as ament_index_python finds them in ``env``.
 
-    The first of ``AMENT_PREFIX_PATH`` with the package's ament index marker.
+    ``ros2 run`` takes a package's executables from its prefix's ``lib/<package>``, the launch
+    file its parameter file from the share folder.
     """
-    for prefix in env.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
-        marker = Path(prefix, 'share', 'ament_index', 'resource_index', 'packages', package)
-        if prefix and marker.is_file():
-            return Path(prefix)
-    pytest.fail(f'{package} is in no prefix of AMENT_PREFIX_PATH: {env.get("AMENT_PREFIX_PATH")}')
+    code = ('from ament_index_python.packages import get_package_prefix, '
+            'get_package_share_directory\n'
+            "print(get_package_prefix('pmba_ros'))\n"
+            "print(get_package_share_directory('pmba_ros'))")
+    proc = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert proc.returncode == 0, proc.stderr
+    prefix, share = proc.stdout.splitlines()
+    return Path(prefix), Path(share)
 
 
 @pytest.mark.slow
@@ -434,17 +439,18 @@ def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path
     """The README's ROS way: ``colcon build``, ``source install/setup.bash``, ``ros2 run``.
 
     ros2cli is not on PyPI: the node is started as ``ros2 run pmba_ros pmba_node`` starts it,
-    the executable under ``lib/pmba_ros`` of the prefix the ament index gives, with the
+    the executable under ``lib/pmba_ros`` of the prefix ament_index_python gives, with the
     installed parameter file, and the installed ``pmba play`` feeds it. The workspace's copy
     runs (installed, or linked from ``build`` with ``--symlink-install``), not this checkout.
     Its compiled loops are left off (``PMBA_NUMBA=0``): a fresh install compiles them once,
     for tens of seconds (other tests cover them).
     """
+    pytest.importorskip('ament_index_python')
     install = colcon_workspace / 'install'
     env = sourced_env(install / 'setup.bash')
-    prefix = package_prefix(env, 'pmba_ros')
+    prefix, share = ament_lookup(env)
     assert prefix == install / 'pmba_ros'
-    share, lib = prefix / 'share' / 'pmba_ros', prefix / 'lib' / 'pmba_ros'
+    lib = prefix / 'lib' / 'pmba_ros'
     for name in ('package.xml', 'config/pmba.yaml', 'launch/pmba.launch.py'):
         assert (share / name).is_file(), name
     for name in ('pmba_node', 'pmba', 'pmba_bag_replay'):
