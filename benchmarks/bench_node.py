@@ -18,6 +18,7 @@ Run (needs the ``ros`` extra)::
 
     python benchmarks/bench_node.py                     # 150-keyframe street, 10 keyframes/s
     python benchmarks/bench_node.py --keyframes 300 --seed 2 --check
+    python benchmarks/bench_node.py --keyframes 600 --seed 3 -p mode:=global
 
 It writes a simulated street recording, starts ``pmba_node`` as a process with its default
 parameters (``config/pmba.yaml``) and ``pmba play`` as an independent publisher process, both
@@ -71,6 +72,8 @@ def main() -> int:
     parser.add_argument('--domain', type=int, default=random.randint(1, 100),
                         help='ROS_DOMAIN_ID of the run (a private one by default)')
     parser.add_argument('--check', action='store_true', help='fail above the targets')
+    parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='a node parameter over the parameter file (repeatable)')
     args = parser.parse_args()
 
     from nav_msgs.msg import Odometry
@@ -118,7 +121,8 @@ def main() -> int:
         node = subprocess.Popen(
             [sys.executable, '-m', 'pmba_ros.node', '--ros-args', '--params-file',
              str(ROOT / 'config' / 'pmba.yaml'), '-p', 'features_qos:=transient_local',
-             '-p', 'keyframe_qos:=transient_local', '-p', 'camera_info_qos:=transient_local'],
+             '-p', 'keyframe_qos:=transient_local', '-p', 'camera_info_qos:=transient_local',
+             *(a for p in args.param for a in ('-p', p))],
             env=env, stdout=node_log, stderr=node_log,
             text=True, preexec_fn=_default_sigint)
         player = None

@@ -57,6 +57,7 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.consistency import in_odom_frame, inconsistency, motion_error
 from pmba_ros.backend.motion import (
     ANCHOR_BASELINE_REL,
+    fit_map_from_odom,
     frontend_motion_prior,
     FrontendNoise,
     JUMP_SIGMAS,
@@ -70,7 +71,6 @@ from pmba_ros.backend.rig_scale import rescale_map, RigScale
 from pmba_ros.backend.sanity import CostMonitor
 from pmba_ros.backend.status import UpdateInfo
 from pmba_ros.backend.window import (
-    estimate_similarity,
     FeatureMap,
     gather_observations,
     KeyframeObs,
@@ -145,6 +145,8 @@ class Estimator:
         self._rig_offsets: dict[int, tuple[FloatArray, FloatArray]] = {}
         self._odom_cov: FloatArray | None = None
         self._cost = CostMonitor()
+        self.deferred = 0
+        """Keyframes added since the last solve (``add_keyframe(..., solve=False)``)."""
 
     def set_rig_camera(self, camera: int, rotation: FloatArray, translation: FloatArray) -> None:
         """Use observations of front-end camera ``camera`` (other than ``camera_id``).
@@ -177,7 +179,7 @@ class Estimator:
 
     def add_keyframe(self, stamp_ns: int, odom: tuple[FloatArray, FloatArray] | None,
                      obs: KeyframeObs | None, odom_covariance: FloatArray | None = None, *,
-                     odom_jumped: bool = False) -> UpdateInfo:
+                     odom_jumped: bool = False, solve: bool = True) -> UpdateInfo:
         """Add a keyframe and update the estimate.
 
         Every keyframe with a front-end pose gets a map pose: before the first initialization
@@ -193,6 +195,9 @@ class Estimator:
             odom_jumped: The front-end's frame jumped since the previous keyframe (a
                 relocalization or a reset): this pose starts a new odom segment, the step to
                 it is no motion, and map <- odom is estimated anew.
+            solve: False (the node behind its input): once tracking, the keyframe's solve
+                (its iterations) is left to a later one's or :meth:`solve_deferred`; in sliding
+                mode at most ``window_size // 2`` in a row (each solved in the window).
 
         Returns:
             What the update did.
@@ -215,9 +220,17 @@ class Estimator:
         R0, C0 = predict_pose(self.kf, self.map_from_odom, self._segment, odom)
         i = self.kf.add(stamp_ns, odom, obs, KeyframeStatus.ACTIVE, self._odom_cov, self._segment)
         self.kf.R_map[i], self.kf.C_map[i] = R0, C0
+        if not solve and (self.config.mode == 'global'
+                          or self.deferred < self.config.window_size // 2):
+            self.deferred += 1
+            return UpdateInfo('deferred', keyframe=i, message='solve deferred: input waiting')
         info = self._refine()
         info.keyframe = i
         return info
+
+    def solve_deferred(self) -> UpdateInfo | None:
+        """Run the solve keyframes added with ``solve=False`` left (None: none is left)."""
+        return self._refine() if self.deferred and self.state == 'tracking' else None
 
     # --- initialization ------------------------------------------------------------------
 
@@ -415,6 +428,7 @@ class Estimator:
 
     def _refine(self, *, slide: bool = True) -> UpdateInfo:
         cfg = self.config
+        iterations, self.deferred = cfg.max_iterations * (1 + self.deferred), 0
         rig = self._rig() is not None
         window_ids = self._slide() if slide else None
         active = self.kf.indices(KeyframeStatus.ACTIVE)
@@ -444,7 +458,7 @@ class Estimator:
                                          feats.assoc_idx[ok])
             options = SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
                                    loss=Loss(cfg.loss), loss_scale_px=cfg.loss_scale_px,
-                                   max_iterations=cfg.max_iterations,
+                                   max_iterations=iterations,
                                    max_time_s=math.inf if cfg.deterministic else cfg.max_time_s,
                                    prior_leverage=sampled,
                                    scale_tension=window_ids is not None and rig)
@@ -557,22 +571,9 @@ class Estimator:
 
     def _update_similarity(self) -> None:
         """Re-estimate map <- odom from the free keyframes with front-end poses."""
-        active = self.kf.indices(KeyframeStatus.ACTIVE)
-        if self.config.mode == 'global':
-            active = active[-self.config.window_size:]
-        sel = active[self.kf.has_odom[active]]
-        if sel.shape[0] == 0:
-            return
-        # The newest odom frame only; right after a jump, one pose fixes the new frame's
-        # rotation and offset, and the scale stays.
-        newest = sel[self.kf.segment[sel] == self.kf.segment[sel[-1]]]
-        if newest.shape[0] >= 2 or newest.shape[0] < sel.shape[0]:
-            # Keyframes within a step of each other (a stop) do not measure the scale.
-            step = typical_step(self._run_scale, self.kf.C_map[newest])
-            self.map_from_odom = estimate_similarity(
-                self.kf.R_map[newest], self.kf.C_map[newest], self.kf.R_odom[newest],
-                self.kf.C_odom[newest], self.map_from_odom.scale,
-                min_spread=step / self.map_from_odom.scale)
+        self.map_from_odom = fit_map_from_odom(self.kf, self._run_scale, self.map_from_odom,
+                                               self.config.window_size,
+                                               self.config.mode == 'global')
 
     # --- accessors ------------------------------------------------------------------------
 

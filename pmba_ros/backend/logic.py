@@ -28,6 +28,7 @@ future-dated by ``transform_tolerance_s``), never from a clock. With ``determini
 from __future__ import annotations
 
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 import logging
 from pathlib import Path
@@ -88,6 +89,11 @@ class BackendLogic:
         self.cameras = FrontendCameras(config)
         # The poses are a stream sampled at the tracks' stamps, not keyframes (read-only).
         self._stream_mode = config.keyframe_source == 'tracks'
+        self.input_waiting: Callable[[], bool] = lambda: False
+        """Whether more input waits to be handled (the node's queue): a keyframe's solve is
+        then left to a later one's (:meth:`Estimator.add_keyframe`'s ``solve``), and run
+        once the input is handled, so that a node behind its input catches up instead of
+        dropping it. Never with ``deterministic``."""
         self._init_buffers()
 
     def _init_buffers(self) -> None:
@@ -330,6 +336,8 @@ class BackendLogic:
             self._pending.popleft()
             self._process(kf, frame)
             processed += 1
+        if not (processed or self._paused or self.input_waiting()):
+            processed = self._solve_deferred()
         try:
             if processed:
                 return self._outputs()
@@ -386,12 +394,32 @@ class BackendLogic:
             obs = self._observations(frame) if frame is not None else None
             info = self.estimator.add_keyframe(
                 kf.stamp_ns, odom, obs, None if kf.pose is None else kf.pose.covariance,
-                odom_jumped=kf.odom_jumped)
+                odom_jumped=kf.odom_jumped,
+                solve=self.config.deterministic or not self.input_waiting())
         except Exception as err:
             logger.exception('keyframe update failed')
             self._reject('internal_errors', err)
             info = status.UpdateInfo('error', message=str(err))
         self._stats.record_update(info)
+        self._note_update(info, t0)
+
+    def _solve_deferred(self) -> int:
+        """Run the solve deferred keyframes left, if any; return 1 if one ran, else 0."""
+        t0 = time.perf_counter()
+        try:
+            info = self.estimator.solve_deferred()
+        except Exception as err:
+            logger.exception('deferred solve failed')
+            self._reject('internal_errors', err)
+            info = status.UpdateInfo('error', message=str(err))
+        if info is None:
+            return 0
+        self._stats.record_solve(info)
+        self._note_update(info, t0)
+        return 1
+
+    def _note_update(self, info: status.UpdateInfo, t0: float) -> None:
+        """Keep an update's figures (``t0``: its start, ``time.perf_counter()``)."""
         est = self.estimator
         self._stats.not_optimized = int(np.count_nonzero(~est.optimized(est.estimated())))
         if est.state == 'tracking':

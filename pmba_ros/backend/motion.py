@@ -29,7 +29,12 @@ import statistics
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.window import KeyframeStatus, KeyframeStore, Similarity
+from pmba_ros.backend.window import (
+    estimate_similarity,
+    KeyframeStatus,
+    KeyframeStore,
+    Similarity,
+)
 from pmba_ros.core import so3
 from pmba_ros.core.pose_prior import RelativePosePrior, StepChanges, WindowScale
 
@@ -538,3 +543,26 @@ def predict_pose(kf: KeyframeStore, map_from_odom: Similarity, segment: int,
         R_rel = R_a.T @ R_b
         return so3.project(R_b @ R_rel), C_b + R_b @ (R_a.T @ (C_b - C_a))
     return kf.R_map[prev].copy(), kf.C_map[prev].copy()
+
+
+def fit_map_from_odom(kf: KeyframeStore, run: RunScale, current: Similarity, window: int,
+                      global_mode: bool) -> Similarity:
+    """Return map <- odom fitted to the free keyframes with front-end poses (or ``current``).
+
+    In global mode to the newest ``window`` of them; in the newest odom frame only (right
+    after a jump, one pose fixes the new frame's rotation and offset, and the scale stays).
+    Keyframes within a step of each other (a stop) do not measure the scale.
+    """
+    active = kf.indices(KeyframeStatus.ACTIVE)
+    if global_mode:
+        active = active[-window:]
+    sel = active[kf.has_odom[active]]
+    if sel.shape[0] == 0:
+        return current
+    newest = sel[kf.segment[sel] == kf.segment[sel[-1]]]
+    if newest.shape[0] < 2 and newest.shape[0] == sel.shape[0]:
+        return current
+    step = typical_step(run, kf.C_map[newest])
+    return estimate_similarity(kf.R_map[newest], kf.C_map[newest], kf.R_odom[newest],
+                               kf.C_odom[newest], current.scale,
+                               min_spread=step / current.scale)

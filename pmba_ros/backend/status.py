@@ -26,7 +26,7 @@ Factors = tuple[float, float, float]
 DIAGNOSTICS_NAME = 'pmba_ros: back-end'
 INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
                            'init_failures', 'keyframes_passed_through',
-                           'keyframe_poses_recovered'})
+                           'keyframe_poses_recovered', 'solves_deferred'})
 """Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
 
 
@@ -35,7 +35,8 @@ class UpdateInfo:
     """What one keyframe update did (for diagnostics and stats).
 
     Attributes:
-        kind: 'collect', 'init', 'init_failed', 'refine', 'dead_reckoned' or 'dropped'.
+        kind: 'collect', 'init', 'init_failed', 'refine', 'deferred' (added, its solve left
+            to a later update), 'dead_reckoned' or 'dropped'.
         keyframe: Index of the keyframe (-1 if it was dropped).
         solve_ms: Solver wall time, ms (0 if no solve).
         iterations: Solver iterations.
@@ -101,13 +102,18 @@ class BackendStats:
     def record_update(self, info: UpdateInfo) -> None:
         """Count one keyframe update: its drops, its kind and, after a solve, its figures."""
         self.keyframes += 1
-        for reason, n in info.dropped.items():
-            self.count(reason, n)
         if info.kind in ('dropped', 'dead_reckoned', 'passed_through'):
             self.count(f'keyframes_{info.kind}')
         if info.kind in ('init', 'init_failed'):
             self.count('init_attempts')
             self.count('init_failures', int(info.kind == 'init_failed'))
+        self.count('solves_deferred', int(info.kind == 'deferred'))
+        self.record_solve(info)
+
+    def record_solve(self, info: UpdateInfo) -> None:
+        """Count an update's drops and, after a solve, its figures (a deferred solve alone)."""
+        for reason, n in info.dropped.items():
+            self.count(reason, n)
         if info.kind in ('refine', 'init'):
             self.solve_ms.append(info.solve_ms)
             self.iterations.append(info.iterations)

@@ -14,11 +14,13 @@
 """The node's solver thread: a bounded queue in front of a :class:`BackendLogic`.
 
 Subscription callbacks only :meth:`LogicWorker.enqueue`; the worker thread feeds the logic
-and hands its outputs to a publish callback, so solving never blocks the executor. Messages
-that find the queue full are dropped and counted (``queue_full_<kind>`` in the back-end's
-counters). A stop, a reset or the process's shutdown abandons the update in progress at the
-solver's next iteration (:class:`~pmba_ros.errors.Cancelled`), and nothing of it is
-published. No rclpy import: the node owns the thread's ROS side.
+and hands its outputs to a publish callback, so solving never blocks the executor. While
+more messages wait, a keyframe's solve is left to a later keyframe's (one solve, with their
+iterations, for several: ``solves_deferred``), so that a thread behind its input catches up.
+Messages that find the queue full are dropped and counted (``queue_full_<kind>`` in the
+back-end's counters). A stop, a reset or the process's shutdown abandons the update in
+progress at the solver's next iteration (:class:`~pmba_ros.errors.Cancelled`), and nothing
+of it is published. No rclpy import: the node owns the thread's ROS side.
 """
 
 from __future__ import annotations
@@ -72,6 +74,9 @@ class LogicWorker:
         self._discarded = 0   # messages the thread dropped while a reset waited
         logic.estimator.checkpoint = self._checkpoint
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        # Behind its input, the logic leaves solves to later keyframes (one solve for
+        # several) rather than the queue filling up and dropping keyframes.
+        logic.input_waiting = lambda: not self._queue.empty()
         self._drops: Counter[str] = Counter()
         self._received: Counter[str] = Counter()
         self._counts_lock = threading.Lock()

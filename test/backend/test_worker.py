@@ -24,11 +24,16 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.backend.worker import LogicWorker
+from pmba_ros.eval.metrics import ate
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
+
+from .test_logic import camera_info_msg, keyframe_msg, tracks_msg
 
 
 class RecordingLogic(BackendLogic):
@@ -229,3 +234,122 @@ def test_a_pause_does_not_wait_for_the_solve() -> None:
     _wait_for(lambda: logic.paused)
     worker.stop()
     assert logic.paused and published[0] == [('pmba/path', 1)]
+
+
+def _street_messages(n: int) -> tuple[SimSequence, list[tuple[str, Any]]]:
+    """Return a street and its messages in arrival order: CameraInfo, then tracks and pose."""
+    seq = simulate_sequence('street', n_keyframes=n, seed=2)
+    msgs = [('camera_info', camera_info_msg(seq))]
+    for i in range(n):
+        msgs += [('tracks', tracks_msg(seq, i)), ('keyframe', keyframe_msg(seq, i))]
+    return seq, msgs
+
+
+def _live_config(**kwargs: Any) -> BackendConfig:
+    """Return the node's configuration without its solves' wall-time budget (they converge)."""
+    return BackendConfig(max_time_s=60.0, **kwargs)
+
+
+@pytest.mark.parametrize('mode', ['sliding', 'global'])
+def test_a_worker_behind_its_input_solves_once_for_several_keyframes(mode: str) -> None:
+    """A backlog: each keyframe's solve that finds more input queued is left to a later one.
+
+    Every message is queued before the thread handles any (a node whose solves took longer
+    than the front-end's keyframe interval). Nothing is dropped, the last message's step
+    solves what was left, every keyframe is in the last path, optimized, and the trajectory
+    is well below the front-end's error. Before, each keyframe waited for its own solve,
+    and a backlog long enough filled the queue: keyframes were dropped.
+    """
+    seq, msgs = _street_messages(60)
+    gt = seq.gt_trajectory()
+    runs = {}
+    for backlog in (False, True):
+        logic = BackendLogic(_live_config(mode=mode), RosbagsBackend())
+        published: list[list[tuple[str, Any]]] = []
+        worker = LogicWorker(logic, published.append, queue_size=len(msgs))
+        for kind, msg in msgs:
+            worker.enqueue(kind, msg)
+            if not backlog:
+                worker.process_pending()
+        worker.process_pending()
+        counters = logic.stats.counters
+        assert not any(k.startswith('queue_full') for k in counters)
+        path = [m for outs in published for t, m in outs if t == 'pmba/path'][-1]
+        assert len(path.poses) == 60
+        est = logic.estimator
+        assert np.all(est.optimized(est.estimated())), 'a keyframe was never solved'
+        runs[backlog] = (counters['solves_deferred'], len(logic.stats.solve_ms),
+                         ate(logic.optimized_trajectory(), gt, 'sim3').rmse)
+    (deferred_now, solves_now, ate_now), (deferred, solves, ate_backlog) = runs[False], runs[True]
+    assert deferred_now == 0
+    assert deferred >= 30 and solves <= solves_now - 30
+    # Fewer, longer solves land elsewhere in the cost's flat valley of a monocular map
+    # (its scale along the street), but well below the front-end's error.
+    front_end = ate(seq.odom_trajectory(), gt, 'sim3').rmse
+    assert ate_now < 0.4 * front_end
+    assert ate_backlog < 0.6 * front_end
+
+
+def test_a_backlog_in_sliding_mode_still_solves_every_half_window() -> None:
+    """However long the backlog, a sliding window solves every ``window_size // 2`` keyframes.
+
+    So that no keyframe leaves the window unsolved (it would be published as optimized).
+    """
+    _, msgs = _street_messages(50)
+    logic = BackendLogic(_live_config(window_size=8), RosbagsBackend())
+    logic.input_waiting = lambda: True   # the input never catches up
+    kinds: list[str] = []
+    record = logic.stats.record_update
+
+    def spy(info: Any) -> None:
+        kinds.append(info.kind)
+        record(info)
+
+    logic.stats.record_update = spy   # type: ignore[method-assign]
+    for kind, msg in msgs:
+        getattr(logic, f'on_{kind}')(msg)
+        logic.step()
+    tracking = kinds[kinds.index('init') + 1:]
+    assert tracking and set(tracking) <= {'deferred', 'refine'}
+    runs = ''.join('d' if k == 'deferred' else 'r' for k in tracking).split('r')
+    assert max(len(r) for r in runs) == 8 // 2
+    est = logic.estimator
+    assert np.all(est.optimized(est.estimated()))
+
+
+def test_deterministic_logic_never_defers_a_solve() -> None:
+    """``deterministic`` (the replay): a solve per keyframe whatever waits, the same poses."""
+    _, msgs = _street_messages(30)
+    poses = []
+    for waiting in (False, True):
+        logic = BackendLogic(BackendConfig(deterministic=True), RosbagsBackend())
+        logic.input_waiting = lambda waiting=waiting: waiting  # type: ignore[misc]
+        for kind, msg in msgs:
+            getattr(logic, f'on_{kind}')(msg)
+            logic.step()
+        assert logic.stats.counters['solves_deferred'] == 0
+        assert logic.estimator.state == 'tracking'
+        poses.append(logic.optimized_trajectory().positions_xyz)
+    np.testing.assert_array_equal(poses[0], poses[1])
+
+
+def test_a_solve_left_by_the_last_keyframe_runs_when_the_queue_empties() -> None:
+    """The last keyframe found a message behind it (a CameraInfo): that step solves.
+
+    Its outputs carry the solved poses (path and odometry of the newest keyframe).
+    """
+    seq, msgs = _street_messages(30)
+    logic = BackendLogic(_live_config(), RosbagsBackend())
+    published: list[list[tuple[str, Any]]] = []
+    worker = LogicWorker(logic, published.append, queue_size=len(msgs) + 1)
+    for kind, msg in [*msgs, msgs[0]]:
+        worker.enqueue(kind, msg)
+    worker.process_pending()
+    est = logic.estimator
+    assert est.deferred == 0 and logic.stats.counters['solves_deferred'] > 0
+    last = dict(published[-1])
+    assert len(last['pmba/path'].poses) == 30
+    newest = seq.stamps_ns[-1]
+    stamp = last['pmba/odometry'].header.stamp
+    assert stamp.sec * 10**9 + stamp.nanosec == newest
+    assert np.all(est.optimized(est.estimated()))
