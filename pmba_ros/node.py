@@ -562,14 +562,8 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(1) from None
     node = rclpy.create_node(settings.NODE_NAME)
     try:
-        # Before subscribing, so that no message queues behind a first compilation or import.
-        if not warmup.is_warm():
-            node.get_logger().info('compiling the solver loops before subscribing (once per '
-                                   f'install; expected {warmup.expected_compile_text()})')
-        seconds = warmup.warm_up()
+        warmup.warm_up_beside_input(node.get_logger().info)
         import_initialization()
-        if seconds > 1.0:
-            node.get_logger().info(f'solver loops ready in {seconds:.1f} s')
         wrapper = PmbaNode(node)
     except KeyboardInterrupt:
         node.destroy_node()

@@ -31,7 +31,7 @@ from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.types import pinhole_jacobian
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import gather as compiled_gather
-from pmba_ros.core.engine import compiled_available
+from pmba_ros.core.engine import compiled_ready
 from pmba_ros.core.problem import finite_rows, run_order
 
 
@@ -411,7 +411,7 @@ def gather_observations(store: KeyframeStore, cams: IntArray, feature_filter: In
     ids = np.concatenate([p.ids for p in parts]) if parts else np.zeros(0, np.int64)
     offsets = np.zeros(len(parts) + 1, dtype=np.int64)
     np.cumsum(np.array([p.ids.shape[0] for p in parts], dtype=np.int64), out=offsets[1:])
-    order = (compiled_gather.ordered_tracks if compiled_available() else ordered_tracks)
+    order = (compiled_gather.ordered_tracks if compiled_ready() else ordered_tracks)
     sel, local, feat_idx, feature_ids = order(ids, offsets, feature_filter, max_per_feature,
                                               by_track_length)
     camera = None

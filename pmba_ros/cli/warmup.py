@@ -32,9 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def ensure_compiled(stream: TextIO, *, verbose: bool = False) -> None:
     """Compile or load the loops before the work, saying so on ``stream`` when it is long.
 
-    As the node does before it subscribes: a command's own timings (a replay's speed) then
-    measure its work, the first keyframe as the others, not numba setting itself up or the
-    initialization's modules loading.
+    A command's own timings (a replay's speed) then measure its work, the first keyframe as
+    the others, not numba setting itself up or the initialization's modules loading.
 
     Args:
         stream: Where the messages go (stderr for commands whose output is data).

@@ -271,8 +271,13 @@ def compiled_available() -> bool:
     return jit.NUMBA is not None
 
 
+def compiled_ready() -> bool:
+    """Return whether ``'auto'`` runs the compiled loops now (not compiling in the background)."""
+    return compiled_available() and not jit.NOT_READY.is_set()
+
+
 def resolve(name: EngineName | str = EngineName.AUTO) -> Engine:
-    """Return the engine of a name; ``'auto'`` is the compiled one where it can run.
+    """Return the engine of a name; ``'auto'`` is the compiled one where it is ready.
 
     Raises:
         ValueError: If the name is not an engine's.
@@ -281,7 +286,7 @@ def resolve(name: EngineName | str = EngineName.AUTO) -> Engine:
     kind = EngineName(name)
     if kind is EngineName.NUMPY:
         return NUMPY
-    if compiled_available():
+    if compiled_ready() or (kind is EngineName.COMPILED and compiled_available()):
         return COMPILED
     if kind is EngineName.AUTO:
         return NUMPY

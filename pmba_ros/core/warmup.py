@@ -18,28 +18,34 @@ machine code in its cache (:mod:`pmba_ros.core.jit`). The first call after an in
 upgrade therefore compiles them all, which takes tens of seconds; later processes load them
 in about a second. :func:`warm_up` solves a tiny problem that reaches every loop with the
 argument types the solver, the back-end and the initialization use, so that this happens in
-``pmba warmup`` (run by ``scripts/setup_venv``), at the node's start-up before it subscribes,
-or before a CLI command that solves, with a message, rather than inside the first keyframe.
+``pmba warmup`` (run by ``scripts/setup_venv``) or before a CLI command that solves, with a
+message, rather than inside the first keyframe; the node compiles them in the background
+(:func:`warm_up_in_background`) and solves with the numpy engine meanwhile.
 A marker next to numba's cache records that the current loops were compiled, so the callers
 can tell beforehand whether the wait will be long (:func:`is_warm`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import hashlib
+import logging
 from pathlib import Path
 import platform
 import sys
+import threading
 import time
 
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.compiled import epipolar, gather, linear_rays
-from pmba_ros.core.engine import compiled_available
+from pmba_ros.core.engine import COMPILED, compiled_available, EngineName
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
 from pmba_ros.core.solve import solve, SolveOptions, SolverKind
+
+logger = logging.getLogger(__name__)
 
 #: What a first compilation takes, for the message shown before it (wall time on a
 #: 2-core machine, from idle to loaded).
@@ -106,12 +112,15 @@ def warm_up() -> float:
         return 0.0
     t0 = time.perf_counter()
     problem = _tiny_problem()
+    # The compiled engine by name: while this runs in the background, 'auto' is numpy.
     feats, _ = conversions.xyz_to_parallax(problem, problem.R_wc, problem.centers_w,
-                                           np.asarray(problem.points_w))
+                                           np.asarray(problem.points_w), engine=COMPILED)
     solve(problem, SolveOptions(param=Parameterization.PMBA, solver=SolverKind.DOGLEG,
-                                loss=Loss.CAUCHY, max_iterations=2), feats)
+                                loss=Loss.CAUCHY, max_iterations=2,
+                                engine=EngineName.COMPILED), feats)
     # The global initialization's anchor search (xyz_to_parallax above has its own pass).
-    conversions.select_anchors(problem, problem.R_wc, centers_w=problem.centers_w)
+    conversions.select_anchors(problem, problem.R_wc, centers_w=problem.centers_w,
+                               engine=COMPILED)
     # The global initialization's position steps (init.cls), on the same problem's indices.
     obs = problem.obs
     assoc, main = feats.assoc_idx.astype(np.int64), feats.main_idx.astype(np.int64)
@@ -159,3 +168,46 @@ def warm_up() -> float:
         except OSError:
             pass   # the cache folder went away: the next start compiles or says so again
     return time.perf_counter() - t0
+
+
+def warm_up_in_background(done: Callable[[float | None], None]) -> threading.Thread:
+    """Run :func:`warm_up` in a daemon thread; the 'auto' engine is numpy until it is done.
+
+    For a process that should not wait for a first compilation (the node: its front-end does
+    not wait either). ``done`` gets the seconds it took, or None if it failed (the numpy
+    engine then stays).
+    """
+    jit.NOT_READY.set()
+
+    def run() -> None:
+        try:
+            seconds = warm_up()
+        except Exception:   # numba's own errors are not one family
+            logger.exception('compiling the solver loops failed: the numpy engine stays')
+            done(None)
+            return
+        jit.NOT_READY.clear()
+        done(seconds)
+
+    thread = threading.Thread(target=run, name='pmba_compile', daemon=True)
+    thread.start()
+    return thread
+
+
+def warm_up_beside_input(say: Callable[[str], None]) -> None:
+    """Load the compiled loops now, or compile them in the background, telling ``say``.
+
+    A process that takes input as it comes (the node) should not wait for a first
+    compilation, as its input does not: that runs beside the solves (numpy until it is done).
+    Loading compiled loops takes about a second and comes before the input.
+    """
+    if is_warm():
+        seconds = warm_up()
+        if seconds > 1.0:
+            say(f'solver loops ready in {seconds:.1f} s')
+        return
+    say(f'compiling the solver loops in the background (once per install; expected '
+        f'{expected_compile_text()}); solving without them until then')
+    warm_up_in_background(lambda s: say(
+        'compiling the solver loops failed: solving without them' if s is None
+        else f'solver loops compiled in {s:.1f} s: solving with them'))

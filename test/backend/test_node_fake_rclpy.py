@@ -506,27 +506,36 @@ def test_main_exits_on_invalid_parameters(fake_ros: FakeRclpy,
     assert fake_ros.created[0].logger.lines[-1][0] == 'fatal'
 
 
-def test_main_compiles_before_subscribing_and_says_so(
+def test_main_compiles_in_the_background_and_says_so(
         fake_ros: FakeRclpy, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A cold cache: one log line with the expected time, the loops ready before subscribing."""
+    """A cold cache: the node subscribes without waiting for the compilation, and says so.
+
+    One line with the expected time when it starts, one when it is done.
+    """
     from pmba_ros.core import warmup
     from pmba_ros.node import main
 
-    subscribed_at_warm_up: list[int] = []
+    started: list[Callable[[float | None], None]] = []
 
-    def fake_warm_up() -> float:
-        subscribed_at_warm_up.append(len(fake_ros.created[0].subscriptions))
-        return 20.0
+    def waited() -> float:
+        pytest.fail('the node waited for the compilation')
+
+    def spin(node: Any) -> None:
+        del node
+        assert fake_ros.created[0].subscriptions, 'not subscribed while compiling'
+        started[0](20.0)
+        raise KeyboardInterrupt
 
     monkeypatch.setattr(warmup, 'is_warm', lambda: False)
-    monkeypatch.setattr(warmup, 'warm_up', fake_warm_up)
-    fake_ros.spin.append(lambda node: (_ for _ in ()).throw(KeyboardInterrupt))
+    monkeypatch.setattr(warmup, 'warm_up', waited)
+    monkeypatch.setattr(warmup, 'warm_up_in_background', started.append)
+    fake_ros.spin.append(spin)
     main([])
-    assert subscribed_at_warm_up == [0]
+    assert len(started) == 1
     lines = [text for _, text in fake_ros.created[0].logger.lines]
-    assert any(f'expected {warmup.expected_compile_text()}' in t for t in lines), lines
-    assert any('ready in 20.0 s' in t for t in lines), lines
-    assert fake_ros.created[0].subscriptions, 'the node never subscribed'
+    assert any(f'expected {warmup.expected_compile_text()}' in t and 'background' in t
+               for t in lines), lines
+    assert any('compiled in 20.0 s' in t for t in lines), lines
 
 
 def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
