@@ -30,8 +30,10 @@ from __future__ import annotations
 from collections.abc import Callable
 import hashlib
 import logging
+import os
 from pathlib import Path
 import platform
+import subprocess
 import sys
 import threading
 import time
@@ -170,24 +172,46 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
+def compile_in_child() -> bool:
+    """Run :func:`warm_up` in a child interpreter; return whether it succeeded.
+
+    numba's compiler is mostly Python: in a thread it would hold this process's interpreter
+    lock for most of a minute, and the solves beside it would crawl. The child fills the
+    on-disk cache this process then loads from; it runs on this process's module path
+    (``-P``: not on its working folder), so it compiles the same files.
+    """
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    code = 'from pmba_ros.core.warmup import warm_up; warm_up()'
+    proc = subprocess.run([sys.executable, '-P', '-c', code], env=env, capture_output=True,
+                          text=True, check=False)
+    if proc.returncode != 0:
+        logger.warning('compiling the solver loops in a child process failed (exit code %d): '
+                       '%s', proc.returncode, proc.stderr.strip()[-2000:])
+    return proc.returncode == 0
+
+
 def warm_up_in_background(done: Callable[[float | None], None]) -> threading.Thread:
-    """Run :func:`warm_up` in a daemon thread; the 'auto' engine is numpy until it is done.
+    """Compile the loops beside this process's work; the 'auto' engine is numpy until then.
 
     For a process that should not wait for a first compilation (the node: its front-end does
-    not wait either). ``done`` gets the seconds it took, or None if it failed (the numpy
-    engine then stays).
+    not wait either). A thread waits for :func:`compile_in_child` (where the loops can be
+    cached), then loads them, or compiles them itself. ``done`` gets the seconds it all
+    took, or None if it failed (the numpy engine then stays).
     """
     jit.NOT_READY.set()
+    t0 = time.perf_counter()
 
     def run() -> None:
         try:
-            seconds = warm_up()
+            if jit.CACHING:
+                compile_in_child()
+            warm_up()
         except Exception:   # numba's own errors are not one family
             logger.exception('compiling the solver loops failed: the numpy engine stays')
             done(None)
             return
         jit.NOT_READY.clear()
-        done(seconds)
+        done(time.perf_counter() - t0)
 
     thread = threading.Thread(target=run, name='pmba_compile', daemon=True)
     thread.start()
