@@ -117,7 +117,7 @@ def test_a_run_whose_engine_turns_compiled_midway_matches_a_compiled_run() -> No
 
 
 def test_a_child_that_fails_to_compile_is_a_warning(monkeypatch: pytest.MonkeyPatch,
-                                                   caplog: pytest.LogCaptureFixture) -> None:
+                                                    caplog: pytest.LogCaptureFixture) -> None:
     """The child's exit code and error output are logged; the caller then compiles itself."""
     import sys
 
