@@ -316,8 +316,9 @@ class BackendLogic:
 
         Returns:
             ``(topic, message)`` pairs: path, keyframes, landmarks, odometry, ``/tf`` and
-            ``/diagnostics`` after keyframe updates; only ``/diagnostics`` when something
-            else changed (rejected input, pause); nothing otherwise.
+            ``/diagnostics`` after keyframe updates and solves; only ``/diagnostics`` after a
+            keyframe whose solve was deferred (:attr:`input_waiting`) or when something else
+            changed (rejected input, pause); nothing otherwise.
         """
         processed = 0
         while self._pending and not self._paused:
@@ -339,6 +340,10 @@ class BackendLogic:
         if not (processed or self._paused or self.input_waiting()):
             processed = self._solve_deferred()
         try:
+            if processed and self._last_info.kind == 'deferred':
+                # Behind the input: the path and the map wait for the solve that catches up
+                # (a long run's path takes longer to publish than a keyframe interval).
+                return [self._diagnostics(self._last_kf_stamp)]
             if processed:
                 return self._outputs()
             if self._diag_dirty or self._stats.counters != self._counters_at_diag:
