@@ -84,6 +84,7 @@ def main() -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import deserialize_message
 
     with tempfile.TemporaryDirectory(prefix='pmba_bench_node_') as tmp:
         bag = Path(tmp) / 'street'
@@ -115,7 +116,9 @@ def main() -> int:
 
         listener.create_subscription(Odometry, '/keyframe_pose', on_keyframe, latched)
         listener.create_subscription(Odometry, '/pmba/odometry', on_odometry, qos)
-        listener.create_subscription(PathMsg, '/pmba/path', paths.append, qos)
+        # Raw: a long run's Path is large, and deserializing every one here would slow this
+        # listener down, and with it the latencies it measures; only the last one is read.
+        listener.create_subscription(PathMsg, '/pmba/path', paths.append, qos, raw=True)
         # The node's log goes to a file: an unread pipe would block it once full.
         node_log = (Path(tmp) / 'node.log').open('w+', encoding='utf-8')
         node = subprocess.Popen(
@@ -137,7 +140,8 @@ def main() -> int:
 
             def complete() -> bool:
                 return (len(first_out) >= args.keyframes and bool(paths)
-                        and len(paths[-1].poses) >= args.keyframes)
+                        and len(deserialize_message(paths[-1], PathMsg).poses)
+                        >= args.keyframes)
 
             deadline = time.monotonic() + info.duration_s + 300.0
             while time.monotonic() < deadline and player.poll() is None:
@@ -164,7 +168,7 @@ def main() -> int:
     stamps = sorted(arrivals)
     lat = np.array([first_out[s] - arrivals[s] for s in stamps if s in first_out]) * 1e3
     corrected = np.array([last_out[s] - arrivals[s] for s in stamps if s in last_out]) * 1e3
-    in_path = len(paths[-1].poses) if paths else 0
+    in_path = len(deserialize_message(paths[-1], PathMsg).poses) if paths else 0
     print(f'keyframes in: {len(stamps)}, with odometry: {lat.size}, in the last path: '
           f'{in_path}; node exit code {node.returncode}')
     if lat.size:
