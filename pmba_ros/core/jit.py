@@ -116,9 +116,9 @@ def choose_cache(numba: Any) -> bool:
 NUMBA = _import_numba()
 #: Whether compiled loops are kept on disk between processes.
 CACHING = choose_cache(NUMBA) if NUMBA is not None else False
-#: Set while the loops are being compiled in a background thread, or that failed
+#: Set while the loops are being compiled beside the process's work, or that failed
 #: (:func:`pmba_ros.core.warmup.warm_up_in_background`): the 'auto' engine is the numpy one
-#: meanwhile, as a call into a loop not compiled yet would wait for that compilation.
+#: meanwhile, as a call into a loop not compiled yet would compile it there and then.
 NOT_READY = threading.Event()
 
 

@@ -172,6 +172,10 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
+CHILD_TIMEOUT_S = 1800.0
+"""A compilation still running after this (thirty times the expected) is taken as hung."""
+
+
 def compile_in_child() -> bool:
     """Run :func:`warm_up` in a child interpreter; return whether it succeeded.
 
@@ -183,7 +187,7 @@ def compile_in_child() -> bool:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
     code = 'from pmba_ros.core.warmup import warm_up; warm_up()'
     proc = subprocess.run([sys.executable, '-P', '-c', code], env=env, capture_output=True,
-                          text=True, check=False)
+                          text=True, timeout=CHILD_TIMEOUT_S, check=False)
     if proc.returncode != 0:
         logger.warning('compiling the solver loops in a child process failed (exit code %d): '
                        '%s', proc.returncode, proc.stderr.strip()[-2000:])
