@@ -100,6 +100,22 @@ def start_node(domain: int, log: Path, *ros_args: str,
             text=True, preexec_fn=_default_sigint)
 
 
+def keyframe_stamps(bag: Path) -> np.ndarray:
+    """Return the stamps, in ns, of a recording's keyframe poses."""
+    from pmba_ros.io.bags import iter_messages
+
+    return np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
+                     for m in iter_messages([bag], ['/keyframe_pose'])])
+
+
+def kill(*procs: subprocess.Popen[str] | None) -> None:
+    """Kill the processes still running (a test's clean-up after a failure)."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @dataclass
 class Listener:
     """A node on the test's side: subscriptions to the outputs and service clients."""
@@ -211,9 +227,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
              '--remap', '/features:=/feature_tracker/feature',
              '--remap', '/keyframe_pose:=/vins_estimator/keyframe_pose'],
             env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        from pmba_ros.io.bags import iter_messages
-        stamps = np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
-                           for m in iter_messages([bag], ['/keyframe_pose'])])
+        stamps = keyframe_stamps(bag)
         check_outputs(listener, stamps)
         assert player.wait(timeout=30) == 0
         seconds, stderr = stop(node, signal.SIGINT, log)
@@ -221,10 +235,7 @@ def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
         assert seconds < 2.0
         assert 'Traceback' not in stderr
     finally:
-        for proc in (node, player):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        kill(node, player)
 
 
 @pytest.mark.slow
@@ -274,10 +285,7 @@ def test_a_recording_played_in_a_loop_starts_the_node_over(listener: Listener,
         _, stderr = stop(node, signal.SIGINT, log)
         assert node.returncode == 0 and 'Traceback' not in stderr, stderr
     finally:
-        for proc in (node, player):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        kill(node, player)
 
 
 @pytest.mark.slow
@@ -320,9 +328,7 @@ def test_vins_fusion_pose_stamped_driver_services_then_sigterm(listener: Listene
         assert node.returncode == 0, stderr
         assert seconds < 2.0
     finally:
-        if node.poll() is None:
-            node.kill()
-            node.wait()
+        kill(node)
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT], ids=['SIGTERM', 'SIGINT'])
@@ -368,9 +374,7 @@ def test_a_signal_during_a_long_solve_ends_it(listener: Listener, tmp_path: Path
         assert not saved.exists()
         assert 'Traceback' not in text and 'failed' not in text.lower(), text
     finally:
-        if node.poll() is None:
-            node.kill()
-            node.wait()
+        kill(node)
 
 
 def test_bad_parameter_is_one_fatal_line(listener: Listener, tmp_path: Path) -> None:
@@ -483,9 +487,7 @@ def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path
              '/features', '/keyframe_pose', '/camera_info'],
             env=isolated_env(domain, env), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True)
-        from pmba_ros.io.bags import iter_messages
-        stamps = np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
-                           for m in iter_messages([bag], ['/keyframe_pose'])])
+        stamps = keyframe_stamps(bag)
         check_outputs(listener, stamps)
         assert player.wait(timeout=30) == 0
         if not linked:
@@ -497,7 +499,4 @@ def test_colcon_build_then_ros2_run_pmba_node(listener: Listener, tmp_path: Path
         assert node.returncode == 0, text
         assert 'Traceback' not in text
     finally:
-        for proc in (node, player):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        kill(node, player)
