@@ -19,6 +19,7 @@ backend is used, so no display is needed.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import logging
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
@@ -31,6 +32,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from numpy.typing import ArrayLike
+    from pmba_ros.core.solve import IterationRecord
     from pmba_ros.eval.metrics import EvalResult
     from pmba_ros.eval.trajectory import Trajectory
     from pmba_ros.replay_report import ReplayReport
@@ -147,6 +149,69 @@ def plot_curves(path: Path, curves: Sequence[tuple[str, ArrayLike]], ylabel: str
     if any(label for label, _ in curves):
         ax.legend()
     ax.set_title(title)
+    return _save(fig, plt, path)
+
+
+@dataclass
+class ConvergenceTrace:
+    """The pixel RMS of every iteration of a run's bundle adjustments, one after another.
+
+    A global initialization can run its BA more than once (resumed with the tracks it had
+    dropped, a result it may discard): each BA's clock restarts, so its times continue
+    from the end of the one before.
+
+    Attributes:
+        times_s: Time of each record, the BAs one after another.
+        rms_px: Pixel RMS of each record.
+        ba_starts: Index of each BA's first record.
+    """
+
+    times_s: list[float] = field(default_factory=list)
+    rms_px: list[float] = field(default_factory=list)
+    ba_starts: list[int] = field(default_factory=list)
+    _clock0: float = field(default=0.0, init=False, repr=False)   # the newest BA's start
+
+    def add(self, record: IterationRecord) -> None:
+        """Append a solver's iteration record (iteration 0: a BA starts)."""
+        if record.iteration == 0 or not self.ba_starts:
+            self._clock0 = self.times_s[-1] if self.times_s else 0.0
+            self.ba_starts.append(len(self.times_s))
+        self.times_s.append(self._clock0 + record.time_s)
+        self.rms_px.append(record.rms_px)
+
+    def bas(self) -> list[tuple[list[float], list[float]]]:
+        """Return each BA's (times, pixel RMS)."""
+        ends = [*self.ba_starts[1:], len(self.times_s)]
+        return [(self.times_s[a:b], self.rms_px[a:b])
+                for a, b in zip(self.ba_starts, ends, strict=True)]
+
+
+def plot_convergence(path: Path, traces: Sequence[tuple[str, ConvergenceTrace, float]]) -> Path:
+    """Plot each labelled run's pixel RMS over time; ``(label, trace, result's pixel RMS)``.
+
+    A run of several BAs draws the later ones dashed and its result's RMS as a dotted line:
+    its result need not be the last BA's (a resumed BA can be discarded).
+
+    Raises:
+        PmbaError: If matplotlib is missing or the file cannot be written.
+    """
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, trace, result_rms in traces:
+        bas = trace.bas()
+        color = None
+        for k, (times, rms) in enumerate(bas):
+            line, = ax.semilogy(times, rms, 'o-' if k == 0 else 's--', markersize=3,
+                                color=color, label=(label, f'{label}: BA resumed')[k]
+                                if k < 2 else None)
+            color = line.get_color()
+        if len(bas) > 1:
+            ax.axhline(result_rms, color=color, linestyle=':', linewidth=1,
+                       label=f'{label}: result, {result_rms:.4f} px')
+    ax.set_xlabel('time [s]')
+    ax.set_ylabel('pixel RMS')
+    ax.legend()
+    ax.grid(True, which='both', alpha=0.3)
     return _save(fig, plt, path)
 
 

@@ -43,9 +43,9 @@ from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import FormatError
-from pmba_ros.io.atomic import atomic_open, write_atomic, write_text_atomic
+from pmba_ros.io.atomic import atomic_open, write_text_atomic
 from pmba_ros.io.text import detect_problem_format
-from pmba_ros.plot import pyplot
+from pmba_ros.plot import ConvergenceTrace, plot_convergence, pyplot
 
 if TYPE_CHECKING:
     from pmba_ros.cli.colmap_rigs import RigModel
@@ -264,6 +264,16 @@ def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
     return show
 
 
+def _recorder(trace: ConvergenceTrace, show: Callable[[IterationRecord], None] | None,
+              ) -> Callable[[IterationRecord], None]:
+    """Return a callback adding every iteration to ``trace`` (and showing it, if given)."""
+    def record(rec: IterationRecord) -> None:
+        trace.add(rec)
+        if show is not None:
+            show(rec)
+    return record
+
+
 def stage_printer() -> Callable[[str, Mapping[str, Any]], None]:
     """Return a progress callback printing one line as each initialization stage ends."""
     t0 = time.perf_counter()
@@ -275,6 +285,12 @@ def stage_printer() -> Callable[[str, Mapping[str, Any]], None]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``pmba solve``."""
+    if args.init == 'global' and (args.compare or args.param != 'pmba'):
+        # The initialization's own BA is the result, and it needs parallax features.
+        msg = (f"--init global ends in PMBA's bundle adjustment: it takes --param pmba (any "
+               f"--solver), not {'--compare' if args.compare else '--param ' + args.param}; "
+               "compare the parameterizations from the file's start with --init file")
+        raise FormatError(msg)
     _check_outputs(args)
     chunks.set_max_threads(args.threads)
     rigs = _load_rigs(args)
@@ -289,10 +305,13 @@ def run(args: argparse.Namespace) -> int:
     results: list[SolveResult] = []
     inits: list[Any] = []
     report: dict[str, Any] = {}
+    traces: list[ConvergenceTrace] = []
     for param, solver in runs:
         resumed = ''
         options = _options(param, solver, args)
-        callback = None if args.quiet else iteration_printer(f'{param}-{solver}')
+        traces.append(ConvergenceTrace())
+        callback = _recorder(traces[-1], None if args.quiet
+                             else iteration_printer(f'{param}-{solver}'))
         progress = None if args.quiet else stage_printer()
         if args.init == 'global' and rigs is not None and rigs.held:
             from pmba_ros.cli.colmap_rigs import global_rig_init
@@ -340,7 +359,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         write_text_atomic(args.report, dumps_report(out_report))
     if args.out:
-        _write_outputs(args.out, results, out_report, args.plot,
+        _write_outputs(args.out, results, out_report, traces if args.plot else None,
                        [None if i is None else i.camera_index for i in inits])
         source = Path(args.problem)
         fmt = args.format
@@ -439,10 +458,12 @@ def _table(results: list[SolveResult]) -> str:
 
 
 def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any],
-                   plot: bool, camera_index: list[np.ndarray | None]) -> None:
+                   traces: list[ConvergenceTrace] | None,
+                   camera_index: list[np.ndarray | None]) -> None:
     """Write TUM poses, points, the plot and the report of each result into ``out``.
 
-    ``camera_index`` holds, per result, the input camera of each solved camera (None: the
+    ``traces`` holds each result's iterations for ``convergence.png`` (None: no plot);
+    ``camera_index``, per result, the input camera of each solved camera (None: the
     cameras are the input's, in order).
     """
     out.mkdir(parents=True, exist_ok=True)
@@ -459,20 +480,10 @@ def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any]
             np.savetxt(fh, rows, fmt='%.9g')
         with atomic_open(out / f'points_{stem}.xyz') as fh:
             np.savetxt(fh, r.points_w[finite], fmt='%.9g')
-    if plot:
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for r in results:
-            ax.semilogy([h.time_s for h in r.history], [h.rms_px for h in r.history], 'o-',
-                        label=f'{r.options.param.value.upper()}-{r.options.solver.value}')
-        ax.set_xlabel('time [s]')
-        ax.set_ylabel('pixel RMS')
-        ax.legend()
-        ax.grid(True, which='both', alpha=0.3)
-        fig.tight_layout()
-        write_atomic(out / 'convergence.png', lambda tmp: fig.savefig(tmp, dpi=100,
-                                                                      format='png'))
-        plt.close(fig)
+    if traces is not None:
+        plot_convergence(out / 'convergence.png', [
+            (f'{r.options.param.value.upper()}-{r.options.solver.value}', trace,
+             r.final_rms_px) for r, trace in zip(results, traces, strict=True)])
     # The report goes last: its presence says the other outputs are complete.
     write_text_atomic(out / 'report.json', dumps_report(report))
 

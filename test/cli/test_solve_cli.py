@@ -20,6 +20,7 @@ from pathlib import Path
 import subprocess
 import sys
 
+import numpy as np
 from pmba_ros.cli.main import main
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import BAProblem
@@ -116,6 +117,71 @@ def test_solve_says_when_the_initializations_ba_was_resumed(
     monkeypatch.setattr(pipeline, 'global_init', real)
     assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet']) == 0
     assert 'resumed' not in capsys.readouterr().out
+
+
+def test_convergence_plot_shows_every_ba_of_a_resumed_initialization(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--plot draws all of the initialization's BAs, in a row, and the result's RMS."""
+    pytest.importorskip('matplotlib')
+    from dataclasses import replace
+
+    import pmba_ros.cli.solve as cli_solve
+    from pmba_ros.init import pipeline
+    real = pipeline.global_init
+
+    def twice(*args: object, **kwargs: object) -> object:
+        first = real(*args, **kwargs)  # type: ignore[arg-type]
+        again = real(*args, **kwargs)  # type: ignore[arg-type]
+        return replace(again, ba_invocations=first.ba_invocations + again.ba_invocations)
+
+    plotted: list[tuple[str, object, float]] = []
+    plot = cli_solve.plot_convergence
+
+    def spy(path: Path, traces: list[tuple[str, object, float]]) -> Path:
+        plotted.extend(traces)
+        return plot(path, traces)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline, 'global_init', twice)
+    monkeypatch.setattr(cli_solve, 'plot_convergence', spy)
+    out = tmp_path / 'out'
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet', '--out', str(out),
+                 '--plot']) == 0
+    assert (out / 'convergence.png').stat().st_size > 0
+    data = json.loads((out / 'report.json').read_text())
+    (label, trace, result_rms), = plotted
+    assert label == 'PMBA-dogleg' and result_rms == data['final_rms_px']
+    assert isinstance(trace, cli_solve.ConvergenceTrace)
+    bas = trace.bas()
+    assert len(bas) == data['ba_invocations'] >= 2
+    assert bas[-1][1] == pytest.approx([h['rms_px'] for h in data['history']])
+    assert np.all(np.diff(trace.times_s) >= 0)
+
+
+@pytest.mark.parametrize('option', [['--compare'], ['--param', 'xyz'], ['--param', 'idp']])
+def test_global_init_with_another_parameterization_is_one_error_line(
+        option: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """--init global ends in PMBA's BA: XYZ / IDP or --compare name the options, no traceback."""
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet', *option]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('error: --init global ') and option[-1] in err[0]
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet', '--solver', 'lm']) == 0
+
+
+def test_convergence_trace_continues_each_ba_from_the_last_ones_end() -> None:
+    """A record of iteration 0 starts a BA where the one before ended."""
+    from pmba_ros.core.solve import IterationRecord
+    from pmba_ros.plot import ConvergenceTrace
+
+    def rec(iteration: int, time_s: float, rms: float) -> IterationRecord:
+        return IterationRecord(iteration, rms ** 2, rms, True, 1.0, 0.0, 1.0, iteration, time_s)
+
+    trace = ConvergenceTrace()
+    for r in (rec(0, 0.0, 5.0), rec(1, 0.5, 2.0), rec(0, 0.1, 2.0), rec(1, 0.3, 1.0),
+              rec(0, 0.0, 1.0)):
+        trace.add(r)
+    assert trace.times_s == pytest.approx([0.0, 0.5, 0.6, 0.8, 0.8])
+    assert trace.bas() == [([0.0, 0.5], [5.0, 2.0]), (pytest.approx([0.6, 0.8]), [2.0, 1.0]),
+                           (pytest.approx([0.8]), [1.0])]
 
 
 @pytest.mark.parametrize(('content', 'match'), [
