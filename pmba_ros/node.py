@@ -16,7 +16,8 @@
 
 Wiring only: parameters (with descriptors; run-time ones applied by an on-set callback) ->
 :class:`~pmba_ros.backend.config.BackendConfig`; subscriptions (tracks, keyframe poses,
-CameraInfo; QoS per input, ``qos_overrides`` honoured; type and QoS mismatches reported);
+CameraInfo, the front-end's extrinsic, TF; QoS per input, ``qos_overrides`` honoured; type
+and QoS mismatches reported);
 publishers (path, keyframes, transient-local landmarks, odometry, ``pmba/map_to_odom``,
 ``/diagnostics``); map -> odom on TF (tf2_ros, else a plain ``/tf`` publisher, else off with a
 warning); services ``~/reset``, ``~/save`` (std_srvs/Trigger) and ``~/pause`` (SetBool).
@@ -146,6 +147,10 @@ class PmbaNode:
             # With keyframe_source 'tracks' the poses are an optional stream, sampled there.
             self._subscribe('keyframe', KEYFRAME_MSGTYPES[cfg.keyframe_type], cfg.keyframe_topic,
                             self._on_keyframe, cfg.keyframe_qos, overrides)]
+        if not cfg.camera_extrinsics:   # the front-end's own (it publishes it beside its poses)
+            self.subscriptions.append(self._subscribe(
+                'extrinsic', 'nav_msgs/msg/Odometry', cfg.extrinsic_topic,
+                self._enqueuer('extrinsic'), cfg.keyframe_qos, overrides))
         self.subscriptions.extend(self._subscribe_tf())
         self.publishers: dict[str, Any] = {
             cfg.path_topic: node.create_publisher(_msg_type('nav_msgs/msg/Path'),

@@ -48,6 +48,7 @@ SIGINT / SIGTERM wait while the outputs are written.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+import contextlib
 from dataclasses import dataclass, field, replace
 import functools
 import logging
@@ -57,6 +58,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from pmba_ros._json import dumps_report
+from pmba_ros.backend.cameras import extrinsic_from_message
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
@@ -66,6 +68,7 @@ from pmba_ros.eval.trajectory import read_trajectory, Trajectory, write_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
 from pmba_ros.io.bag_inputs import (
+    first_message,
     header_stamp_ns,
     ReplayInputs,
     resolve_topic,
@@ -117,8 +120,8 @@ MAX_REJECTED_BEFORE_ANY_ACCEPTED = 10
 """Rejected tracks messages, with none accepted, after which the replay stops."""
 
 REJECTION_COUNTERS = frozenset({'bad_tracks', 'bad_keyframes', 'bad_camera_info',
-                                'bad_tf', 'keyframe_stamp_not_increasing', 'stale_tracks',
-                                'keyframe_pose_jumps', 'keyframe_stamp_leaps',
+                                'bad_tf', 'bad_extrinsic', 'keyframe_stamp_not_increasing',
+                                'stale_tracks', 'keyframe_pose_jumps', 'keyframe_stamp_leaps',
                                 'track_stamp_leaps', 'duplicate_keyframe_poses'})
 """Back-end counters (``BackendLogic.stats.counters``) that mean an input was rejected."""
 
@@ -168,7 +171,7 @@ class _Run:
         self.first_error: str | None = None
         self._handlers: dict[str, Callable[[Any], None]] = {
             'camera_info': logic.on_camera_info, 'tracks': logic.on_tracks,
-            'keyframe': logic.on_keyframe, 'tf': logic.on_tf}
+            'keyframe': logic.on_keyframe, 'tf': logic.on_tf, 'extrinsic': logic.on_extrinsic}
         cfg = logic.config
         self._growing = {resolve_topic(t): _Growing()
                          for t in (cfg.path_topic, cfg.keyframes_topic, cfg.landmarks_topic)}
@@ -349,6 +352,9 @@ def _select(bags: OpenBags, config: BackendConfig, camera_given: bool, report: R
         kinds[inputs.camera_info] = 'camera_info'
     for topic in inputs.tf:
         kinds[topic] = 'tf'
+    if inputs.extrinsic:
+        kinds[inputs.extrinsic] = 'extrinsic'
+        report.topics['extrinsic'] = inputs.extrinsic
     camera_ids = rig_camera_infos(report.bags, config, report.warnings, counts, bags.topics)
     for topic in camera_ids:
         kinds[topic] = 'camera_info'
@@ -384,6 +390,7 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
         if intrinsics is not None:
             logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
         _give_static_transforms(logic, bags, inputs.tf)
+        _give_first_extrinsic(logic, bags, inputs.extrinsic)
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
             run = _Run(logic, writer, report, progress, report.messages_announced,
@@ -413,6 +420,17 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
                                    f'{run.first_error}')
         with deferred_interrupts():
             _write_outputs(logic, report, out, outputs, finished)
+
+
+def _give_first_extrinsic(logic: BackendLogic, bags: OpenBags, topic: str | None) -> None:
+    """Give the back-end the first extrinsic message before the others (:func:`first_message`).
+
+    It passes again in stamp order, where a bad one is counted (here it is skipped).
+    """
+    msg = first_message(bags, topic)
+    if msg is not None:
+        with contextlib.suppress(MessageError):
+            logic.cameras.topic_extrinsic = extrinsic_from_message(msg)
 
 
 def _give_static_transforms(logic: BackendLogic, bags: OpenBags, tf_topics: Sequence[str],

@@ -56,10 +56,13 @@ def test_pairing_names_real_parameters_and_topics(frontend: str) -> None:
     config = BackendConfig.from_params(pairing['parameters'])   # unknown names raise
     assert config.feature_layout == EXPECTED_LAYOUTS[frontend]
     defaults = BackendConfig()
-    inputs = {defaults.features_topic, defaults.keyframe_topic, defaults.camera_info_topic}
+    inputs = {defaults.features_topic, defaults.keyframe_topic, defaults.camera_info_topic,
+              defaults.extrinsic_topic}
     sources = [src for src, _ in pairing['remappings']]
     assert set(sources) <= inputs and len(set(sources)) == len(sources)
-    assert {defaults.features_topic, defaults.keyframe_topic} <= set(sources)
+    # Each names its poses, its tracks and its own body -> camera topic (no TF names its body).
+    assert {defaults.features_topic, defaults.keyframe_topic, defaults.extrinsic_topic} <= set(
+        sources)
     assert all(dst.startswith('/') for _, dst in pairing['remappings'])
     if config.feature_layout == 'per_point' and frontend == 'openvins':
         # OpenVINS tracks carry raw pixels only: the intrinsics topic must be wired.

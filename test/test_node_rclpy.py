@@ -390,6 +390,49 @@ def test_two_cameras(ros: tuple[Context, SingleThreadedExecutor], seq: SimSequen
         driver.destroy_node()
 
 
+def test_a_vins_extrinsic_on_its_topic_gives_body_poses(
+        ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
+    """VINS-style input: body poses without a child frame, the extrinsic on its own topic."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, PointCloud
+
+    context, executor = ros
+    topic = '/vins_estimator/extrinsic'
+    wrapper, driver = start(context, executor, start_worker=False, init_batch_size=10,
+                            extrinsic_topic=topic)
+    backend = RclpyBackend()
+    T = EUROC_CAM0
+    R_b, C_b = T.inverse().apply_to_poses(seq.R_wc_odom, seq.centers_odom)
+    pubs = [driver.create_publisher(PointCloud, 'features', RELIABLE),
+            driver.create_publisher(Odometry, 'keyframe_pose', RELIABLE),
+            driver.create_publisher(CameraInfo, 'camera_info', RELIABLE),
+            driver.create_publisher(Odometry, topic, RELIABLE)]
+    try:
+        assert spin_until(executor, lambda: min(p.get_subscription_count() for p in pubs) > 0)
+        pubs[2].publish(make_camera_info(int(seq.stamps_ns[0]), 'camera', seq.camera, backend))
+        for i in range(len(seq)):
+            stamp = int(seq.stamps_ns[i])
+            pubs[3].publish(out.make_odometry(stamp, 'world', '', T.translation,
+                                              so3.to_quat_xyzw(T.rotation), np.eye(6) * 1e-6,
+                                              backend))
+            pubs[0].publish(make_tracks(seq.frames[i], 'vins_fusion', backend))
+            pubs[1].publish(out.make_odometry(stamp, 'world', '', C_b[i],
+                                              so3.to_quat_xyzw(R_b[i]), np.eye(6) * 1e-3,
+                                              backend))
+            executor.spin_once(timeout_sec=0.005)
+        logic = wrapper.logic
+        assert spin_until(executor, lambda: wrapper.process_pending() >= 0
+                          and logic.stats.keyframes == len(seq), timeout_s=60.0)
+        assert logic.cameras.extrinsic_source == 'extrinsic_topic'
+        assert logic.cameras.extrinsic is not None
+        np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)
+        assert logic.stats.counters['extrinsic_unknown'] == 0
+        np.testing.assert_allclose(logic.frontend_trajectory().positions_xyz, C_b, atol=1e-9)
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
 def test_keyframes_from_tracks_take_their_poses_from_a_faster_stream(
         ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
     """keyframe_source 'tracks': the pose topic, at 5x the tracks' rate, is sampled at them.

@@ -68,6 +68,9 @@ class StubLogic:
     def on_tf(self, msg: Any) -> None:
         """Ignore transforms (the stub has no extrinsic)."""
 
+    def on_extrinsic(self, msg: Any) -> None:
+        """Ignore the front-end's extrinsic (the stub has none)."""
+
     def on_keyframe(self, msg: Any) -> None:
         """Queue a keyframe pose."""
         pose = parse_keyframe(msg, self.config.keyframe_type)

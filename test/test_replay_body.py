@@ -96,3 +96,41 @@ def test_static_transform_recorded_after_the_first_keyframe_is_used(tmp_path: Pa
     np.testing.assert_allclose(data['extrinsic']['body_to_camera'], EUROC_CAM0.to_flat(),
                                atol=1e-8)
     assert 'extrinsic_unknown' not in data['counters']
+
+
+def test_a_vins_recording_gives_its_extrinsic_on_its_own_topic(tmp_path: Path) -> None:
+    """VINS' keyframe poses name no body frame: the extrinsic comes from its topic.
+
+    VINS stamps it with its newest frame; here all of them are stamped and logged two
+    seconds later still (a front-end that publishes it late), after the first 20 keyframes
+    in stamp order: the first message is still the run's extrinsic. The result is the TF
+    recording's.
+    """
+    from pmba_ros.backend.config import BackendConfig
+    from pmba_ros.sim.bag import SimTopics
+
+    seq = simulate_sequence('street', n_keyframes=30, seed=2)
+    vins, tf_only, late = tmp_path / 'vins', tmp_path / 'tf', tmp_path / 'late.mcap'
+    topic = '/vins_estimator/extrinsic'
+    write_sequence_bag(seq, vins, extrinsic=EUROC_CAM0, layout='per_point',
+                       topics=SimTopics(extrinsic=topic))
+    write_sequence_bag(seq, tf_only, extrinsic=EUROC_CAM0, layout='per_point')
+    assert all(m.msg.child_frame_id == ''
+               for m in iter_messages([vins], topics=['/keyframe_pose']))
+    with open_writer(late) as writer:
+        for m in iter_messages([vins]):
+            shift = 2 * 10**9 * (m.topic == topic)
+            if shift:
+                m.msg.header.stamp.sec += 2
+            writer.write(m.topic, m.msg, m.log_time_ns + shift)
+    config = BackendConfig(feature_layout='per_point', extrinsic_topic=topic)
+    replay([late], tmp_path / 'out', config)
+    replay([tf_only], tmp_path / 'out_tf', BackendConfig(feature_layout='per_point'))
+    data = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert data['extrinsic']['source'] == 'extrinsic_topic'
+    assert data['topics']['extrinsic'] == topic
+    np.testing.assert_allclose(data['extrinsic']['body_to_camera'], EUROC_CAM0.to_flat(),
+                               atol=1e-8)
+    assert 'extrinsic_unknown' not in data['counters']
+    assert (tmp_path / 'out' / 'keyframes_optimized.tum').read_bytes() == (
+        tmp_path / 'out_tf' / 'keyframes_optimized.tum').read_bytes()

@@ -27,6 +27,7 @@ import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
+from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.backend.types import CameraModel, pinhole_jacobian, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import sphere
@@ -36,6 +37,20 @@ from pmba_ros.errors import MessageError
 def frame_id_of(msg: Any) -> str:
     """Return a message's header ``frame_id`` ('' without one)."""
     return str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
+
+
+def extrinsic_from_message(msg: Any) -> Rigid:
+    """Return the body -> camera transform of an Odometry or PoseStamped message's pose.
+
+    VINS-Mono / VINS-Fusion publish their ``tic``, ``ric`` so (``/vins_estimator/extrinsic``)
+    and OpenVINS its camera 0 in the IMU frame (``loop_extrinsic``: the JPL quaternion of
+    IMU -> camera read as a Hamilton one is camera -> IMU).
+
+    Raises:
+        MessageError: If it is neither type, or its pose is not finite or not a rotation.
+    """
+    pose = parse_keyframe(msg, 'odometry' if hasattr(msg, 'child_frame_id') else 'pose_stamped')
+    return Rigid.from_xyz_quat(pose.position, pose.quat_xyzw, 'extrinsic message')
 
 
 def frame_observations(frame: TrackFrame, usable: dict[int, CameraModel | None],
@@ -120,6 +135,7 @@ class FrontendCameras:
         self.other_frames: dict[int, str] = {}
         self.param_extrinsics = extrinsics_from_params(config.camera_extrinsics,
                                                        config.num_cams)
+        self.topic_extrinsic: Rigid | None = None   # the newest on ``extrinsic_topic``
         self.forget_extrinsics()
 
     def forget_extrinsics(self) -> None:
@@ -157,8 +173,9 @@ class FrontendCameras:
 
         In order: ``camera_extrinsics``; identity when the keyframe pose's frame ``body`` is
         the camera frame; the TF chain from ``body`` to the CameraInfo's (or else the
-        tracks') frame ``camera_frame``. When none is found, identity is fixed with source
-        'identity'.
+        tracks') frame ``camera_frame``; the newest ``extrinsic_topic`` message (VINS and
+        OpenVINS leave the keyframe pose's ``child_frame_id`` empty, so TF cannot name the
+        body). When none is found, identity is fixed with source 'identity'.
 
         Returns:
             The extrinsic found (None: taken as identity) and its source.
@@ -172,6 +189,8 @@ class FrontendCameras:
             found, source = Rigid.identity(), 'frames_agree'
         elif body and camera_frame:
             found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
+        if found is None and self.topic_extrinsic is not None:
+            found, source = self.topic_extrinsic, 'extrinsic_topic'
         if found is None:
             source = 'identity'
         self.extrinsic = found if found is not None else Rigid.identity()

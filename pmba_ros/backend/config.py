@@ -134,7 +134,8 @@ class BackendConfig:
             baseline makes the map metric).
         camera_extrinsics: Body -> camera transforms, 7 values per camera id (x, y, z, qx,
             qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
-            (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else identity.
+            (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else from
+            ``extrinsic_topic``, else identity.
         keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
         keyframe_source: 'keyframe_topic' (each keyframe pose is a keyframe) or 'tracks'
             (every tracks message is a keyframe; its front-end pose is sampled from the
@@ -144,6 +145,9 @@ class BackendConfig:
         camera_info_topic: Input CameraInfo topic (of camera ``camera_id``).
         camera_info_topics: One CameraInfo topic per camera id, in camera-id order (a
             multi-camera rig); empty: ``camera_info_topic`` only.
+        extrinsic_topic: Input nav_msgs/Odometry (or PoseStamped) whose pose is camera
+            ``camera_id``'s frame in the body frame: VINS-Mono / VINS-Fusion's
+            ``/vins_estimator/extrinsic``, OpenVINS' ``loop_extrinsic``.
         path_topic: Output nav_msgs/Path of optimized keyframes.
         keyframes_topic: Output geometry_msgs/PoseArray of optimized keyframes.
         landmarks_topic: Output sensor_msgs/PointCloud2 (xyz float32, transient local).
@@ -214,6 +218,7 @@ class BackendConfig:
     keyframe_topic: str = 'keyframe_pose'
     camera_info_topic: str = 'camera_info'
     camera_info_topics: tuple[str, ...] = ()
+    extrinsic_topic: str = 'extrinsic'
     path_topic: str = 'pmba/path'
     keyframes_topic: str = 'pmba/keyframes'
     landmarks_topic: str = 'pmba/landmarks'
@@ -289,7 +294,8 @@ class BackendConfig:
             msg = (f'parameter tf_rate_hz={self.tf_rate_hz!r}: expected 0 (off) or '
                    f'{TF_RATE_HZ[0]:g}-{TF_RATE_HZ[1]:g} Hz')
             raise ValueError(msg)
-        for name in ('features_topic', 'keyframe_topic', 'camera_info_topic', 'path_topic',
+        for name in ('features_topic', 'keyframe_topic', 'camera_info_topic',
+                     'extrinsic_topic', 'path_topic',
                      'keyframes_topic', 'landmarks_topic', 'odometry_topic', 'map_frame',
                      'save_directory'):
             value = getattr(self, name)

@@ -30,7 +30,8 @@ from typing import Any
 __all__ = ['InputCheck', 'WatchedInput']
 
 _PARAMETERS = {'tracks': ('feature_layout', 'features_qos'),
-               'keyframe': ('keyframe_type', 'keyframe_qos')}
+               'keyframe': ('keyframe_type', 'keyframe_qos'),
+               'extrinsic': (None, 'keyframe_qos')}
 """Input kind -> the parameters that choose its message type and its QoS."""
 
 
@@ -39,7 +40,8 @@ class WatchedInput:
     """One subscription of the node.
 
     Attributes:
-        kind: The worker's input kind ('tracks', 'keyframe', 'camera_info', 'camera_info.c').
+        kind: The worker's input kind ('tracks', 'keyframe', 'extrinsic', 'camera_info',
+            'camera_info.c').
         topic: The resolved topic name.
         msgtype: The message type it reads, e.g. 'nav_msgs/msg/Odometry'.
     """

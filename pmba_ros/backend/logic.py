@@ -39,7 +39,12 @@ import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend import feature_ids, status, tracks
 from pmba_ros.backend import outputs as out
-from pmba_ros.backend.cameras import frame_id_of, frame_observations, FrontendCameras
+from pmba_ros.backend.cameras import (
+    extrinsic_from_message,
+    frame_id_of,
+    frame_observations,
+    FrontendCameras,
+)
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import Estimator
 from pmba_ros.backend.extrinsics import Rigid
@@ -170,6 +175,19 @@ class BackendLogic:
             self.cameras.tf_tree.add_message(msg)
         except Exception as err:
             self._reject('bad_tf', err)
+
+    def on_extrinsic(self, msg: Any) -> None:
+        """Take an ``extrinsic_topic`` message: camera ``camera_id``'s pose in the body frame.
+
+        Odometry or PoseStamped (VINS' ``/vins_estimator/extrinsic``, OpenVINS'
+        ``loop_extrinsic``). The newest one before the first keyframe with a front-end pose
+        is used where neither ``camera_extrinsics`` nor TF gives the extrinsic; bad ones are
+        counted (``bad_extrinsic``).
+        """
+        try:
+            self.cameras.topic_extrinsic = extrinsic_from_message(msg)
+        except Exception as err:
+            self._reject('bad_extrinsic', err)
 
     def on_tracks(self, msg: Any) -> None:
         """Parse and buffer a feature-track message (bad ones are counted)."""
@@ -452,7 +470,8 @@ class BackendLogic:
                          f'no body -> camera transform from '
                          f'{pose.child_frame_id or "(no child_frame_id)"!r} to '
                          f'{camera_frame or "(no camera frame)"!r} (parameter '
-                         'camera_extrinsics or TF); taking the keyframe poses as camera poses')
+                         'camera_extrinsics, TF or extrinsic_topic); taking the keyframe poses '
+                         'as camera poses')
         else:
             logger.info('body -> camera extrinsic from %s: %s', source,
                         [round(v, 6) for v in found.to_flat()])

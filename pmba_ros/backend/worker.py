@@ -98,9 +98,9 @@ class LogicWorker:
         self._thread.start()
 
     def enqueue(self, kind: str, msg: Any) -> None:
-        """Queue an input ('tracks', 'keyframe', 'camera_info[.c]' or 'tf'); never blocks.
+        """Queue an input ('tracks', 'keyframe', 'camera_info[.c]', 'tf' or 'extrinsic').
 
-        An unknown kind is a ValueError when the message is handled.
+        Never blocks. An unknown kind is a ValueError when the message is handled.
         """
         if kind != 'tf':  # TF keeps flowing when the front-end has stopped
             self.last_input = time.monotonic()
@@ -244,6 +244,7 @@ class LogicWorker:
             handlers: dict[str, Callable[[Any], None]] = {
                 'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
                 'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf,
+                'extrinsic': self.logic.on_extrinsic,
                 'step': lambda _msg: None}   # request_step(): a step without input
             if kind not in handlers or (camera and not (kind == 'camera_info'
                                                         and camera.isdigit())):

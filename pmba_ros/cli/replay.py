@@ -60,7 +60,8 @@ INCOMPLETE_INPUT = 3
 
 _OVERRIDES = {'tracks_topic': 'features_topic', 'tracks_layout': 'feature_layout',
               'keyframes_topic': 'keyframe_topic', 'keyframes_type': 'keyframe_type',
-              'keyframes_from': 'keyframe_source', 'mode': 'mode'}
+              'keyframes_from': 'keyframe_source', 'extrinsic_topic': 'extrinsic_topic',
+              'mode': 'mode'}
 """Command-line option (dest) -> BackendConfig field."""
 
 
@@ -110,6 +111,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        'tracks message is, its pose sampled from the keyframe topic (an '
                        'odometry stream at any rate) where recorded '
                        f'({node_default("keyframe_source")})')
+    group.add_argument('--extrinsic-topic', default=argparse.SUPPRESS, metavar='TOPIC',
+                       help='Odometry of the reference camera in the body frame, used where '
+                       'neither camera_extrinsics nor TF gives it (VINS: '
+                       f'/vins_estimator/extrinsic; {node_default("extrinsic_topic")})')
     camera = group.add_mutually_exclusive_group()
     camera.add_argument('--camera-info-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                         action='append',

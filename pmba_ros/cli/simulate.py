@@ -205,7 +205,8 @@ def _front_end(frontend: str | None, layout: str | None) -> tuple[str, SimTopics
         raise PmbaError(msg)
     remap = dict(pairing['remappings'])
     return own, SimTopics(tracks=remap['features'], keyframes=remap['keyframe_pose'],
-                          camera_info=remap.get('camera_info', SimTopics.camera_info))
+                          camera_info=remap.get('camera_info', SimTopics.camera_info),
+                          extrinsic=remap.get('extrinsic', ''))
 
 
 def _run_bal(args: argparse.Namespace) -> int:

@@ -42,12 +42,15 @@ CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
 TF_TOPICS = ('/tf_static', '/tf')
 """Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
 TF_TYPES = ('tf2_msgs/msg/TFMessage',)
+
+EXTRINSIC_TYPES = ('nav_msgs/msg/Odometry', 'geometry_msgs/msg/PoseStamped')
+"""Types of ``extrinsic_topic`` (the reference camera's pose in the body frame)."""
 STATIC_TF_TOPIC = '/tf_static'
 
 REORDER_BUFFER = 256
 """Messages held back to sort the log-time stream into header-stamp order."""
 
-_KIND_ORDER = {'tf': 0, 'camera_info': 1, 'tracks': 2, 'keyframe': 3}
+_KIND_ORDER = {'tf': 0, 'extrinsic': 0, 'camera_info': 1, 'tracks': 2, 'keyframe': 3}
 
 
 def resolve_topic(name: str, namespace: str = '/') -> str:
@@ -83,6 +86,7 @@ class ReplayInputs:
     keyframes: str | None
     camera_info: str | None
     tf: tuple[str, ...] = ()
+    extrinsic: str | None = None
 
 
 def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: bool,
@@ -140,9 +144,17 @@ def select_inputs(bags: Sequence[Path], config: BackendConfig, camera_given: boo
         warnings.append(text)
     tf = tuple(t for t in (find_topic(name, topics) for name in TF_TOPICS)
                if t is not None and topics[t].msgtype in TF_TYPES)
-    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info, *tf)
+    extrinsic = None if config.camera_extrinsics else find_topic(
+        resolve_topic(config.extrinsic_topic), topics)
+    if extrinsic is not None and topics[extrinsic].msgtype not in EXTRINSIC_TYPES:
+        text = (f'extrinsic topic {extrinsic!r} has type {topics[extrinsic].msgtype}, not '
+                f'{" or ".join(EXTRINSIC_TYPES)}: not read')
+        logger.warning(text)
+        warnings.append(text)
+        extrinsic = None
+    counts = {t: topics[t].count for t in (tracks, keyframes, camera_info, *tf, extrinsic)
               if t is not None}
-    return ReplayInputs(tracks, keyframes, camera_info, tf), counts
+    return ReplayInputs(tracks, keyframes, camera_info, tf, extrinsic), counts
 
 
 def rig_camera_infos(bags: Sequence[Path], config: BackendConfig, warnings: list[str],
@@ -187,6 +199,21 @@ def static_transforms(bags: OpenBags, tf_topics: Sequence[str]) -> Iterator[Any]
         yield message.msg
 
 
+def first_message(bags: OpenBags, topic: str | None) -> Any | None:
+    """Return the first message recorded on ``topic`` (None: none, or no topic).
+
+    The replay gives the front-end's extrinsic before anything else: VINS publishes it
+    stamped with the newest frame, after the keyframe poses of older stamps, so in stamp
+    order the first keyframes would come before it (live, it arrives first). Damage is read
+    past here; the replay's pass reports it.
+    """
+    if topic is None:
+        return None
+    for message in iter_messages(bags, topics=[topic], damage=ReadStats()):
+        return message.msg
+    return None
+
+
 def header_stamp_ns(msg: Any, fallback: int) -> int:
     """Return a message's header stamp in ns (``fallback`` if it has no usable header)."""
     stamp = stamp_of(msg)
@@ -203,7 +230,7 @@ def stamp_ordered(messages: Iterable[BagMessage], kinds: dict[str, str],
 
     Args:
         messages: Messages in log-time order.
-        kinds: Topic -> 'tf' | 'camera_info' | 'tracks' | 'keyframe'.
+        kinds: Topic -> 'tf' | 'extrinsic' | 'camera_info' | 'tracks' | 'keyframe'.
         window: Messages held back.
 
     Yields:

@@ -111,7 +111,7 @@ def fit_to_recording(bags: OpenBags, config: BackendConfig, warnings: list[str],
 
 
 _INPUTS = {'features': 'features_topic', 'keyframe_pose': 'keyframe_topic',
-           'camera_info': 'camera_info_topic'}
+           'camera_info': 'camera_info_topic', 'extrinsic': 'extrinsic_topic'}
 """The node's input topic names (the pairings' remapping sources) -> their config fields."""
 
 

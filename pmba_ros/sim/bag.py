@@ -28,7 +28,10 @@ namespace, so ``pmba replay`` reads the bag without topic options.
   publish them;
 * ``sensor_msgs/CameraInfo`` on :attr:`SimTopics.camera_info` (camera c > 0 of a rig on
   :meth:`SimTopics.camera_info_of`, with its body -> camera transform on ``/tf_static``);
-* the ground truth as ``geometry_msgs/PoseStamped`` on :attr:`SimTopics.groundtruth`.
+* the ground truth as ``geometry_msgs/PoseStamped`` on :attr:`SimTopics.groundtruth`;
+* with :attr:`SimTopics.extrinsic` (``--frontend``), the front-end's own body -> camera 0
+  ``nav_msgs/Odometry`` there, stamped with the newest frame as VINS publishes it (two
+  keyframes ahead of the pose it comes with), and keyframe poses without a child frame.
 
 Messages are logged with a small, fixed receive latency after their header stamp (tracks
 5 ms, keyframe poses 30 ms, like an estimator that publishes after its update), so the log
@@ -127,6 +130,9 @@ class SimTopics:
         world_frame: Front-end world (odom) frame.
         body_frame: Odometry child frame (with an extrinsic; else the camera frame).
         camera_frame: Camera optical frame (tracks, CameraInfo).
+        extrinsic: The front-end's body -> camera 0 Odometry topic ('': none). VINS-Mono,
+            VINS-Fusion and OpenVINS publish one and leave the keyframe poses' child frame
+            empty, so that TF cannot name their body.
     """
 
     tracks: str = '/features'
@@ -136,6 +142,7 @@ class SimTopics:
     world_frame: str = 'world'
     body_frame: str = 'body'
     camera_frame: str = 'camera'
+    extrinsic: str = ''
 
     def camera_info_of(self, camera: int) -> str:
         """Return the CameraInfo topic of camera id ``camera`` (0: :attr:`camera_info`)."""
@@ -246,7 +253,8 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     # Without an extrinsic the poses are the camera's: their child frame says so, as a
     # monocular front-end publishing camera poses does (no body -> camera warning).
-    pose_frame = topics.body_frame if cameras else topics.camera_frame
+    pose_frame = '' if topics.extrinsic else topics.body_frame if cameras else topics.camera_frame
+    T_bc0 = extrinsic or Rigid.identity()
     n_obs = 0
     with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
         for c, T_bc in enumerate(cameras if n_kf else []):
@@ -274,6 +282,12 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
             tracks = make_tracks(_with_frame(frame, stamp, topics.camera_frame), layout,
                                  backend, max(1, len(cameras)), landmarks_xyz=landmarks)
             writer.write(topics.tracks, tracks, stamp + TRACKS_LATENCY_NS)
+            if topics.extrinsic:
+                writer.write(topics.extrinsic,
+                             make_odometry(int(stamps[min(i + 2, n_kf - 1)]), topics.world_frame,
+                                           '', T_bc0.translation, so3.to_quat_xyzw(T_bc0.rotation),
+                                           odom_cov, backend),
+                             stamp + KEYFRAME_LATENCY_NS)
             writer.write(topics.keyframes,
                          make_odometry(stamp, topics.world_frame, pose_frame,
                                        c_odom[i], q_odom[i], odom_cov, backend),

@@ -163,7 +163,13 @@ def street() -> SimSequence:
     return simulate_sequence('street', n_keyframes=60, seed=0)
 
 
-@pytest.mark.parametrize('source', ['parameters', 'tf'])
+def _extrinsic_msg(T: Rigid, stamp_ns: int = 0) -> Any:
+    """Return VINS' extrinsic message: camera 0's pose in the body frame, as Odometry."""
+    return out.make_odometry(stamp_ns, 'world', '', T.translation, so3.to_quat_xyzw(T.rotation),
+                             np.eye(6) * 1e-6, BACKEND)
+
+
+@pytest.mark.parametrize('source', ['parameters', 'tf', 'extrinsic_topic'])
 def test_body_poses_in_and_out(street: SimSequence, source: str) -> None:
     """EuRoC-like body poses: outputs are body poses; map->odom o odom->body = optimized pose."""
     params = {'camera_extrinsics': EUROC_CAM0.to_flat()} if source == 'parameters' else {}
@@ -172,6 +178,8 @@ def test_body_poses_in_and_out(street: SimSequence, source: str) -> None:
         T = EUROC_CAM0
         logic.on_tf(out.make_tf(0, 'imu', 'cam0', T.translation,
                                 so3.to_quat_xyzw(T.rotation), BACKEND))
+    if source == 'extrinsic_topic':
+        logic.on_extrinsic(_extrinsic_msg(EUROC_CAM0))
     outputs = _run_body(logic, street, EUROC_CAM0, 60)
     assert logic.cameras.extrinsic_source == source
     assert diag_values(last(outputs, DIAGNOSTICS_TOPIC))['extrinsic_source'] == source
@@ -266,3 +274,31 @@ def test_frame_observations_overflowing_pixel_jacobian_is_not_finite_without_war
         warnings.simplefilter('error')
         obs, _, non_finite = frame_observations(frame, {0: camera})
     assert (obs.ids.tolist(), non_finite) == ([1, 3], 1)
+
+
+def test_tf_comes_before_the_extrinsic_topic_and_bad_ones_are_counted(
+        street: SimSequence) -> None:
+    """TF names the body when it can; a broken extrinsic message is counted, not taken."""
+    logic = BackendLogic(config(), BACKEND)
+    T = EUROC_CAM0
+    logic.on_tf(out.make_tf(0, 'imu', 'cam0', T.translation, so3.to_quat_xyzw(T.rotation),
+                            BACKEND))
+    logic.on_extrinsic(_extrinsic_msg(Rigid.identity()))
+    _run_body(logic, street, T, 10)
+    assert logic.cameras.extrinsic_source == 'tf'
+    np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)
+
+    logic = BackendLogic(config(), BACKEND)
+    broken = _extrinsic_msg(T)
+    broken.pose.pose.position.x = float('nan')
+    zero = _extrinsic_msg(T)
+    zero.pose.pose.orientation.w = zero.pose.pose.orientation.x = 0.0
+    zero.pose.pose.orientation.y = zero.pose.pose.orientation.z = 0.0
+    for msg in (broken, zero, make_camera_info(0, 'cam0', street.camera, BACKEND)):
+        logic.on_extrinsic(msg)
+    assert logic.stats.counters['bad_extrinsic'] == 3
+    assert logic.cameras.topic_extrinsic is None
+    logic.on_extrinsic(_extrinsic_msg(T))   # a good one after them is taken
+    _run_body(logic, street, T, 10)
+    assert logic.cameras.extrinsic_source == 'extrinsic_topic'
+    np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)

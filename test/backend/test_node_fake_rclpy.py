@@ -29,6 +29,7 @@ import sys
 import types
 from typing import Any
 
+import numpy as np
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 
@@ -540,7 +541,7 @@ def test_main_compiles_in_the_background_and_says_so(
 
 def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
     """With tf2_msgs, /tf_static and /tf feed the extrinsic's transform tree, not the staleness."""
-    from pmba_ros.backend.outputs import make_tf
+    from pmba_ros.backend.outputs import make_odometry, make_tf
 
     wrapper = make(fake_ros, deterministic=True)
     subs = {s.topic: s.callback for s in fake_ros.created[0].subscriptions}
@@ -550,13 +551,20 @@ def test_tf_static_reaches_the_back_end(fake_ros: FakeRclpy) -> None:
     assert wrapper.worker.last_input == last_input
     assert wrapper.process_pending() == 1
     assert len(wrapper.logic.cameras.tf_tree) == 1
+    # The front-end's own extrinsic (VINS, OpenVINS) is an input beside them.
+    subs[wrapper.config.extrinsic_topic](make_odometry(0, 'world', '', [0.1, 0.0, 0.0],
+                                                       [0, 0, 0, 1], np.eye(6), BACKEND))
+    assert wrapper.process_pending() == 1
+    assert wrapper.logic.cameras.topic_extrinsic is not None
+    np.testing.assert_allclose(wrapper.logic.cameras.topic_extrinsic.translation, [0.1, 0, 0])
 
 
 def test_no_tf_subscription_with_extrinsics_given(fake_ros: FakeRclpy) -> None:
-    """camera_extrinsics set: the node does not listen to TF for it."""
+    """camera_extrinsics set: the node listens neither to TF nor to the extrinsic topic."""
     wrapper = make(fake_ros, camera_extrinsics=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     topics = {s.topic for s in fake_ros.created[0].subscriptions}
-    assert wrapper.config.camera_extrinsics and not topics & {'/tf_static', '/tf'}
+    assert wrapper.config.camera_extrinsics
+    assert not topics & {'/tf_static', '/tf', wrapper.config.extrinsic_topic}
 
 
 def test_a_rig_s_lists_declare_num_cams(fake_ros: FakeRclpy) -> None:
