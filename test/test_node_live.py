@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 from pmba_ros.backend import outputs as out
+from pmba_ros.backend.frontends import PAIRINGS
 from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.cli.main import main as pmba
 from pmba_ros.core import so3
@@ -100,12 +101,12 @@ def start_node(domain: int, log: Path, *ros_args: str,
             text=True, preexec_fn=_default_sigint)
 
 
-def keyframe_stamps(bag: Path) -> np.ndarray:
-    """Return the stamps, in ns, of a recording's keyframe poses."""
+def keyframe_stamps(bag: Path, topic: str = '/keyframe_pose') -> np.ndarray:
+    """Return the stamps, in ns, of a recording's keyframe poses (on ``topic``)."""
     from pmba_ros.io.bags import iter_messages
 
     return np.array([m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec
-                     for m in iter_messages([bag], ['/keyframe_pose'])])
+                     for m in iter_messages([bag], [topic])])
 
 
 def kill(*procs: subprocess.Popen[str] | None) -> None:
@@ -209,26 +210,34 @@ def check_outputs(listener: Listener, stamps_ns: np.ndarray) -> None:
 @pytest.mark.slow
 def test_vins_mono_odometry_from_pmba_play_then_sigint(listener: Listener,
                                                        tmp_path: Path) -> None:
-    """VINS-Mono topics and layout, recording played by ``pmba play``; SIGINT exits 0 fast."""
+    """The launch file's VINS-Mono pairing by hand, a VINS-Mono recording; SIGINT exits 0 fast.
+
+    Its body poses name no child frame: the extrinsic comes from VINS' own topic.
+    """
     bag = tmp_path / 'mono'
-    assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '3', '--layout',
-                 'vins_mono', '--out', str(bag)]) == 0
+    assert pmba(['simulate', '--keyframes', str(N_KEYFRAMES), '--seed', '3', '--frontend',
+                 'vins_mono', '--extrinsic', 'euroc', '--out', str(bag)]) == 0
+    pairing = PAIRINGS['vins_mono']
     domain = listener.domain  # type: ignore[attr-defined]
     log = tmp_path / 'node.log'
-    node = start_node(domain, log, *LATCHED_INPUTS, '-p', 'feature_layout:=vins_mono',
-                      '-p', 'max_time_s:=1', '-r', 'features:=/feature_tracker/feature',
-                      '-r', 'keyframe_pose:=/vins_estimator/keyframe_pose')
+    node = start_node(
+        domain, log, *LATCHED_INPUTS, '-p', 'max_time_s:=1',
+        *(arg for name, value in pairing['parameters'].items()
+          for arg in ('-p', f'{name}:={value}')),
+        *(arg for src, dst in pairing['remappings'] for arg in ('-r', f'{src}:={dst}')))
     player = None
     try:
         wait_until_up(listener, node, log)
         player = subprocess.Popen(
             [sys.executable, '-m', 'pmba_ros', 'play', str(bag), '--wait-for-subscribers',
-             '30', '--topics', '/features', '/keyframe_pose', '/camera_info',
-             '--remap', '/features:=/feature_tracker/feature',
-             '--remap', '/keyframe_pose:=/vins_estimator/keyframe_pose'],
+             '30', '--topics', *(dst for _, dst in pairing['remappings'])],
             env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        stamps = keyframe_stamps(bag)
+        stamps = keyframe_stamps(bag, dict(pairing['remappings'])['keyframe_pose'])
+        assert len(stamps) == N_KEYFRAMES
         check_outputs(listener, stamps)
+        sources = [v.value for a in listener.got['diag'] for st in a.status for v in st.values
+                   if v.key == 'extrinsic_source']
+        assert sources[-1] == 'extrinsic_topic' and 'identity' not in sources, sources
         assert player.wait(timeout=30) == 0
         seconds, stderr = stop(node, signal.SIGINT, log)
         assert node.returncode == 0, stderr
