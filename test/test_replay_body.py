@@ -134,3 +134,25 @@ def test_a_vins_recording_gives_its_extrinsic_on_its_own_topic(tmp_path: Path) -
     assert 'extrinsic_unknown' not in data['counters']
     assert (tmp_path / 'out' / 'keyframes_optimized.tum').read_bytes() == (
         tmp_path / 'out_tf' / 'keyframes_optimized.tum').read_bytes()
+
+
+def test_an_extrinsic_topic_of_another_type_is_a_warning(tmp_path: Path) -> None:
+    """A recorded 'extrinsic' topic that is not a pose is named in a warning and not read."""
+    from pmba_ros.backend.msg_backend import RosbagsBackend
+    from pmba_ros.io.bags import jazzy_typestore
+    from pmba_ros.sim.inputs import make_camera_info
+
+    seq = simulate_sequence('street', n_keyframes=30, seed=2)
+    bag, mixed = tmp_path / 'bag', tmp_path / 'mixed.mcap'
+    write_sequence_bag(seq, bag, extrinsic=EUROC_CAM0)
+    backend = RosbagsBackend(jazzy_typestore())
+    with open_writer(mixed) as writer:
+        for m in iter_messages([bag]):
+            writer.write(m.topic, m.msg, m.log_time_ns)
+        writer.write('/extrinsic', make_camera_info(0, 'camera', seq.camera, backend), 1)
+    report = replay([mixed], tmp_path / 'out')
+    assert any("extrinsic topic '/extrinsic' has type sensor_msgs/msg/CameraInfo" in w
+               for w in report.warnings), report.warnings
+    data = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert data['extrinsic']['source'] == 'tf' and 'extrinsic' not in data['topics']
+    assert report.keyframes_out == 30
