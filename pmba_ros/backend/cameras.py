@@ -30,13 +30,20 @@ from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, Transform
 from pmba_ros.backend.tracks import parse_keyframe
 from pmba_ros.backend.types import CameraModel, pinhole_jacobian, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
-from pmba_ros.core import sphere
+from pmba_ros.core import so3, sphere
 from pmba_ros.errors import MessageError
 
 
 def frame_id_of(msg: Any) -> str:
     """Return a message's header ``frame_id`` ('' without one)."""
     return str(getattr(getattr(msg, 'header', None), 'frame_id', '') or '')
+
+
+EXTRINSIC_MOVED_M = 0.01
+"""Translation by which the front-end's extrinsic may move from the one fixed, unreported, m."""
+
+EXTRINSIC_MOVED_DEG = 0.5
+"""Rotation by which it may move, unreported, degrees (a calibration's usual precision)."""
 
 
 def extrinsic_from_message(msg: Any) -> Rigid:
@@ -167,6 +174,24 @@ class FrontendCameras:
         old, self.others[camera_id] = self.others.get(camera_id), camera
         self.other_frames[camera_id] = frame_id
         return '', old
+
+    def take_topic_extrinsic(self, found: Rigid) -> str:
+        """Keep the newest ``extrinsic_topic`` transform; say how far it is from the one fixed.
+
+        Returns:
+            '' unless the extrinsic was fixed from the topic and this one moved more than
+            :data:`EXTRINSIC_MOVED_M` or :data:`EXTRINSIC_MOVED_DEG` from it (an online
+            calibration still converging): then what moved.
+        """
+        self.topic_extrinsic = found
+        fixed = self.extrinsic
+        if fixed is None or self.extrinsic_source != 'extrinsic_topic':
+            return ''
+        metres = float(np.linalg.norm(found.translation - fixed.translation))
+        degrees = float(np.rad2deg(np.linalg.norm(so3.log(fixed.rotation.T @ found.rotation))))
+        if metres <= EXTRINSIC_MOVED_M and degrees <= EXTRINSIC_MOVED_DEG:
+            return ''
+        return f'{metres:.3f} m, {degrees:.2f} deg'
 
     def resolve_extrinsic(self, body: str, camera_frame: str) -> tuple[Rigid | None, str]:
         """Find and fix the reference camera's body -> camera extrinsic.

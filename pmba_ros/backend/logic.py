@@ -182,12 +182,20 @@ class BackendLogic:
         Odometry or PoseStamped (VINS' ``/vins_estimator/extrinsic``, OpenVINS'
         ``loop_extrinsic``). The newest one before the first keyframe with a front-end pose
         is used where neither ``camera_extrinsics`` nor TF gives the extrinsic; bad ones are
-        counted (``bad_extrinsic``).
+        counted (``bad_extrinsic``), and later ones that moved from it (an online
+        calibration) as ``extrinsic_changes`` (a reset takes the newest).
         """
         try:
-            self.cameras.topic_extrinsic = extrinsic_from_message(msg)
+            moved = self.cameras.take_topic_extrinsic(extrinsic_from_message(msg))
         except Exception as err:
             self._reject('bad_extrinsic', err)
+            return
+        if moved:   # warned once, counted always
+            self.count('extrinsic_changes')
+            if self._stats.counters['extrinsic_changes'] == 1:
+                logger.warning("the front-end's extrinsic moved by %s from the one fixed at "
+                               'the first keyframe, which is kept (a reset takes the newest; '
+                               'further changes are only counted)', moved)
 
     def on_tracks(self, msg: Any) -> None:
         """Parse and buffer a feature-track message (bad ones are counted)."""

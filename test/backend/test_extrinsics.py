@@ -302,3 +302,27 @@ def test_tf_comes_before_the_extrinsic_topic_and_bad_ones_are_counted(
     _run_body(logic, street, T, 10)
     assert logic.cameras.extrinsic_source == 'extrinsic_topic'
     np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)
+
+
+def test_an_extrinsic_that_moves_after_it_was_fixed_is_counted(street: SimSequence) -> None:
+    """An online calibration moving the topic's extrinsic: counted, the fixed one kept.
+
+    A move within a calibration's precision is not; a reset takes the newest.
+    """
+    logic = BackendLogic(config(), BACKEND)
+    T = EUROC_CAM0
+    logic.on_extrinsic(_extrinsic_msg(T))
+    _run_body(logic, street, T, 10)
+    assert logic.cameras.extrinsic_source == 'extrinsic_topic'
+    nudged = Rigid(T.rotation, T.translation + np.array([0.002, 0.0, 0.0]))
+    moved = Rigid(T.rotation @ so3.exp(np.array([0.0, 0.0, np.deg2rad(2.0)])), T.translation)
+    logic.on_extrinsic(_extrinsic_msg(nudged))
+    assert logic.stats.counters['extrinsic_changes'] == 0
+    logic.on_extrinsic(_extrinsic_msg(moved))
+    logic.on_extrinsic(_extrinsic_msg(moved))
+    assert logic.stats.counters['extrinsic_changes'] == 2
+    np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)
+    logic.reset()
+    _run_body(logic, street, T, 10)
+    assert logic.cameras.extrinsic_source == 'extrinsic_topic'
+    np.testing.assert_allclose(logic.cameras.extrinsic.rotation, moved.rotation, atol=1e-12)
