@@ -56,7 +56,12 @@ def extrinsic_from_message(msg: Any) -> Rigid:
     Raises:
         MessageError: If it is neither type, or its pose is not finite or not a rotation.
     """
-    pose = parse_keyframe(msg, 'odometry' if hasattr(msg, 'child_frame_id') else 'pose_stamped')
+    try:
+        pose = parse_keyframe(msg, 'odometry' if hasattr(msg, 'child_frame_id')
+                              else 'pose_stamped')
+    except MessageError as err:
+        msg_ = f'extrinsic message: {err}'
+        raise MessageError(msg_) from err
     return Rigid.from_xyz_quat(pose.position, pose.quat_xyzw, 'extrinsic message')
 
 
