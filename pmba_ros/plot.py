@@ -201,9 +201,9 @@ def plot_convergence(path: Path, traces: Sequence[tuple[str, ConvergenceTrace, f
         bas = trace.bas()
         color = None
         for k, (times, rms) in enumerate(bas):
+            legend = {0: label, 1: f'{label}: BA resumed'}.get(k)   # one entry per kind
             line, = ax.semilogy(times, rms, 'o-' if k == 0 else 's--', markersize=3,
-                                color=color, label=(label, f'{label}: BA resumed')[k]
-                                if k < 2 else None)
+                                color=color, label=legend)
             color = line.get_color()
         if len(bas) > 1:
             ax.axhline(result_rms, color=color, linestyle=':', linewidth=1,

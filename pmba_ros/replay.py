@@ -430,7 +430,7 @@ def _give_first_extrinsic(logic: BackendLogic, bags: OpenBags, topic: str | None
     msg = first_message(bags, topic)
     if msg is not None:
         with contextlib.suppress(MessageError):
-            logic.cameras.topic_extrinsic = extrinsic_from_message(msg)
+            logic.cameras.take_topic_extrinsic(extrinsic_from_message(msg))
 
 
 def _give_static_transforms(logic: BackendLogic, bags: OpenBags, tf_topics: Sequence[str],

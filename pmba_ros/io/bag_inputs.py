@@ -42,10 +42,10 @@ CAMERA_INFO_TYPES = ('sensor_msgs/msg/CameraInfo',)
 TF_TOPICS = ('/tf_static', '/tf')
 """Transform topics read when recorded (body -> camera extrinsic, see BackendLogic.on_tf)."""
 TF_TYPES = ('tf2_msgs/msg/TFMessage',)
+STATIC_TF_TOPIC = '/tf_static'
 
 EXTRINSIC_TYPES = ('nav_msgs/msg/Odometry', 'geometry_msgs/msg/PoseStamped')
 """Types of ``extrinsic_topic`` (the reference camera's pose in the body frame)."""
-STATIC_TF_TOPIC = '/tf_static'
 
 REORDER_BUFFER = 256
 """Messages held back to sort the log-time stream into header-stamp order."""

@@ -252,8 +252,11 @@ def write_sequence_bag(seq: SequenceLike, out: Path | str, *, layout: str = 'vin
     points_w = np.asarray(seq.points_w, dtype=np.float64)
     odom_cov = np.diag([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
     # Without an extrinsic the poses are the camera's: their child frame says so, as a
-    # monocular front-end publishing camera poses does (no body -> camera warning).
-    pose_frame = '' if topics.extrinsic else topics.body_frame if cameras else topics.camera_frame
+    # monocular front-end publishing camera poses does (no body -> camera warning). A
+    # front-end with an extrinsic topic names no child frame (VINS, OpenVINS).
+    pose_frame = topics.body_frame if cameras else topics.camera_frame
+    if topics.extrinsic:
+        pose_frame = ''
     T_bc0 = extrinsic or Rigid.identity()
     n_obs = 0
     with open_writer(out, overwrite=overwrite, keep_on_error=False) as writer:
