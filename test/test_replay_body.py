@@ -119,10 +119,10 @@ def test_a_vins_recording_gives_its_extrinsic_on_its_own_topic(tmp_path: Path) -
                for m in iter_messages([vins], topics=['/keyframe_pose']))
     with open_writer(late) as writer:
         for m in iter_messages([vins]):
-            shift = 2 * 10**9 * (m.topic == topic)
-            if shift:
-                m.msg.header.stamp.sec += 2
-            writer.write(m.topic, m.msg, m.log_time_ns + shift)
+            late_s = 2 if m.topic == topic else 0
+            if late_s:
+                m.msg.header.stamp.sec += late_s
+            writer.write(m.topic, m.msg, m.log_time_ns + late_s * 10**9)
     config = BackendConfig(feature_layout='per_point', extrinsic_topic=topic)
     replay([late], tmp_path / 'out', config)
     replay([tf_only], tmp_path / 'out_tf', BackendConfig(feature_layout='per_point'))

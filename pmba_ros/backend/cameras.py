@@ -193,7 +193,7 @@ class FrontendCameras:
         if fixed is None or self.extrinsic_source != 'extrinsic_topic':
             return ''
         metres = float(np.linalg.norm(found.translation - fixed.translation))
-        degrees = float(np.rad2deg(np.linalg.norm(so3.log(fixed.rotation.T @ found.rotation))))
+        degrees = float(np.rad2deg(so3.angle(fixed.rotation, found.rotation)))
         if metres <= EXTRINSIC_MOVED_M and degrees <= EXTRINSIC_MOVED_DEG:
             return ''
         return f'{metres:.3f} m, {degrees:.2f} deg'
