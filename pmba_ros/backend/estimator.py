@@ -55,6 +55,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.consistency import in_odom_frame, inconsistency, motion_error
+from pmba_ros.backend.gaps import place_unsolved
 from pmba_ros.backend.motion import (
     ANCHOR_BASELINE_REL,
     fit_map_from_odom,
@@ -62,6 +63,7 @@ from pmba_ros.backend.motion import (
     FrontendNoise,
     JUMP_SIGMAS,
     PixelNoise,
+    pose_from_odom_or_nearest,
     predict_pose,
     RunScale,
     step_sigmas,
@@ -361,7 +363,8 @@ class Estimator:
                 self.kf.R_odom[passed], self.kf.C_odom[passed])
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
-            self.kf.R_map[j], self.kf.C_map[j] = self._pose_from_odom_or_neighbor(int(j), used)
+            self.kf.R_map[j], self.kf.C_map[j] = pose_from_odom_or_nearest(
+                self.kf, self.map_from_odom, int(j), used)
         info = UpdateInfo('init', solve_ms=1e3 * (time.perf_counter() - t0),
                           iterations=res.iterations, cost_before=res.initial_cost,
                           cost_after=res.final_cost, n_cams=res.problem.n_cams,
@@ -386,13 +389,6 @@ class Estimator:
         self.last_message = 'tracking'
         logger.info('%s (%.0f ms)', info.message, info.solve_ms)
         return info
-
-    def _pose_from_odom_or_neighbor(self, j: int, used: IntArray) -> tuple[FloatArray, FloatArray]:
-        if self.kf.has_odom[j]:
-            R, C = self.map_from_odom.apply_poses(self.kf.R_odom[j][None], self.kf.C_odom[j][None])
-            return R[0], C[0]
-        k = int(used[np.argmin(np.abs(used - j))])
-        return self.kf.R_map[k].copy(), self.kf.C_map[k].copy()
 
     # --- tracking -------------------------------------------------------------------------
 
@@ -514,6 +510,8 @@ class Estimator:
         info.n_feats, info.n_obs = res.problem.n_feats, res.problem.n_obs
         if jumped.size:   # this solve was pulled by the factors across the jump: again without
             info.solve_ms += self._refine(slide=slide).solve_ms
+        place_unsolved(self.kf, self.optimized(np.arange(self.kf.n)), self.map_from_odom.scale,
+                       int(moved.min()) if moved.size else self.kf.n)
         return info
 
     def _motion_prior(self, cams: IntArray, fixed: BoolArray,

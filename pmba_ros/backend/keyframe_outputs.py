@@ -116,16 +116,19 @@ class KeyframeOutputs:
     def _poses(self, config: BackendConfig, idx: np.ndarray) -> tuple[list[Any], list[Any]]:
         """Return PoseStamped and Pose messages of keyframes ``idx`` (built incrementally).
 
-        Fixed and dead-reckoned keyframes are final (and passed-through ones once tracking):
-        their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`) until
-        the estimator rescales the whole map.
+        Fixed keyframes are final, and dead-reckoned ones older than a fixed one (placed
+        between fixed neighbours, :mod:`~pmba_ros.backend.gaps`), and passed-through ones once
+        tracking: their messages are kept (:class:`~pmba_ros.backend.outputs.PoseMessageCache`)
+        until the estimator rescales the whole map.
         """
         kf = self.estimator.kf
         if self.estimator.map_version != self._map_version:   # the whole map was rescaled
             self._published = out.PoseMessageCache()
             self._map_version = self.estimator.map_version
         status = kf.status[idx]
-        final = (status == KeyframeStatus.FIXED) | (status == KeyframeStatus.DEAD_RECKONED)
+        fixed = idx[status == KeyframeStatus.FIXED]
+        final = (status == KeyframeStatus.FIXED) | (
+            (status == KeyframeStatus.DEAD_RECKONED) & (idx < (fixed[-1] if fixed.size else 0)))
         if self.estimator.state == 'tracking':  # passed through before the initialization
             final |= status == KeyframeStatus.PASSED_THROUGH
 

@@ -545,6 +545,16 @@ def predict_pose(kf: KeyframeStore, map_from_odom: Similarity, segment: int,
     return kf.R_map[prev].copy(), kf.C_map[prev].copy()
 
 
+def pose_from_odom_or_nearest(kf: KeyframeStore, map_from_odom: Similarity, j: int,
+                              used: IntArray) -> tuple[FloatArray, FloatArray]:
+    """Return keyframe j's front-end pose through map <- odom, else its nearest in used."""
+    if kf.has_odom[j]:
+        R, C = map_from_odom.apply_poses(kf.R_odom[j][None], kf.C_odom[j][None])
+        return R[0], C[0]
+    k = int(used[np.argmin(np.abs(used - j))])
+    return kf.R_map[k].copy(), kf.C_map[k].copy()
+
+
 def fit_map_from_odom(kf: KeyframeStore, run: RunScale, current: Similarity, window: int,
                       global_mode: bool) -> Similarity:
     """Return map <- odom fitted to the free keyframes with front-end poses (or ``current``).

@@ -1,0 +1,95 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Keyframes the solver cannot see (too few tracks) placed between the ones it solved.
+
+Through a stretch without tracks (a dark tunnel, a white wall, a lens covered) the keyframes
+keep the front-end's motion. Chained on from the last solved keyframe alone, as they come,
+the stretch ends where the front-end's drift took it, and the first solved keyframe after it
+starts where the vision puts it: a step of the whole stretch's drift between two keyframes.
+Each such keyframe is placed by the front-end's motion from both solved neighbours, blended
+along the path (:func:`place_unsolved`), so that the correction the solves find on either
+side is spread over the stretch rather than left at its end.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
+from pmba_ros.core import so3
+
+
+def place_unsolved(kf: KeyframeStore, solved: BoolArray, scale: float, moved_from: int) -> None:
+    """Place the dead-reckoned keyframes whose solved neighbours may have moved.
+
+    Each keyframe's pose is the front-end's motion from the solved keyframe before it and
+    from the one after it, each seen through its own map <- odom (the neighbour's rotation
+    and position, the front-end's translation times ``scale``), blended by the share of the
+    front-end's path between them travelled (by time where the front-end stood still).
+    A neighbour in another odom segment or without a front-end pose does not count; with
+    one side only, the front-end's motion from that side.
+
+    Args:
+        kf: The keyframes; ``R_map`` / ``C_map`` of the dead-reckoned ones are set.
+        solved: Which of the ``kf.n`` keyframes carry a solved pose (the neighbours).
+        scale: Map units per odom unit.
+        moved_from: The oldest keyframe a solve moved: the keyframes from the solved one
+            before it on are placed, older ones stay.
+    """
+    n = kf.n
+    anchors = np.flatnonzero(solved[:n] & kf.has_odom[:n])
+    older = anchors[anchors < moved_from]
+    first = int(older[-1]) + 1 if older.size else 0
+    todo = np.flatnonzero(kf.status[first:n] == KeyframeStatus.DEAD_RECKONED) + first
+    todo = todo[kf.has_odom[todo]]
+    if todo.shape[0] == 0 or anchors.shape[0] == 0:
+        return
+    pos = np.searchsorted(anchors, todo)
+    a = anchors[np.maximum(pos - 1, 0)]
+    b = anchors[np.minimum(pos, anchors.shape[0] - 1)]
+    has_a = (pos > 0) & (kf.segment[a] == kf.segment[todo])
+    has_b = (pos < anchors.shape[0]) & (kf.segment[b] == kf.segment[todo])
+    use = has_a | has_b
+    todo, a, b, has_a, has_b = todo[use], a[use], b[use], has_a[use], has_b[use]
+    if todo.shape[0] == 0:
+        return
+    a = np.where(has_a, a, b)
+    b = np.where(has_b, b, a)
+    w = _path_share(kf, a, todo, b)
+    D_a = np.einsum('mij,mkj->mik', kf.R_map[a], kf.R_odom[a])   # map <- odom rotation at a
+    D_b = np.einsum('mij,mkj->mik', kf.R_map[b], kf.R_odom[b])
+    D = np.einsum('mij,mjk->mik', D_a, so3.exp(
+        w[:, None] * so3.log(np.einsum('mji,mjk->mik', D_a, D_b))))
+    from_a = kf.C_map[a] + scale * np.einsum('mij,mj->mi', D_a, kf.C_odom[todo] - kf.C_odom[a])
+    from_b = kf.C_map[b] + scale * np.einsum('mij,mj->mi', D_b, kf.C_odom[todo] - kf.C_odom[b])
+    kf.R_map[todo] = so3.project(np.einsum('mij,mjk->mik', D, kf.R_odom[todo]))
+    kf.C_map[todo] = (1.0 - w)[:, None] * from_a + w[:, None] * from_b
+
+
+def _path_share(kf: KeyframeStore, a: IntArray, k: IntArray, b: IntArray) -> FloatArray:
+    """Return the share of the front-end's path from a to b travelled at k (0 where a == b)."""
+    lo, hi = int(min(a.min(), k.min())), int(max(b.max(), k.max()))   # one side: k beyond
+    span = np.arange(lo, hi + 1)
+    with_pose = span[kf.has_odom[span]]   # a, k and b have front-end poses; others no path
+    steps = np.linalg.norm(np.diff(kf.C_odom[with_pose], axis=0), axis=1)
+    path = np.zeros(hi - lo + 1)
+    path[with_pose - lo] = np.concatenate([[0.0], np.cumsum(steps)])
+    done, total = path[k - lo] - path[a - lo], path[b - lo] - path[a - lo]
+    t_done = (kf.stamps_ns[k] - kf.stamps_ns[a]).astype(np.float64)
+    t_total = (kf.stamps_ns[b] - kf.stamps_ns[a]).astype(np.float64)
+    typical = np.median(steps) if steps.shape[0] else 0.0
+    moved = total > 1e-3 * max(typical, 1e-12) * (b - a)
+    share = np.where(moved, done / np.where(moved, total, 1.0),
+                     t_done / np.where(t_total > 0, t_total, 1.0))
+    return np.clip(np.where(b > a, share, 0.0), 0.0, 1.0)

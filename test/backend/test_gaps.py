@@ -1,0 +1,189 @@
+# Copyright 2026 pmba_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Keyframes without enough tracks placed between solved ones (``backend.gaps``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pmba_ros.backend.gaps import place_unsolved
+from pmba_ros.backend.logic import BackendLogic
+from pmba_ros.backend.types import TrackFrame
+from pmba_ros.backend.window import KeyframeStatus, KeyframeStore, Similarity
+from pmba_ros.core import so3
+from pmba_ros.eval.align import umeyama_alignment
+from pmba_ros.eval.metrics import rpe
+from pmba_ros.eval.trajectory import Trajectory
+from pmba_ros.sim.sequence import SimSequence, simulate_sequence
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from .test_logic import BACKEND, camera_info_msg, config, keyframe_msg, last, tracks_msg
+
+S = KeyframeStatus
+Tunnel = tuple[BackendLogic, list[tuple[str, Any]], SimSequence]
+
+
+def _store(status: list[KeyframeStatus], *, still: tuple[int, int] = (0, 0)) -> KeyframeStore:
+    """Return keyframes on a curving front-end path (standing still over ``still``)."""
+    kf = KeyframeStore()
+    position, heading = np.zeros(3), 0.0
+    for k, st in enumerate(status):
+        if not still[0] < k <= still[1]:
+            heading += 0.05
+            position = position + np.array([np.cos(heading), np.sin(heading), 0.02 * k])
+        R = so3.exp(np.array([0.0, 0.0, heading]) + 0.01 * np.array([np.sin(k), 0.0, 0.0]))
+        kf.add(1_000_000_000 + 100_000_000 * k + 7_000_000 * k * k, (R, position), None, st)
+    return kf
+
+
+def _sim(yaw: float, shift: tuple[float, float, float], scale: float = 1.3) -> Similarity:
+    return Similarity(scale, so3.exp(np.array([0.02, -0.01, yaw])), np.array(shift))
+
+
+def _solve(kf: KeyframeStore, idx: list[int], sim: Similarity) -> None:
+    """Give keyframes ``idx`` the poses ``sim`` maps their front-end poses to."""
+    kf.R_map[idx], kf.C_map[idx] = sim.apply_poses(kf.R_odom[idx], kf.C_odom[idx])
+
+
+def _solved(kf: KeyframeStore) -> np.ndarray:
+    status = kf.status[:kf.n]
+    return (status == S.ACTIVE) | (status == S.FIXED)
+
+
+def test_one_map_from_odom_on_both_sides_is_kept() -> None:
+    """Solved neighbours that agree with one map <- odom put the stretch on it exactly."""
+    kf = _store([S.FIXED] * 4 + [S.DEAD_RECKONED] * 5 + [S.ACTIVE] * 3)
+    sim = _sim(0.4, (3.0, -2.0, 1.0))
+    _solve(kf, [0, 1, 2, 3, 9, 10, 11], sim)
+    place_unsolved(kf, _solved(kf), sim.scale, moved_from=9)
+    R, C = sim.apply_poses(kf.R_odom[4:9], kf.C_odom[4:9])
+    np.testing.assert_allclose(kf.R_map[4:9], R, atol=1e-12)
+    np.testing.assert_allclose(kf.C_map[4:9], C, atol=1e-9)
+
+
+def test_a_correction_is_spread_over_the_stretch_by_path() -> None:
+    """Each side's front-end motion, blended by the path travelled; slerp as the oracle.
+
+    A solved keyframe without a front-end pose inside the stretch carries no correction and
+    does not count in the path.
+    """
+    status = [S.FIXED] * 3 + [S.DEAD_RECKONED] * 3 + [S.ACTIVE] + [S.DEAD_RECKONED] * 3
+    kf = _store(status + [S.ACTIVE] * 3)
+    kf.has_odom[6], kf.C_odom[6] = False, np.array([1e3, 1e3, 1e3])
+    left, right = _sim(0.4, (3.0, -2.0, 1.0)), _sim(0.47, (3.5, -1.0, 0.8), scale=1.3)
+    _solve(kf, [0, 1, 2], left)
+    _solve(kf, [10, 11, 12], right)
+    place_unsolved(kf, _solved(kf), 1.3, moved_from=10)
+    dr = np.array([3, 4, 5, 7, 8, 9])
+    odom = np.delete(np.arange(13), 6)
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(kf.C_odom[odom], axis=0),
+                                                           axis=1))])
+    at = dict(zip(odom.tolist(), path.tolist(), strict=True))
+    w = np.array([(at[k] - at[2]) / (at[10] - at[2]) for k in dr])
+    slerp = Slerp([0.0, 1.0], Rotation.from_matrix([left.rotation, right.rotation]))
+    np.testing.assert_allclose(kf.R_map[dr], slerp(w).as_matrix() @ kf.R_odom[dr], atol=1e-9)
+    from_left = kf.C_map[2] + 1.3 * (kf.C_odom[dr] - kf.C_odom[2]) @ left.rotation.T
+    from_right = kf.C_map[10] + 1.3 * (kf.C_odom[dr] - kf.C_odom[10]) @ right.rotation.T
+    np.testing.assert_allclose(kf.C_map[dr], (1 - w)[:, None] * from_left
+                               + w[:, None] * from_right, atol=1e-9)
+    assert 0 < w[0] < w[-1] < 1
+
+
+@pytest.mark.parametrize('case', ['trailing', 'jump_after', 'jump_before'])
+def test_one_side_only(case: str) -> None:
+    """No solved keyframe after (or one in another odom frame): that side does not count."""
+    status = [S.FIXED] * 3 + [S.DEAD_RECKONED] * 4 + ([] if case == 'trailing' else [S.ACTIVE])
+    kf = _store(status)
+    left, right = _sim(0.4, (3.0, -2.0, 1.0)), _sim(0.9, (-5.0, 4.0, 0.0))
+    _solve(kf, [0, 1, 2], left)
+    if case != 'trailing':
+        _solve(kf, [7], right)
+        kf.segment[7 if case == 'jump_after' else 3:] = 1
+    place_unsolved(kf, _solved(kf), 1.3, moved_from=0)
+    side, dr = (right, np.arange(3, 7)) if case == 'jump_before' else (left, np.arange(3, 7))
+    R, C = side.apply_poses(kf.R_odom[dr], kf.C_odom[dr])
+    np.testing.assert_allclose(kf.R_map[dr], R, atol=1e-12)
+    np.testing.assert_allclose(kf.C_map[dr], C, atol=1e-9)
+
+
+def test_standing_still_the_correction_is_spread_by_time() -> None:
+    """Where the front-end stood still between the neighbours, the share is one of time."""
+    kf = _store([S.FIXED] * 3 + [S.DEAD_RECKONED] * 4 + [S.ACTIVE] * 2, still=(2, 8))
+    left, right = _sim(0.4, (3.0, -2.0, 1.0)), _sim(0.5, (3.2, -2.0, 1.0))
+    _solve(kf, [0, 1, 2], left)
+    _solve(kf, [7, 8], right)
+    place_unsolved(kf, _solved(kf), 1.3, moved_from=7)
+    t = kf.stamps_ns[2:8].astype(float)
+    w = (t[1:5] - t[0]) / (t[5] - t[0])
+    yaw = so3.log(kf.R_map[3:7] @ np.swapaxes(kf.R_odom[3:7], 1, 2) @ left.rotation.T)
+    np.testing.assert_allclose(np.linalg.norm(yaw, axis=1) / so3.angle(left.rotation,
+                                                                       right.rotation), w)
+
+
+def test_keyframes_before_the_moved_ones_stay() -> None:
+    """Only the stretches next to keyframes a solve moved are placed again."""
+    kf = _store([S.FIXED] * 2 + [S.DEAD_RECKONED] * 2 + [S.FIXED] * 2
+                + [S.DEAD_RECKONED] * 2 + [S.ACTIVE] * 2)
+    _solve(kf, [0, 1, 4, 5, 8, 9], _sim(0.4, (3.0, -2.0, 1.0)))
+    kf.C_map[2:4], kf.C_map[6:8] = 7.0, 7.0
+    place_unsolved(kf, _solved(kf), 1.3, moved_from=8)
+    assert np.all(kf.C_map[2:4] == 7.0) and not np.any(kf.C_map[6:8] == 7.0)
+
+
+@pytest.fixture(scope='module')
+def tunnel() -> Tunnel:
+    """Feed the back-end a street whose keyframes 40-59 bring no tracks (a tunnel)."""
+    seq = simulate_sequence('street', n_keyframes=100, seed=0)
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(camera_info_msg(seq))
+    outputs: list[tuple[str, Any]] = []
+    for i in range(len(seq)):
+        dark = TrackFrame.empty(int(seq.stamps_ns[i]), 'odom') if 40 <= i < 60 else None
+        logic.on_tracks(tracks_msg(seq, i, frame=dark))
+        logic.on_keyframe(keyframe_msg(seq, i))
+        outputs += logic.step()
+    return logic, outputs, seq
+
+
+def test_a_stretch_without_tracks_joins_the_map_without_a_step(tunnel: Tunnel) -> None:
+    """The steps into and out of the tunnel are the front-end's, not its drift over it.
+
+    Chained on from the keyframe before it alone, the tunnel ended where the front-end's
+    drift took it: the step out of it was off by decimetres and the RPE above the
+    front-end's.
+    """
+    logic, _, seq = tunnel
+    opt, fe, gt = logic.optimized_trajectory(), seq.odom_trajectory(), seq.gt_trajectory()
+    assert len(opt) == 100 and logic.stats.not_optimized == 20
+
+    def step_errors(traj: Trajectory) -> np.ndarray:
+        fit = umeyama_alignment(traj.positions_xyz, gt.positions_xyz, with_scale=True)
+        p = fit.scale * traj.positions_xyz @ fit.rotation.T
+        d = np.diff(p, axis=0) - np.diff(gt.positions_xyz, axis=0)
+        return np.linalg.norm(d[[39, 59]], axis=1)
+
+    assert np.all(step_errors(opt) < 2.0 * step_errors(fe) + 0.01)
+    assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
+
+
+def test_the_path_shows_the_stretch_where_it_was_placed(tunnel: Tunnel) -> None:
+    """The published path carries the tunnel's newest placement, not the first one's."""
+    logic, outputs, _ = tunnel
+    path = last(outputs, 'pmba/path')
+    positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                          for p in path.poses])
+    np.testing.assert_allclose(positions, logic.optimized_trajectory().positions_xyz,
+                               atol=1e-9)
