@@ -17,15 +17,18 @@ Usage::
 
     python benchmarks/bench_backend.py ate --mode sliding
     python benchmarks/bench_backend.py ate --keyframes 300 --seed 3 --noise-px 1.0
+    python benchmarks/bench_backend.py ate --no-tracks 80:30 --scenario loop --seed 1
     python benchmarks/bench_backend.py latency --keyframes 200
     python benchmarks/bench_backend.py latency --keyframes 1500 --serialize --deterministic
     python benchmarks/bench_backend.py memory --keyframes 2000
 
 ``ate``: ATE and RPE (Sim(3) alignment) of the optimized keyframes and of the front-end on a
 simulated scenario (street by default), deterministic config, with the pixel noise the
-back-end measured. ``latency``: wall and CPU time of each ``step()``
-that processes a keyframe (association, solve, outputs), with the node's default budgets.
-``memory``: tracemalloc and RSS every ``--every`` keyframes over a long street; the
+back-end measured; ``--no-tracks FIRST:COUNT`` empties the tracks of COUNT keyframes from
+FIRST (a tunnel) and adds the steps into and out of that stretch (their error against the
+ground truth's steps, m, after the Sim(3) alignment). ``latency``: wall and CPU time of each
+``step()`` that processes a keyframe (association, solve, outputs), with the node's default
+budgets. ``memory``: tracemalloc and RSS every ``--every`` keyframes over a long street; the
 optimization state (stored observations, features in the problem) must stay flat, the
 outputs (path, retired landmarks) grow by design. Prints one JSON object.
 """
@@ -46,8 +49,11 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
+from pmba_ros.backend.types import TrackFrame
 from pmba_ros.core import so3
+from pmba_ros.eval.align import umeyama_alignment
 from pmba_ros.eval.metrics import ate, rpe
+from pmba_ros.eval.trajectory import Trajectory
 from pmba_ros.io import cdr
 from pmba_ros.sim.inputs import make_camera_info, make_tracks
 from pmba_ros.sim.sequence import SimSequence, simulate_sequence
@@ -90,6 +96,9 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     """Bench ate."""
     seq = simulate_sequence(args.scenario, args.keyframes, seed=args.seed,
                             noise_px=args.noise_px, drift=args.drift)
+    first, count = args.no_tracks
+    for i in range(first, first + count):
+        seq.frames[i] = TrackFrame.empty(int(seq.stamps_ns[i]), 'odom')
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
                         max_iterations=args.iterations)
     logic, backend = _start(cfg, seq)
@@ -102,12 +111,26 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     opt, fe_traj, gt = logic.optimized_trajectory(), seq.odom_trajectory(), seq.gt_trajectory()
     be, fe = ate(opt, gt, 'sim3').rmse, ate(fe_traj, gt, 'sim3').rmse
     rpe_be, rpe_fe = rpe(opt, gt, align='sim3').rmse, rpe(fe_traj, gt, align='sim3').rmse
-    return {'bench': 'ate', 'scenario': args.scenario, 'mode': args.mode, 'seed': args.seed,
-            'keyframes': len(seq), 'noise_px': args.noise_px, 'drift': args.drift,
+    ends = {}
+    if count:
+        ends = {'stretch_end_steps_m': _step_errors(opt, gt, [first, first + count]),
+                'stretch_end_steps_frontend_m': _step_errors(fe_traj, gt,
+                                                             [first, first + count])}
+    return {**ends, 'bench': 'ate', 'scenario': args.scenario, 'mode': args.mode,
+            'seed': args.seed, 'keyframes': len(seq), 'noise_px': args.noise_px,
+            'drift': args.drift,
             'path_poses': path_len, 'ate_backend_m': be, 'ate_frontend_m': fe,
             'ratio': be / fe, 'rpe_ratio': rpe_be / rpe_fe,
             'noise_estimate_px': logic.estimator.pixel_noise.sigma,
             'wall_s': time.perf_counter() - t0}
+
+
+def _step_errors(traj: Trajectory, gt: Trajectory, into: list[int]) -> list[float]:
+    """Return the errors of the steps into keyframes ``into``, Sim(3)-aligned, m."""
+    fit = umeyama_alignment(traj.positions_xyz, gt.positions_xyz, with_scale=True)
+    p = fit.scale * traj.positions_xyz @ fit.rotation.T
+    d = np.diff(p, axis=0) - np.diff(gt.positions_xyz, axis=0)
+    return [float(np.linalg.norm(d[k - 1])) for k in into if 0 < k < len(gt)]
 
 
 def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
@@ -201,6 +224,12 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
             'rss_growth_mb': rows[-1]['rss_mb'] - rows[0]['rss_mb']}
 
 
+def _span(text: str) -> tuple[int, int]:
+    """Parse FIRST:COUNT."""
+    first, _, count = text.partition(':')
+    return int(first), int(count)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark verb given on the command line."""
     tune_process()
@@ -215,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='ate: simulated scenario')
     parser.add_argument('--noise-px', type=float, default=0.5, help='ate: pixel noise sigma')
     parser.add_argument('--drift', type=float, default=0.02, help='ate: front-end drift')
+    parser.add_argument('--no-tracks', type=_span, default=(0, 0), metavar='FIRST:COUNT',
+                        help='ate: keyframes FIRST..FIRST+COUNT-1 bring no tracks')
     parser.add_argument('--every', type=int, default=200)
     parser.add_argument('--deterministic', action='store_true',
                         help='latency: no time budget (fixed iterations; CPU time is then the '
