@@ -29,6 +29,10 @@ from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core import so3
 
+STILL_REL = 1e-3
+"""A path shorter than this share of the stretch's median step per keyframe is no motion: a
+front-end at rest moves by its noise, whose share of the path says nothing of time."""
+
 
 def place_unsolved(kf: KeyframeStore, solved: BoolArray, scale: float, moved_from: int) -> None:
     """Place the dead-reckoned keyframes whose solved neighbours may have moved.
@@ -89,7 +93,7 @@ def _path_share(kf: KeyframeStore, a: IntArray, k: IntArray, b: IntArray) -> Flo
     t_done = (kf.stamps_ns[k] - kf.stamps_ns[a]).astype(np.float64)
     t_total = (kf.stamps_ns[b] - kf.stamps_ns[a]).astype(np.float64)
     typical = np.median(steps) if steps.shape[0] else 0.0
-    moved = total > 1e-3 * max(typical, 1e-12) * (b - a)
+    moved = total > STILL_REL * max(typical, 1e-12) * (b - a)
     share = np.where(moved, done / np.where(moved, total, 1.0),
                      t_done / np.where(t_total > 0, t_total, 1.0))
     return np.clip(np.where(b > a, share, 0.0), 0.0, 1.0)
