@@ -18,24 +18,27 @@ Usage::
     python benchmarks/bench_backend.py ate --mode sliding
     python benchmarks/bench_backend.py ate --keyframes 300 --seed 3 --noise-px 1.0
     python benchmarks/bench_backend.py ate --no-tracks 80:30 --scenario loop --seed 1
+    python benchmarks/bench_backend.py ate --no-tracks 80:30:8 --min-observations 5
     python benchmarks/bench_backend.py latency --keyframes 200
     python benchmarks/bench_backend.py latency --keyframes 1500 --serialize --deterministic
     python benchmarks/bench_backend.py memory --keyframes 2000
 
 ``ate``: ATE and RPE (Sim(3) alignment) of the optimized keyframes and of the front-end on a
 simulated scenario (street by default), deterministic config, with the pixel noise the
-back-end measured; ``--no-tracks FIRST:COUNT`` empties the tracks of COUNT keyframes from
-FIRST (a tunnel) and adds the steps into and out of that stretch (their error against the
-ground truth's steps, m, after the Sim(3) alignment). ``latency``: wall and CPU time of each
-``step()`` that processes a keyframe (association, solve, outputs), with the node's default
-budgets. ``memory``: tracemalloc and RSS every ``--every`` keyframes over a long street; the
-optimization state (stored observations, features in the problem) must stay flat, the
-outputs (path, retired landmarks) grow by design. Prints one JSON object.
+back-end measured; ``--no-tracks FIRST:COUNT[:KEEP]`` empties the tracks of COUNT keyframes
+from FIRST (a tunnel; or keeps KEEP tracks of the same features) and adds the steps into and
+out of that stretch (their error against the ground truth's steps, m, after the Sim(3)
+alignment). ``latency``: wall and CPU time of each ``step()`` that processes a keyframe
+(association, solve, outputs), with the node's default budgets. ``memory``: tracemalloc and
+RSS every ``--every`` keyframes over a long street; the optimization state (stored
+observations, features in the problem) must stay flat, the outputs (path, retired landmarks)
+grow by design. Prints one JSON object.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -96,10 +99,11 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     """Bench ate."""
     seq = simulate_sequence(args.scenario, args.keyframes, seed=args.seed,
                             noise_px=args.noise_px, drift=args.drift)
-    first, count = args.no_tracks
+    first, count, keep = args.no_tracks
     for i in range(first, first + count):
-        seq.frames[i] = TrackFrame.empty(int(seq.stamps_ns[i]), 'odom')
+        seq.frames[i] = _fewest(seq.frames[i], keep)
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
+                        min_observations=args.min_observations,
                         max_iterations=args.iterations)
     logic, backend = _start(cfg, seq)
     t0 = time.perf_counter()
@@ -224,10 +228,24 @@ def bench_memory(args: argparse.Namespace) -> dict[str, Any]:
             'rss_growth_mb': rows[-1]['rss_mb'] - rows[0]['rss_mb']}
 
 
-def _span(text: str) -> tuple[int, int]:
-    """Parse FIRST:COUNT."""
-    first, _, count = text.partition(':')
-    return int(first), int(count)
+def _span(text: str) -> tuple[int, int, int]:
+    """Parse FIRST:COUNT[:KEEP]."""
+    first, count, keep = [*text.split(':'), '0'][:3]
+    return int(first), int(count), int(keep)
+
+
+def _fewest(frame: TrackFrame, keep: int) -> TrackFrame:
+    """Return ``frame`` with ``keep`` of its tracks, the same features from frame to frame."""
+    if not keep:
+        return TrackFrame.empty(frame.stamp_ns, frame.frame_id)
+    # Multiplicative hashing orders the ids the same way in every frame, spread over the image.
+    order = np.argsort((frame.feature_ids.astype(np.uint64) * np.uint64(2654435761))
+                       % np.uint64(2**32), kind='stable')
+    idx = np.sort(order[:keep])
+    return dataclasses.replace(
+        frame, feature_ids=frame.feature_ids[idx], camera_ids=frame.camera_ids[idx],
+        pixels=None if frame.pixels is None else frame.pixels[idx],
+        normalized=None if frame.normalized is None else frame.normalized[idx])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -244,8 +262,13 @@ def main(argv: list[str] | None = None) -> int:
                         help='ate: simulated scenario')
     parser.add_argument('--noise-px', type=float, default=0.5, help='ate: pixel noise sigma')
     parser.add_argument('--drift', type=float, default=0.02, help='ate: front-end drift')
-    parser.add_argument('--no-tracks', type=_span, default=(0, 0), metavar='FIRST:COUNT',
-                        help='ate: keyframes FIRST..FIRST+COUNT-1 bring no tracks')
+    parser.add_argument('--no-tracks', type=_span, default=(0, 0, 0),
+                        metavar='FIRST:COUNT[:KEEP]',
+                        help='ate: keyframes FIRST..FIRST+COUNT-1 bring no tracks (KEEP: '
+                        'only KEEP, the same features throughout)')
+    parser.add_argument('--min-observations', type=int,
+                        default=BackendConfig().min_observations,
+                        help='ate: the parameter min_observations')
     parser.add_argument('--every', type=int, default=200)
     parser.add_argument('--deterministic', action='store_true',
                         help='latency: no time budget (fixed iterations; CPU time is then the '

@@ -123,8 +123,9 @@ class BackendConfig:
         max_observations_per_feature: Sliding problems keep at most this many observations
             of a feature, evenly spread over its track (0: all; the Schur complement's cost
             grows with the square of it).
-        min_observations: Keyframes with fewer observations are not optimized (their pose
-            comes from the front-end through the map <- odom similarity).
+        min_observations: Keyframes with fewer observations are not optimized: their pose is
+            the front-end's motion from the solved keyframes on either side
+            (:mod:`~pmba_ros.backend.gaps`).
         feature_layout: Track layout (see :data:`pmba_ros.backend.tracks.LAYOUTS`).
         num_cams: Front-end camera count (VINS ``NUM_OF_CAM``); not given, the count that
             ``camera_extrinsics`` or ``camera_info_topics`` list, else 1.
