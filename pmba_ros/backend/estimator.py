@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import contextlib
+from dataclasses import replace
 import importlib
 import logging
 import math
@@ -55,7 +56,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.consistency import in_odom_frame, inconsistency, motion_error
-from pmba_ros.backend.gaps import place_unsolved
+from pmba_ros.backend.gaps import place_unsolved, untied_chains
 from pmba_ros.backend.motion import (
     ANCHOR_BASELINE_REL,
     fit_map_from_odom,
@@ -437,8 +438,7 @@ class Estimator:
             sampled = self.frontend_noise.wants_sample()
         else:
             cams = np.array(sorted(i for i in self.kf.obs), dtype=np.int64)
-            fixed = np.zeros(cams.shape[0], bool)
-            fixed[0] = True
+            fixed = np.arange(cams.shape[0]) == 0   # the oldest holds the map
             feature_filter, sampled = None, False
         info = UpdateInfo('refine')
         try:
@@ -459,7 +459,9 @@ class Estimator:
                                    prior_leverage=sampled,
                                    scale_tension=window_ids is not None and rig)
             prior = self._motion_prior(cams, fixed, step)
-            res = solve(problem, options, feats, pose_prior=prior,
+            fixed = fixed | untied_chains(problem, prior, finite_rows(pts)[ok],
+                                          cfg.min_observations)
+            res = solve(replace(problem, fixed=fixed), options, feats, pose_prior=prior,
                         callback=lambda _: self.checkpoint())
         except (PmbaError, np.linalg.LinAlgError, ValueError) as err:
             info.message = f'refine failed, keeping the prediction: {err}'

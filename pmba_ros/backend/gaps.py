@@ -20,6 +20,11 @@ starts where the vision puts it: a step of the whole stretch's drift between two
 Each such keyframe is placed by the front-end's motion from both solved neighbours, blended
 along the path (:func:`place_unsolved`), so that the correction the solves find on either
 side is spread over the stretch rather than left at its end.
+
+Where the front-end's frame also jumped in such a stretch (a VIO restarted in the dark), the
+keyframes after it have no front-end motion to the map, and a few tracks seen again may be
+all that ties them to it: :func:`untied_chains` finds them, to be held where the front-end's
+motion put them until they are tied.
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core import so3
+from pmba_ros.core.pose_prior import RelativePosePrior
+from pmba_ros.core.problem import BAProblem
 
 STILL_REL = 1e-3
 """A path shorter than this share of the stretch's median step per keyframe is no motion: a
@@ -97,3 +104,38 @@ def _path_share(kf: KeyframeStore, a: IntArray, k: IntArray, b: IntArray) -> Flo
     share = np.where(moved, done / np.where(moved, total, 1.0),
                      t_done / np.where(t_total > 0, t_total, 1.0))
     return np.clip(np.where(b > a, share, 0.0), 0.0, 1.0)
+
+
+def untied_chains(problem: BAProblem, prior: RelativePosePrior | None, known: BoolArray,
+                  min_observations: int) -> BoolArray:
+    """Return the oldest pose of each chain of free poses that nothing ties to the map.
+
+    A chain is a run of poses the prior's factors join one to the next (a pose without
+    factors is a chain of its own). One with a held pose, or whose poses make
+    ``min_observations`` observations of ``known`` features (with a point before the solve)
+    that poses outside it observe too, is tied to the map. Any other is not: a few shared
+    tracks, or tracks seen again after a while whose points restart from rotations, would
+    place it alone, so its oldest pose is to be held.
+    """
+    m = problem.n_cams
+    linked = np.zeros(m, dtype=bool)   # pose i joined to pose i + 1
+    if prior is not None:
+        joins = prior.a[prior.b == prior.a + 1]
+        linked[joins] = True
+    chain = np.concatenate([[0], np.cumsum(~linked[:-1])])
+    held = np.zeros(m, dtype=bool)
+    if m == 0:
+        return held
+    cam, feat = problem.obs.cam_idx, problem.obs.feat_idx
+    of_obs = chain[cam]
+    lo = np.full(problem.n_feats, m, dtype=np.int64)
+    hi = np.full(problem.n_feats, -1, dtype=np.int64)
+    np.minimum.at(lo, feat, of_obs)
+    np.maximum.at(hi, feat, of_obs)
+    n_chains = int(chain[-1]) + 1
+    ties = np.bincount(of_obs[(lo[feat] != hi[feat]) & known[feat]], minlength=n_chains)
+    anchored = np.bincount(chain[problem.fixed], minlength=n_chains) > 0
+    loose = ~anchored & (ties < min_observations)
+    first = np.flatnonzero(np.concatenate([[True], chain[1:] != chain[:-1]]))
+    held[first[loose]] = True
+    return held
