@@ -19,6 +19,7 @@ Usage::
     python benchmarks/bench_backend.py ate --keyframes 300 --seed 3 --noise-px 1.0
     python benchmarks/bench_backend.py ate --no-tracks 80:30 --scenario loop --seed 1
     python benchmarks/bench_backend.py ate --no-tracks 80:30:8 --min-observations 5
+    python benchmarks/bench_backend.py ate --no-tracks 80:30 --jump-at 95 --seed 1
     python benchmarks/bench_backend.py latency --keyframes 200
     python benchmarks/bench_backend.py latency --keyframes 1500 --serialize --deterministic
     python benchmarks/bench_backend.py memory --keyframes 2000
@@ -26,9 +27,10 @@ Usage::
 ``ate``: ATE and RPE (Sim(3) alignment) of the optimized keyframes and of the front-end on a
 simulated scenario (street by default), deterministic config, with the pixel noise the
 back-end measured; ``--no-tracks FIRST:COUNT[:KEEP]`` empties the tracks of COUNT keyframes
-from FIRST (a tunnel; or keeps KEEP tracks of the same features) and adds the steps into and
-out of that stretch (their error against the ground truth's steps, m, after the Sim(3)
-alignment). ``latency``: wall and CPU time of each ``step()`` that processes a keyframe
+from FIRST (a tunnel; or keeps KEEP tracks of the same features), ``--jump-at K`` makes the
+front-end's frame jump at keyframe K; both add the steps into and out of the stretch and
+into K (their errors against the ground truth's steps, m, after the Sim(3) alignment).
+``latency``: wall and CPU time of each ``step()`` that processes a keyframe
 (association, solve, outputs), with the node's default budgets. ``memory``: tracemalloc and
 RSS every ``--every`` keyframes over a long street; the optimization state (stored
 observations, features in the problem) must stay flat, the outputs (path, retired landmarks)
@@ -102,6 +104,12 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     first, count, keep = args.no_tracks
     for i in range(first, first + count):
         seq.frames[i] = _fewest(seq.frames[i], keep)
+    fe_traj = seq.odom_trajectory()   # the reference: without the jump
+    if args.jump_at:   # a restarted front-end: its frame turned and moved from there on
+        turn = so3.exp(np.array([0.0, 0.0, 0.3]))
+        seq.centers_odom[args.jump_at:] = (seq.centers_odom[args.jump_at:] @ turn.T
+                                           + np.array([3.0, -1.0, 0.5]))
+        seq.R_wc_odom[args.jump_at:] = turn @ seq.R_wc_odom[args.jump_at:]
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
                         min_observations=args.min_observations,
                         max_iterations=args.iterations)
@@ -112,14 +120,14 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
         for topic, msg in _feed(logic, seq, backend, i)[2]:
             if topic == cfg.path_topic:
                 path_len = len(msg.poses)
-    opt, fe_traj, gt = logic.optimized_trajectory(), seq.odom_trajectory(), seq.gt_trajectory()
+    opt, gt = logic.optimized_trajectory(), seq.gt_trajectory()
     be, fe = ate(opt, gt, 'sim3').rmse, ate(fe_traj, gt, 'sim3').rmse
     rpe_be, rpe_fe = rpe(opt, gt, align='sim3').rmse, rpe(fe_traj, gt, align='sim3').rmse
     ends = {}
-    if count:
-        ends = {'stretch_end_steps_m': _step_errors(opt, gt, [first, first + count]),
-                'stretch_end_steps_frontend_m': _step_errors(fe_traj, gt,
-                                                             [first, first + count])}
+    if count or args.jump_at:
+        into = sorted({first, first + count, args.jump_at} - {0})
+        ends = {'steps_into': into, 'step_errors_m': _step_errors(opt, gt, into),
+                'step_errors_frontend_m': _step_errors(fe_traj, gt, into)}
     return {**ends, 'bench': 'ate', 'scenario': args.scenario, 'mode': args.mode,
             'seed': args.seed, 'keyframes': len(seq), 'noise_px': args.noise_px,
             'drift': args.drift,
@@ -266,6 +274,9 @@ def main(argv: list[str] | None = None) -> int:
                         metavar='FIRST:COUNT[:KEEP]',
                         help='ate: keyframes FIRST..FIRST+COUNT-1 bring no tracks (KEEP: '
                         'only KEEP, the same features throughout)')
+    parser.add_argument('--jump-at', type=int, default=0, metavar='K',
+                        help="ate: the front-end's frame jumps at keyframe K (turned 0.3 rad, "
+                        'moved 3 m); the front-end without the jump is the reference')
     parser.add_argument('--min-observations', type=int,
                         default=BackendConfig().min_observations,
                         help='ate: the parameter min_observations')
