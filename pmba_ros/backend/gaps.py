@@ -118,22 +118,19 @@ def untied_chains(problem: BAProblem, prior: RelativePosePrior | None, known: Bo
     place it alone, so its oldest pose is to be held.
     """
     m = problem.n_cams
-    linked = np.zeros(m, dtype=bool)   # pose i joined to pose i + 1
-    if prior is not None:
-        joins = prior.a[prior.b == prior.a + 1]
-        linked[joins] = True
-    chain = np.concatenate([[0], np.cumsum(~linked[:-1])])
     held = np.zeros(m, dtype=bool)
     if m == 0:
         return held
-    cam, feat = problem.obs.cam_idx, problem.obs.feat_idx
-    of_obs = chain[cam]
-    lo = np.full(problem.n_feats, m, dtype=np.int64)
-    hi = np.full(problem.n_feats, -1, dtype=np.int64)
-    np.minimum.at(lo, feat, of_obs)
-    np.maximum.at(hi, feat, of_obs)
+    linked = np.zeros(m, dtype=bool)   # pose i joined to pose i + 1
+    if prior is not None:
+        linked[prior.a[prior.b == prior.a + 1]] = True
+    chain = np.concatenate([[0], np.cumsum(~linked[:-1])])
+    of_obs = chain[problem.obs.cam_idx]
+    starts = problem.feature_offsets()[:-1]   # observations come sorted by feature
+    spans = np.minimum.reduceat(of_obs, starts) != np.maximum.reduceat(of_obs, starts)
+    feat = problem.obs.feat_idx
     n_chains = int(chain[-1]) + 1
-    ties = np.bincount(of_obs[(lo[feat] != hi[feat]) & known[feat]], minlength=n_chains)
+    ties = np.bincount(of_obs[spans[feat] & known[feat]], minlength=n_chains)
     anchored = np.bincount(chain[problem.fixed], minlength=n_chains) > 0
     loose = ~anchored & (ties < min_observations)
     first = np.flatnonzero(np.concatenate([[True], chain[1:] != chain[:-1]]))

@@ -191,11 +191,14 @@ def test_the_path_shows_the_stretch_where_it_was_placed(tunnel: Tunnel) -> None:
 
 
 def _problem(cams: list[int], feats: list[int], fixed: list[int], m: int) -> SimpleNamespace:
-    """Return the parts of a problem :func:`untied_chains` reads."""
+    """Return the parts of a problem :func:`untied_chains` reads (observations by feature)."""
     held = np.zeros(m, dtype=bool)
     held[fixed] = True
+    feat_idx = np.array(feats)
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(feat_idx))])
     return SimpleNamespace(n_cams=m, n_feats=max(feats) + 1, fixed=held,
-                           obs=SimpleNamespace(cam_idx=np.array(cams), feat_idx=np.array(feats)))
+                           obs=SimpleNamespace(cam_idx=np.array(cams), feat_idx=feat_idx),
+                           feature_offsets=lambda: offsets)
 
 
 def _prior(pairs: list[int]) -> SimpleNamespace:
