@@ -111,11 +111,12 @@ def untied_chains(problem: BAProblem, prior: RelativePosePrior | None, known: Bo
     """Return the oldest pose of each chain of free poses that nothing ties to the map.
 
     A chain is a run of poses the prior's factors join one to the next (a pose without
-    factors is a chain of its own). One with a held pose, or whose poses make
-    ``min_observations`` observations of ``known`` features (with a point before the solve)
-    that poses outside it observe too, is tied to the map. Any other is not: a few shared
-    tracks, or tracks seen again after a while whose points restart from rotations, would
-    place it alone, so its oldest pose is to be held.
+    factors is a chain of its own). One with a held pose, or whose poses observe
+    ``min_observations`` ``known`` features (with a point before the solve) that poses
+    outside it observe too, is tied to the map. Any other is not: a few shared tracks
+    (seen again and again by its poses, most of them far), or tracks seen again after a
+    while whose points restart from rotations, would place it alone, so its oldest pose is
+    to be held.
     """
     m = problem.n_cams
     held = np.zeros(m, dtype=bool)
@@ -130,7 +131,9 @@ def untied_chains(problem: BAProblem, prior: RelativePosePrior | None, known: Bo
     spans = np.minimum.reduceat(of_obs, starts) != np.maximum.reduceat(of_obs, starts)
     feat = problem.obs.feat_idx
     n_chains = int(chain[-1]) + 1
-    ties = np.bincount(of_obs[spans[feat] & known[feat]], minlength=n_chains)
+    tying = spans[feat] & known[feat]   # each tying feature counts once per chain
+    pairs = np.unique(of_obs[tying] * problem.n_feats + feat[tying])
+    ties = np.bincount(pairs // problem.n_feats, minlength=n_chains)
     anchored = np.bincount(chain[problem.fixed], minlength=n_chains) > 0
     loose = ~anchored & (ties < min_observations)
     first = np.flatnonzero(np.concatenate([[True], chain[1:] != chain[:-1]]))
