@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.backend.motion import row_norms
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore
 from pmba_ros.core import so3
 from pmba_ros.core.pose_prior import RelativePosePrior
@@ -93,7 +94,7 @@ def _path_share(kf: KeyframeStore, a: IntArray, k: IntArray, b: IntArray) -> Flo
     lo, hi = int(min(a.min(), k.min())), int(max(b.max(), k.max()))   # one side: k beyond
     span = np.arange(lo, hi + 1)
     with_pose = span[kf.has_odom[span]]   # a, k and b have front-end poses; others no path
-    steps = np.linalg.norm(np.diff(kf.C_odom[with_pose], axis=0), axis=1)
+    steps = row_norms(np.diff(kf.C_odom[with_pose], axis=0))
     path = np.zeros(hi - lo + 1)
     path[with_pose - lo] = np.concatenate([[0.0], np.cumsum(steps)])
     done, total = path[k - lo] - path[a - lo], path[b - lo] - path[a - lo]
