@@ -40,7 +40,6 @@ grow by design. Prints one JSON object.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import logging
 import os
@@ -54,7 +53,6 @@ from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
-from pmba_ros.backend.types import TrackFrame
 from pmba_ros.core import so3
 from pmba_ros.eval.align import umeyama_alignment
 from pmba_ros.eval.metrics import ate, rpe
@@ -102,14 +100,10 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     seq = simulate_sequence(args.scenario, args.keyframes, seed=args.seed,
                             noise_px=args.noise_px, drift=args.drift)
     first, count, keep = args.no_tracks
-    for i in range(first, first + count):
-        seq.frames[i] = _fewest(seq.frames[i], keep)
+    seq = seq.with_few_tracks(first, count, keep)
     fe_traj = seq.odom_trajectory()   # the reference: without the jump
-    if args.jump_at:   # a restarted front-end: its frame turned and moved from there on
-        turn = so3.exp(np.array([0.0, 0.0, 0.3]))
-        seq.centers_odom[args.jump_at:] = (seq.centers_odom[args.jump_at:] @ turn.T
-                                           + np.array([3.0, -1.0, 0.5]))
-        seq.R_wc_odom[args.jump_at:] = turn @ seq.R_wc_odom[args.jump_at:]
+    if args.jump_at:   # a restarted front-end
+        seq = seq.with_odom_jump(args.jump_at, 0.3, np.array([3.0, -1.0, 0.5]))
     cfg = BackendConfig(mode=args.mode, window_size=args.window, deterministic=True,
                         min_observations=args.min_observations,
                         max_iterations=args.iterations)
@@ -240,20 +234,6 @@ def _span(text: str) -> tuple[int, int, int]:
     """Parse FIRST:COUNT[:KEEP]."""
     first, count, keep = [*text.split(':'), '0'][:3]
     return int(first), int(count), int(keep)
-
-
-def _fewest(frame: TrackFrame, keep: int) -> TrackFrame:
-    """Return ``frame`` with ``keep`` of its tracks, the same features from frame to frame."""
-    if not keep:
-        return TrackFrame.empty(frame.stamp_ns, frame.frame_id)
-    # Multiplicative hashing orders the ids the same way in every frame, spread over the image.
-    order = np.argsort((frame.feature_ids.astype(np.uint64) * np.uint64(2654435761))
-                       % np.uint64(2**32), kind='stable')
-    idx = np.sort(order[:keep])
-    return dataclasses.replace(
-        frame, feature_ids=frame.feature_ids[idx], camera_ids=frame.camera_ids[idx],
-        pixels=None if frame.pixels is None else frame.pixels[idx],
-        normalized=None if frame.normalized is None else frame.normalized[idx])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,7 +46,7 @@ noise of ``0.2 * drift`` of each step (translation) and ``0.01 * drift`` rad (ro
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import logging
 
 import numpy as np
@@ -115,6 +115,42 @@ class SimSequence:
         """Return the front-end camera trajectory in the odom frame (stamps in seconds)."""
         return Trajectory(self.stamps_ns.astype(np.float64) * 1e-9, self.centers_odom,
                           self.R_wc_odom)
+
+    def with_odom_jump(self, at: int, yaw_rad: float, shift: FloatArray) -> SimSequence:
+        """Return it with the front-end's frame turned and moved from keyframe ``at`` on.
+
+        A relocalization or a restart of the front-end: its poses from ``at`` on are turned by
+        ``yaw_rad`` about the odom frame's vertical and moved by ``shift``, m.
+        """
+        turn = so3.exp(np.array([0.0, 0.0, yaw_rad]))
+        centers, rotations = self.centers_odom.copy(), self.R_wc_odom.copy()
+        centers[at:] = centers[at:] @ turn.T + shift
+        rotations[at:] = turn @ rotations[at:]
+        return replace(self, centers_odom=centers, R_wc_odom=rotations)
+
+    def with_few_tracks(self, first: int, count: int, keep: int = 0) -> SimSequence:
+        """Return it with ``keep`` tracks in keyframes first..first+count-1 (0: none; a tunnel).
+
+        The kept tracks are of the same features from frame to frame, as a front-end keeps
+        its last few through a dark stretch.
+        """
+        frames = list(self.frames)
+        for i in range(first, first + count):
+            frames[i] = _fewest(frames[i], keep)
+        return replace(self, frames=frames)
+
+
+def _fewest(frame: TrackFrame, keep: int) -> TrackFrame:
+    """Return ``frame`` with ``keep`` of its tracks, the same features from frame to frame."""
+    if not keep:
+        return TrackFrame.empty(frame.stamp_ns, frame.frame_id)
+    # Multiplicative hashing orders the ids the same way in every frame, spread over the image.
+    order = np.argsort((frame.feature_ids.astype(np.uint64) * np.uint64(2654435761))
+                       % np.uint64(2**32), kind='stable')
+    idx = np.sort(order[:keep])
+    return replace(frame, feature_ids=frame.feature_ids[idx], camera_ids=frame.camera_ids[idx],
+                   pixels=None if frame.pixels is None else frame.pixels[idx],
+                   normalized=None if frame.normalized is None else frame.normalized[idx])
 
 
 def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: int = 0,

@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 from pmba_ros.backend.gaps import place_unsolved, untied_chains
 from pmba_ros.backend.logic import BackendLogic
-from pmba_ros.backend.types import TrackFrame
 from pmba_ros.backend.window import KeyframeStatus, KeyframeStore, Similarity
 from pmba_ros.core import so3
 from pmba_ros.eval.align import umeyama_alignment
@@ -31,7 +30,7 @@ from pmba_ros.sim.sequence import SimSequence, simulate_sequence
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from .test_logic import BACKEND, camera_info_msg, config, keyframe_msg, last, tracks_msg
+from .test_logic import BACKEND, config, last, run
 
 S = KeyframeStatus
 Tunnel = tuple[BackendLogic, list[tuple[str, Any]], SimSequence]
@@ -147,16 +146,9 @@ def test_keyframes_before_the_moved_ones_stay() -> None:
 @pytest.fixture(scope='module')
 def tunnel() -> Tunnel:
     """Feed the back-end a street whose keyframes 40-59 bring no tracks (a tunnel)."""
-    seq = simulate_sequence('street', n_keyframes=100, seed=0)
+    seq = simulate_sequence('street', n_keyframes=100, seed=0).with_few_tracks(40, 20)
     logic = BackendLogic(config(), BACKEND)
-    logic.on_camera_info(camera_info_msg(seq))
-    outputs: list[tuple[str, Any]] = []
-    for i in range(len(seq)):
-        dark = TrackFrame.empty(int(seq.stamps_ns[i]), 'odom') if 40 <= i < 60 else None
-        logic.on_tracks(tracks_msg(seq, i, frame=dark))
-        logic.on_keyframe(keyframe_msg(seq, i))
-        outputs += logic.step()
-    return logic, outputs, seq
+    return logic, run(logic, seq), seq
 
 
 def test_a_stretch_without_tracks_joins_the_map_without_a_step(tunnel: Tunnel) -> None:
@@ -234,16 +226,8 @@ def test_a_front_end_restarted_in_the_dark_stays_where_its_motion_puts_it() -> N
     """
     seq = simulate_sequence('street', n_keyframes=200, seed=1)
     frontend, gt = seq.odom_trajectory(), seq.gt_trajectory()
-    turn = so3.exp(np.array([0.0, 0.0, 0.3]))
-    seq.centers_odom[95:] = seq.centers_odom[95:] @ turn.T + np.array([3.0, -1.0, 0.5])
-    seq.R_wc_odom[95:] = turn @ seq.R_wc_odom[95:]
     logic = BackendLogic(config(), BACKEND)
-    logic.on_camera_info(camera_info_msg(seq))
-    for i in range(len(seq)):
-        dark = TrackFrame.empty(int(seq.stamps_ns[i]), 'odom') if 80 <= i < 110 else None
-        logic.on_tracks(tracks_msg(seq, i, frame=dark))
-        logic.on_keyframe(keyframe_msg(seq, i))
-        logic.step()
+    run(logic, seq.with_few_tracks(80, 30).with_odom_jump(95, 0.3, np.array([3.0, -1.0, 0.5])))
     assert logic.stats.counters['keyframe_poses_recovered'] == 1   # the jump was seen
     opt = logic.optimized_trajectory()
     assert ate(opt, gt, 'sim3').rmse < ate(frontend, gt, 'sim3').rmse

@@ -146,15 +146,11 @@ def test_front_end_relocalization_starts_a_new_odom_frame(
     jumps pass the pose check as motion and are found by the solve (a step far off the
     front-end's). Before odom segments, a 30 m jump took the map far off.
     """
-    from pmba_ros.core import so3
     from pmba_ros.eval.metrics import ate
 
     seq, ate_without = long_street
-    turn = so3.exp(np.array([0.0, 0.0, np.deg2rad(yaw_deg)]))
-    centers, rotations = seq.centers_odom.copy(), seq.R_wc_odom.copy()
-    centers[at:] = centers[at:] @ turn.T + np.array([jump_m, jump_m / 2, 0.0])
-    rotations[at:] = turn @ rotations[at:]
-    logic, _ = _run(dataclasses.replace(seq, centers_odom=centers, R_wc_odom=rotations))
+    logic, _ = _run(seq.with_odom_jump(at, np.deg2rad(yaw_deg),
+                                       np.array([jump_m, jump_m / 2, 0.0])))
     kf = logic.estimator.kf
     assert int(kf.segment[:kf.n].max()) == 1
     gt, opt = seq.gt_trajectory(), logic.optimized_trajectory()
