@@ -18,6 +18,7 @@ Usage examples::
     pmba solve sim:street                         # PMBA-Dogleg on a simulated street
     pmba solve sim:street --compare               # PMBA-DL vs XYZ-LM vs IDP-LM, one table
     pmba solve problem-49-7776-pre.txt --param xyz --solver lm --report r.json
+    pmba solve problem-16-22106-pre.txt.bz2       # as downloaded from the BAL site
     pmba solve fake-pile/ --format parallaxba --init global --out result/
     pmba solve colmap/sparse/0 --init global --out refined/   # writes a COLMAP model too
     pmba solve bundle/bundle.out --out refined/                # writes refined/bundle.out
@@ -44,7 +45,7 @@ from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import FormatError
 from pmba_ros.io.atomic import atomic_open, write_text_atomic
-from pmba_ros.io.text import detect_problem_format
+from pmba_ros.io.text import detect_problem_format, file_bytes, plain_name
 from pmba_ros.plot import ConvergenceTrace, plot_convergence, pyplot
 
 if TYPE_CHECKING:
@@ -58,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``solve`` options."""
     parser.add_argument('problem', help='BAL file, ParallaxBA directory / Cam file, COLMAP '
                         'model directory (multi-camera rigs held rigid), Bundler .out file, or '
-                        'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]')
+                        'sim:street[:SEED] / sim:table3[:SEED] / sim:large[:SEED]; files may '
+                        'be bzip2, gzip or xz compressed, as the BAL collections are published')
     parser.add_argument('--format', choices=['auto', 'bal', 'parallaxba', 'colmap', 'bundler'],
                         default='auto', help='auto: a directory with cameras.txt/.bin is a '
                         'COLMAP model, a .out file a Bundler file; with --out their refined '
@@ -202,12 +204,10 @@ def _detect_format(path: Path) -> str:
     from pmba_ros.io.colmap import is_colmap_model
     if is_colmap_model(path):
         return 'colmap'
-    if path.is_file():
-        with path.open('rb') as fh:
-            if fh.read(64).lstrip().startswith(b'# Bundle file'):
-                return 'bundler'
+    if path.is_file() and file_bytes(path, 64).lstrip().startswith(b'# Bundle file'):
+        return 'bundler'
     # Bundler's header line is optional; without it only the name tells it from BAL.
-    return 'bundler' if path.suffix == '.out' else detect_problem_format(path)
+    return 'bundler' if plain_name(path).endswith('.out') else detect_problem_format(path)
 
 
 def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: SolveResult,
@@ -239,7 +239,7 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         b_model = bundler.read_bundler(source)
         _, file_cams = bundler.to_problem(b_model)
         b_refined = bundler.updated(b_model, file_cams[cams], R_wc, centers, point_ids, points)
-        bundler.write_bundler(out / source.name, b_refined)
+        bundler.write_bundler(out / plain_name(source), b_refined)
 
 
 def iteration_printer(label: str) -> Callable[[IterationRecord], None]:

@@ -53,6 +53,7 @@ from pmba_ros.io.text import (
     MAX_COORDINATE,
     MAX_FOCAL,
     nonblank_lines,
+    plain_name,
 )
 
 if TYPE_CHECKING:
@@ -286,7 +287,7 @@ def _find(directory: Path, patterns: tuple[str, ...], what: str) -> Path | None:
         raise FormatError(msg)
     found: set[Path] = set()
     for entry in directory.iterdir():
-        name = entry.name.lower()
+        name = plain_name(entry).lower()
         if entry.is_file() and any(Path(name).match(p) for p in patterns):
             found.add(entry)
     if len(found) > 1:

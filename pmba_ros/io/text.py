@@ -15,8 +15,13 @@
 
 from __future__ import annotations
 
+import bz2
+import gzip
+import io
+import lzma
 from pathlib import Path
 from typing import TYPE_CHECKING
+import zlib
 
 import numpy as np
 from pmba_ros._numbers import is_number, python_only
@@ -28,14 +33,52 @@ if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray, IntArray
 
 
-def utf8_text(path: Path) -> str:
-    """Return the text of ``path``.
+_COMPRESSIONS = ((b'BZh', 'bzip2'), (b'\x1f\x8b', 'gzip'), (b'\xfd7zXZ\x00', 'xz'))
+"""Magic bytes and name of each compression a problem file may come in (the BAL collections
+are published as ``.bz2``)."""
+
+COMPRESSED_SUFFIXES = ('.bz2', '.gz', '.xz')
+"""File name endings of those compressions (dropped where a name is written back)."""
+
+
+def plain_name(path: Path) -> str:
+    """Return the name of ``path`` without a compression suffix: ``b.out.gz`` -> ``b.out``."""
+    return path.stem if path.suffix.lower() in COMPRESSED_SUFFIXES else path.name
+
+
+def file_bytes(path: Path, limit: int = -1) -> bytes:
+    """Return the bytes of ``path`` (at most ``limit``), decompressed when bzip2, gzip or xz.
+
+    The compression is told by the file's first bytes, not its name.
 
     Raises:
-        FormatError: If the file is not UTF-8 text.
+        FormatError: If a compressed file is damaged or cut short.
+        OSError: If the file cannot be read.
+    """
+    with path.open('rb') as fh:
+        magic = fh.read(6)
+        kind = next((name for head, name in _COMPRESSIONS if magic.startswith(head)), None)
+        if kind is None:
+            fh.seek(0)
+            return fh.read(limit)
+    stream: io.BufferedIOBase = (bz2.BZ2File(path) if kind == 'bzip2' else
+                                 gzip.GzipFile(path) if kind == 'gzip' else lzma.LZMAFile(path))
+    try:
+        with stream:
+            return stream.read(limit)
+    except (EOFError, OSError, lzma.LZMAError, zlib.error) as err:
+        msg = f'{path}: damaged {kind} file ({err})'
+        raise FormatError(msg) from err
+
+
+def utf8_text(path: Path) -> str:
+    """Return the text of ``path``, decompressed when bzip2, gzip or xz (:func:`file_bytes`).
+
+    Raises:
+        FormatError: If the file is not UTF-8 text, or a damaged compressed file.
     """
     try:
-        return path.read_text(encoding='utf-8')
+        return file_bytes(path).decode('utf-8')
     except UnicodeDecodeError as err:
         msg = f'{path}: not a text file ({err})'
         raise FormatError(msg) from err
@@ -161,12 +204,12 @@ def detect_problem_format(path: Path) -> str:
         'bal' or 'parallaxba'.
 
     Raises:
+        FormatError: If a compressed file is damaged.
         OSError: If the file cannot be read.
     """
     if path.is_dir():
         return 'parallaxba'
-    with path.open('rb') as fh:
-        head = fh.read(4096).decode('utf-8', errors='replace')
+    head = file_bytes(path, 4096).decode('utf-8', errors='replace')
     first = next((line for line in head.splitlines() if line.strip()), '')
     return 'parallaxba' if len(first.split()) in (6, 8) else 'bal'
 

@@ -298,9 +298,12 @@ def test_an_earlier_models_colmap_files_are_removed_from_out(
     assert (tmp_path / 'model' / 'cameras.txt').is_file()
 
 
-@pytest.mark.parametrize('init', ['file', 'global'])
-def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str) -> None:
-    """`pmba solve bundle.out --out DIR` writes DIR/bundle.out with the refined cameras."""
+@pytest.mark.parametrize(('init', 'name'), [('file', 'bundle.out'), ('global', 'bundle.out'),
+                                            ('file', 'bundle.out.gz')])
+def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: str,
+                                                        name: str) -> None:
+    """`pmba solve bundle.out[.gz] --out DIR` writes DIR/bundle.out with the refined cameras."""
+    import gzip
     from test.io.test_bundler import _bundle_text
 
     import numpy as np
@@ -317,9 +320,10 @@ def test_solve_refines_a_bundler_file_in_its_own_format(tmp_path: Path, init: st
     centred = make_problem(p.R_wc, p.centers_w, intr, p.obs.cam_idx, p.obs.feat_idx,
                            project(p.obs.bearings_c, intr, p.obs.cam_idx),
                            points_w=p.points_w, n_feats=p.n_feats)
-    (tmp_path / 'bundle.out').write_text(_bundle_text(centred))
+    text = _bundle_text(centred).encode()
+    (tmp_path / name).write_bytes(gzip.compress(text) if name.endswith('.gz') else text)
     out = tmp_path / 'refined'
-    assert main(['solve', str(tmp_path / 'bundle.out'), '--init', init, '--quiet',
+    assert main(['solve', str(tmp_path / name), '--init', init, '--quiet',
                  '--out', str(out)]) == 0
     refined, _ = bundler.to_problem(bundler.read_bundler(out / 'bundle.out'))
     gt = scene.gt

@@ -15,6 +15,10 @@
 
 from __future__ import annotations
 
+import bz2
+from collections.abc import Callable
+import gzip
+import lzma
 from pathlib import Path
 import re
 import time
@@ -26,6 +30,7 @@ from pmba_ros.core.camera import Intrinsics, project
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.bal import read_bal, write_bal
+from pmba_ros.io.text import detect_problem_format
 import pytest
 from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
@@ -240,6 +245,41 @@ def test_blank_lines_do_not_shift_line_numbers(tmp_path: Path) -> None:
     path.write_text('\n'.join(lines) + '\n')
     with pytest.raises(FormatError, match=r':6: observation line has 3 values'):
         read_bal(path)
+
+
+@pytest.mark.parametrize('compress', [bz2.compress, gzip.compress, lzma.compress])
+def test_compressed_bal_file_reads_as_the_plain_one(
+        tmp_path: Path, compress: Callable[[bytes], bytes]) -> None:
+    """A problem as the BAL site publishes it (``.bz2``), or gzip / xz, is read decompressed.
+
+    The compression is told by the content: a name without its suffix reads as well.
+    """
+    text = ('\n'.join(_valid_bal_lines()) + '\n').encode()
+    plain = tmp_path / 'plain.txt'
+    plain.write_bytes(text)
+    packed = tmp_path / 'problem.txt'
+    packed.write_bytes(compress(text))
+    a, b = read_bal(plain), read_bal(packed)
+    np.testing.assert_array_equal(a.obs.pixels, b.obs.pixels)
+    np.testing.assert_array_equal(a.centers_w, b.centers_w)
+    assert detect_problem_format(packed) == 'bal'
+
+
+@pytest.mark.parametrize('compress', [bz2.compress, gzip.compress, lzma.compress])
+def test_damaged_compressed_bal_file_raises(
+        tmp_path: Path, compress: Callable[[bytes], bytes]) -> None:
+    """A compressed file cut short, or with its stream damaged, is a FormatError naming it."""
+    data = compress(('\n'.join(_valid_bal_lines() * 20) + '\n').encode())
+    cut = tmp_path / 'cut.txt'
+    cut.write_bytes(data[:len(data) // 2])
+    with pytest.raises(FormatError, match=f'{re.escape(str(cut))}: damaged'):
+        read_bal(cut)
+    flipped = bytearray(data)
+    flipped[len(data) // 2:len(data) // 2 + 8] = b'\x00' * 8
+    bad = tmp_path / 'bad.txt'
+    bad.write_bytes(bytes(flipped))
+    with pytest.raises(FormatError, match=f'{re.escape(str(bad))}: damaged'):
+        read_bal(bad)
 
 
 def test_empty_and_binary_bal_files_raise(tmp_path: Path) -> None:

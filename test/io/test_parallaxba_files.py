@@ -192,6 +192,24 @@ def test_read_written_dataset_reprojects_exactly(tmp_path: Path, eight_columns: 
         np.testing.assert_array_equal(problem.intrinsics.fy, 790.0)
 
 
+def test_read_compressed_dataset(tmp_path: Path) -> None:
+    """Files compressed with bzip2 (a ``.bz2`` suffix, ``data.pmba.bz2`` too) read as plain ones."""
+    import bz2
+
+    _write_dataset(tmp_path, np.random.default_rng(5), with_xyz=True)
+    plain = read_parallaxba(tmp_path)
+    packed = tmp_path / 'packed'
+    packed.mkdir()
+    for path in tmp_path.glob('*.txt'):
+        name = 'data.pmba' if path.name.startswith('Feature') else path.name
+        (packed / f'{name}.bz2').write_bytes(bz2.compress(path.read_bytes()))
+    problem = read_parallaxba(packed)
+    np.testing.assert_array_equal(problem.obs.pixels, plain.obs.pixels)
+    np.testing.assert_array_equal(problem.centers_w, plain.centers_w)
+    assert problem.points_w is not None and plain.points_w is not None
+    np.testing.assert_array_equal(problem.points_w, plain.points_w)
+
+
 def test_read_dataset_with_xyz_file(tmp_path: Path) -> None:
     """An XYZ file beside the others becomes points_w."""
     _, _, points, _ = _write_dataset(tmp_path, np.random.default_rng(6), with_xyz=True)
