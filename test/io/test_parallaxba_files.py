@@ -193,7 +193,7 @@ def test_read_written_dataset_reprojects_exactly(tmp_path: Path, eight_columns: 
 
 
 def test_read_compressed_dataset(tmp_path: Path) -> None:
-    """Files compressed with bzip2 (a ``.bz2`` suffix, ``data.pmba.bz2`` too) read as plain ones."""
+    """Files compressed with bzip2 (``.bz2``; ``data.pmba.bz2`` too) read as plain ones."""
     import bz2
 
     _write_dataset(tmp_path, np.random.default_rng(5), with_xyz=True)
