@@ -140,13 +140,23 @@ def _run(argv: list[str]) -> int:
         return 1
 
 
+MAX_ERROR_CHARS = 1000
+"""Longest error line printed: a library's message may quote a whole damaged record."""
+
+
 def _one_line(err: BaseException) -> str:
-    """Return the error text on one line (OSErrors name their file)."""
+    """Return the error text on one line (OSErrors name their file), its middle cut if long."""
     if isinstance(err, OSError) and err.filename is not None and err.strerror:
         text = f'{err.filename}: {err.strerror}'
     else:
         text = str(err) or type(err).__name__
-    return ' '.join(text.split())
+    text = ' '.join(text.split())
+    if len(text) <= MAX_ERROR_CHARS:
+        return text
+    cut = len(text) - MAX_ERROR_CHARS
+    head = MAX_ERROR_CHARS * 3 // 4
+    return f'{text[:head]} ... ({cut} characters left out) ... {text[head + cut:]}'
+
 
 
 def _drop_terminal_reset() -> None:

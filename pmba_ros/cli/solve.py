@@ -95,7 +95,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'for PMBA can be lower: points behind their main anchor are '
                         're-initialized from the rotations')
     parser.add_argument('--report', type=Path, help='write a JSON report here')
-    parser.add_argument('--out', type=Path, help='write poses (TUM), points and report here')
+    parser.add_argument('--out', type=Path, help='write poses (TUM: the input camera index '
+                        'as stamp), points (x y z and the input point id per line, points at '
+                        'infinity left out) and report here')
     parser.add_argument('--plot', action='store_true', help='with --out: convergence.png')
     parser.add_argument('--quiet', action='store_true',
                         help='no progress lines on stderr (per iteration: cost, pixel RMS, '
@@ -228,8 +230,9 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         rows = init.feature_index
     point_ids = problem.feature_ids[rows]
     assert problem.points_w is not None  # both formats store their points
+    # Bundler projects like a pinhole, which does not tell a ray from its opposite.
     R_wc, centers, points = in_model_frame(result, problem.centers_w[cams],
-                                           problem.points_w[rows])
+                                           problem.points_w[rows], behind=fmt == 'bundler')
     if fmt == 'colmap':
         model = colmap.read_colmap(source)
         _, image_ids = colmap.to_problem(model)
@@ -478,8 +481,10 @@ def _write_outputs(out: Path, results: list[SolveResult], report: dict[str, Any]
         finite = np.all(np.isfinite(r.points_w), axis=1)
         with atomic_open(out / f'poses_{stem}.tum') as fh:
             np.savetxt(fh, rows, fmt='%.9g')
+        # The ids tie each row to its input point: rows at infinity are left out.
         with atomic_open(out / f'points_{stem}.xyz') as fh:
-            np.savetxt(fh, r.points_w[finite], fmt='%.9g')
+            np.savetxt(fh, np.column_stack([r.points_w[finite], r.problem.feature_ids[finite]]),
+                       fmt=['%.9g'] * 3 + ['%d'])
     if traces is not None:
         plot_convergence(out / 'convergence.png', [
             (f'{r.options.param.value.upper()}-{r.options.solver.value}', trace,

@@ -287,17 +287,19 @@ def parallax_homogeneous(R_wc: FloatArray, centers_w: FloatArray,
 
 
 def parallax_to_xyz(R_wc: FloatArray, centers_w: FloatArray,
-                    feats: ParallaxFeatures) -> FloatArray:
+                    feats: ParallaxFeatures, behind: bool = False) -> FloatArray:
     """Euclidean points F = P_m + D sin(alpha - theta)/sin(theta) R_m n (PMBA eq. 2).
 
     Points at infinity (theta ~ 0) come out as inf in their direction's coordinates, and so
     do points whose depth along their ray is negative (the parallax angle crossed zero):
     the homogeneous point, and so every ray to it, is the same, but its Euclidean copy lies
-    behind the cameras that see it (COLMAP cannot project a fisheye's ray there).
+    behind the cameras that see it (COLMAP cannot project a fisheye's ray there). With
+    ``behind``, those come out at that copy: a pinhole projection, which does not tell a
+    ray from its opposite (BAL, Bundler), sees it where PMBA's rays do.
     """
     u, _, _, _, sin_t, _, g = residuals.anchor_terms(R_wc, centers_w, feats)
     X = g[:, None] * u + sin_t[:, None] * centers_w[feats.main_idx]
-    beyond = g * sin_t < 0
+    beyond = (g * sin_t < 0) & (not behind)
     X[beyond] = g[beyond, None] * u[beyond]
     w = np.where(beyond, 0.0, sin_t)
     with np.errstate(divide='ignore', invalid='ignore'):

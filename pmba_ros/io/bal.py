@@ -195,7 +195,8 @@ def _parse_header(path: Path, line: str, line_no: int) -> tuple[int, int, int]:
     except ValueError:
         counts = []
     if len(tokens) != 3 or len(counts) != 3 or min(counts) < 0 or counts[0] == 0:
-        msg = (f'{path}:{line_no}: bad header {line.strip()!r}, expected three non-negative '
+        shown = ' '.join(tokens[:6]) + (f' ... ({len(tokens)} values)' if len(tokens) > 6 else '')
+        msg = (f'{path}:{line_no}: bad header {shown!r}, expected three non-negative '
                f'integers "n_cams n_points n_obs" with n_cams > 0')
         raise FormatError(msg)
     return counts[0], counts[1], counts[2]

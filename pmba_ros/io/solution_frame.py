@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pmba_ros.core.conversions import far_points
+from pmba_ros.core.conversions import far_points, parallax_to_xyz
 from pmba_ros.core.problem import ParallaxFeatures
 from pmba_ros.errors import DegenerateGeometryError
 from pmba_ros.eval.align import umeyama_alignment
@@ -42,15 +42,22 @@ FAR_POINT_SPREADS = 1e4
 then differ from parallel by 1e-4 rad at most."""
 
 
-def finite_points(result: SolveResult) -> FloatArray:
+def finite_points(result: SolveResult, behind: bool = False) -> FloatArray:
     """Return a solution's points, those at infinity far along their rays, shape (N, 3).
 
     Where COLMAP and Bundler see them too: :data:`FAR_POINT_SPREADS` spreads of the camera
-    centres from their main anchor.
+    centres from their main anchor. With ``behind``, a point whose parallax angle crossed
+    zero is at its Euclidean place behind the cameras instead, where a pinhole projection
+    (Bundler, BAL) sees it as PMBA's rays do (far along its rays it would not be).
     """
     points = np.array(result.points_w)
     finite = np.all(np.isfinite(points), axis=1)
     if not np.all(finite) and isinstance(result.features, ParallaxFeatures):
+        if behind:
+            with np.errstate(divide='ignore', invalid='ignore'):
+                points[~finite] = parallax_to_xyz(result.R_wc, result.centers_w,
+                                                  result.features, behind=True)[~finite]
+            finite = np.all(np.isfinite(points), axis=1)
         spread = float(np.sqrt(np.mean(np.sum(
             (result.centers_w - result.centers_w.mean(axis=0)) ** 2, axis=1)))) or 1.0
         points[~finite] = far_points(result.R_wc, result.centers_w, result.features,
@@ -59,7 +66,8 @@ def finite_points(result: SolveResult) -> FloatArray:
 
 
 def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatArray,
-                   with_scale: bool = True) -> tuple[FloatArray, FloatArray, FloatArray]:
+                   with_scale: bool = True, behind: bool = False,
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Return a solution's rotations, centres and points in a model's frame.
 
     Args:
@@ -68,11 +76,13 @@ def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatAr
         points_w: The model's points of the solved features, shape (N, 3).
         with_scale: Map by a similarity; False: by a rigid motion (a solution whose scale
             is observed, by a rig's baselines, keeps it).
+        behind: Points whose parallax angle crossed zero behind the cameras
+            (:func:`finite_points`; a pinhole format), else far along their rays.
 
     Returns:
         Rotations (M, 3, 3), centres (M, 3) and points (N, 3), every point finite.
     """
-    points = finite_points(result)
+    points = finite_points(result, behind)
     finite = np.all(np.isfinite(result.points_w), axis=1)
     try:
         sim = umeyama_alignment(result.centers_w, centers_w, with_scale=with_scale)

@@ -394,6 +394,18 @@ def test_global_init_poses_keep_the_input_camera_index(tmp_path: Path) -> None:
     assert report['init']['summary']['cameras_left_out'] == list(range(small.n_cams))
     rows = np.loadtxt(tmp_path / 'out' / 'poses_pmba_dogleg.tum', ndmin=2)
     np.testing.assert_array_equal(rows[:, 0], small.n_cams + np.arange(large.n_cams))
+    # The points carry the input's point ids: each is its input point, in the solution's frame.
+    from pmba_ros.eval.align import umeyama_alignment
+    points = np.loadtxt(tmp_path / 'out' / 'points_pmba_dogleg.xyz', ndmin=2)
+    ids = points[:, 3].astype(int)
+    assert np.unique(ids).shape[0] == ids.shape[0] > 0.9 * large.n_feats
+    assert np.all(ids >= small.n_feats)
+    truth = both.points_w[ids]
+    depth = np.linalg.norm(truth - both.centers_w[small.n_cams:].mean(axis=0), axis=1)
+    near = depth < np.median(depth)   # far points align poorly (their depths are weak)
+    sim = umeyama_alignment(points[near, :3], truth[near], with_scale=True)
+    moved = sim.scale * points[near, :3] @ sim.rotation.T + sim.translation
+    assert np.median(np.linalg.norm(moved - truth[near], axis=1) / depth[near]) < 0.01
 
 
 def test_cameras_no_feature_joins_are_a_warning(tmp_path: Path,

@@ -319,3 +319,29 @@ def test_a_parallax_past_zero_is_at_infinity_along_its_rays_not_behind_the_camer
     assert np.all(np.sign(X[3][np.isinf(X[3])]) == np.sign(ray[np.isinf(X[3])]))
     far = conversions.far_points(R, C, flipped, 1e9)[3] - C[feats.main_idx[3]]
     assert far @ ray / (np.linalg.norm(far) * np.linalg.norm(ray)) > 1 - 1e-9
+
+
+def test_a_parallax_well_past_zero_written_behind_projects_as_pmbas_rays() -> None:
+    """With ``behind``, F of eq. 2 for theta < 0: a pinhole projection sees PMBA's rays.
+
+    A pinhole (BAL, Bundler) projects a point and its opposite alike; far along its rays,
+    a point whose rays converge behind the cameras would not project where they point.
+    """
+    from pmba_ros.core import residuals
+    from pmba_ros.core.problem import ParallaxFeatures
+
+    problem = forward_problem(0)
+    R, C = problem.R_wc, problem.centers_w
+    feats, ok = conversions.xyz_to_parallax(problem, R, C, problem.points_w)
+    assert np.all(ok)
+    theta = np.where(np.arange(feats.theta.size) % 4 == 1, -0.3, feats.theta)
+    flipped = ParallaxFeatures(theta, feats.n, feats.main_idx, feats.assoc_idx)
+    assert not np.any(np.all(np.isfinite(conversions.parallax_to_xyz(R, C, flipped)[1::4]),
+                             axis=1))
+    X = conversions.parallax_to_xyz(R, C, flipped, behind=True)
+    assert np.all(np.isfinite(X))
+    obs = problem.obs
+    rays = residuals.camera_rays_from(residuals.observation_rays(R, C, flipped, obs), R, obs)
+    p_c = np.einsum('kji,kj->ki', R[obs.cam_idx], X[obs.feat_idx] - C[obs.cam_idx])
+    np.testing.assert_allclose(p_c[:, :2] / p_c[:, 2:], rays[:, :2] / rays[:, 2:], atol=1e-9)
+    assert np.any(p_c[:, 2] < 0)   # behind the cameras: their projections are the same
