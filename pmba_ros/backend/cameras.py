@@ -125,8 +125,8 @@ def _pixel_jacobians(bearings: FloatArray, cams: IntArray,
         out = np.full((bearings.shape[0], 2, 3), np.nan, dtype=np.float32)
         for c, jac in jacobians.items():
             on = cams == c
-            out[on] = jac if jac is not None else pinhole_jacobian(bearings[on], models[c].fx,
-                                                                   models[c].fy)
+            out[on] = jac if jac is not None else pinhole_jacobian(
+                bearings[on], *models[c].image_pinhole[:2])
     return out
 
 

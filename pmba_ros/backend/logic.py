@@ -162,7 +162,7 @@ class BackendLogic:
                                '(further changes are only counted)', cam, change)
         if cam == self.config.camera_id:
             self.camera = camera
-            self.estimator.set_pinhole(camera.fx, camera.fy, camera.cx, camera.cy)
+            self.estimator.set_pinhole(*camera.image_pinhole)
 
     def on_tf(self, msg: Any) -> None:
         """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).

@@ -213,15 +213,21 @@ class CameraModel:
     k1, k2, p1, p2[, k3]; 4 or 5 coefficients, stored as 5) and ``'equidistant'``
     (OpenCV fisheye k1..k4). Skew (``CameraInfo.k[1]``) is ignored.
 
+    The intrinsics are the sensor's at full resolution; a camera that publishes a binned or
+    cropped image (``CameraInfo.binning_x/y``, ``roi``, REP 104) has its pixels at
+    ``(full - offset) / binning``, which :meth:`normalize` and :meth:`denormalize` take.
+
     Attributes:
-        fx: Focal length x, px.
+        fx: Focal length x, px (full resolution).
         fy: Focal length y, px.
         cx: Principal point x, px.
         cy: Principal point y, px.
         distortion_model: One of :data:`DISTORTION_MODELS`.
         d: Distortion coefficients, shape (n,): 0 ('none'), 5 ('plumb_bob'), 4 ('equidistant').
-        width: Image width, px (0 if unknown).
+        width: Image width, px (0 if unknown; full resolution).
         height: Image height, px (0 if unknown).
+        binning: Full-resolution pixels per image pixel, x and y (>= 1).
+        offset: The image's top-left corner at full resolution (the ROI's offset), px.
     """
 
     fx: float
@@ -232,6 +238,8 @@ class CameraModel:
     d: FloatArray = field(default_factory=lambda: np.zeros(0))
     width: int = 0
     height: int = 0
+    binning: tuple[int, int] = (1, 1)
+    offset: tuple[int, int] = (0, 0)
 
     def __post_init__(self) -> None:
         """Validate and canonicalize the model.
@@ -259,6 +267,12 @@ class CameraModel:
         if d.size != want[model]:
             msg = f'camera: {model!r} needs {want[model]} coefficients, got {d.size}'
             raise MessageError(msg)
+        if min(self.binning) < 1 or min(self.offset) < 0:
+            msg = (f'camera: binning must be >= 1 and the ROI offset >= 0, got binning '
+                   f'{self.binning}, offset {self.offset}')
+            raise MessageError(msg)
+        object.__setattr__(self, 'binning', tuple(int(b) for b in self.binning))
+        object.__setattr__(self, 'offset', tuple(int(o) for o in self.offset))
         d.flags.writeable = False
         for name, value in zip(('fx', 'fy', 'cx', 'cy'), vals, strict=True):
             object.__setattr__(self, name, float(value))
@@ -271,7 +285,16 @@ class CameraModel:
         coefficients = ' '.join(f'{v:.6g}' for v in self.d)
         return (f'{self.width}x{self.height} {self.distortion_model} fx={self.fx:.6g} '
                 f'fy={self.fy:.6g} cx={self.cx:.6g} cy={self.cy:.6g}'
-                + (f' d=[{coefficients}]' if coefficients else ''))
+                + (f' d=[{coefficients}]' if coefficients else '')
+                + (f' binning={self.binning[0]}x{self.binning[1]}'
+                   if self.binning != (1, 1) else '')
+                + (f' roi_offset={self.offset[0]},{self.offset[1]}' if any(self.offset) else ''))
+
+    @property
+    def image_pinhole(self) -> tuple[float, float, float, float]:
+        """Return fx, fy, cx, cy in the published image's pixels (binned and cropped)."""
+        (bx, by), (ox, oy) = self.binning, self.offset
+        return self.fx / bx, self.fy / by, (self.cx - ox) / bx, (self.cy - oy) / by
 
     def change_from(self, old: CameraModel) -> str:
         """Return ``'OLD -> NEW'`` (:meth:`describe`) if ``old`` differs, else ''."""
@@ -308,12 +331,13 @@ class CameraModel:
             d = np.asarray(_camera_info_field(msg, 'd'), dtype=np.float64).reshape(-1)
             model = str(msg.distortion_model)
             width, height = int(msg.width), int(msg.height)
+            binning, offset = _binning_and_offset(msg)
         except (AttributeError, TypeError, ValueError) as err:
             msg_ = f'expected sensor_msgs/msg/CameraInfo, got {type(msg).__name__}: {err}'
             raise MessageError(msg_) from err
         # A camera sends the same CameraInfo with every frame: the same fields gave this
         # (immutable) model before, through the same checks.
-        key = (cls, k.tobytes(), d.tobytes(), model, width, height)
+        key = (cls, k.tobytes(), d.tobytes(), model, width, height, binning, offset)
         known = _CAMERA_INFOS.get(key)
         if known is not None:
             return known
@@ -325,7 +349,7 @@ class CameraModel:
         elif model == 'rational_polynomial' and d.size == 8 and not np.any(d[5:]):
             model, d = 'plumb_bob', d[:5]
         camera = cls(fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion_model=model, d=d,
-                     width=width, height=height)
+                     width=width, height=height, binning=binning, offset=offset)
         if len(_CAMERA_INFOS) >= _CAMERA_INFOS_KEPT:
             _CAMERA_INFOS.clear()
         _CAMERA_INFOS[key] = camera
@@ -348,7 +372,8 @@ class CameraModel:
             MessageError: If ``pixels`` is not (K, 2).
         """
         px = float_rows(pixels, 2, 'normalize: pixels', 'K')
-        xy_d = np.stack([(px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy], 1)
+        fx, fy, cx, cy = self.image_pinhole
+        xy_d = np.stack([(px[:, 0] - cx) / fx, (px[:, 1] - cy) / fy], 1)
         if self.distortion_model == 'plumb_bob' and np.any(self.d):
             return _undistort_plumb_bob(xy_d, self.d)
         if self.distortion_model == 'equidistant':
@@ -375,7 +400,8 @@ class CameraModel:
             xy_d = _distort_equidistant(xy, self.d)
         else:
             xy_d = xy
-        return np.stack([self.fx * xy_d[:, 0] + self.cx, self.fy * xy_d[:, 1] + self.cy], 1)
+        fx, fy, cx, cy = self.image_pinhole
+        return np.stack([fx * xy_d[:, 0] + cx, fy * xy_d[:, 1] + cy], 1)
 
     def pixel_jacobian(self, bearings: FloatArray) -> FloatArray | None:
         """Return d(raw pixel) / d(bearing) at unit ``bearings`` (K, 3), shape (K, 2, 3).
@@ -393,8 +419,9 @@ class CameraModel:
         else:
             xy = v[:, :2] / np.where(v[:, 2] > 0, v[:, 2], np.nan)[:, None]
             J = _plumb_bob_jacobian(xy, self.d) @ pinhole_jacobian(v, 1.0, 1.0)
-        J[:, 0] *= self.fx
-        J[:, 1] *= self.fy
+        fx, fy, _, _ = self.image_pinhole
+        J[:, 0] *= fx
+        J[:, 1] *= fy
         return J
 
 
@@ -516,6 +543,15 @@ def _undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     xy = xy_d * scale[:, None]
     xy[~ok] = np.nan
     return xy
+
+
+def _binning_and_offset(msg: Any) -> tuple[tuple[int, int], tuple[int, int]]:
+    """Return a CameraInfo's binning (0: none, i.e. 1) and ROI offset (REP 104)."""
+    bx = int(getattr(msg, 'binning_x', 0) or 1)
+    by = int(getattr(msg, 'binning_y', 0) or 1)
+    roi = getattr(msg, 'roi', None)
+    offset = (0, 0) if roi is None else (int(roi.x_offset), int(roi.y_offset))
+    return (bx, by), offset
 
 
 def _camera_info_field(msg: Any, name: str) -> Any:

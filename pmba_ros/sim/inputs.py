@@ -154,7 +154,7 @@ def _check_f32_ids(ids: np.ndarray) -> None:
 
 def make_camera_info(stamp_ns: int, frame_id: str, camera: CameraModel,
                      backend: MsgBackend) -> Any:
-    """Return a ``sensor_msgs/msg/CameraInfo`` for a camera model (monocular, no binning).
+    """Return a ``sensor_msgs/msg/CameraInfo`` for a camera model (its binning and ROI offset).
 
     Model 'none' is written as 'plumb_bob' with five zero coefficients (the ROS convention
     for a rectified camera), which :meth:`CameraModel.from_camera_info` reads back as 'none'.
@@ -177,14 +177,18 @@ def make_camera_info(stamp_ns: int, frame_id: str, camera: CameraModel,
         model, d = camera.distortion_model, camera.d
     k = camera.k
     p = np.column_stack([k, np.zeros(3)])
-    roi = backend.new('sensor_msgs/msg/RegionOfInterest', x_offset=0, y_offset=0, height=0,
-                      width=0, do_rectify=False)
+    (ox, oy), (bx, by) = camera.offset, camera.binning
+    cropped = ox > 0 or oy > 0   # an ROI of zero size is the whole image (REP 104)
+    roi = backend.new('sensor_msgs/msg/RegionOfInterest', x_offset=ox, y_offset=oy,
+                      height=camera.height - oy if cropped else 0,
+                      width=camera.width - ox if cropped else 0, do_rectify=False)
     return backend.new('sensor_msgs/msg/CameraInfo',
                        header=header_msg(stamp_ns, frame_id, backend),
                        height=int(camera.height), width=int(camera.width),
                        distortion_model=model, d=backend.seq_f64(d),
                        k=backend.fixed_f64(k), r=backend.fixed_f64(np.eye(3)),
-                       p=backend.fixed_f64(p), binning_x=0, binning_y=0, roi=roi)
+                       p=backend.fixed_f64(p), binning_x=bx if bx > 1 else 0,
+                       binning_y=by if by > 1 else 0, roi=roi)
 
 
 __all__ = ['make_camera_info', 'make_point_cloud', 'make_tracks']
