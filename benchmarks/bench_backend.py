@@ -98,7 +98,8 @@ def _start(config: BackendConfig, seq: SimSequence) -> tuple[BackendLogic, Rosba
 def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     """Bench ate."""
     seq = simulate_sequence(args.scenario, args.keyframes, seed=args.seed,
-                            noise_px=args.noise_px, drift=args.drift)
+                            noise_px=args.noise_px, drift=args.drift,
+                            features_per_keyframe=args.features_per_keyframe)
     first, count, keep = args.no_tracks
     seq = seq.with_few_tracks(first, count, keep)
     fe_traj = seq.odom_trajectory()   # the reference: without the jump
@@ -125,7 +126,8 @@ def bench_ate(args: argparse.Namespace) -> dict[str, Any]:
     return {**ends, 'bench': 'ate', 'scenario': args.scenario, 'mode': args.mode,
             'seed': args.seed, 'keyframes': len(seq), 'noise_px': args.noise_px,
             'drift': args.drift,
-            'path_poses': path_len, 'ate_backend_m': be, 'ate_frontend_m': fe,
+            'path_poses': path_len, 'init_attempts': logic.estimator.init_attempts,
+            'ate_backend_m': be, 'ate_frontend_m': fe,
             'ratio': be / fe, 'rpe_ratio': rpe_be / rpe_fe,
             'noise_estimate_px': logic.estimator.pixel_noise.sigma,
             'wall_s': time.perf_counter() - t0}
@@ -250,6 +252,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='ate: simulated scenario')
     parser.add_argument('--noise-px', type=float, default=0.5, help='ate: pixel noise sigma')
     parser.add_argument('--drift', type=float, default=0.02, help='ate: front-end drift')
+    parser.add_argument('--features-per-keyframe', type=int, default=15,
+                        help='ate: new features per keyframe (10x at the first); 2: a front-end '
+                        'tracking few features')
     parser.add_argument('--no-tracks', type=_span, default=(0, 0, 0),
                         metavar='FIRST:COUNT[:KEEP]',
                         help='ate: keyframes FIRST..FIRST+COUNT-1 bring no tracks (KEEP: '

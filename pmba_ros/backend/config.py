@@ -25,12 +25,15 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 import math
 import os
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.backend.extrinsics import EXTRINSIC_VALUES, extrinsics_from_params
 from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
+
+if TYPE_CHECKING:
+    from pmba_ros.init.options import InitOptions
 
 MODES = ('sliding', 'global')
 """Estimation modes: sliding window (last K keyframes free) or global (all free)."""
@@ -95,7 +98,8 @@ class BackendConfig:
         init_min_parallax_px: Rotation-compensated parallax (px) that makes a feature
             well conditioned for the initialization (between two keyframes of the batch).
         init_min_features: Well-conditioned features (between one pair of the batch's
-            keyframes) required to try the initialization.
+            keyframes) required to try the initialization; half as many once the batch is
+            full (``init_max_batch`` keyframes: a front-end tracking few features).
         init_retry_every: After a failed attempt, retry after this many new keyframes.
         init_max_batch: Largest batch kept while waiting for parallax (oldest dropped).
         init_max_iterations: Iteration budget of the initialization's BA.
@@ -388,6 +392,34 @@ class BackendConfig:
         """
         cov = np.diag([self.covariance_position_m2] * 3 + [self.covariance_rotation_rad2] * 3)
         return cov if optimized else NOT_OPTIMIZED_COVARIANCE_SCALE * cov
+
+    def init_features_needed(self, batch_size: int) -> int:
+        """Return the well-conditioned features a batch of ``batch_size`` keyframes needs.
+
+        A full batch (``init_max_batch``) holds all the tracks waiting would bring: with a
+        front-end that tracks few features (low texture) it is tried with half of
+        ``init_min_features`` rather than never.
+        """
+        full = batch_size >= self.init_max_batch
+        return (self.init_min_features + 1) // 2 if full else self.init_min_features
+
+    def init_options(self, need: int) -> InitOptions:
+        """Return the back-end's global initialization options, ``need`` features per pair.
+
+        The pairs' thresholds follow the count of well-conditioned features the batch was
+        tried with (the initialization's own defaults at 30).
+        """
+        from pmba_ros.core.loss import Loss
+        from pmba_ros.core.problem import Parameterization
+        from pmba_ros.core.solve import SolveOptions, SolverKind
+        from pmba_ros.init.options import InitOptions
+
+        return InitOptions(
+            min_pair_matches=max(5, need), min_pair_inliers=max(5, 2 * need // 3),
+            solve_options=SolveOptions(
+                param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss(self.loss),
+                loss_scale_px=self.loss_scale_px, max_iterations=self.init_max_iterations,
+                function_tolerance=1e-10))
 
     def to_params(self) -> dict[str, Any]:
         """Return the flat parameter dict (the node declares these; sequences as lists)."""

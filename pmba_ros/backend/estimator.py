@@ -17,8 +17,8 @@ State machine:
 
 ``collecting``
     Keyframes are stored until ``init_batch_size`` have arrived and the batch has enough
-    well-conditioned features: at least ``init_min_features`` whose rotation-compensated
-    parallax between two of its keyframes is ``init_min_parallax_px`` or more
+    well-conditioned features: ``init_min_features`` (half in a full batch) whose parallax,
+    rotation compensated, between two of its keyframes is ``init_min_parallax_px`` or more
     (:func:`~pmba_ros.backend.window.well_conditioned_features`; PMBA needs some near
     features, not a high median). Then :func:`pmba_ros.init.pipeline.global_init` solves the
     batch. A failure (pure rotation, too few pairs, steps that disagree with the front-end's)
@@ -271,15 +271,16 @@ class Estimator:
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
         min_angle = cfg.init_min_parallax_px / math.sqrt(self.fx * self.fy)
-        count = well_conditioned_features(self.kf, batch, min_angle, cfg.camera_id)
-        if count < cfg.init_min_features:
+        need = cfg.init_features_needed(batch.shape[0])
+        count = well_conditioned_features(self.kf, batch, min_angle, cfg.camera_id, need)
+        if count < need:
             self.state = 'waiting_for_parallax'
             self.last_message = (f'waiting for parallax: {count} features with >= '
                                  f'{cfg.init_min_parallax_px:g} px of parallax, need '
-                                 f'{cfg.init_min_features}, over {batch.shape[0]} keyframes')
+                                 f'{need}, over {batch.shape[0]} keyframes')
             self._next_init_attempt = self.kf.n + cfg.init_retry_every
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
-        info = self._initialize(batch)
+        info = self._initialize(batch, need)
         info.keyframe = i
         info.dropped.update(info_drop)
         return info
@@ -306,17 +307,14 @@ class Estimator:
                             feature_ids=g.feature_ids, camera=g.camera, rig=rig,
                             pixel_jac=g.pixel_jacobians(self.fx, self.fy))
 
-    def _initialize(self, batch: IntArray) -> UpdateInfo:
-        from pmba_ros.init.pipeline import global_init, InitOptions
+    def _initialize(self, batch: IntArray, need: int) -> UpdateInfo:
+        from pmba_ros.init.pipeline import global_init
 
         cfg = self.config
         M = batch.shape[0]
         problem = self._build_problem(batch, np.zeros(M, bool), None,
                                       np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), False)
-        opts = InitOptions(solve_options=SolveOptions(
-            param=Parameterization.PMBA, solver=SolverKind.DOGLEG, loss=Loss(cfg.loss),
-            loss_scale_px=cfg.loss_scale_px, max_iterations=cfg.init_max_iterations,
-            function_tolerance=1e-10))
+        opts = cfg.init_options(need)
         t0 = time.perf_counter()
         self.init_attempts += 1
         try:
@@ -362,6 +360,8 @@ class Estimator:
         if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
             self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
                 self.kf.R_odom[passed], self.kf.C_odom[passed])
+            # Those inside the batch (few observations) are placed as later ones (gaps.py).
+            self.kf.status[passed[passed > batch[0]]] = KeyframeStatus.DEAD_RECKONED
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = pose_from_odom_or_nearest(

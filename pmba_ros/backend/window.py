@@ -325,7 +325,7 @@ MIN_SHARED_FOR_PARALLAX = 20
 
 
 def well_conditioned_features(store: KeyframeStore, batch: IntArray, threshold: float,
-                              camera: int) -> int:
+                              camera: int, need: int = MIN_SHARED_FOR_PARALLAX) -> int:
     """Return the most features with enough parallax between two keyframes of the batch.
 
     A feature counts when its rotation-compensated parallax (the angle left after the
@@ -334,7 +334,9 @@ def well_conditioned_features(store: KeyframeStore, batch: IntArray, threshold: 
     ones constrain the rotations), only enough near ones to fix the structure; the median
     of a street's mostly far features can stay below any threshold for hundreds of
     keyframes. The pairs are the batch's first keyframe with every later one and every
-    keyframe with the last, so features born inside the batch count too.
+    keyframe with the last, so features born inside the batch count too; pairs sharing
+    fewer than ``need`` features (the count sought) or :data:`MIN_SHARED_FOR_PARALLAX` are
+    not counted.
     """
     first, newest = int(batch[0]), int(batch[-1])
     pairs = [(first, int(j)) for j in batch[1:]] + [(int(j), newest) for j in batch[1:-1]]
@@ -342,7 +344,7 @@ def well_conditioned_features(store: KeyframeStore, batch: IntArray, threshold: 
     for a, b in pairs:
         obs_a, obs_b = store.obs[a].of_camera(camera), store.obs[b].of_camera(camera)
         shared, ia, ib = np.intersect1d(obs_a.ids, obs_b.ids, return_indices=True)
-        if shared.shape[0] < max(MIN_SHARED_FOR_PARALLAX, best):
+        if shared.shape[0] < max(min(need, MIN_SHARED_FOR_PARALLAX), best):
             continue
         angles = compensated_parallax_angles(obs_a.bearings[ia], obs_b.bearings[ib])
         best = max(best, int(np.count_nonzero(angles >= threshold)))
