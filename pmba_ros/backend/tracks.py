@@ -104,13 +104,18 @@ def stamp_to_ns(stamp: Any) -> int:
         ``sec * 10**9 + nanosec``.
 
     Raises:
-        MessageError: If ``stamp`` lacks ``sec``/``nanosec``.
+        MessageError: If ``stamp`` lacks ``sec``/``nanosec``, or is before 0 (no ROS time
+            is: a front-end's clock gone wrong).
     """
     try:
-        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
     except (AttributeError, TypeError, ValueError) as err:
         msg = f'expected a builtin_interfaces/msg/Time stamp, got {type(stamp).__name__}'
         raise MessageError(msg) from err
+    if ns < 0:
+        msg = f'header stamp {ns * 1e-9:.9f} s is negative (ROS times start at 0)'
+        raise MessageError(msg)
+    return ns
 
 
 def _type_name(msg: Any) -> str:

@@ -508,6 +508,7 @@ def test_stamps_going_backwards(street: SimSequence) -> None:
     logic.on_keyframe(keyframe_msg(older, 10))
     logic.on_keyframe(keyframe_msg(older, 20))
     logic.on_tracks(tracks_msg(street, 12))
+    assert logic.last_error.startswith('stale_tracks: stamped ')   # named, not blank
     logic.on_keyframe(keyframe_msg(street, 10))  # received before
     logic.on_keyframe(keyframe_msg(street, 21))  # same stamp again
     outputs += logic.step()

@@ -457,6 +457,10 @@ def test_stamp_to_ns_is_exact_int() -> None:
     assert stamp_to_ns(stamp) == 1_700_000_000_999_999_999
     with pytest.raises(MessageError, match='Time'):
         stamp_to_ns(object())
+    assert stamp_to_ns(SimpleNamespace(sec=0, nanosec=0)) == 0
+    # A front-end clock gone negative: every message had been refused with no reason given.
+    with pytest.raises(MessageError, match=r'header stamp -99.000000000 s is negative'):
+        stamp_to_ns(SimpleNamespace(sec=-99, nanosec=0))
 
 
 def test_trackframe_validates_and_freezes() -> None:
