@@ -218,6 +218,24 @@ def test_folder_without_metadata(tmp_path: Path) -> None:
     assert sum(1 for _ in iter_messages([loose])) == 3
 
 
+def test_a_split_its_metadata_does_not_list_is_read_and_named(tmp_path: Path) -> None:
+    """A storage file the folder's metadata.yaml does not list (a later split) is read too.
+
+    rosbags reads the listed files only: half a split recording was replayed, complete.
+    """
+    from pmba_ros.io.bags import open_bags, ReadStats
+
+    folder = tmp_path / 'rec'
+    _write_poses(folder, 4)                     # rec/metadata.yaml + rec/rec.mcap
+    _write_poses(tmp_path / 'later.mcap', 3, '/later')
+    (tmp_path / 'later.mcap').rename(folder / 'rec_1.mcap')
+    with open_bags([folder]) as bags:
+        assert any('rec_1.mcap not listed in its metadata.yaml' in d for d in bags.damage)
+        stats = ReadStats()
+        topics = sorted(m.topic for m in iter_messages(bags, damage=stats))
+    assert topics == ['/gt'] * 4 + ['/later'] * 3
+
+
 def test_reading_resumes_after_a_corrupt_chunk(tmp_path: Path) -> None:
     """With `damage`, a corrupt first chunk is skipped and the next chunk is still read."""
     from pmba_ros.backend.outputs import make_point_cloud2_xyz
