@@ -108,16 +108,41 @@ def test_damaged_page_skipped_rows_after_it_kept(tmp_path: Path) -> None:
 
 
 def test_nothing_readable_names_the_file(tmp_path: Path) -> None:
-    """The messages' root page gone, or the file cut in its header: one clear error."""
+    """The file cut in its header: one clear error."""
+    db3 = write_db3(tmp_path / 'rec')
+    bad = tmp_path / 'header.db3'
+    bad.write_bytes(db3.read_bytes()[:50])
+    with pytest.raises(BagError, match=r'header\.db3: cannot'), open_bags([bad]):
+        pass
+
+
+def test_rows_the_index_pages_no_longer_lead_to_are_read_from_the_leaves(
+        tmp_path: Path) -> None:
+    """The messages' root page gone, or a large file cut short: the leaves' rows are read.
+
+    SQLite puts a growing table's new interior pages at the file's end: an 8,000-message file
+    cut at 70 % lost them and no query reached a row (before: "no message in it is
+    readable"); with the root page zeroed the same.
+    """
     db3 = write_db3(tmp_path / 'rec')
     (root,) = _pages(db3, 'internal')[:1]
     data = bytearray(db3.read_bytes())
     data[(root - 1) * 4096: root * 4096] = bytes(4096)
-    for name, content in (('noroot.db3', bytes(data)), ('header.db3', data[:50])):
-        bad = tmp_path / name
-        bad.write_bytes(content)
-        with pytest.raises(BagError, match=rf'{name}: cannot'), open_bags([bad]):
-            pass
+    noroot = tmp_path / 'noroot.db3'
+    noroot.write_bytes(bytes(data))
+    with open_bags([noroot]) as opened:
+        assert numbers(opened) == list(range(N))
+        assert f'{N} of them from table pages' in opened.damage[0]
+    n = 8000   # deeper than a root over the leaves
+    big = write_db3(tmp_path / 'big', n)
+    internal = _pages(big, 'internal')
+    size = big.stat().st_size
+    assert (internal[-1] - 1) * 4096 > 0.7 * size   # allocated as the tree grew deeper
+    cut = tmp_path / 'cut.db3'
+    cut.write_bytes(big.read_bytes()[:size * 7 // 10])
+    with open_bags([cut]) as opened:
+        read = numbers(opened)
+    assert 0.6 * n < len(read) < n and read == list(range(len(read)))
 
 
 @pytest.mark.parametrize(('table', 'update', 'match'), [
@@ -234,3 +259,17 @@ def test_folder_without_metadata_is_read_and_reported(tmp_path: Path) -> None:
         assert damage.startswith(f'{db3.parent}: no metadata.yaml')
     with open_bags([split]) as opened:
         assert numbers(opened) == list(range(N)) and not opened.damage
+
+
+@pytest.mark.parametrize('pad', ['', PAD, 'y' * 5000, 'z' * 70_000])
+def test_leaf_records_are_sqlites_rows(tmp_path: Path, pad: str) -> None:
+    """The page reader against SQLite: every row, local or spilling into overflow pages."""
+    from pmba_ros.io.salvage.sqlite_pages import leaf_records
+
+    db3 = write_db3(tmp_path / 'rec', 40, pad)
+    with closing(sqlite3.connect(db3)) as db:
+        rows = db.execute('SELECT id, topic_id, timestamp, data FROM messages').fetchall()
+    found = {rowid: values for rowid, values in leaf_records(db3, 4)
+             if values[0] is None and isinstance(values[3], bytes)}
+    assert sorted(found) == [r[0] for r in rows]
+    assert all(found[r[0]][1:] == r[1:] for r in rows)

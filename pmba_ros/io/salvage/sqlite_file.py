@@ -51,6 +51,7 @@ from typing import Any
 import apsw
 from pmba_ros.errors import BagError
 from pmba_ros.io.salvage.common import Salvaged
+from pmba_ros.io.salvage.sqlite_pages import leaf_records
 
 __all__ = ['index_damage', 'journal_of', 'recover_journal', 'salvage_db3']
 
@@ -178,12 +179,14 @@ class _Walk:
         read: Rows taken.
         gaps: First and last rowid of each stretch of rows lost.
         lost_after: Rowid after which nothing was readable, if rows there did not read.
+        leaf_rows: Rows read from the table-leaf pages, past the damage (:func:`_leaf_rows`).
     """
 
     last: int = 0
     read: int = 0
     gaps: list[tuple[int, int]] = field(default_factory=list)
     lost_after: int | None = None
+    leaf_rows: int = 0
 
     def take(self, row: Row) -> Row:
         """Count ``row`` (rowid first) and return its columns.
@@ -278,6 +281,48 @@ def _message_rows(src: apsw.Connection, walk: _Walk) -> Iterator[Row]:
         start = start_next
 
 
+def _leaf_rows(path: Path, src: apsw.Connection, out: sqlite3.Connection, walk: _Walk) -> _Walk:
+    """Add the message rows of ``path``'s table-leaf pages that the walk did not reach.
+
+    Where the pages above the leaves are lost (a large file cut short) no query reaches
+    them (:mod:`.sqlite_pages`). A row counts as a message by its shape: the messages
+    table's columns, none NULL but its rowid alias, integers and blobs where declared, of a
+    topic the copy has. Returns the walk over every row the copy then holds.
+    """
+    columns = src.execute('PRAGMA table_info(messages)').fetchall()
+    names = [str(c[1]) for c in columns]
+    kinds = [str(c[2]).upper() for c in columns]
+    keys = [i for i, c in enumerate(columns) if int(c[5] or 0) > 0]
+    key = keys[0] if len(keys) == 1 and kinds[keys[0]] == 'INTEGER' else None  # rowid alias
+    topic = names.index('topic_id') if 'topic_id' in names else None
+    topics = {row[0] for row in out.execute('SELECT id FROM topics')}
+    wanted = {'INTEGER': int, 'BLOB': bytes}
+
+    def rows() -> Iterator[Row]:
+        for rowid, values in leaf_records(path, len(columns)):
+            row = list(values)
+            if key is not None:
+                if row[key] is not None:   # SQLite stores the alias as NULL
+                    continue
+                row[key] = rowid
+            if any(v is None or not isinstance(v, wanted.get(k, object))
+                   for v, k in zip(row, kinds, strict=True)):
+                continue
+            if topic is None or row[topic] in topics:
+                yield tuple(row)
+
+    before = out.total_changes
+    out.executemany(f'INSERT OR IGNORE INTO messages VALUES ({", ".join("?" * len(columns))})',
+                    rows())
+    found = out.total_changes - before
+    merged = _Walk(leaf_rows=found)
+    for (rowid,) in out.execute('SELECT rowid FROM messages ORDER BY rowid'):
+        merged.take((rowid,))
+    if walk.lost_after is not None and merged.last <= walk.lost_after:
+        merged.lost_after = walk.lost_after
+    return merged
+
+
 def _copy_table(src: apsw.Connection, out: sqlite3.Connection, name: str) -> bool:
     """Copy the rows of the small table ``name``; False if not all of them read.
 
@@ -300,6 +345,9 @@ def _copy_table(src: apsw.Connection, out: sqlite3.Connection, name: str) -> boo
 def _describe(reason: str, walk: _Walk, unreadable: list[str]) -> str:
     """Return what :func:`salvage_db3` found (without the file's name)."""
     text = f'{reason}; {walk.read} messages read'
+    if walk.leaf_rows:
+        text += (f' ({walk.leaf_rows} of them from table pages the file\'s index pages no longer '
+                 'lead to)')
     if walk.gaps:
         shown = ', '.join(f'{a}-{b}' if b > a else f'{a}' for a, b in walk.gaps[:_SHOWN_GAPS])
         more = len(walk.gaps) - _SHOWN_GAPS
@@ -348,6 +396,8 @@ def salvage_db3(path: Path, dest: Path, reason: str) -> Salvaged | None:
                 if 'topics' not in unreadable:
                     out.executemany(f'INSERT INTO messages VALUES ({", ".join("?" * width)})',
                                     _message_rows(src, walk))
+                    if walk.gaps or walk.lost_after is not None:
+                        walk = _leaf_rows(path, src, out, walk)
                 for kind, _, sql in schema:
                     if kind != 'table':
                         out.execute(sql)
