@@ -487,9 +487,17 @@ class _CorruptStorage(BagError):
     """The storage itself could not be read on (as opposed to one undecodable message)."""
 
 
+ZSTD_MAGIC = b'\x28\xb5\x2f\xfd'
+"""A zstd frame's first bytes; a CDR message starts with its encapsulation header instead."""
+
+
 def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
                   start: int | None = None) -> Iterator[tuple[Any, int, bytes]]:
     """Yield ``(connection, log_time_ns, raw bytes)`` of an open reader in log-time order.
+
+    A ROS 2 message still zstd-compressed (rosbag2's per-message compression, read from a
+    storage file without the ``metadata.yaml`` that says so: given alone, or salvaged) is
+    decompressed.
 
     Raises:
         _CorruptStorage: If the storage is corrupt or truncated.
@@ -504,7 +512,22 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
         except errors as err:
             msg = f'{_describe(paths)}: bag is corrupt or truncated: {error_text(err)}'
             raise _CorruptStorage(msg) from err
+        if reader.is2 and raw[:4] == ZSTD_MAGIC:
+            raw = _decompressed(raw)
         yield conn, int(t_ns), raw
+
+
+def _decompressed(raw: bytes) -> bytes:
+    """Return a zstd frame's content, or ``raw`` if it does not decompress (then undecodable)."""
+    try:
+        zstd = importlib.import_module('compression.zstd')
+    except ImportError:
+        zstd = importlib.import_module('backports.zstd')
+    broken: tuple[type[BaseException], ...] = (*_zstd_errors(), ValueError)
+    try:
+        return bytes(zstd.decompress(raw))
+    except broken:
+        return raw
 
 
 __all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo', 'any_reader',

@@ -236,6 +236,35 @@ def test_a_split_its_metadata_does_not_list_is_read_and_named(tmp_path: Path) ->
     assert topics == ['/gt'] * 4 + ['/later'] * 3
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'db3'])
+def test_per_message_compressed_storage_file_read_alone_is_decompressed(
+        tmp_path: Path, storage: str) -> None:
+    """rosbag2's per-message zstd: the file without its metadata.yaml (alone, or salvaged).
+
+    Only the metadata says the messages are compressed: every one was undecodable.
+    """
+    from pmba_ros.io.bags import open_bags, ReadStats
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    typestore = jazzy_typestore()
+    string = typestore.types['std_msgs/msg/String']
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    folder = tmp_path / 'rec'
+    writer = Writer(folder, version=9, storage_plugin=plugin)
+    writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with writer:
+        conn = writer.add_connection('/s', 'std_msgs/msg/String', typestore=typestore)
+        for i in range(5):
+            writer.write(conn, (i + 1) * 10**7, typestore.serialize_cdr(
+                string(data=f'message {i}'), 'std_msgs/msg/String'))
+    (alone,) = folder.glob(f'*.{storage}')
+    for given in (folder, alone):
+        damage = ReadStats()
+        with open_bags([given]) as bags:
+            texts = [m.msg.data for m in iter_messages(bags, damage=damage)]
+        assert texts == [f'message {i}' for i in range(5)] and damage.undecodable == 0
+
+
 def test_reading_resumes_after_a_corrupt_chunk(tmp_path: Path) -> None:
     """With `damage`, a corrupt first chunk is skipped and the next chunk is still read."""
     from pmba_ros.backend.outputs import make_point_cloud2_xyz
