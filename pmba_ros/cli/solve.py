@@ -346,6 +346,7 @@ def run(args: argparse.Namespace) -> int:
         print(_table(results))
     if args.init != 'global':
         _warn_components(problem, report)
+        _warn_behind(problem, report, args.loss)
     else:
         _warn_left_out(problem, inits[0], report)
     _warn_focal_lengths(problem, report)
@@ -522,6 +523,27 @@ def _resumed(init_report: dict[str, Any]) -> str:
             f' ({ba["iterations"]} iterations in all), resumed to try the '
             f'{summary["inconsistent_tracks"]} tracks dropped before it again: '
             f'{summary["tracks_readmitted"]} taken back')
+
+
+def _warn_behind(problem: BAProblem, report: dict[str, Any], loss: str) -> None:
+    """Warn of observations whose point (the file's) is behind the camera that sees it.
+
+    A pinhole reprojection (XYZ) fits them, since it does not tell a ray from its opposite;
+    PMBA's ray errors cannot (a camera does not see behind itself), so without a robust loss
+    a few of them hold the whole solve.
+    """
+    if problem.points_w is None:
+        return
+    obs = problem.obs
+    with np.errstate(invalid='ignore'):
+        depth = np.einsum('kj,kj->k', problem.R_wc[obs.cam_idx][:, :, 2],
+                          problem.points_w[obs.feat_idx] - problem.centers_w[obs.cam_idx])
+    behind = int(np.count_nonzero(depth < 0))
+    if behind:
+        hint = ('; --loss cauchy weighs them down' if loss == 'none' else '')
+        _warn(report, f'{behind} observations see their point behind the camera in the file '
+              "(wrong matches?): PMBA's ray errors cannot fit them as a pinhole reprojection "
+              f'does{hint}')
 
 
 def _warn(report: dict[str, Any], text: str) -> None:
