@@ -155,3 +155,31 @@ def test_nothing_readable_names_the_file(tmp_path: Path) -> None:
         with pytest.raises(BagError, match=rf'{name}: (cannot|not closed)'), open_bags(
                 [tmp_path / name]):
             pass
+
+
+@pytest.mark.parametrize('compression', ['none', 'lz4'])
+def test_damaged_header_and_records_are_read_around(tmp_path: Path, compression: str) -> None:
+    """The bag's header record zeroed, a chunk's header zeroed, the first chunk lost.
+
+    Reading goes on at the next chunk whose header reads (before: refused whole, or the rest
+    of the file lost); messages whose connection record was in a lost chunk take the copy in
+    the index at the file's end.
+    """
+    chunks = write_bag(tmp_path / 'rec.bag', compression)
+    whole = (tmp_path / 'rec.bag').read_bytes()
+    header = bytearray(whole)
+    header[len(b'#ROSBAG V2.0\n'):chunks[0]] = bytes(chunks[0] - 13)
+    middle = bytearray(whole)
+    middle[chunks[4]:chunks[4] + 40] = bytes(40)
+    first = bytearray(whole)
+    first[:chunks[1]] = bytes(chunks[1])   # the magic and the chunk with the connection
+    for name, data, lost in (('header.bag', header, 0), ('middle.bag', middle, 1),
+                             ('first.bag', first, 1)):
+        bad = tmp_path / name
+        bad.write_bytes(bytes(data))
+        with open_bags([bad]) as opened:
+            read = numbers(opened)
+            damage = ' '.join(opened.damage)
+        assert read == sorted(read) and read[-1] == N - 1, name
+        assert len(read) == N if not lost else 0 < N - len(read) < N // 4, name
+        assert 'damaged bytes ' in damage and 'skipped' in damage, name

@@ -22,7 +22,10 @@ does (bag format 2.0: chunks, op 0x05, holding connection records, op 0x07, and 
 op 0x02), with rosbags' own record parsing and chunk decompressors, and copies the connections
 and messages into a new, indexed bag with rosbags' writer. Beyond ``rosbag reindex`` it keeps
 the messages of an uncompressed chunk the recorder was still writing (sizes still 0) or that
-the file ends in, up to the cut, and goes on after a chunk that does not decompress.
+the file ends in, up to the cut, goes on after a chunk that does not decompress, and after a
+record that does not read (the bag's header record, a chunk's header: zeroed or overwritten
+bytes) at the next chunk whose header reads; the messages of a connection whose record was in
+a lost chunk wait for the copy of it in the index at the file's end.
 """
 
 from __future__ import annotations
@@ -118,10 +121,19 @@ class _Copy:
     connections: dict[int, Any] = field(default_factory=dict)
     added: dict[tuple[Any, ...], Any] = field(default_factory=dict)
     messages: int = 0
-    orphans: int = 0
+    waiting: dict[int, list[_Message]] = field(default_factory=dict)
+
+    @property
+    def orphans(self) -> int:
+        """Return how many messages no connection record was found for."""
+        return sum(len(m) for m in self.waiting.values())
 
     def add(self, records: list[_Connection | _Message]) -> None:
-        """Write ``records``: a connection once, a message if its connection was recorded."""
+        """Write ``records``: a connection once, a message once its connection is known.
+
+        A chunk that holds a connection's record may be lost: the messages of later chunks
+        wait for the copy of the record in the index at the file's end.
+        """
         for record in records:
             if isinstance(record, _Connection):
                 key = record[1:]
@@ -131,11 +143,16 @@ class _Copy:
                         md5sum=record.md5sum, callerid=record.callerid,
                         latching=record.latching)
                 self.connections[record.conn] = self.added[key]
+                for message in self.waiting.pop(record.conn, []):
+                    self._write(message)
             elif record.conn in self.connections:
-                self.writer.write(self.connections[record.conn], record.time_ns, record.data)
-                self.messages += 1
+                self._write(record)
             else:
-                self.orphans += 1
+                self.waiting.setdefault(record.conn, []).append(record)
+
+    def _write(self, message: _Message) -> None:
+        self.writer.write(self.connections[message.conn], message.time_ns, message.data)
+        self.messages += 1
 
 
 @dataclass
@@ -146,6 +163,7 @@ class _Scan:
     undecompressed: int = 0
     unfinished: int = 0
     stopped: str = 'at its end'
+    skipped: list[tuple[int, int]] = field(default_factory=list)
 
 
 def _read_chunk(src: BinaryIO, header: Any, size: int,
@@ -188,9 +206,52 @@ def _describe(reason: str, copy: _Copy, scan: _Scan) -> str:
     text += ')'
     if scan.undecompressed:
         text += f', {scan.undecompressed} damaged chunk(s) skipped'
+    if scan.skipped:
+        spans = ', '.join(f'{a}-{b}' for a, b in scan.skipped[:3])
+        more = len(scan.skipped) - 3
+        text += f', damaged bytes {spans}' + (f' and {more} more' if more > 0 else '') + \
+            ' skipped'
     if copy.orphans:
         text += f', {copy.orphans} messages of connections not in the file skipped'
     return f'{text}; reading stopped {scan.stopped}'
+
+
+_CHUNK_OP = b'op=\x05'
+"""The ``op`` field of a chunk record's header (``name=value``, the value one byte)."""
+
+_FIELDS_BEFORE = 64
+"""How far before its ``op`` field a chunk header may start (the other fields are short)."""
+
+
+def _next_chunk(src: BinaryIO, after: int, size: int) -> int | None:
+    """Return where the next chunk record whose header reads starts after byte ``after``.
+
+    A record's header is its length, then fields each of their length and ``name=value``;
+    writers order the fields differently, so each start up to :data:`_FIELDS_BEFORE` bytes
+    before an ``op`` field is tried.
+    """
+    from rosbags.rosbag1.reader import Header, RecordType
+
+    pos = after + 1
+    block_size = 1 << 20
+    while pos < size:
+        src.seek(pos)
+        block = src.read(block_size)
+        hit = block.find(_CHUNK_OP)
+        if hit < 0:
+            pos += max(len(block) - len(_CHUNK_OP), 1)
+            continue
+        field = pos + hit - 4
+        pos += hit + 1
+        for start in range(max(field - 4 - _FIELDS_BEFORE, after + 1), field - 3):
+            src.seek(start)
+            try:
+                header = Header.read(src)
+                if header.get_uint8('op') == RecordType.CHUNK and src.tell() > field:
+                    return start
+            except _errors():
+                continue
+    return None
 
 
 def _next(src: BinaryIO, size: int, scan: _Scan) -> list[_Connection | _Message] | None:
@@ -230,8 +291,12 @@ def salvage_ros1(path: Path, dest: Path, reason: str) -> Salvaged | None:
     size = path.stat().st_size
     scan = _Scan()
     with path.open('rb') as src:
-        if src.readline() != _MAGIC:
-            return None
+        if src.readline() != _MAGIC:   # a damaged start: the chunks after it may read
+            first = _next_chunk(src, -1, size)
+            if first is None:
+                return None
+            scan.skipped.append((0, first))
+            src.seek(first)
         writer = Writer(dest)
         writer.open()
         copy = _Copy(writer)
@@ -241,9 +306,15 @@ def salvage_ros1(path: Path, dest: Path, reason: str) -> Salvaged | None:
                 try:
                     records = _next(src, size, scan)
                 except _errors() as err:
-                    scan.stopped = (f'at byte {start} of {size} ({type(err).__name__}: {err}), '
-                                    'the rest of the file is lost')
-                    break
+                    # A damaged record (its header, its length): on at the next chunk.
+                    resume = _next_chunk(src, start, size)
+                    if resume is None:
+                        scan.stopped = (f'at byte {start} of {size} ({type(err).__name__}: '
+                                        f'{err}), the rest of the file is lost')
+                        break
+                    scan.skipped.append((start, resume))
+                    src.seek(resume)
+                    continue
                 if records is None:
                     break
                 copy.add(records)
