@@ -158,7 +158,6 @@ def _one_line(err: BaseException) -> str:
     return f'{text[:head]} ... ({cut} characters left out) ... {text[head + cut:]}'
 
 
-
 def _drop_terminal_reset() -> None:
     """Cancel the terminal reset colorama would write at exit, after the command's output.
 

@@ -502,7 +502,7 @@ def test_repeated_camera_info_gives_the_model_it_gave() -> None:
 
 
 def test_a_binned_and_cropped_camera_maps_its_pixels_to_the_sensors(backend: Any) -> None:
-    """CameraInfo binning and ROI (REP 104): K is the sensor's, the pixels the image's.
+    """Binning and ROI of a CameraInfo (REP 104): K is the sensor's, the pixels the image's.
 
     Pixel-only tracks of a camera publishing half-size images were read as full-size ones
     (ATE 19.6x the front-end's on a simulated recording, 0.14x with the same tracks unbinned).
@@ -511,9 +511,8 @@ def test_a_binned_and_cropped_camera_maps_its_pixels_to_the_sensors(backend: Any
     from pmba_ros.backend.logic import BackendLogic
     from pmba_ros.sim.inputs import make_camera_info
 
-    full = CameraModel(400.0, 390.0, 320.0, 240.0, 'plumb_bob', np.array([-0.2, 0.05, 0.001,
-                                                                           -0.002, 0.0]),
-                       640, 480)
+    d = np.array([-0.2, 0.05, 0.001, -0.002, 0.0])
+    full = CameraModel(400.0, 390.0, 320.0, 240.0, 'plumb_bob', d, 640, 480)
     binned = CameraModel(400.0, 390.0, 320.0, 240.0, 'plumb_bob', full.d, 640, 480,
                          binning=(2, 2), offset=(100, 50))
     msg = make_camera_info(0, 'cam', binned, backend)

@@ -346,7 +346,7 @@ def _describe(reason: str, walk: _Walk, unreadable: list[str]) -> str:
     """Return what :func:`salvage_db3` found (without the file's name)."""
     text = f'{reason}; {walk.read} messages read'
     if walk.leaf_rows:
-        text += (f' ({walk.leaf_rows} of them from table pages the file\'s index pages no longer '
+        text += (f" ({walk.leaf_rows} of them from table pages the file's index pages no longer "
                  'lead to)')
     if walk.gaps:
         shown = ', '.join(f'{a}-{b}' if b > a else f'{a}' for a, b in walk.gaps[:_SHOWN_GAPS])
