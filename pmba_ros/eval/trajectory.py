@@ -372,8 +372,9 @@ def read_kitti(path: str | os.PathLike[str],
 def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
     """Guess the format of a trajectory file: ``'tum'``, ``'euroc'`` or ``'kitti'``.
 
-    A ``.csv`` suffix or a comma in the first data line means EuRoC CSV; otherwise 8 values
-    mean TUM and 12 mean KITTI.
+    A ``.csv`` suffix or a comma in the first data line means EuRoC CSV, unless its first
+    value is not an integer (EuRoC stamps are integer nanoseconds; a fraction is seconds: TUM
+    written with commas); otherwise 8 values mean TUM and 12 mean KITTI.
 
     Args:
         path: File name (read only if ``text`` is None).
@@ -393,7 +394,8 @@ def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
         raise FormatError(msg)
     lineno, first = lines[0]
     if Path(path).suffix.lower() == '.csv' or ',' in first:
-        return 'euroc'
+        stamp = first.split(',')[0].strip()
+        return 'tum' if _fractional(stamp) and len(first.split(',')) == 8 else 'euroc'
     n_values = len(first.split())
     if n_values == 8:
         return 'tum'
@@ -427,6 +429,11 @@ def read_times(path: str | os.PathLike[str]) -> FloatArray:
     return mat[:, 0]
 
 
+def _fractional(value: str) -> bool:
+    """Return True for a number with a fraction or exponent (not an integer's digits)."""
+    return any(c in value for c in '.eE')
+
+
 def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto', *,
                     times: str | os.PathLike[str] | None = None) -> Trajectory:
     """Read a trajectory in any supported format.
@@ -456,8 +463,8 @@ def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto', *,
         msg = (f'{times}: times are for a KITTI file (no stamps), but {path} is '
                f'{"TUM" if fmt == "tum" else "EuRoC CSV"} with stamps of its own')
         raise FormatError(msg)
-    if fmt == 'tum':
-        return _tum_from_text(path, text)
+    if fmt == 'tum':   # a TUM file with commas for spaces reads the same
+        return _tum_from_text(path, text.replace(',', ' '))
     if fmt == 'euroc':
         return _euroc_from_text(path, text)
     stamps = read_times(times) if times is not None else None

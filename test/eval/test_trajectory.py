@@ -188,6 +188,20 @@ def test_read_euroc_csv_reads_wxyz_and_nanoseconds(tmp_path: Path) -> None:
     assert detect_format(tmp_path / 'gt.csv') == 'euroc'
 
 
+def test_a_tum_file_with_commas_is_read_as_tum(tmp_path: Path) -> None:
+    """Comma-separated with stamps in seconds: TUM with commas, not EuRoC's nanoseconds.
+
+    It was read as EuRoC CSV (stamps / 1e9, quaternion w first): "no matching timestamps".
+    """
+    spaced = write_text(tmp_path / 'gt.tum', '1.5 1 2 3 0 0 0.7071067811865476 '
+                        '0.7071067811865476\n1.6 4 5 6 0 0 0 1\n')
+    commas = write_text(tmp_path / 'commas.tum', spaced.read_text().replace(' ', ','))
+    assert detect_format(commas) == 'tum'
+    a, b = read_trajectory(spaced), read_trajectory(commas)
+    np.testing.assert_array_equal(a.stamps_s, b.stamps_s)
+    np.testing.assert_array_equal(a.R_wc, b.R_wc)
+
+
 def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
                                                rng: np.random.Generator) -> None:
     """KITTI poses get index stamps unless stamps are given; rotations project on request."""
