@@ -211,6 +211,8 @@ def error_text(err: BaseException) -> str:
     """Return a one-line description of a reader exception."""
     text = ' '.join(str(a) for a in err.args) if err.args else ''
     text = text.strip() or type(err).__name__
+    if isinstance(err, (KeyError, IndexError)):   # a lookup inside the reader: say which
+        text = f'{type(err).__name__}: {text}'
     return text.splitlines()[0] if text else type(err).__name__
 
 

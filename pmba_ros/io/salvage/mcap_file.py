@@ -234,6 +234,10 @@ def _next_chunk(data: mmap.mmap, start: int,
     return None
 
 
+ROSBAGS_SCHEMA_ENCODINGS = ('ros2msg', 'ros2idl', 'omgidl', '')
+"""The schema encodings rosbags' MCAP reader parses (any other fails the whole file)."""
+
+
 def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     """Copy the readable messages of the MCAP file ``path`` into ``dest``.
 
@@ -264,6 +268,14 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
             schemas.setdefault(record.id, record)
         elif isinstance(record, Channel):
             channels.setdefault(record.id, record)
+    # A schema rosbags cannot parse (another encoding) makes the whole copy unreadable too.
+    foreign = {cid: c for cid, c in channels.items() if c.schema_id in schemas
+               and schemas[c.schema_id].encoding not in ROSBAGS_SCHEMA_ENCODINGS}
+    if foreign:
+        named = ', '.join(f'{c.topic} ({schemas[c.schema_id].name}, schema encoding '
+                          f'{schemas[c.schema_id].encoding!r})' for c in foreign.values())
+        reason = f'{reason}; {named} skipped: rosbags reads no such schema'
+        channels = {cid: c for cid, c in channels.items() if cid not in foreign}
     messages = 0
     if channels:
         with dest.open('wb') as out:
@@ -272,7 +284,8 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
             writer.start(profile='ros2' if header is None else header.profile,
                          library='pmba_ros salvage' if header is None else header.library)
             schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data)
-                          for sid, s in schemas.items()}
+                          for sid, s in schemas.items()
+                          if s.encoding in ROSBAGS_SCHEMA_ENCODINGS}
             channel_ids = {cid: writer.register_channel(c.topic, c.message_encoding,
                                                         schema_ids.get(c.schema_id, 0),
                                                         c.metadata)
