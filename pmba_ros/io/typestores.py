@@ -37,6 +37,10 @@ def noetic_typestore() -> Any:
     return get_typestore(Stores.ROS1_NOETIC)
 
 
+EMPTY_STRUCTURE_FIELD = 'structure_needs_at_least_one_member'
+"""The one field rosbags gives a type whose definition has none."""
+
+
 def deserializer(reader: Any, msgtype: str) -> Callable[[bytes | memoryview], Any]:
     """Return ``raw -> message`` for ``msgtype`` of an open reader.
 
@@ -47,8 +51,14 @@ def deserializer(reader: Any, msgtype: str) -> Callable[[bytes | memoryview], An
     errors raised as the reader raises them.
     """
     jazzy = jazzy_typestore()
-    if not reader.is2 or not _defined_alike(reader.typestore.fielddefs, jazzy.fielddefs,
-                                            msgtype, set()):
+    theirs = reader.typestore.fielddefs.get(msgtype)
+    # A schema recorded without its text (empty) defines no fields (rosbags gives it the
+    # placeholder an empty IDL structure gets): Jazzy's type is meant.
+    names = [] if theirs is None else [name for name, _ in theirs[1]]
+    undefined = theirs is not None and names in ([], [EMPTY_STRUCTURE_FIELD]) and \
+        bool(jazzy.fielddefs.get(msgtype, ((), ()))[1])
+    if not reader.is2 or not (undefined or _defined_alike(
+            reader.typestore.fielddefs, jazzy.fielddefs, msgtype, set())):
         return functools.partial(reader.deserialize, typ=msgtype)
     from rosbags.highlevel import AnyReaderError
     from rosbags.serde import SerdeError

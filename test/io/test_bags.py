@@ -333,3 +333,29 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
             assert deserializer(reader, conn.msgtype).func == reader.deserialize
         finally:
             reader.typestore.fielddefs['geometry_msgs/msg/Point'] = point
+
+
+def test_schemas_recorded_without_their_text_are_read_as_jazzys(tmp_path: Path) -> None:
+    """A ``ros2msg`` schema with empty data is read as the Jazzy type of that name.
+
+    It defines no fields: every message had been undecodable ("CDR message size mismatch").
+    """
+    from mcap.writer import Writer
+    from pmba_ros.io.bags import open_bags, ReadStats
+
+    typestore = jazzy_typestore()
+    string = typestore.types['std_msgs/msg/String']
+    bag = tmp_path / 'bare.mcap'
+    with bag.open('wb') as out:
+        writer = Writer(out)
+        writer.start(profile='ros2', library='test')
+        channel = writer.register_channel(
+            '/s', 'cdr', writer.register_schema('std_msgs/msg/String', 'ros2msg', b''))
+        for i in range(3):
+            raw = bytes(typestore.serialize_cdr(string(data=f'm{i}'), 'std_msgs/msg/String'))
+            writer.add_message(channel, (i + 1) * 10**7, raw, (i + 1) * 10**7)
+        writer.finish()
+    damage = ReadStats()
+    with open_bags([bag]) as bags:
+        assert [m.msg.data for m in iter_messages(bags, damage=damage)] == ['m0', 'm1', 'm2']
+    assert damage.undecodable == 0
