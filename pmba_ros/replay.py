@@ -479,8 +479,8 @@ def _check_input(report: ReplayReport, damage: ReadStats) -> None:
         found.append(f'{damage.undecodable} messages skipped (they do not deserialize); '
                      f'first: {damage.first_undecodable}')
     if damage.damaged_parts:
-        found.append(f'{damage.damaged_parts} corrupt part(s) of the bag skipped, reading '
-                     f'resumed after each; first: {damage.first_damage}')
+        found.append(f'{damage.damaged_parts} damaged or incomplete part(s) of the recording '
+                     f'read around; first: {damage.first_damage}')
     missing = report.messages_announced - report.messages_read - damage.undecodable
     if missing > 0:
         found.append(f'the bags announce {report.messages_announced} messages on the topics '

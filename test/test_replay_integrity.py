@@ -175,8 +175,8 @@ def test_reorder_buffer_is_flushed_when_reading_stops(bag: Path, tmp_path: Path,
     assert report.messages_in == 45 == report.messages_read
     assert report.keyframes_in == 15
     assert report.read_error is not None and not report.complete
-    assert any(w.startswith('1 corrupt part(s) of the bag skipped, reading resumed after '
-                            'each; first: street.mcap') for w in report.warnings)
+    assert any(w.startswith('1 damaged or incomplete part(s) of the recording read around; '
+                            'first: street.mcap') for w in report.warnings)
 
 
 def test_bag_broken_before_any_message_is_an_error(bag: Path, tmp_path: Path,
