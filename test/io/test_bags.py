@@ -335,26 +335,41 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
             reader.typestore.fielddefs['geometry_msgs/msg/Point'] = point
 
 
+def write_mcap_strings(path: Path, n: int, schema_text: bytes = b'string data',
+                       other: tuple[str, str, str] | None = None) -> None:
+    """Write std_msgs/String messages 'm0', 'm1', ... on /s with the mcap library's writer.
+
+    ``schema_text``: the String schema's data; ``other``: (topic, schema name, schema
+    encoding) of a second channel, 8 zero bytes beside each message.
+    """
+    from mcap.writer import Writer
+
+    typestore = jazzy_typestore()
+    string = typestore.types['std_msgs/msg/String']
+    with path.open('wb') as out:
+        writer = Writer(out)
+        writer.start(profile='ros2', library='test')
+        channel = writer.register_channel('/s', 'cdr', writer.register_schema(
+            'std_msgs/msg/String', 'ros2msg', schema_text))
+        second = None if other is None else writer.register_channel(
+            other[0], 'cdr', writer.register_schema(other[1], other[2], b''))
+        for i in range(n):
+            raw = bytes(typestore.serialize_cdr(string(data=f'm{i}'), 'std_msgs/msg/String'))
+            writer.add_message(channel, (i + 1) * 10**7, raw, (i + 1) * 10**7)
+            if second is not None:
+                writer.add_message(second, (i + 1) * 10**7, bytes(8), (i + 1) * 10**7)
+        writer.finish()
+
+
 def test_schemas_recorded_without_their_text_are_read_as_jazzys(tmp_path: Path) -> None:
     """A ``ros2msg`` schema with empty data is read as the Jazzy type of that name.
 
     It defines no fields: every message had been undecodable ("CDR message size mismatch").
     """
-    from mcap.writer import Writer
     from pmba_ros.io.bags import open_bags, ReadStats
 
-    typestore = jazzy_typestore()
-    string = typestore.types['std_msgs/msg/String']
     bag = tmp_path / 'bare.mcap'
-    with bag.open('wb') as out:
-        writer = Writer(out)
-        writer.start(profile='ros2', library='test')
-        channel = writer.register_channel(
-            '/s', 'cdr', writer.register_schema('std_msgs/msg/String', 'ros2msg', b''))
-        for i in range(3):
-            raw = bytes(typestore.serialize_cdr(string(data=f'm{i}'), 'std_msgs/msg/String'))
-            writer.add_message(channel, (i + 1) * 10**7, raw, (i + 1) * 10**7)
-        writer.finish()
+    write_mcap_strings(bag, 3, schema_text=b'')
     damage = ReadStats()
     with open_bags([bag]) as bags:
         assert [m.msg.data for m in iter_messages(bags, damage=damage)] == ['m0', 'm1', 'm2']

@@ -335,23 +335,10 @@ def test_a_topic_of_a_schema_rosbags_cannot_parse_is_skipped_and_named(tmp_path:
 
     rosbags' MCAP reader fails on such a schema: the whole bag was refused ("unknown").
     """
-    from mcap.writer import Writer
+    from .test_bags import write_mcap_strings
 
-    typestore = jazzy_typestore()
-    string = typestore.types['std_msgs/msg/String']
     bag = tmp_path / 'mixed.mcap'
-    with bag.open('wb') as out:
-        writer = Writer(out)
-        writer.start(profile='ros2', library='test')
-        ok = writer.register_schema('std_msgs/msg/String', 'ros2msg', b'string data')
-        odd = writer.register_schema('my_msgs/msg/Status', 'unknown', b'')
-        good = writer.register_channel('/s', 'cdr', ok)
-        other = writer.register_channel('/status', 'cdr', odd)
-        for i in range(5):
-            raw = bytes(typestore.serialize_cdr(string(data=f'm{i}'), 'std_msgs/msg/String'))
-            writer.add_message(good, (i + 1) * 10**7, raw, (i + 1) * 10**7)
-            writer.add_message(other, (i + 1) * 10**7, b'\x00' * 8, (i + 1) * 10**7)
-        writer.finish()
+    write_mcap_strings(bag, 5, other=('/status', 'my_msgs/msg/Status', 'unknown'))
     with open_bags([bag]) as bags:
         assert [m.msg.data for m in iter_messages(bags)] == [f'm{i}' for i in range(5)]
         assert "/status (my_msgs/msg/Status, schema encoding 'unknown') skipped" in \
