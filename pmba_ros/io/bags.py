@@ -213,7 +213,13 @@ def error_text(err: BaseException) -> str:
     text = text.strip() or type(err).__name__
     if isinstance(err, (KeyError, IndexError)):   # a lookup inside the reader: say which
         text = f'{type(err).__name__}: {text}'
-    return text.splitlines()[0] if text else type(err).__name__
+    line = text.splitlines()[0] if text else type(err).__name__
+    # A reader's message may quote the damaged bytes themselves (a ROS 1 header: megabytes).
+    return line if len(line) <= MAX_ERROR_TEXT else f'{line[:MAX_ERROR_TEXT]} ...'
+
+
+MAX_ERROR_TEXT = 300
+"""Longest reader message kept in a damage line (a report, a warning)."""
 
 
 def list_topics(paths: Sequence[Path | str]) -> dict[str, TopicInfo]:
