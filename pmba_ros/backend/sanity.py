@@ -241,8 +241,11 @@ class StampLeapCheck:
         """
         if self.repeat_reason:
             if stamp_ns in self._recent:
+                # Stamp 0 again and again is a front-end that leaves its headers unstamped.
+                why = ('header stamp 0 again (left unset by the front-end? poses and tracks '
+                       'are matched by stamp)' if stamp_ns == 0 else 'a repeat')
                 reject(self.repeat_reason, f'message stamped {stamp_ns} ns like one received '
-                       'before: a repeat, dropped (the first copy is kept)')
+                       f'before: {why}, dropped (the first copy is kept)')
                 return []
             self._recent.append(stamp_ns)
             if len(self._recent) > self.repeats_kept:

@@ -298,6 +298,14 @@ def test_a_repeat_of_a_stamp_leap_keeps_the_first_copy() -> None:
     assert _stamp_leap_run(repeated)[0] == repeated
 
 
+def test_unstamped_messages_are_named_as_such() -> None:
+    """Header stamps left at 0: the repeat's reason says so (it read as a repeated message)."""
+    check, why = StampLeapCheck('leaps', repeat_reason='repeats'), []
+    for payload in range(3):
+        check.admit(0, payload, lambda reason, text: why.append(text))
+    assert len(why) == 2 and all('header stamp 0 again' in w for w in why)
+
+
 def _stamp_leap_run(stamps: list[int]) -> tuple[list[int], list[str]]:
     """Feed ``stamps`` (payload = stamp) then end the input; return what was taken, dropped."""
     check, taken, dropped = StampLeapCheck('leaps'), [], []
