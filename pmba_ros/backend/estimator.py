@@ -357,11 +357,10 @@ class Estimator:
         self._metric_scale = self.map_from_odom.scale
         self.pixel_noise.note(res.noise_px)
         passed = self.kf.indices(KeyframeStatus.PASSED_THROUGH)
-        if passed.shape[0]:  # they waited in the odom frame; the map is now expressed in it
+        if passed.shape[0]:  # waited in the odom frame: from now on placed as later ones are
             self.kf.R_map[passed], self.kf.C_map[passed] = self.map_from_odom.apply_poses(
                 self.kf.R_odom[passed], self.kf.C_odom[passed])
-            # Those inside the batch (few observations) are placed as later ones (gaps.py).
-            self.kf.status[passed[passed > batch[0]]] = KeyframeStatus.DEAD_RECKONED
+            self.kf.status[passed] = KeyframeStatus.DEAD_RECKONED
         left_out = np.setdiff1d(batch, used)
         for j in left_out:  # no EG pair: start from the front-end (or the nearest keyframe)
             self.kf.R_map[j], self.kf.C_map[j] = pose_from_odom_or_nearest(
@@ -388,6 +387,7 @@ class Estimator:
             info.message += f'; {left_out.shape[0]} refined afterwards'
             info.solve_ms += refine.solve_ms
         self.last_message = 'tracking'
+        place_unsolved(self.kf, self.optimized(np.arange(self.kf.n)), self.map_from_odom.scale, 0)
         logger.info('%s (%.0f ms)', info.message, info.solve_ms)
         return info
 
