@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Generator, Iterator, Sequence
 from contextlib import closing, contextmanager, ExitStack, nullcontext
 from dataclasses import dataclass, field
-import importlib
 import logging
 from pathlib import Path
 import struct
@@ -39,7 +38,7 @@ from typing import Any, NamedTuple
 
 from pmba_ros.errors import BagError
 from pmba_ros.io import cloud_decode
-from pmba_ros.io.mcap_layout import check_mcap_lengths
+from pmba_ros.io.mcap_layout import check_mcap_lengths, zstd_module
 from pmba_ros.io.typestores import deserializer, jazzy_typestore, noetic_typestore
 
 logger = logging.getLogger(__name__)
@@ -119,12 +118,7 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
 
 def _zstd_errors() -> tuple[type[BaseException], ...]:
     """Return the error type of the zstd module rosbags decompresses MCAP chunks with."""
-    for name in ('compression.zstd', 'backports.zstd'):  # Python >= 3.14, older
-        try:
-            return (importlib.import_module(name).ZstdError,)
-        except ImportError:
-            continue
-    return ()
+    return (zstd_module().ZstdError,)
 
 
 def _describe(paths: Sequence[Path]) -> str:
@@ -527,13 +521,9 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
 
 def _decompressed(raw: bytes) -> bytes:
     """Return a zstd frame's content, or ``raw`` if it does not decompress (then undecodable)."""
-    try:
-        zstd = importlib.import_module('compression.zstd')
-    except ImportError:
-        zstd = importlib.import_module('backports.zstd')
     broken: tuple[type[BaseException], ...] = (*_zstd_errors(), ValueError)
     try:
-        return bytes(zstd.decompress(raw))
+        return bytes(zstd_module().decompress(raw))
     except broken:
         return raw
 

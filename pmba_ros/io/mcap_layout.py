@@ -40,7 +40,7 @@ import zlib
 from pmba_ros.errors import BagError, FormatError
 
 __all__ = ['CHUNK_HEAD', 'FOOTER_SIZE', 'MAGIC', 'check_mcap_lengths', 'chunk_body_length',
-           'mcap_damage']
+           'mcap_damage', 'zstd_module']
 
 MAGIC = b'\x89MCAP0\r\n'
 _HEADER, _FOOTER, _CHUNK, _CHUNK_INDEX, _SUMMARY_OFFSET = 0x01, 0x02, 0x06, 0x08, 0x0E
@@ -235,7 +235,7 @@ def _failed_crc(data: mmap.mmap, pos: int, end: int) -> str | None:
     return None
 
 
-def _zstd() -> Any:
+def zstd_module() -> Any:
     """Return the zstd module rosbags decompresses MCAP chunks with."""
     try:
         from compression import zstd  # type: ignore[import-not-found, unused-ignore]
@@ -251,7 +251,7 @@ def _lz4(data: bytes) -> bytes:
 
 
 _DECOMPRESS: dict[bytes, Callable[[bytes], bytes]] = {
-    b'': bytes, b'zstd': lambda data: bytes(_zstd().decompress(data)), b'lz4': _lz4}
+    b'': bytes, b'zstd': lambda data: bytes(zstd_module().decompress(data)), b'lz4': _lz4}
 """A chunk's decompression by its compression's name: the three MCAP has, as rosbags reads them."""
 
 
@@ -260,6 +260,6 @@ def _decompressed(decompress: Callable[[bytes], bytes], data: bytes, size: int) 
     try:
         raw = decompress(data)
     except (ValueError, RuntimeError, MemoryError, OverflowError, EOFError,
-            _zstd().ZstdError):
+            zstd_module().ZstdError):
         return None
     return raw if len(raw) == size else None

@@ -81,11 +81,13 @@ def _unlisted(folder: Path) -> list[Path]:
     """Return the storage files in a rosbag2 folder that its ``metadata.yaml`` does not list.
 
     A split the recorder began after it last wrote the metadata, or a file copied in: rosbags
-    reads the listed files only. An unreadable metadata file lists nothing here (opening the
-    folder names what is wrong with it).
+    reads the listed files only. A file, a folder without metadata and an unreadable metadata
+    file list nothing here (opening the folder names what is wrong with it).
     """
     import yaml
 
+    if not (folder / 'metadata.yaml').is_file():
+        return []
     try:
         info = yaml.safe_load((folder / 'metadata.yaml').read_text(encoding='utf-8'))
         listed = {Path(str(name)).name
@@ -104,9 +106,7 @@ def suspect(paths: Sequence[Path]) -> bool:
     a closed recording's folder) with a timestamp index that disagrees with its rows
     (:func:`.sqlite_file.index_damage`).
     """
-    if any(p.is_dir() and (p / 'metadata.yaml').exists() and _unlisted(p) for p in paths):
-        return True
-    return bool(_without_metadata(paths)) or any(
+    return bool(_without_metadata(paths)) or any(_unlisted(p) for p in paths) or any(
         _active(f) or (f.suffix == '.db3' and (journal_of(f) is not None or (
             f in paths and index_damage(f) is not None))) for f in _files(paths))
 
@@ -178,8 +178,7 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
     damage += [f'{p}: no metadata.yaml, the recorder did not close the recording; its storage '
                'files were read as they are' for p in _without_metadata(paths)]
     damage += [f'{p}: {", ".join(f.name for f in unlisted)} not listed in its metadata.yaml; '
-               'every storage file there was read' for p in paths
-               if p.is_dir() and (p / 'metadata.yaml').exists() and (unlisted := _unlisted(p))]
+               'every storage file there was read' for p in paths if (unlisted := _unlisted(p))]
     if error is not None and not damage:   # every file opens: the folder's metadata.yaml is wrong
         damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
                   'read one by one' for p in paths if p.is_dir()]
