@@ -39,6 +39,8 @@ from pmba_ros.sim.bag import groundtruth_path, write_sequence_bag
 from pmba_ros.sim.sequence import simulate_sequence
 import pytest
 
+from .io.test_ros1_mcap import write_ros1_mcap
+
 
 class StubLogic:
     """A stand-in back-end: parses inputs like the real one and echoes front-end poses.
@@ -388,6 +390,13 @@ def test_ros1_recording_replays_like_the_rosbag2_one(
     peeked = min(PEEK_MESSAGES, report.keyframes_in)
     assert decoded and all(decoded) and len(decoded) == report.keyframes_in + peeked
     a, _ = real_replay
+    for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
+        assert (out / name).read_bytes() == (a / name).read_bytes(), name
+    # The same in MCAP, as `mcap convert street.bag street.mcap` writes it (ROS 1 messages).
+    mcap, out = tmp_path / 'street.mcap', tmp_path / 'm'
+    write_ros1_mcap(ros1, mcap)
+    report = replay([mcap], out, gt=groundtruth_path(street_bag))
+    assert report.input_complete and not report.damaged_parts and report.messages_rejected == 0
     for name in ('keyframes_frontend.tum', 'keyframes_optimized.tum', 'landmarks.ply'):
         assert (out / name).read_bytes() == (a / name).read_bytes(), name
 

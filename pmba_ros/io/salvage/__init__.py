@@ -20,7 +20,8 @@ readable messages of a damaged file into a new, complete one in a temporary fold
 the recording's folder): MCAP without its index (:mod:`.mcap_file`), SQLite cut short or with
 damaged pages and SQLite's journal left beside a file (:mod:`.sqlite_file`), and a ROS 1 bag
 without its index (:mod:`.ros1_file`). A rosbag2 folder without ``metadata.yaml`` is read by
-its storage files, which rosbags opens alone.
+its storage files, which rosbags opens alone. An MCAP file of ROS 1 messages, which rosbags
+refuses too, is read by its copy as a ROS 1 bag (:mod:`.ros1_mcap`), damage or not.
 """
 
 from __future__ import annotations
@@ -172,7 +173,10 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
             damage.append(f'{file}: {reason}; no message in it is readable')
             continue
         readable.append(saved.path)
-        damage.append(f'{file}: {saved.damage}')
+        if saved.damage:
+            damage.append(f'{file}: {saved.damage}')
+        else:   # a whole file copied into a format rosbags reads (ROS 1 messages in MCAP)
+            logger.info('%s: read through a copy (%s)', file, saved.path.name)
     if not readable:
         raise error or BagError('; '.join(damage))
     damage += [f'{p}: no metadata.yaml, the recorder did not close the recording; its storage '

@@ -28,7 +28,8 @@ class Salvaged(NamedTuple):
         path: The new, complete storage file.
         messages: Messages copied.
         damage: What was wrong with the original and where reading stopped (the original's
-            name is not in it: the copy may be read from another copy).
+            name is not in it: the copy may be read from another copy); empty for a copy
+            of an undamaged file into a format rosbags reads.
     """
 
     path: Path

@@ -36,9 +36,11 @@ from pathlib import Path
 import struct
 from typing import Any
 
+from pmba_ros.errors import BagError
 from pmba_ros.io.mcap_layout import chunk_body_length, CHUNK_HEAD, MAGIC
 from pmba_ros.io.salvage.common import Salvaged
 from pmba_ros.io.salvage.mcap_counts import stretch_messages, summary_messages
+from pmba_ros.io.salvage.ros1_mcap import is_ros1_channel, ROS1_ENCODING, write_ros1_bag
 
 __all__ = ['salvage_mcap']
 
@@ -244,7 +246,8 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
     Records are read from the start; a record that is incomplete or corrupt (a chunk cut
     short, a CRC mismatch) is stepped over to the next chunk that reads whole. The schemas
     and channels read anywhere are written first, then the messages of the readable chunks,
-    with a summary, so rosbags reads the copy like any recording.
+    with a summary, so rosbags reads the copy like any recording. A file of ROS 1 messages
+    (the ``ros1`` profile) is copied into a ROS 1 bag instead (:mod:`.ros1_mcap`).
 
     Args:
         path: The damaged MCAP file.
@@ -268,6 +271,10 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
             schemas.setdefault(record.id, record)
         elif isinstance(record, Channel):
             channels.setdefault(record.id, record)
+    ros1 = {cid: c for cid, c in channels.items() if is_ros1_channel(c, schemas)}
+    if len(ros1) == len(channels) and (ros1 or getattr(header, 'profile', '') == ROS1_ENCODING):
+        # Named after the original, which an error about the copy then names too.
+        return _ros1_copy(path, dest.with_name(f'{dest.name}.bag'), ros1, schemas, walk)
     # A schema rosbags cannot parse (another encoding) makes the whole copy unreadable too.
     foreign = {cid: c for cid, c in channels.items() if c.schema_id in schemas
                and schemas[c.schema_id].encoding not in ROSBAGS_SCHEMA_ENCODINGS}
@@ -300,6 +307,35 @@ def salvage_mcap(path: Path, dest: Path, reason: str) -> Salvaged | None:
         dest.unlink(missing_ok=True)
         return None
     return Salvaged(dest, messages, _damage(path, walk, messages, reason))
+
+
+def _ros1_copy(path: Path, dest: Path, channels: dict[int, Any], schemas: dict[int, Any],
+               walk: _Walk) -> Salvaged:
+    """Copy an MCAP file of ROS 1 messages into the ROS 1 bag ``dest`` (:mod:`.ros1_mcap`).
+
+    A file read whole is no damage: its copy says nothing then. rosbags' refusal of the
+    profile is no damage either, so the damage description does not start with it.
+
+    Raises:
+        BagError: If a definition does not parse, or not a single message is readable (the
+            file's error would say that rosbags reads no such MCAP profile).
+    """
+    from mcap.records import Message
+
+    try:
+        messages = write_ros1_bag(dest, channels, schemas, (
+            r for r in _records(path, _Walk()) if isinstance(r, Message)))
+    except BagError as err:
+        dest.unlink(missing_ok=True)
+        msg = f'{path}: {err}'
+        raise BagError(msg) from err
+    reason = 'an MCAP file of ROS 1 messages, read as a ROS 1 bag'
+    if not messages:
+        dest.unlink(missing_ok=True)
+        msg = f'{path}: {_damage(path, walk, 0, reason)}; not a message is readable'
+        raise BagError(msg)
+    whole = not walk.skipped and not walk.repaired and walk.stopped == _Walk.stopped
+    return Salvaged(dest, messages, '' if whole else _damage(path, walk, messages, reason))
 
 
 def _damage(path: Path, walk: _Walk, messages: int, reason: str) -> str:
