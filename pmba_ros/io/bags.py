@@ -232,13 +232,24 @@ def list_topics(paths: Sequence[Path | str]) -> dict[str, TopicInfo]:
         return bags.topics
 
 
+def ros2_type_name(msgtype: str) -> str:
+    """Return a message type's ROS 2 name: ``package/msg/Type`` for ``package/Type``.
+
+    Some tools record ROS 2 messages under their ROS 1 type names (an MCAP schema named
+    ``sensor_msgs/PointCloud``); the types are the same, and the name the rest of the
+    package compares is the ROS 2 one.
+    """
+    package, sep, name = msgtype.partition('/')
+    return f'{package}/msg/{name}' if sep and package and name and '/' not in name else msgtype
+
+
 def _topics_of(reader: Any) -> dict[str, TopicInfo]:
     """Return the topics of an open reader (counts summed over its bags)."""
     topics: dict[str, TopicInfo] = {}
     for conn in reader.connections:
         old = topics.get(conn.topic)
         count = int(conn.msgcount) + (old.count if old else 0)
-        topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, count)
+        topics[conn.topic] = TopicInfo(conn.topic, ros2_type_name(conn.msgtype), count)
     return topics
 
 
@@ -456,21 +467,24 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
             return
         if damage is not None:
             damage._span = (int(reader.start_time), int(reader.end_time))
+        # rosbags defines the types by their ROS 2 names, whatever name a schema gave.
+        name = {c.msgtype: ros2_type_name(c.msgtype) for c in conns}
         fast = {}
         if points_as_arrays:
             reference = jazzy_typestore() if reader.is2 else noetic_typestore()
-            fast = {c.msgtype: cloud_decode.fast_decoder(reader.typestore, c.msgtype, reference,
-                                                         ros1=not reader.is2) for c in conns}
-        deserialize = {c.msgtype: deserializer(reader, c.msgtype) for c in conns}
+            fast = {t: cloud_decode.fast_decoder(reader.typestore, t, reference,
+                                                 ros1=not reader.is2) for t in name.values()}
+        deserialize = {t: deserializer(reader, t) for t in name.values()}
         try:
             for conn, t_ns, raw in _raw_messages(reader, conns, paths, start):
-                decode = fast.get(conn.msgtype)
+                msgtype = name[conn.msgtype]
+                decode = fast.get(msgtype)
                 msg_obj = decode(raw) if decode is not None else None
                 try:
                     if msg_obj is None:
-                        msg_obj = deserialize[conn.msgtype](raw)
+                        msg_obj = deserialize[msgtype](raw)
                 except errors as err:
-                    msg = (f'{_describe(paths)}: cannot deserialize a {conn.msgtype} message '
+                    msg = (f'{_describe(paths)}: cannot deserialize a {msgtype} message '
                            f'on {conn.topic} at {t_ns} ns: {error_text(err)}')
                     if damage is None:
                         raise BagError(msg) from err
@@ -478,7 +492,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
                     damage.undecodable += 1
                     damage.first_undecodable = damage.first_undecodable or msg
                     continue
-                yield BagMessage(conn.topic, conn.msgtype, t_ns, msg_obj)
+                yield BagMessage(conn.topic, msgtype, t_ns, msg_obj)
         except _CorruptStorage as err:
             if damage is None:
                 raise

@@ -336,11 +336,13 @@ def test_types_defined_as_in_jazzy_read_with_its_typestore(tmp_path: Path) -> No
 
 
 def write_mcap_strings(path: Path, n: int, schema_text: bytes = b'string data',
-                       other: tuple[str, str, str] | None = None) -> None:
+                       other: tuple[str, str, str] | None = None,
+                       schema_name: str = 'std_msgs/msg/String') -> None:
     """Write std_msgs/String messages 'm0', 'm1', ... on /s with the mcap library's writer.
 
     ``schema_text``: the String schema's data; ``other``: (topic, schema name, schema
-    encoding) of a second channel, 8 zero bytes beside each message.
+    encoding) of a second channel, 8 zero bytes beside each message; ``schema_name``: the
+    name the String schema is recorded under.
     """
     from mcap.writer import Writer
 
@@ -350,7 +352,7 @@ def write_mcap_strings(path: Path, n: int, schema_text: bytes = b'string data',
         writer = Writer(out)
         writer.start(profile='ros2', library='test')
         channel = writer.register_channel('/s', 'cdr', writer.register_schema(
-            'std_msgs/msg/String', 'ros2msg', schema_text))
+            schema_name, 'ros2msg', schema_text))
         second = None if other is None else writer.register_channel(
             other[0], 'cdr', writer.register_schema(other[1], other[2], b''))
         for i in range(n):
@@ -373,4 +375,27 @@ def test_schemas_recorded_without_their_text_are_read_as_jazzys(tmp_path: Path) 
     damage = ReadStats()
     with open_bags([bag]) as bags:
         assert [m.msg.data for m in iter_messages(bags, damage=damage)] == ['m0', 'm1', 'm2']
+    assert damage.undecodable == 0
+
+
+def test_ros2_types_recorded_under_ros1_names_read_by_their_ros2_names(tmp_path: Path) -> None:
+    """A ``ros2msg`` schema named ``std_msgs/String`` reads as ``std_msgs/msg/String``.
+
+    That is the name the replay's layouts and checks compare. Before, the replay's tracks
+    topic "has type sensor_msgs/PointCloud", which no layout reads; and with the ROS 2 name
+    asked of the reader, every message was a KeyError.
+    """
+    from pmba_ros.io.bags import open_bags, ReadStats, ros2_type_name
+
+    assert ros2_type_name('std_msgs/String') == 'std_msgs/msg/String'
+    for name in ('std_msgs/msg/String', 'std_srvs/srv/Trigger', 'String', 'a/b/c/d'):
+        assert ros2_type_name(name) == name
+    bag = tmp_path / 'ros1_names.mcap'
+    write_mcap_strings(bag, 3, schema_name='std_msgs/String')
+    damage = ReadStats()
+    with open_bags([bag]) as bags:
+        assert bags.topics['/s'].msgtype == 'std_msgs/msg/String'
+        read = list(iter_messages(bags, damage=damage))
+    want = [('std_msgs/msg/String', f'm{i}') for i in range(3)]
+    assert [(m.msgtype, m.msg.data) for m in read] == want
     assert damage.undecodable == 0
