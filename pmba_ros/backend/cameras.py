@@ -26,9 +26,10 @@ from typing import Any
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
 from pmba_ros.backend.config import BackendConfig
+from pmba_ros.backend.distortion import pinhole_jacobian
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
 from pmba_ros.backend.tracks import parse_keyframe
-from pmba_ros.backend.types import CameraModel, pinhole_jacobian, TrackFrame
+from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import so3, sphere
 from pmba_ros.errors import MessageError

@@ -160,6 +160,8 @@ class BackendLogic:
             if self._stats.counters['camera_info_changes'] == 1:
                 logger.warning('camera info of camera %d changed: %s; the newest is used '
                                '(further changes are only counted)', cam, change)
+        if old is not camera and (fold := camera.fold_in_image()):   # taken, but named
+            self._reject('camera_info_folds', f'camera {cam}: {fold}')
         if cam == self.config.camera_id:
             self.camera = camera
             self.estimator.set_pinhole(*camera.image_pinhole)

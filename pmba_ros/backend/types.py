@@ -40,13 +40,22 @@ from typing import Any
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
+from pmba_ros.backend.distortion import (
+    distort_equidistant,
+    distort_plumb_bob,
+    equidistant_fold,
+    equidistant_jacobian,
+    pinhole_jacobian,
+    plumb_bob_fold,
+    plumb_bob_jacobian,
+    theta_d,
+    undistort_equidistant,
+    undistort_plumb_bob,
+)
 from pmba_ros.errors import MessageError
 
 DISTORTION_MODELS = ('none', 'plumb_bob', 'equidistant')
 """Distortion models :class:`CameraModel` implements (ROS ``CameraInfo`` names)."""
-
-_NEWTON_ITERATIONS = 30
-_NEWTON_TOL = 1e-14
 
 
 def _frozen_array(value: Any, dtype: type, shape_tail: tuple[int, ...], what: str,
@@ -290,6 +299,34 @@ class CameraModel:
                    if self.binning != (1, 1) else '')
                 + (f' roi_offset={self.offset[0]},{self.offset[1]}' if any(self.offset) else ''))
 
+    def fold_in_image(self) -> str:
+        """Say where the distortion folds over inside the image ('' if not, or size unknown).
+
+        Past its fold a distortion polynomial stops growing: a pixel there has no ray or two
+        (:mod:`.distortion`), :meth:`normalize` gives NaN, and its observations are dropped
+        as not finite. The tangential terms are left out of the estimate.
+        """
+        if self.width <= 0 or self.height <= 0 or not np.any(self.d):
+            return ''
+        if self.distortion_model == 'plumb_bob':
+            k1, k2, _, _, k3 = self.d
+            fold, radial = plumb_bob_fold(self.d), np.array([k1, k2, k3, 0.0])
+        else:
+            fold, radial = equidistant_fold(self.d), self.d
+            if fold >= np.pi / 2:   # 90 degrees: no pinhole ray, the fisheye's own limit
+                return ''
+        if not np.isfinite(fold):
+            return ''
+        reach = float(theta_d(np.array([fold]), radial)[0])
+        u, v = np.meshgrid(np.linspace(0.0, self.width, 81), np.linspace(0.0, self.height, 61))
+        share = float(np.mean(np.hypot((u - self.cx) / self.fx, (v - self.cy) / self.fy) > reach))
+        if share == 0.0:
+            return ''
+        return (f'its {self.distortion_model} distortion folds over inside the image: pixels '
+                f'more than {reach:.3g} focal lengths from the principal point ({100 * share:.2g} '
+                '% of the image) have no ray or two, and their observations are dropped (a '
+                'calibration fitted to a smaller part of the image?)')
+
     @property
     def image_pinhole(self) -> tuple[float, float, float, float]:
         """Return fx, fy, cx, cy in the published image's pixels (binned and cropped)."""
@@ -375,9 +412,9 @@ class CameraModel:
         fx, fy, cx, cy = self.image_pinhole
         xy_d = np.stack([(px[:, 0] - cx) / fx, (px[:, 1] - cy) / fy], 1)
         if self.distortion_model == 'plumb_bob' and np.any(self.d):
-            return _undistort_plumb_bob(xy_d, self.d)
+            return undistort_plumb_bob(xy_d, self.d)
         if self.distortion_model == 'equidistant':
-            return _undistort_equidistant(xy_d, self.d)
+            return undistort_equidistant(xy_d, self.d)
         return xy_d
 
     def denormalize(self, normalized: FloatArray) -> FloatArray:
@@ -395,9 +432,9 @@ class CameraModel:
         """
         xy = float_rows(normalized, 2, 'denormalize: normalized', 'K')
         if self.distortion_model == 'plumb_bob':
-            xy_d = _distort_plumb_bob(xy, self.d)
+            xy_d = distort_plumb_bob(xy, self.d)
         elif self.distortion_model == 'equidistant':
-            xy_d = _distort_equidistant(xy, self.d)
+            xy_d = distort_equidistant(xy, self.d)
         else:
             xy_d = xy
         fx, fy, cx, cy = self.image_pinhole
@@ -414,135 +451,15 @@ class CameraModel:
         if self.distortion_model == 'none' or not np.any(self.d):
             return None
         if self.distortion_model == 'equidistant':
-            J = _equidistant_jacobian(v, self.d)
+            J = equidistant_jacobian(v, self.d)
             J[v[:, 2] <= 0] = np.nan
         else:
             xy = v[:, :2] / np.where(v[:, 2] > 0, v[:, 2], np.nan)[:, None]
-            J = _plumb_bob_jacobian(xy, self.d) @ pinhole_jacobian(v, 1.0, 1.0)
+            J = plumb_bob_jacobian(xy, self.d) @ pinhole_jacobian(v, 1.0, 1.0)
         fx, fy, _, _ = self.image_pinhole
         J[:, 0] *= fx
         J[:, 1] *= fy
         return J
-
-
-def pinhole_jacobian(bearings: FloatArray, fx: float, fy: float) -> FloatArray:
-    """Return d(fx x / z, fy y / z) / d(bearing) at ``bearings``, (K, 2, 3); NaN where z <= 0."""
-    v = bearings
-    inv_z = 1.0 / np.where(v[:, 2] > 0, v[:, 2], np.nan)
-    J = np.zeros((v.shape[0], 2, 3))
-    J[:, 0, 0], J[:, 1, 1] = fx * inv_z, fy * inv_z
-    J[:, 0, 2] = -fx * v[:, 0] * inv_z * inv_z
-    J[:, 1, 2] = -fy * v[:, 1] * inv_z * inv_z
-    return J
-
-
-def _radial(xy: FloatArray, d: FloatArray,
-            ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Return x, y, r^2 and plumb_bob's radial factor 1 + k1 r^2 + k2 r^4 + k3 r^6."""
-    k1, k2, _, _, k3 = d
-    x, y = xy[:, 0], xy[:, 1]
-    r2 = x * x + y * y
-    return x, y, r2, 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-
-
-def _plumb_bob_jacobian(xy: FloatArray, d: FloatArray) -> FloatArray:
-    """Return d(distorted) / d(normalized) of :func:`_distort_plumb_bob` at xy, (K, 2, 2)."""
-    k1, k2, p1, p2, k3 = d
-    x, y, r2, radial = _radial(xy, d)
-    g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d(radial)/dx = g * x
-    off = g * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-    return np.stack([np.stack([radial + g * x * x + 2.0 * p1 * y + 6.0 * p2 * x, off], -1),
-                     np.stack([off, radial + g * y * y + 6.0 * p1 * y + 2.0 * p2 * x], -1)],
-                    axis=1)
-
-
-def _equidistant_jacobian(v: FloatArray, d: FloatArray) -> FloatArray:
-    """Return d(distorted normalized) / d(bearing) of the fisheye model at unit v, (K, 2, 3).
-
-    From the bearing, not from x/z: the pinhole's 1 / z^2 and the fisheye's cos^2 cancel
-    at the border, where they are each far from 1.
-    """
-    rho = np.hypot(v[:, 0], v[:, 1])
-    theta = np.arctan2(rho, v[:, 2])
-    slope = _theta_d_slope(theta, d)
-    centre = rho < 1e-9
-    safe = np.where(centre, 1.0, rho)
-    s = v[:, :2] / safe[:, None]                       # direction in the image
-    d_theta = np.column_stack([v[:, 2:3] * s, -rho])   # d theta / d v, (K, 3)
-    stretch = _theta_d(theta, d) / safe
-    across = (np.eye(2) - np.einsum('ki,kj->kij', s, s)) * stretch[:, None, None]
-    J = np.einsum('ki,kj->kij', slope[:, None] * s, d_theta)
-    J[:, :, :2] += across
-    J[centre] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    return J
-
-
-def _distort_plumb_bob(xy: FloatArray, d: FloatArray) -> FloatArray:
-    """Apply OpenCV's radial-tangential model (k1, k2, p1, p2, k3) to (K, 2) points."""
-    _, _, p1, p2, _ = d
-    x, y, r2, radial = _radial(xy, d)
-    x_d = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    y_d = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([x_d, y_d], axis=1)
-
-
-def _undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
-    """Invert :func:`_distort_plumb_bob` with Newton's method on all points at once."""
-    xy = xy_d.copy()
-    for _ in range(_NEWTON_ITERATIONS):
-        f = _distort_plumb_bob(xy, d) - xy_d
-        J = _plumb_bob_jacobian(xy, d)
-        j00, j01, j11 = J[:, 0, 0], J[:, 0, 1], J[:, 1, 1]
-        det = j00 * j11 - j01 * j01
-        det = np.where(np.abs(det) < 1e-12, np.nan, det)
-        step = np.stack([j11 * f[:, 0] - j01 * f[:, 1], j00 * f[:, 1] - j01 * f[:, 0]], 1)
-        xy = xy - step / det[:, None]
-        if np.all(~np.isfinite(step) | (np.abs(step) <= _NEWTON_TOL * np.abs(det)[:, None])):
-            break
-    resid = np.abs(_distort_plumb_bob(xy, d) - xy_d).max(axis=1)
-    xy[~(resid < 1e-9)] = np.nan
-    return xy
-
-
-def _theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
-    """Return the equidistant distorted angle theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
-    t2 = theta * theta
-    out: FloatArray = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
-    return out
-
-
-def _theta_d_slope(theta: FloatArray, d: FloatArray) -> FloatArray:
-    """Return d(theta_d) / d(theta) of :func:`_theta_d`."""
-    t2 = theta * theta
-    k1, k2, k3, k4 = d
-    out: FloatArray = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
-    return out
-
-
-def _distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
-    """Apply OpenCV's fisheye (equidistant) model to (K, 2) normalized points."""
-    r = np.hypot(xy[:, 0], xy[:, 1])
-    theta = np.arctan(r)
-    scale = np.where(r > 1e-12, _theta_d(theta, d) / np.where(r > 1e-12, r, 1.0), 1.0)
-    return xy * scale[:, None]
-
-
-def _undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
-    """Invert :func:`_distort_equidistant`: Newton on theta, then r = tan(theta)."""
-    theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
-    theta = theta_d.copy()
-    for _ in range(_NEWTON_ITERATIONS):
-        df = _theta_d_slope(theta, d)
-        step = (_theta_d(theta, d) - theta_d) / np.where(np.abs(df) < 1e-12, np.nan, df)
-        theta = theta - step
-        if np.all(~np.isfinite(step) | (np.abs(step) <= _NEWTON_TOL)):
-            break
-    ok = (np.abs(_theta_d(theta, d) - theta_d) < 1e-9) & (theta >= 0) & (theta < np.pi / 2)
-    scale = np.where(theta_d > 1e-12, np.tan(theta) / np.where(theta_d > 1e-12, theta_d, 1.0),
-                     1.0)
-    xy = xy_d * scale[:, None]
-    xy[~ok] = np.nan
-    return xy
 
 
 def _binning_and_offset(msg: Any) -> tuple[tuple[int, int], tuple[int, int]]:

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
-from pmba_ros.backend.types import pinhole_jacobian
+from pmba_ros.backend.distortion import pinhole_jacobian
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import gather as compiled_gather
 from pmba_ros.core.engine import compiled_ready
