@@ -48,7 +48,6 @@ SIGINT / SIGTERM wait while the outputs are written.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
-import contextlib
 from dataclasses import dataclass, field, replace
 import functools
 import logging
@@ -58,7 +57,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from pmba_ros._json import dumps_report
-from pmba_ros.backend.cameras import extrinsic_from_message
+from pmba_ros.backend.cameras import extrinsic_from_message, extrinsic_moved, settled_extrinsic
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.logic import BackendLogic
 from pmba_ros.backend.msg_backend import RosbagsBackend
@@ -68,7 +67,6 @@ from pmba_ros.eval.trajectory import read_trajectory, Trajectory, write_tum
 from pmba_ros.io import ply
 from pmba_ros.io.atomic import deferred_interrupts, write_atomic, write_text_atomic
 from pmba_ros.io.bag_inputs import (
-    first_message,
     header_stamp_ns,
     ReplayInputs,
     resolve_topic,
@@ -92,6 +90,7 @@ from pmba_ros.plot import pyplot, write_replay_plots
 from pmba_ros.replay_report import collect_stats, ReplayReport
 
 if TYPE_CHECKING:
+    from pmba_ros.backend.extrinsics import Rigid
     from pmba_ros.io.bag_writer import BagWriter
 
 logger = logging.getLogger(__name__)
@@ -390,7 +389,8 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
         if intrinsics is not None:
             logic.on_camera_info(camera_info_from_intrinsics(intrinsics))
         _give_static_transforms(logic, bags, inputs.tf)
-        _give_first_extrinsic(logic, bags, inputs.extrinsic)
+        kinds = dict(kinds)
+        _give_extrinsic(logic, bags, kinds, inputs.extrinsic, report)
         with open_writer(out / RESULT_BAG, overwrite=True) as writer:
             keyframe_kind = 'keyframe' if inputs.keyframes else 'tracks'
             run = _Run(logic, writer, report, progress, report.messages_announced,
@@ -422,15 +422,45 @@ def _run_and_write(config: BackendConfig, intrinsics: Sequence[float] | None, re
             _write_outputs(logic, report, out, outputs, finished)
 
 
-def _give_first_extrinsic(logic: BackendLogic, bags: OpenBags, topic: str | None) -> None:
-    """Give the back-end the first extrinsic message before the others (:func:`first_message`).
+def _give_extrinsic(logic: BackendLogic, bags: OpenBags, kinds: dict[str, str],
+                    topic: str | None, report: ReplayReport) -> None:
+    """Give the back-end the front-end's extrinsic before the other messages.
 
-    It passes again in stamp order, where a bad one is counted (here it is skipped).
+    The recording's first: VINS publishes it stamped with the newest frame, after the
+    keyframe poses of older stamps, so in stamp order the first keyframes would come before
+    it (live, it arrives first). It passes again in stamp order, where a bad one is counted
+    (here it is skipped). Damage is read past here; the replay's pass reports it.
+
+    Where the recording's extrinsic moves (an online calibration converging: VINS'
+    ``estimate_extrinsic``, OpenVINS' ``calib_cam_extrinsics``), where it settled instead
+    (:func:`settled_extrinsic`), for the whole run, and said: fixed at the first, a run took
+    the calibration's first guess (1.5 degrees off and converging: RPE 2.1x the
+    front-end's). The topic is then not fed again (each message would count as a change
+    from it).
     """
-    msg = first_message(bags, topic)
-    if msg is not None:
-        with contextlib.suppress(MessageError):
-            logic.cameras.take_topic_extrinsic(extrinsic_from_message(msg))
+    if topic is None:
+        return
+    found: list[Rigid] = []
+    bad = 0
+    for message in iter_messages(bags, topics=[topic], damage=ReadStats()):
+        try:
+            found.append(extrinsic_from_message(message.msg))
+        except MessageError:
+            bad += 1
+    if not found:
+        return
+    settled = settled_extrinsic(found)
+    moved = extrinsic_moved(found[0], settled)
+    logic.cameras.take_topic_extrinsic(settled if moved else found[0])
+    if not moved:
+        return
+    logic.count('bad_extrinsic', bad)
+    del kinds[topic]
+    report.warnings.append(
+        f"the front-end's extrinsic on {topic} moved by {moved} from its first message to "
+        'where it settled (an online calibration): the mean of its last half was used for the '
+        'whole run (parameter camera_extrinsics sets one; a live node fixes the newest at its '
+        'first keyframe)')
 
 
 def _give_static_transforms(logic: BackendLogic, bags: OpenBags, tf_topics: Sequence[str],

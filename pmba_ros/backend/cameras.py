@@ -21,6 +21,7 @@ the keyframe poses' body frame and each CameraInfo's ``frame_id`` (issue #12).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,31 @@ EXTRINSIC_MOVED_M = 0.01
 
 EXTRINSIC_MOVED_DEG = 0.5
 """Rotation by which it may move, unreported, degrees (a calibration's usual precision)."""
+
+
+def extrinsic_moved(old: Rigid, new: Rigid) -> str:
+    """Return how far an extrinsic moved (``'0.012 m, 0.60 deg'``), or '' if within precision.
+
+    Within :data:`EXTRINSIC_MOVED_M` and :data:`EXTRINSIC_MOVED_DEG`, a move is none.
+    """
+    metres = float(np.linalg.norm(new.translation - old.translation))
+    degrees = float(np.rad2deg(so3.angle(old.rotation, new.rotation)))
+    if metres <= EXTRINSIC_MOVED_M and degrees <= EXTRINSIC_MOVED_DEG:
+        return ''
+    return f'{metres:.3f} m, {degrees:.2f} deg'
+
+
+def settled_extrinsic(series: Sequence[Rigid]) -> Rigid:
+    """Return where an online calibration's series of extrinsics settled: its last half's mean.
+
+    The chordal mean of the rotations and the mean of the translations: a calibration that
+    converged by half the run is its converged value, one that jitters about the true value
+    the jitter's middle (its last message alone, a draw of the jitter, had put a simulated
+    street's RPE at 2x the first message's).
+    """
+    half = series[len(series) // 2:]
+    rotation = so3.project(np.sum([t.rotation for t in half], axis=0))
+    return Rigid(rotation, np.mean([t.translation for t in half], axis=0))
 
 
 def extrinsic_from_message(msg: Any) -> Rigid:
@@ -193,35 +219,38 @@ class FrontendCameras:
         fixed = self.extrinsic
         if fixed is None or self.extrinsic_source != 'extrinsic_topic':
             return ''
-        metres = float(np.linalg.norm(found.translation - fixed.translation))
-        degrees = float(np.rad2deg(so3.angle(fixed.rotation, found.rotation)))
-        if metres <= EXTRINSIC_MOVED_M and degrees <= EXTRINSIC_MOVED_DEG:
-            return ''
-        return f'{metres:.3f} m, {degrees:.2f} deg'
+        return extrinsic_moved(fixed, found)
 
-    def resolve_extrinsic(self, body: str, camera_frame: str) -> tuple[Rigid | None, str]:
+    def resolve_extrinsic(self, body: str, camera_frame: str,
+                          world: str = '') -> tuple[Rigid | None, str]:
         """Find and fix the reference camera's body -> camera extrinsic.
 
-        In order: ``camera_extrinsics``; identity when the keyframe pose's frame ``body`` is
-        the camera frame; the TF chain from ``body`` to the CameraInfo's (or else the
-        tracks') frame ``camera_frame``; the newest ``extrinsic_topic`` message (VINS and
-        OpenVINS leave the keyframe pose's ``child_frame_id`` empty, so TF cannot name the
-        body). When none is found, identity is fixed with source 'identity'.
+        In order: ``camera_extrinsics``; the TF chain from the keyframe pose's frame ``body``
+        to the CameraInfo's (or else the tracks') frame ``camera_frame``; the newest
+        ``extrinsic_topic`` message (VINS and OpenVINS leave the keyframe pose's
+        ``child_frame_id`` empty, so TF cannot name the body); identity when ``body`` is the
+        camera frame. The frame the keyframe poses are in, ``world``, is neither: VINS-Fusion
+        publishes its odometry with ``child_frame_id`` 'world' as well, and its feature
+        tracker's tracks in 'world' (as a body and a camera frame, they agreed: identity, and
+        the TF chain between them ran through the world, a body pose taken for an extrinsic).
+        When none is found, identity is fixed with source 'identity'.
 
         Returns:
             The extrinsic found (None: taken as identity) and its source.
         """
+        body = '' if body == world else body
+        camera_frame = '' if camera_frame == world else camera_frame
         self.body_frame = body
         found: Rigid | None = None
         source = 'identity'
         if self.param_extrinsics is not None:
             found, source = self.param_extrinsics[self.config.camera_id], 'parameters'
-        elif body and body == camera_frame:
-            found, source = Rigid.identity(), 'frames_agree'
-        elif body and camera_frame:
+        elif body and camera_frame and body != camera_frame:
             found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
         if found is None and self.topic_extrinsic is not None:
             found, source = self.topic_extrinsic, 'extrinsic_topic'
+        if found is None and body and body == camera_frame:
+            found, source = Rigid.identity(), 'frames_agree'
         if found is None:
             source = 'identity'
         self.extrinsic = found if found is not None else Rigid.identity()

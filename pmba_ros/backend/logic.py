@@ -476,7 +476,7 @@ class BackendLogic:
         if cams.extrinsic is not None:
             return cams.extrinsic
         camera_frame = cams.reference_frame or (frame.frame_id if frame is not None else '')
-        found, source = cams.resolve_extrinsic(pose.child_frame_id, camera_frame)
+        found, source = cams.resolve_extrinsic(pose.child_frame_id, camera_frame, pose.frame_id)
         if found is None:
             self._reject('extrinsic_unknown',
                          f'no body -> camera transform from '

@@ -199,21 +199,6 @@ def static_transforms(bags: OpenBags, tf_topics: Sequence[str]) -> Iterator[Any]
         yield message.msg
 
 
-def first_message(bags: OpenBags, topic: str | None) -> Any | None:
-    """Return the first message recorded on ``topic`` (None: none, or no topic).
-
-    The replay gives the front-end's extrinsic before anything else: VINS publishes it
-    stamped with the newest frame, after the keyframe poses of older stamps, so in stamp
-    order the first keyframes would come before it (live, it arrives first). Damage is read
-    past here; the replay's pass reports it.
-    """
-    if topic is None:
-        return None
-    for message in iter_messages(bags, topics=[topic], damage=ReadStats()):
-        return message.msg
-    return None
-
-
 def header_stamp_ns(msg: Any, fallback: int) -> int:
     """Return a message's header stamp in ns (``fallback`` if it has no usable header)."""
     stamp = stamp_of(msg)
