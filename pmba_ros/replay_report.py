@@ -60,6 +60,10 @@ SUSPECT_COUNTERS = {
                         'segment starts at each',
     'keyframe_buffer_overflow': 'keyframe poses dropped: more than buffer_size waited for '
                                 'their tracks',
+    'extrinsic_changes': "times the front-end's extrinsic moved from the one fixed at the first "
+                         'keyframe, which was kept (an online calibration?)',
+    'camera_info_folds': 'CameraInfo models whose distortion folds over inside the image: '
+                         'observations past the fold dropped',
     'tracks_buffer_overflow': 'tracks messages dropped: more than buffer_size waited for '
                               'their keyframe',
 }
@@ -248,6 +252,10 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     for name, what in fallbacks.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {what}')
+    if not report.solve_ms and (attempts := report.counters.get('init_attempts')):
+        report.warnings.append(
+            f'the initialization never succeeded ({attempts} attempts): nothing was optimized, '
+            f"the keyframes are the front-end's; last: {logic.estimator.last_message}")
     cameras = logic.cameras
     if report.counters.get('extrinsic_unknown'):
         report.warnings.append(IDENTITY_EXTRINSIC)

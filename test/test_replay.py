@@ -325,6 +325,26 @@ def real_replay(street_bag: Path, tmp_path_factory: pytest.TempPathFactory,
     return out, replay([street_bag], out, gt=groundtruth_path(street_bag))
 
 
+def test_an_initialization_that_never_succeeds_is_said(
+        street_bag: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every attempt failing: the front-end's poses out, and a warning naming the attempts.
+
+    Before, the replay exited 0 in silence, printing 'optimized keyframes: 60'.
+    """
+    from pmba_ros.errors import InitError
+    from pmba_ros.init import pipeline
+
+    def fail(*_: Any, **__: Any) -> None:
+        raise InitError('no EG pair could be estimated')
+
+    monkeypatch.setattr(pipeline, 'global_init', fail)
+    report = replay([street_bag], tmp_path / 'o')
+    assert report.keyframes_out == report.keyframes_not_optimized == 60
+    (warning,) = [w for w in report.warnings if 'initialization never succeeded' in w]
+    assert f'({report.counters["init_attempts"]} attempts)' in warning
+    assert 'no EG pair could be estimated' in warning
+
+
 def test_small_simulated_replay_improves_on_frontend(
         real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """60 simulated keyframes: the optimized ATE is below the front-end's."""

@@ -66,6 +66,16 @@ logger = logging.getLogger(__name__)
 LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
 """Feature-track layouts :func:`parse_tracks` understands."""
 
+MAX_NORMALIZED_MEDIAN = 10.0
+"""Largest median ``|x/z|``, ``|y/z|`` of a message's normalized coordinates (84 degrees).
+
+Half the features of a frame beyond it from the optical axis is no camera's: such
+coordinates are pixels in the normalized fields (a front-end's layout misread)."""
+
+NORMALIZED_FIELDS = {'vins_mono': 'the points', 'vins_fusion': 'the points',
+                     'per_point': 'channels [0:2] (x_n, y_n)', 'named': 'fields x_n, y_n'}
+"""Where each layout's normalized coordinates are (named in errors)."""
+
 KEYFRAME_KINDS = ('odometry', 'pose_stamped')
 """Keyframe message kinds :func:`parse_keyframe` understands."""
 
@@ -142,7 +152,7 @@ def stamp_of(msg: Any) -> int | None:
 
 
 def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
-                 memory: TrackMemory | None = None) -> TrackFrame:
+                 memory: TrackMemory | None = None, *, check_rays: bool = True) -> TrackFrame:
     """Parse a front-end feature message into a :class:`TrackFrame`.
 
     Args:
@@ -153,14 +163,17 @@ def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
             decodes ids with it, every layout rejects camera ids outside ``[0, num_cams)``.
         memory: Recent observations (updated with this frame) to resolve repeated ids by;
             without it every copy of a repeated ``(feature_id, camera_id)`` is dropped.
+        check_rays: Refuse normalized coordinates that look like pixels (off: whether the
+            message fits the layout at all, as a recording's layout is found).
 
     Returns:
         The observations, in message order, without non-finite rows, inexact ids and
         duplicates. An empty cloud gives an empty frame.
 
     Raises:
-        MessageError: If the layout is unknown, ``num_cams < 1``, or the message does not
-            fit the layout (wrong type, channel count or length, missing fields,
+        MessageError: If the layout is unknown, ``num_cams < 1``, the normalized
+            coordinates look like pixels (:data:`MAX_NORMALIZED_MEDIAN`), or the message
+            does not fit the layout (wrong type, channel count or length, missing fields,
             non-integral or negative ids, camera ids out of range).
     """
     if layout not in LAYOUTS:
@@ -178,6 +191,13 @@ def parse_tracks(msg: Any, layout: str, num_cams: int = 1,
             raise
         msg_ = f'{err}; it parses in layout {fits[0]!r}: set feature_layout'
         raise MessageError(msg_) from err
+    if check_rays and frame.normalized is not None and len(frame) and (
+            median := float(np.median(np.abs(frame.normalized)))) > MAX_NORMALIZED_MEDIAN:
+        msg_ = (f'normalized coordinates that look like pixels: their median |x/z|, |y/z| is '
+                f'{median:.4g} (a ray {np.rad2deg(np.arctan(median)):.1f} degrees off the '
+                f'optical axis); layout {layout!r} reads them from '
+                f'{NORMALIZED_FIELDS[layout]} (wrong layout, or pixels in those fields?)')
+        raise MessageError(msg_)
     if memory is not None:
         memory.remember(frame, int(num_cams))
     return frame

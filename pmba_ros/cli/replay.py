@@ -344,13 +344,16 @@ def format_summary(report: ReplayReport) -> str:
     head = (f'replayed {report.messages_in} messages ({report.keyframes_in} keyframes, '
             f'{report.messages_rejected} rejected) in {report.wall_s:.2f} s '
             f'({report.bag_duration_s:.1f} s of data, {report.realtime_factor:.2f}x real time)')
-    lines = [head, f'optimized keyframes: {report.keyframes_out}; solves: {len(report.solve_ms)}']
+    optimized = report.keyframes_out - report.keyframes_not_optimized
+    counts = (f'keyframes out: {report.keyframes_out} ({optimized} optimized); '
+              f'solves: {len(report.solve_ms)}')
+    lines = [head, counts]
     acc = report.accuracy
     if acc is not None:
-        ratio = acc['ate_ratio']
-        ratio_text = f'{ratio:.3f}' if ratio is not None else '-'
-        ate = f'{_num(acc["ate_frontend_m"])}{_num(acc["ate_optimized_m"])}{ratio_text:>9}'
+        ate = f'{_num(acc["ate_frontend_m"])}{_num(acc["ate_optimized_m"])}'
         rpe = f'{_num(acc["rpe_frontend"])}{_num(acc["rpe_optimized"])}'
+        ate, rpe = (f'{text}{"-" if r is None else f"{r:.3f}":>9}'
+                    for text, r in ((ate, acc['ate_ratio']), (rpe, acc.get('rpe_ratio'))))
         matched = f'{acc["matched_frontend"]:>12d}{acc["matched_optimized"]:>12d}'
         lines += ['', f'accuracy vs ground truth (alignment {acc["alignment"]})',
                   f'{"":<22}{"front-end":>12}{"optimized":>12}{"ratio":>9}',

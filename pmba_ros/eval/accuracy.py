@@ -46,7 +46,7 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
 
     Returns:
         ``ate_frontend_m``, ``ate_optimized_m``, ``ate_ratio`` (optimized / front-end),
-        ``rpe_frontend``, ``rpe_optimized`` (RMSE, m, consecutive keyframes),
+        ``rpe_frontend``, ``rpe_optimized`` (RMSE, m, consecutive keyframes), ``rpe_ratio``,
         ``alignment`` and the full results under ``frontend`` / ``optimized``. The
         optimized entries are None if the back-end optimized no keyframe.
 
@@ -71,16 +71,18 @@ def accuracy(frontend: Trajectory, optimized: Trajectory, gt: Trajectory, *,
             logger.warning('%s', text)
             if warnings is not None:
                 warnings.append(text)
-    ate_f = results['frontend']['ate'].rmse
+    ate_f, rpe_f = results['frontend']['ate'].rmse, results['frontend']['rpe'].rmse
     opt = results.get('optimized')
     ate_o = opt['ate'].rmse if opt is not None else None
+    rpe_o = opt['rpe'].rmse if opt is not None else None
     return {
         'alignment': align,
         'ate_frontend_m': ate_f,
         'ate_optimized_m': ate_o,
         'ate_ratio': ate_o / ate_f if ate_o is not None and ate_f > 0 else None,
-        'rpe_frontend': results['frontend']['rpe'].rmse,
-        'rpe_optimized': opt['rpe'].rmse if opt is not None else None,
+        'rpe_frontend': rpe_f,
+        'rpe_optimized': rpe_o,
+        'rpe_ratio': rpe_o / rpe_f if rpe_o is not None and rpe_f > 0 else None,
         'matched_frontend': results['frontend']['ate'].n_matched,
         'matched_optimized': opt['ate'].n_matched if opt is not None else 0,
         'notes': sorted({r.note for res in results.values() for r in res.values() if r.note}),

@@ -168,7 +168,9 @@ def _reads(sample: list[object], layout: str, num_cams: int) -> list[TrackFrame]
     """Return the frames ``layout`` reads from every message of ``sample``, else None."""
     cams = num_cams if layout == 'vins_mono' else _UNBOUNDED_CAMERAS
     try:
-        return [parse_tracks(msg, layout, cams) for msg in sample]
+        # The layout the message is in, even with pixels in its normalized fields: the
+        # replay's reading of the first message then says so.
+        return [parse_tracks(msg, layout, cams, check_rays=False) for msg in sample]
     except MessageError:
         return None
 

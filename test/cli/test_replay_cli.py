@@ -104,6 +104,14 @@ def test_replay_prints_table_and_outputs(sim_bag: Path, tmp_path: Path,
     assert f'outputs in {out}' in text and 'result.mcap' in text
     report = json.loads((out / 'report.json').read_text())
     assert report['keyframes_in'] == 20
+    # RPE has its ratio as ATE has (a 2.7x RPE had read well beside an ATE ratio of 0.12),
+    # and the keyframes out say how many were optimized (all of them had read 'optimized').
+    acc = report['accuracy']
+    assert acc['rpe_ratio'] == pytest.approx(acc['rpe_optimized'] / acc['rpe_frontend'])
+    (rpe_line,) = [line for line in text.splitlines() if line.startswith('RPE rmse')]
+    assert rpe_line.split()[-1] == f'{acc["rpe_ratio"]:.3f}'
+    optimized = report['keyframes_out'] - report['keyframes_not_optimized']
+    assert f'keyframes out: {report["keyframes_out"]} ({optimized} optimized)' in text
 
 
 @pytest.mark.usefixtures('stub')
