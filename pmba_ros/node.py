@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 import importlib
 import sys
 import time
@@ -46,7 +46,6 @@ from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.estimator import import_initialization
-from pmba_ros.backend.extrinsics import Rigid
 from pmba_ros.backend.input_check import InputCheck
 from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
@@ -91,14 +90,6 @@ def input_qos(preset: str, config: BackendConfig) -> Any:
                       durability=durability)
 
 
-@dataclass(frozen=True)
-class MapToOdom:
-    """The newest map <- odom transform and its message (with the frames)."""
-
-    link: Rigid
-    transform: Any
-
-
 # --- the node -----------------------------------------------------------------------------
 
 
@@ -125,8 +116,9 @@ class PmbaNode:
         self.worker = LogicWorker(self.logic, self.publish, cfg.queue_size,
                                   closing=lambda: not node.context.ok())
         self._started = time.monotonic()
-        self._map_to_odom: MapToOdom | None = None
+        self._map_to_odom: out.MapToOdom | None = None
         self._newest_provisional = -1
+        self._restarts = 0   # the back-end's input restarts the provisional poses followed
         self._backend_status: list[Any] = []
         self._sent = Counter[str]()
         # Status names 'NODE: back-end' and 'NODE: node' (diagnostic_updater's 'node: task'),
@@ -317,6 +309,9 @@ class PmbaNode:
             pose = parse_keyframe(msg, cfg.keyframe_type)
         except Exception:  # the worker counts and reports it
             return
+        if (restarts := self.logic.stats.counters['input_restarts']) != self._restarts:
+            # The input started again (a bag played in a loop), and the back-end with it.
+            self._restarts, self._map_to_odom, self._newest_provisional = restarts, None, -1
         if pose.stamp_ns <= self._newest_provisional:
             return
         self._newest_provisional = pose.stamp_ns
@@ -391,10 +386,7 @@ class PmbaNode:
 
     def _send_map_to_odom(self, transform: Any) -> None:
         """Remember map -> odom (for the provisional poses) and send it on TF and the topic."""
-        q = transform.transform.rotation
-        t = transform.transform.translation
-        self._map_to_odom = MapToOdom(Rigid.from_xyz_quat([t.x, t.y, t.z], [q.x, q.y, q.z, q.w]),
-                                      transform)
+        self._map_to_odom = out.MapToOdom.of(transform)
         if not self.config.publish_tf:
             return
         self.publishers[MAP_TO_ODOM_TOPIC].publish(transform)
@@ -450,7 +442,8 @@ class PmbaNode:
             self.publishers[DIAGNOSTICS_TOPIC].publish(self.backend.new(
                 'diagnostic_msgs/msg/DiagnosticArray', header=header, status=status))
         except Exception as err:
-            self.node.get_logger().error(f'publishing diagnostics failed: {err}')
+            if self.node.context.ok():   # else the process is shutting down
+                self.node.get_logger().error(f'publishing diagnostics failed: {err}')
 
     def close(self) -> None:
         """Stop the worker (pending messages are discarded) and destroy the node."""
@@ -533,6 +526,9 @@ def play_messages(messages: Iterable[tuple[str, int, bytes]], types: dict[str, s
         _wait_for_acks([*publishers.values(), *([clock_pub] if clock_pub else [])], node)
     except KeyboardInterrupt:
         pass
+    except Exception:
+        if rclpy.ok():   # else a SIGTERM shut the context down under a publish: stop there
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -32,6 +32,7 @@ import numpy as np
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.extrinsics import Rigid
+from pmba_ros.backend.input_restart import InputRestarts
 from pmba_ros.backend.msg_backend import RclpyBackend
 from pmba_ros.backend.parameters import RUNTIME_PARAMETERS
 from pmba_ros.core import so3
@@ -86,8 +87,12 @@ def start(context: Context, executor: SingleThreadedExecutor, *, start_worker: b
     return wrapper, driver
 
 
-def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence) -> None:
-    """Publish the sequence's CameraInfo, tracks and keyframe poses from ``driver``."""
+def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence,
+         period_s: float = 0.005) -> None:
+    """Publish the sequence's CameraInfo, tracks and keyframe poses from ``driver``.
+
+    One keyframe each ``period_s`` of spinning (the default: as fast as the test runs).
+    """
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, PointCloud
 
@@ -103,7 +108,10 @@ def feed(executor: SingleThreadedExecutor, driver: Any, seq: SimSequence) -> Non
         pub_kf.publish(out.make_odometry(
             int(seq.stamps_ns[i]), 'odom', 'camera', seq.centers_odom[i],
             so3.to_quat_xyzw(seq.R_wc_odom[i]), np.eye(6) * 1e-3, backend))
-        executor.spin_once(timeout_sec=0.005)
+        if period_s > 0.005:
+            spin_until(executor, lambda: False, timeout_s=period_s)
+        else:
+            executor.spin_once(timeout_sec=period_s)
 
 
 def statuses(arrays: list[Any], name: str) -> list[Any]:
@@ -170,6 +178,30 @@ def test_provisional_odometry_before_the_solve(ros: tuple[Context, SingleThreade
         np.testing.assert_allclose([first.x, first.y, first.z], seq.centers_odom[0], atol=1e-9)
         assert got[0].header.frame_id == 'map' and got[0].child_frame_id == 'camera'
         assert wrapper.process_pending() > 0     # the worker had not run before
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
+def test_provisional_odometry_again_after_the_input_starts_over(
+        ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
+    """A recording played again (``pmba play --loop``): its keyframes' odometry at once again.
+
+    Once the back-end has seen the restart (five keyframes stamped back in a row), the
+    provisional poses follow it. Before, they waited for stamps past the first pass's
+    newest: none of the second pass's keyframes had its odometry at once.
+    """
+    context, executor = ros
+    wrapper, driver = start(context, executor)
+    try:
+        feed(executor, driver, seq)
+        assert spin_until(executor, lambda: wrapper.logic.stats.keyframes == len(seq))
+        assert wrapper._sent['provisional_odometry'] == len(seq)
+        feed(executor, driver, seq, period_s=0.05)   # at 20 Hz
+        assert spin_until(executor, lambda: wrapper.logic.stats.counters['input_restarts'] == 1)
+        spin_until(executor, lambda: False, timeout_s=0.5)
+        again = wrapper._sent['provisional_odometry'] - len(seq)
+        assert len(seq) - 2 * InputRestarts.RUN <= again < len(seq), again
     finally:
         wrapper.close()
         driver.destroy_node()

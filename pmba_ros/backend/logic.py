@@ -129,7 +129,9 @@ class BackendLogic:
     def _reject(self, reason: str, err: Exception | str) -> None:
         self.count(reason)
         self.last_error = f'{reason}: {err}'
-        logger.warning('%s', self.last_error)
+        # A misconfigured input is every message: warned at the 1st, 10th, 100th... only.
+        if str(n := self._stats.counters[reason]).rstrip('0') == '1':
+            logger.warning('%s%s', self.last_error, f' ({n} so far)' if n > 1 else '')
 
     def on_camera_info(self, msg: Any, camera_id: int | None = None) -> None:
         """Take the intrinsics from a ``sensor_msgs/CameraInfo`` (bad ones are counted).
@@ -579,15 +581,13 @@ class BackendLogic:
         Every keyframe with a pose is included; the ones never optimized (before the
         initialization, too few observations) are at their front-end pose through map <- odom.
         """
-        idx = self.estimator.estimated()
-        R, C = self.outputs.body_poses(idx)
+        R, C = self.outputs.body_poses(idx := self.estimator.estimated())
         return Trajectory(self.estimator.kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def frontend_trajectory(self) -> Trajectory:
         """Return the front-end body poses of the keyframes received (odom frame)."""
         kf = self.estimator.kf
-        idx = np.flatnonzero(kf.has_odom[:kf.n])
-        R, C = self.outputs.frontend_body_poses(idx)
+        R, C = self.outputs.frontend_body_poses(idx := np.flatnonzero(kf.has_odom[:kf.n]))
         return Trajectory(kf.stamps_ns[idx].astype(np.float64) * 1e-9, C, R)
 
     def landmarks(self) -> FloatArray:

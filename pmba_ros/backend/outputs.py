@@ -337,6 +337,20 @@ def _check_covariance(cov: FloatArray) -> None:
     _CHECKED_COVARIANCES[key] = None
 
 
+@dataclass(frozen=True)
+class MapToOdom:
+    """The newest map <- odom transform and its message (with the frames)."""
+
+    link: Rigid
+    transform: Any
+
+    @classmethod
+    def of(cls, transform: Any) -> MapToOdom:
+        """Return the map <- odom of a ``geometry_msgs/TransformStamped``."""
+        q, t = transform.transform.rotation, transform.transform.translation
+        return cls(Rigid.from_xyz_quat([t.x, t.y, t.z], [q.x, q.y, q.z, q.w]), transform)
+
+
 def provisional_odometry(pose: KeyframePose, map_from_odom: Rigid | None, map_frame: str,
                          base_frame: str, covariance: ArrayLike, backend: MsgBackend) -> Any:
     """Return the Odometry of a front-end keyframe pose mapped through ``map_from_odom``.
@@ -521,9 +535,10 @@ def make_point_cloud2_xyz(stamp_ns: int, frame_id: str, points: ArrayLike,
 
 
 __all__ = [
-    'DIAGNOSTIC_LEVELS', 'finite_rows', 'header_msg', 'make_diagnostics', 'make_odometry',
-    'make_path', 'make_point_cloud2_named', 'make_point_cloud2_xyz', 'make_pose_array',
-    'make_pose_stamped', 'make_tf', 'pose_msg', 'pose_stamped_msgs', 'time_msg',
+    'DIAGNOSTIC_LEVELS', 'MapToOdom', 'finite_rows', 'header_msg', 'make_diagnostics',
+    'make_odometry', 'make_path', 'make_point_cloud2_named', 'make_point_cloud2_xyz',
+    'make_pose_array', 'make_pose_stamped', 'make_tf', 'pose_msg', 'pose_stamped_msgs',
+    'time_msg',
 ]
 
 

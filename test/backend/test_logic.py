@@ -459,6 +459,23 @@ def test_message_in_the_wrong_layout_is_counted(street: SimSequence) -> None:
     assert last(outputs, DIAGNOSTICS_TOPIC).status[0].level == 1  # WARN
 
 
+def test_a_misconfigured_input_is_warned_of_at_1_10_100(
+        street: SimSequence, caplog: pytest.LogCaptureFixture) -> None:
+    """Every message of a wrong layout: counted each, warned at the 1st, 10th and 100th only.
+
+    A live front-end at 10-30 Hz had flooded the console and /rosout with one line each.
+    """
+    logic = BackendLogic(config(feature_layout='vins_fusion'), BACKEND)
+    with caplog.at_level(logging.WARNING, logger='pmba_ros.backend.logic'):
+        for _ in range(120):
+            logic.on_tracks(tracks_msg(street, 0, 'named'))
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith('bad_tracks')]
+    assert len(lines) == 3 and lines[1].endswith('(10 so far)') and \
+        lines[2].endswith('(100 so far)')
+    assert logic.stats.counters['bad_tracks'] == 120
+    assert logic.last_error.startswith('bad_tracks: ')
+
+
 def test_empty_clouds_and_keyframes_without_tracks(street: SimSequence) -> None:
     """Keyframes with an empty cloud or no tracks are dead-reckoned and stay in the path."""
     logic = BackendLogic(config(), BACKEND)
