@@ -57,6 +57,9 @@ from pmba_ros.errors import MessageError
 DISTORTION_MODELS = ('none', 'plumb_bob', 'equidistant')
 """Distortion models :class:`CameraModel` implements (ROS ``CameraInfo`` names)."""
 
+REFINED_PX = 1.0
+"""Largest move of a pixel's ray between two intrinsics that is a refinement, not a change."""
+
 
 def _frozen_array(value: Any, dtype: type, shape_tail: tuple[int, ...], what: str,
                   ) -> np.ndarray:
@@ -334,11 +337,41 @@ class CameraModel:
         return self.fx / bx, self.fy / by, (self.cx - ox) / bx, (self.cy - oy) / by
 
     def change_from(self, old: CameraModel) -> str:
-        """Return ``'OLD -> NEW'`` (:meth:`describe`) if ``old`` differs, else ''."""
+        """Return ``'OLD -> NEW'`` (:meth:`describe`) if ``old`` differs, else ''.
+
+        A refinement is no change: the same image and model, no pixel's ray moved by more
+        than :data:`REFINED_PX` (an online calibration, OpenVINS' ``calib_cam_intrinsics``,
+        publishes one with every frame: counted as changes, they had looked like two cameras
+        alternating on the topic).
+        """
         if old is self:   # the same CameraInfo again (from_camera_info keeps its models)
             return ''
         before, after = old.describe(), self.describe()
-        return '' if before == after else f'{before} -> {after}'
+        if before == after or self.moves_pixels_from(old) <= REFINED_PX:
+            return ''
+        return f'{before} -> {after}'
+
+    def moves_pixels_from(self, old: CameraModel) -> float:
+        """Return how far a pixel of the image moves from ``old``'s ray to this model's, px.
+
+        Over a grid of the image, as a ray of ``old`` projected by this model; inf for
+        another image size, binning, ROI or distortion model. An image of unknown size
+        (OpenVINS' intrinsics give none) is taken to span twice the principal point.
+        """
+        same = (self.width, self.height, self.binning, self.offset, self.distortion_model) == (
+            old.width, old.height, old.binning, old.offset, old.distortion_model)
+        if not same:
+            return float('inf')
+        _, _, cx, cy = self.image_pinhole
+        (bx, by), (ox, oy) = self.binning, self.offset
+        width = (self.width - ox) / bx if self.width > 0 else 2.0 * cx
+        height = (self.height - oy) / by if self.height > 0 else 2.0 * cy
+        u, v = np.meshgrid(np.linspace(0, width, 9), np.linspace(0, height, 7))
+        pixels = np.column_stack([u.ravel(), v.ravel()])
+        with np.errstate(all='ignore'):
+            moved = np.hypot(*(self.denormalize(old.normalize(pixels)) - pixels).T)
+        moved = moved[np.isfinite(moved)]   # past a fold: no ray to compare
+        return float(moved.max()) if moved.size else float('inf')
 
     @property
     def k(self) -> FloatArray:
@@ -350,8 +383,9 @@ class CameraModel:
         """Build a camera model from a ``sensor_msgs/msg/CameraInfo`` (any backend).
 
         All-zero (or no) coefficients with model '', 'none', 'plumb_bob' or
-        'rational_polynomial' give 'none' (a rectified camera). A 'rational_polynomial'
-        model whose k4..k6 are zero is read as 'plumb_bob'.
+        'rational_polynomial' give 'none' (a rectified camera). Zero coefficients beyond the
+        ones a model uses are dropped, so a 'rational_polynomial' model whose k4..k6 (and
+        s1..s4, tx, ty: 14 coefficients) are zero is read as 'plumb_bob'.
 
         Args:
             msg: CameraInfo from rclpy, rosbags or mcap_ros2 (fields ``k``, ``d``,
@@ -381,10 +415,11 @@ class CameraModel:
         if k.size != 9:
             msg_ = f'CameraInfo.k must have 9 values, got {k.size}'
             raise MessageError(msg_)
+        used = {'plumb_bob': 5, 'rational_polynomial': 5, 'equidistant': 4}.get(model, d.size)
         if model in ('', 'none', 'plumb_bob', 'rational_polynomial') and not np.any(d):
             model, d = 'none', np.zeros(0)
-        elif model == 'rational_polynomial' and d.size == 8 and not np.any(d[5:]):
-            model, d = 'plumb_bob', d[:5]
+        elif d.size > used and not np.any(d[used:]):   # zeros beyond what the model uses
+            model, d = 'plumb_bob' if model == 'rational_polynomial' else model, d[:used]
         camera = cls(fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion_model=model, d=d,
                      width=width, height=height, binning=binning, offset=offset)
         if len(_CAMERA_INFOS) >= _CAMERA_INFOS_KEPT:

@@ -40,7 +40,7 @@ from pmba_ros.backend.window import (
     select_fixed,
 )
 from pmba_ros.core import so3
-from pmba_ros.errors import Cancelled
+from pmba_ros.errors import Cancelled, MessageError
 from pmba_ros.eval.metrics import ate, rpe
 from pmba_ros.eval.trajectory import read_tum
 from pmba_ros.io.ply import read_ply
@@ -632,6 +632,56 @@ def test_two_drivers_alternating_on_the_topic_are_counted() -> None:
                                               other if i % 2 else seq.camera, BACKEND))
     values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
     assert values['count.camera_info_changes'] == '5'
+
+
+def test_an_online_calibration_refining_the_intrinsics_is_no_change() -> None:
+    """Intrinsics refined online by +-0.3 px at each message are taken, not counted.
+
+    As OpenVINS' calib_cam_intrinsics publishes them.
+
+    The newest is used; counted as changes (79 of 80 in a probe's replay) they had kept the
+    diagnostics at WARN and read as two cameras alternating on the topic. A change of 2 px
+    at the image's border still counts.
+    """
+    seq = simulate_sequence('street', n_keyframes=12, seed=1)
+    cam = dataclasses.replace(seq.camera, distortion_model='plumb_bob',
+                              d=np.array([-0.28, 0.07, 1e-4, 2e-5, 0.0]))
+    rng = np.random.default_rng(4)
+    logic = BackendLogic(config(), BACKEND)
+    for i in range(8):
+        fx, cx = cam.fx + rng.uniform(-0.3, 0.3), cam.cx + rng.uniform(-0.3, 0.3)
+        refined = dataclasses.replace(cam, fx=fx, fy=fx, cx=cx)
+        logic.on_camera_info(make_camera_info(int(seq.stamps_ns[i]), 'camera', refined,
+                                              BACKEND))
+    assert logic.camera is not None and logic.camera.cx == cx
+    assert 'camera_info_changes' not in logic.stats.counters
+    assert refined.moves_pixels_from(cam) < 1.0
+    moved = dataclasses.replace(cam, fx=cam.fx * (1 + 2.0 / (cam.width / 2)))
+    logic.on_camera_info(make_camera_info(int(seq.stamps_ns[9]), 'camera', moved, BACKEND))
+    assert logic.stats.counters['camera_info_changes'] == 1
+    bigger = dataclasses.replace(cam, width=cam.width + 2)
+    assert bigger.moves_pixels_from(cam) == float('inf')
+
+
+def test_zero_coefficients_beyond_the_model_are_dropped() -> None:
+    """rational_polynomial with 14 coefficients (depthai), plumb_bob with 8: zeros dropped.
+
+    Both had been refused ('needs 5 coefficients'); a nonzero k4 still is.
+    """
+    from pmba_ros.backend.types import CameraModel
+
+    msg = make_camera_info(0, 'camera', CameraModel(400, 400, 320, 240, width=640, height=480),
+                           BACKEND)
+    d = [-0.28, 0.07, 1e-4, 2e-5, 0.01]
+    for model, coefficients in (('rational_polynomial', d + [0.0] * 9),
+                                ('plumb_bob', d + [0.0] * 3)):
+        msg.distortion_model, msg.d = model, np.array(coefficients)
+        camera = CameraModel.from_camera_info(msg)
+        assert camera.distortion_model == 'plumb_bob'
+        np.testing.assert_array_equal(camera.d, d)
+    msg.distortion_model, msg.d = 'rational_polynomial', np.array(d + [0.1] + [0.0] * 8)
+    with pytest.raises(MessageError, match='not supported'):
+        CameraModel.from_camera_info(msg)
 
 
 def test_pure_rotation_waits_for_parallax() -> None:

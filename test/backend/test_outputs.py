@@ -282,7 +282,9 @@ def test_camera_info_rejects_unsupported(ts: Any, backend: Any) -> None:
         parse_camera_info(msg)
     msg.d = np.array([0.1, 0.01, 0, 0, 0, 0, 0, 0])
     assert parse_camera_info(msg).distortion_model == 'plumb_bob'
-    msg.distortion_model = 'equidistant'
+    msg.distortion_model = 'equidistant'   # zeros beyond its 4 coefficients are dropped
+    assert parse_camera_info(msg).d.tolist() == [0.1, 0.01, 0.0, 0.0]
+    msg.d = np.array([0.1, 0.01, 0, 0, 0.3])
     with pytest.raises(MessageError, match='needs 4 coefficients'):
         parse_camera_info(msg)
     with pytest.raises(MessageError, match='fx, fy > 0'):
