@@ -171,7 +171,10 @@ class PmbaNode:
         node.add_post_set_parameters_callback(self._apply_parameters)
         self._tf_timer: Any = None
         self._reset_tf_timer()
-        self._diag_timer = node.create_timer(_DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        # Steady: with use_sim_time and no /clock, a timer on the node's clock never fires.
+        from rclpy.clock import Clock, ClockType
+        self._diag_timer = node.create_timer(_DIAGNOSTICS_PERIOD_S, self.publish_diagnostics,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
         if start_worker:
             with self._log_route.active():   # the thread logs under this node's name
                 self.worker.start()
@@ -419,6 +422,10 @@ class PmbaNode:
                   else None)
         problems = self.inputs.problems(received, lambda topic: [
             i.topic_type for i in self.node.get_publishers_info_by_topic(topic)])
+        if self.node.get_clock().now().nanoseconds == 0 and \
+                now - self._started > self.config.stale_input_s:
+            problems.append('use_sim_time is true and no /clock has arrived (play the recording '
+                            'with --clock)')
         for problem in self.inputs.new(problems):
             self.node.get_logger().warning(problem)
         level, message = node_level_and_message(age, last_input >= 0, self.config.stale_input_s,

@@ -350,6 +350,31 @@ def test_stale_input_warning(ros: tuple[Context, SingleThreadedExecutor]) -> Non
         driver.destroy_node()
 
 
+def test_use_sim_time_without_a_clock_is_named(
+        ros: tuple[Context, SingleThreadedExecutor], seq: SimSequence) -> None:
+    """With use_sim_time and no /clock (a bag played without --clock), input still arriving.
+
+    The 1 Hz diagnostics run on the steady clock and name the missing clock. Before, their
+    timer was on the node's clock, which stood at 0: no diagnostics at all, and nothing said
+    why.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    context, executor = ros
+    wrapper, driver = start(context, executor, stale_input_s=0.5, use_sim_time=True)
+    got: list[Any] = []
+    driver.create_subscription(DiagnosticArray, '/diagnostics', got.append, RELIABLE)
+    try:
+        feed(executor, driver, seq, period_s=0.1)
+        assert spin_until(executor, lambda: any(
+            'no /clock has arrived' in s.message for s in statuses(got, 'pmba_node: node')),
+            5.0)
+        assert statuses(got, 'pmba_node: node')[-1].level == DiagnosticStatus.WARN
+    finally:
+        wrapper.close()
+        driver.destroy_node()
+
+
 def test_services_respond(ros: tuple[Context, SingleThreadedExecutor], tmp_path: Any) -> None:
     """~/pause, ~/reset and ~/save through real service clients."""
     from std_srvs.srv import SetBool, Trigger

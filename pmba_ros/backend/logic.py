@@ -224,8 +224,8 @@ class BackendLogic:
     def _take_tracks(self, frame: TrackFrame) -> None:
         if frame.stamp_ns <= self._last_kf_stamp:
             self.count('stale_tracks')
-            self.last_error = (f'stale_tracks: stamped {frame.stamp_ns} ns, not after the '
-                               f'last keyframe ({self._last_kf_stamp} ns)')
+            self.last_error = (f'stale_tracks: stamped {frame.stamp_ns} ns, not after the last '
+                               f'keyframe ({self._last_kf_stamp} ns; association_timeout_s past?)')
             return
         self._newest_input_ns = max(self._newest_input_ns, frame.stamp_ns)
         if len(self._tracks) >= self.config.buffer_size:
