@@ -92,8 +92,7 @@ class BackendLogic:
         self._paused = False
         self.last_error = ''
         self.cameras = FrontendCameras(config)
-        # The poses are a stream sampled at the tracks' stamps, not keyframes (read-only).
-        self._stream_mode = config.keyframe_source == 'tracks'
+        self._stream_mode = config.keyframe_source == 'tracks'   # poses sampled at tracks
         self.input_waiting: Callable[[], bool] = lambda: False
         """Whether more input waits to be handled (the node's queue): a keyframe's solve is
         then left to a later one's (:meth:`Estimator.add_keyframe`'s ``solve``), and run
@@ -105,7 +104,7 @@ class BackendLogic:
         self._tracks: deque[TrackFrame] = deque()
         self._pending: deque[_Keyframe] = deque()
         self._last_kf_stamp = -1
-        self._newest_input_ns, self._input_ended = -1, False
+        self._newest_input_ns, self._ended_at_ns = -1, -1
         self.outputs = KeyframeOutputs(self.estimator, self.cameras, self.backend, self.config)
         self._last_info = status.UpdateInfo('none')
         self._diag_dirty = True
@@ -271,13 +270,13 @@ class BackendLogic:
 
     def end_of_input(self) -> None:
         """Take what waits for later input (held stamps, keyframes missing tracks): none comes."""
-        self._input_ended = True
         for frame in self._track_stamps.flush():
             self._take_tracks(frame)
         for pose in self._keyframe_stamps.flush():
             self._take_keyframe_pose(pose)
         for held, _, _ in self._pose_check.flush():   # the first poses, too few to judge
             self._take_pose(held)
+        self._ended_at_ns = self._newest_input_ns   # input after it is waited for again
 
     def _push_keyframe(self, kf: _Keyframe) -> None:
         newest = self._pending[-1].stamp_ns if self._pending else self._last_kf_stamp
@@ -387,7 +386,7 @@ class BackendLogic:
 
     def _timed_out(self, stamp_ns: int) -> bool:
         """Return whether input for ``stamp_ns`` can no longer come."""
-        return self._input_ended or self._newest_input_ns > stamp_ns + round(
+        return stamp_ns <= self._ended_at_ns or self._newest_input_ns > stamp_ns + round(
             self.config.association_timeout_s * 1e9)
 
     def _match(self, stamp_ns: int) -> tuple[TrackFrame | None, bool]:

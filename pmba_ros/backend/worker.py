@@ -86,6 +86,7 @@ class LogicWorker:
         self._thread: threading.Thread | None = None
         self.last_input = -1.0
         """``time.monotonic()`` of the newest front-end input (-1: none yet; TF excluded)."""
+        self._ended_input = -1.0   # the last_input the back-end was told ended its input
 
     def start(self) -> None:
         """Start the solver thread (a daemon: a solve in progress ends with the process).
@@ -245,6 +246,7 @@ class LogicWorker:
                 'tracks': self.logic.on_tracks, 'keyframe': self.logic.on_keyframe,
                 'camera_info': self.logic.on_camera_info, 'tf': self.logic.on_tf,
                 'extrinsic': self.logic.on_extrinsic,
+                'end_of_input': lambda _msg: self.logic.end_of_input(),
                 'step': lambda _msg: None}   # request_step(): a step without input
             if kind not in handlers or (camera and not (kind == 'camera_info'
                                                         and camera.isdigit())):
@@ -270,6 +272,7 @@ class LogicWorker:
             try:
                 item = self._queue.get(timeout=_POLL_S)
             except queue.Empty:
+                self._end_idle_input()
                 continue
             if item is _STOP:
                 break
@@ -277,6 +280,20 @@ class LogicWorker:
                 self._handle(*item)
             except Exception:
                 logger.exception('pmba worker: unexpected error')
+
+    def _end_idle_input(self) -> None:
+        """Tell the back-end its input ended once none came for ``association_timeout_s``.
+
+        A front-end that stopped (the robot parked, a recording's end) left its last
+        keyframes waiting for tracks that do not come: out of the path, and of a ``~/save``,
+        until more input. Input after it is waited for as before.
+        """
+        last = self.last_input
+        if last < 0 or last == self._ended_input or \
+                time.monotonic() - last < self.logic.config.association_timeout_s:
+            return
+        self._ended_input = last
+        self._handle('end_of_input', None, self._resets)
 
     def stop(self) -> None:
         """Stop the thread: the update in progress is abandoned, pending messages discarded.

@@ -357,3 +357,33 @@ def test_a_solve_left_by_the_last_keyframe_runs_when_the_queue_empties() -> None
     stamp = last['pmba/odometry'].header.stamp
     assert stamp.sec * 10**9 + stamp.nanosec == newest
     assert np.all(est.optimized(est.estimated()))
+
+
+def test_keyframes_waiting_for_tracks_are_taken_once_the_input_pauses() -> None:
+    """The front-end stops: its last keyframes, whose tracks never came, are placed.
+
+    After association_timeout_s without input (in the path, and a ``~/save``); later input
+    is waited for as before. Before, they waited until more input came: a live run's path
+    ended 11 keyframes short.
+    """
+    seq, msgs = _street_messages(34)
+    cut = {('tracks', i) for i in (27, 28, 29)}
+    first = [m for j, m in enumerate(msgs[:61])
+             if ('tracks', (j - 1) // 2) not in cut or m[0] != 'tracks']
+    logic = BackendLogic(_live_config(association_timeout_s=0.3), RosbagsBackend())
+    published: list[list[tuple[str, Any]]] = []
+    worker = LogicWorker(logic, published.append, queue_size=len(msgs))
+    worker.start()
+    try:
+        for kind, msg in first:
+            worker.enqueue(kind, msg)
+        _wait_for(lambda: any(len(m.poses) == 30 for outs in published for t, m in outs
+                              if t == 'pmba/path'))
+        assert logic.stats.counters['keyframes_without_tracks'] == 3
+        for i in range(30, 34):   # each pose before its tracks: it waits for them
+            worker.enqueue('keyframe', keyframe_msg(seq, i))
+            worker.enqueue('tracks', tracks_msg(seq, i))
+        _wait_for(lambda: logic.stats.keyframes == 34)
+        assert logic.stats.counters['keyframes_without_tracks'] == 3
+    finally:
+        worker.stop()
