@@ -456,6 +456,7 @@ def _give_extrinsic(logic: BackendLogic, bags: OpenBags, kinds: dict[str, str],
         return
     logic.count('bad_extrinsic', bad)
     del kinds[topic]
+    report.messages_announced -= bags.topics[topic].count   # not read again: not missing
     report.warnings.append(
         f"the front-end's extrinsic on {topic} moved by {moved} from its first message to "
         'where it settled (an online calibration): the mean of its last half was used for the '

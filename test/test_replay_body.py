@@ -176,6 +176,7 @@ def test_an_online_calibration_converging_is_used_where_it_settled(tmp_path: Pat
     report = replay([online], tmp_path / 'out', config, gt=groundtruth_path(vins))
     right = replay([vins], tmp_path / 'right', config, gt=groundtruth_path(vins))
     assert any('moved by' in w and 'settled' in w for w in report.warnings), report.warnings
+    assert report.complete and not any('damaged' in w for w in report.warnings)
     data = json.loads((tmp_path / 'out' / 'report.json').read_text())
     np.testing.assert_allclose(data['extrinsic']['body_to_camera'], EUROC_CAM0.to_flat(),
                                atol=1e-8)

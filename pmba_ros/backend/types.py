@@ -19,18 +19,9 @@ front-end keyframe pose and :class:`CameraModel` the intrinsics of one camera, r
 parser or the solver cannot alias a caller's buffer.
 
 Camera conventions follow ROS ``CameraInfo`` and OpenCV: normalized undistorted coordinates
-``(x, y) = (X/Z, Y/Z)`` in the optical frame (x right, y down, z forward), pixels
-``u = fx * x_d + cx``, ``v = fy * y_d + cy`` of the distorted ``(x_d, y_d)``.
-
-Notation:
-    ========  =========  ======  ================================================
-    symbol    code       shape   meaning
-    ========  =========  ======  ================================================
-    (x, y)    ``xy``     (K, 2)  normalized undistorted coordinates
-    (x_d,y_d) ``xy_d``   (K, 2)  normalized distorted coordinates
-    r         ``r``      (K,)    ``|(x, y)|``
-    theta     ``theta``  (K,)    ``atan(r)``, angle of the ray to the optical axis
-    ========  =========  ======  ================================================
+``(x, y) = (X/Z, Y/Z)`` (``xy``) in the optical frame (x right, y down, z forward), pixels
+``u = fx * x_d + cx``, ``v = fy * y_d + cy`` of the distorted ``(x_d, y_d)`` (``xy_d``); the
+distortion models and their notation are in :mod:`.distortion`.
 """
 
 from __future__ import annotations

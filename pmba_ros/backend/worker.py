@@ -224,7 +224,7 @@ class LogicWorker:
     def _handle(self, kind: str, msg: Any, resets: int) -> None:
         with self.lock:
             if self.cancelled:   # stopped, or a reset waits for the lock
-                self._discarded += kind != 'step'
+                self._discarded += kind not in ('step', 'end_of_input')   # not inputs
                 return
             if resets != self._resets:   # taken off the queue as a reset came
                 return
