@@ -294,6 +294,7 @@ class BackendLogic:
         """Forget all keyframes, tracks and the map (the camera model is kept)."""
         self.estimator.reset()
         self._init_buffers()
+        self.last_error, self._stats.not_optimized = '', 0   # of the run forgotten (counts stay)
         self.count('resets')
         logger.info('back-end reset')
 

@@ -942,10 +942,14 @@ def test_pause_reset_and_save(street: SimSequence, tmp_path: Path) -> None:
     points, _ = read_ply(paths[2])
     np.testing.assert_allclose(points, logic.landmarks(), rtol=1e-5, atol=1e-4)   # %.6g
 
+    logic.on_tracks(object())   # an error of the run the reset forgets
     logic.reset()
     assert logic.state == 'collecting' and len(logic.optimized_trajectory()) == 0
     values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
-    assert values['count.resets'] == '1'
+    assert values['count.resets'] == '1' and values['count.bad_tracks'] == '1'   # counts stay
+    # The state's figures start over: before, the old run's last error and keyframes not
+    # optimized stayed in the diagnostics after the reset.
+    assert logic.last_error == '' and logic.stats.not_optimized == 0
     run(logic, street, 21)  # starts over (earlier stamps are fine after a reset)
     assert logic.state == 'tracking'
 
