@@ -421,6 +421,33 @@ def test_ros1_recording_replays_like_the_rosbag2_one(
         assert (out / name).read_bytes() == (a / name).read_bytes(), name
 
 
+def test_keyframe_poses_with_covariance_replay_as_odometry(
+        real_replay: tuple[Path, replay_mod.ReplayReport], street_bag: Path,
+        tmp_path: Path) -> None:
+    """Keyframe poses as PoseWithCovarianceStamped (ROVIO's pose output) replay as Odometry.
+
+    The recorded type is read (with its covariance), and the trajectory is the Odometry
+    recording's. Before, the replay refused the topic's type (no keyframe kind read it).
+    """
+    from pmba_ros.io.bag_writer import open_writer
+
+    bag = tmp_path / 'pwcs.mcap'
+    backend = _backend()
+    with open_writer(bag) as writer:
+        for m in iter_messages([street_bag]):
+            msg = m.msg
+            if m.topic == '/keyframe_pose':
+                msg = backend.new('geometry_msgs/msg/PoseWithCovarianceStamped',
+                                  header=msg.header, pose=msg.pose)
+            writer.write(m.topic, msg, m.log_time_ns)
+    report = replay([bag], tmp_path / 'o', gt=groundtruth_path(street_bag))
+    assert report.input_complete and report.messages_rejected == 0
+    assert any("keyframe_type 'pose_with_covariance'" in w for w in report.warnings)
+    a, _ = real_replay
+    assert (tmp_path / 'o' / 'keyframes_optimized.tum').read_bytes() == (
+        a / 'keyframes_optimized.tum').read_bytes()
+
+
 def test_result_bag_deserializes_with_jazzy_and_mcap_ros2(
         real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """Every result message deserializes with the Jazzy typestore and with mcap_ros2."""

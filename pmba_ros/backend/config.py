@@ -141,7 +141,8 @@ class BackendConfig:
             qy, qz, qw: the camera frame in the keyframe poses' body frame); empty: from TF
             (keyframe ``child_frame_id`` -> CameraInfo ``frame_id``), else from
             ``extrinsic_topic``, else identity.
-        keyframe_type: 'odometry' (nav_msgs/Odometry) or 'pose_stamped'.
+        keyframe_type: 'odometry' (nav_msgs/Odometry), 'pose_stamped' or
+            'pose_with_covariance' (geometry_msgs/PoseWithCovarianceStamped).
         keyframe_source: 'keyframe_topic' (each keyframe pose is a keyframe) or 'tracks'
             (every tracks message is a keyframe; its front-end pose is sampled from the
             ``keyframe_topic`` poses, a stream at any rate, where they come).

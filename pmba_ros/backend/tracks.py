@@ -76,11 +76,12 @@ NORMALIZED_FIELDS = {'vins_mono': 'the points', 'vins_fusion': 'the points',
                      'per_point': 'channels [0:2] (x_n, y_n)', 'named': 'fields x_n, y_n'}
 """Where each layout's normalized coordinates are (named in errors)."""
 
-KEYFRAME_KINDS = ('odometry', 'pose_stamped')
+KEYFRAME_KINDS = ('odometry', 'pose_stamped', 'pose_with_covariance')
 """Keyframe message kinds :func:`parse_keyframe` understands."""
 
 KEYFRAME_MSGTYPES = {'odometry': 'nav_msgs/msg/Odometry',
-                     'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
+                     'pose_stamped': 'geometry_msgs/msg/PoseStamped',
+                     'pose_with_covariance': 'geometry_msgs/msg/PoseWithCovarianceStamped'}
 """Message type of each keyframe kind."""
 
 
@@ -513,13 +514,14 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
     """Parse a keyframe pose message.
 
     Args:
-        msg: ``nav_msgs/Odometry`` (kind 'odometry') or ``geometry_msgs/PoseStamped``
-            (kind 'pose_stamped') from any backend.
+        msg: ``nav_msgs/Odometry`` (kind 'odometry'), ``geometry_msgs/PoseStamped``
+            (kind 'pose_stamped') or ``geometry_msgs/PoseWithCovarianceStamped`` (kind
+            'pose_with_covariance': ROVIO's, AMCL's) from any backend.
         kind: One of :data:`KEYFRAME_KINDS`.
 
     Returns:
-        The pose with a unit quaternion; ``child_frame_id`` is '' for PoseStamped; the
-        Odometry's pose covariance when it is set (not all zeros) and finite.
+        The pose with a unit quaternion; ``child_frame_id`` is '' but for Odometry; the
+        pose covariance when the message has one set (not all zeros) and finite.
 
     Raises:
         MessageError: If the kind is unknown, the message is of another type, or the pose
@@ -531,16 +533,16 @@ def parse_keyframe(msg: Any, kind: str = 'odometry') -> KeyframePose:
     stamp_ns, frame_id = _header(msg)
     try:
         covariance = None
-        if kind == 'odometry':
-            pose, child = msg.pose.pose, str(msg.child_frame_id)
-            covariance = np.asarray(getattr(msg.pose, 'covariance', ()), dtype=np.float64)
-        else:
+        if kind == 'pose_stamped':
             pose, child = msg.pose, ''
+        else:
+            pose = msg.pose.pose
+            child = str(msg.child_frame_id) if kind == 'odometry' else ''
+            covariance = np.asarray(getattr(msg.pose, 'covariance', ()), dtype=np.float64)
         position = _XYZ(pose.position)
         quat_xyzw = (*_XYZ(pose.orientation), pose.orientation.w)
     except AttributeError as err:
-        want = 'nav_msgs/msg/Odometry' if kind == 'odometry' else 'geometry_msgs/msg/PoseStamped'
-        msg_ = f'keyframe kind {kind!r} expects {want}, got {_type_name(msg)}'
+        msg_ = f'keyframe kind {kind!r} expects {KEYFRAME_MSGTYPES[kind]}, got {_type_name(msg)}'
         raise MessageError(msg_) from err
     with np.errstate(over='ignore', invalid='ignore'):
         norm2 = float(np.dot(quat_xyzw, quat_xyzw))

@@ -50,8 +50,6 @@ from pmba_ros.errors import PmbaError
 if TYPE_CHECKING:
     from pmba_ros.replay import ReplayReport
 
-_LAYOUTS = ('vins_mono', 'vins_fusion', 'per_point', 'named')
-_KEYFRAME_TYPES = ('odometry', 'pose_stamped')
 _KEYFRAME_SOURCES = ('keyframe_topic', 'tracks')
 _MODES = ('global', 'sliding')
 
@@ -81,6 +79,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     Args:
         parser: Parser (or subparser) to add the arguments to.
     """
+    from pmba_ros.backend.tracks import KEYFRAME_KINDS, LAYOUTS
+
     d = _defaults()
 
     def node_default(name: str) -> str:
@@ -98,12 +98,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group('inputs')
     group.add_argument('--tracks-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'feature tracks topic ({node_default("features_topic")})')
-    group.add_argument('--tracks-layout', choices=_LAYOUTS, default=argparse.SUPPRESS,
+    group.add_argument('--tracks-layout', choices=LAYOUTS, default=argparse.SUPPRESS,
                        help=f'track message layout ({node_default("feature_layout")}; '
                             'unless given, the one the recording fits)')
     group.add_argument('--keyframes-topic', default=argparse.SUPPRESS, metavar='TOPIC',
                        help=f'keyframe pose topic ({node_default("keyframe_topic")})')
-    group.add_argument('--keyframes-type', choices=_KEYFRAME_TYPES, default=argparse.SUPPRESS,
+    group.add_argument('--keyframes-type', choices=KEYFRAME_KINDS, default=argparse.SUPPRESS,
                        help=f'keyframe pose message type ({node_default("keyframe_type")}; '
                             'unless given, the recorded one)')
     group.add_argument('--keyframes-from', choices=_KEYFRAME_SOURCES, default=argparse.SUPPRESS,

@@ -419,6 +419,25 @@ def test_keyframe_odometry_and_pose_stamped(ts: Any, backend: Any, tmp_path: Pat
         np.testing.assert_allclose(kf.position, [4, 5, 6])
 
 
+def test_keyframe_pose_with_covariance(ts: Any, backend: Any) -> None:
+    """A PoseWithCovarianceStamped (ROVIO's, AMCL's): its pose and covariance, no child."""
+    cov = np.diag([1e-4] * 3 + [1e-5] * 3)
+    odom = outputs.make_odometry(STAMP_NS, 'world', 'body', [1, 2, 3], [0.1, -0.2, 0.3, 0.9],
+                                 cov, backend)
+    msg = cdr_roundtrip(ts, backend.new('geometry_msgs/msg/PoseWithCovarianceStamped',
+                                        header=odom.header, pose=odom.pose))
+    kf = parse_keyframe(msg, 'pose_with_covariance')
+    ref = parse_keyframe(odom, 'odometry')
+    assert (kf.stamp_ns, kf.frame_id, kf.child_frame_id) == (STAMP_NS, 'world', '')
+    np.testing.assert_array_equal(kf.position, ref.position)
+    np.testing.assert_array_equal(kf.quat_xyzw, ref.quat_xyzw)
+    assert kf.covariance is not None and ref.covariance is not None
+    np.testing.assert_array_equal(kf.covariance, ref.covariance)
+    with pytest.raises(MessageError, match='expects geometry_msgs/msg/PoseWithCovarianceStamped'):
+        parse_keyframe(outputs.make_pose_stamped(STAMP_NS, 'odom', [0, 0, 0], [0, 0, 0, 1],
+                                                 backend), 'pose_with_covariance')
+
+
 @pytest.mark.parametrize('quat', [[np.nan, 0, 0, 1], [0, 0, np.inf, 1], [0, 0, 0, 0]])
 def test_keyframe_rejects_bad_quaternion(backend: Any, quat: list[float]) -> None:
     """Keyframe poses with a non-finite or zero quaternion are a MessageError."""
