@@ -69,10 +69,11 @@ SUSPECT_COUNTERS = {
 }
 """Back-end counters of suspect input, each worth a warning in the report."""
 
-IDENTITY_EXTRINSIC = ('no body -> camera extrinsic (parameter camera_extrinsics, TF from the '
-                      "keyframe poses' child_frame_id to the camera's frame_id, or equal "
-                      'frames): the keyframe poses were taken as camera poses, right only if '
-                      'the front-end publishes camera poses')
+IDENTITY_EXTRINSIC = ('no body -> camera extrinsic at the first keyframe (parameter '
+                      "camera_extrinsics, TF from the keyframe poses' child_frame_id to the "
+                      "camera's frame_id, the front-end's extrinsic topic, or equal frames): "
+                      'the keyframe poses were taken as camera poses, right only if the '
+                      'front-end publishes camera poses')
 """The warning of ``extrinsic_unknown``: the front-end's poses may be its IMU's."""
 
 
