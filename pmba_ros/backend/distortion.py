@@ -40,7 +40,8 @@ from pmba_ros._typing import FloatArray
 
 __all__ = ['distort_equidistant', 'distort_plumb_bob', 'equidistant_fold',
            'equidistant_jacobian', 'pinhole_jacobian', 'plumb_bob_fold', 'plumb_bob_jacobian',
-           'theta_d', 'theta_d_slope', 'undistort_equidistant', 'undistort_plumb_bob']
+           'plumb_bob_radial', 'theta_d', 'theta_d_slope', 'undistort_equidistant',
+           'undistort_plumb_bob']
 
 NEWTON_ITERATIONS = 30
 NEWTON_TOL = 1e-14
@@ -115,15 +116,13 @@ def undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     the distorted point, Newton went past the fold to a root there (a pixel of the
     calibrated image read as a ray far outside it).
     """
-    k1, k2, _, _, k3 = d
     fold = plumb_bob_fold(d)
     xy = xy_d.copy()
     if np.isfinite(fold):   # else the radial part grows everywhere: one root, found from xy_d
         rho = np.hypot(xy_d[:, 0], xy_d[:, 1])
-        # The radial part is theta_d's polynomial with k4 = 0, in r instead of theta.
-        radial_only = np.array([k1, k2, k3, 0.0])
-        r = _increasing_inverse(lambda t: theta_d(t, radial_only),
-                                lambda t: theta_d_slope(t, radial_only), rho, fold)
+        radial = plumb_bob_radial(d)
+        r = _increasing_inverse(lambda t: theta_d(t, radial),
+                                lambda t: theta_d_slope(t, radial), rho, fold)
         xy *= np.where(rho > 1e-12, r / np.where(rho > 1e-12, rho, 1.0), 1.0)[:, None]
     for _ in range(NEWTON_ITERATIONS):
         f = distort_plumb_bob(xy, d) - xy_d
@@ -138,6 +137,12 @@ def undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     resid = np.abs(distort_plumb_bob(xy, d) - xy_d).max(axis=1)
     xy[~((resid < 1e-9) & (np.hypot(xy[:, 0], xy[:, 1]) < fold))] = np.nan
     return xy
+
+
+def plumb_bob_radial(d: FloatArray) -> FloatArray:
+    """Return plumb_bob's radial part as :func:`theta_d`'s coefficients (in r, k4 = 0)."""
+    k1, k2, _, _, k3 = d
+    return np.array([k1, k2, k3, 0.0])
 
 
 def theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
@@ -182,16 +187,10 @@ def _increasing_inverse(f: Callable[[FloatArray], FloatArray],
     """Return t in [0, end) with f(t) = target, for f growing there from f(0) = 0; NaN if none.
 
     Newton's method kept inside a bracket that bisection narrows (safeguarded Newton), on
-    all points at once. ``end`` may be inf: the bracket then grows until it holds the root.
+    all points at once; ``end`` is finite (a fold, or 90 degrees).
     """
     lo = np.zeros_like(target)
-    hi = np.full_like(target, end if np.isfinite(end) else 1.0)
-    if not np.isfinite(end):
-        for _ in range(64):   # f grows without bound: double until past every target
-            short = f(hi) < target
-            if not np.any(short):
-                break
-            hi = np.where(short, 2.0 * hi, hi)
+    hi = np.full_like(target, end)
     has = (target >= 0.0) & (f(hi) >= target)
     t = np.minimum(target, hi)
     for _ in range(4 * NEWTON_ITERATIONS):

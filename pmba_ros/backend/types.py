@@ -39,6 +39,7 @@ from pmba_ros.backend.distortion import (
     pinhole_jacobian,
     plumb_bob_fold,
     plumb_bob_jacobian,
+    plumb_bob_radial,
     theta_d,
     undistort_equidistant,
     undistort_plumb_bob,
@@ -303,8 +304,7 @@ class CameraModel:
         if self.width <= 0 or self.height <= 0 or not np.any(self.d):
             return ''
         if self.distortion_model == 'plumb_bob':
-            k1, k2, _, _, k3 = self.d
-            fold, radial = plumb_bob_fold(self.d), np.array([k1, k2, k3, 0.0])
+            fold, radial = plumb_bob_fold(self.d), plumb_bob_radial(self.d)
         else:
             fold, radial = equidistant_fold(self.d), self.d
             if fold >= np.pi / 2:   # 90 degrees: no pinhole ray, the fisheye's own limit

@@ -332,6 +332,11 @@ def _num(value: float | None) -> str:
     return f'{value:>12.4f}' if value is not None else f'{"-":>12}'
 
 
+def _ratio(value: float | None) -> str:
+    """Return a ratio column of the accuracy table ('-' where there is none)."""
+    return f'{"-" if value is None else f"{value:.3f}":>9}'
+
+
 def format_summary(report: ReplayReport) -> str:
     """Return the text printed after a replay: counts, accuracy table, output files.
 
@@ -350,10 +355,9 @@ def format_summary(report: ReplayReport) -> str:
     lines = [head, counts]
     acc = report.accuracy
     if acc is not None:
-        ate = f'{_num(acc["ate_frontend_m"])}{_num(acc["ate_optimized_m"])}'
-        rpe = f'{_num(acc["rpe_frontend"])}{_num(acc["rpe_optimized"])}'
-        ate, rpe = (f'{text}{"-" if r is None else f"{r:.3f}":>9}'
-                    for text, r in ((ate, acc['ate_ratio']), (rpe, acc.get('rpe_ratio'))))
+        ate = (f'{_num(acc["ate_frontend_m"])}{_num(acc["ate_optimized_m"])}'
+               f'{_ratio(acc["ate_ratio"])}')
+        rpe = f'{_num(acc["rpe_frontend"])}{_num(acc["rpe_optimized"])}{_ratio(acc["rpe_ratio"])}'
         matched = f'{acc["matched_frontend"]:>12d}{acc["matched_optimized"]:>12d}'
         lines += ['', f'accuracy vs ground truth (alignment {acc["alignment"]})',
                   f'{"":<22}{"front-end":>12}{"optimized":>12}{"ratio":>9}',
