@@ -78,6 +78,27 @@ class QoSProfile:
         self.reliability, self.durability = reliability, durability
 
 
+class ClockType(Enum):
+    """rclpy.clock.ClockType."""
+
+    UNINITIALIZED = 0
+    ROS_TIME = 1
+    SYSTEM_TIME = 2
+    STEADY_TIME = 3
+
+
+@dataclass
+class Clock:
+    """rclpy.clock.Clock (keyword-only, as rclpy's)."""
+
+    clock_type: ClockType = ClockType.SYSTEM_TIME
+
+    def __post_init__(self) -> None:
+        """Check the type, as rclpy's does."""
+        if not isinstance(self.clock_type, ClockType):
+            raise TypeError('Clock type must be a ClockType enum')
+
+
 class ExternalShutdownException(Exception):
     """Fake ExternalShutdownException."""
 
@@ -388,6 +409,8 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
     qos_mod = types.ModuleType('rclpy.qos')
     for cls in (QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy):
         setattr(qos_mod, cls.__name__, cls)
+    clock_mod = types.ModuleType('rclpy.clock')
+    clock_mod.Clock, clock_mod.ClockType = Clock, ClockType  # type: ignore[attr-defined]
     exec_mod = types.ModuleType('rclpy.executors')
     exec_mod.ExternalShutdownException = ExternalShutdownException  # type: ignore[attr-defined]
     qos_mod.qos_profile_sensor_data = QoSProfile(  # type: ignore[attr-defined]
@@ -406,6 +429,7 @@ def fake_ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRclpy]:
     srv_mod.Trigger = _trigger()  # type: ignore[attr-defined]
     srv_mod.SetBool = _set_bool()  # type: ignore[attr-defined]
     modules |= {'rclpy.node': node_mod, 'rclpy.qos': qos_mod, 'rclpy.executors': exec_mod,
+                'rclpy.clock': clock_mod,
                 'rclpy.qos_overriding_options': overriding_mod, 'rclpy.exceptions': exc_mod,
                 'rclpy.event_handler': events_mod,
                 'rcl_interfaces': types.ModuleType('rcl_interfaces'),
