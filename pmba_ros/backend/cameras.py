@@ -30,7 +30,7 @@ from pmba_ros.backend.config import BackendConfig
 from pmba_ros.backend.distortion import pinhole_jacobian
 from pmba_ros.backend.extrinsics import extrinsics_from_params, Rigid, TransformTree
 from pmba_ros.backend.tracks import parse_keyframe
-from pmba_ros.backend.types import CameraModel, TrackFrame
+from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import so3, sphere
 from pmba_ros.errors import MessageError
@@ -221,9 +221,24 @@ class FrontendCameras:
             return ''
         return extrinsic_moved(fixed, found)
 
-    def resolve_extrinsic(self, body: str, camera_frame: str,
-                          world: str = '') -> tuple[Rigid | None, str]:
-        """Find and fix the reference camera's body -> camera extrinsic.
+    def camera_frame(self, frame: TrackFrame | None) -> str:
+        """Return the reference camera's frame: its CameraInfo's, else its tracks'."""
+        return self.reference_frame or (frame.frame_id if frame is not None else '')
+
+    def extrinsic_missing(self, pose: KeyframePose, frame: TrackFrame | None) -> bool:
+        """Return whether no extrinsic is fixed and none is found yet for ``pose``.
+
+        The first keyframe with a front-end pose fixes one, identity if none is found. The
+        back-end holds it while this is True until ``association_timeout_s`` passed (input
+        stamps): a TF publisher or an extrinsic topic started a little after the front-end's
+        first keyframe left the identity fixed for a whole run.
+        """
+        return self.extrinsic is None and self.find_extrinsic(
+            pose.child_frame_id, self.camera_frame(frame), pose.frame_id)[0] is None
+
+    def find_extrinsic(self, body: str, camera_frame: str,
+                       world: str = '') -> tuple[Rigid | None, str]:
+        """Find the reference camera's body -> camera extrinsic, not fixing it.
 
         In order: ``camera_extrinsics``; the TF chain from the keyframe pose's frame ``body``
         to the CameraInfo's (or else the tracks') frame ``camera_frame``; the newest
@@ -233,26 +248,34 @@ class FrontendCameras:
         publishes its odometry with ``child_frame_id`` 'world' as well, and its feature
         tracker's tracks in 'world' (as a body and a camera frame, they agreed: identity, and
         the TF chain between them ran through the world, a body pose taken for an extrinsic).
-        When none is found, identity is fixed with source 'identity'.
+
+        Returns:
+            The extrinsic found (None: none) and its source ('identity' for none).
+        """
+        body = '' if body == world else body
+        camera_frame = '' if camera_frame == world else camera_frame
+        if self.param_extrinsics is not None:
+            return self.param_extrinsics[self.config.camera_id], 'parameters'
+        found = None
+        if body and camera_frame and body != camera_frame:
+            found = self.tf_tree.lookup(body, camera_frame)
+        if found is not None:
+            return found, 'tf'
+        if self.topic_extrinsic is not None:
+            return self.topic_extrinsic, 'extrinsic_topic'
+        if body and body == camera_frame:
+            return Rigid.identity(), 'frames_agree'
+        return None, 'identity'
+
+    def resolve_extrinsic(self, body: str, camera_frame: str,
+                          world: str = '') -> tuple[Rigid | None, str]:
+        """Find (:meth:`find_extrinsic`) and fix the extrinsic; identity where none is found.
 
         Returns:
             The extrinsic found (None: taken as identity) and its source.
         """
-        body = '' if body == world else body
-        camera_frame = '' if camera_frame == world else camera_frame
-        self.body_frame = body
-        found: Rigid | None = None
-        source = 'identity'
-        if self.param_extrinsics is not None:
-            found, source = self.param_extrinsics[self.config.camera_id], 'parameters'
-        elif body and camera_frame and body != camera_frame:
-            found, source = self.tf_tree.lookup(body, camera_frame), 'tf'
-        if found is None and self.topic_extrinsic is not None:
-            found, source = self.topic_extrinsic, 'extrinsic_topic'
-        if found is None and body and body == camera_frame:
-            found, source = Rigid.identity(), 'frames_agree'
-        if found is None:
-            source = 'identity'
+        found, source = self.find_extrinsic(body, camera_frame, world)
+        self.body_frame = '' if body == world else body
         self.extrinsic = found if found is not None else Rigid.identity()
         self.extrinsic_source = source
         return found, source

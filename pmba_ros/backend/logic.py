@@ -170,9 +170,8 @@ class BackendLogic:
     def on_tf(self, msg: Any) -> None:
         """Take the transforms of a ``/tf`` or ``/tf_static`` message (bad ones are counted).
 
-        They give the body -> camera extrinsic (keyframe ``child_frame_id`` -> CameraInfo
-        ``frame_id``) when ``camera_extrinsics`` is not set; it is fixed at the first
-        keyframe with a front-end pose.
+        They give the body -> camera extrinsic, keyframe ``child_frame_id`` -> CameraInfo
+        ``frame_id`` (:meth:`FrontendCameras.extrinsic_missing`).
         """
         try:
             self.cameras.tf_tree.add_message(msg)
@@ -364,8 +363,9 @@ class BackendLogic:
                 kf = _Keyframe(kf.stamp_ns, pose, jumped)
                 if ready and pose is None and self._pose_stream.count:
                     self.count('keyframes_without_pose')
-            if not ready:
-                break
+            if not ready or (kf.pose is not None and not self._timed_out(kf.stamp_ns)
+                             and self.cameras.extrinsic_missing(kf.pose, frame)):
+                break   # its inputs, or an extrinsic that may still come, until they time out
             self._pending.popleft()
             self._process(kf, frame)
             processed += 1
@@ -469,7 +469,7 @@ class BackendLogic:
         self._last_info = info
 
     def _resolve_extrinsic(self, pose: KeyframePose, frame: TrackFrame | None) -> Rigid:
-        """Return the body -> camera extrinsic, fixing it at the first keyframe pose.
+        """Return the body -> camera extrinsic, fixing it at the first keyframe pose processed.
 
         See :meth:`FrontendCameras.resolve_extrinsic`; without one, the keyframe poses are
         taken as camera poses with a warning (counted as ``extrinsic_unknown``).
@@ -477,7 +477,7 @@ class BackendLogic:
         cams = self.cameras
         if cams.extrinsic is not None:
             return cams.extrinsic
-        camera_frame = cams.reference_frame or (frame.frame_id if frame is not None else '')
+        camera_frame = cams.camera_frame(frame)
         found, source = cams.resolve_extrinsic(pose.child_frame_id, camera_frame, pose.frame_id)
         if found is None:
             self._reject('extrinsic_unknown',

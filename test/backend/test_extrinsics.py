@@ -224,6 +224,9 @@ def test_unknown_extrinsic_is_identity_with_a_warning(street: SimSequence) -> No
     logic = BackendLogic(config(), BACKEND)
     outputs = _run_body(logic, street, Rigid.identity(), 4)   # the first 4 poses judge
     values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))      # each other (PoseJumpCheck)
+    assert values['extrinsic_source'] == 'none'   # waited for: association_timeout_s
+    logic.end_of_input()
+    values = diag_values(last(logic.step(), DIAGNOSTICS_TOPIC))
     assert values['extrinsic_source'] == 'identity'
     assert values['count.extrinsic_unknown'] == '1'
     assert "'imu' to 'cam0'" in values['last_error']
@@ -339,6 +342,38 @@ def test_an_extrinsic_that_moves_after_it_was_fixed_is_counted(street: SimSequen
     _run_body(logic, street, T, 10)
     assert logic.cameras.extrinsic_source == 'extrinsic_topic'
     np.testing.assert_allclose(logic.cameras.extrinsic.rotation, moved.rotation, atol=1e-12)
+
+
+@pytest.mark.parametrize('late_s', [0.5, 1.5])
+def test_an_extrinsic_coming_after_the_first_keyframe(street: SimSequence, late_s: float) -> None:
+    """A body -> camera TF that starts after the first keyframe is waited for, not lost.
+
+    Until ``association_timeout_s`` (1 s) of input passed: before, the identity was fixed
+    at the first keyframe for the whole run (a TF publisher started 0.5 s late).
+    """
+    logic = BackendLogic(config(), BACKEND)
+    logic.on_camera_info(make_camera_info(int(street.stamps_ns[0]), 'cam0', street.camera,
+                                          BACKEND))
+    T = EUROC_CAM0
+    late_ns = int(street.stamps_ns[0]) + round(late_s * 1e9)
+    for i in range(30):
+        stamp = int(street.stamps_ns[i])
+        if stamp >= late_ns:   # VINS' body -> camera on /tf, with every frame
+            logic.on_tf(out.make_tf(stamp, 'imu', 'cam0', T.translation,
+                                    so3.to_quat_xyzw(T.rotation), BACKEND))
+        logic.on_tracks(tracks_msg(street, i))
+        logic.on_keyframe(_body_keyframe(street, i, T))
+        logic.step()
+    logic.end_of_input()
+    logic.step()
+    assert len(logic.frontend_trajectory().stamps_s) == 30
+    if late_s < config().association_timeout_s:
+        assert logic.cameras.extrinsic_source == 'tf'
+        np.testing.assert_allclose(logic.cameras.extrinsic.to_flat(), T.to_flat(), atol=1e-12)
+        assert not logic.stats.counters['extrinsic_unknown']
+    else:
+        assert logic.cameras.extrinsic_source == 'identity'
+        assert logic.stats.counters['extrinsic_unknown'] == 1
 
 
 @pytest.mark.parametrize('case', ['vins_fusion_odometry', 'vins_tf_through_world',

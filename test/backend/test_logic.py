@@ -557,6 +557,8 @@ def test_tracks_before_camera_info_wait_for_it(street: SimSequence) -> None:
     logic2 = BackendLogic(config(), BACKEND)
     for _ in feed(logic2, street, range(4)):
         pass
+    logic2.end_of_input()   # its body -> camera extrinsic is waited for until then
+    logic2.step()
     assert logic2.stats.keyframes == 4
 
 
