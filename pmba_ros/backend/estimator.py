@@ -484,10 +484,10 @@ class Estimator:
         self._update_similarity()
         failure = inconsistency(self.kf, self.config, (res.initial_cost, res.final_cost),
                                 (before[2].scale, self.map_from_odom.scale), moved, error_before)
-        if not failure and (failure := self._cost.check(res.final_cost, res.problem.n_obs) or ''):
+        if not failure and (failure := self._cost.check(res.bounded_cost,
+                                                        res.problem.n_obs) or ''):
             info.dropped['cost_explosions'] = 1   # garbage tracks: a fit to them is not kept
-        info.solve_ms = 1e3 * res.time_s
-        info.iterations = res.iterations
+        info.solve_ms, info.iterations = 1e3 * res.time_s, res.iterations
         info.cost_before, info.cost_after = res.initial_cost, res.final_cost
         if failure:
             self.kf.R_map[moved], self.kf.C_map[moved], self.map_from_odom = before

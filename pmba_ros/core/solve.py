@@ -203,6 +203,9 @@ class SolveResult:
         scale_tension: With ``options.scale_tension``, d cost / d s and d^2 cost / d s^2 at
             the result for centres (1 + s) P, fixed ones too
             (:func:`~pmba_ros.core.gauge.scale_tension`); NaN where not computed.
+        bounded_cost: ``final_cost`` as under the Cauchy loss (equal to it with that loss):
+            a few observations far off, which weigh linearly under Huber and quadratically
+            without a loss, add little to it; a cost to compare across solves.
     """
 
     R_wc: FloatArray
@@ -226,6 +229,7 @@ class SolveResult:
     prior_residuals: FloatArray = field(default_factory=lambda: np.zeros((0, 6)))
     prior_leverage: FloatArray = field(default_factory=lambda: np.zeros((0, 6, 6)))
     scale_tension: tuple[float, float] = (math.nan, math.nan)
+    bounded_cost: float = math.nan
 
     def summary(self) -> str:
         """Return a readable multi-line summary, like Ceres' BriefReport plus sizes."""
@@ -447,6 +451,10 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
     leverage = np.full((len(factors) if factors is not None else 0, 6, 6), np.nan)
     if options.prior_leverage and factors is not None and last_lin is not None:
         leverage = last_lin.prior_leverage(factors, free_block)
+    bounded_cost = state.cost
+    if options.loss is not Loss.CAUCHY:
+        bounded_cost = (engine.robust_cost(state.evaluation.residuals, Loss.CAUCHY, loss_scale)
+                        + (state.prior.cost if state.prior is not None else 0.0))
     tension = (math.nan, math.nan)
     if options.scale_tension and options.param is Parameterization.PMBA:
         tension = scale_tension(lambda s: evaluate(state.R_wc, s * state.centers_w,
@@ -456,7 +464,7 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
                        linear_solves, initial_cost, state.cost, initial_rms, rms,
                        time.perf_counter() - t0, history, noise_px,
                        state.prior.residuals if state.prior is not None else np.zeros((0, 6)),
-                       leverage, tension)
+                       leverage, tension, bounded_cost)
 
 
 def _propose(lin: Linearized, solver: SolverKind, radius: float, mu: float,
