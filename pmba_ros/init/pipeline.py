@@ -20,7 +20,8 @@ The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
    pairs rejected.
 3. ``rotations``: chordal rotation averaging, iteratively reweighted (Cauchy kernel, pair
    weights from inlier counts), pruning of disagreeing pairs, re-averaging,
-   translation directions re-estimated with the rotations known.
+   translation directions re-estimated with the rotations known; observations off the
+   epipolar lines of most pairs testing them dropped (:mod:`pmba_ros.init.wrong_observations`).
 4. ``features``: anchors restricted to EG pairs, theta-bar and n-bar from rotations only
    (Remark 5), alpha-bar and Q_j from the EG directions (eq. 11).
 5. ``cls``: positions from the convex problem (eq. 14) with cheirality and a scale constraint.
@@ -84,6 +85,7 @@ from pmba_ros.init import (
     rotation_averaging,
     two_view,
     view_graph,
+    wrong_observations,
     wrong_tracks,
 )
 from pmba_ros.init.options import InitOptions, InitResult
@@ -415,7 +417,12 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     st.done('view_graph', entries)
 
     R_wc, pairs, d_ab, comp, _, entries = _rotations(problem, pairs, comp, options)
-    st.done('rotations', entries)
+    off = wrong_observations.off_their_pairs(problem, pairs, options.ransac_threshold_px)
+    st.done('rotations', {**entries, 'observations_off_their_pairs': int(off.wrong.sum()),
+                          'pair_error_threshold_px': off.threshold_px,
+                          'cameras_off_their_pairs': off.cameras_kept_whole})
+    # From here on the pairs' correspondences (observation indices) are not read again.
+    problem = wrong_observations.without(problem, off.wrong)
 
     sub, full, cam_index, feats, frames, entries = _features(problem, R_wc, pairs, d_ab, comp)
     st.done('features', entries)
@@ -519,9 +526,18 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         init_problem, feats, result = back.result.problem, back.features, back.result
         iterations += back.iterations
     invocations = 1 + (0 if back is None else back.invocations)
+    cleaned = None
+    if np.any(off.wrong) or bad_ids.size:   # wrong matches: some may be left, in short tracks
+        cleaned = wrong_observations.without_gross_errors(result, options.track_min_px,
+                                                          options.solve_options, callback)
+    if cleaned is not None:
+        result, feats, _ = cleaned
+        init_problem, iterations, invocations = (result.problem, iterations + result.iterations,
+                                                 invocations + 1)
     st.done('ba', {'anchors_swapped_before_ba': report_swaps,
                    'features_started_at_infinity': int(np.sum(low)),
                    'tracks_readmitted': 0 if back is None else int(back.taken.size),
+                   'observations_off_after_ba': 0 if cleaned is None else cleaned[2],
                    'initial_cost': result.initial_cost, 'final_cost': result.final_cost,
                    'initial_rms_px': result.initial_rms_px,
                    'final_rms_px': result.final_rms_px, 'iterations': iterations,
@@ -536,6 +552,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         'cameras_left_out': np.flatnonzero(~cameras_used).tolist(),
         'rotation_residual_deg': report['rotations']['rotation_residual_deg']['mean'],
         'cls_residual': res_cls.residual, 'nls_residual': res_nls.residual,
+        'observations_off_their_pairs': report['rotations']['observations_off_their_pairs'],
         'features_used': init_problem.n_feats,
         'features_recovered': report['tracks']['features_recovered'],
         'inconsistent_tracks': report['tracks']['inconsistent_tracks'],

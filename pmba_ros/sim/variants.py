@@ -26,6 +26,8 @@ stride              every k-th camera kept (wider baselines, fewer common tracks
 mixed_focal         each camera's image scaled by a log-uniform factor: focal lengths and
                     principal points change, the bearings (the geometry) do not
 outliers            wrong tracks added: random pixels in the cameras of real tracks
+wrong_observations  a fraction of the observations moved to random pixels: single wrong
+                    matches inside tracks that are otherwise right
 ==================  ========================================================================
 
 Features left with fewer than two observations are dropped by
@@ -39,13 +41,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from pmba_ros._typing import IntArray
+from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core.camera import Intrinsics, pixels_to_bearings
 from pmba_ros.core.problem import BAProblem, make_problem
 from pmba_ros.errors import ProblemError
 
 __all__ = ['VARIANTS', 'Variant', 'make_variants', 'mixed_focal', 'outlier_tracks',
-           'shuffled', 'stride', 'subset']
+           'shuffled', 'stride', 'subset', 'wrong_observations']
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,12 +59,14 @@ class Variant:
         problem: The derived problem (poses and points of the input kept).
         camera_index: Input camera of each camera of ``problem``, shape (M',).
         outlier_ids: Feature ids of the tracks added as outliers (empty for most variants).
+        wrong_observations: The observations moved (empty for most variants), shape (K,).
     """
 
     name: str
     problem: BAProblem
     camera_index: IntArray
     outlier_ids: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    wrong_observations: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def _take_cameras(problem: BAProblem, order: IntArray) -> BAProblem:
@@ -169,11 +173,7 @@ def outlier_tracks(problem: BAProblem, fraction: float, seed: int) -> Variant:
         int(counts.sum()))
     cams = obs.cam_idx[pick]
     M = problem.n_cams
-    lo = np.full((M, 2), np.inf)
-    hi = np.full((M, 2), -np.inf)
-    np.minimum.at(lo, obs.cam_idx, obs.pixels)
-    np.maximum.at(hi, obs.cam_idx, obs.pixels)
-    pixels = lo[cams] + rng.uniform(size=(cams.shape[0], 2)) * (hi[cams] - lo[cams])
+    pixels = _random_pixels(problem, cams, rng)
     new_ids = int(problem.feature_ids.max(initial=-1)) + 1 + np.arange(n_bad)
     points = np.concatenate([problem.points_w, problem.points_w[rng.integers(0, N, n_bad)]])
     out = make_problem(problem.R_wc, problem.centers_w, problem.intrinsics,
@@ -185,6 +185,36 @@ def outlier_tracks(problem: BAProblem, fraction: float, seed: int) -> Variant:
                        points_w=points, fixed=problem.fixed, n_feats=N + n_bad,
                        feature_ids=np.concatenate([problem.feature_ids, new_ids]))
     return Variant(f'outliers{round(100 * fraction)}', out, np.arange(M), new_ids)
+
+
+def wrong_observations(problem: BAProblem, fraction: float, seed: int) -> Variant:
+    """Move ``fraction`` of the observations to random pixels (as :func:`outlier_tracks` draws).
+
+    Raises:
+        ProblemError: If ``fraction`` is not in [0, 1).
+    """
+    if not 0.0 <= fraction < 1.0:
+        msg = f'wrong_observations: fraction must be in [0, 1), got {fraction}'
+        raise ProblemError(msg)
+    rng = np.random.default_rng(seed)
+    obs = problem.obs
+    wrong = rng.random(len(obs)) < fraction
+    pixels = obs.pixels.copy()
+    pixels[wrong] = _random_pixels(problem, obs.cam_idx[wrong], rng)
+    bearings = pixels_to_bearings(pixels, problem.intrinsics, obs.cam_idx)
+    moved = replace(problem, obs=replace(obs, pixels=pixels, bearings_c=bearings))
+    return Variant(f'wrong_observations{round(100 * fraction)}', moved,
+                   np.arange(problem.n_cams), wrong_observations=wrong)
+
+
+def _random_pixels(problem: BAProblem, cams: IntArray, rng: np.random.Generator) -> FloatArray:
+    """Return a pixel for each of ``cams``, uniform in the box of its camera's observations."""
+    M = problem.n_cams
+    lo, hi = np.full((M, 2), np.inf), np.full((M, 2), -np.inf)
+    np.minimum.at(lo, problem.obs.cam_idx, problem.obs.pixels)
+    np.maximum.at(hi, problem.obs.cam_idx, problem.obs.pixels)
+    pixels: FloatArray = lo[cams] + rng.uniform(size=(cams.shape[0], 2)) * (hi[cams] - lo[cams])
+    return pixels
 
 
 VariantMaker = Callable[[BAProblem, int], Variant]
