@@ -64,8 +64,8 @@ def best_partners(n_cams: int, corr: covisibility.PairCorrespondences, shared: F
 
 
 def estimate_pairs(problem: BAProblem, options: InitOptions,
-                   ) -> tuple[two_view.EGPairs, dict[str, Any]]:
-    """Return the EG pairs of a problem (PMBA Sec. 3) and the stage's report entries.
+                   ) -> tuple[two_view.EGPairs, covisibility.PairCorrespondences, dict[str, Any]]:
+    """Return the EG pairs (PMBA Sec. 3), the candidates' correspondences, the report entries.
 
     Raises:
         InitError: If no pair shares enough tracks, or none has a usable model.
@@ -110,4 +110,4 @@ def estimate_pairs(problem: BAProblem, options: InitOptions,
         else:
             msg = f'global init: no EG pair could be estimated (rejected: {rejected})'
         raise InitError(msg)
-    return pairs, entries
+    return pairs, corr, entries

@@ -52,6 +52,9 @@ Deviations from the paper (tagged ``DEVIATION`` in the code, pmba.md §8):
   triangle (pmba.md §3.3); otherwise near-collinear features can stall the BA.
 - Fig. 5: a second BA where tracks dropped at the positions fit the first BA's poses (a
   camera the positions left off had made them look wrong).
+- Fig. 5: observations off the epipolar lines of most EG pairs testing them are dropped
+  after the rotations, and, where wrong matches were found, those the BA leaves grossly off
+  after it (the BA resumed without them): wrong single observations in long tracks.
 
 The CLS and NLS assemble their normal matrices in the non-zero 3x3 blocks of co-visible camera
 pairs (:mod:`pmba_ros.init.normal_blocks`) and factor them sparse above about 200 cameras:
@@ -410,14 +413,16 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     st.report['input'] = _check_input(problem)
     M = problem.n_cams
 
-    pairs, entries = pair_selection.estimate_pairs(problem, options)
+    pairs, corr, entries = pair_selection.estimate_pairs(problem, options)
     st.done('pairs', entries)
 
     pairs, comp, entries = _view_graph(M, pairs, options)
     st.done('view_graph', entries)
 
     R_wc, pairs, d_ab, comp, _, entries = _rotations(problem, pairs, comp, options)
-    off = wrong_observations.off_their_pairs(problem, pairs, options.ransac_threshold_px)
+    # DEVIATION(Fig. 5): wrong single observations dropped (wrong_observations).
+    off = wrong_observations.off_their_pairs(problem, pairs, corr, options.ransac_threshold_px)
+    del corr
     st.done('rotations', {**entries, 'observations_off_their_pairs': int(off.wrong.sum()),
                           'pair_error_threshold_px': off.threshold_px,
                           'cameras_off_their_pairs': off.cameras_kept_whole})

@@ -77,7 +77,7 @@ class OffTheirPairs:
     cameras_kept_whole: list[int]
 
 
-def off_their_pairs(problem: BAProblem, pairs: EGPairs,
+def off_their_pairs(problem: BAProblem, pairs: EGPairs, corr: covisibility.PairCorrespondences,
                     ransac_threshold_px: float) -> OffTheirPairs:
     """Return the observations off the epipolar lines of most EG pairs that test them.
 
@@ -85,23 +85,25 @@ def off_their_pairs(problem: BAProblem, pairs: EGPairs,
         problem: The problem whose observations the pairs index.
         pairs: The EG pairs, with their rotations averaged (``R_rel``) and translation
             directions refined (:func:`~pmba_ros.init.two_view.refine_translations`).
+        corr: The correspondences of the pairs tried (those of ``pairs`` among them).
         ransac_threshold_px: The pairs' RANSAC threshold (px).
     """
     obs, M = problem.obs, problem.n_cams
     K = len(obs)
     none = OffTheirPairs(np.zeros(K, dtype=bool), np.inf, [])
-    if pairs.n_pairs == 0:
+    if pairs.n_pairs == 0 or corr.n_pairs == 0:
         return none
-    selected = np.zeros((M, M), dtype=bool)
-    selected[pairs.cam_a, pairs.cam_b] = True
-    corr = covisibility.pair_correspondences(obs.cam_idx, obs.feat_idx, M, 0, pairs=selected)
     eg_keys = pairs.cam_a * M + pairs.cam_b
     order = np.argsort(eg_keys)
-    which = order[np.searchsorted(eg_keys[order], corr.cam_a * M + corr.cam_b)]
-    seg = which[np.repeat(np.arange(corr.n_pairs), corr.counts())]
-    b1, b2 = obs.bearings_c[corr.obs_a], obs.bearings_c[corr.obs_b]
-    front = (b1[:, 2] > 1e-3) & (b2[:, 2] > 1e-3)
-    seg, a, b = seg[front], corr.obs_a[front], corr.obs_b[front]
+    at = np.minimum(np.searchsorted(eg_keys[order], corr.cam_a * M + corr.cam_b),
+                    order.shape[0] - 1)
+    which = order[at]
+    tried = np.repeat(eg_keys[which] == corr.cam_a * M + corr.cam_b, corr.counts())
+    seg = np.repeat(which, corr.counts())[tried]
+    a, b = corr.obs_a[tried], corr.obs_b[tried]
+    front = (obs.bearings_c[a, 2] > 1e-3) & (obs.bearings_c[b, 2] > 1e-3)
+    if not np.all(front):
+        seg, a, b = seg[front], a[front], b[front]
     if seg.shape[0] == 0:
         return none
     E = so3.hat(pairs.t_rel) @ pairs.R_rel
@@ -110,9 +112,9 @@ def off_their_pairs(problem: BAProblem, pairs: EGPairs,
                 * np.sqrt(focal[a] * focal[b]))
     threshold = max(NOISE_FACTOR * float(np.median(error_px)),
                     MIN_THRESHOLD_FACTOR * ransac_threshold_px)
-    both = np.concatenate([a, b])
-    tests = np.bincount(both, minlength=K)
-    fits = np.bincount(both, weights=np.tile(error_px <= threshold, 2), minlength=K)
+    fit = error_px <= threshold
+    tests = np.bincount(a, minlength=K) + np.bincount(b, minlength=K)
+    fits = np.bincount(a[fit], minlength=K) + np.bincount(b[fit], minlength=K)
     wrong = (tests >= MIN_TESTS) & (2 * fits < tests)
     tested_per_cam = np.bincount(obs.cam_idx[tests > 0], minlength=M)
     wrong_per_cam = np.bincount(obs.cam_idx[wrong], minlength=M)

@@ -249,7 +249,7 @@ def test_pair_selection_joins_only_the_pairs_it_tries() -> None:
 
     p = street_scene(0, n_cams=30, n_points=1500, noise_px=0.5).gt
     options = InitOptions(max_pair_partners=4)
-    pairs, entries = pair_selection.estimate_pairs(p, options)
+    pairs, _, entries = pair_selection.estimate_pairs(p, options)
     assert entries['pairs_covisible'] > 4 * p.n_cams
     assert entries['pairs_candidate'] <= 4 * p.n_cams
     assert pairs.n_pairs >= p.n_cams - 1

@@ -19,12 +19,12 @@ from dataclasses import replace
 
 import numpy as np
 from pmba_ros.backend.window import estimate_similarity
+from pmba_ros.core import so3
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import SolveOptions
 from pmba_ros.errors import ProblemError
 from pmba_ros.init import pair_selection, pipeline, wrong_observations
 from pmba_ros.init.options import InitOptions
-from pmba_ros.init.two_view import EGPairs
 from pmba_ros.sim import variants
 from pmba_ros.sim.scenes import street_scene
 import pytest
@@ -37,12 +37,22 @@ def _with_wrong_observations(problem: BAProblem, fraction: float,
     return v.problem, v.wrong_observations
 
 
-def _averaged_pairs(problem: BAProblem) -> EGPairs:
-    """Return the EG pairs as the pipeline has them when it looks for wrong observations."""
+def _off(problem: BAProblem, turn_camera: int | None = None) -> wrong_observations.OffTheirPairs:
+    """Return the wrong observations found as the pipeline finds them.
+
+    With ``turn_camera``, that camera's averaged rotation turned by 3 degrees first.
+    """
     options = InitOptions()
-    pairs, _ = pair_selection.estimate_pairs(problem, options)
+    pairs, corr, _ = pair_selection.estimate_pairs(problem, options)
     pairs, comp, _ = pipeline._view_graph(problem.n_cams, pairs, options)
-    return pipeline._rotations(problem, pairs, comp, options)[1]
+    pairs = pipeline._rotations(problem, pairs, comp, options)[1]
+    if turn_camera is not None:
+        turn = so3.exp(np.array([0.0, np.deg2rad(3.0), 0.0]))
+        R = pairs.R_rel.copy()   # R_b^T R_a: the camera turned in its own frame
+        R[pairs.cam_a == turn_camera] = R[pairs.cam_a == turn_camera] @ turn.T
+        R[pairs.cam_b == turn_camera] = turn @ R[pairs.cam_b == turn_camera]
+        pairs = replace(pairs, R_rel=R)
+    return wrong_observations.off_their_pairs(problem, pairs, corr, 1.0)
 
 
 @pytest.fixture(scope='module')
@@ -53,7 +63,7 @@ def street() -> BAProblem:
 
 def test_clean_tracks_lose_almost_nothing(street: BAProblem) -> None:
     """0.5 px noise: at most 0.2 % of the observations are taken for wrong ones."""
-    off = wrong_observations.off_their_pairs(street, _averaged_pairs(street), 1.0)
+    off = _off(street)
     assert np.count_nonzero(off.wrong) <= 0.002 * len(street.obs)
     assert off.cameras_kept_whole == []
     assert 1.0 < off.threshold_px < 20.0
@@ -68,7 +78,7 @@ def test_wrong_observations_are_found(noise_px: float) -> None:
     """
     problem = street_scene(seed=3, n_cams=30, n_points=600, noise_px=noise_px).gt
     corrupted, wrong = _with_wrong_observations(problem, 0.1, seed=1)
-    off = wrong_observations.off_their_pairs(corrupted, _averaged_pairs(corrupted), 1.0)
+    off = _off(corrupted)
     tested = _tested_twice(corrupted)
     assert np.count_nonzero(off.wrong & wrong) >= 0.85 * np.count_nonzero(wrong & tested)
     assert np.count_nonzero(off.wrong & ~wrong) <= 0.005 * np.count_nonzero(~wrong)
@@ -114,14 +124,7 @@ def test_a_camera_off_its_pairs_is_left_whole(street: BAProblem) -> None:
     Every pair of it puts its observations off their epipolar lines; it is the camera that
     is wrong, and the stages that place cameras judge it.
     """
-    from pmba_ros.core import so3
-
-    pairs = _averaged_pairs(street)
-    turn = so3.exp(np.array([0.0, np.deg2rad(3.0), 0.0]))
-    R = pairs.R_rel.copy()   # R_b^T R_a: camera 5 turned in its own frame
-    R[pairs.cam_a == 5] = R[pairs.cam_a == 5] @ turn.T
-    R[pairs.cam_b == 5] = turn @ R[pairs.cam_b == 5]
-    off = wrong_observations.off_their_pairs(street, replace(pairs, R_rel=R), 1.0)
+    off = _off(street, turn_camera=5)
     assert off.cameras_kept_whole == [5]
     assert not np.any(off.wrong)
 
