@@ -356,6 +356,8 @@ def run(args: argparse.Namespace) -> int:
                   f'{r.termination.value} after {r.iterations} iterations, not converged '
                   f'(final rms {r.final_rms_px:.4f} px): the result is not a minimum',
                   file=sys.stderr)
+        elif text := r.misfit():
+            _warn(report, f'{r.options.param.value}-{r.options.solver.value}: {text}')
     for text in [] if rigs is None else rigs.warnings:
         _warn(report, text)
     out_report: dict[str, Any] = report if args.compare else next(iter(report.values()))

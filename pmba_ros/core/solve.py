@@ -147,6 +147,10 @@ class SolveOptions:
         return self.loss_scale_px / model.problem.intrinsics.median_focal
 
 
+MISFIT_FACTOR = 3.0
+"""A final RMS beyond this many times what the noise estimate gives is worth a warning."""
+
+
 @dataclass(frozen=True, slots=True)
 class IterationRecord:
     """One solver iteration.
@@ -247,6 +251,24 @@ class SolveResult:
              f' (noise estimate {self.noise_px:.4f} px per axis)'),
             iters,
             f'  termination: {self.termination.value} ({state})'])
+
+    def misfit(self) -> str:
+        """Return why the final RMS is far above what the noise estimate gives, else ''.
+
+        Gaussian errors of the estimated sigma per axis give an RMS of sigma sqrt(2); a few
+        observations far off (wrong matches) or a part of the solution that is wrong (which
+        the median-based estimate does not see) give more.
+        """
+        expected = math.sqrt(2.0) * self.noise_px
+        if not (self.converged and expected > 0.0
+                and self.final_rms_px > MISFIT_FACTOR * expected):
+            return ''
+        bound = ('the robust loss bounds them' if self.options.loss is not Loss.NONE
+                 else 'a robust loss would bound them')
+        return (f'final rms {self.final_rms_px:.4f} px is {self.final_rms_px / expected:.1f}x '
+                f'what the noise estimate ({self.noise_px:.4f} px per axis) gives: some '
+                f'observations fit far worse than most (wrong matches? {bound}) or part of '
+                'the solution is wrong')
 
     def to_report(self) -> dict[str, Any]:
         """Return the JSON-able report of the ``solve`` CLI."""

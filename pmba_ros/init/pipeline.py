@@ -135,9 +135,8 @@ class _Stages:
 def _check_input(problem: BAProblem) -> dict[str, Any]:
     info = {'n_cams': problem.n_cams, 'n_feats': problem.n_feats, 'n_obs': problem.n_obs,
             'dropped': dict(problem.dropped)}
-    if problem.n_cams < 3:
-        msg = (f'global init needs at least 3 cameras, got {problem.n_cams} (the 7-DoF gauge '
-               'leaves nothing to initialize; use the two-view geometry directly)')
+    if problem.n_cams < 2:
+        msg = f'global init needs at least 2 cameras, got {problem.n_cams}'
         raise InitError(msg)
     if problem.n_feats == 0:
         single = problem.dropped.get('single_observation_features', 0)
@@ -162,12 +161,8 @@ def _component_pairs(n_cams: int, pairs: two_view.EGPairs,
 
 def _view_graph(n_cams: int, pairs: two_view.EGPairs, options: InitOptions,
                 ) -> tuple[two_view.EGPairs, BoolArray, dict[str, Any]]:
-    pairs_comp, comp = _component_pairs(n_cams, pairs)
+    pairs_comp, comp = _component_pairs(n_cams, pairs)   # a pair at least: estimate_pairs
     n_comp = int(comp.sum())
-    if n_comp < 3:
-        msg = (f'global init: the largest connected component of the view graph has '
-               f'{n_comp} cameras (need 3); {pairs.n_pairs} EG pairs for {n_cams} cameras')
-        raise InitError(msg)
     w = pairs_comp.n_inliers.astype(float)
     tree = view_graph.maximum_spanning_tree(n_cams, pairs_comp.cam_a, pairs_comp.cam_b, w)
     root = view_graph.choose_root(n_cams, pairs_comp.cam_a, pairs_comp.cam_b, w, comp)
@@ -229,7 +224,7 @@ def _rotations(problem: BAProblem, pairs: two_view.EGPairs, comp: BoolArray,
     comp_before = comp
     if n_pruned:
         pairs, comp = _component_pairs(M, pairs.subset(~prune))
-        if int(comp.sum()) < 3:
+        if int(comp.sum()) < 2:
             msg = ('global init: pruning pairs that disagree with the averaged rotations '
                    f'leaves {int(comp.sum())} connected cameras')
             raise InitError(msg)
@@ -401,9 +396,9 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
         The solved sub-problem of the largest view-graph component, with the per-stage report.
 
     Raises:
-        InitError: On degenerate input with the reason: fewer than 3 cameras, no track of
+        InitError: On degenerate input with the reason: fewer than 2 cameras, no track of
             length >= 2, no image pair with enough common tracks, no EG pair with a baseline
-            (pure rotation), a largest component of fewer than 3 cameras. Cameras outside
+            (pure rotation), every pair pruned by the rotation averaging. Cameras outside
             the largest component are reported (``cameras_left_out``), not an error.
 
     References:

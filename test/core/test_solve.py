@@ -370,6 +370,27 @@ def test_noise_estimate_recovers_the_pixel_noise_despite_outliers(noise_px: floa
     assert robust.final_rms_px > 2.0 * noise_px  # the outliers' RMS says nothing of the noise
 
 
+def test_misfit_names_an_rms_far_above_the_noise() -> None:
+    """Two percent of the pixels 40 px off: the RMS is far above what the noise gives, named.
+
+    A clean problem, or a solve that did not converge (already a warning), gets no text.
+    """
+    from pmba_ros.core.camera import pixels_to_bearings
+
+    problem = street_scene(seed=4).gt
+    assert solve(problem).misfit() == ''
+    rng = np.random.default_rng(0)
+    bad = rng.random(problem.n_obs) < 0.02
+    pixels = problem.obs.pixels.copy()
+    pixels[bad] += 40.0
+    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
+    corrupted = replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+    plain, robust = solve(corrupted), solve(corrupted, SolveOptions(loss='cauchy'))
+    assert 'a robust loss would bound them' in plain.misfit()
+    assert 'the robust loss bounds them' in robust.misfit()
+    assert solve(corrupted, SolveOptions(max_iterations=1)).misfit() == ''
+
+
 @pytest.mark.parametrize('loss', ['huber', 'none'])
 def test_bounded_cost_is_the_cost_under_cauchy(loss: str) -> None:
     """A result's bounded cost is its cost under the Cauchy loss, few gross outliers or not.
