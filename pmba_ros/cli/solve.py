@@ -259,8 +259,8 @@ def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
             print(f'  {label} it {skipped:3d}  no usable step (retried with more damping)',
                   file=sys.stderr)
         last = rec.iteration
-        outcome = ('start' if rec.iteration == 0
-                   else 'accepted' if rec.accepted else 'rejected')
+        outcome = ('start' if rec.iteration == 0 else 'accepted' if rec.accepted
+                   else 'converged: step below tolerance' if math.isnan(rec.rho) else 'rejected')
         print(f'  {label} it {rec.iteration:3d}  cost {rec.cost:.6e}'
               f'  rms {rec.rms_px:8.4f} px  radius {rec.trust_radius:9.3e}'
               f'  {rec.time_s:7.2f} s  {outcome}', file=sys.stderr)

@@ -162,7 +162,7 @@ class IterationRecord:
         accepted: Whether the step was accepted.
         trust_radius: Trust-region radius after the update.
         step_norm: Norm of the step (scaled space).
-        rho: Step quality.
+        rho: Step quality (NaN: a step below the parameter tolerance, not taken: converged).
         linear_solves: Cumulative number of linear solves.
         time_s: Elapsed time since the start.
     """
@@ -421,6 +421,11 @@ def solve(problem: BAProblem, options: SolveOptions | None = None,
         delta_norm = math.sqrt(sum_products(d_pose, d_pose, d_feat, d_feat))
         if delta_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = TerminationReason.PARAMETER_TOLERANCE
+            # Its linear solve took as long as any: shown, with no step taken (rho NaN).
+            history.append(IterationRecord(it, state.cost, rms, False, radius, step_norm,
+                                           math.nan, linear_solves, time.perf_counter() - t0))
+            if callback:
+                callback(history[-1])
             break
         model_change = lin.model_change(d_pose, d_feat)
         if not (model_change > 0.0) or not math.isfinite(model_change):

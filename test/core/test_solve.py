@@ -263,6 +263,25 @@ def test_cameras_sharing_one_centre_are_named_as_the_reason() -> None:
         solve(problem, SolveOptions(param='pmba'))
 
 
+def test_a_stop_on_the_parameter_tolerance_is_shown_too() -> None:
+    """The iteration whose step is below the parameter tolerance has its record (rho NaN).
+
+    Its linear solve takes as long as any other's (36 s on a 400-camera collection), which
+    the progress lines did not show before.
+    """
+    from pmba_ros.core.solve import TerminationReason
+
+    scene = street_scene(seed=8, n_cams=5, n_points=50)
+    records = []
+    options = SolveOptions(function_tolerance=0.0, gradient_tolerance=0.0,
+                           parameter_tolerance=1e-4)
+    result = solve(scene.start, options, callback=records.append)
+    assert result.termination is TerminationReason.PARAMETER_TOLERANCE
+    assert len(records) == result.iterations + 1 == len(result.history)
+    assert records[-1].iteration == result.iterations
+    assert np.isnan(records[-1].rho) and not records[-1].accepted
+
+
 def test_progress_callback_sees_every_iteration() -> None:
     """The callback receives the initial state and one record per iteration."""
     scene = street_scene(seed=8, n_cams=5, n_points=50)
