@@ -521,10 +521,14 @@ def _warn_left_out(problem: BAProblem, init: Any, report: dict[str, Any]) -> Non
 def _resumed(init_report: dict[str, Any]) -> str:
     """Return the line saying that the initialization's BA was resumed, and why."""
     ba, summary = init_report['ba'], init_report['summary']
+    why = []
+    if summary['inconsistent_tracks']:
+        why.append(f'to try the {summary["inconsistent_tracks"]} tracks dropped before it '
+                   f'again: {summary["tracks_readmitted"]} taken back')
+    if ba.get('observations_off_after_ba'):
+        why.append(f'without the {ba["observations_off_after_ba"]} observations it left far off')
     return (f'  global initialization: the BA above is the last of {summary["ba_invocations"]}'
-            f' ({ba["iterations"]} iterations in all), resumed to try the '
-            f'{summary["inconsistent_tracks"]} tracks dropped before it again: '
-            f'{summary["tracks_readmitted"]} taken back')
+            f' ({ba["iterations"]} iterations in all), resumed {" and ".join(why)}')
 
 
 def _warn_behind(problem: BAProblem, report: dict[str, Any], loss: str) -> None:
@@ -572,19 +576,14 @@ def _warn_focal_lengths(problem: BAProblem, report: dict[str, Any]) -> None:
     off_axis = np.degrees(np.arccos(np.clip(obs.bearings_c[:, 2], -1.0, 1.0)))
     counts = np.bincount(obs.cam_idx, minlength=problem.n_cams)
     wide = 2 * np.bincount(obs.cam_idx, off_axis > WIDE_DEG, problem.n_cams) >= counts
-    widest = np.zeros(problem.n_cams)
-    np.maximum.at(widest, obs.cam_idx, off_axis)
-    narrow = widest <= NARROW_DEG
+    narrow = np.bincount(obs.cam_idx, off_axis > NARROW_DEG, problem.n_cams) == 0
     wide_text = f'half of their observations or more over {WIDE_DEG:g} degrees off the axis'
     narrow_text = f'all their observations within {NARROW_DEG:g} degrees of the optical axis'
     for bad, what in ((wide & (counts > 0), wide_text), (narrow & (counts > 0), narrow_text)):
-        cams = np.flatnonzero(bad)
-        if not cams.size:
-            continue
-        i = int(cams[0])
-        text = (f'{cams.size} cameras (the first: camera {i}, focal length '
-                f'{problem.intrinsics.fx[i]:g} px) have {what}: is the focal length in pixels?')
-        _warn(report, text)
+        if (cams := np.flatnonzero(bad)).size:
+            i = int(cams[0])
+            _warn(report, f'{cams.size} cameras (the first: camera {i}, focal length '
+                  f'{problem.intrinsics.fx[i]:g} px) have {what}: is the focal length in pixels?')
 
 
 def _warn_non_finite(results: list[SolveResult], report: dict[str, Any]) -> None:

@@ -114,6 +114,17 @@ def test_solve_says_when_the_initializations_ba_was_resumed(
     out = capsys.readouterr().out
     assert ('global initialization: the BA above is the last of 3 (17 iterations in all), '
             'resumed to try the 5 tracks dropped before it again: 4 taken back') in out
+
+    def cleaned(*args: object, **kwargs: object) -> object:
+        res = resumed(*args, **kwargs)
+        res.report['summary'].update(inconsistent_tracks=0)  # type: ignore[attr-defined]
+        res.report['ba']['observations_off_after_ba'] = 7  # type: ignore[attr-defined]
+        return res
+
+    monkeypatch.setattr(pipeline, 'global_init', cleaned)
+    assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet']) == 0
+    assert ('(17 iterations in all), resumed without the 7 observations it left far off'
+            in capsys.readouterr().out)
     monkeypatch.setattr(pipeline, 'global_init', real)
     assert main(['solve', 'sim:street:1', '--init', 'global', '--quiet']) == 0
     assert 'resumed' not in capsys.readouterr().out
