@@ -790,6 +790,23 @@ def test_wrong_observations_do_not_spoil_the_initialization(seed: int) -> None:
     assert rpe(opt, gt, align='sim3').rmse <= rpe(fe, gt, align='sim3').rmse
 
 
+def test_a_fifth_of_the_observations_wrong_from_above_initializes_at_once() -> None:
+    """20 % wrong observations seen from above: the first initialization is the one.
+
+    Before its initialization dropped them (the pairs' epipolar lines), every attempt
+    contradicted the front-end: three attempts, and the batch started from its poses.
+    """
+    seq = _with_outliers(simulate_sequence('aerial', n_keyframes=100, seed=1), 0.2, 1)
+    logic = BackendLogic(config(), BACKEND)
+    run(logic, seq)
+    assert logic.estimator.init_attempts == 1 and logic.state == 'tracking'
+    assert not logic.stats.counters.get('reinitializations')
+    gt, fe, opt = seq.gt_trajectory(), seq.odom_trajectory(), logic.optimized_trajectory()
+    assert len(opt) == len(seq) and logic.stats.not_optimized == 0
+    assert ate(opt, gt, 'sim3').rmse < 0.5 * ate(fe, gt, 'sim3').rmse
+    assert rpe(opt, gt, align='sim3').rmse < rpe(fe, gt, align='sim3').rmse
+
+
 def test_wrong_observations_are_not_taken_for_exploding_costs() -> None:
     """5 % wrong observations from the start: the window solves' costs are their normal.
 
