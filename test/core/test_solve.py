@@ -24,7 +24,7 @@ import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.models import make_model, ParallaxModel
-from pmba_ros.core.problem import make_problem, XyzFeatures
+from pmba_ros.core.problem import BAProblem, make_problem, XyzFeatures
 from pmba_ros.core.solve import solve, SolveOptions
 from pmba_ros.errors import ProblemError, SolverError
 from pmba_ros.sim.scenes import street_scene, table3_scene
@@ -370,19 +370,32 @@ def test_solves_without_numba_installed() -> None:
         "assert 'numba' not in {m.split('.')[0] for m in sys.modules if sys.modules[m]}\n")
 
 
+def _pixels_moved(problem: BAProblem, fraction: float, offset_px: float, seed: int,
+                  signed: bool = False) -> BAProblem:
+    """Return ``problem`` with ``fraction`` of its pixels moved by ``offset_px`` on both axes.
+
+    With ``signed``, each axis' move has a random sign.
+    """
+    from pmba_ros.core.camera import pixels_to_bearings
+
+    rng = np.random.default_rng(seed)
+    bad = rng.random(problem.n_obs) < fraction
+    shift = np.full((int(bad.sum()), 2), offset_px)
+    if signed:
+        shift *= rng.choice([-1.0, 1.0], size=shift.shape)
+    pixels = problem.obs.pixels.copy()
+    pixels[bad] += shift
+    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
+    return replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+
+
 @pytest.mark.parametrize('noise_px', [0.5, 2.0])
 def test_noise_estimate_recovers_the_pixel_noise_despite_outliers(noise_px: float) -> None:
     """noise_px is the simulated per-axis sigma within 10 %, with 5 % of pixels gross outliers."""
-    from pmba_ros.core.camera import pixels_to_bearings
     from pmba_ros.core.loss import Loss
 
     problem = street_scene(seed=4, noise_px=noise_px).gt
-    rng = np.random.default_rng(0)
-    bad = rng.random(problem.n_obs) < 0.05
-    pixels = problem.obs.pixels.copy()
-    pixels[bad] += rng.choice([-1.0, 1.0], size=(int(bad.sum()), 2)) * 40.0
-    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
-    corrupted = replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+    corrupted = _pixels_moved(problem, 0.05, 40.0, seed=0, signed=True)
     robust = solve(corrupted, SolveOptions(loss=Loss.CAUCHY))
     for res in (solve(problem), robust):
         assert res.noise_px == pytest.approx(noise_px, rel=0.1)
@@ -394,16 +407,9 @@ def test_misfit_names_an_rms_far_above_the_noise() -> None:
 
     A clean problem, or a solve that did not converge (already a warning), gets no text.
     """
-    from pmba_ros.core.camera import pixels_to_bearings
-
     problem = street_scene(seed=4).gt
     assert solve(problem).misfit() == ''
-    rng = np.random.default_rng(0)
-    bad = rng.random(problem.n_obs) < 0.02
-    pixels = problem.obs.pixels.copy()
-    pixels[bad] += 40.0
-    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
-    corrupted = replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+    corrupted = _pixels_moved(problem, 0.02, 40.0, seed=0)
     plain, robust = solve(corrupted), solve(corrupted, SolveOptions(loss='cauchy'))
     assert 'a robust loss would bound them' in plain.misfit()
     assert 'the robust loss bounds them' in robust.misfit()
@@ -417,15 +423,7 @@ def test_bounded_cost_is_the_cost_under_cauchy(loss: str) -> None:
     Checked against a Cauchy solve that takes no step from the same state; with 0.5 % of
     the observations 300 px off, the cost under Huber or no loss is many times it.
     """
-    from pmba_ros.core.camera import pixels_to_bearings
-
-    problem = street_scene(seed=4).gt
-    rng = np.random.default_rng(1)
-    bad = rng.random(problem.n_obs) < 0.005
-    pixels = problem.obs.pixels.copy()
-    pixels[bad] += 300.0
-    bearings = pixels_to_bearings(pixels, problem.intrinsics, problem.obs.cam_idx)
-    corrupted = replace(problem, obs=replace(problem.obs, pixels=pixels, bearings_c=bearings))
+    corrupted = _pixels_moved(street_scene(seed=4).gt, 0.005, 300.0, seed=1)
     res = solve(corrupted, SolveOptions(loss=loss, max_iterations=3))
     still = solve(replace(corrupted, R_wc=res.R_wc, centers_w=res.centers_w),
                   SolveOptions(loss='cauchy', max_iterations=0), res.features)
