@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
-from pmba_ros.core import baselines, conversions, so3
+from pmba_ros.core import baselines, conversions, residuals, so3
 from pmba_ros.core.problem import BAProblem, ParallaxFeatures, restrict_features
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult
 from pmba_ros.init import covisibility, two_view
@@ -93,12 +93,10 @@ def off_their_pairs(problem: BAProblem, pairs: EGPairs, corr: covisibility.PairC
     none = OffTheirPairs(np.zeros(K, dtype=bool), np.inf, [])
     if pairs.n_pairs == 0 or corr.n_pairs == 0:
         return none
-    eg_keys = pairs.cam_a * M + pairs.cam_b
+    eg_keys, corr_keys = pairs.cam_a * M + pairs.cam_b, corr.cam_a * M + corr.cam_b
     order = np.argsort(eg_keys)
-    at = np.minimum(np.searchsorted(eg_keys[order], corr.cam_a * M + corr.cam_b),
-                    order.shape[0] - 1)
-    which = order[at]
-    tried = np.repeat(eg_keys[which] == corr.cam_a * M + corr.cam_b, corr.counts())
+    which = order[np.minimum(np.searchsorted(eg_keys[order], corr_keys), order.shape[0] - 1)]
+    tried = np.repeat(eg_keys[which] == corr_keys, corr.counts())
     seg = np.repeat(which, corr.counts())[tried]
     a, b = corr.obs_a[tried], corr.obs_b[tried]
     front = (obs.bearings_c[a, 2] > 1e-3) & (obs.bearings_c[b, 2] > 1e-3)
@@ -159,7 +157,7 @@ def without_gross_errors(result: SolveResult, floor_px: float, options: SolveOpt
         return None
     obs = problem.obs.take(np.flatnonzero(~gross))
     seen = np.bincount(obs.feat_idx, minlength=problem.n_feats) >= 2
-    kept = restrict_features(replace(result.problem.with_poses(result.R_wc, result.centers_w),
+    kept = restrict_features(replace(problem.with_poses(result.R_wc, result.centers_w),
                                      obs=obs), seen)
     feats, ok = conversions.xyz_to_parallax(kept, kept.R_wc, kept.centers_w,
                                             result.points_w[seen])
@@ -174,11 +172,9 @@ def without_gross_errors(result: SolveResult, floor_px: float, options: SolveOpt
 
 def _errors_px(result: SolveResult, feats: ParallaxFeatures) -> FloatArray:
     """Return each observation's pixel error at the result (inf: its point behind the camera)."""
-    problem, R, C = result.problem, result.R_wc, result.centers_w
-    X, w = conversions.parallax_homogeneous(R, C, feats)
-    obs = problem.obs
-    h_c = np.einsum('kji,kj->ki', R[obs.cam_idx], X[obs.feat_idx]
-                    - w[obs.feat_idx, None] * C[obs.cam_idx])
+    problem, R, obs = result.problem, result.R_wc, result.problem.obs
+    h_c = residuals.camera_rays_from(
+        residuals.observation_rays(R, result.centers_w, feats, obs), R, obs)
     with np.errstate(all='ignore'):
         errors: FloatArray = np.linalg.norm(
             baselines.pixel_errors(h_c, obs, problem.intrinsics), axis=1)
