@@ -30,8 +30,7 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-from pmba_ros.backend.window import estimate_similarity
+from _truth import largest_centre_error
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.core.solve import SolveOptions
 from pmba_ros.init.pipeline import global_init, InitOptions
@@ -44,15 +43,10 @@ def _row(name: str, truth: BAProblem, fraction: float) -> str:
     t0 = time.perf_counter()
     res = global_init(moved, InitOptions(solve_options=SolveOptions(loss='cauchy')))
     seconds = time.perf_counter() - t0
-    ci = res.camera_index
-    true_c = truth.centers_w[ci]
-    sim = estimate_similarity(truth.R_wc[ci], true_c, res.solve.R_wc, res.solve.centers_w)
-    _, centers = sim.apply_poses(res.solve.R_wc, res.solve.centers_w)
-    error = float(np.max(np.linalg.norm(centers - true_c, axis=1)))
-    extent = float(np.ptp(true_c, axis=0).max())
     report = res.report
-    return (f'{name:8s} {fraction:6.2f} {ci.shape[0]:3d}/{truth.n_cams:<3d} '
-            f'{error / extent:10.5f} {res.solve.final_rms_px:9.3f} {res.solve.noise_px:6.3f} '
+    return (f'{name:8s} {fraction:6.2f} {res.camera_index.shape[0]:3d}/{truth.n_cams:<3d} '
+            f'{largest_centre_error(truth, res):10.5f} {res.solve.final_rms_px:9.3f} '
+            f'{res.solve.noise_px:6.3f} '
             f'{report["summary"]["observations_off_their_pairs"]:7d} '
             f'{report["ba"]["observations_off_after_ba"]:6d} {seconds:6.1f}')
 

@@ -29,7 +29,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.errors import InitError
-from pmba_ros.init import covisibility, two_view
+from pmba_ros.init import covisibility, planar_ambiguity, two_view
 from pmba_ros.init.options import InitOptions
 
 #: Correspondences per pair that rank the partners (the sample of
@@ -110,4 +110,10 @@ def estimate_pairs(problem: BAProblem, options: InitOptions,
         else:
             msg = f'global init: no EG pair could be estimated (rejected: {rejected})'
         raise InitError(msg)
+    # DEVIATION(Fig. 5): a pair with a plane's two poses keeps the one its triangles close.
+    alt = planar_ambiguity.alternatives(pairs, obs.bearings_c, focal, options.ransac_threshold_px,
+                                        options.max_pair_disagreement_deg,
+                                        max_sample=options.ransac_max_points)
+    pairs, turned = planar_ambiguity.resolved(pairs, alt, options.max_pair_disagreement_deg)
+    entries.update(pairs_with_two_poses=int(alt.pair.size), pairs_turned=turned)
     return pairs, corr, entries

@@ -15,7 +15,8 @@
 
 The stages of PMBA Sec. 3 / Fig. 5 (pmba.md §4), each timed and reported:
 
-1. ``pairs``: epipolar-geometry pairs, 5-point RANSAC + cheirality (OpenCV).
+1. ``pairs``: epipolar-geometry pairs, 5-point RANSAC + cheirality (OpenCV); a plane's
+   second pose where the triangles of pairs close with it.
 2. ``view_graph``: largest connected component, maximum spanning tree, tree-inconsistent
    pairs rejected.
 3. ``rotations``: chordal rotation averaging, iteratively reweighted (Cauchy kernel, pair
@@ -55,6 +56,9 @@ Deviations from the paper (tagged ``DEVIATION`` in the code, pmba.md §8):
 - Fig. 5: observations off the epipolar lines of most EG pairs testing them are dropped
   after the rotations, and, where wrong matches were found, those the BA leaves grossly off
   after it (the BA resumed without them): wrong single observations in long tracks.
+- Fig. 5: a pair whose homography gives a second pose as good as the RANSAC's (points on a
+  plane) keeps the one that closes more of its triangles of pairs
+  (:mod:`pmba_ros.init.planar_ambiguity`).
 
 The CLS and NLS assemble their normal matrices in the non-zero 3x3 blocks of co-visible camera
 pairs (:mod:`pmba_ros.init.normal_blocks`) and factor them sparse above about 200 cameras:

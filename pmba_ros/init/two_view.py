@@ -31,7 +31,6 @@ OpenCV calls loop over pairs.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import itertools
 import logging
 
 import numpy as np
@@ -358,16 +357,16 @@ def relative_pose_5pt(b1: FloatArray, b2: FloatArray, threshold: float, *,
     return R[0], t[0], inl, epi
 
 
-def _sample(n: int, max_points: int) -> IntArray:
+def sample_evenly(n: int, max_points: int) -> IntArray:
     """Return up to ``max_points`` indices evenly spread over range(n)."""
     if n <= max_points:
         return np.arange(n)
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
-def _check_models(E: FloatArray, thresholds: FloatArray, b1: FloatArray, b2: FloatArray,
-                  seg: IntArray, engine: EngineName | str,
-                  ) -> tuple[BoolArray, IntArray, FloatArray, FloatArray, BoolArray, IntArray]:
+def check_models(E: FloatArray, thresholds: FloatArray, b1: FloatArray, b2: FloatArray,
+                 seg: IntArray, engine: EngineName | str,
+                 ) -> tuple[BoolArray, IntArray, FloatArray, FloatArray, BoolArray, IntArray]:
     """Test every correspondence against its pair's model, and choose each pair's (R, t).
 
     Returns the epipolar inliers (C,) and their count per pair (P,), R_cv (P, 3, 3), t_cv
@@ -443,32 +442,27 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     front_idx = np.flatnonzero(front)
     front_offsets = np.concatenate([[0], np.cumsum(n_front)])
     todo = np.flatnonzero(n_front >= max(min_inliers, 5))
-    # Threads take the next pair as they finish one (the count's next() is atomic under the
-    # GIL), costliest first: a fixed split leaves a core idle when the other is slowed down,
-    # and the RANSAC's cost is not proportional to the correspondences. Each pair's model is
-    # written to its own row, so the result does not depend on which thread ran it.
+    # One OpenCV call per pair; it runs without the GIL. Each pair's model is written to its
+    # own row.
     cost = n_front[todo] if max_sample is None else np.minimum(n_front[todo], max_sample)
-    queue = todo[np.argsort(-cost, kind='stable')]
-    taken = itertools.count()
 
-    def estimate(_: int) -> None:  # one OpenCV call per pair; it runs without the GIL
-        while (i := next(taken)) < queue.shape[0]:
-            p = queue[i]
-            rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
-            rows = rows if max_sample is None else rows[_sample(rows.shape[0], max_sample)]
-            model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
-                                  prob=prob, method=method)
-            if model is not None:
-                E[p], has_model[p] = model, True
+    def estimate(i: int) -> None:
+        p = todo[i]
+        rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
+        rows = rows if max_sample is None else rows[sample_evenly(rows.shape[0], max_sample)]
+        model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
+                              prob=prob, method=method)
+        if model is not None:
+            E[p], has_model[p] = model, True
 
-    chunks.run(estimate, chunks.threads_for(int(np.sum(n_front[todo]))))
+    chunks.each(estimate, cost, chunks.threads_for(int(np.sum(n_front[todo]))))
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
     rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
     sel = front & has_model[seg_all]
     # Usually every correspondence is in front and every pair has a model: no copies then.
     seg, b1, b2 = ((seg_all, b1_all, b2_all) if sel.all()
                    else (seg_all[sel], b1_all[sel], b2_all[sel]))
-    epi, n_epi, R, t, inl, counts = _check_models(E, thresholds, b1, b2, seg, engine)
+    epi, n_epi, R, t, inl, counts = check_models(E, thresholds, b1, b2, seg, engine)
     # Parallax on the epipolar inliers, before cheirality: without baseline the
     # cheirality test of an arbitrary t drops points at random.
     par_px = rotation_only_parallaxes(b1, b2, seg, n_pairs, epi, engine) * f_pair

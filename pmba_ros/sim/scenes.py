@@ -49,7 +49,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['SimScene', 'shuffle_cameras', 'street_scene', 'synthetic_large', 'table3_scene']
+__all__ = ['SimScene', 'aerial_scene', 'shuffle_cameras', 'street_scene', 'synthetic_large',
+           'table3_scene']
 
 _WORLD_UP = np.array([0.0, 0.0, 1.0])
 _COLLINEAR_DEG = 0.5
@@ -356,6 +357,45 @@ def synthetic_large(seed: int = 0, n_cams: int = 100, n_points: int = 20000,
     return _finish(rng, R_wc, centers_w, intr, points, cam_idx, feat_idx, pix,
                    np.arange(n_points), noise_px, rot_noise_deg, pos_noise_m,
                    point_noise_rel, none, none)
+
+
+def aerial_scene(seed: int = 0, rows: int = 6, cols: int = 6, n_points: int = 5000,
+                 noise_px: float = 0.5, *, height_m: float = 50.0, relief_m: float = 1.0,
+                 focal_px: float = 800.0, image_size: tuple[int, int] = (1000, 750),
+                 tilt_deg: float = 0.5) -> SimScene:
+    """Return a survey flight: nadir images over nearly flat ground, in back-and-forth lines.
+
+    ``rows`` flight lines of ``cols`` images each, at ``height_m`` above ground; images a
+    quarter of the height apart along a line, lines 0.35 of it apart. The ground is flat but
+    for ``relief_m`` (standard deviation of the points' heights), the hard case of the
+    two-view geometry (:mod:`pmba_ros.init.planar_ambiguity`). Cameras look down within
+    ``tilt_deg``; image y points along -y of the world. Poses are drawn, then points, then
+    noise (:func:`street_scene`'s start perturbation is not applied: ``start`` is ``gt``).
+    """
+    n_cams = rows * cols
+    _check_common(n_cams, n_points, noise_px, image_size, focal_px)
+    rng = np.random.default_rng(seed)
+    line = np.arange(cols, dtype=float)
+    xy = np.concatenate([np.column_stack([line if r % 2 == 0 else line[::-1],
+                                          np.full(cols, float(r))]) for r in range(rows)])
+    centers = np.column_stack([xy * [0.25 * height_m, 0.35 * height_m],
+                               np.full(n_cams, height_m)])
+    centers += rng.normal(scale=0.01 * height_m, size=(n_cams, 3))
+    down = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # x, y, z of cam
+    tilt = so3.exp(np.deg2rad(tilt_deg) * rng.normal(size=(n_cams, 3)) / np.sqrt(3.0))
+    R_wc = tilt @ down
+    lo, hi = centers[:, :2].min(0) - 0.6 * height_m, centers[:, :2].max(0) + 0.6 * height_m
+    points = np.column_stack([rng.uniform(lo, hi, (_OVERSAMPLE * n_points, 2)),
+                              relief_m * rng.normal(size=_OVERSAMPLE * n_points)])
+    intr = Intrinsics.uniform(n_cams, focal_px, focal_px, image_size[0] / 2.0,
+                              image_size[1] / 2.0)
+    cam_idx, feat_idx, pix = _observe(R_wc, centers, points, intr, image_size,
+                                      min_depth=0.1 * height_m, max_depth=10.0 * height_m)
+    seen = np.bincount(feat_idx, minlength=points.shape[0]) >= 2
+    none = np.zeros(points.shape[0], dtype=bool)
+    scene = _finish(rng, R_wc, centers, intr, points, cam_idx, feat_idx, pix,
+                    _first_true(seen, n_points), noise_px, 0.0, 0.0, 0.0, none, none)
+    return SimScene(scene.gt, scene.gt, scene.noise_px)
 
 
 def _check_common(n_cams: int, n_points: int, noise_px: float, image_size: tuple[int, int],

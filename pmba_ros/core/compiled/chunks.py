@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+import itertools
 import threading
 from typing import TypeVar
 
@@ -126,3 +127,21 @@ def run(fn: Callable[[int], T], n: int) -> list[T]:
     futures = [pool.submit(fn, t) for t in range(1, n)]
     first = fn(0)
     return [first, *(f.result() for f in futures)]
+
+
+def each(fn: Callable[[int], None], cost: IntArray, n_threads: int) -> None:
+    """Call ``fn(i)`` for every item i of ``cost`` (its cost), on ``n_threads`` threads.
+
+    Threads take the next item as they finish one (the count's next() is atomic under the
+    GIL), costliest first: a fixed split leaves a core idle when the other is slowed down,
+    and the cost given is only an estimate. ``fn`` must write item i's result to its own
+    place, so that the results do not depend on which thread ran it.
+    """
+    queue = np.argsort(-np.asarray(cost), kind='stable')
+    taken = itertools.count()
+
+    def work(_: int) -> None:
+        while (i := next(taken)) < queue.shape[0]:
+            fn(int(queue[i]))
+
+    run(work, n_threads)
