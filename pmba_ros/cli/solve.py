@@ -27,16 +27,16 @@ Usage examples::
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 import math
 from pathlib import Path
 import sys
-import time
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import non_negative_int, positive_float, positive_int
+from pmba_ros.cli.progress import iteration_printer, stage_printer
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import chunks
 from pmba_ros.core.gauge import camera_components
@@ -245,28 +245,6 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
         bundler.write_bundler(out / plain_name(source), b_refined)
 
 
-def iteration_printer(label: str) -> Callable[[IterationRecord], None]:
-    """Return a callback printing one line per iteration, every iteration number included.
-
-    An iteration whose linear system or model gave no usable step has no record: it is
-    printed as such, so the numbers run without gaps.
-    """
-    last = -1
-
-    def show(rec: IterationRecord) -> None:
-        nonlocal last
-        for skipped in range(last + 1, rec.iteration):
-            print(f'  {label} it {skipped:3d}  no usable step (retried with more damping)',
-                  file=sys.stderr)
-        last = rec.iteration
-        outcome = ('start' if rec.iteration == 0 else 'accepted' if rec.accepted
-                   else 'converged: step below tolerance' if math.isnan(rec.rho) else 'rejected')
-        print(f'  {label} it {rec.iteration:3d}  cost {rec.cost:.6e}'
-              f'  rms {rec.rms_px:8.4f} px  radius {rec.trust_radius:9.3e}'
-              f'  {rec.time_s:7.2f} s  {outcome}', file=sys.stderr)
-    return show
-
-
 def _recorder(trace: ConvergenceTrace, show: Callable[[IterationRecord], None] | None,
               ) -> Callable[[IterationRecord], None]:
     """Return a callback adding every iteration to ``trace`` (and showing it, if given)."""
@@ -275,15 +253,6 @@ def _recorder(trace: ConvergenceTrace, show: Callable[[IterationRecord], None] |
         if show is not None:
             show(rec)
     return record
-
-
-def stage_printer() -> Callable[[str, Mapping[str, Any]], None]:
-    """Return a progress callback printing one line as each initialization stage ends."""
-    t0 = time.perf_counter()
-
-    def show(stage: str, entries: Mapping[str, Any]) -> None:
-        print(f'  init {stage:10s} done  {time.perf_counter() - t0:7.2f} s', file=sys.stderr)
-    return show
 
 
 def run(args: argparse.Namespace) -> int:

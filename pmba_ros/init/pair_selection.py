@@ -23,6 +23,7 @@ correspondences).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -64,8 +65,12 @@ def best_partners(n_cams: int, corr: covisibility.PairCorrespondences, shared: F
 
 
 def estimate_pairs(problem: BAProblem, options: InitOptions,
+                   tick: Callable[[int, int], None] | None = None,
                    ) -> tuple[two_view.EGPairs, covisibility.PairCorrespondences, dict[str, Any]]:
     """Return the EG pairs (PMBA Sec. 3), the candidates' correspondences, the report entries.
+
+    ``tick(pairs_taken, pairs_to_estimate)`` follows the RANSACs
+    (:func:`~pmba_ros.init.two_view.estimate_eg_pairs`).
 
     Raises:
         InitError: If no pair shares enough tracks, or none has a usable model.
@@ -95,7 +100,7 @@ def estimate_pairs(problem: BAProblem, options: InitOptions,
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
         prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
-        max_sample=options.ransac_max_points)
+        max_sample=options.ransac_max_points, tick=tick)
     entries = {'pairs_covisible': n_covisible, 'pairs_candidate': corr.n_pairs,
                'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,

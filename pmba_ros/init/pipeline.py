@@ -100,7 +100,9 @@ from pmba_ros.init.options import InitOptions, InitResult
 logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[str, Mapping[str, Any]], None]
-"""Called after every stage with the stage name and its report entries."""
+"""Called after every stage with the stage name and its report entries; during the ``pairs``
+stage also as its RANSACs go on, with ``{'running': True, 'pairs_taken': k, 'pairs_to_estimate':
+n}`` (the RANSACs started so far, on every thread)."""
 
 
 STAGES = ('pairs', 'view_graph', 'rotations', 'features', 'cls', 'nls', 'tracks', 'ba')
@@ -131,6 +133,16 @@ class _Stages:
                     self.report['time_s'][stage], dict(entries))
         if self.progress is not None:
             self.progress(stage, self.report[stage])
+
+    def running(self, stage: str) -> Callable[[int, int], None] | None:
+        """Return the tick that reports ``stage``'s progress (None without a callback)."""
+        progress = self.progress
+        if progress is None:
+            return None
+
+        def tick(taken: int, total: int) -> None:
+            progress(stage, {'running': True, 'pairs_taken': taken, 'pairs_to_estimate': total})
+        return tick
 
     def finish(self) -> None:
         self.report['time_s']['total'] = time.perf_counter() - self.t_start
@@ -412,7 +424,7 @@ def global_init(problem: BAProblem, options: InitOptions = InitOptions(), *,
     st.report['input'] = _check_input(problem)
     M = problem.n_cams
 
-    pairs, corr, entries = pair_selection.estimate_pairs(problem, options)
+    pairs, corr, entries = pair_selection.estimate_pairs(problem, options, st.running('pairs'))
     st.done('pairs', entries)
 
     pairs, comp, entries = _view_graph(M, pairs, options)

@@ -30,6 +30,7 @@ OpenCV calls loop over pairs.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import logging
 
@@ -396,6 +397,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       prob: float = 0.999, method: int = cv2.USAC_FAST,
                       max_sample: int | None = None,
                       engine: EngineName | str = EngineName.AUTO,
+                      tick: Callable[[int, int], None] | None = None,
                       ) -> tuple[EGPairs, dict[str, int]]:
     """Run the 5-point RANSAC on every co-visible pair and keep the usable ones.
 
@@ -421,6 +423,8 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
             all of them).
         engine: The compiled loops (``'auto'``: where numba runs) or the numpy code, for the
             tests of the models on all correspondences.
+        tick: Called as ``tick(pairs_taken, pairs_to_estimate)`` as the RANSACs go on
+            (:func:`~pmba_ros.core.compiled.chunks.each`).
 
     Returns:
         The kept pairs, and counts of rejected pairs by reason.
@@ -455,7 +459,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         if model is not None:
             E[p], has_model[p] = model, True
 
-    chunks.each(estimate, cost, chunks.threads_for(int(np.sum(n_front[todo]))))
+    chunks.each(estimate, cost, chunks.threads_for(int(np.sum(n_front[todo]))), tick)
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
     rejected['ransac_failed'] += int(np.sum((n_front >= max(min_inliers, 5)) & ~has_model))
     sel = front & has_model[seg_all]

@@ -22,7 +22,7 @@ import subprocess
 import sys
 
 from pmba_ros.cli.main import build_parser, VERBS
-from pmba_ros.cli.solve import iteration_printer
+from pmba_ros.cli.progress import iteration_printer, stage_printer
 from pmba_ros.core.solve import IterationRecord
 import pytest
 
@@ -71,6 +71,19 @@ def test_progress_numbers_every_iteration(capsys: pytest.CaptureFixture[str]) ->
     assert [int(line.split(' it ')[1].split()[0]) for line in lines] == [0, 1, 2, 3, 4]
     assert lines[0].endswith('start') and lines[1].endswith('accepted')
     assert 'no usable step' in lines[2] and lines[4].endswith('rejected')
+
+
+def test_stage_lines_report_a_long_stage_at_most_every_few_seconds(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A running stage prints only when the interval has passed; a finished one always."""
+    show = stage_printer(every_s=3600.0)
+    show('pairs', {'running': True, 'pairs_taken': 5, 'pairs_to_estimate': 10})
+    show('pairs', {'pairs_found': 10})
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and 'pairs' in lines[0] and 'done' in lines[0]
+    show = stage_printer(every_s=0.0)
+    show('pairs', {'running': True, 'pairs_taken': 5, 'pairs_to_estimate': 10})
+    assert '5 of 10 pairs' in capsys.readouterr().err
 
 
 def test_no_terminal_escape_after_a_command_that_loads_compiled_code(tmp_path: Path) -> None:

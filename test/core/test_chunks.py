@@ -78,6 +78,40 @@ def test_errors_in_a_chunk_reach_the_caller() -> None:
         chunks.run(work, 3)
 
 
+def test_each_takes_every_item_once_costliest_first_and_ticks_on_the_caller() -> None:
+    """Every item runs once; the calling thread's ticks count the items taken so far."""
+    cost = np.array([3, 9, 1, 7, 5, 2, 8])
+    ran: list[int] = []
+    ticks: list[tuple[int, int, str]] = []
+    lock = threading.Lock()
+
+    def fn(i: int) -> None:
+        with lock:
+            ran.append(i)
+
+    chunks.each(fn, cost, 2, lambda k, n: ticks.append((k, n, threading.current_thread().name)))
+    assert sorted(ran) == list(range(7))
+    assert ticks and {t[2] for t in ticks} == {threading.current_thread().name}
+    assert all(t[1] == 7 for t in ticks)
+    assert [t[0] for t in ticks] == sorted(t[0] for t in ticks)
+    one: list[int] = []
+    chunks.each(one.append, cost, 1)
+    assert one == [1, 6, 3, 4, 0, 5, 2]   # costliest first
+
+
+def test_a_tick_that_raises_stops_the_loop() -> None:
+    """A tick's exception (a cancelled update) reaches the caller; the loop stops there."""
+    ran: list[int] = []
+
+    def stop(taken: int, total: int) -> None:
+        if taken == 2:
+            raise RuntimeError('cancelled')
+
+    with pytest.raises(RuntimeError, match='cancelled'):
+        chunks.each(ran.append, np.ones(10), 1, stop)
+    assert len(ran) == 2
+
+
 @pytest.mark.parametrize('bad', [0, -1, 1.5, True])
 def test_thread_limit_must_be_a_positive_integer(bad: object) -> None:
     """set_max_threads names a wrong limit instead of running with it."""

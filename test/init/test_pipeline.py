@@ -136,12 +136,18 @@ def test_report_progress_and_single_ba(monkeypatch: pytest.MonkeyPatch) -> None:
         return real_solve(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(pipeline, 'solve', counting_solve)
-    seen: list[str] = []
+    seen: list[tuple[str, dict[str, object]]] = []
     records: list[IterationRecord] = []
     res = global_init(sim_street(1, n_cams=8, n_points=200).gt,
-                      progress=lambda stage, entries: seen.append(stage),
+                      progress=lambda stage, entries: seen.append((stage, dict(entries))),
                       callback=records.append)
-    assert seen == list(STAGES)
+    assert [stage for stage, entries in seen if not entries.get('running')] == list(STAGES)
+    # The RANSACs' progress comes first, within the pairs stage (one thread here: each pair).
+    running = [entries for _, entries in seen if entries.get('running')]
+    assert [stage for stage, _ in seen[:len(running) + 1]] == ['pairs'] * (len(running) + 1)
+    taken = [e['pairs_taken'] for e in running]
+    assert taken == list(range(1, len(running) + 1))
+    assert running[-1]['pairs_to_estimate'] == len(running) >= seen[len(running)][1]['pairs_found']
     assert records == res.solve.history and len(records) > 1
     assert len(calls) == 1 and res.ba_invocations == 1
     report = json.loads(json.dumps(res.to_report()))

@@ -129,19 +129,26 @@ def run(fn: Callable[[int], T], n: int) -> list[T]:
     return [first, *(f.result() for f in futures)]
 
 
-def each(fn: Callable[[int], None], cost: IntArray, n_threads: int) -> None:
+def each(fn: Callable[[int], None], cost: IntArray, n_threads: int,
+         tick: Callable[[int, int], None] | None = None) -> None:
     """Call ``fn(i)`` for every item i of ``cost`` (its cost), on ``n_threads`` threads.
 
     Threads take the next item as they finish one (the count's next() is atomic under the
     GIL), costliest first: a fixed split leaves a core idle when the other is slowed down,
     and the cost given is only an estimate. ``fn`` must write item i's result to its own
-    place, so that the results do not depend on which thread ran it.
+    place, so that the results do not depend on which thread ran it. ``tick(taken, total)``
+    is called on the calling thread after each of its items (the items taken so far by all
+    threads); an exception it raises stops the calling thread's work and is raised here
+    once the other threads end.
     """
     queue = np.argsort(-np.asarray(cost), kind='stable')
     taken = itertools.count()
+    total = int(queue.shape[0])
 
-    def work(_: int) -> None:
-        while (i := next(taken)) < queue.shape[0]:
+    def work(thread: int) -> None:
+        while (i := next(taken)) < total:
             fn(int(queue[i]))
+            if tick is not None and thread == 0:
+                tick(min(i + 1, total), total)
 
     run(work, n_threads)
