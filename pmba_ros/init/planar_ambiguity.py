@@ -171,14 +171,15 @@ def triangle_votes(cam_a: IntArray, cam_b: IntArray, R_two: FloatArray, two: Boo
 
     A triangle of pairs ab, bc, ac closes with a choice of their rotations (R_ab = R_2^T R_1
     of each pair, oriented from its lower camera) when R_ac^T R_bc R_ab is within
-    ``tol_deg`` of the identity; each rotation of a closing choice gets a vote. Only the
-    triangles with a pair of two rotations (``two``, (P,)) are looked at; the second rotation
-    of the other pairs is not read.
+    ``tol_deg`` of the identity; a rotation gets the triangle's vote (one, however many
+    choices close with it) when a closing choice holds it. Only the triangles with a pair
+    of two rotations (``two``, (P,)) are looked at; the second rotation of the other pairs
+    is not read.
     """
-    votes = np.zeros((cam_a.shape[0], 2), dtype=np.int64)
     tri = triangles(cam_a, cam_b)
     tri = tri[np.any(two[tri], axis=1)]
     n_tri = np.bincount(tri.ravel(), minlength=cam_a.shape[0])
+    member = np.zeros((tri.shape[0], 3, 2), dtype=bool)   # triangle, its pair, rotation
     # Each pair oriented from its lower camera to its higher one.
     R_up = np.where((cam_a <= cam_b)[:, None, None, None], R_two,
                     np.swapaxes(R_two, -1, -2))
@@ -187,9 +188,12 @@ def triangle_votes(cam_a: IntArray, cam_b: IntArray, R_two: FloatArray, two: Boo
         t = tri[valid]
         ab, bc, ac = (R_up[t[:, i], h[i]] for i in range(3))
         loop = np.swapaxes(ac, -1, -2) @ bc @ ab
-        closes = np.degrees(so3.angle(loop, np.eye(3))) <= tol_deg
+        closes = np.flatnonzero(valid)[np.degrees(so3.angle(loop, np.eye(3))) <= tol_deg]
         for i in range(3):
-            np.add.at(votes, (t[closes, i], h[i]), 1)
+            member[closes, i, h[i]] = True
+    votes = np.zeros((cam_a.shape[0], 2), dtype=np.int64)
+    for i in range(3):
+        np.add.at(votes, tri[:, i], member[:, i].astype(np.int64))
     return votes, n_tri
 
 
@@ -197,11 +201,12 @@ def resolved(pairs: two_view.EGPairs, alt: Alternatives, tol_deg: float,
              ) -> tuple[two_view.EGPairs, int]:
     """Return the pairs with the pose their triangles agree on, and how many changed.
 
-    A pair takes its alternative when that closes more of its triangles than its own pose
-    does (:func:`triangle_votes`), two at least and half of them: one triangle can close by
-    chance, and where the pairs' rotations are too noisy for most triangles to close, the
-    vote says nothing. Otherwise (a pair in no triangle, or only along a line) it keeps the
-    RANSAC's.
+    A pair takes its alternative when its own pose closes fewer than half of its triangles
+    and the alternative closes more of them, two at least and half of them
+    (:func:`triangle_votes`): one triangle can close by chance, and where the pairs'
+    rotations are too noisy for most triangles to close, the vote says nothing. Otherwise (a
+    pair in no triangle, or only along a line, or whose pose closes its triangles) it keeps
+    the RANSAC's.
     """
     if alt.pair.size == 0:
         return pairs, 0
@@ -210,8 +215,8 @@ def resolved(pairs: two_view.EGPairs, alt: Alternatives, tol_deg: float,
     two = np.zeros(pairs.n_pairs, dtype=bool)
     two[alt.pair] = True
     votes, n_tri = triangle_votes(pairs.cam_a, pairs.cam_b, R_two, two, tol_deg)
-    won = votes[alt.pair, 1]
-    turn = (won > votes[alt.pair, 0]) & (won >= 2) & (2 * won >= n_tri[alt.pair])
+    won, own, n = votes[alt.pair, 1], votes[alt.pair, 0], n_tri[alt.pair]
+    turn = (won > own) & (won >= 2) & (2 * won >= n) & (2 * own < n)
     if not np.any(turn):
         return pairs, 0
     R, t = pairs.R_rel.copy(), pairs.t_rel.copy()
