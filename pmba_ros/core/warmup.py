@@ -41,7 +41,7 @@ import time
 import numpy as np
 from pmba_ros.core import compiled, conversions, jit, so3
 from pmba_ros.core.camera import Intrinsics, project
-from pmba_ros.core.compiled import epipolar, gather, linear_rays
+from pmba_ros.core.compiled import epipolar, gather, linear_rays, track_pairs
 from pmba_ros.core.engine import COMPILED, compiled_available, EngineName
 from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, make_problem, Parameterization
@@ -159,6 +159,12 @@ def warm_up() -> float:
     epipolar.translation_votes(np.eye(3)[None], np.ones((1, 3)), obs.bearings_c, idx, idx, ends)
     linear_rays.linear_ray_values(obs.cam_idx, obs.feat_idx, assoc, main, coeff, sin_t,
                                   problem.centers_w)
+    # The joins of tracks into camera pairs (init.covisibility), all of them and a sample.
+    order = np.lexsort((obs.cam_idx, obs.feat_idx))
+    f, c = obs.feat_idx[order], obs.cam_idx[order]
+    counts = track_pairs.count_pairs(f, c, problem.n_cams)
+    for sample in (None, 3):
+        track_pairs.join_pairs(f, c, problem.n_cams, problem.n_cams, counts > 0, counts, sample)
     # The back-end's window gathering (filtered and thinned, and the initialization's).
     ids, offsets = np.array(obs.feat_idx), np.array([0, problem.n_obs])
     gather.ordered_tracks(ids, offsets, np.unique(ids), 3, True)

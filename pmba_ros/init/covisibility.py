@@ -15,7 +15,8 @@
 
 Built for all pairs at once with vectorized joins on the feature index (observations sorted
 by feature then camera): no loop over pairs or observations, only over the offset inside a
-track.
+track; where numba runs, one compiled pass over the correspondences instead
+(:mod:`pmba_ros.core.compiled.track_pairs`, the same arrays).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
+from pmba_ros.core.compiled import track_pairs
+from pmba_ros.core.engine import EngineName, resolve
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,19 +64,27 @@ def _track_layout(cam_idx: IntArray, feat_idx: IntArray) -> tuple[IntArray, int]
     return order, max_len
 
 
-def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> IntArray:
+def _compiled(engine: EngineName | str) -> bool:
+    return resolve(engine).name is EngineName.COMPILED
+
+
+def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
+                        engine: EngineName | str = EngineName.AUTO) -> IntArray:
     """Return the number of features seen by both cameras, as a dense (M, M) upper triangle.
 
     Args:
         cam_idx: Camera of each observation, shape (K,).
         feat_idx: Feature of each observation, shape (K,).
         n_cams: Number of cameras M.
+        engine: The compiled pass (``'auto'``: where numba runs) or the numpy code.
 
     Returns:
         counts[a, b] for a < b (zero elsewhere), shape (M, M).
     """
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
+    if _compiled(engine):
+        return track_pairs.count_pairs(f, c, n_cams).reshape(n_cams, n_cams)
     counts = np.zeros(n_cams * n_cams, dtype=np.int64)
     for d in range(1, max_len):  # loop over the offset inside a track, not observations
         same = f[d:] == f[:-d]
@@ -85,7 +96,8 @@ def covisibility_counts(cam_idx: IntArray, feat_idx: IntArray, n_cams: int) -> I
 def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
                          min_matches: int, *, max_partners: int | None = None,
                          pairs: BoolArray | None = None, max_per_pair: int | None = None,
-                         counts: IntArray | None = None) -> PairCorrespondences:
+                         counts: IntArray | None = None,
+                         engine: EngineName | str = EngineName.AUTO) -> PairCorrespondences:
     """Return all camera pairs with at least ``min_matches`` common features and their matches.
 
     Args:
@@ -102,23 +114,28 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
             sample of :func:`~pmba_ros.init.two_view.sampled_parallax_px`), without holding
             them all at once.
         counts: :func:`covisibility_counts` of these observations, if the caller has them.
+        engine: The compiled pass (``'auto'``: where numba runs) or the numpy code.
 
     Returns:
         The pairs (sorted by (cam_a, cam_b)) and their correspondences.
     """
     if counts is None:
-        counts = covisibility_counts(cam_idx, feat_idx, n_cams)
+        counts = covisibility_counts(cam_idx, feat_idx, n_cams, engine)
     if pairs is None:
         pairs = counts >= max(int(min_matches), 1)
         if max_partners is not None:
             a, b = np.nonzero(pairs)
             pairs[a, b] = top_partners(a, b, counts[a, b].astype(float), n_cams, max_partners)
     selected = np.asarray(pairs, dtype=bool).ravel()
-    if max_per_pair is not None:
-        total = counts.ravel()
-        seen = np.zeros(n_cams * n_cams, dtype=np.int64)
+    total = counts.ravel()
     order, max_len = _track_layout(cam_idx, feat_idx)
     f, c = feat_idx[order], cam_idx[order]
+    if _compiled(engine):
+        pair_keys, offsets, pos_a, pos_b = track_pairs.join_pairs(f, c, n_cams, max_len, selected,
+                                                                  total, max_per_pair)
+        return PairCorrespondences(pair_keys // n_cams, pair_keys % n_cams, offsets,
+                                   order[pos_a], order[pos_b])
+    seen = np.zeros(n_cams * n_cams, dtype=np.int64)
     keys: list[IntArray] = []
     first: list[IntArray] = []
     second: list[IntArray] = []
@@ -137,6 +154,12 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
     key_all = np.concatenate(keys) if keys else np.zeros(0, dtype=np.int64)
     obs_a = np.concatenate(first) if first else np.zeros(0, dtype=np.int64)
     obs_b = np.concatenate(second) if second else np.zeros(0, dtype=np.int64)
+    return _csr(key_all, obs_a, obs_b, n_cams)
+
+
+def _csr(key_all: IntArray, obs_a: IntArray, obs_b: IntArray,
+         n_cams: int) -> PairCorrespondences:
+    """Return the correspondences grouped by pair key (stable: their order kept in a pair)."""
     srt = _stable_order(key_all, n_cams * n_cams)
     key_all, obs_a, obs_b = key_all[srt], obs_a[srt], obs_b[srt]
     pair_keys, starts = np.unique(key_all, return_index=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 from test.init.scenes import street_scene
+from typing import Any
 
 import numpy as np
 from pmba_ros.core import so3
@@ -70,6 +71,56 @@ def test_pair_correspondences_equal_brute_force_join(rng: np.random.Generator) -
     counts = covisibility.covisibility_counts(cam, feat, n_cams)
     for (a, b), common in expected.items():
         assert counts[a, b] == len(common)
+
+
+def _tracks(rng: np.random.Generator, n_cams: int, n_feats: int,
+            longest: int) -> tuple[np.ndarray, np.ndarray]:
+    """Return cam_idx, feat_idx of tracks of 1 to ``longest`` views, in random order."""
+    lengths = rng.integers(1, longest + 1, n_feats)
+    cam = np.concatenate([rng.choice(n_cams, k, replace=False) for k in lengths])
+    feat = np.repeat(np.arange(n_feats), lengths)
+    perm = rng.permutation(cam.shape[0])
+    return cam[perm].astype(np.int64), feat[perm].astype(np.int64)
+
+
+def test_pair_correspondence_engines_agree(engine: Engine) -> None:
+    """The compiled join gives the numpy reference's arrays, capped and sampled ones too."""
+    rng = np.random.default_rng(3)
+    n_cams = 40
+    cam, feat = _tracks(rng, n_cams, 3000, 30)
+    counts = covisibility.covisibility_counts(cam, feat, n_cams, 'numpy')
+    np.testing.assert_array_equal(
+        covisibility.covisibility_counts(cam, feat, n_cams, engine.name), counts)
+    mask = (counts >= 40) & (rng.random(counts.shape) < 0.5)
+    cases: list[dict[str, Any]] = [
+        {'min_matches': 5}, {'min_matches': 30, 'max_partners': 4},
+        {'min_matches': 0, 'pairs': mask, 'max_per_pair': 17, 'counts': counts},
+        {'min_matches': 0, 'pairs': mask, 'max_per_pair': 1}]
+    for kwargs in cases:
+        ref = covisibility.pair_correspondences(cam, feat, n_cams, engine='numpy', **kwargs)
+        out = covisibility.pair_correspondences(cam, feat, n_cams, engine=engine.name,
+                                                **kwargs)
+        assert ref.obs_a.shape[0] > 100
+        for field in ('cam_a', 'cam_b', 'offsets', 'obs_a', 'obs_b'):
+            np.testing.assert_array_equal(getattr(out, field), getattr(ref, field))
+
+
+def test_compiled_join_refuses_counts_of_other_tracks() -> None:
+    """Counts that are not the tracks' are an error, not writes past the arrays' end."""
+    pytest.importorskip('numba')
+    from pmba_ros.core.compiled import track_pairs
+
+    rng = np.random.default_rng(4)
+    cam, feat = _tracks(rng, 10, 200, 8)
+    order = np.lexsort((cam, feat))
+    f, c = feat[order], cam[order]
+    counts = track_pairs.count_pairs(f, c, 10)
+    selected = counts > 0
+    _, offsets, _, _ = track_pairs.join_pairs(f, c, 10, 8, selected, counts, None)
+    assert offsets[-1] == counts.sum()
+    for wrong in (counts // 2, counts + 1):
+        with pytest.raises(ValueError, match='not the count'):
+            track_pairs.join_pairs(f, c, 10, 8, selected, wrong, None)
 
 
 def test_relative_pose_5pt_recovers_noise_free_pose(rng: np.random.Generator) -> None:
