@@ -30,11 +30,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
-from pmba_ros.core.compiled import chunks
 from pmba_ros.core.engine import EngineName
 from pmba_ros.init import two_view
 
@@ -59,45 +57,6 @@ class Alternatives:
     t_rel: FloatArray
 
 
-def homography_poses(pairs: two_view.EGPairs, bearings_c: FloatArray, max_sample: int | None,
-                     ) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Return the poses of every pair's homography: R (P, 4, 3, 3), unit t (P, 4, 3), count.
-
-    OpenCV fits the homography to (a sample of) the pair's inliers by least squares, and
-    decomposes it into up to four (R, t, n); the pairs whose fit fails have none. No RANSAC:
-    the inliers are the 5-point model's, so where they see a plane they all fit its
-    homography, and where they do not, no pose of any homography passes the test of
-    :func:`alternatives`.
-    """
-    P = pairs.n_pairs
-    R, t = np.zeros((P, 4, 3, 3)), np.zeros((P, 4, 3))
-    count = np.zeros(P, dtype=np.int64)
-    sizes = np.diff(pairs.offsets)
-
-    def decompose(p: int) -> None:
-        rows = np.arange(pairs.offsets[p], pairs.offsets[p + 1])
-        if max_sample is not None:
-            rows = rows[two_view.sample_evenly(rows.shape[0], max_sample)]
-        b1, b2 = bearings_c[pairs.obs_a[rows]], bearings_c[pairs.obs_b[rows]]
-        try:
-            H, _ = cv2.findHomography(b1[:, :2] / b1[:, 2:3], b2[:, :2] / b2[:, 2:3], 0)
-            if H is None or not np.all(np.isfinite(H)):
-                return
-            _, rotations, translations, _ = cv2.decomposeHomographyMat(H, np.eye(3))
-        except cv2.error:
-            return
-        k = 0
-        for Rk, tk in zip(rotations, translations, strict=True):
-            norm = float(np.linalg.norm(tk))
-            if norm > 1e-12 and k < 4:  # a zero t: the pure rotation, no epipolar geometry
-                R[p, k], t[p, k], k = Rk, tk.ravel() / norm, k + 1
-        count[p] = k
-
-    cost = sizes if max_sample is None else np.minimum(sizes, max_sample)
-    chunks.each(decompose, cost, chunks.threads_for(int(np.sum(cost))))
-    return R, t, count
-
-
 def alternatives(pairs: two_view.EGPairs, bearings_c: FloatArray, focal_px: FloatArray,
                  threshold_px: float, min_deg: float, *, max_sample: int | None = 200,
                  engine: EngineName | str = EngineName.AUTO) -> Alternatives:
@@ -120,7 +79,7 @@ def alternatives(pairs: two_view.EGPairs, bearings_c: FloatArray, focal_px: Floa
     first = pairs.offsets[:-1]
     f_pair = np.sqrt(focal_px[pairs.obs_a[first]] * focal_px[pairs.obs_b[first]])
     thresholds = threshold_px / f_pair
-    R_h, t_h, count = homography_poses(pairs, bearings_c, max_sample)
+    R_h, t_h, count = two_view.homography_poses(pairs, bearings_c, max_sample)
     cand_pair, cand_k = np.nonzero(np.arange(4)[None, :] < count[:, None])
     if cand_pair.size == 0:
         return Alternatives(cand_pair, np.zeros((0, 3, 3)), np.zeros((0, 3)))
@@ -224,5 +183,5 @@ def resolved(pairs: two_view.EGPairs, alt: Alternatives, tol_deg: float,
     return replace(pairs, R_rel=R, t_rel=t), int(turn.sum())
 
 
-__all__ = ['SUPPORT', 'Alternatives', 'alternatives', 'homography_poses', 'resolved',
-           'triangle_votes', 'triangles']
+__all__ = ['SUPPORT', 'Alternatives', 'alternatives', 'resolved', 'triangle_votes',
+           'triangles']

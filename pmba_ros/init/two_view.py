@@ -484,6 +484,45 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     return pairs, rejected
 
 
+def homography_poses(pairs: EGPairs, bearings_c: FloatArray, max_sample: int | None,
+                     ) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Return the poses of every pair's homography: R (P, 4, 3, 3), unit t (P, 4, 3), count.
+
+    OpenCV fits the homography to (a sample of) the pair's inliers by least squares, and
+    decomposes it into up to four (R, t, n); the pairs whose fit fails have none. No RANSAC:
+    the inliers are the 5-point model's, so where they see a plane they all fit its
+    homography, and where they do not, no pose of any homography passes the test of
+    :func:`pmba_ros.init.planar_ambiguity.alternatives` (a plane's second pose).
+    """
+    P = pairs.n_pairs
+    R, t = np.zeros((P, 4, 3, 3)), np.zeros((P, 4, 3))
+    count = np.zeros(P, dtype=np.int64)
+    sizes = np.diff(pairs.offsets)
+
+    def decompose(p: int) -> None:
+        rows = np.arange(pairs.offsets[p], pairs.offsets[p + 1])
+        if max_sample is not None:
+            rows = rows[sample_evenly(rows.shape[0], max_sample)]
+        b1, b2 = bearings_c[pairs.obs_a[rows]], bearings_c[pairs.obs_b[rows]]
+        try:
+            H, _ = cv2.findHomography(b1[:, :2] / b1[:, 2:3], b2[:, :2] / b2[:, 2:3], 0)
+            if H is None or not np.all(np.isfinite(H)):
+                return
+            _, rotations, translations, _ = cv2.decomposeHomographyMat(H, np.eye(3))
+        except cv2.error:
+            return
+        k = 0
+        for Rk, tk in zip(rotations, translations, strict=True):
+            norm = float(np.linalg.norm(tk))
+            if norm > 1e-12 and k < 4:  # a zero t: the pure rotation, no epipolar geometry
+                R[p, k], t[p, k], k = Rk, tk.ravel() / norm, k + 1
+        count[p] = k
+
+    cost = sizes if max_sample is None else np.minimum(sizes, max_sample)
+    chunks.each(decompose, cost, chunks.threads_for(int(np.sum(cost))))
+    return R, t, count
+
+
 def refine_translations(pairs: EGPairs, bearings_c: FloatArray, R_wc: FloatArray,
                         engine: EngineName | str = EngineName.AUTO,
                         ) -> tuple[EGPairs, FloatArray]:

@@ -138,17 +138,22 @@ def each(fn: Callable[[int], None], cost: IntArray, n_threads: int,
     and the cost given is only an estimate. ``fn`` must write item i's result to its own
     place, so that the results do not depend on which thread ran it. ``tick(taken, total)``
     is called on the calling thread after each of its items (the items taken so far by all
-    threads); an exception it raises stops the calling thread's work and is raised here
-    once the other threads end.
+    threads); an exception it raises (a cancelled update) is raised here, and the other
+    threads stop after the item they are on.
     """
     queue = np.argsort(-np.asarray(cost), kind='stable')
     taken = itertools.count()
     total = int(queue.shape[0])
+    stop = threading.Event()
 
     def work(thread: int) -> None:
-        while (i := next(taken)) < total:
+        while not stop.is_set() and (i := next(taken)) < total:
             fn(int(queue[i]))
             if tick is not None and thread == 0:
-                tick(min(i + 1, total), total)
+                try:
+                    tick(min(i + 1, total), total)
+                except BaseException:
+                    stop.set()
+                    raise
 
     run(work, n_threads)
