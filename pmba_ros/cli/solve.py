@@ -478,13 +478,23 @@ def _warn_components(problem: BAProblem, report: dict[str, Any]) -> None:
 
 
 def _warn_left_out(problem: BAProblem, init: Any, report: dict[str, Any]) -> None:
-    """Warn about cameras a global initialization could not place (so did not solve)."""
+    """Warn about cameras a global initialization could not place (so did not solve).
+
+    Also when most image pairs had no baseline: the cameras then hang on the few that had.
+    """
     left = problem.n_cams - init.camera_index.shape[0]
     if left > 0:
         _warn(report, f'global initialization: {left} of {problem.n_cams} cameras could not be '
               'placed (outside the largest group of views joined by two-view geometry, or '
               "without enough features; the report's init says which) and were not solved; "
               'a written model keeps them as read')
+    pairs = init.report['pairs']
+    still = pairs['pairs_rejected']['low_parallax']
+    if still > pairs['pairs_found']:
+        _warn(report, f'global initialization: {still} of {pairs["pairs_candidate"]} image pairs '
+              'show no baseline (the camera turned in place between them, as for a panorama): '
+              f'the cameras were placed from the {pairs["pairs_found"]} pairs with one, and '
+              'their positions are only as good as those baselines')
 
 
 def _resumed(init_report: dict[str, Any]) -> str:

@@ -283,6 +283,40 @@ def test_cameras_the_global_initialization_leaves_out_are_warned_about(tmp_path:
     assert warning.startswith('global initialization: 8 of 18 cameras could not be placed')
 
 
+def test_a_collection_turned_in_place_is_said_to_lack_baseline(tmp_path: Path) -> None:
+    """16 of 20 images taken from one spot: their pairs have no baseline, and it is said.
+
+    The four that move place them all; before, nothing said that most pairs had no baseline.
+    """
+    import numpy as np
+    from pmba_ros.core.camera import project
+    from pmba_ros.core.problem import make_problem
+    from pmba_ros.io.bal import write_bal
+    from pmba_ros.sim.scenes import street_scene
+
+    gt = street_scene(3, n_cams=20, n_points=500).gt
+    centers = gt.centers_w.copy()
+    centers[:16] = centers[0]
+    obs = gt.obs
+    points = np.asarray(gt.points_w)
+    h_c = np.einsum('kji,kj->ki', gt.R_wc[obs.cam_idx],
+                    points[obs.feat_idx] - centers[obs.cam_idx])
+    front = h_c[:, 2] > 1.0
+    pixels = project(h_c[front], gt.intrinsics, obs.cam_idx[front])
+    pixels += np.random.default_rng(0).normal(0.0, 0.5, pixels.shape)
+    turned = make_problem(gt.R_wc, centers, gt.intrinsics, obs.cam_idx[front],
+                          obs.feat_idx[front], pixels, points_w=points, n_feats=gt.n_feats)
+    write_bal(tmp_path / 'turned.txt', turned)
+    assert main(['solve', str(tmp_path / 'turned.txt'), '--init', 'global', '--quiet',
+                 '--report', str(tmp_path / 'r.json')]) == 0
+    report = json.loads((tmp_path / 'r.json').read_text())
+    (warning,) = [w for w in report['warnings'] if 'baseline' in w]
+    pairs = report['init']['pairs']
+    assert pairs['pairs_rejected']['low_parallax'] >= 100 > pairs['pairs_found']
+    assert warning.startswith(f'global initialization: {pairs["pairs_rejected"]["low_parallax"]}'
+                              f' of {pairs["pairs_candidate"]} image pairs show no baseline')
+
+
 def test_an_earlier_models_colmap_files_are_removed_from_out(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Binary files and rigs of an earlier run would be read instead of a refined text model."""
