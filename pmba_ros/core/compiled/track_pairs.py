@@ -15,10 +15,10 @@
 
 Observations are sorted by feature, then camera, so a track is a run of equal features. The
 numpy code passes over all observations once per offset d inside a track (up to the longest
-track, hundreds of views in a photo collection); here only the positions whose track goes on
-d views further are visited, so the work is the number of correspondences. Both visit the
+track, hundreds of views in a photo collection); here, for each d, only the tracks longer
+than d are walked, so the work is the number of correspondences. Both visit the
 correspondences in the same order (offset first, then position), so they return the same
-arrays.
+arrays; the counts, where order does not matter, are counted track by track.
 """
 
 from __future__ import annotations
