@@ -53,6 +53,7 @@ from pmba_ros.core.camera import Intrinsics
 from pmba_ros.core.problem import make_problem
 from pmba_ros.errors import FormatError, ProblemError
 from pmba_ros.io.colmap_cameras import camera_model, through_pinhole
+from pmba_ros.io.colmap_errors import track_errors
 from pmba_ros.io.colmap_files import (
     BinaryReader,
     check_new_id,
@@ -454,7 +455,7 @@ def updated(model: ColmapModel, image_ids: IntArray, R_wc: FloatArray, centers_w
     """Return the model with new poses for ``image_ids`` and positions for ``point_ids``.
 
     Non-finite points (PMBA points at infinity, which COLMAP cannot store) keep their stored
-    position.
+    position. The points' reprojection errors are computed again for the new model.
     """
     q, t = poses_to_colmap(R_wc, centers_w)
     images = dict(model.images)
@@ -465,7 +466,8 @@ def updated(model: ColmapModel, image_ids: IntArray, R_wc: FloatArray, centers_w
     rows = np.array([index[int(p)] for p in point_ids], dtype=np.int64)
     finite = np.all(np.isfinite(points_w), axis=1)
     xyz[rows[finite]] = np.asarray(points_w)[finite]
-    return replace(model, images=images, xyz=xyz)
+    refined = replace(model, images=images, xyz=xyz)
+    return replace(refined, error=track_errors(refined))
 
 
 # ---- writing -----------------------------------------------------------------------------

@@ -534,6 +534,14 @@ def test_opencv_and_fisheye_cameras_solve_to_colmaps_own_optimum(
     assert behind == 0 and rms < 0.75   # the 0.5 px noise per axis, less what the fit takes
     assert rms <= _colmap_rms(theirs)[0] * (1 + 1e-4)
     assert report['final_rms_px'] == pytest.approx(rms, rel=1e-3)   # first order in the pixels
+    # The points' errors written are the refined model's, as COLMAP computes them (they were
+    # copied from the start's before).
+    written = pycolmap.Reconstruction(str(tmp_path / 'ours'))
+    stored = {pid: p.error for pid, p in written.points3D.items()}
+    written.update_point_3d_errors()
+    for pid, point in written.points3D.items():
+        assert stored[pid] == pytest.approx(point.error, rel=1e-9, abs=1e-9)
+    assert written.compute_mean_reprojection_error() < 0.8
 
 
 def test_each_image_is_undistorted_by_its_own_camera() -> None:
