@@ -488,7 +488,7 @@ def _warn_left_out(problem: BAProblem, init: Any, report: dict[str, Any]) -> Non
               'placed (outside the largest group of views joined by two-view geometry, or '
               "without enough features; the report's init says which) and were not solved; "
               'a written model keeps them as read')
-    pairs = init.report['pairs']
+    pairs = init.to_report()['pairs']   # an InitResult's or a rig initialization's
     still = pairs['pairs_rejected']['low_parallax']
     if still > pairs['pairs_found']:
         _warn(report, f'global initialization: {still} of {pairs["pairs_candidate"]} image pairs '
