@@ -76,9 +76,8 @@ def alternatives(pairs: two_view.EGPairs, bearings_c: FloatArray, focal_px: Floa
         max_sample: Inliers of a pair used (evenly spread; None: all).
         engine: The engine of the tests (:func:`~pmba_ros.init.two_view.check_models`).
     """
-    first = pairs.offsets[:-1]
-    f_pair = np.sqrt(focal_px[pairs.obs_a[first]] * focal_px[pairs.obs_b[first]])
-    thresholds = threshold_px / f_pair
+    thresholds = threshold_px / two_view.pair_focal_px(pairs.offsets, pairs.obs_a, pairs.obs_b,
+                                                       focal_px)
     R_h, t_h, count = two_view.homography_poses(pairs, bearings_c, max_sample)
     cand_pair, cand_k = np.nonzero(np.arange(4)[None, :] < count[:, None])
     if cand_pair.size == 0:

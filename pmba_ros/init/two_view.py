@@ -126,9 +126,8 @@ def sampled_parallax_px(corr: covisibility.PairCorrespondences, bearings_c: Floa
     i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
     rows = corr.offsets[seg] + (i * n[seg]) // np.maximum(m[seg], 1)
     ia, ib = corr.obs_a[rows], corr.obs_b[rows]
-    first = corr.offsets[:-1]
-    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
-    return rotation_only_parallaxes(bearings_c[ia], bearings_c[ib], seg, corr.n_pairs) * f_pair
+    return (rotation_only_parallaxes(bearings_c[ia], bearings_c[ib], seg, corr.n_pairs)
+            * pair_focal_px(corr.offsets, corr.obs_a, corr.obs_b, focal_px))
 
 
 def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: FloatArray,
@@ -225,6 +224,17 @@ def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
     R = _procrustes(cov.astype(float))
     cosang = np.clip(np.sum(b2 * np.einsum('kij,kj->ki', R[segment], b1), axis=1), -1.0, 1.0)
     return _segment_medians(np.arccos(cosang), segment, n_segments)
+
+
+def pair_focal_px(offsets: IntArray, obs_a: IntArray, obs_b: IntArray,
+                  focal_px: FloatArray) -> FloatArray:
+    """Return each pair's focal length (px), sqrt(f_a f_b) at its first correspondence (P,).
+
+    Every pair has a correspondence (``offsets`` strictly increasing).
+    """
+    first = offsets[:-1]
+    f_pair: FloatArray = np.sqrt(focal_px[obs_a[first]] * focal_px[obs_b[first]])
+    return f_pair
 
 
 def _normalized(b: FloatArray) -> FloatArray:
@@ -438,8 +448,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     b1_all, b2_all = bearings_c[corr.obs_a], bearings_c[corr.obs_b]
     front = (b1_all[:, 2] > 1e-3) & (b2_all[:, 2] > 1e-3)
     n_front = np.bincount(seg_all[front], minlength=n_pairs)
-    first = corr.offsets[:-1]  # every candidate pair has a correspondence
-    f_pair = np.sqrt(focal_px[corr.obs_a[first]] * focal_px[corr.obs_b[first]])
+    f_pair = pair_focal_px(corr.offsets, corr.obs_a, corr.obs_b, focal_px)
     thresholds = threshold_px / f_pair
     E = np.zeros((n_pairs, 3, 3))
     has_model = np.zeros(n_pairs, dtype=bool)

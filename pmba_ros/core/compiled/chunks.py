@@ -151,7 +151,7 @@ def each(fn: Callable[[int], None], cost: IntArray, n_threads: int,
             fn(int(queue[i]))
             if tick is not None and thread == 0:
                 try:
-                    tick(min(i + 1, total), total)
+                    tick(i + 1, total)
                 except BaseException:
                     stop.set()
                     raise
