@@ -111,7 +111,7 @@ def pair_correspondences(cam_idx: IntArray, feat_idx: IntArray, n_cams: int,
             (``min_matches`` and ``max_partners`` are then not used).
         max_per_pair: If set, keep at most this many correspondences of each pair, evenly
             spread over the pair's correspondences in the order returned without it (the
-            sample of :func:`~pmba_ros.init.two_view.sampled_parallax_px`), without holding
+            sample of :func:`~pmba_ros.init.parallax.sampled_parallax_px`), without holding
             them all at once.
         counts: :func:`covisibility_counts` of these observations, if the caller has them.
         engine: The compiled pass (``'auto'``: where numba runs) or the numpy code.

@@ -54,6 +54,10 @@ class InitOptions:
             whose minimal-sample model is several times less accurate).
         min_pair_parallax_px: Minimum median parallax (px) that the best pure rotation leaves
             on a pair's inliers; pairs below it have no usable baseline (pure rotation).
+        min_pair_parallax_noise: That parallax must also be this many times the median a
+            pure rotation would leave with the pair's own noise (measured from its
+            epipolar distances): noisy matches leave parallax without a baseline, and
+            clean ones show a small baseline.
         max_tree_disagreement_deg: Discard EG pairs whose rotation disagrees with the rotations
             chained along the maximum spanning tree by more than this.
         max_pair_disagreement_deg: After averaging, prune EG pairs that disagree with the
@@ -92,7 +96,8 @@ class InitOptions:
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.999
     ransac_method: str = 'usac_fast'
-    min_pair_parallax_px: float = 2.0
+    min_pair_parallax_px: float = 1.0
+    min_pair_parallax_noise: float = 1.5
     max_tree_disagreement_deg: float = 5.0
     max_pair_disagreement_deg: float = 2.0
     rotation_cauchy_deg: float = 1.0
@@ -134,8 +139,10 @@ class InitOptions:
         if self.register_min_points != 0 and self.register_min_points < 6:
             msg = '`register_min_points` must be 0 (off) or >= 6 (a pose and some to spare)'
             raise ValueError(msg)
-        if self.min_pair_parallax_px < 0.0 or self.theta_floor_px < 0.0:
-            msg = '`min_pair_parallax_px` and `theta_floor_px` must be >= 0'
+        if min(self.min_pair_parallax_px, self.min_pair_parallax_noise,
+               self.theta_floor_px) < 0.0:
+            msg = ('`min_pair_parallax_px`, `min_pair_parallax_noise` and `theta_floor_px` '
+                   'must be >= 0')
             raise ValueError(msg)
         if self.solve_options.param.value != 'pmba':
             msg = '`solve_options.param` must be pmba (the features are parallax features)'

@@ -30,11 +30,11 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray
 from pmba_ros.core.problem import BAProblem
 from pmba_ros.errors import InitError
-from pmba_ros.init import covisibility, planar_ambiguity, two_view
+from pmba_ros.init import covisibility, parallax, planar_ambiguity, two_view
 from pmba_ros.init.options import InitOptions
 
 #: Correspondences per pair that rank the partners (the sample of
-#: :func:`~pmba_ros.init.two_view.sampled_parallax_px`).
+#: :func:`~pmba_ros.init.parallax.sampled_parallax_px`).
 PARTNER_SAMPLE = 100
 
 
@@ -52,13 +52,13 @@ def best_partners(n_cams: int, corr: covisibility.PairCorrespondences, shared: F
     ``min_parallax_px`` (near pure rotation, rejected after the RANSAC anyway) rank last for
     both.
     """
-    parallax = two_view.sampled_parallax_px(corr, bearings_c, focal, PARTNER_SAMPLE)
-    baseline = parallax >= min_parallax_px
+    quick = parallax.sampled_parallax_px(corr, bearings_c, focal, PARTNER_SAMPLE)
+    baseline = quick >= min_parallax_px
     rest = shared / (1.0 + float(shared.max()))  # below 1: orders only the rest by tracks
     by_tracks = covisibility.top_partners(corr.cam_a, corr.cam_b,
                                           np.where(baseline, shared, 0.0) + rest, n_cams,
                                           max_partners // 2)
-    score = np.where(baseline, parallax * np.sqrt(shared), 0.0) + rest
+    score = np.where(baseline, quick * np.sqrt(shared), 0.0) + rest
     by_baseline = covisibility.top_partners(corr.cam_a, corr.cam_b, score, n_cams,
                                             max_partners - max_partners // 2)
     return by_tracks | by_baseline
@@ -99,19 +99,23 @@ def estimate_pairs(problem: BAProblem, options: InitOptions,
     pairs, rejected = two_view.estimate_eg_pairs(
         obs.bearings_c, focal, corr, threshold_px=options.ransac_threshold_px,
         min_inliers=options.min_pair_inliers, min_parallax_px=options.min_pair_parallax_px,
+        min_parallax_noise=options.min_pair_parallax_noise,
         prob=options.ransac_confidence, method=two_view.RANSAC_METHODS[options.ransac_method],
         max_sample=options.ransac_max_points, tick=tick)
     entries = {'pairs_covisible': n_covisible, 'pairs_candidate': corr.n_pairs,
                'pairs_found': pairs.n_pairs,
                'pairs_rejected': rejected,
                'inliers': {'median': float(np.median(pairs.n_inliers)) if pairs.n_pairs
-                           else 0.0}}
+                           else 0.0},
+               'noise_px': {'median': float(np.median(pairs.noise_px)) if pairs.n_pairs
+                            else 0.0}}
     if pairs.n_pairs == 0:
         if rejected['low_parallax'] > 0 and rejected['low_parallax'] >= corr.n_pairs // 2:
             msg = (f'global init: no EG pair has a baseline: {rejected["low_parallax"]} of '
                    f'{corr.n_pairs} pairs have median parallax below '
-                   f'{options.min_pair_parallax_px} px after removing the rotation (pure '
-                   'rotation? PMBA needs anchors with a baseline, pmba.md §3.3)')
+                   f'{options.min_pair_parallax_px} px or {options.min_pair_parallax_noise} '
+                   "times their noise's after removing the rotation (pure rotation? PMBA "
+                   'needs anchors with a baseline, pmba.md §3.3)')
         else:
             msg = f'global init: no EG pair could be estimated (rejected: {rejected})'
         raise InitError(msg)

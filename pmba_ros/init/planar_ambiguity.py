@@ -34,7 +34,7 @@ import numpy as np
 from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.engine import EngineName
-from pmba_ros.init import two_view
+from pmba_ros.init import parallax, two_view
 
 #: An alternative pose must put this share of the pair's inliers in front of both cameras
 #: within twice the RANSAC threshold: a plane's second pose does (it explains the same
@@ -76,7 +76,7 @@ def alternatives(pairs: two_view.EGPairs, bearings_c: FloatArray, focal_px: Floa
         max_sample: Inliers of a pair used (evenly spread; None: all).
         engine: The engine of the tests (:func:`~pmba_ros.init.two_view.check_models`).
     """
-    thresholds = threshold_px / two_view.pair_focal_px(pairs.offsets, pairs.obs_a, pairs.obs_b,
+    thresholds = threshold_px / parallax.pair_focal_px(pairs.offsets, pairs.obs_a, pairs.obs_b,
                                                        focal_px)
     R_h, t_h, count = two_view.homography_poses(pairs, bearings_c, max_sample)
     cand_pair, cand_k = np.nonzero(np.arange(4)[None, :] < count[:, None])

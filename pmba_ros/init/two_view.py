@@ -31,7 +31,7 @@ OpenCV calls loop over pairs.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import logging
 
 import numpy as np
@@ -47,7 +47,7 @@ from pmba_ros._typing import BoolArray, FloatArray, IntArray
 from pmba_ros.core import so3
 from pmba_ros.core.compiled import chunks, epipolar
 from pmba_ros.core.engine import EngineName, resolve
-from pmba_ros.init import covisibility
+from pmba_ros.init import covisibility, parallax
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +71,8 @@ class EGPairs:
         obs_a: Inlier observation indices in cam_a, shape (C,).
         obs_b: Inlier observation indices in cam_b, shape (C,).
         parallax_px: Median parallax of the inliers left by the best pure rotation (px), (P,).
+        noise_px: The median parallax a pure rotation would leave with the pair's noise
+            (px), (P,).
     """
 
     cam_a: IntArray
@@ -82,6 +84,7 @@ class EGPairs:
     obs_a: IntArray
     obs_b: IntArray
     parallax_px: FloatArray
+    noise_px: FloatArray
 
     @property
     def n_pairs(self) -> int:
@@ -100,34 +103,8 @@ class EGPairs:
         return EGPairs(self.cam_a[keep], self.cam_b[keep], self.R_rel[keep], self.t_rel[keep],
                        self.n_inliers[keep],
                        np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
-                       self.obs_a[corr_keep], self.obs_b[corr_keep], self.parallax_px[keep])
-
-
-def sampled_parallax_px(corr: covisibility.PairCorrespondences, bearings_c: FloatArray,
-                        focal_px: FloatArray, max_points: int = 100) -> FloatArray:
-    """Return a quick median rotation-compensated parallax (px) of every candidate pair.
-
-    :func:`rotation_only_parallaxes` on at most ``max_points`` of each pair's
-    correspondences (evenly spread, outliers included): a cheap estimate before any RANSAC,
-    to prefer pairs with a baseline.
-
-    Args:
-        corr: Candidate pairs.
-        bearings_c: Unit bearings of all observations, shape (K, 3).
-        focal_px: Focal length of the observing camera of every observation, shape (K,).
-        max_points: Correspondences used per pair.
-
-    Returns:
-        Parallax estimates, shape (P,) (px, with the pair's mean focal length).
-    """
-    n = corr.counts()
-    m = np.minimum(n, max_points)
-    seg = np.repeat(np.arange(corr.n_pairs), m)
-    i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
-    rows = corr.offsets[seg] + (i * n[seg]) // np.maximum(m[seg], 1)
-    ia, ib = corr.obs_a[rows], corr.obs_b[rows]
-    return (rotation_only_parallaxes(bearings_c[ia], bearings_c[ib], seg, corr.n_pairs)
-            * pair_focal_px(corr.offsets, corr.obs_a, corr.obs_b, focal_px))
+                       self.obs_a[corr_keep], self.obs_b[corr_keep], self.parallax_px[keep],
+                       self.noise_px[keep])
 
 
 def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: FloatArray,
@@ -155,86 +132,6 @@ def cheirality_depths(R_rel: FloatArray, t_rel: FloatArray, b1: FloatArray, b2: 
     lam1 = -np.sum(so3.cross(t, b2) * m, axis=1) / mm
     lam2 = -np.sum(so3.cross(t, Rb1) * m, axis=1) / mm
     return lam1, lam2
-
-
-def _segment_medians(values: FloatArray, segment: IntArray, n_segments: int) -> FloatArray:
-    """Return the median of ``values`` within each segment id (0 for an empty segment)."""
-    # One sort of segment + a value squashed into [0, 1): cheaper than a two-key lexsort.
-    lo_v, hi_v = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
-    squashed = (values - lo_v) / ((hi_v - lo_v) * (1.0 + 1e-9) + 1e-300)
-    v = values[np.argsort(segment + squashed)]
-    counts = np.bincount(segment, minlength=n_segments)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    lo = starts + np.maximum(counts - 1, 0) // 2
-    hi = starts + counts // 2
-    med = np.zeros(n_segments)
-    has = counts > 0
-    med[has] = 0.5 * (v[lo[has]] + v[hi[has]])
-    return med
-
-
-def _segment_sums(values: FloatArray, offsets: IntArray) -> FloatArray:
-    """Return the sums of ``values`` (C, ...) over the CSR segments ``offsets`` (P+1,)."""
-    out = np.zeros((offsets.shape[0] - 1, *values.shape[1:]))
-    nonempty = np.diff(offsets) > 0
-    if values.shape[0]:
-        out[nonempty] = np.add.reduceat(values, offsets[:-1][nonempty], axis=0)
-    return out
-
-
-def _procrustes(cov: FloatArray) -> FloatArray:
-    """Return the rotations R (P, 3, 3) that maximise tr(R^T cov) (orthogonal Procrustes)."""
-    U, _, Vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
-    R: FloatArray = U @ Vt
-    return R
-
-
-def rotation_only_parallaxes(b1: FloatArray, b2: FloatArray, segment: IntArray,
-                             n_segments: int, mask: BoolArray | None = None,
-                             engine: EngineName | str = EngineName.AUTO) -> FloatArray:
-    """Return, per segment, the median angle (rad) left between b2 and R b1 by the best R.
-
-    R is the orthogonal Procrustes fit (b2 ~ R b1) of each segment (pair) of correspondences.
-    For a pair without baseline (pure rotation) the result is at noise level, whatever the
-    essential matrix says.
-
-    Args:
-        b1: Unit bearings in camera 1, shape (C, 3).
-        b2: Unit bearings in camera 2, shape (C, 3).
-        segment: Segment (pair) of every correspondence, shape (C,), values < n_segments,
-            sorted.
-        n_segments: Number of segments P.
-        mask: Optional correspondences to use, shape (C,) (None: all).
-        engine: The compiled loops (``'auto'``: where numba runs) or the numpy code.
-
-    Returns:
-        Median angles, shape (P,) (0 for a segment without correspondences).
-    """
-    if resolve(engine).name is EngineName.COMPILED:
-        use = np.ones(segment.shape[0], dtype=bool) if mask is None else mask
-        R = _procrustes(epipolar.rotation_covariances(b1, b2, segment, use, n_segments))
-        return epipolar.median_angles(R, b1, b2, segment, use, n_segments)
-    if mask is not None:
-        b1, b2, segment = b1[mask], b2[mask], segment[mask]
-    outer = (b2[:, :, None] * b1[:, None, :]).reshape(-1, 9)
-    cov = np.stack([np.bincount(segment, weights=outer[:, c], minlength=n_segments)
-                    for c in range(9)], axis=1).reshape(n_segments, 3, 3)
-    R = _procrustes(cov.astype(float))
-    cosang = np.clip(np.sum(b2 * np.einsum('kij,kj->ki', R[segment], b1), axis=1), -1.0, 1.0)
-    return _segment_medians(np.arccos(cosang), segment, n_segments)
-
-
-def pair_focal_px(offsets: IntArray, obs_a: IntArray, obs_b: IntArray,
-                  focal_px: FloatArray) -> FloatArray:
-    """Return each pair's focal length (px), sqrt(f_a f_b) at its first correspondence (P,).
-
-    Every pair has a correspondence (``offsets`` strictly increasing).
-    """
-    first = offsets[:-1]
-    f_pair: FloatArray = np.sqrt(focal_px[obs_a[first]] * focal_px[obs_b[first]])
-    return f_pair
 
 
 def _normalized(b: FloatArray) -> FloatArray:
@@ -404,6 +301,7 @@ def check_models(E: FloatArray, thresholds: FloatArray, b1: FloatArray, b2: Floa
 def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
                       corr: covisibility.PairCorrespondences, *, threshold_px: float = 1.0,
                       min_inliers: int = 20, min_parallax_px: float = 1.0,
+                      min_parallax_noise: float = 0.0,
                       prob: float = 0.999, method: int = cv2.USAC_FAST,
                       max_sample: int | None = None,
                       engine: EngineName | str = EngineName.AUTO,
@@ -416,9 +314,13 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     the epipolar inliers among all correspondences (Sampson distance), the choice of (R, t) by
     cheirality, and the parallax test. A pair is kept if its model has at least
     ``min_inliers`` cheirality inliers and the median parallax that the best pure rotation
-    leaves on its epipolar inliers (:func:`rotation_only_parallaxes`) is at least
-    ``min_parallax_px``; otherwise the pair has no usable baseline (pure rotation) and its
-    translation direction is undetermined.
+    leaves on its epipolar inliers
+    (:func:`~pmba_ros.init.parallax.rotation_only_parallaxes`) is at least
+    ``min_parallax_px`` and ``min_parallax_noise`` times what the pair's noise alone would
+    leave; otherwise the pair has no usable baseline (pure rotation) and its translation
+    direction is undetermined. The noise is measured on the correspondences given to the
+    RANSAC (:func:`~pmba_ros.init.parallax.noise_sigma`), and a pure rotation would leave
+    :data:`~pmba_ros.init.parallax.ROTATION_NOISE_PER_SIGMA` times it.
 
     Args:
         bearings_c: Unit bearings of all observations (camera frame), shape (K, 3).
@@ -427,6 +329,8 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         threshold_px: RANSAC threshold in pixels (divided by the pair's focal length).
         min_inliers: Minimum number of cheirality inliers.
         min_parallax_px: Minimum median parallax (px) left by the best pure rotation.
+        min_parallax_noise: Minimum ratio of that parallax to the median a pure rotation
+            would leave with the pair's noise.
         prob: RANSAC confidence.
         method: OpenCV robust method.
         max_sample: Largest number of a pair's correspondences given to the RANSAC (None:
@@ -448,10 +352,11 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     b1_all, b2_all = bearings_c[corr.obs_a], bearings_c[corr.obs_b]
     front = (b1_all[:, 2] > 1e-3) & (b2_all[:, 2] > 1e-3)
     n_front = np.bincount(seg_all[front], minlength=n_pairs)
-    f_pair = pair_focal_px(corr.offsets, corr.obs_a, corr.obs_b, focal_px)
+    f_pair = parallax.pair_focal_px(corr.offsets, corr.obs_a, corr.obs_b, focal_px)
     thresholds = threshold_px / f_pair
     E = np.zeros((n_pairs, 3, 3))
     has_model = np.zeros(n_pairs, dtype=bool)
+    noise_px = np.zeros(n_pairs)
     front_idx = np.flatnonzero(front)
     front_offsets = np.concatenate([[0], np.cumsum(n_front)])
     todo = np.flatnonzero(n_front >= max(min_inliers, 5))
@@ -463,10 +368,13 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
         p = todo[i]
         rows = front_idx[front_offsets[p]:front_offsets[p + 1]]
         rows = rows if max_sample is None else rows[sample_evenly(rows.shape[0], max_sample)]
-        model = essential_5pt(b1_all[rows], b2_all[rows], float(thresholds[p]),
-                              prob=prob, method=method)
+        b1, b2 = b1_all[rows], b2_all[rows]
+        model = essential_5pt(b1, b2, float(thresholds[p]), prob=prob, method=method)
         if model is not None:
             E[p], has_model[p] = model, True
+            distances = sampson_errors(np.broadcast_to(model, (rows.shape[0], 3, 3)), b1, b2)
+            sigma = parallax.noise_sigma(distances)
+            noise_px[p] = parallax.ROTATION_NOISE_PER_SIGMA * sigma * f_pair[p]
 
     chunks.each(estimate, cost, chunks.threads_for(int(np.sum(n_front[todo]))), tick)
     rejected['too_few_inliers'] += int(np.sum(n_front < max(min_inliers, 5)))
@@ -478,9 +386,9 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     epi, n_epi, R, t, inl, counts = check_models(E, thresholds, b1, b2, seg, engine)
     # Parallax on the epipolar inliers, before cheirality: without baseline the
     # cheirality test of an arbitrary t drops points at random.
-    par_px = rotation_only_parallaxes(b1, b2, seg, n_pairs, epi, engine) * f_pair
+    par_px = parallax.rotation_only_parallaxes(b1, b2, seg, n_pairs, epi, engine) * f_pair
     par_px = np.where(n_epi >= 5, par_px, 0.0)
-    low = has_model & (par_px < min_parallax_px)
+    low = has_model & (par_px < np.maximum(min_parallax_px, min_parallax_noise * noise_px))
     few = has_model & ~low & (counts < min_inliers)
     rejected['low_parallax'] += int(np.sum(low))
     rejected['too_few_inliers'] += int(np.sum(few))
@@ -489,7 +397,7 @@ def estimate_eg_pairs(bearings_c: FloatArray, focal_px: FloatArray,
     rows = np.flatnonzero(sel)[inl_keep]  # sorted by pair, as corr
     pairs = EGPairs(corr.cam_a[keep], corr.cam_b[keep], R[keep], t[keep], counts[keep],
                     np.concatenate([[0], np.cumsum(counts[keep])]).astype(np.int64),
-                    corr.obs_a[rows], corr.obs_b[rows], par_px[keep])
+                    corr.obs_a[rows], corr.obs_b[rows], par_px[keep], noise_px[keep])
     return pairs, rejected
 
 
@@ -585,6 +493,4 @@ def _with_translations(pairs: EGPairs, R_wc: FloatArray, R_rel: FloatArray, t: F
     """Return the pairs with R_rel and t (flipped where the depth votes are negative), d_ab."""
     t = t * np.where(votes < 0, -1.0, 1.0)[:, None]
     d_world = np.einsum('pij,pj->pi', R_wc[pairs.cam_b], t)
-    new = EGPairs(pairs.cam_a, pairs.cam_b, R_rel, t, pairs.n_inliers, pairs.offsets,
-                  pairs.obs_a, pairs.obs_b, pairs.parallax_px)
-    return new, d_world
+    return replace(pairs, R_rel=R_rel, t_rel=t), d_world

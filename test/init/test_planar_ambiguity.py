@@ -94,7 +94,8 @@ def test_the_rotations_that_close_triangles_win() -> None:
     assert np.all(votes[np.arange(28), right] == 6)
     assert np.all(votes[np.arange(28), 1 - right] <= 1)
     pairs = two_view.EGPairs(a, b, R_two[:, 0], np.zeros((28, 3)), np.full(28, 50),
-                             np.arange(29), np.arange(28), np.arange(28), np.ones(28))
+                             np.arange(29), np.arange(28), np.arange(28), np.ones(28),
+                             np.zeros(28))
     alt = planar_ambiguity.Alternatives(np.arange(28), R_two[:, 1], np.ones((28, 3)))
     resolved, turned = planar_ambiguity.resolved(pairs, alt, 2.0)
     assert turned == 14
@@ -107,7 +108,8 @@ def test_noisy_rotations_keep_the_ransac_pose() -> None:
     wrong_first = np.arange(28) % 2 == 0
     a, b, R_two, _, _ = _graph_with_alternatives(2, 6.0, wrong_first)
     pairs = two_view.EGPairs(a, b, R_two[:, 0], np.zeros((28, 3)), np.full(28, 50),
-                             np.arange(29), np.arange(28), np.arange(28), np.ones(28))
+                             np.arange(29), np.arange(28), np.arange(28), np.ones(28),
+                             np.zeros(28))
     alt = planar_ambiguity.Alternatives(np.arange(28), R_two[:, 1], np.ones((28, 3)))
     votes, _ = planar_ambiguity.triangle_votes(a, b, R_two, np.ones(28, dtype=bool), 2.0)
     assert votes.sum() > 0   # a few triangles close by chance

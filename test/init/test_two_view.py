@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.engine import Engine
-from pmba_ros.init import covisibility, two_view
+from pmba_ros.core.problem import BAProblem
+from pmba_ros.init import covisibility, parallax, two_view
+from pmba_ros.init.options import InitOptions
 import pytest
 
 
@@ -149,7 +151,7 @@ def test_cheirality_depths_are_positive_in_front_and_flip_with_t(
 def _parallax(b1: np.ndarray, b2: np.ndarray) -> float:
     """Return the rotation-compensated parallax of one pair of bearing sets, rad."""
     one = np.zeros(b1.shape[0], dtype=np.int64)
-    return float(two_view.rotation_only_parallaxes(b1, b2, one, 1)[0])
+    return float(parallax.rotation_only_parallaxes(b1, b2, one, 1)[0])
 
 
 def test_rotation_only_parallax_is_noise_level_for_pure_rotation(
@@ -184,6 +186,49 @@ def test_eg_pairs_reject_pure_rotation_as_low_parallax() -> None:
         p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr, min_parallax_px=2.0)
     assert pairs.n_pairs == 0
     assert rejected['low_parallax'] == corr.n_pairs, rejected
+
+
+def test_noise_sigma_reads_the_noise_past_wrong_matches(rng: np.random.Generator) -> None:
+    """A fifth of the Sampson distances far off: sigma within 10 %, the plain median not."""
+    sigma = 0.7
+    distances = np.abs(rng.normal(scale=sigma, size=2000))
+    distances[:400] = rng.uniform(5.0, 200.0, 400)
+    assert parallax.noise_sigma(distances) == pytest.approx(sigma, rel=0.1)
+    assert np.median(distances) / 0.6745 > 1.2 * sigma
+
+
+def _pairs_old_and_new(p: BAProblem) -> tuple[two_view.EGPairs, two_view.EGPairs]:
+    """Return the pairs of ``p`` under a fixed 2 px parallax gate, and under the defaults."""
+    corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 20)
+    args = (p.obs.bearings_c, p.intrinsics.fx[p.obs.cam_idx], corr)
+    fixed, _ = two_view.estimate_eg_pairs(*args, min_parallax_px=2.0)
+    options = InitOptions()
+    relative, _ = two_view.estimate_eg_pairs(
+        *args, min_parallax_px=options.min_pair_parallax_px,
+        min_parallax_noise=options.min_pair_parallax_noise)
+    return fixed, relative
+
+
+def test_noisy_matches_of_a_camera_turning_in_place_have_no_baseline() -> None:
+    """2 px noise leaves more than 2 px of parallax without a baseline: all pairs rejected."""
+    p = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0, noise_px=2.0).gt
+    fixed, relative = _pairs_old_and_new(p)
+    assert fixed.n_pairs >= 3   # a fixed gate took noise for a baseline
+    assert relative.n_pairs == 0
+    assert np.all(relative.noise_px >= 0.0)
+
+
+def test_clean_matches_show_a_small_baseline() -> None:
+    """0.1 px noise, 0.4 m steps: pairs with 1-2 px of parallax kept, translations right."""
+    p = street_scene(0, n_cams=5, n_points=300, step_m=0.4, noise_px=0.1, jitter_deg=3.0).gt
+    fixed, relative = _pairs_old_and_new(p)
+    assert fixed.n_pairs <= 1
+    assert relative.n_pairs >= 5
+    assert np.all(relative.parallax_px > 1.5 * relative.noise_px)
+    t_true = np.einsum('pji,pj->pi', p.R_wc[relative.cam_b],
+                       p.centers_w[relative.cam_a] - p.centers_w[relative.cam_b])
+    t_true /= np.linalg.norm(t_true, axis=1, keepdims=True)
+    assert np.all(np.sum(t_true * relative.t_rel, axis=1) > np.cos(np.deg2rad(0.5)))
 
 
 @pytest.mark.parametrize('seed', [0, 1])
@@ -224,7 +269,7 @@ def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> No
     p = street_scene(2, n_cams=8, n_points=400, noise_px=0.5).gt
     corr = covisibility.pair_correspondences(p.obs.cam_idx, p.obs.feat_idx, p.n_cams, 30)
     focal = p.intrinsics.fx[p.obs.cam_idx]
-    quick = two_view.sampled_parallax_px(corr, p.obs.bearings_c, focal)
+    quick = parallax.sampled_parallax_px(corr, p.obs.bearings_c, focal)
     full = np.array([_parallax(
         p.obs.bearings_c[corr.obs_a[a:b]], p.obs.bearings_c[corr.obs_b[a:b]])
         for a, b in zip(corr.offsets[:-1], corr.offsets[1:], strict=True)]) * focal[0]
@@ -232,7 +277,7 @@ def test_sampled_parallax_follows_the_full_estimate_and_sees_no_baseline() -> No
     np.testing.assert_allclose(quick, full, rtol=0.35, atol=1.0)
     rot = street_scene(0, n_cams=5, n_points=200, step_m=0.0, jitter_deg=8.0).gt
     corr = covisibility.pair_correspondences(rot.obs.cam_idx, rot.obs.feat_idx, rot.n_cams, 20)
-    quick = two_view.sampled_parallax_px(corr, rot.obs.bearings_c,
+    quick = parallax.sampled_parallax_px(corr, rot.obs.bearings_c,
                                          rot.intrinsics.fx[rot.obs.cam_idx])
     assert corr.n_pairs > 0 and quick.max() < 1.0
 
@@ -282,9 +327,9 @@ def test_capped_correspondences_are_a_sample_of_each_pair() -> None:
     assert np.all(obs.cam_idx[capped.obs_b] == capped.cam_b[seg])
     # The sample is the one sampled_parallax_px takes from the full list: the same estimate.
     focal = p.intrinsics.fx[obs.cam_idx]
-    np.testing.assert_array_equal(two_view.sampled_parallax_px(capped, obs.bearings_c, focal,
+    np.testing.assert_array_equal(parallax.sampled_parallax_px(capped, obs.bearings_c, focal,
                                                                25),
-                                  two_view.sampled_parallax_px(full, obs.bearings_c, focal, 25))
+                                  parallax.sampled_parallax_px(full, obs.bearings_c, focal, 25))
     n, m = full.counts(), capped.counts()
     seg = np.repeat(np.arange(full.n_pairs), m)
     i = np.arange(seg.shape[0]) - np.repeat(np.cumsum(m) - m, m)
@@ -341,8 +386,8 @@ def test_eg_pair_engines_agree(engine: Engine) -> None:
     seg = np.repeat(np.arange(corr.n_pairs), corr.counts())
     mask = rng.random(seg.shape[0]) < 0.5
     np.testing.assert_allclose(
-        two_view.rotation_only_parallaxes(b1, b2, seg, corr.n_pairs, mask, engine.name),
-        two_view.rotation_only_parallaxes(b1[mask], b2[mask], seg[mask], corr.n_pairs,
+        parallax.rotation_only_parallaxes(b1, b2, seg, corr.n_pairs, mask, engine.name),
+        parallax.rotation_only_parallaxes(b1[mask], b2[mask], seg[mask], corr.n_pairs,
                                           engine='numpy'), atol=1e-13)
 
 
