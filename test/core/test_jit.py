@@ -41,6 +41,20 @@ print('numba' in sys.modules, compiled_available(), jit.CACHING, hits)
 """
 
 
+# One compiled loop stands for all of them: they share the cache folder.
+_LOOP = """
+import sys
+import numpy as np
+from pmba_ros.core import jit
+from pmba_ros.core.compiled import loss
+from pmba_ros.core.engine import compiled_available
+assert loss.__file__.startswith(sys.argv[1]), loss.__file__
+assert loss.robust_cost(np.array([[0.5, 3.0]]), 'cauchy', 1.0) > 0.0
+hits = sum(loss._robust_cost.stats.cache_hits.values()) if compiled_available() else 0
+print('numba' in sys.modules, compiled_available(), jit.CACHING, hits)
+"""
+
+
 def _copy_package(root: Path) -> Path:
     """Copy pmba_ros under ``root`` with no __pycache__ folder it could write to."""
     dest = root / 'site' / 'pmba_ros'
@@ -50,11 +64,11 @@ def _copy_package(root: Path) -> Path:
     return dest
 
 
-def _run(site: Path, env: dict[str, str]) -> tuple[list[str], str]:
-    """Solve a small scene with the copy; return the probe's words and stderr."""
+def _run(site: Path, env: dict[str, str], probe: str = _SOLVE) -> tuple[list[str], str]:
+    """Run ``probe`` (a small solve) with the copy; return its words and stderr."""
     base = {k: v for k, v in os.environ.items()
             if k not in ('NUMBA_CACHE_DIR', 'XDG_CACHE_HOME', 'PMBA_NUMBA')}
-    proc = subprocess.run([sys.executable, '-c', _SOLVE, str(site)], capture_output=True,
+    proc = subprocess.run([sys.executable, '-c', probe, str(site)], capture_output=True,
                           text=True, timeout=900, check=False, cwd=site.parent,
                           env={**base, 'PYTHONPATH': str(site.parent), **env})
     assert proc.returncode == 0, proc.stderr
@@ -71,7 +85,7 @@ def test_read_only_install_without_home_caches_in_a_private_temp_folder(
     tmp = tmp_path / 'tmp'
     tmp.mkdir()
     env = {'HOME': str(blocked / 'home'), 'TMPDIR': str(tmp)}
-    words, err = _run(site, env)
+    words, err = _run(site, env, _LOOP)
     assert words == ['True', 'True', 'True', '0'], (words, err)
     cache = tmp / f'pmba_ros-numba-{os.getuid()}'
     assert f'compiled solver loops are cached in {cache}' in err
@@ -79,7 +93,7 @@ def test_read_only_install_without_home_caches_in_a_private_temp_folder(
     assert any(cache.rglob('*.nbi')), 'no numba index written'
     assert (cache.stat().st_mode & 0o077) == 0, 'cache folder readable by others'
     # The second process loads the loops and says nothing.
-    words, err = _run(site, env)
+    words, err = _run(site, env, _LOOP)
     assert int(words[3]) > 0, 'the second process compiled again'
     assert 'Warning' not in err, err
 
