@@ -54,7 +54,8 @@ class FeatureIdRestarts:
         prev = self._previous
         restarted = False
         if prev is not None and prev.size:
-            fresh = ~np.isin(ids, prev, assume_unique=True) & (ids < prev[-1])
+            at = np.minimum(np.searchsorted(prev, ids), prev.size - 1)
+            fresh = (prev[at] != ids) & (ids < prev[-1])
             restarted = 2 * int(fresh.sum()) > ids.size
         if restarted:
             self._offset = self._next_free

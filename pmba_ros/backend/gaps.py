@@ -127,6 +127,8 @@ def untied_chains(problem: BAProblem, prior: RelativePosePrior | None, known: Bo
     if prior is not None:
         linked[prior.a[prior.b == prior.a + 1]] = True
     chain = np.concatenate([[0], np.cumsum(~linked[:-1])])
+    if chain[-1] == 0 and problem.fixed.any():
+        return held   # one chain, with a held pose (a sliding window's usual case)
     of_obs = chain[problem.obs.cam_idx]
     starts = problem.feature_offsets()[:-1]   # observations come sorted by feature
     spans = np.minimum.reduceat(of_obs, starts) != np.maximum.reduceat(of_obs, starts)
