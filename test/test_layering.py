@@ -37,7 +37,7 @@ RANKS = {
 
 #: Within the engine, the order of style.md §6.1: geometry -> problem -> residuals -> solver.
 CORE_RANKS = {
-    'so3': 0, 'sphere': 0, 'camera': 0, 'jit': 0,
+    'so3': 0, 'sphere': 0, 'radial': 0, 'camera': 0, 'jit': 0,
     'problem': 1, 'gauge': 1, 'loss': 1, 'dogleg': 1, 'jacobian': 1,
     'residuals': 2, 'baselines': 2, 'anchor_search': 2, 'normal_equations': 2,
     'numpy_schur': 2, 'compiled': 2,

@@ -32,19 +32,21 @@ Notation:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-import functools
-
 import numpy as np
 from pmba_ros._typing import FloatArray
+from pmba_ros.core.radial import (
+    first_positive_root,
+    increasing_inverse,
+    NEWTON_ITERATIONS,
+    NEWTON_TOL,
+    theta_d,
+    theta_d_slope,
+)
 
 __all__ = ['distort_equidistant', 'distort_plumb_bob', 'equidistant_fold',
            'equidistant_jacobian', 'pinhole_jacobian', 'plumb_bob_fold', 'plumb_bob_jacobian',
            'plumb_bob_radial', 'theta_d', 'theta_d_slope', 'undistort_equidistant',
            'undistort_plumb_bob']
-
-NEWTON_ITERATIONS = 30
-NEWTON_TOL = 1e-14
 
 
 def pinhole_jacobian(bearings: FloatArray, fx: float, fy: float) -> FloatArray:
@@ -121,8 +123,8 @@ def undistort_plumb_bob(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     if np.isfinite(fold):   # else the radial part grows everywhere: one root, found from xy_d
         rho = np.hypot(xy_d[:, 0], xy_d[:, 1])
         radial = plumb_bob_radial(d)
-        r = _increasing_inverse(lambda t: theta_d(t, radial),
-                                lambda t: theta_d_slope(t, radial), rho, fold)
+        r = increasing_inverse(lambda t: theta_d(t, radial),
+                               lambda t: theta_d_slope(t, radial), rho, fold)
         xy *= np.where(rho > 1e-12, r / np.where(rho > 1e-12, rho, 1.0), 1.0)[:, None]
     for _ in range(NEWTON_ITERATIONS):
         f = distort_plumb_bob(xy, d) - xy_d
@@ -145,21 +147,6 @@ def plumb_bob_radial(d: FloatArray) -> FloatArray:
     return np.array([k1, k2, k3, 0.0])
 
 
-def theta_d(theta: FloatArray, d: FloatArray) -> FloatArray:
-    """Return the equidistant distorted angle theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
-    t2 = theta * theta
-    out: FloatArray = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
-    return out
-
-
-def theta_d_slope(theta: FloatArray, d: FloatArray) -> FloatArray:
-    """Return d(theta_d) / d(theta) of :func:`theta_d`."""
-    t2 = theta * theta
-    k1, k2, k3, k4 = d
-    out: FloatArray = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
-    return out
-
-
 def distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
     """Apply OpenCV's fisheye (equidistant) model to (K, 2) normalized points."""
     r = np.hypot(xy[:, 0], xy[:, 1])
@@ -171,40 +158,14 @@ def distort_equidistant(xy: FloatArray, d: FloatArray) -> FloatArray:
 def undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
     """Invert :func:`distort_equidistant` below its fold and 90 degrees; NaN elsewhere."""
     theta_d_ = np.hypot(xy_d[:, 0], xy_d[:, 1])
-    theta = _increasing_inverse(lambda t: theta_d(t, d), lambda t: theta_d_slope(t, d),
-                                theta_d_, equidistant_fold(d))
+    theta = increasing_inverse(lambda t: theta_d(t, d), lambda t: theta_d_slope(t, d),
+                               theta_d_, equidistant_fold(d))
     ok = (np.abs(theta_d(theta, d) - theta_d_) < 1e-9) & (theta < np.pi / 2)
     scale = np.where(theta_d_ > 1e-12,
                      np.tan(theta) / np.where(theta_d_ > 1e-12, theta_d_, 1.0), 1.0)
     xy = xy_d * scale[:, None]
     xy[~ok] = np.nan
     return xy
-
-
-def _increasing_inverse(f: Callable[[FloatArray], FloatArray],
-                        slope: Callable[[FloatArray], FloatArray], target: FloatArray,
-                        end: float) -> FloatArray:
-    """Return t in [0, end) with f(t) = target, for f growing there from f(0) = 0; NaN if none.
-
-    Newton's method kept inside a bracket that bisection narrows (safeguarded Newton), on
-    all points at once; ``end`` is finite (a fold, or 90 degrees).
-    """
-    lo = np.zeros_like(target)
-    hi = np.full_like(target, end)
-    has = (target >= 0.0) & (f(hi) >= target)
-    t = np.minimum(target, hi)
-    for _ in range(4 * NEWTON_ITERATIONS):
-        value = f(t) - target
-        lo, hi = np.where(value < 0.0, t, lo), np.where(value > 0.0, t, hi)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            t_new = t - value / slope(t)
-        outside = ~((t_new > lo) & (t_new < hi))
-        t_new = np.where(outside, 0.5 * (lo + hi), t_new)
-        done = np.abs(t_new - t) <= NEWTON_TOL * np.maximum(1.0, t)
-        t = t_new
-        if np.all(done | ~has):
-            break
-    return np.where(has, t, np.nan)
 
 
 def plumb_bob_fold(d: FloatArray) -> float:
@@ -214,7 +175,7 @@ def plumb_bob_fold(d: FloatArray) -> float:
     5 k2 s^2 + 7 k3 s^3, s = r^2. Past it, pixels have no ray or two.
     """
     k1, k2, _, _, k3 = d
-    return float(np.sqrt(_first_positive_root((7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))))
+    return float(np.sqrt(first_positive_root((7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))))
 
 
 def equidistant_fold(d: FloatArray) -> float:
@@ -223,14 +184,5 @@ def equidistant_fold(d: FloatArray) -> float:
     The first positive root of 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 + 9 k4 s^4, s = theta^2.
     """
     k1, k2, k3, k4 = d
-    s = _first_positive_root((9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))
+    s = first_positive_root((9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))
     return float(min(np.sqrt(s), np.pi / 2))
-
-
-@functools.lru_cache(maxsize=64)   # a few cameras, asked at each message of their pixels
-def _first_positive_root(coefficients: tuple[float, ...]) -> float:
-    """Return a polynomial's smallest positive real root (highest power first), or inf."""
-    roots = np.roots(np.asarray(coefficients, dtype=float))   # leading zeros dropped
-    real = roots.real[(np.abs(roots.imag) <= 1e-9 * np.maximum(1.0, np.abs(roots))) &
-                      (roots.real > 0.0)]
-    return float(real.min()) if real.size else float('inf')

@@ -26,6 +26,7 @@ import functools
 
 import numpy as np
 from pmba_ros._typing import FloatArray
+from pmba_ros.core import radial
 from pmba_ros.errors import ProblemError
 
 
@@ -139,12 +140,34 @@ def pixels_to_bearings(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray
     """Undistort pixels (K, 2) and return unit bearings (K, 3), v = xi(K^-1 [u, v, 1]^T).
 
     Radial distortion is inverted with Newton's method on r (vectorized); cameras without
-    distortion take the closed form.
+    distortion take the closed form. A radius Newton's method leaves unsolved or past the
+    camera's fold (where r (1 + k1 r^2 + k2 r^4) stops growing) is searched again below the
+    fold (:func:`~pmba_ros.core.radial.increasing_inverse`): its ray is NaN if none fits.
     """
     # Absurd intrinsics (a damaged file's 1e-306 px focal length) overflow here: their rays
     # come out non-finite, which make_problem drops and counts.
     with np.errstate(over='ignore', invalid='ignore'):
         return _undistorted_rays(pixels, intr, cam_idx, iterations)
+
+
+def _within_folds(r: FloatArray, rd: FloatArray, k1: FloatArray, k2: FloatArray,
+                  intr: Intrinsics, cam_idx: np.ndarray) -> FloatArray:
+    """Return the radii r, those Newton's method left unsolved or past the fold redone."""
+    folds = np.array([np.sqrt(radial.first_positive_root((5.0 * b, 3.0 * a, 1.0)))
+                      for a, b in zip(intr.k1.tolist(), intr.k2.tolist(), strict=True)])
+    folds = folds[cam_idx]
+    zeros = np.zeros_like(k1)
+    g = radial.theta_d(r, np.stack([k1, k2, zeros, zeros]))
+    fits = np.abs(g - rd) <= 1e-9 * np.maximum(rd, 1.0)
+    redo = ~(fits & (r >= 0.0) & (r < folds))
+    if not np.any(redo):
+        return r
+    part = np.stack([k1[redo], k2[redo], zeros[redo], zeros[redo]])
+    out = r.copy()
+    out[redo] = radial.increasing_inverse(lambda t: radial.theta_d(t, part),
+                                          lambda t: radial.theta_d_slope(t, part), rd[redo],
+                                          np.minimum(folds[redo], 1e6))
+    return out
 
 
 def _undistorted_rays(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray,
@@ -162,6 +185,7 @@ def _undistorted_rays(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray,
             f = r * (1.0 + k1 * r2 + k2 * r2 * r2) - rd
             df = 1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2
             r = r - f / np.where(np.abs(df) < 1e-12, 1e-12, df)
+        r = _within_folds(r, rd, k1, k2, intr, cam_idx)
     scale = np.where(rd > 0, r / np.where(rd > 0, rd, 1.0), 1.0)
     rays = np.stack([xd * scale, yd * scale, np.ones_like(xd)], axis=1)
     out: FloatArray = rays / np.linalg.norm(rays, axis=1, keepdims=True)

@@ -67,3 +67,30 @@ def test_undistortion_inverts_projection(rng: np.random.Generator) -> None:
     cam = np.zeros(100, dtype=np.int64)
     v = pixels_to_bearings(project(h, intr, cam), intr, cam)
     np.testing.assert_allclose(v, h / np.linalg.norm(h, axis=1, keepdims=True), atol=1e-10)
+
+
+def test_undistortion_stays_below_the_fold(rng: np.random.Generator) -> None:
+    """Strong barrel distortion: rays from below the fold, pixels past its reach NaN.
+
+    r (1 - 0.4 r^2 + 0.02 r^4) stops growing at r = 0.949 (its fold, where it reaches 0.63)
+    and grows again from r = 3.3: pixels past the reach (noise at the image's border) have
+    no ray, and no pixel's ray lies past the fold.
+    """
+    k1, k2 = -0.4, 0.02
+    intr = Intrinsics.uniform(1, 500.0, 500.0, 320.0, 240.0, k1=k1, k2=k2)
+    fold = np.sqrt((-3.0 * k1 - np.sqrt(9.0 * k1 * k1 - 20.0 * k2)) / (10.0 * k2))
+    reach = fold * (1.0 + k1 * fold ** 2 + k2 * fold ** 4)
+    angle = rng.uniform(0.0, 2.0 * np.pi, 200)
+    direction = np.column_stack([np.cos(angle), np.sin(angle)])
+    cam = np.zeros(200, dtype=np.int64)
+    r = rng.uniform(0.0, 0.99 * fold, 200)
+    h = np.column_stack([r[:, None] * direction, np.ones(200)])
+    v = pixels_to_bearings(project(h, intr, cam), intr, cam)
+    np.testing.assert_allclose(v, h / np.linalg.norm(h, axis=1, keepdims=True), atol=1e-8)
+    rd = rng.uniform(0.0, 1.5 * reach, 200)
+    pixels = 500.0 * rd[:, None] * direction + np.array([320.0, 240.0])
+    v = pixels_to_bearings(pixels, intr, cam)
+    assert np.all(np.isnan(v[rd > 1.0001 * reach]))
+    inside = rd < 0.9999 * reach
+    assert np.all(np.hypot(v[inside, 0], v[inside, 1]) / v[inside, 2] < fold)
+    assert np.all(np.isfinite(v[inside]))
