@@ -22,7 +22,7 @@ import numpy as np
 from pmba_ros.backend.msg_backend import RosbagsBackend
 from pmba_ros.backend.outputs import make_pose_stamped
 from pmba_ros.errors import BagError
-from pmba_ros.io.bags import iter_messages, jazzy_typestore, open_bags
+from pmba_ros.io.bags import iter_messages, jazzy_typestore, open_bags, ReadStats
 import pytest
 
 
@@ -103,6 +103,34 @@ def test_record_length_past_any_file_is_damage_read_up_to(tmp_path: Path) -> Non
     # Named from the chunk's own offset (before: from its end, where reading failed), with
     # the messages its message indexes count (before: not counted).
     assert f'bytes {pos}-' in damage and f'skipped (damaged) with their {lost} messages' in damage
+
+
+def test_a_compressed_chunk_without_crc_is_read_up_to_its_damage(tmp_path: Path) -> None:
+    """Zeroed bytes in a recording of one big zstd chunk: its messages before them are read.
+
+    The chunk decompresses block by block up to the damage. Before, reading on by time
+    stepped over the whole chunk: not a message was read.
+    """
+    from pmba_ros.sim.bag import write_sequence_bag
+    from pmba_ros.sim.sequence import simulate_sequence
+
+    whole = tmp_path / 'street.mcap'
+    write_sequence_bag(simulate_sequence('street', n_keyframes=120, seed=0), whole)
+    data = whole.read_bytes()
+    pos = 8 + 9 + struct.unpack_from('<Q', data, 9)[0]   # past the magic and the header
+    assert data[pos] == 0x06 and struct.unpack_from('<I', data, pos + 9 + 24)[0] == 0
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(data[:len(data) // 2] + bytes(50) + data[len(data) // 2 + 50:])
+    damage = ReadStats()
+    with open_bags([whole]) as opened:
+        announced = sum(t.count for t in opened.topics.values())
+        times = [m.log_time_ns for m in iter_messages(opened)]
+    with open_bags([bad]) as opened:
+        read = [m.log_time_ns for m in iter_messages(opened, damage=damage)]
+    assert 0.3 * announced < len(read) < 0.6 * announced
+    assert read == times[:len(read)]   # the messages before the damage, in order
+    assert damage.damaged_parts == 1
+    assert f'({len(read)} of them read, from before the damage)' in (damage.first_damage or '')
 
 
 def test_damaged_start_of_file_reads_every_chunk(tmp_path: Path) -> None:

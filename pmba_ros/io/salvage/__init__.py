@@ -26,8 +26,8 @@ refuses too, is read by its copy as a ROS 1 bag (:mod:`.ros1_mcap`), damage or n
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from contextlib import ExitStack
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, ExitStack
 import logging
 from pathlib import Path
 from tempfile import TemporaryDirectory
@@ -41,7 +41,7 @@ from pmba_ros.io.salvage.sqlite_file import index_damage, journal_of, recover_jo
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['Salvaged', 'readable_parts', 'suspect']
+__all__ = ['Salvaged', 'mcap_copies', 'readable_parts', 'suspect']
 
 Salvage = Callable[[Path, Path, str], Salvaged | None]
 """``(damaged file, copy to write, what is wrong with it) -> what was copied``."""
@@ -189,3 +189,28 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
     for line in damage:
         logger.warning('%s', line)
     return readable, tuple(damage)
+
+
+@contextmanager
+def mcap_copies(paths: Sequence[Path]) -> Iterator[tuple[list[Path], str]]:
+    """Copy the MCAP files of recordings record by record (damage read around), for a while.
+
+    For a recording that opened but fails inside a chunk: reading on by time steps over the
+    whole chunk, while its records before the damage are readable
+    (:func:`~.mcap_file.salvage_mcap`).
+
+    Yields:
+        The copies, in a temporary folder, and what they say of the damage; no copies unless
+        every storage file is an MCAP file with a message to copy.
+    """
+    files = [f for p in paths for f in (storage_files(p) or [p])]
+    with TemporaryDirectory(prefix='pmba_salvage_') as folder:
+        copies: list[Path] = []
+        said: list[str] = []
+        if files and all(f.suffix == '.mcap' for f in files):
+            for i, f in enumerate(files):
+                saved = salvage_mcap(f, Path(folder) / f'{i}_{f.name}', 'read record by record')
+                if saved is not None:
+                    copies.append(saved.path)
+                    said.append(saved.damage)
+        yield copies, '; '.join(filter(None, said))

@@ -75,6 +75,8 @@ class _Walk:
     skipped: list[tuple[int, int]] = field(default_factory=list)
     repaired: list[tuple[int, int, int]] = field(default_factory=list)
     stopped: str = 'at the end of the file'
+    partly: dict[int, int] = field(default_factory=dict)
+    """Damaged chunks read up to their damage: offset -> messages read."""
 
     def skip(self, start: int, end: int) -> None:
         """Note the bytes from ``start`` to ``end`` as skipped: one stretch with one before."""
@@ -136,13 +138,16 @@ def _read(data: mmap.mmap, pos: int, walk: _Walk,
         # No chunk follows, but other records may (the chunk's message indexes, the
         # summary's schemas and channels): reading goes on after this one, by its length.
         nxt = pos + 9 + length
+    start = _readable_start(data, pos, length, errors) if opcode == _CHUNK and fits else []
+    if start:
+        walk.partly[pos] = sum(type(r).__name__ == 'Message' for r in start)
     if nxt is not None:
         walk.skip(pos, nxt)
     elif why:
         walk.stopped = f'at byte {pos} of {size} ({why})'
     else:
         walk.stopped = f'where the file ends, at byte {size}, in the middle of a record'
-    return [], nxt
+    return start, nxt
 
 
 def _parsed(data: mmap.mmap, pos: int, length: int) -> list[Any]:
@@ -176,6 +181,57 @@ def _chunk(data: mmap.mmap, pos: int, length: int) -> Any:
         msg = f'the chunk at byte {pos} holds more than its {length} bytes'
         raise ValueError(msg)
     return Chunk.read(ReadDataStream(io.BytesIO(data[pos + 9:pos + 9 + body])))
+
+
+def _readable_start(data: mmap.mmap, pos: int, length: int,
+                    errors: tuple[type[BaseException], ...]) -> list[Any]:
+    """Return the records a damaged chunk without a CRC holds before its damage.
+
+    Its records are decompressed and parsed as far as they go; the last complete one is
+    left out too, as the damage may start inside it. A chunk with a CRC gives none: that it
+    failed says nothing of where its damage is.
+    """
+    from mcap.stream_reader import StreamReader
+
+    try:
+        chunk = _chunk(data, pos, length)
+    except errors:
+        return []
+    if chunk.uncompressed_crc:
+        return []
+    records: list[Any] = []
+    reader = StreamReader(io.BytesIO(_decompressed_start(chunk.compression, chunk.data)),
+                          skip_magic=True)
+    try:
+        records.extend(reader.records)
+    except errors:
+        pass
+    return records[:-1]
+
+
+_PIECE = 4096
+"""Compressed bytes given to a decompressor at a time: its output before the damage stays."""
+
+
+def _decompressed_start(compression: str, body: bytes) -> bytes:
+    """Return a chunk's records decompressed as far as they decompress."""
+    if compression == '':
+        return body
+    if compression == 'zstd':
+        import zstandard
+        decompressor: Any = zstandard.ZstdDecompressor().decompressobj()
+    elif compression == 'lz4':
+        import lz4.frame
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+    else:
+        return b''
+    out = bytearray()
+    try:
+        for at in range(0, len(body), _PIECE):
+            out += decompressor.decompress(body[at:at + _PIECE])
+    except Exception:
+        pass
+    return bytes(out)
 
 
 def _whole_chunk(data: mmap.mmap, pos: int, length: int,
@@ -338,6 +394,12 @@ def _ros1_copy(path: Path, dest: Path, channels: dict[int, Any], schemas: dict[i
     return Salvaged(dest, messages, '' if whole else _damage(path, walk, messages, reason))
 
 
+def _read_before_damage(walk: _Walk, start: int, end: int) -> str:
+    """Return the words on the messages read from before the damage of chunks in a stretch."""
+    n = sum(count for at, count in walk.partly.items() if start <= at < end)
+    return f' ({n} of them read, from before the damage)' if n else ''
+
+
 def _damage(path: Path, walk: _Walk, messages: int, reason: str) -> str:
     """Return what was wrong with ``path``, what was repaired and what reading it lost.
 
@@ -359,6 +421,7 @@ def _damage(path: Path, walk: _Walk, messages: int, reason: str) -> str:
     skipped = ''.join(f', bytes {a}-{b} skipped (damaged)'
                       + ('' if n is None else f' with their {n} messages' if n else
                          ' holding no message')
+                      + _read_before_damage(walk, a, b)
                       for (a, b), n in zip(walk.skipped[:3], held, strict=False))
     if len(walk.skipped) > 3:
         skipped += f' and {len(walk.skipped) - 3} more damaged stretches'
