@@ -401,7 +401,7 @@ def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
                               reader=reader)
         return
     start: int | None = None
-    whole_chunks_only = False
+    copied = False
     while True:
         last: int | None = None
         for message in _iter_once(paths, topics, damage, start, points_as_arrays, reader):
@@ -415,8 +415,8 @@ def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
             damage.first_damage = damage.first_damage or error
             logger.warning('%s; looking for readable data after it', error)
         reader = None
-        if not whole_chunks_only:   # MCAP chunks read up to their damage, once
-            whole_chunks_only = True
+        if not copied:   # MCAP chunks read up to their damage, once
+            copied = True
             from pmba_ros.io import salvage  # it builds on this module
             with salvage.mcap_copies(paths) as (copies, said):
                 if copies:
@@ -424,9 +424,12 @@ def _iter_all(paths: Sequence[Path], topics: Sequence[str] | None,
                     after = last if last is not None else start
                     yield from _iter_once(copies, topics, damage,
                                           None if after is None else after + 1, points_as_arrays)
-                    if damage._pending is None:
-                        return
-                    damage._pending = None
+                    # The copies hold every readable message: reading the originals on
+                    # would give some twice.
+                    if damage._pending is not None:
+                        damage.damaged_parts += 1
+                        damage._pending = None
+                    return
         failed = last + 1 if last is not None else (damage._span[0] if start is None else start)
         start = _next_readable(paths, topics, failed, damage._span[1])
         if start is None:

@@ -140,7 +140,8 @@ def _read(data: mmap.mmap, pos: int, walk: _Walk,
         nxt = pos + 9 + length
     start = _readable_start(data, pos, length, errors) if opcode == _CHUNK and fits else []
     if start:
-        walk.partly[pos] = sum(type(r).__name__ == 'Message' for r in start)
+        from mcap.records import Message
+        walk.partly[pos] = sum(isinstance(r, Message) for r in start)
     if nxt is not None:
         walk.skip(pos, nxt)
     elif why:
