@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 from pmba_ros._typing import FloatArray
 from pmba_ros.core.radial import (
-    first_positive_root,
+    fold,
     increasing_inverse,
     NEWTON_ITERATIONS,
     NEWTON_TOL,
@@ -171,18 +171,17 @@ def undistort_equidistant(xy_d: FloatArray, d: FloatArray) -> FloatArray:
 def plumb_bob_fold(d: FloatArray) -> float:
     """Return the radius r of (x, y) where plumb_bob's radial distortion stops growing (or inf).
 
-    The first positive root of d(r (1 + k1 r^2 + k2 r^4 + k3 r^6)) / dr = 1 + 3 k1 s +
-    5 k2 s^2 + 7 k3 s^3, s = r^2. Past it, pixels have no ray or two.
+    Where d(r (1 + k1 r^2 + k2 r^4 + k3 r^6)) / dr = 0 (:func:`~pmba_ros.core.radial.fold`).
+    Past it, pixels have no ray or two.
     """
-    k1, k2, _, _, k3 = d
-    return float(np.sqrt(first_positive_root((7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))))
+    k1, k2, _, _, k3 = (float(v) for v in d)
+    return fold((k1, k2, k3, 0.0))
 
 
 def equidistant_fold(d: FloatArray) -> float:
     """Return the angle theta where the fisheye's theta_d stops growing (or pi/2 if beyond).
 
-    The first positive root of 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 + 9 k4 s^4, s = theta^2.
+    (:func:`~pmba_ros.core.radial.fold`).
     """
-    k1, k2, k3, k4 = d
-    s = first_positive_root((9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0))
-    return float(min(np.sqrt(s), np.pi / 2))
+    k1, k2, k3, k4 = (float(v) for v in d)
+    return min(fold((k1, k2, k3, k4)), np.pi / 2)

@@ -153,9 +153,8 @@ def pixels_to_bearings(pixels: FloatArray, intr: Intrinsics, cam_idx: np.ndarray
 def _within_folds(r: FloatArray, rd: FloatArray, k1: FloatArray, k2: FloatArray,
                   intr: Intrinsics, cam_idx: np.ndarray) -> FloatArray:
     """Return the radii r, those Newton's method left unsolved or past the fold redone."""
-    folds = np.array([np.sqrt(radial.first_positive_root((5.0 * b, 3.0 * a, 1.0)))
-                      for a, b in zip(intr.k1.tolist(), intr.k2.tolist(), strict=True)])
-    folds = folds[cam_idx]
+    folds = np.array([radial.fold((a, b, 0.0, 0.0))
+                      for a, b in zip(intr.k1.tolist(), intr.k2.tolist(), strict=True)])[cam_idx]
     zeros = np.zeros_like(k1)
     g = radial.theta_d(r, np.stack([k1, k2, zeros, zeros]))
     fits = np.abs(g - rd) <= 1e-9 * np.maximum(rd, 1.0)

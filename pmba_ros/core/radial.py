@@ -23,12 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import functools
+import math
 
 import numpy as np
 from pmba_ros._typing import FloatArray
 
-__all__ = ['NEWTON_ITERATIONS', 'NEWTON_TOL', 'first_positive_root', 'increasing_inverse',
-           'theta_d', 'theta_d_slope']
+__all__ = ['NEWTON_ITERATIONS', 'NEWTON_TOL', 'first_positive_root', 'fold',
+           'increasing_inverse', 'theta_d', 'theta_d_slope']
 
 NEWTON_ITERATIONS = 30
 NEWTON_TOL = 1e-14
@@ -47,6 +48,16 @@ def theta_d_slope(theta: FloatArray, d: FloatArray) -> FloatArray:
     k1, k2, k3, k4 = d
     out: FloatArray = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
     return out
+
+
+def fold(d: tuple[float, float, float, float]) -> float:
+    """Return where :func:`theta_d` of ``d`` stops growing (inf if it grows everywhere).
+
+    The first positive root of its slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 + 9 k4 s^4,
+    s = t^2.
+    """
+    k1, k2, k3, k4 = d
+    return math.sqrt(first_positive_root((9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0)))
 
 
 def increasing_inverse(f: Callable[[FloatArray], FloatArray],
