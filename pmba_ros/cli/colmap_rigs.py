@@ -176,7 +176,7 @@ def write_rig_model(out: Path, source: Path, rm: RigModel, result: SolveResult,
     point_ids = result.problem.feature_ids
     order = np.argsort(rm.images.feature_ids)
     rows = order[np.searchsorted(rm.images.feature_ids[order], point_ids)]
-    R_wr, C_r, points = in_model_frame(result, layout.centers_w[poses],
+    R_wr, C_r, points = in_model_frame(result, layout.R_wc[poses], layout.centers_w[poses],
                                        rm.images.points_w[rows], with_scale=not layout.metric)
     index, R_wc, centers = rp.image_poses(layout, poses, R_wr, C_r)
     refined = colmap.updated(rm.model, layout.image_ids[index], R_wc, centers, point_ids, points)

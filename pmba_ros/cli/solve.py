@@ -231,7 +231,7 @@ def _write_model(out: Path, source: Path, fmt: str, problem: BAProblem, result: 
     point_ids = problem.feature_ids[rows]
     assert problem.points_w is not None  # both formats store their points
     # Bundler projects like a pinhole, which does not tell a ray from its opposite.
-    R_wc, centers, points = in_model_frame(result, problem.centers_w[cams],
+    R_wc, centers, points = in_model_frame(result, problem.R_wc[cams], problem.centers_w[cams],
                                            problem.points_w[rows], behind=fmt == 'bundler')
     if fmt == 'colmap':
         model = colmap.read_colmap(source)

@@ -14,9 +14,12 @@
 """A solution brought onto the frame of the model it refines, ready to be written back.
 
 The solution's frame is a free gauge (and arbitrary after a global initialization): it is
-mapped onto the model's by the similarity that best maps its camera centres (and points, if
-the centres are collinear) onto the model's, so the model is refined in place and the images
-and points that were not solved stay consistent with the refined ones. Points that PMBA
+mapped onto the model's by a similarity whose rotation best maps the solution's camera
+orientations onto the model's, and whose scale and translation then best map its camera
+centres (and points, where the centres coincide) onto the model's. So the model is refined in
+place and the images and points that were not solved stay consistent with the refined ones.
+The orientations fix the rotation whatever the centres' layout: centres on or near a line (a
+street, a forward motion) leave the turn about it to their noise. Points that PMBA
 leaves at infinity get finite stand-ins far along their rays (the model formats cannot hold
 a point at infinity).
 """
@@ -26,16 +29,16 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pmba_ros.core import so3
 from pmba_ros.core.conversions import far_points, parallax_to_xyz
 from pmba_ros.core.problem import ParallaxFeatures
-from pmba_ros.errors import DegenerateGeometryError
-from pmba_ros.eval.align import umeyama_alignment
+from pmba_ros.eval.align import UmeyamaResult
 
 if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray
     from pmba_ros.core.solve import SolveResult
 
-__all__ = ['FAR_POINT_SPREADS', 'finite_points', 'in_model_frame']
+__all__ = ['FAR_POINT_SPREADS', 'finite_points', 'in_model_frame', 'model_similarity']
 
 FAR_POINT_SPREADS = 1e4
 """Distance of a point at infinity's stand-in, in spreads of the camera centres: its rays
@@ -65,13 +68,41 @@ def finite_points(result: SolveResult, behind: bool = False) -> FloatArray:
     return points
 
 
-def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatArray,
-                   with_scale: bool = True, behind: bool = False,
+def model_similarity(R_wc: FloatArray, centers_w: FloatArray, model_R_wc: FloatArray,
+                     model_centers_w: FloatArray, with_scale: bool = True,
+                     points: tuple[FloatArray, FloatArray] | None = None) -> UmeyamaResult:
+    """Return the similarity that takes a solution's poses (R_wc, centres) onto a model's.
+
+    The rotation is the chordal mean of ``model_R_wc[i] R_wc[i]^T``; given it, the scale
+    (``with_scale``) and translation are the least-squares fit of the centres, joined by
+    ``points`` (solution, model; each (N, 3), finite) where the centres coincide (a panorama).
+    """
+    rotation = so3.project(np.einsum('nij,nkj->ik', model_R_wc, R_wc))
+    x, y = np.asarray(centers_w, dtype=float), np.asarray(model_centers_w, dtype=float)
+    xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
+    if points is not None and not (_spread_over_rounding(x, xc)
+                                   and _spread_over_rounding(y, yc)):
+        x, y = np.concatenate([x, points[0]]), np.concatenate([y, points[1]])
+        xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
+    var = float(np.sum(xc * xc))
+    scale = float(np.sum(yc * (xc @ rotation.T))) / var if with_scale and var > 0 else 1.0
+    return UmeyamaResult(rotation, y.mean(axis=0) - scale * rotation @ x.mean(axis=0), scale)
+
+
+def _spread_over_rounding(x: FloatArray, centred: FloatArray) -> bool:
+    """Return whether points spread beyond the rounding of their coordinates' magnitude."""
+    spread = float(np.sqrt(np.mean(np.sum(centred * centred, axis=1))))
+    return spread > 1e3 * float(np.finfo(float).eps) * float(np.max(np.abs(x)))
+
+
+def in_model_frame(result: SolveResult, R_wc: FloatArray, centers_w: FloatArray,
+                   points_w: FloatArray, with_scale: bool = True, behind: bool = False,
                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Return a solution's rotations, centres and points in a model's frame.
 
     Args:
         result: The solve.
+        R_wc: The model's rotations (camera -> world) of the solved poses, shape (M, 3, 3).
         centers_w: The model's centres of the solved poses, shape (M, 3).
         points_w: The model's points of the solved features, shape (N, 3).
         with_scale: Map by a similarity; False: by a rigid motion (a solution whose scale
@@ -84,12 +115,8 @@ def in_model_frame(result: SolveResult, centers_w: FloatArray, points_w: FloatAr
     """
     points = finite_points(result, behind)
     finite = np.all(np.isfinite(result.points_w), axis=1)
-    try:
-        sim = umeyama_alignment(result.centers_w, centers_w, with_scale=with_scale)
-    except DegenerateGeometryError:  # cameras on a line (a street) fix no rotation: add points
-        sim = umeyama_alignment(np.concatenate([result.centers_w, points[finite]]),
-                                np.concatenate([centers_w, points_w[finite]]),
-                                with_scale=with_scale)
+    sim = model_similarity(result.R_wc, result.centers_w, R_wc, centers_w, with_scale,
+                           (points[finite], points_w[finite]))
     R_wc = sim.rotation @ result.R_wc
     centers = sim.scale * result.centers_w @ sim.rotation.T + sim.translation
     return R_wc, centers, sim.scale * points @ sim.rotation.T + sim.translation
