@@ -345,6 +345,21 @@ def test_an_initialization_that_never_succeeds_is_said(
     assert 'no EG pair could be estimated' in warning
 
 
+@pytest.mark.parametrize('focal', [1e-300, 1.0])
+def test_an_initialization_that_never_starts_is_said(street_bag: Path, tmp_path: Path,
+                                                     focal: float) -> None:
+    """A focal length that is no camera's puts the parallax gate out of reach: said, not a crash.
+
+    Before, 1e-300 px failed every keyframe with a ZeroDivisionError (fx * fy underflowed),
+    and 1 px (normalized coordinates given as pixels) ended with nothing optimized, in silence.
+    """
+    report = replay([street_bag], tmp_path / 'o', intrinsics=(focal, focal, 0.0, 0.0))
+    assert report.counters.get('internal_errors', 0) == 0
+    assert report.keyframes_out == report.keyframes_not_optimized == 60
+    (warning,) = [w for w in report.warnings if 'initialization never started' in w]
+    assert f' deg at {focal:.4g} px focal length' in warning
+
+
 def test_small_simulated_replay_improves_on_frontend(
         real_replay: tuple[Path, replay_mod.ReplayReport]) -> None:
     """60 simulated keyframes: the optimized ATE is below the front-end's."""

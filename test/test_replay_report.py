@@ -29,7 +29,8 @@ def _logic(counters: dict[str, int], source: str = 'tf') -> SimpleNamespace:
                             update_ms=[], counters=counters, keyframes=10, not_optimized=0,
                             map_scale=[], noise=None)
     cameras = SimpleNamespace(extrinsic=Rigid.identity(), extrinsic_source=source, rig={})
-    return SimpleNamespace(stats=stats, cameras=cameras)
+    estimator = SimpleNamespace(state='tracking', last_message='')
+    return SimpleNamespace(stats=stats, cameras=cameras, estimator=estimator)
 
 
 @pytest.mark.parametrize(('counter', 'text'), [

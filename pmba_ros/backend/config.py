@@ -58,8 +58,11 @@ INT_MINIMUMS: dict[str, int] = {
     'init_retry_every': 1, 'init_min_features': 1, 'init_max_iterations': 1,
     'fallback_reinit_after': 1, 'min_observations': 5, 'num_cams': 1,
     'camera_id': 0, 'qos_depth': 1, 'queue_size': 1, 'buffer_size': 1, 'max_iterations': 1,
-    'max_landmarks': 0, 'max_observations_per_feature': 0, 'init_max_batch': 3}
+    'max_landmarks': 0, 'max_observations_per_feature': 0, 'init_max_batch': 3, 'seed': 0}
 """Integer parameters and their smallest accepted value."""
+
+INT_MAXIMUMS: dict[str, int] = {'seed': 2 ** 31 - 1}
+"""Integer parameters with a largest value (OpenCV's RNG takes a C int seed)."""
 
 POSITIVE_FLOATS = ('motion_prior_direction_rel', 'max_time_s', 'loss_scale_px',
                    'covariance_position_m2', 'covariance_rotation_rad2', 'fallback_focal_px',
@@ -269,8 +272,11 @@ class BackendConfig:
                 raise ValueError(msg)
         for name, low in INT_MINIMUMS.items():
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                msg = f'parameter {name}={value!r}: expected an integer >= {low}'
+            high = INT_MAXIMUMS.get(name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low or (
+                    high is not None and value > high):
+                bounds = f'>= {low}' if high is None else f'in [{low}, {high}]'
+                msg = f'parameter {name}={value!r}: expected an integer {bounds}'
                 raise ValueError(msg)
         if self.init_max_batch < self.init_batch_size:
             msg = (f'parameter init_max_batch={self.init_max_batch} must be >= '

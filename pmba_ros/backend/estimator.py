@@ -72,7 +72,7 @@ from pmba_ros.backend.motion import (
 )
 from pmba_ros.backend.rig_scale import rescale_map, RigScale
 from pmba_ros.backend.sanity import CostMonitor
-from pmba_ros.backend.status import UpdateInfo
+from pmba_ros.backend.status import UpdateInfo, waiting_for_parallax
 from pmba_ros.backend.window import (
     FeatureMap,
     gather_observations,
@@ -270,14 +270,14 @@ class Estimator:
                 info_drop['keyframes_dropped_before_init'] = int(np.count_nonzero(~keep_pose))
         if batch.shape[0] < cfg.init_batch_size or self.kf.n < self._next_init_attempt:
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
-        min_angle = cfg.init_min_parallax_px / math.sqrt(self.fx * self.fy)
+        focal = math.sqrt(self.fx) * math.sqrt(self.fy)   # fx * fy can underflow
+        min_angle = cfg.init_min_parallax_px / focal
         need = cfg.init_features_needed(batch.shape[0])
         count = well_conditioned_features(self.kf, batch, min_angle, cfg.camera_id, need)
         if count < need:
             self.state = 'waiting_for_parallax'
-            self.last_message = (f'waiting for parallax: {count} features with >= '
-                                 f'{cfg.init_min_parallax_px:g} px of parallax, need '
-                                 f'{need}, over {batch.shape[0]} keyframes')
+            self.last_message = waiting_for_parallax(count, need, batch.shape[0],
+                                                     cfg.init_min_parallax_px, focal)
             self._next_init_attempt = self.kf.n + cfg.init_retry_every
             return UpdateInfo('collect', keyframe=i, message=self.last_message, dropped=info_drop)
         info = self._initialize(batch, need)

@@ -65,7 +65,8 @@ def parameter_descriptor(name: str, description: str, backend: MsgBackend) -> An
     elif name in settings.INT_MINIMUMS:
         desc.integer_range = [backend.new('rcl_interfaces/msg/IntegerRange',
                                           from_value=settings.INT_MINIMUMS[name],
-                                          to_value=_INT_MAX, step=1)]
+                                          to_value=settings.INT_MAXIMUMS.get(name, _INT_MAX),
+                                          step=1)]
     elif name in settings.POSITIVE_FLOATS or name in settings.NON_NEGATIVE_FLOATS:
         desc.floating_point_range = [backend.new('rcl_interfaces/msg/FloatingPointRange',
                                                  from_value=0.0, to_value=float('inf'),

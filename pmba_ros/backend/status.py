@@ -30,6 +30,17 @@ INFO_COUNTERS = frozenset({'tracks_without_keyframe', 'resets', 'init_attempts',
 """Counters of normal events (VINS publishes tracks of every frame): no WARN, not drops."""
 
 
+def waiting_for_parallax(count: int, need: int, keyframes: int, min_px: float,
+                         focal_px: float) -> str:
+    """Return the status of an initialization waiting for features with parallax."""
+    # The angle too: it shows a gate out of reach (a focal length of 1 px, normalized
+    # coordinates given as pixels).
+    angle = math.degrees(min(min_px / focal_px, math.pi))
+    return (f'waiting for parallax: {count} features with >= {min_px:g} px of parallax '
+            f'({angle:.3g} deg at {focal_px:.4g} px focal length), need {need}, over '
+            f'{keyframes} keyframes')
+
+
 @dataclass
 class UpdateInfo:
     """What one keyframe update did (for diagnostics and stats).

@@ -164,6 +164,10 @@ def test_config_from_params_flat_and_nested() -> None:
     # Values a YAML file gives for a typo (1e12 is a string to YAML 1.1): were TypeErrors.
     ({'init_max_batch': '1e12'}, r"init_max_batch='1e12': expected an integer >= 3"),
     ({'init_max_batch': [60]}, 'init_max_batch'),
+    # OpenCV's RNG takes a C int: these failed at every initialization with a traceback.
+    ({'seed': 'abc'}, 'seed'),
+    ({'seed': True}, 'seed'),
+    ({'seed': 2 ** 40}, r'seed=1099511627776: expected an integer in \[0, 2147483647\]'),
     ({'camera_info_topics': 0}, r'camera_info_topics=0: expected a list of topic names'),
     ({'camera_info_topics': True}, 'camera_info_topics'),
 ])
