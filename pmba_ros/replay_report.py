@@ -259,7 +259,7 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
             f"the keyframes are the front-end's; last: {logic.estimator.last_message}")
     elif not report.solve_ms and logic.estimator.state == 'waiting_for_parallax':
         report.warnings.append(
-            "the initialization never started: nothing was optimized, the keyframes are the "
+            'the initialization never started: nothing was optimized, the keyframes are the '
             f"front-end's; {logic.estimator.last_message}")
     cameras = logic.cameras
     if report.counters.get('extrinsic_unknown'):
