@@ -53,7 +53,7 @@ from pmba_ros.backend.keyframe_outputs import KeyframeOutputs, TF_TOPIC
 from pmba_ros.backend.msg_backend import MsgBackend
 from pmba_ros.backend.pose_stream import PoseStream
 from pmba_ros.backend.results import save_results
-from pmba_ros.backend.sanity import DUPLICATE_POSES, PoseJumpCheck, StampLeapCheck
+from pmba_ros.backend.sanity import DUPLICATE_POSES, held_from, PoseJumpCheck, StampLeapCheck
 from pmba_ros.backend.types import CameraModel, KeyframePose, TrackFrame
 from pmba_ros.backend.window import KeyframeObs
 from pmba_ros.core import so3
@@ -356,8 +356,9 @@ class BackendLogic:
             kf = self._pending[0]
             frame, ready = self._match(kf.stamp_ns)
             if ready and self._stream_mode:   # its pose: the stream's at its stamp
+                held = held_from(kf.stamp_ns, self._keyframe_stamps, self._pose_check)
                 pose, ready, jumped = self._pose_stream.sample(
-                    kf.stamp_ns, self._timed_out(kf.stamp_ns)   # or no pose held or come
+                    kf.stamp_ns, (self._timed_out(kf.stamp_ns) and not held)   # or none come
                     or not (self._pose_stream.count or self._pose_check.holding()
                             or self._keyframe_stamps.holding()))
                 kf = _Keyframe(kf.stamp_ns, pose, jumped)
@@ -404,10 +405,8 @@ class BackendLogic:
                 self.count('keyframes_without_tracks')
             return None, timed_out
         if best.normalized is None and self.camera is None:
-            if timed_out:
-                self.count('tracks_without_camera_info')
-                return None, True
-            return None, False
+            self.count('tracks_without_camera_info', int(timed_out))
+            return None, timed_out
         return best, True
 
     def _process(self, kf: _Keyframe, frame: TrackFrame | None) -> None:

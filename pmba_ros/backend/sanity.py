@@ -146,6 +146,10 @@ class PoseJumpCheck:
         """Return True while poses are held (the first ones, or a jump being judged)."""
         return bool(self._first or self._held)
 
+    def holds_from(self, stamp_ns: int) -> bool:
+        """Return True while a first pose stamped at or after ``stamp_ns`` is held."""
+        return bool(self._first) and self._first[-1][0] >= stamp_ns
+
     def flush(self) -> list[tuple[Any, bool, bool]]:
         """Return the first poses still held, unjudged, as :meth:`release` would: input ended."""
         first, self._first = self._first, []
@@ -286,6 +290,11 @@ class StampLeapCheck:
         """Return True while messages are held (the first ones, or one stamped far ahead)."""
         return self._held is not None or bool(self._first)
 
+    def holds_from(self, stamp_ns: int) -> bool:
+        """Return True while a message stamped at or after ``stamp_ns`` is held."""
+        return (self._held is not None and self._held[0] >= stamp_ns) or any(
+            ns >= stamp_ns for ns, _ in self._first)
+
     def fits(self, stamp_ns: int) -> bool:
         """Return True if ``stamp_ns`` would pass now, neither held nor out of order."""
         last = self._last_ns
@@ -365,3 +374,13 @@ class CostMonitor:
         while len(self._costs) > self.history:
             self._costs.popleft()
         return None
+
+
+def held_from(stamp_ns: int, *checks: StampLeapCheck | PoseJumpCheck) -> bool:
+    """Return True while one of ``checks`` holds a message stamped at or after ``stamp_ns``.
+
+    Such a message has come: what waits for it (a keyframe's pose sampled from a pose
+    stream) waits past the association timeout. At 2 Hz the two checks of a pose stream's
+    first poses hold them for 3 s.
+    """
+    return any(check.holds_from(stamp_ns) for check in checks)
