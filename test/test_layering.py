@@ -51,7 +51,7 @@ CORE_RANKS = {
 RESTRICTED = {
     'rclpy': {'node'},
     'rosbags': {'io.bags', 'io.typestores', 'io.bag_writer', 'io.salvage.ros1_file',
-                'io.salvage.ros1_mcap', 'backend.msg_backend'},
+                'io.salvage.ros1_mcap', 'io.salvage.metadata', 'backend.msg_backend'},
     'mcap': {'io.bags', 'io.salvage.mcap_file'},
     'mcap_ros2': {'io.bags'},
     'apsw': {'io.bags', 'io.salvage.sqlite_file'},

@@ -101,7 +101,7 @@ class ReadStats:
     _span: tuple[int, int] = field(default=(0, 0), init=False, repr=False)
 
 
-def _reader_errors() -> tuple[type[BaseException], ...]:
+def reader_errors() -> tuple[type[BaseException], ...]:
     """Return the exception types the rosbags readers raise on bad input.
 
     rosbags passes on what apsw, its SQLite binding, raises on a page found damaged while it
@@ -180,7 +180,7 @@ def any_reader(paths: Sequence[Path]) -> Iterator[Any]:
         BagError: If a bag cannot be opened (not a bag, truncated, unknown format).
     """
     from rosbags.highlevel import AnyReader
-    errors = _reader_errors()
+    errors = reader_errors()
     check_mcap_lengths(f for p in paths for f in (storage_files(p) or [p]))
     try:
         reader = AnyReader(list(paths), default_typestore=jazzy_typestore())
@@ -281,7 +281,8 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
     messages (an MCAP or ROS 1 bag without its index up to the damage; the readable rows of a
     SQLite file cut short, damaged, with SQLite's journal beside it or an index missing rows),
     a rosbag2 folder without ``metadata.yaml``, or whose ``metadata.yaml`` lists a missing file,
-    by the files there are. ``damage`` then says what was lost.
+    by the files there are; a folder whose ``metadata.yaml`` its files contradict (a topic's
+    type) or rosbags refuses, by its files alone. ``damage`` then says what was lost or wrong.
 
     Raises:
         BagError: If a bag is missing or cannot be opened, not even in part.
@@ -293,13 +294,11 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
         damage: tuple[str, ...] = ()
         error: BagError | None = None
         reader = None
+        said: list[str] = []
         if not salvage.suspect(given):
-            try:
-                reader = stack.enter_context(any_reader(checked))
-            except BagError as err:
-                error = err
+            reader, error, said = salvage.opened_whole(checked, stack)
         if reader is None:
-            checked, damage = salvage.readable_parts(given, error, stack)
+            checked, damage = salvage.readable_parts(given, error, stack, said)
             try:
                 reader = stack.enter_context(any_reader(checked))
             except BagError as err:   # it names the salvaged copies, in a temporary folder
@@ -476,7 +475,7 @@ def _iter_once(paths: Sequence[Path], topics: Sequence[str] | None,
 
     ``reader``: an open reader of ``paths`` to use (left open); None opens one.
     """
-    errors = _reader_errors()
+    errors = reader_errors()
     with nullcontext(reader) if reader is not None else any_reader(paths) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
         if not conns:
@@ -534,7 +533,7 @@ def _raw_messages(reader: Any, conns: list[Any], paths: Sequence[Path],
     Raises:
         _CorruptStorage: If the storage is corrupt or truncated.
     """
-    errors = _reader_errors()
+    errors = reader_errors()
     stream = reader.messages(connections=conns, start=start)
     while True:
         try:
@@ -560,8 +559,8 @@ def _decompressed(raw: bytes) -> bytes:
 
 __all__ = ['STORAGE_SUFFIXES', 'BagMessage', 'OpenBags', 'ReadStats', 'TopicInfo', 'any_reader',
            'error_text', 'is_ros1', 'iter_messages', 'iter_serialized', 'jazzy_typestore',
-           'list_topics', 'open_bags', 'require_topics', 'serialized_messages',
-           'storage_files']
+           'list_topics', 'open_bags', 'reader_errors', 'require_topics',
+           'serialized_messages', 'storage_files']
 
 
 def iter_serialized(paths: Sequence[Path | str], topics: Sequence[str] | None = None,

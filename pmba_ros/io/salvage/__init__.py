@@ -19,9 +19,10 @@ says what was damaged. Each kind of storage file has its own salvage, which copi
 readable messages of a damaged file into a new, complete one in a temporary folder (never in
 the recording's folder): MCAP without its index (:mod:`.mcap_file`), SQLite cut short or with
 damaged pages and SQLite's journal left beside a file (:mod:`.sqlite_file`), and a ROS 1 bag
-without its index (:mod:`.ros1_file`). A rosbag2 folder without ``metadata.yaml`` is read by
-its storage files, which rosbags opens alone. An MCAP file of ROS 1 messages, which rosbags
-refuses too, is read by its copy as a ROS 1 bag (:mod:`.ros1_mcap`), damage or not.
+without its index (:mod:`.ros1_file`). A rosbag2 folder without ``metadata.yaml``, or whose
+``metadata.yaml`` is wrong (:mod:`.metadata`), is read by its storage files, which rosbags
+opens alone. An MCAP file of ROS 1 messages, which rosbags refuses too, is read by its copy
+as a ROS 1 bag (:mod:`.ros1_mcap`), damage or not.
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ from pmba_ros.errors import BagError
 from pmba_ros.io.bags import any_reader, error_text, is_ros1, storage_files
 from pmba_ros.io.salvage.common import Salvaged
 from pmba_ros.io.salvage.mcap_file import salvage_mcap
+from pmba_ros.io.salvage.metadata import opened_whole, unlisted
 from pmba_ros.io.salvage.ros1_file import ACTIVE_SUFFIX, salvage_ros1
 from pmba_ros.io.salvage.sqlite_file import index_damage, journal_of, recover_journal, salvage_db3
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['Salvaged', 'mcap_copies', 'readable_parts', 'suspect']
+__all__ = ['Salvaged', 'mcap_copies', 'opened_whole', 'readable_parts', 'suspect']
 
 Salvage = Callable[[Path, Path, str], Salvaged | None]
 """``(damaged file, copy to write, what is wrong with it) -> what was copied``."""
@@ -78,26 +80,6 @@ def _without_metadata(paths: Sequence[Path]) -> list[Path]:
     return [p for p in paths if p.is_dir() and not (p / 'metadata.yaml').exists()]
 
 
-def _unlisted(folder: Path) -> list[Path]:
-    """Return the storage files in a rosbag2 folder that its ``metadata.yaml`` does not list.
-
-    A split the recorder began after it last wrote the metadata, or a file copied in: rosbags
-    reads the listed files only. A file, a folder without metadata and an unreadable metadata
-    file list nothing here (opening the folder names what is wrong with it).
-    """
-    import yaml
-
-    if not (folder / 'metadata.yaml').is_file():
-        return []
-    try:
-        info = yaml.safe_load((folder / 'metadata.yaml').read_text(encoding='utf-8'))
-        listed = {Path(str(name)).name
-                  for name in info['rosbag2_bagfile_information']['relative_file_paths']}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
-        return []
-    return [f for f in storage_files(folder) if f.name not in listed]
-
-
 def suspect(paths: Sequence[Path]) -> bool:
     """Return True if recordings may open and still read short: then read them file by file.
 
@@ -107,7 +89,7 @@ def suspect(paths: Sequence[Path]) -> bool:
     a closed recording's folder) with a timestamp index that disagrees with its rows
     (:func:`.sqlite_file.index_damage`).
     """
-    return bool(_without_metadata(paths)) or any(_unlisted(p) for p in paths) or any(
+    return bool(_without_metadata(paths)) or any(unlisted(p) for p in paths) or any(
         _active(f) or (f.suffix == '.db3' and (journal_of(f) is not None or (
             f in paths and index_damage(f) is not None))) for f in _files(paths))
 
@@ -128,14 +110,17 @@ class _Scratch:
         return self._dir / f'{self._count}_{name}'
 
 
-def readable_parts(paths: Sequence[Path], error: BagError | None,
-                   stack: ExitStack) -> tuple[list[Path], tuple[str, ...]]:
+def readable_parts(paths: Sequence[Path], error: BagError | None, stack: ExitStack,
+                   said: Sequence[str] = ()) -> tuple[list[Path], tuple[str, ...]]:
     """Return storage files to read for ``paths``: those that open, readable copies of the rest.
 
     Args:
         paths: The recordings as given (folders and files).
-        error: Why they did not open together, or None if they were not tried (:func:`suspect`).
+        error: Why they did not open together, or None if they were not tried (:func:`suspect`)
+            or a folder's metadata.yaml was found wrong (``said``).
         stack: Removes the copies' temporary folder when it closes.
+        said: What the folders' metadata.yaml says that their files belie
+            (:func:`.metadata.contradictions`), one line each.
 
     Returns:
         The files to read, and what was damaged in ``paths`` (one line each, the files' first).
@@ -181,8 +166,9 @@ def readable_parts(paths: Sequence[Path], error: BagError | None,
         raise error or BagError('; '.join(damage))
     damage += [f'{p}: no metadata.yaml, the recorder did not close the recording; its storage '
                'files were read as they are' for p in _without_metadata(paths)]
-    damage += [f'{p}: {", ".join(f.name for f in unlisted)} not listed in its metadata.yaml; '
-               'every storage file there was read' for p in paths if (unlisted := _unlisted(p))]
+    damage += [f'{p}: {", ".join(f.name for f in files)} not listed in its metadata.yaml; '
+               'every storage file there was read' for p in paths if (files := unlisted(p))]
+    damage += said
     if error is not None and not damage:   # every file opens: the folder's metadata.yaml is wrong
         damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
                   'read one by one' for p in paths if p.is_dir()]
