@@ -282,7 +282,8 @@ def open_bags(paths: Sequence[Path | str]) -> Iterator[OpenBags]:
     SQLite file cut short, damaged, with SQLite's journal beside it or an index missing rows),
     a rosbag2 folder without ``metadata.yaml``, or whose ``metadata.yaml`` lists a missing file,
     by the files there are; a folder whose ``metadata.yaml`` its files contradict (a topic's
-    type) or rosbags refuses, by its files alone. ``damage`` then says what was lost or wrong.
+    type, their compression) or rosbags refuses, by its files alone. ``damage`` then says what
+    was lost or wrong.
 
     Raises:
         BagError: If a bag is missing or cannot be opened, not even in part.

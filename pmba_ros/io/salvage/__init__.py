@@ -37,7 +37,7 @@ from pmba_ros.errors import BagError
 from pmba_ros.io.bags import any_reader, error_text, is_ros1, storage_files
 from pmba_ros.io.salvage.common import Salvaged
 from pmba_ros.io.salvage.mcap_file import salvage_mcap
-from pmba_ros.io.salvage.metadata import opened_whole, unlisted
+from pmba_ros.io.salvage.metadata import metadata_refusal, opened_whole, unlisted
 from pmba_ros.io.salvage.ros1_file import ACTIVE_SUFFIX, salvage_ros1
 from pmba_ros.io.salvage.sqlite_file import index_damage, journal_of, recover_journal, salvage_db3
 
@@ -170,8 +170,7 @@ def readable_parts(paths: Sequence[Path], error: BagError | None, stack: ExitSta
                'every storage file there was read' for p in paths if (files := unlisted(p))]
     damage += said
     if error is not None and not damage:   # every file opens: the folder's metadata.yaml is wrong
-        damage = [f'{p}: {error_text(error.__cause__ or error)}; its storage files were '
-                  'read one by one' for p in paths if p.is_dir()]
+        damage = [f'{p}: {metadata_refusal(p, error)}' for p in paths if p.is_dir()]
     for line in damage:
         logger.warning('%s', line)
     return readable, tuple(damage)

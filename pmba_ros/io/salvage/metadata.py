@@ -13,23 +13,31 @@
 # limitations under the License.
 """A rosbag2 folder whose ``metadata.yaml`` its storage files contradict, or rosbags refuses.
 
-rosbags reads a folder by what its ``metadata.yaml`` says: the topics' types, the files.
-Where that is wrong the storage files, whose own topic tables are the truth for their
-messages, are read alone instead (:func:`~pmba_ros.io.salvage.readable_parts`), and what was
-wrong is said in ``metadata.yaml``'s name, not as damage to the files.
+rosbags reads a folder by what its ``metadata.yaml`` says: the topics' types, the messages'
+compression, the files. Where that is wrong the storage files, whose own topic tables are the
+truth for their messages, are read alone instead (:func:`~pmba_ros.io.salvage.readable_parts`),
+and what was wrong is said in ``metadata.yaml``'s name, not as damage to the files.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from contextlib import ExitStack
+from contextlib import closing, ExitStack
 from pathlib import Path
 from typing import Any
 
 from pmba_ros.errors import BagError
-from pmba_ros.io.bags import any_reader, reader_errors, ros2_type_name, storage_files
+from pmba_ros.io.bags import (
+    any_reader,
+    error_text,
+    reader_errors,
+    ros2_type_name,
+    storage_files,
+    ZSTD_MAGIC,
+)
+from pmba_ros.io.mcap_layout import zstd_module
 
-__all__ = ['contradictions', 'opened_whole', 'unlisted']
+__all__ = ['contradictions', 'metadata_refusal', 'opened_whole', 'unlisted']
 
 
 def _information(folder: Path) -> dict[str, Any] | None:
@@ -61,6 +69,19 @@ def unlisted(folder: Path) -> list[Path]:
     return [] if listed is None else [f for f in storage_files(folder) if f.name not in listed]
 
 
+def metadata_refusal(folder: Path, error: BagError) -> str:
+    """Return why rosbags refused a folder whose storage files each open alone.
+
+    ``error`` is rosbags' refusal; a claim of whole-file compression that the files belie
+    (they open as they are) is named as such, not as the zstd error it gave.
+    """
+    mode = str((_information(folder) or {}).get('compression_mode', '')).lower()
+    if mode == 'file' and isinstance(error.__cause__, zstd_module().ZstdError):
+        return ('metadata.yaml says its storage files are compressed (compression_mode: file), '
+                'but they open as they are; they were read so')
+    return f'{error_text(error.__cause__ or error)}; its storage files were read one by one'
+
+
 def opened_whole(paths: Sequence[Path], stack: ExitStack,
                  ) -> tuple[Any, BagError | None, list[str]]:
     """Open recordings together, unless a folder's metadata.yaml contradicts its storage files.
@@ -88,8 +109,9 @@ def opened_whole(paths: Sequence[Path], stack: ExitStack,
 def contradictions(reader: Any) -> list[str]:
     """Return what the metadata.yaml of an open reader's folders says that their files belie.
 
-    A topic's type: rosbags then matches none of the file's messages to the topic, and the
-    topic keeps the wrong type. One line each, naming the folder. A folder of compressed
+    A topic's type (rosbags then matches none of the file's messages to the topic, and the
+    topic keeps the wrong type), and per-message compression of messages stored plain
+    (rosbags fails on the first). One line each, naming the folder. A folder of compressed
     files (compression_mode: file) is not checked: its files would not open alone.
     """
     from rosbags.rosbag2.reader import DirectoryReader
@@ -111,6 +133,12 @@ def contradictions(reader: Any) -> list[str]:
                 where = '; '.join(f'{", ".join(names)} records {t}' for t, names in types.items())
                 said.append(f'{folder.path}: metadata.yaml gives topic {conn.topic!r} the type '
                             f'{conn.msgtype}, but {where}; read as the storage files say')
+        if folder.metadata.compression_mode == 'message':
+            plain = [_name(s) for s in folder.storages if _stored_plain(s)]
+            if plain:
+                said.append(f'{folder.path}: metadata.yaml says its messages are compressed '
+                            f'(compression_mode: message), but those of {", ".join(plain)} are '
+                            'not; read as they are')
     return said
 
 
@@ -120,3 +148,12 @@ def _name(storage: Any) -> str:
     rosbags' storage readers (MCAP, SQLite) keep their path; their protocol does not say so.
     """
     return Path(storage.path).name
+
+
+def _stored_plain(storage: Any) -> bool:
+    """Return True if a storage file's first message is not a zstd frame (it is plain CDR)."""
+    if not storage.connections:
+        return False
+    with closing(storage.messages(storage.connections)) as stream:
+        first = next(stream, None)
+    return first is not None and bytes(first[2][:4]) != ZSTD_MAGIC
