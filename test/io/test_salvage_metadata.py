@@ -120,3 +120,15 @@ def test_a_false_claim_of_file_compression_is_named(tmp_path: Path) -> None:
     (line,) = said
     assert line == (f'{folder}: metadata.yaml says its storage files are compressed '
                     '(compression_mode: file), but they open as they are; they were read so')
+
+
+def test_a_metadata_version_newer_than_the_reader_knows_is_said_so(tmp_path: Path) -> None:
+    """``version: 99``: the storage files read, the version named (not rosbags' plea to report)."""
+    folder = tmp_path / 'rec'
+    write_folder(folder)
+    edit_metadata(folder, version=99)
+    _, messages, said, _ = read(folder)
+    assert messages == expected()
+    (line,) = said
+    assert line == (f'{folder}: metadata.yaml is of rosbag2 metadata version 99, newer than the '
+                    'reader knows (up to 9); its storage files were read as they are')

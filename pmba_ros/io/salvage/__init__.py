@@ -37,7 +37,7 @@ from pmba_ros.errors import BagError
 from pmba_ros.io.bags import any_reader, error_text, is_ros1, storage_files
 from pmba_ros.io.salvage.common import Salvaged
 from pmba_ros.io.salvage.mcap_file import salvage_mcap
-from pmba_ros.io.salvage.metadata import metadata_refusal, opened_whole, unlisted
+from pmba_ros.io.salvage.metadata import metadata_refusal, newer_version, opened_whole, unlisted
 from pmba_ros.io.salvage.ros1_file import ACTIVE_SUFFIX, salvage_ros1
 from pmba_ros.io.salvage.sqlite_file import index_damage, journal_of, recover_journal, salvage_db3
 
@@ -84,12 +84,13 @@ def suspect(paths: Sequence[Path]) -> bool:
     """Return True if recordings may open and still read short: then read them file by file.
 
     A rosbag2 folder without ``metadata.yaml`` (written last, when the recorder closes the
-    recording) or with storage files it does not list, a ROS 1 ``.bag.active`` file, a ``.db3``
-    file with SQLite's journal beside it (which rosbags does not read), or given alone (not in
-    a closed recording's folder) with a timestamp index that disagrees with its rows
-    (:func:`.sqlite_file.index_damage`).
+    recording), with storage files it does not list or of a metadata version rosbags refuses,
+    a ROS 1 ``.bag.active`` file, a ``.db3`` file with SQLite's journal beside it (which
+    rosbags does not read), or given alone (not in a closed recording's folder) with a
+    timestamp index that disagrees with its rows (:func:`.sqlite_file.index_damage`).
     """
-    return bool(_without_metadata(paths)) or any(unlisted(p) for p in paths) or any(
+    return bool(_without_metadata(paths)) or any(
+        unlisted(p) or newer_version(p) for p in paths) or any(
         _active(f) or (f.suffix == '.db3' and (journal_of(f) is not None or (
             f in paths and index_damage(f) is not None))) for f in _files(paths))
 
@@ -168,6 +169,7 @@ def readable_parts(paths: Sequence[Path], error: BagError | None, stack: ExitSta
                'files were read as they are' for p in _without_metadata(paths)]
     damage += [f'{p}: {", ".join(f.name for f in files)} not listed in its metadata.yaml; '
                'every storage file there was read' for p in paths if (files := unlisted(p))]
+    damage += [f'{p}: {newer}' for p in paths if (newer := newer_version(p))]
     damage += said
     if error is not None and not damage:   # every file opens: the folder's metadata.yaml is wrong
         damage = [f'{p}: {metadata_refusal(p, error)}' for p in paths if p.is_dir()]

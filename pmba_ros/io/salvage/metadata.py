@@ -37,7 +37,10 @@ from pmba_ros.io.bags import (
 )
 from pmba_ros.io.mcap_layout import zstd_module
 
-__all__ = ['contradictions', 'metadata_refusal', 'opened_whole', 'unlisted']
+__all__ = ['contradictions', 'metadata_refusal', 'newer_version', 'opened_whole', 'unlisted']
+
+KNOWN_VERSION = 9
+"""The newest rosbag2 metadata version rosbags' folder reader reads (it refuses the others)."""
 
 
 def _information(folder: Path) -> dict[str, Any] | None:
@@ -67,6 +70,15 @@ def unlisted(folder: Path) -> list[Path]:
     except (KeyError, TypeError):
         listed = None
     return [] if listed is None else [f for f in storage_files(folder) if f.name not in listed]
+
+
+def newer_version(folder: Path) -> str | None:
+    """Return what is wrong if a folder's metadata.yaml is of a version rosbags refuses."""
+    version = (_information(folder) or {}).get('version')
+    if not isinstance(version, int) or version <= KNOWN_VERSION:
+        return None
+    return (f'metadata.yaml is of rosbag2 metadata version {version}, newer than the reader '
+            f'knows (up to {KNOWN_VERSION}); its storage files were read as they are')
 
 
 def metadata_refusal(folder: Path, error: BagError) -> str:
