@@ -55,6 +55,9 @@ FORMATS = ('auto', 'tum', 'euroc', 'kitti')
 _ROTATION_TOL = 1e-3
 """Largest accepted ``|R^T R - I|`` entry of a KITTI rotation before projection onto SO(3)."""
 
+_MIN_QUAT_NORM = 1e-6
+"""Smallest quaternion norm accepted: below it the quaternion is a placeholder, not a rotation."""
+
 MAX_TIME_S = 2.0 ** 31
 """Largest KITTI time magnitude accepted, s: the bags written from these times
 (``pmba import-tracks``) stamp messages with them, whose seconds are an int32; beyond it the
@@ -220,11 +223,17 @@ def _rotations_from_quat(path: str | os.PathLike[str], quat_xyzw: FloatArray,
     Raises:
         FormatError: If a quaternion has (near) zero norm.
     """
-    with np.errstate(over='ignore'):
+    with np.errstate(over='ignore', under='ignore'):
         norms = np.linalg.norm(quat_xyzw, axis=1)
-    bad = np.flatnonzero(norms < 1e-6)
+    bad = np.flatnonzero(norms < _MIN_QUAT_NORM)
     if bad.size:
-        msg = f'{path}:{linenos[int(bad[0])]}: {what} quaternion has zero norm'
+        k = int(bad[0])
+        # Its squares underflow below 1e-154: the norm is taken of the quaternion scaled up.
+        largest = float(np.max(np.abs(quat_xyzw[k])))
+        norm = largest * float(np.linalg.norm(quat_xyzw[k] / largest)) if largest else 0.0
+        problem = (f'has norm {norm:.3g}, too small to normalize (below {_MIN_QUAT_NORM:g})'
+                   if norm else 'is zero')
+        msg = f'{path}:{linenos[k]}: {what} quaternion {problem}'
         raise FormatError(msg)
     # A quaternion with components beyond ~1e154 is a rotation, but its norm overflowed to
     # inf and normalizing it gave zeros: a wrong rotation, silently. Scaled down first.
@@ -416,17 +425,27 @@ def read_times(path: str | os.PathLike[str]) -> FloatArray:
         The times, shape (N,).
 
     Raises:
-        FormatError: If the file cannot be read, a line is not exactly one finite number, or
-            a time is beyond :data:`MAX_TIME_S`.
+        FormatError: If the file cannot be read, a line is not exactly one finite number, a
+            time is beyond :data:`MAX_TIME_S`, or a time is before the one of the line above.
     """
     mat, line_no = _parse_matrix(path, _read_text(path), delimiter=None, n_cols=1,
                                  exact=True, what='times')
-    bad = np.flatnonzero(np.abs(mat[:, 0]) >= MAX_TIME_S)
+    times = mat[:, 0]
+    bad = np.flatnonzero(np.abs(times) >= MAX_TIME_S)
     if bad.size:
-        msg = (f'{path}:{line_no[bad[0]]}: time {mat[bad[0], 0]:g} s is beyond '
+        msg = (f'{path}:{line_no[bad[0]]}: time {times[bad[0]]:g} s is beyond '
                f'{MAX_TIME_S:g} s (a ROS stamp holds whole seconds in an int32)')
         raise FormatError(msg)
-    return mat[:, 0]
+    # Line i is the time of pose i: a file out of order gives poses the stamps of others
+    # (sorting them would pair them anew), and was read silently (ATE 2x, RPE 2 m).
+    back = np.flatnonzero(np.diff(times) < 0)
+    if back.size:
+        k = int(back[0]) + 1
+        msg = (f'{path}:{line_no[k]}: time {times[k]:g} s is before the {times[k - 1]:g} s of '
+               f'line {line_no[k - 1]}: the times of a KITTI file go line by line with its '
+               'poses and cannot decrease')
+        raise FormatError(msg)
+    return times
 
 
 def _fractional(value: str) -> bool:

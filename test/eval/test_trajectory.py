@@ -234,7 +234,10 @@ def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
      r"bad\.txt:2: TUM column 4 is not a finite number: '1_0'"),
     ('1,2,3,4,1,0,0,0\n2,2,3,4,\u0661,0,0,0\n', read_euroc_csv,
      r"bad\.txt:2: EuRoC CSV column 5 is not a finite number: '\u0661'"),
-    ('1 2 3 4 0 0 0 0\n', read_tum, r'bad\.txt:1: TUM quaternion has zero norm'),
+    ('1 2 3 4 0 0 0 0\n', read_tum, r'bad\.txt:1: TUM quaternion is zero'),
+    # Was "zero norm": its squares underflow, but it is not zero.
+    ('1 2 3 4 0 0 1e-200 1e-200\n', read_tum,
+     r'bad\.txt:1: TUM quaternion has norm 1\.41e-200, too small to normalize'),
     ('# only a comment\n', read_tum, r'bad\.txt: no TUM poses found'),
     ('1,2,3,4,5,6,7\n', read_euroc_csv, r'bad\.txt:1: EuRoC CSV lines need at least 8'),
     ('1 0 0 0 0 1 0 0 0 0 1\n', read_kitti, r'bad\.txt:1: KITTI lines need 12 values'),
@@ -291,6 +294,18 @@ def test_read_times_refuses_a_time_beyond_a_ros_stamp(tmp_path: Path) -> None:
         read_times(path)
     np.testing.assert_array_equal(read_times(write_text(tmp_path / 'ok.txt', '0\n470.5\n')),
                                   [0.0, 470.5])
+
+
+def test_read_times_refuses_times_that_decrease(tmp_path: Path) -> None:
+    """Times out of order: a FormatError naming the line (they paired poses wrongly, silently).
+
+    Line i is the time of pose i, so a decreasing file gave an ATE 2x the true one and an RPE
+    of 2 m, without a word.
+    """
+    path = write_text(tmp_path / 'times.txt', '0.0\n0.1\n# comment\n0.1\n0.05\n0.3\n')
+    with pytest.raises(FormatError,
+                       match=r'times\.txt:5: time 0\.05 s is before the 0\.1 s of line 4'):
+        read_times(path)
 
 
 def test_read_trajectory_raises_on_missing_file(tmp_path: Path) -> None:
