@@ -56,6 +56,10 @@ _COINCIDENT_RTOL = 1e3 * float(np.finfo(float).eps)
 """A point set whose RMS spread about its mean is at most this fraction of its largest
 coordinate coincides: the spread is what rounding the mean leaves."""
 
+_SCALE_P_MAX = 1e-3
+"""Largest p-value of a determined Sim(3) scale: the chance that positions unrelated to the
+reference explain as much of its spread (:func:`align_sim3`)."""
+
 
 class UmeyamaResult(NamedTuple):
     """A similarity transform ``y = scale * rotation @ x + translation``.
@@ -202,6 +206,11 @@ def align_se3(est: Trajectory, ref: Trajectory) -> tuple[Trajectory, UmeyamaResu
 def align_sim3(est: Trajectory, ref: Trajectory) -> tuple[Trajectory, UmeyamaResult]:
     """Align ``est`` onto ``ref`` with rotation, translation and scale (``evo_ape ... -as``).
 
+    The scale must be determined by the positions: the fit has to explain the reference's
+    spread better than positions unrelated to it would, at p <= :data:`_SCALE_P_MAX`
+    (:func:`scale_p_value`). An estimate that stands still but for its noise (sub-micrometre
+    jitter about one point) was scaled by 1e6 to the reference's size, and its ATE printed.
+
     Args:
         est: Estimated trajectory, already associated with ``ref`` (same length).
         ref: Reference trajectory.
@@ -211,6 +220,46 @@ def align_sim3(est: Trajectory, ref: Trajectory) -> tuple[Trajectory, UmeyamaRes
 
     Raises:
         EvaluationError: If the lengths differ.
-        DegenerateGeometryError: If the positions are collinear or coincident.
+        DegenerateGeometryError: If the positions are collinear or coincident, or do not
+            determine the scale.
     """
-    return _align(est, ref, with_scale=True)
+    aligned, fit = _align(est, ref, with_scale=True)
+    unexplained, p_value = scale_p_value(aligned.positions_xyz, ref.positions_xyz)
+    if p_value > _SCALE_P_MAX:
+        msg = (f'the scale {fit.scale:.3g} is not determined by the positions: the fit leaves '
+               f"{100 * unexplained:.1f} % of the reference's spread unexplained, no better "
+               f'than positions unrelated to it (F test p = {p_value:.2g} > {_SCALE_P_MAX:g})')
+        raise DegenerateGeometryError(msg)
+    return aligned, fit
+
+
+def scale_p_value(aligned: FloatArray, ref: FloatArray) -> tuple[float, float]:
+    """Return the share of the reference's spread a Sim(m) fit leaves, and its p-value.
+
+    F test of the fit (rotation, translation, scale) against the model in which the
+    estimate says nothing of the reference (scale 0: only the mean fits), on the squared
+    residuals of N m coordinates. p is the probability of the fit doing at least as well
+    by chance. The test takes the residuals as independent: it refuses noise about a point,
+    not an estimate that wanders (a random walk fits a reference's path spuriously well).
+
+    Args:
+        aligned: Estimated points after the fit, shape (N, m).
+        ref: Reference points, shape (N, m), not all coincident.
+
+    Returns:
+        The residual sum of squares over the reference's about its mean, in [0, 1], and the
+        p-value (0.0 when no degree of freedom is left to judge the fit by).
+    """
+    from scipy.special import betainc
+
+    n, m = ref.shape
+    extra = m * (m - 1) // 2 + 1          # rotation and scale, beyond the translation
+    dof = n * m - (extra + m)
+    centred = ref - ref.mean(axis=0)
+    unexplained = float(np.clip(np.sum((ref - aligned) ** 2) / np.sum(centred * centred),
+                                0.0, 1.0))
+    if dof <= 0:
+        return unexplained, 0.0
+    # P(F > f) for F(extra, dof) is I_x(dof / 2, extra / 2) at x = dof / (dof + extra f),
+    # which for f = ((1 - u) / extra) / (u / dof) is the unexplained share u itself.
+    return unexplained, float(betainc(dof / 2, extra / 2, unexplained))

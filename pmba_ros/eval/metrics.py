@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import logging
-from typing import Literal, TYPE_CHECKING
+from typing import Literal, NamedTuple, TYPE_CHECKING
 
 import numpy as np
 from pmba_ros._typing import FloatArray, IntArray
@@ -361,13 +361,22 @@ def _check_align(align: str) -> None:
         raise EvaluationError(msg)
 
 
-def _align_pairs(est: Trajectory, ref: Trajectory,
-                 align: str) -> tuple[Trajectory, UmeyamaResult, str, str]:
+class _Aligned(NamedTuple):
+    """An associated estimate aligned onto its reference, and how."""
+
+    est: Trajectory
+    alignment: UmeyamaResult
+    mode: str
+    note: str
+
+
+def _align_pairs(est: Trajectory, ref: Trajectory, align: str) -> _Aligned:
     """Align associated ``est`` onto ``ref`` with the given mode (no-op for ``'none'``).
 
     Positions that cannot fix the asked alignment (collinear: no Sim(3) or SE(3) rotation
-    about their line; coincident: pure rotation) fall back to SE(3), and then to the
-    rigid transform that maps the first estimated pose onto the first reference pose
+    about their line; coincident: pure rotation; a Sim(3) scale that noise sets, see
+    :func:`~pmba_ros.eval.align.align_sim3`) fall back to SE(3), and then to the rigid
+    transform that maps the first estimated pose onto the first reference pose
     ('first_pose'), with a note instead of an error.
 
     Returns:
@@ -378,7 +387,7 @@ def _align_pairs(est: Trajectory, ref: Trajectory,
                f'(check the stamps, --max-diff and the time offset)')
         raise EvaluationError(msg)
     if align == 'none':
-        return est, UmeyamaResult(np.eye(3), np.zeros(3), 1.0), align, ''
+        return _Aligned(est, UmeyamaResult(np.eye(3), np.zeros(3), 1.0), align, '')
     notes = []
     for mode in dict.fromkeys((align, 'se3')):
         try:
@@ -387,12 +396,12 @@ def _align_pairs(est: Trajectory, ref: Trajectory,
             notes.append(f'cannot align with {mode} ({err})')
             continue
         note = '; '.join([*notes, f'aligned with {mode}']) if notes else ''
-        return aligned, fit, mode, note
+        return _Aligned(aligned, fit, mode, note)
     rotation = ref.R_wc[0] @ est.R_wc[0].T
     fit = UmeyamaResult(rotation, ref.positions_xyz[0] - rotation @ est.positions_xyz[0], 1.0)
     note = '; '.join([*notes, 'aligned by the first pose'])
     logger.warning('%s', note)
-    return apply_alignment(est, fit), fit, 'first_pose', note
+    return _Aligned(apply_alignment(est, fit), fit, 'first_pose', note)
 
 
 def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
@@ -410,13 +419,12 @@ def _result(metric: str, align: str, errors: FloatArray, n_matched: int,
         scale=float(alignment.scale), errors=errors, delta_frames=delta_frames, note=note)
 
 
-def _ate_associated(est: Trajectory, ref: Trajectory, align: str) -> EvalResult:
-    """ATE of already associated trajectories."""
-    aligned, alignment, used, note = _align_pairs(est, ref, align)
+def _ate_aligned(fit: _Aligned, ref: Trajectory) -> EvalResult:
+    """ATE of an associated estimate aligned onto ``ref``."""
     # |trans(Q_i^-1 S P_i)| = |R_q,i^T (p_i - q_i)| = |p_i - q_i|, eq. (3); evo's APE also
     # uses the position difference directly.
-    errors = np.linalg.norm(aligned.positions_xyz - ref.positions_xyz, axis=1)
-    return _result('ate', used, errors, len(est), alignment, note=note)
+    errors = np.linalg.norm(fit.est.positions_xyz - ref.positions_xyz, axis=1)
+    return _result('ate', fit.mode, errors, len(ref), fit.alignment, note=fit.note)
 
 
 def _pair_indices(n: int, delta: int, all_pairs: bool) -> tuple[IntArray, IntArray]:
@@ -428,13 +436,12 @@ def _pair_indices(n: int, delta: int, all_pairs: bool) -> tuple[IntArray, IntArr
     return ids[:-1], ids[1:]
 
 
-def _rpe_associated(est: Trajectory, ref: Trajectory, align: str, delta: int,
-                    all_pairs: bool) -> EvalResult:
-    """RPE (translation part) of already associated trajectories."""
-    aligned, alignment, used, note = _align_pairs(est, ref, align)
-    i, j = _pair_indices(len(est), delta, all_pairs)
+def _rpe_aligned(fit: _Aligned, ref: Trajectory, delta: int, all_pairs: bool) -> EvalResult:
+    """RPE (translation part) of an associated estimate aligned onto ``ref``."""
+    aligned = fit.est
+    i, j = _pair_indices(len(ref), delta, all_pairs)
     if i.size == 0:
-        msg = f'no pose pairs {delta} frames apart among {len(est)} associated poses'
+        msg = f'no pose pairs {delta} frames apart among {len(ref)} associated poses'
         raise EvaluationError(msg)
     # t_Q = trans(Q_i^-1 Q_j), t_P = trans(P_i^-1 P_j)
     t_q = np.einsum('nji,nj->ni', ref.R_wc[i], ref.positions_xyz[j] - ref.positions_xyz[i])
@@ -443,7 +450,8 @@ def _rpe_associated(est: Trajectory, ref: Trajectory, align: str, delta: int,
     # trans(E_i) = R_rel^T (t_P - t_Q) with R_rel = R_q,i^T R_q,j, eq. (1)
     R_rel = np.einsum('nki,nkj->nij', ref.R_wc[i], ref.R_wc[j])
     errors = np.linalg.norm(np.einsum('nji,nj->ni', R_rel, t_p - t_q), axis=1)
-    return _result('rpe', used, errors, len(est), alignment, delta_frames=delta, note=note)
+    return _result('rpe', fit.mode, errors, len(ref), fit.alignment, delta_frames=delta,
+                   note=fit.note)
 
 
 def _check_delta(delta: int, delta_unit: str) -> int:
@@ -477,7 +485,7 @@ def ate(est: Trajectory, ref: Trajectory, align: AlignMode | str = 'se3',
     """
     _check_align(align)
     est_a, ref_a = associate(est, ref, max_diff_s, offset_s)
-    return _ate_associated(est_a, ref_a, align)
+    return _ate_aligned(_align_pairs(est_a, ref_a, align), ref_a)
 
 
 def rpe(est: Trajectory, ref: Trajectory, delta: int = 1, delta_unit: str = 'frames',
@@ -508,7 +516,7 @@ def rpe(est: Trajectory, ref: Trajectory, delta: int = 1, delta_unit: str = 'fra
     _check_align(align)
     delta = _check_delta(delta, delta_unit)
     est_a, ref_a = associate(est, ref, max_diff_s, offset_s)
-    return _rpe_associated(est_a, ref_a, align, delta, all_pairs)
+    return _rpe_aligned(_align_pairs(est_a, ref_a, align), ref_a, delta, all_pairs)
 
 
 def evaluate(est: Trajectory, gt: Trajectory, align: AlignMode | str = 'sim3',
@@ -516,7 +524,7 @@ def evaluate(est: Trajectory, gt: Trajectory, align: AlignMode | str = 'sim3',
              offset_s: float = 0.0) -> Mapping[str, EvalResult]:
     """Compute ATE and RPE (translation part) of an estimate against ground truth.
 
-    The trajectories are associated once and both metrics use the same alignment mode.
+    The trajectories are associated and aligned once, for both metrics.
 
     Args:
         est: Estimated trajectory.
@@ -536,5 +544,7 @@ def evaluate(est: Trajectory, gt: Trajectory, align: AlignMode | str = 'sim3',
     _check_align(align)
     delta = _check_delta(delta, 'frames')
     est_a, gt_a = associate(est, gt, max_diff_s, offset_s)
-    return {'ate': _ate_associated(est_a, gt_a, align),
-            'rpe': _rpe_associated(est_a, gt_a, align, delta, all_pairs=True)}
+    # One alignment: a fallback's warning was logged twice, once per metric.
+    fit = _align_pairs(est_a, gt_a, align)
+    return {'ate': _ate_aligned(fit, gt_a),
+            'rpe': _rpe_aligned(fit, gt_a, delta, all_pairs=True)}

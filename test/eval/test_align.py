@@ -22,6 +22,7 @@ from pmba_ros.eval.align import (
     align_se3,
     align_sim3,
     apply_alignment,
+    scale_p_value,
     umeyama_alignment,
     UmeyamaResult,
 )
@@ -175,3 +176,32 @@ def test_align_raises_on_unassociated_lengths(rng: np.random.Generator) -> None:
     """Alignment pairs pose i with pose i, so lengths must agree."""
     with pytest.raises(EvaluationError, match='associate them first'):
         align_se3(random_trajectory(rng, 5), random_trajectory(rng, 6))
+
+
+@pytest.mark.parametrize('jitter', [1e-6, 1e-3])
+def test_align_sim3_refuses_a_scale_set_by_noise(rng: np.random.Generator,
+                                                 jitter: float) -> None:
+    """An estimate that stands still but for its noise has no scale (was 1e6, ATE printed).
+
+    The refusal does not depend on the size of the noise: the fit explains no more of the
+    reference than unrelated points would, at any size.
+    """
+    ref = random_trajectory(rng, 40)
+    still = Trajectory(ref.stamps_s, [5.0, 2.0, 1.0] + jitter * rng.normal(size=(40, 3)),
+                       ref.R_wc)
+    with pytest.raises(DegenerateGeometryError,
+                       match=r'scale .* is not determined by the positions.*F test p = '):
+        align_sim3(still, ref)
+    # A noisy but real estimate keeps its Sim(3) alignment.
+    noisy = Trajectory(ref.stamps_s, 0.01 * ref.positions_xyz + 0.005 * rng.normal(size=(40, 3)),
+                       ref.R_wc)
+    assert align_sim3(noisy, ref)[1].scale == pytest.approx(100.0, rel=0.2)
+
+
+def test_scale_p_value_is_uniform_for_unrelated_points(rng: np.random.Generator) -> None:
+    """Points unrelated to the reference have p <= 0.01 in about 1 % of the draws."""
+    draws = [scale_p_value(*(lambda x, y: (umeyama_alignment(x, y, True).apply(x), y))(
+        rng.normal(size=(20, 3)), rng.normal(size=(20, 3))))[1] for _ in range(1000)]
+    assert 0.002 <= np.mean(np.array(draws) <= 0.01) <= 0.04
+    exact = rng.normal(size=(5, 3))
+    assert scale_p_value(exact, exact) == (0.0, 0.0)

@@ -303,6 +303,28 @@ def test_degenerate_positions_fall_back_with_a_note() -> None:
     assert ate(line, line, align='none').note == ''
 
 
+def test_an_estimate_still_but_for_its_noise_falls_back_to_se3(
+        rng: np.random.Generator) -> None:
+    """Micrometre jitter about one point: SE(3) with a note (was Sim(3) scale 1e6, no note)."""
+    ref = random_trajectory(rng, 40)
+    est = Trajectory(ref.stamps_s, [5.0, 2.0, 1.0] + 1e-6 * rng.normal(size=(40, 3)),
+                     ref.R_wc)
+    for res in evaluate(est, ref, align='sim3').values():
+        assert res.align == 'se3' and res.scale == 1.0
+        assert res.note.startswith('cannot align with sim3 (the scale ')
+        assert res.note.endswith('; aligned with se3')
+
+
+def test_a_fallback_is_logged_once(caplog: pytest.LogCaptureFixture) -> None:
+    """The first-pose fallback is one warning for both metrics (was one per metric)."""
+    n = 10
+    ref = Trajectory(np.arange(n, dtype=float), np.zeros((n, 3)),
+                     np.stack([_rot_z(0.1 * k) for k in range(n)]))
+    with caplog.at_level('WARNING', logger='pmba_ros.eval.metrics'):
+        evaluate(ref, ref)
+    assert [r.getMessage().endswith('aligned by the first pose') for r in caplog.records] == [True]
+
+
 def _rot_z(angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
