@@ -342,7 +342,8 @@ def _span(traj: Trajectory) -> str:
     """Describe the stamp range of a trajectory for error messages."""
     if len(traj) == 0:
         return 'no stamps'
-    return f'stamps {_stamp(traj.stamps_s.min())}..{_stamp(traj.stamps_s.max())} s'
+    note = f' {traj.stamps_note}' if traj.stamps_note else ''
+    return f'stamps {_stamp(traj.stamps_s.min())}..{_stamp(traj.stamps_s.max())} s{note}'
 
 
 def _stamp(t: float) -> str:

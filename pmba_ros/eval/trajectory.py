@@ -23,7 +23,9 @@ EuRoC CSV   ``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (>= 8)  **w first**
 KITTI       ``r11 r12 r13 tx r21 r22 r23 ty r31 r32 r33 tz``    (rotation matrix, no stamps)
 ==========  ==================================================  ============================
 
-Lines that are empty or start with ``#`` are skipped in every format. Every reader raises
+A header naming the columns decides the quaternion order and, where it gives one, the stamp
+unit (:mod:`pmba_ros.eval.layout`). Lines that are empty or start with ``#`` are skipped in
+every format, and so is a first line with no number (a header without ``#``). Every reader raises
 :class:`~pmba_ros.errors.FormatError` naming the file, the line and the problem; a file that
 cannot be opened is reported the same way. Parsing checks the column count per line, then
 converts all values in one vectorized call; the slow per-line scan only runs to locate an
@@ -42,6 +44,7 @@ from pmba_ros._numbers import is_number, python_only
 from pmba_ros._typing import FloatArray
 from pmba_ros.core import so3
 from pmba_ros.errors import EvaluationError, FormatError
+from pmba_ros.eval.layout import data_lines, detect_layout, Layout
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -89,12 +92,15 @@ class Trajectory:
         index_stamps: The stamps are pose numbers 0, 1, 2, ..., not times (a KITTI file read
             without its times): they match another trajectory's stamps only if those are
             pose numbers too (:func:`pmba_ros.eval.metrics.associate` checks this).
+        stamps_note: How the stamps were read from a file, for messages about them, e.g.
+            ``'read as nanoseconds (EuRoC CSV)'`` ('' if not read from a TUM or EuRoC file).
     """
 
     stamps_s: FloatArray
     positions_xyz: FloatArray
     R_wc: FloatArray
     index_stamps: bool = False
+    stamps_note: str = ''
 
     def __post_init__(self) -> None:
         """Validate shapes and finiteness and freeze copies of the arrays.
@@ -132,7 +138,7 @@ class Trajectory:
         """Return the poses selected by an integer or boolean index, as a new trajectory."""
         idx = np.asarray(index)
         return Trajectory(self.stamps_s[idx], self.positions_xyz[idx], self.R_wc[idx],
-                          self.index_stamps)
+                          self.index_stamps, self.stamps_note)
 
 
 # --------------------------------------------------------------------------------------------
@@ -150,12 +156,6 @@ def _read_text(path: str | os.PathLike[str]) -> str:
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{path}: cannot read trajectory file: {err}'
         raise FormatError(msg) from err
-
-
-def _data_lines(text: str) -> list[tuple[int, str]]:
-    """Return ``(line number, stripped line)`` of every non-empty, non-comment line."""
-    return [(lineno, stripped) for lineno, line in enumerate(text.splitlines(), start=1)
-            if (stripped := line.strip()) and not stripped.startswith('#')]
 
 
 def _parse_matrix(path: str | os.PathLike[str], text: str, *, delimiter: str | None,
@@ -177,7 +177,7 @@ def _parse_matrix(path: str | os.PathLike[str], text: str, *, delimiter: str | N
         FormatError: If there is no data line, a line has the wrong number of columns, or a
             value is not a finite number.
     """
-    lines = _data_lines(text)
+    lines = data_lines(text)
     if not lines:
         msg = f'{path}: no {what} poses found (the file is empty or only has comments)'
         raise FormatError(msg)
@@ -267,25 +267,22 @@ def _check_positions(path: str | os.PathLike[str], positions: FloatArray,
 # Readers and writers
 # --------------------------------------------------------------------------------------------
 
-def _tum_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
-    """Parse TUM text (see :func:`read_tum`)."""
-    mat, linenos = _parse_matrix(path, text, delimiter=None, n_cols=8, exact=True, what='TUM')
-    _check_positions(path, mat[:, 1:4], linenos, 'TUM')
-    rotations = _rotations_from_quat(path, mat[:, 4:8], linenos, 'TUM')
-    logger.debug('Read %d TUM poses from %s', mat.shape[0], path)
-    return Trajectory(mat[:, 0], mat[:, 1:4], rotations)
-
-
-def _euroc_from_text(path: str | os.PathLike[str], text: str) -> Trajectory:
-    """Parse EuRoC CSV text (see :func:`read_euroc_csv`)."""
-    mat, linenos = _parse_matrix(path, text, delimiter=',', n_cols=8, exact=False,
-                                 what='EuRoC CSV')
-    _check_positions(path, mat[:, 1:4], linenos, 'EuRoC CSV')
-    quat_xyzw = mat[:, [5, 6, 7, 4]]  # file order is w, x, y, z
-    rotations = _rotations_from_quat(path, quat_xyzw, linenos, 'EuRoC CSV')
-    logger.debug('Read %d EuRoC poses from %s', mat.shape[0], path)
+def _poses_from_text(path: str | os.PathLike[str], text: str, layout: Layout) -> Trajectory:
+    """Parse TUM or EuRoC CSV text: stamp, position, quaternion in ``layout``'s order."""
+    what = layout.name
+    if layout.fmt == 'tum':   # a TUM file with commas for spaces reads the same
+        mat, linenos = _parse_matrix(path, text.replace(',', ' '), delimiter=None, n_cols=8,
+                                     exact=True, what=what)
+    else:
+        mat, linenos = _parse_matrix(path, text, delimiter=',', n_cols=8, exact=False,
+                                     what=what)
+    _check_positions(path, mat[:, 1:4], linenos, what)
+    quat_xyzw = mat[:, [5, 6, 7, 4]] if layout.w_first else mat[:, 4:8]
+    rotations = _rotations_from_quat(path, quat_xyzw, linenos, what)
+    logger.debug('Read %d %s poses from %s', mat.shape[0], what, path)
     # Same conversion as evo's read_euroc_csv_trajectory: float(t_ns) / 1e9.
-    return Trajectory(mat[:, 0] / 1e9, mat[:, 1:4], rotations)
+    stamps = mat[:, 0] / 1e9 if layout.stamps_ns else mat[:, 0]
+    return Trajectory(stamps, mat[:, 1:4], rotations, stamps_note=layout.stamps_note())
 
 
 def _kitti_from_text(path: str | os.PathLike[str], text: str,
@@ -327,10 +324,10 @@ def read_tum(path: str | os.PathLike[str]) -> Trajectory:
         The trajectory; quaternions are normalized.
 
     Raises:
-        FormatError: If the file cannot be read, a line does not have exactly 8 numbers, or a
-            quaternion is zero.
+        FormatError: If the file cannot be read, a line does not have exactly 8 numbers, a
+            quaternion is zero, or a header names other columns.
     """
-    return _tum_from_text(path, _read_text(path))
+    return read_trajectory(path, 'tum')
 
 
 def read_euroc_csv(path: str | os.PathLike[str]) -> Trajectory:
@@ -346,10 +343,10 @@ def read_euroc_csv(path: str | os.PathLike[str]) -> Trajectory:
         The trajectory of the body (IMU) frame.
 
     Raises:
-        FormatError: If the file cannot be read, a line has fewer than 8 numbers, or a
-            quaternion is zero.
+        FormatError: If the file cannot be read, a line has fewer than 8 numbers, a
+            quaternion is zero, or a header names other columns.
     """
-    return _euroc_from_text(path, _read_text(path))
+    return read_trajectory(path, 'euroc')
 
 
 def read_kitti(path: str | os.PathLike[str],
@@ -381,9 +378,11 @@ def read_kitti(path: str | os.PathLike[str],
 def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
     """Guess the format of a trajectory file: ``'tum'``, ``'euroc'`` or ``'kitti'``.
 
-    A ``.csv`` suffix or a comma in the first data line means EuRoC CSV, unless its first
-    value is not an integer (EuRoC stamps are integer nanoseconds; a fraction is seconds: TUM
-    written with commas); otherwise 8 values mean TUM and 12 mean KITTI.
+    A header naming the columns decides between TUM and EuRoC CSV by the quaternion order.
+    Without one, a comma in the first data line means EuRoC CSV, unless the file is named
+    ``.tum`` or its stamps are written as seconds (a decimal fraction; EuRoC stamps are
+    whole nanoseconds: TUM written with commas); otherwise 8 values mean TUM and 12 KITTI
+    (:func:`pmba_ros.eval.layout.detect_layout`).
 
     Args:
         path: File name (read only if ``text`` is None).
@@ -393,26 +392,12 @@ def detect_format(path: str | os.PathLike[str], text: str | None = None) -> str:
         The format name.
 
     Raises:
-        FormatError: If the file cannot be read or its first data line fits no format.
+        FormatError: If the file cannot be read, its first data line fits no format, or its
+            header cannot be read.
     """
     if text is None:
         text = _read_text(path)
-    lines = _data_lines(text)
-    if not lines:
-        msg = f'{path}: cannot detect the trajectory format: no data lines'
-        raise FormatError(msg)
-    lineno, first = lines[0]
-    if Path(path).suffix.lower() == '.csv' or ',' in first:
-        stamp = first.split(',')[0].strip()
-        return 'tum' if _fractional(stamp) and len(first.split(',')) == 8 else 'euroc'
-    n_values = len(first.split())
-    if n_values == 8:
-        return 'tum'
-    if n_values == 12:
-        return 'kitti'
-    msg = (f'{path}:{lineno}: cannot detect the trajectory format: {n_values} values '
-           f'(TUM has 8, KITTI 12, EuRoC CSV is comma separated)')
-    raise FormatError(msg)
+    return detect_layout(path, text).fmt
 
 
 def read_times(path: str | os.PathLike[str]) -> FloatArray:
@@ -448,11 +433,6 @@ def read_times(path: str | os.PathLike[str]) -> FloatArray:
     return times
 
 
-def _fractional(value: str) -> bool:
-    """Return True for a number with a fraction or exponent (not an integer's digits)."""
-    return any(c in value for c in '.eE')
-
-
 def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto', *,
                     times: str | os.PathLike[str] | None = None) -> Trajectory:
     """Read a trajectory in any supported format.
@@ -468,24 +448,26 @@ def read_trajectory(path: str | os.PathLike[str], fmt: str = 'auto', *,
 
     Raises:
         FormatError: If ``fmt`` is unknown, the format cannot be detected, the file is
-            malformed, or ``times`` is given for a format with stamps of its own or does not
-            have one line per pose.
+            malformed, its header contradicts ``fmt``, or ``times`` is given for a format
+            with stamps of its own or does not have one line per pose.
     """
     if fmt not in FORMATS:
         msg = f'unknown trajectory format {fmt!r}; expected one of {", ".join(FORMATS)}'
         raise FormatError(msg)
     text = _read_text(path)
-    if fmt == 'auto':
-        fmt = detect_format(path, text)
+    layout = detect_layout(path, text, fmt)
+    fmt = layout.fmt
     if times is not None and fmt != 'kitti':
         # Silently ignoring them would leave the user believing the times were used.
         msg = (f'{times}: times are for a KITTI file (no stamps), but {path} is '
                f'{"TUM" if fmt == "tum" else "EuRoC CSV"} with stamps of its own')
         raise FormatError(msg)
-    if fmt == 'tum':   # a TUM file with commas for spaces reads the same
-        return _tum_from_text(path, text.replace(',', ' '))
-    if fmt == 'euroc':
-        return _euroc_from_text(path, text)
+    if layout.header_line:
+        lines = text.splitlines()
+        lines[layout.header_line - 1] = ''   # keeps the line numbers of messages
+        text = '\n'.join(lines)
+    if fmt != 'kitti':
+        return _poses_from_text(path, text, layout)
     stamps = read_times(times) if times is not None else None
     return _kitti_from_text(path, text, stamps)
 

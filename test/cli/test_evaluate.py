@@ -167,6 +167,29 @@ def _kitti_gt(tmp_path: Path) -> tuple[Path, Path, Path]:
     return tmp_path / 'est.tum', tmp_path / 'gt.kitti', tmp_path / 'times.txt'
 
 
+def test_a_csv_header_decides_the_columns(tum_pair: tuple[Path, Path],
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A CSV with a w-first header and stamps in seconds: the numbers of the TUM file.
+
+    It was read as TUM with commas (quaternion x first): ATE right, RPE 6x too large.
+    """
+    est, gt = tum_pair
+    traj = read_trajectory(gt)
+    rows = np.column_stack([traj.stamps_s, traj.positions_xyz, traj.quat_xyzw[:, [3, 0, 1, 2]]])
+    csv = gt.with_name('gt.csv')
+    np.savetxt(csv, rows, fmt='%.9f', delimiter=',',
+               header='timestamp, p_x,p_y,p_z,q_w,q_x,q_y,q_z')
+    assert cli.run(parse([str(est), str(gt)])) == 0
+    assert cli.run(parse([str(est), str(csv)])) == 0
+    tum_out, csv_out = capsys.readouterr().out.split('matched')[1:]
+    assert csv_out == tum_out
+    with pytest.raises(EvaluationError,
+                       match=r'read as nanoseconds \(EuRoC CSV\); these look like seconds'):
+        cli.run(parse([str(est), str(csv), '--gt-format', 'euroc']))
+    with pytest.raises(FormatError, match=r'gt\.csv:1: the header names the quaternion w'):
+        cli.run(parse([str(est), str(csv), '--gt-format', 'tum']))
+
+
 def test_kitti_gt_without_times_against_stamps_is_an_error(tmp_path: Path) -> None:
     """A KITTI GT against a 10 Hz estimate needs its times (before: 4 of 40 matched, an ATE)."""
     est, gt, times = _kitti_gt(tmp_path)

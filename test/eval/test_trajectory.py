@@ -202,6 +202,92 @@ def test_a_tum_file_with_commas_is_read_as_tum(tmp_path: Path) -> None:
     np.testing.assert_array_equal(a.R_wc, b.R_wc)
 
 
+C45 = '0.7071067811865476'
+"""Both non-zero components of a quaternion of 90 degrees about z."""
+
+EUROC_HEADER = ('#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],'
+                'q_RS_y [],q_RS_z []')
+"""The header of EuRoC's ground-truth files (its first 8 columns)."""
+
+
+@pytest.mark.parametrize(('name', 'lines'), [
+    # EuRoC's own header: w first, [ns].
+    ('gt.csv', [EUROC_HEADER, f'1500000000,1,2,3,{C45},0,0,{C45}',
+                '1600000000,4,5,6,1,0,0,0']),
+    # Short names, stamps written as seconds: was read as TUM, x first (RPE 6x too large).
+    ('gt.csv', ['#timestamp, p_x,p_y,p_z,q_w,q_x,q_y,q_z', f'1.5,1,2,3,{C45},0,0,{C45}',
+                '1.6,4,5,6,1,0,0,0']),
+    # A header without '#' (was "TUM column 1 is not a finite number: 'timestamp'").
+    ('gt.csv', ['timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z', f'1500000000,1,2,3,{C45},0,0,{C45}',
+                '1600000000,4,5,6,1,0,0,0']),
+    ('gt.txt', ['timestamp tx ty tz qx qy qz qw', f'1.5 1 2 3 0 0 {C45} {C45}',
+                '1.6 4 5 6 0 0 0 1']),
+    # TUM's header after a comment of prose; and TUM's order with stamps in ns.
+    ('gt.txt', ['# ground truth', '# timestamp tx ty tz qx qy qz qw',
+                f'1.5 1 2 3 0 0 {C45} {C45}', '1.6 4 5 6 0 0 0 1']),
+    ('gt.txt', ['# timestamp [ns] tx ty tz qx qy qz qw', f'1500000000 1 2 3 0 0 {C45} {C45}',
+                '1600000000 4 5 6 0 0 0 1']),
+])
+def test_a_header_decides_quaternion_order_and_stamp_unit(tmp_path: Path, name: str,
+                                                          lines: list[str]) -> None:
+    """A header naming the columns is read as such, whatever the stamps look like."""
+    traj = read_trajectory(write_text(tmp_path / name, '\n'.join(lines) + '\n'))
+    np.testing.assert_allclose(traj.stamps_s, [1.5, 1.6], rtol=1e-15)
+    np.testing.assert_array_equal(traj.positions_xyz, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_allclose(traj.R_wc, [so3.exp(np.array([0.0, 0.0, np.pi / 2])),
+                                           np.eye(3)], atol=1e-15)
+
+
+@pytest.mark.parametrize(('text', 'fmt', 'match'), [
+    ('#timestamp, p_x,p_y,p_z,q_w,q_x,q_y,q_z\n1.5,1,2,3,1,0,0,0\n', 'tum',
+     r'gt\.txt:1: the header names the quaternion w, x, y, z, but the file is read as TUM'),
+    ('# timestamp tx ty tz qx qy qz qw\n1,1,2,3,0,0,0,1\n', 'euroc',
+     r'gt\.txt:1: the header names the quaternion x, y, z, w, but .* as EuRoC CSV'),
+    ('# timestamp [ns] tx ty tz qx qy qz qw\n1 1 2 3 0 0 0 1\n', 'tum',
+     r'gt\.txt:1: .*x, y, z, w, stamps in ns, but the file is read as TUM'),
+    ('# timestamp [us] tx ty tz qx qy qz qw\n1 1 2 3 0 0 0 1\n', 'auto',
+     r'gt\.txt:1: the header gives the stamps in \[us\]; the readers take ns or s'),
+    ('# t x y z qx qw qy qz\n1 1 2 3 0 1 0 0\n', 'auto',
+     r'gt\.txt:1: the header names the columns t, x, y, z, qx, qw, qy, qz; the readers'),
+])
+def test_a_header_that_contradicts_the_format_is_an_error(tmp_path: Path, text: str, fmt: str,
+                                                          match: str) -> None:
+    """A header against the format asked for, or in no reader's order: a FormatError."""
+    with pytest.raises(FormatError, match=match):
+        read_trajectory(write_text(tmp_path / 'gt.txt', text), fmt)
+
+
+def test_a_header_not_understood_is_a_warning(tmp_path: Path,
+                                              caplog: pytest.LogCaptureFixture) -> None:
+    """Names of no known column: a warning naming the file, and the format's order."""
+    path = write_text(tmp_path / 'gt.txt', '# a b c d e f g h\n1 1 2 3 0 0 0 1\n')
+    with caplog.at_level('WARNING', logger='pmba_ros.eval.layout'):
+        traj = read_trajectory(path)
+    np.testing.assert_array_equal(traj.R_wc, [np.eye(3)])
+    assert len(caplog.records) == 1
+    assert caplog.records[0].getMessage().startswith(
+        f"{path}:1: the header '# a b c d e f g h' names no columns the readers know")
+
+
+def test_stamps_tell_the_format_of_a_file_without_header(tmp_path: Path) -> None:
+    """Whole-number stamps in exponent form are EuRoC's ns; a '.tum' name is TUM (were not)."""
+    sci = write_text(tmp_path / 'gt.csv', '1.0e+09,1,2,3,1,0,0,0\n1.1e+09,4,5,6,1,0,0,0\n')
+    assert detect_format(sci) == 'euroc'
+    np.testing.assert_array_equal(read_trajectory(sci).stamps_s, [1.0, 1.1])
+    ints = write_text(tmp_path / 'gt.tum', '0,1,2,3,0,0,0,1\n1,4,5,6,0,0,0,1\n')
+    assert detect_format(ints) == 'tum'
+    np.testing.assert_array_equal(read_trajectory(ints).stamps_s, [0.0, 1.0])
+
+
+def test_stamps_note_says_how_stamps_were_read(tmp_path: Path) -> None:
+    """A note says how stamps were read: as EuRoC nanoseconds, they look like seconds."""
+    path = write_text(tmp_path / 'gt.csv', '1.5,1,2,3,1,0,0,0\n1.6,4,5,6,1,0,0,0\n')
+    assert read_trajectory(path).stamps_note == 'read as seconds (TUM)'
+    euroc = read_trajectory(path, 'euroc')
+    assert euroc.stamps_note == 'read as nanoseconds (EuRoC CSV); these look like seconds'
+    assert euroc.take([1]).stamps_note == euroc.stamps_note
+
+
 def test_read_kitti_uses_index_or_given_stamps(tmp_path: Path,
                                                rng: np.random.Generator) -> None:
     """KITTI poses get index stamps unless stamps are given; rotations project on request."""
