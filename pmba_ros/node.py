@@ -45,7 +45,6 @@ from pmba_ros._process import tune_process
 from pmba_ros.backend import config as settings
 from pmba_ros.backend import outputs as out
 from pmba_ros.backend.config import BackendConfig
-from pmba_ros.backend.estimator import import_initialization
 from pmba_ros.backend.input_check import InputCheck
 from pmba_ros.backend.log_bridge import LogRoute
 from pmba_ros.backend.logic import BackendLogic, DIAGNOSTICS_TOPIC, TF_TOPIC
@@ -56,6 +55,7 @@ from pmba_ros.backend.tracks import KEYFRAME_MSGTYPES, parse_keyframe, tracks_ms
 from pmba_ros.backend.worker import LogicWorker
 from pmba_ros.core import warmup
 from pmba_ros.errors import MessageError, PmbaError
+from pmba_ros.init import import_initialization
 from pmba_ros.io.playback import ACK_TIMEOUT_S, CLOCK_PERIOD_S, MATCH_SETTLE_S, paced, wait_until
 
 MAP_TO_ODOM_TOPIC = 'pmba/map_to_odom'

@@ -45,9 +45,7 @@ infinity start from rotations only (PMBA Remark 5), so no triangulation is neede
 from __future__ import annotations
 
 from collections.abc import Callable
-import contextlib
 from dataclasses import replace
-import importlib
 import logging
 import math
 import time
@@ -101,12 +99,6 @@ from pmba_ros.core.solve import solve, SolveOptions, SolverKind
 from pmba_ros.errors import InitError, PmbaError
 
 logger = logging.getLogger(__name__)
-
-
-def import_initialization() -> None:
-    """Import the initialization (and OpenCV, an extra) before input rather than at first use."""
-    with contextlib.suppress(ImportError):   # no OpenCV: the first initialization says so
-        importlib.import_module('pmba_ros.init.pipeline')
 
 
 INIT_CONTRADICTIONS = 3

@@ -40,8 +40,8 @@ def ensure_compiled(stream: TextIO, *, verbose: bool = False) -> None:
         verbose: Also say how long loading already compiled loops took (the ``warmup`` verb);
             otherwise that is said only when it took over a second.
     """
-    from pmba_ros.backend.estimator import import_initialization
     from pmba_ros.core import warmup
+    from pmba_ros.init import import_initialization
 
     import_initialization()
     if not warmup.is_warm():

@@ -12,3 +12,12 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """Global initialization of PMBA from feature tracks alone (pmba.md §3-4)."""
+
+import contextlib
+import importlib
+
+
+def import_initialization() -> None:
+    """Import the initialization (and OpenCV, an extra) before input rather than at first use."""
+    with contextlib.suppress(ImportError):   # no OpenCV: the first initialization says so
+        importlib.import_module('pmba_ros.init.pipeline')
