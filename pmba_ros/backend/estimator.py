@@ -373,6 +373,10 @@ class Estimator:
             # front-end's motion as prior, before older keyframes leave the window.
             refine = self._refine(slide=False)
             info.solve_ms += refine.solve_ms
+            if refine.dropped.get('solve_rollbacks') and worst <= cfg.fallback_max_motion_error:
+                self._reseed_window()   # its poses, vision alone, disagree with that
+                info.dropped['reinitializations'] = 1
+                info.message += "; its refine with the front-end's motion rejected: re-seeded"
         self._slide()
         if left_out.shape[0]:
             refine = self._refine()
