@@ -42,11 +42,21 @@ from pmba_ros.backend.types import CameraModel, TrackFrame
 from pmba_ros.core import so3
 from pmba_ros.errors import FormatError
 from pmba_ros.eval.trajectory import Trajectory
+from pmba_ros.io.text import float_values, nonblank_lines
 
 if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
+
+IMAGE_SIZE = (1241, 376)
+"""KITTI 00's image width and height, px."""
+
+_ROTATION_TOL = 1e-3
+"""Largest accepted ``|R^T R - I|`` entry (and ``|det R - 1|``) of a VO pose's rotation."""
+
+_MAX_SKEW_PX = 0.01
+"""Largest shift a skew may make across the image height, px: the camera model has no skew."""
 
 CALIBRATION_FILE = 'VO_calibration00s.txt'
 POSES_FILE = 'VO_camera_poses00s.txt'
@@ -74,20 +84,107 @@ class KittiTracks:
     baseline_m: float
 
 
-def _load(path: Path, min_cols: int) -> FloatArray:
-    """Load a whitespace-separated numeric table, raising FormatError on problems."""
+def _load(path: Path, min_cols: int) -> tuple[FloatArray, list[int]]:
+    """Load a whitespace-separated table of finite numbers and its rows' line numbers.
+
+    Raises:
+        FormatError: Naming the file and line of a row that is short, of another width than
+            the first, not numeric or not finite, or the file when it has no row.
+    """
     try:
-        table = np.loadtxt(path, ndmin=2)
+        lines, numbers = nonblank_lines(path)
     except OSError as err:
         msg = f'{path}: cannot read: {err}'
         raise FormatError(msg) from err
-    except ValueError as err:
-        msg = f'{path}: not a numeric table: {err}'
-        raise FormatError(msg) from err
-    if table.shape[0] == 0 or table.shape[1] < min_cols:
-        msg = f'{path}: expected rows of at least {min_cols} numbers, got shape {table.shape}'
+    # '#' lines are comments, as numpy.loadtxt read these files before
+    rows = [(s, n) for s, n in zip(lines, numbers, strict=True)
+            if not s.lstrip().startswith('#')]
+    if not rows:
+        msg = f'{path}: no data (expected rows of at least {min_cols} numbers)'
         raise FormatError(msg)
-    return table
+    width = len(rows[0][0].split())
+    for text, n in rows:
+        count = len(text.split())
+        if count < min_cols or count != width:
+            need = (f'at least {min_cols}' if count < min_cols else
+                    f'{width} (as line {rows[0][1]})')
+            msg = f'{path}:{n}: expected {need} numbers, got {count}'
+            raise FormatError(msg)
+    line_no = [n for _, n in rows]
+    table = float_values(path, [t for t, _ in rows], line_no).reshape(len(rows), width)
+    bad = np.flatnonzero(~np.all(np.isfinite(table), axis=1))
+    if bad.size:
+        msg = f'{path}:{line_no[int(bad[0])]}: non-finite value'
+        raise FormatError(msg)
+    return table, line_no
+
+
+def _integers(path: Path, values: FloatArray, line_no: list[int], what: str) -> IntArray:
+    """Return ``values`` as int64, naming the line of the first that is no integer."""
+    bad = np.flatnonzero((values != np.round(values)) | (np.abs(values) > 2.0 ** 62))
+    if bad.size:
+        k = int(bad[0])
+        msg = f'{path}:{line_no[k]}: {what} {values[k]:g} is not an integer'
+        raise FormatError(msg)
+    return values.astype(np.int64)
+
+
+def _read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Return the pose ids, rotations and centres of the poses file, in id order.
+
+    Raises:
+        FormatError: Naming the line of a repeated id or of a matrix that is no rigid
+            motion (its rotation block not a rotation, its last row not ``0 0 0 1``).
+    """
+    poses, line_no = _load(path, 17)
+    ids = _integers(path, poses[:, 0], line_no, 'pose id')
+    mats = poses[:, 1:17].reshape(-1, 4, 4)
+    R = mats[:, :3, :3]
+    ortho_err = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    last_err = np.abs(mats[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1)
+    bad = np.flatnonzero((ortho_err > _ROTATION_TOL) | (np.abs(det - 1.0) > _ROTATION_TOL) |
+                         (last_err > _ROTATION_TOL))
+    if bad.size:
+        k = int(bad[0])
+        msg = (f'{path}:{line_no[k]}: pose {ids[k]} is not a rigid motion (|R^T R - I| = '
+               f'{ortho_err[k]:.3g}, det R = {det[k]:.3g}, last row '
+               f'{" ".join(f"{v:g}" for v in mats[k, 3])})')
+        raise FormatError(msg)
+    order = np.argsort(ids, kind='stable')
+    repeated = np.flatnonzero(np.diff(ids[order]) == 0)
+    if repeated.size:
+        a, b = (int(order[repeated[0] + i]) for i in (0, 1))
+        msg = f'{path}:{line_no[b]}: pose id {ids[b]} repeats line {line_no[a]}'
+        raise FormatError(msg)
+    if np.any(np.diff(ids) < 0):
+        # ids number the keyframes in time (GTSAM's x0, x1, ...): their order is the file's
+        k = int(np.flatnonzero(np.diff(ids) < 0)[0]) + 1
+        logger.warning('%s:%d: pose id %d after %d; the poses are taken in id order', path,
+                       line_no[k], ids[k], ids[k - 1])
+    return ids[order], so3.project(R[order]), mats[order, :3, 3].copy()
+
+
+def _read_camera(path: Path, stereo: bool) -> tuple[CameraModel, float]:
+    """Return the left camera model and the baseline of the calibration file.
+
+    Raises:
+        FormatError: If fx or fy is not positive, the skew is not 0 (the model has none)
+            or, with ``stereo``, the baseline is not positive.
+    """
+    calib, line_no = _load(path, 6)
+    fx, fy, skew, cx, cy, baseline = (float(v) for v in calib[0, :6])
+    problem = ('fx and fy must be > 0' if fx <= 0 or fy <= 0 else
+               # what a skew moves a pixel by across the image: no camera model here has one
+               f'skew {skew:g} is not supported (rectified images have 0)'
+               if abs(skew) * IMAGE_SIZE[1] / fy > _MAX_SKEW_PX else
+               f'a stereo baseline must be > 0 m, got {baseline:g}'
+               if stereo and baseline <= 0 else None)
+    if problem is not None:
+        msg = f'{path}:{line_no[0]}: {problem}'
+        raise FormatError(msg)
+    camera = CameraModel(fx=fx, fy=fy, cx=cx, cy=cy, width=IMAGE_SIZE[0], height=IMAGE_SIZE[1])
+    return camera, baseline
 
 
 def read_kitti_tracks(directory: Path | str, stereo: bool = False) -> KittiTracks:
@@ -102,31 +199,32 @@ def read_kitti_tracks(directory: Path | str, stereo: bool = False) -> KittiTrack
         The keyframe sequence (stamps are assigned by the caller).
 
     Raises:
-        FormatError: If a file is missing or malformed, or an observation names an unknown
-            keyframe.
+        FormatError: If a file is missing or malformed (naming the line): a value not
+            finite, a pose no rigid motion or its id repeated, an observation of a keyframe
+            without a pose, repeated at other pixels or, with ``stereo``, with ``uR > uL``,
+            or a baseline not > 0.
     """
     directory = Path(directory)
-    calib = _load(directory / CALIBRATION_FILE, 6)[0]
-    fx, fy, _skew, cx, cy, baseline = (float(v) for v in calib[:6])
-    camera = CameraModel(fx=fx, fy=fy, cx=cx, cy=cy, width=1241, height=376)
-    poses = _load(directory / POSES_FILE, 17)
-    ids = poses[:, 0].astype(np.int64)
-    mats = poses[:, 1:17].reshape(-1, 4, 4)
-    R_wc = so3.project(mats[:, :3, :3])
-    centers = mats[:, :3, 3].copy()
-    factors = _load(directory / FACTORS_FILE, 5)
-    cam = factors[:, 0].astype(np.int64)
-    lmk = factors[:, 1].astype(np.int64)
+    camera, baseline = _read_camera(directory / CALIBRATION_FILE, stereo)
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    ids, R_wc, centers = _read_poses(directory / POSES_FILE)
+    path = directory / FACTORS_FILE
+    factors, line_no = _load(path, 5)
+    keep = _unique_observations(path, factors, line_no)
+    factors, line_no = factors[keep], [line_no[i] for i in keep]
+    cam = _integers(path, factors[:, 0], line_no, 'keyframe id')
+    lmk = _integers(path, factors[:, 1], line_no, 'landmark id')
+    unknown = np.flatnonzero(~np.isin(cam, ids))
+    if unknown.size:
+        k = int(unknown[0])
+        msg = f'{path}:{line_no[k]}: observation of keyframe {cam[k]}, which has no pose'
+        raise FormatError(msg)
+    _check_disparity(path, factors[:, 2] - factors[:, 3], line_no, stereo)
     uv = factors[:, [2, 4]]
     side = np.zeros(cam.shape[0], dtype=np.int64)
     if stereo:
         cam, lmk, side = np.tile(cam, 2), np.tile(lmk, 2), np.repeat([0, 1], cam.shape[0])
         uv = np.concatenate([uv, factors[:, [3, 4]]])
-    index = {int(k): i for i, k in enumerate(ids)}
-    unknown = sorted(set(np.unique(cam).tolist()) - set(index))
-    if unknown:
-        msg = f'{directory / FACTORS_FILE}: observations of unknown keyframes {unknown[:5]}'
-        raise FormatError(msg)
     order = np.lexsort((side, lmk, cam))
     cam, lmk, uv, side = cam[order], lmk[order], uv[order], side[order]
     normalized = np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
@@ -138,6 +236,49 @@ def read_kitti_tracks(directory: Path | str, stereo: bool = False) -> KittiTrack
                                  pixels=uv[lo:hi], normalized=normalized[lo:hi]))
         logger.debug('keyframe %d: %d observations', ids[k], hi - lo)
     return KittiTracks(ids, R_wc, centers, frames, camera, baseline)
+
+
+def _check_disparity(path: Path, disparity: FloatArray, line_no: list[int],
+                     stereo: bool) -> None:
+    """Refuse (stereo) or warn of (monocular) observations with ``uR > uL``.
+
+    A negative disparity puts the point behind the cameras: the row is wrong (its columns
+    swapped or its match false). Monocular tracks use no ``uR``, so they only warn.
+    """
+    bad = np.flatnonzero(disparity < 0.0)
+    if not bad.size:
+        return
+    k = int(bad[0])
+    what = (f'uR > uL by {-disparity[k]:g} px (negative disparity; {bad.size} such '
+            f'observation(s))')
+    if stereo:
+        msg = f'{path}:{line_no[k]}: {what}: no point lies behind both cameras'
+        raise FormatError(msg)
+    logger.warning('%s:%d: %s; only (uL, v) is used', path, line_no[k], what)
+
+
+def _unique_observations(path: Path, factors: FloatArray, line_no: list[int]) -> IntArray:
+    """Return the rows to keep: a repeated ``(keyframe, landmark)`` row is dropped.
+
+    Raises:
+        FormatError: If a keyframe observes a landmark twice at different pixels.
+    """
+    _, first, inverse = np.unique(factors[:, :2], axis=0, return_index=True,
+                                  return_inverse=True)
+    firsts = first[inverse.reshape(-1)]
+    repeat = np.flatnonzero(firsts != np.arange(factors.shape[0]))
+    if not repeat.size:
+        return np.arange(factors.shape[0])
+    differ = repeat[np.any(factors[repeat, 2:5] != factors[firsts[repeat], 2:5], axis=1)]
+    k = int(differ[0] if differ.size else repeat[0])
+    j = int(firsts[k])
+    if differ.size:
+        msg = (f'{path}:{line_no[k]}: keyframe {factors[k, 0]:g} observes landmark '
+               f'{factors[k, 1]:g} again (line {line_no[j]}), at other pixels')
+        raise FormatError(msg)
+    logger.warning('%s:%d: %d observation(s) repeat an earlier line (the first repeats line '
+                   '%d); dropped', path, line_no[k], repeat.size, line_no[j])
+    return np.sort(first)
 
 
 def right_camera(baseline_m: float) -> Rigid:
