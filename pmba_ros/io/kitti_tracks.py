@@ -26,7 +26,8 @@ pose. With ``stereo`` the right image's ``(uR, v)`` join them as camera 1, which
 ``baseline`` metres along the left camera's x axis (:func:`right_camera`). Which KITTI
 frames the keyframes are is not stated in the files; :func:`find_frame_offset` finds it
 by comparing relative motions with the ground truth (for these files: the 77 poses are
-frames 0-76, stride 1). Stamps come from KITTI's ``times.txt`` for those frames.
+frames 0-76, stride 1), and refuses a location that other frames fit about as well (a short
+or straight sequence). Stamps come from KITTI's ``times.txt`` for those frames.
 """
 
 from __future__ import annotations
@@ -54,6 +55,10 @@ IMAGE_SIZE = (1241, 376)
 
 _ROTATION_TOL = 1e-3
 """Largest accepted ``|R^T R - I|`` entry (and ``|det R - 1|``) of a VO pose's rotation."""
+
+_LOCATION_P = 1e-3
+"""Chance allowed that the runner-up location fits as well as the best
+(:func:`_distinct_ratio`)."""
 
 _MAX_SKEW_PX = 0.01
 """Largest shift a skew may make across the image height, px: the camera model has no skew."""
@@ -301,58 +306,111 @@ def _relative_strided(R_wc: FloatArray, centers: FloatArray,
     return R_rel, t_rel
 
 
+def _scores(R_wc: FloatArray, centers: FloatArray, gt: Trajectory, strides: range,
+            first_frame: int | None) -> FloatArray:
+    """Score every candidate ``gt[offset + stride * k]`` of ``strides`` (and ``first_frame``).
+
+    One row ``(rot_sq, trans_sq, offset, stride)`` per candidate: ``rot_sq`` sums the
+    squared angles (deg^2) between the VO and GT consecutive relative rotations,
+    ``trans_sq`` the squared relative translation differences (m^2).
+    """
+    n = R_wc.shape[0]
+    R_vo, t_vo = _relative(np.asarray(R_wc), np.asarray(centers))
+    rows = []
+    for stride in strides:
+        n_off = len(gt) - stride * (n - 1)
+        offsets = (np.arange(max(n_off, 0)) if first_frame is None else
+                   np.array([first_frame] if first_frame < n_off else [], dtype=np.int64))
+        if not offsets.size:
+            continue
+        # relative motions of every GT frame pair (k, k + stride), then gathered per offset
+        R_gt, t_gt = _relative_strided(gt.R_wc, gt.positions_xyz, stride)
+        rot_sq = np.zeros(offsets.size)
+        trans_sq = np.zeros(offsets.size)
+        for j in range(n - 1):
+            at = offsets + stride * j
+            cos = (np.einsum('kab,ab->k', R_gt[at], R_vo[j]) - 1.0) / 2.0
+            rot_sq += np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) ** 2
+            trans_sq += np.sum((t_gt[at] - t_vo[j]) ** 2, axis=1)
+        rows.append(np.column_stack([rot_sq, trans_sq, offsets, np.full(offsets.size, stride)]))
+    return np.concatenate(rows) if rows else np.zeros((0, 4))
+
+
+def _distinct_ratio(m: int) -> float:
+    """Return the factor by which the runner-up's ``rot_sq`` must exceed the best's.
+
+    The best candidate's residual is the VO's and the GT's noise; another candidate is as
+    plausible unless its residual is larger than two samples of that noise would differ by
+    chance: an F(m, m) test at p = :data:`_LOCATION_P`, one degree of freedom per relative
+    motion (not three per rotation: the axes' and consecutive motions' errors correlate).
+    """
+    from scipy.special import betaincinv
+
+    # F(m, m) exceeds f with probability p where x = f / (1 + f) is Beta(m/2, m/2)'s quantile
+    x = float(betaincinv(m / 2, m / 2, 1.0 - _LOCATION_P))
+    return x / (1.0 - x)
+
+
 def find_frame_offset(R_wc: FloatArray, centers: FloatArray, gt: Trajectory,
-                      max_stride: int = 3) -> tuple[int, int, float, float]:
+                      max_stride: int = 3, first_frame: int | None = None,
+                      stride: int | None = None) -> tuple[int, int, float, float]:
     """Find which ground-truth frames a VO keyframe sequence is, by relative motions.
 
     Every candidate ``gt[offset + stride * k]`` is scored by the RMS rotation angle between
     the VO and GT consecutive relative rotations (independent of scale and of the world
-    frame), ties broken by the RMS relative translation difference.
+    frame), ties broken by the RMS relative translation difference. The best must fit
+    clearly better than every other candidate (:func:`_distinct_ratio`): a short or
+    straight sequence fits many places about equally well, and the best of those was taken.
 
     Args:
         R_wc: VO camera -> world rotations, shape (F, 3, 3).
         centers: VO camera centres, shape (F, 3).
         gt: Ground-truth trajectory with at least F poses.
         max_stride: Largest frame stride tried.
+        first_frame: Only this offset is tried (None: all).
+        stride: Only this stride is tried (None: 1 to ``max_stride``).
 
     Returns:
         ``(offset, stride, rms_rotation_deg, rms_translation_m)`` of the best candidate.
 
     Raises:
-        FormatError: If the ground truth is shorter than the VO sequence.
+        FormatError: If there is one VO pose, the ground truth is shorter than the VO
+            sequence or has no candidate, or the best candidate is not clearly the best.
     """
     n = R_wc.shape[0]
-    if len(gt) < n or n < 2:
+    if n < 2:
+        msg = ('one VO pose cannot be located among the ground-truth frames (that takes '
+               'relative motions): give its frame (pmba import-tracks --first-frame N)')
+        raise FormatError(msg)
+    if len(gt) < n:
         msg = f'ground truth has {len(gt)} poses, fewer than the {n} VO keyframes'
         raise FormatError(msg)
-    R_vo, t_vo = _relative(np.asarray(R_wc), np.asarray(centers))
-    best: tuple[float, float, int, int] | None = None
-    for stride in range(1, max_stride + 1):
-        n_off = len(gt) - stride * (n - 1)
-        if n_off <= 0:
-            break
-        # relative motions of every GT frame pair (k, k + stride), then gathered per offset
-        R_gt, t_gt = _relative_strided(gt.R_wc, gt.positions_xyz, stride)
-        rot_sq = np.zeros(n_off)
-        trans_sq = np.zeros(n_off)
-        for j in range(n - 1):
-            rows = np.arange(n_off) + stride * j
-            cos = (np.einsum('kab,ab->k', R_gt[rows], R_vo[j]) - 1.0) / 2.0
-            rot_sq += np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) ** 2
-            trans_sq += np.sum((t_gt[rows] - t_vo[j]) ** 2, axis=1)
-        rot_rms = np.sqrt(rot_sq / (n - 1))
-        trans_rms = np.sqrt(trans_sq / (n - 1))
-        k = int(np.lexsort((trans_rms, rot_rms))[0])
-        candidate = (float(rot_rms[k]), float(trans_rms[k]), k, stride)
-        if best is None or candidate[:2] < best[:2]:
-            best = candidate
-    if best is None:
-        msg = 'find_frame_offset: no candidate frames'
+    strides = range(1, max_stride + 1) if stride is None else range(stride, stride + 1)
+    scores = _scores(R_wc, centers, gt, strides, first_frame)
+    if not scores.shape[0]:
+        msg = (f'ground truth has {len(gt)} poses: none holds the {n} VO keyframes from frame '
+               f'{first_frame} with stride {list(strides)}')
         raise FormatError(msg)
-    rot, trans, offset, stride = best
-    logger.info('VO keyframes = GT frames %d + %d k (rms %.3f deg, %.3f m)', offset, stride,
-                rot, trans)
-    return offset, stride, rot, trans
+    ranked = scores[np.lexsort((scores[:, 1], scores[:, 0]))]
+    rms = np.sqrt(ranked[:, :2] / (n - 1))
+    ratio = _distinct_ratio(n - 1)
+    if ranked.shape[0] > 1 and ranked[1, 0] <= ratio * ranked[0, 0]:
+        best = ', '.join(f'frames {int(o)}.. stride {int(s)}: {r:.3g} deg'
+                         for r, o, s in zip(rms[:3, 0], ranked[:3, 2], ranked[:3, 3],
+                                            strict=True))
+        give = ('the stride: pmba import-tracks --stride S' if first_frame is not None else
+                'the first frame: pmba import-tracks --first-frame N [--stride S]')
+        msg = (f'the {n} VO poses cannot be located among the {len(gt)} ground-truth frames: '
+               f'several fit about as well (RMS relative-rotation difference {best}; the '
+               f"runner-up's squared difference must be {ratio:.3g}x the best's, F test "
+               f'p = {_LOCATION_P:g}). Give {give}')
+        raise FormatError(msg)
+    offset, found_stride = int(ranked[0, 2]), int(ranked[0, 3])
+    rot, trans = float(rms[0, 0]), float(rms[0, 1])
+    logger.info('VO keyframes = GT frames %d + %d k (rms %.3f deg, %.3f m; runner-up %s deg)',
+                offset, found_stride, rot, trans,
+                f'{rms[1, 0]:.3f}' if ranked.shape[0] > 1 else 'none')
+    return offset, found_stride, rot, trans
 
 
 @dataclass(frozen=True, eq=False)
@@ -401,8 +459,9 @@ def kitti_sequence(tracks: KittiTracks, times_s: FloatArray | None = None,
         The stamped sequence; stamps are the KITTI times in ns.
 
     Raises:
-        FormatError: If the times or ground truth do not cover the keyframes, or
-            ``first_frame < 0`` or ``stride < 1``.
+        FormatError: If the times or ground truth do not cover the keyframes, the frames
+            cannot be located (:func:`find_frame_offset`), or ``first_frame < 0`` or
+            ``stride < 1``.
     """
     n = len(tracks.frames)
     if (first_frame is not None and first_frame < 0) or (stride is not None and stride < 1):
@@ -410,8 +469,10 @@ def kitti_sequence(tracks: KittiTracks, times_s: FloatArray | None = None,
                f'stride={stride}')
         raise FormatError(msg)
     if first_frame is None or stride is None:
-        if gt is not None:
-            found_first, found_stride, _, _ = find_frame_offset(tracks.R_wc, tracks.centers, gt)
+        # one keyframe given its frame has no stride to find
+        if gt is not None and (n > 1 or first_frame is None):
+            found_first, found_stride, _, _ = find_frame_offset(
+                tracks.R_wc, tracks.centers, gt, first_frame=first_frame, stride=stride)
         else:
             found_first, found_stride = 0, 1
         first_frame = found_first if first_frame is None else first_frame

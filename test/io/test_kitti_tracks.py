@@ -18,12 +18,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from pmba_ros.cli.main import main
 from pmba_ros.core import so3
 from pmba_ros.errors import FormatError
 from pmba_ros.eval.trajectory import read_kitti, Trajectory
 from pmba_ros.io.kitti_tracks import (
+    CALIBRATION_FILE,
+    FACTORS_FILE,
     find_frame_offset,
     kitti_sequence,
+    KittiTracks,
+    POSES_FILE,
     read_kitti_tracks,
 )
 import pytest
@@ -95,3 +100,78 @@ def test_negative_first_frame_or_stride_is_a_format_error(kitti_dir: Path, first
     tracks = read_kitti_tracks(kitti_dir)
     with pytest.raises(FormatError, match='first_frame must be >= 0 and stride >= 1'):
         kitti_sequence(tracks, None, None, first_frame=first_frame, stride=stride)
+
+
+def _random_walk(n: int = 300) -> Trajectory:
+    """Return a random-walk ground truth whose frames 200-239 repeat the motion of 100-139."""
+    rng = np.random.default_rng(0)
+    steps = rng.normal(scale=0.05, size=(n, 3))
+    moves = rng.normal(size=(n, 3))
+    steps[200:240], moves[200:240] = steps[100:140], moves[100:140]
+    # composed, so that the relative motions repeat with the steps
+    R, C = np.empty((n, 3, 3)), np.zeros((n, 3))
+    R[0] = np.eye(3)
+    for k in range(1, n):
+        R[k] = R[k - 1] @ so3.exp(steps[k])
+        C[k] = C[k - 1] + R[k - 1] @ moves[k]
+    return Trajectory(np.arange(n) * 0.1, C, R)
+
+
+def _noisy(gt: Trajectory, idx: np.ndarray, deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return the GT poses ``idx`` with rotation noise of ``deg`` per axis."""
+    rng = np.random.default_rng(1)
+    noise = so3.exp(np.radians(rng.normal(scale=deg, size=(idx.size, 3))))
+    return np.einsum('kij,kjl->kil', gt.R_wc[idx], noise), gt.positions_xyz[idx]
+
+
+def test_a_location_two_places_fit_is_refused_naming_both() -> None:
+    """Frames 100-111 move as 200-211 do: the best of the two was taken silently."""
+    gt = _random_walk()
+    R_vo, C_vo = _noisy(gt, 100 + np.arange(12), 0.05)
+    with pytest.raises(FormatError, match='cannot be located') as err:
+        find_frame_offset(R_vo, C_vo, gt)
+    assert 'frames 100.. stride 1' in str(err.value)
+    assert 'frames 200.. stride 1' in str(err.value)
+    assert '--first-frame N' in str(err.value)
+    assert find_frame_offset(R_vo, C_vo, gt, first_frame=200)[:2] == (200, 1)
+
+
+def test_a_noisy_distinct_location_is_accepted() -> None:
+    """Twelve noisy poses where the motion does not repeat are located (frames 20-31)."""
+    gt = _random_walk()
+    R_vo, C_vo = _noisy(gt, 20 + np.arange(12), 0.05)
+    assert find_frame_offset(R_vo, C_vo, gt)[:2] == (20, 1)
+    assert find_frame_offset(R_vo, C_vo, gt, first_frame=20)[:2] == (20, 1)
+
+
+def test_one_pose_is_not_located_but_takes_a_given_frame(kitti_dir: Path) -> None:
+    """One pose has no relative motion: the error says so (not 'ground truth has fewer')."""
+    tracks = read_kitti_tracks(kitti_dir)
+    one = KittiTracks(tracks.keyframe_ids[:1], tracks.R_wc[:1], tracks.centers[:1],
+                      tracks.frames[:1], tracks.camera, tracks.baseline_m)
+    gt = _random_walk()
+    with pytest.raises(FormatError, match=r'one VO pose cannot be located.*--first-frame N'):
+        kitti_sequence(one, None, gt)
+    seq = kitti_sequence(one, None, gt, first_frame=7)
+    assert (seq.first_frame, seq.stride) == (7, 1)
+    np.testing.assert_allclose(seq.centers_gt, gt.positions_xyz[7:8])
+
+
+def test_the_first_12_kitti_poses_are_not_located(kitti_dir: Path, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Frames 0-11 fit frames 4038-4049 about as well: refused, and --first-frame imports."""
+    for name in (CALIBRATION_FILE, POSES_FILE):
+        lines = (kitti_dir / name).read_text().splitlines(keepends=True)
+        (tmp_path / name).write_text(''.join(lines[:12]))
+    factors = (kitti_dir / FACTORS_FILE).read_text().splitlines(keepends=True)
+    (tmp_path / FACTORS_FILE).write_text(''.join(f for f in factors if int(f.split()[0]) < 12))
+    gt_args = ['--gt', str(shared_file('trajectories', 'evo', 'KITTI_00_gt.txt')), '--times',
+               str(shared_file('trajectories', 'evo', 'KITTI_00_gt_times.txt'))]
+    argv = ['import-tracks', '--tracks-dir', str(tmp_path), '--out', str(tmp_path / 'bag'),
+            *gt_args]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert 'frames 4038.. stride 1' in err and '--first-frame N' in err
+    assert not (tmp_path / 'bag').exists()
+    assert main([*argv, '--first-frame', '0', '--stride', '1']) == 0
+    assert 'frames 0..11 (stride 1)' in capsys.readouterr().out
