@@ -66,8 +66,32 @@ SUSPECT_COUNTERS = {
                          'observations past the fold dropped',
     'tracks_buffer_overflow': 'tracks messages dropped: more than buffer_size waited for '
                               'their keyframe',
+    # Counted and logged once, and before only in `counters`: a recording of two runs, a
+    # recalibrating driver or damaged pixels replayed to exit 0 with no warning.
+    'feature_id_restarts': "times the front-end's feature ids started again (a relaunched "
+                           'front-end, or two runs in one recording?): the later ids were '
+                           'taken as new features, shifted past the earlier ones',
+    'camera_info_changes': 'CameraInfo messages whose intrinsics differ from those before: '
+                           'the newest were used from each on (a recalibrating driver, or '
+                           'two cameras on one topic?)',
+    'non_finite_observations': 'observations dropped: their pixels undistort to no finite '
+                               "point (far outside the camera model's image?)",
+    'keyframes_dropped': 'keyframes dropped: neither a front-end pose nor enough observations '
+                         '(not in the outputs)',
+    'keyframes_dropped_before_init': 'keyframes without a front-end pose dropped from an '
+                                     'initialization batch over init_max_batch (not in the '
+                                     'outputs)',
+    'internal_errors': 'keyframe updates failed with an internal error (a bug: please report '
+                       'it with the command line); their keyframes may be missing',
+    'output_errors': 'building the outputs failed with an internal error (a bug: please '
+                     'report it with the command line); some outputs may be missing',
 }
 """Back-end counters of suspect input, each worth a warning in the report."""
+
+OBSERVATION_DROPS = ('feature_ids_inexact', 'duplicate_observations',
+                     'ambiguous_duplicate_observations')
+"""Counters of the observations dropped from tracks messages (``dropped_observations``) for
+a reason other than a value that is not finite."""
 
 IDENTITY_EXTRINSIC = ('no body -> camera extrinsic at the first keyframe (parameter '
                       "camera_extrinsics, TF from the keyframe poses' child_frame_id to the "
@@ -229,6 +253,11 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
     for name, text in SUSPECT_COUNTERS.items():
         if report.counters.get(name):
             report.warnings.append(f'{report.counters[name]} {text}')
+    # The rows dropped for the reasons above are warned of there: the rest were not finite.
+    if (non_finite := report.counters.get('dropped_observations', 0) - sum(
+            report.counters.get(name, 0) for name in OBSERVATION_DROPS)) > 0:
+        report.warnings.append(f'{non_finite} observations dropped from tracks messages: a '
+                               'feature id, camera id or coordinate not finite (NaN or inf)')
     report.counters['keyframes_processed'] = stats.keyframes
     without = report.counters.get('keyframes_without_tracks', 0)
     if 2 * without > stats.keyframes > 0:
@@ -261,6 +290,8 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
         report.warnings.append(
             'the initialization never started: nothing was optimized, the keyframes are the '
             f"front-end's; {logic.estimator.last_message}")
+    elif report.keyframes_not_optimized:
+        report.warnings.append(_not_optimized(report, logic.config.min_observations))
     cameras = logic.cameras
     if report.counters.get('extrinsic_unknown'):
         report.warnings.append(IDENTITY_EXTRINSIC)
@@ -268,6 +299,21 @@ def collect_stats(logic: BackendLogic, report: ReplayReport) -> None:
         report.extrinsic = {'source': cameras.extrinsic_source,
                             'body_to_camera': [round(v, 9) for v in cameras.extrinsic.to_flat()]}
         report.extrinsic |= _rig_report(cameras.rig)
+
+
+def _not_optimized(report: ReplayReport, min_observations: int) -> str:
+    """Return the warning of keyframes left at their front-end pose, and why they were."""
+    # Keyframes of empty tracks messages were only counted as passed through (a normal
+    # event before the initialization): 20 of 40 keyframes unoptimized said nothing.
+    counters = report.counters
+    few = counters.get('keyframes_passed_through', 0) + counters.get('keyframes_dead_reckoned', 0)
+    why = [(f'{few} keyframes had fewer than min_observations ({min_observations}) usable '
+            'observations')] if few else []
+    if without := counters.get('keyframes_without_tracks', 0):
+        why.append(f'{without} found no tracks message')
+    return (f'{report.keyframes_not_optimized} of {counters["keyframes_processed"]} keyframes not '
+            "optimized: they are the front-end's poses through map <- odom"
+            + (f' ({"; ".join(why)})' if why else ''))
 
 
 def _rig_report(rig_cameras: dict[int, tuple[Rigid, str]]) -> dict[str, Any]:

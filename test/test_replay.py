@@ -58,6 +58,7 @@ class StubLogic:
         self.stats = BackendStats()
         self.last_error = ''
         self.cameras = FrontendCameras(config)
+        self.estimator = SimpleNamespace(state='collecting', last_message='')
 
     def on_camera_info(self, msg: Any) -> None:
         """Parse a CameraInfo."""

@@ -23,14 +23,16 @@ from pmba_ros.replay_report import collect_stats, IDENTITY_EXTRINSIC, ReplayRepo
 import pytest
 
 
-def _logic(counters: dict[str, int], source: str = 'tf') -> SimpleNamespace:
+def _logic(counters: dict[str, int], source: str = 'tf',
+           not_optimized: int = 0) -> SimpleNamespace:
     """Return what collect_stats reads of a BackendLogic, with these counters."""
     stats = SimpleNamespace(solve_ms=[], iterations=[], cost_after=[], cost_before=[],
-                            update_ms=[], counters=counters, keyframes=10, not_optimized=0,
-                            map_scale=[], noise=None)
+                            update_ms=[], counters=counters, keyframes=10,
+                            not_optimized=not_optimized, map_scale=[], noise=None)
     cameras = SimpleNamespace(extrinsic=Rigid.identity(), extrinsic_source=source, rig={})
     estimator = SimpleNamespace(state='tracking', last_message='')
-    return SimpleNamespace(stats=stats, cameras=cameras, estimator=estimator)
+    return SimpleNamespace(stats=stats, cameras=cameras, estimator=estimator,
+                           config=SimpleNamespace(min_observations=15))
 
 
 @pytest.mark.parametrize(('counter', 'text'), [
@@ -40,6 +42,13 @@ def _logic(counters: dict[str, int], source: str = 'tf') -> SimpleNamespace:
     ('odom_frame_jumps', 'a new odom segment starts'),
     ('keyframe_buffer_overflow', 'keyframe poses dropped'),
     ('tracks_buffer_overflow', 'tracks messages dropped'),
+    ('feature_id_restarts', 'feature ids started again'),
+    ('camera_info_changes', 'the newest were used'),
+    ('non_finite_observations', 'undistort to no finite point'),
+    ('keyframes_dropped', 'not in the outputs'),
+    ('keyframes_dropped_before_init', 'not in the outputs'),
+    ('internal_errors', 'please report it'),
+    ('output_errors', 'please report it'),
 ])
 def test_input_accepted_but_not_used_is_a_warning(counter: str, text: str) -> None:
     """Counters of input lost or misused after it was accepted each give a warning line."""
@@ -58,3 +67,27 @@ def test_identity_extrinsic_is_a_warning() -> None:
     quiet = ReplayReport(bags=[Path('bag')], out_dir=Path('out'))
     collect_stats(_logic({}), quiet)  # type: ignore[arg-type]
     assert quiet.warnings == []
+
+
+def test_observations_not_finite_are_a_warning() -> None:
+    """Tracks rows dropped as not finite are warned of, apart from those other lines name."""
+    report = ReplayReport(bags=[Path('bag')], out_dir=Path('out'))
+    collect_stats(_logic({'dropped_observations': 383}), report)  # type: ignore[arg-type]
+    assert report.warnings == [('383 observations dropped from tracks messages: a feature '
+                                'id, camera id or coordinate not finite (NaN or inf)')]
+    duplicates = ReplayReport(bags=[Path('bag')], out_dir=Path('out'))
+    drops = {'dropped_observations': 7, 'duplicate_observations': 5,
+             'ambiguous_duplicate_observations': 2}
+    collect_stats(_logic(drops), duplicates)  # type: ignore[arg-type]
+    assert len(duplicates.warnings) == 2
+    assert not any('not finite' in text for text in duplicates.warnings)
+
+
+def test_keyframes_not_optimized_are_a_warning() -> None:
+    """Keyframes left at the front-end's pose (empty tracks messages) are said so, and why."""
+    report = ReplayReport(bags=[Path('bag')], out_dir=Path('out'))
+    logic = _logic({'keyframes_passed_through': 4, 'keyframes_dead_reckoned': 1}, not_optimized=5)
+    collect_stats(logic, report)  # type: ignore[arg-type]
+    assert report.warnings == [("5 of 10 keyframes not optimized: they are the front-end's "
+                                'poses through map <- odom (5 keyframes had fewer than '
+                                'min_observations (15) usable observations)')]

@@ -596,7 +596,8 @@ def test_suspect_counters_become_report_warnings() -> None:
     report = ReplayReport(bags=[], out_dir=Path())
     stats = BackendStats(counters=Counter({'cost_explosions': 7, 'feature_ids_inexact': 12,
                                            'resets': 1}))
-    logic = SimpleNamespace(stats=stats, cameras=SimpleNamespace(extrinsic=None))
+    logic = SimpleNamespace(stats=stats, cameras=SimpleNamespace(extrinsic=None),
+                            estimator=SimpleNamespace(state='tracking', last_message=''))
     collect_stats(logic, report)
     inexact = ("12 observations dropped: feature ids that cannot be exact in the message's "
                'number type (>= 2^24 in float32: tracks would merge)')
