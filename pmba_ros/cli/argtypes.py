@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 import math
 
 
@@ -47,6 +48,17 @@ def positive_int(text: str) -> int:
         msg = f'must be >= 1, got {value}'
         raise argparse.ArgumentTypeError(msg)
     return value
+
+
+def int_at_least(minimum: int) -> Callable[[str], int]:
+    """Return a parser of an integer >= ``minimum``."""
+    def parse(text: str) -> int:
+        value = int(_number(text, int))
+        if value < minimum:
+            msg = f'must be >= {minimum}, got {value}'
+            raise argparse.ArgumentTypeError(msg)
+        return value
+    return parse
 
 
 def positive_float(text: str) -> float:

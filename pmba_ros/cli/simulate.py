@@ -31,17 +31,20 @@ to ``BAG/groundtruth.tum`` (``<stem>_groundtruth.tum`` beside a ``.mcap`` file).
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pmba_ros.backend.frontends import PAIRINGS
 from pmba_ros.cli.argtypes import (
+    int_at_least,
     non_negative_float,
     non_negative_int,
     positive_float,
-    positive_int,
 )
 from pmba_ros.errors import PmbaError
+from pmba_ros.eval.trajectory import MAX_TIME_S
+from pmba_ros.sim.sequence import MIN_KEYFRAMES, START_NS
 
 if TYPE_CHECKING:
     from pmba_ros.sim.bag import SimTopics
@@ -62,8 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scenario', default='street',
                         choices=sorted(set(_BAG_SCENARIOS) | set(_BAL_SCENARIOS)),
                         help='bag: street|aerial|loop|rotation; bal: street|table3')
-    parser.add_argument('--keyframes', type=positive_int, default=200, metavar='N',
-                        help='keyframes (bag) or cameras (bal street)')
+    parser.add_argument('--keyframes', type=int_at_least(MIN_KEYFRAMES), default=200,
+                        metavar='N', help=f'keyframes (bag) or cameras (bal street), at '
+                        f'least {MIN_KEYFRAMES}')
     parser.add_argument('--seed', type=non_negative_int, default=0, metavar='S',
                         help='random seed')
     parser.add_argument('--out', required=True, type=Path, metavar='BAG|FILE',
@@ -129,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario not in _BAG_SCENARIOS:
         msg = f'--scenario {args.scenario} is for --format bal; bags: {", ".join(_BAG_SCENARIOS)}'
         raise PmbaError(msg)
+    _check_rate(args.keyframes, args.rate_hz)
     layout, topics = _front_end(args.frontend, args.layout)
     if args.cameras == 2:
         _check_two_cameras(args.frontend, layout)
@@ -166,6 +171,23 @@ def run(args: argparse.Namespace) -> int:
         print(f'the node on its topics: ros2 launch pmba_ros pmba.launch.py '
               f'frontend:={args.frontend}, then pmba play {args.out}')
     return 0
+
+
+def _check_rate(keyframes: int, rate_hz: float) -> None:
+    """Refuse a rate whose last keyframe a ROS stamp cannot hold, or whose stamps repeat."""
+    # Found only when the messages were serialized, in the words of struct's int32 range.
+    last_s = START_NS * 1e-9 + (keyframes - 1) / rate_hz
+    if last_s >= MAX_TIME_S:
+        lowest = (keyframes - 1) / (MAX_TIME_S - START_NS * 1e-9)
+        step = 10.0 ** (math.floor(math.log10(lowest)) - 2)   # 3 digits, rounded up
+        msg = (f'--rate-hz {rate_hz:g}: keyframe {keyframes} of --keyframes {keyframes} '
+               f'would be stamped at {last_s:.4g} s, past the seconds a ROS stamp holds '
+               f'(an int32: under {MAX_TIME_S:.0f} s); use --rate-hz '
+               f'{math.ceil(lowest / step) * step:.3g} or more, or fewer --keyframes')
+        raise PmbaError(msg)
+    if rate_hz > 1e9:   # stamps count nanoseconds: every keyframe had the same one
+        msg = f'--rate-hz {rate_hz:g}: keyframes under 1 ns apart share their stamps (<= 1e9)'
+        raise PmbaError(msg)
 
 
 def _check_two_cameras(frontend: str | None, layout: str) -> None:

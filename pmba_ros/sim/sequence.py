@@ -57,7 +57,14 @@ from pmba_ros.eval.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
-__all__ = ['SCENARIOS', 'SimSequence', 'observation_counts', 'simulate_sequence', 'track_lengths']
+__all__ = ['MIN_KEYFRAMES', 'SCENARIOS', 'START_NS', 'SimSequence', 'observation_counts',
+           'simulate_sequence', 'track_lengths']
+
+START_NS = 1_000_000_000
+"""Stamp of a simulated sequence's first keyframe, ns."""
+
+MIN_KEYFRAMES = 2
+"""Fewest keyframes of a sequence (one gives no motion, no track of two observations)."""
 
 SCENARIOS = ('street', 'aerial', 'loop', 'rotation')
 """Scenario names accepted by :func:`simulate_sequence`."""
@@ -158,7 +165,7 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
                       speed_mps: float | None = None, features_per_keyframe: int = 15,
                       max_track_length: int = 40, distortion: str = 'plumb_bob',
                       image_size: tuple[int, int] = (640, 480), focal_px: float = 400.0,
-                      start_ns: int = 1_000_000_000,
+                      start_ns: int = START_NS,
                       stop: tuple[int, int] | None = None,
                       turn_deg: float = 0.0) -> SimSequence:
     """Simulate a keyframe sequence of a scenario.
@@ -192,7 +199,7 @@ def simulate_sequence(scenario: str = 'street', n_keyframes: int = 200, seed: in
     if scenario not in SCENARIOS:
         msg = f'unknown scenario {scenario!r} (expected one of {", ".join(SCENARIOS)})'
         raise ValueError(msg)
-    if n_keyframes < 2 or max_track_length < 2 or features_per_keyframe < 1:
+    if n_keyframes < MIN_KEYFRAMES or max_track_length < 2 or features_per_keyframe < 1:
         msg = 'simulate_sequence: need n_keyframes >= 2, max_track_length >= 2, features >= 1'
         raise ValueError(msg)
     if not (rate_hz > 0 and noise_px >= 0 and drift >= 0 and focal_px > 0):

@@ -84,6 +84,31 @@ def test_simulate_stop_needs_first_and_count(tmp_path: Path, stop: str,
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize('count', ['1', '0'])
+def test_simulate_needs_two_keyframes(tmp_path: Path, count: str,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """`simulate --keyframes 1` is a usage error naming the fewest accepted, nothing written."""
+    with pytest.raises(SystemExit) as exc:
+        main(['simulate', '--keyframes', count, '--out', str(tmp_path / 'bag')])
+    assert exc.value.code == 2
+    assert f'argument --keyframes: must be >= 2, got {count}' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(('rate', 'needle'), [
+    ('1e-9', 'use --rate-hz 4.2e-09 or more, or fewer --keyframes'),
+    ('1e12', 'keyframes under 1 ns apart share their stamps'),
+])
+def test_simulate_rate_the_stamps_cannot_hold_is_refused(tmp_path: Path, rate: str, needle: str,
+                                                         capsys: pytest.CaptureFixture[str],
+                                                         ) -> None:
+    """A --rate-hz whose stamps pass a ROS stamp's int32 seconds, or repeat, is named."""
+    assert main(['simulate', '--keyframes', '10', '--rate-hz', rate, '--out',
+                 str(tmp_path / 'bag')]) == 1
+    _one_error(capsys, f'--rate-hz {float(rate):g}', needle)
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(('argv', 'needle'), [
     (['--first-frame', '-5'], 'argument --first-frame: must be >= 0, got -5'),
     (['--stride', '0'], 'argument --stride: must be >= 1, got 0'),
