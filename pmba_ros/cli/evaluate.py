@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 from pmba_ros._json import dumps_report
 from pmba_ros.cli.argtypes import finite_float, non_negative_float, positive_int
 from pmba_ros.errors import PmbaError
-from pmba_ros.io.atomic import write_text_atomic
+from pmba_ros.io.atomic import prepare_output, write_text_atomic
 
 if TYPE_CHECKING:
     import argparse
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from pmba_ros.eval.trajectory import read_trajectory
 
     if args.report is not None:
-        _prepare_report(args.report)
+        prepare_output(args.report, '--report')
     est = read_trajectory(args.est, args.est_format, times=getattr(args, 'times', None))
     gt = read_trajectory(args.gt, args.gt_format, times=getattr(args, 'gt_times', None))
     warnings = _length_warnings(est, gt)
@@ -121,22 +121,6 @@ def run(args: argparse.Namespace) -> int:
             raise PmbaError(msg) from err
         print(f'report written to {args.report}')
     return 0
-
-
-def _prepare_report(path: Path) -> None:
-    """Create the report's folder before the evaluation, so its result cannot be lost.
-
-    Raises:
-        PmbaError: If ``path`` is a folder or its folder cannot be created.
-    """
-    if path.is_dir():
-        msg = f'--report {path}: is a folder; give a file name'
-        raise PmbaError(msg)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        msg = f'--report {path}: cannot create its folder: {err}'
-        raise PmbaError(msg) from err
 
 
 def _length_warnings(est: Trajectory, gt: Trajectory) -> list[str]:

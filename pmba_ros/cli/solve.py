@@ -44,7 +44,7 @@ from pmba_ros.core.loss import Loss
 from pmba_ros.core.problem import BAProblem, Parameterization
 from pmba_ros.core.solve import IterationRecord, solve, SolveOptions, SolveResult, SolverKind
 from pmba_ros.errors import FormatError
-from pmba_ros.io.atomic import atomic_open, write_text_atomic
+from pmba_ros.io.atomic import atomic_open, prepare_output, write_text_atomic
 from pmba_ros.io.text import detect_problem_format, file_bytes, plain_name
 from pmba_ros.plot import ConvergenceTrace, plot_convergence, pyplot
 
@@ -161,21 +161,20 @@ def _seed(spec: str, text: str) -> int:
 def _check_outputs(args: argparse.Namespace) -> None:
     """Fail before the solve if ``--out`` or ``--report`` cannot be written.
 
-    A missing ``--report`` folder is created, so the result of a long solve is not lost.
+    A missing ``--report`` folder is created and written in once
+    (:func:`~pmba_ros.io.atomic.prepare_output`), so the result of a long solve is not lost.
 
     Raises:
-        FormatError: If ``--out`` is an existing file, ``--report`` a folder, or
-            ``--plot`` lacks ``--out`` or matplotlib.
-        OSError: If a folder cannot be created.
+        PmbaError: If ``--out`` is an existing file, ``--report`` cannot be written (a
+            folder, in a folder that takes no file), or ``--plot`` lacks ``--out`` or
+            matplotlib.
+        OSError: If the ``--out`` folder cannot be created.
     """
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         msg = f'--out {args.out}: exists and is not a folder'
         raise FormatError(msg)
     if args.report is not None:
-        if args.report.is_dir():
-            msg = f'--report {args.report}: is a folder; give a file name'
-            raise FormatError(msg)
-        args.report.parent.mkdir(parents=True, exist_ok=True)
+        prepare_output(args.report, '--report')
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
     if args.plot:

@@ -28,6 +28,8 @@ from pathlib import Path
 import signal
 from typing import Any, IO
 
+from pmba_ros.errors import PmbaError
+
 
 def temp_path(path: Path) -> Path:
     """Return the hidden temporary name used while writing ``path`` (same suffix)."""
@@ -68,6 +70,36 @@ def _cleanup(tmp: Path, path: Path, err: BaseException) -> None:
         tmp.unlink(missing_ok=True)
     if isinstance(err, OSError) and err.filename == str(tmp):
         err.filename = str(path)
+
+
+def prepare_output(path: Path, option: str) -> None:
+    """Check before the work that ``path`` can be written (named ``option``), making its folder.
+
+    The hidden temporary file :func:`atomic_open` writes is created beside it and removed:
+    a folder that takes no new file (``/proc``, read-only) had failed only once the work whose
+    result it was to hold was done (its table printed, then exit 1).
+
+    Raises:
+        PmbaError: If ``path`` is a folder, or its folder cannot be created or written in.
+    """
+    if path.is_dir():
+        msg = f'{option} {path}: is a folder; give a file name'
+        raise PmbaError(msg)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f'{option} {path}: cannot create its folder: {err}'
+        raise PmbaError(msg) from err
+    tmp = temp_path(path)
+    try:
+        with open(tmp, 'w', encoding='utf-8'):
+            pass
+        tmp.unlink()
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        msg = f'{option} {path}: cannot be written: {err.strerror or err}'
+        raise PmbaError(msg) from err
 
 
 def write_text_atomic(path: Path | str, text: str) -> None:

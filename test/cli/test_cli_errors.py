@@ -159,6 +159,15 @@ def test_report_in_an_unwritable_place_is_one_error_line(
     _one_error(capsys, str(blocker))
 
 
+def test_solve_report_the_folder_takes_not_is_refused_before_solving(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A --report name the atomic writer cannot write beside (255 characters): no solve."""
+    report = tmp_path / f'{"r" * 250}.json'
+    assert main(['solve', 'sim:table3', '--quiet', '--report', str(report)]) == 1
+    assert capsys.readouterr().out == ''
+    assert list(tmp_path.iterdir()) == []
+
+
 def _bal(tmp_path: Path, name: str) -> Path:
     path = tmp_path / name
     assert main(['simulate', '--format', 'bal', '--scenario', 'table3', '--out',

@@ -134,6 +134,22 @@ def test_unwritable_report_raises_pmba_error(tum_pair: tuple[Path, Path],
         cli.run(parse([str(est), str(gt), '--report', str(blocker / 'r.json')]))
 
 
+@pytest.mark.parametrize('where', ['proc', 'long_name'])
+def test_report_the_folder_takes_not_is_refused_before_evaluating(
+        tum_pair: tuple[Path, Path], tmp_path: Path, where: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A report its folder will not hold is refused before the table, as `solve` does."""
+    if where == 'proc' and not Path('/proc/self').is_dir():
+        pytest.skip('no /proc')
+    # /proc takes no new file; a 255-character name leaves no room for the temporary one's.
+    report = Path('/proc/pmba_report.json') if where == 'proc' else tmp_path / f'{"r" * 250}.json'
+    est, gt = tum_pair
+    with pytest.raises(PmbaError, match='cannot be written'):
+        cli.run(parse([str(est), str(gt), '--report', str(report)]))
+    assert capsys.readouterr().out == ''
+    assert not report.exists()
+
+
 @needs_data
 def test_run_on_kitti_pair_with_explicit_formats(capsys: pytest.CaptureFixture[str]) -> None:
     """KITTI files (index stamps) evaluate pose i against pose i."""
