@@ -471,11 +471,25 @@ def _length(value: Any) -> int:
 
 
 def _unnest(params: dict[str, Any]) -> dict[str, Any]:
-    """Return the flat parameters of a possibly node-nested parameter mapping."""
-    for key in (NODE_NAME, f'/{NODE_NAME}', '/**'):
+    """Return the flat parameters of a possibly node-nested parameter mapping.
+
+    Raises:
+        ValueError: If the mapping is nested by node but has no parameters for this node.
+    """
+    names = (NODE_NAME, f'/{NODE_NAME}', '/**')
+    for key in names:
         node = params.get(key)
         if isinstance(node, dict) and isinstance(node.get('ros__parameters'), dict):
             return dict(node['ros__parameters'])
     if isinstance(params.get('ros__parameters'), dict):
         return dict(params['ros__parameters'])
+    # Node sections without one for this node had their names taken for parameter names:
+    # "unknown parameter(s) ['other_node']".
+    ours = [key for key in names if key in params]
+    if ours or any(isinstance(v, dict) and 'ros__parameters' in v for v in params.values()):
+        found = (f'its section {ours[0]!r} holds {params[ours[0]]!r}' if ours
+                 else f'its top-level keys are {sorted(map(str, params))}')
+        msg = (f'the file has no parameters for node {NODE_NAME!r}: {found} (the loader '
+               f"reads {{ros__parameters: {{...}}}} under {', '.join(map(repr, names))})")
+        raise ValueError(msg)
     return dict(params)

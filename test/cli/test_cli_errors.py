@@ -217,6 +217,23 @@ def test_params_file_that_is_not_yaml_is_one_error_line(
     _one_error(capsys, f'--params {params}', 'not valid YAML')
 
 
+@pytest.mark.parametrize(('text', 'found'), [
+    ('other_node:\n  ros__parameters:\n    window_size: 10\n',
+     "its top-level keys are ['other_node']"),
+    ('pmba_node:\n  window_size: 10\n', "its section 'pmba_node' holds {'window_size': 10}"),
+])
+def test_params_file_for_another_node_says_so(tmp_path: Path, text: str, found: str,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A params file without this node's section names the node looked for and what it has."""
+    params = tmp_path / 'params.yaml'
+    params.write_text(text)
+    assert main(['replay', str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'),
+                 '--params', str(params)]) == 1
+    line = _one_error(capsys, f'--params {params}', "no parameters for node 'pmba_node'", found,
+                      "under 'pmba_node', '/pmba_node', '/**'")
+    assert 'unknown parameter' not in line
+
+
 def test_unexpected_exception_is_a_bug_report(monkeypatch: pytest.MonkeyPatch,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     """A real bug keeps its traceback and asks for a report; exit 1."""
