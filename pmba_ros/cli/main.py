@@ -101,8 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _program(argv: list[str], *, as_program: bool) -> int:
     """Run ``argv``; ``as_program``: this is the process's command, not a library call."""
     if as_program:
+        # SIGTERM too: killed by it, a verb wrote no report and left its bag's temporary
+        # folder (`pmba simulate`: .BAG.partial), where an interrupt cleans up.
         with contextlib.suppress(ValueError):  # not the main thread
             signal.signal(signal.SIGINT, _interrupt_once)
+            signal.signal(signal.SIGTERM, _interrupt_once)
     try:
         return _run(argv)
     except KeyboardInterrupt:
@@ -170,12 +173,13 @@ def _drop_terminal_reset() -> None:
 
 
 def _interrupt_once(signum: int, frame: object) -> None:
-    """Raise KeyboardInterrupt for the first SIGINT and ignore the ones that follow.
+    """Raise KeyboardInterrupt for the first SIGINT or SIGTERM and ignore the ones that follow.
 
     Repeated Ctrl-C would otherwise interrupt the clean-up of the first one (finalizing
     outputs, finalizers of compiled code) and print tracebacks from there.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 

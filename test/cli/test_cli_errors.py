@@ -20,8 +20,10 @@ import json
 import math
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 from pmba_ros._json import dumps_report
@@ -399,3 +401,24 @@ def test_non_finite_solve_is_not_reported_converged(tmp_path: Path,
     data = json.loads(report.read_text(), parse_constant=lambda c: pytest.fail(c))
     assert data['converged'] is False and data['final_cost'] is None
     assert any('final_cost' in w for w in data['warnings'])
+
+
+def test_sigterm_while_simulate_writes_cleans_up(tmp_path: Path) -> None:
+    """SIGTERM (a supervisor stopping the job) is an interrupt: exit 130, no half bag.
+
+    Before, the process died of it (-15) and left the bag's temporary folder behind.
+    """
+    bag = tmp_path / 'bag'
+    proc = subprocess.Popen([sys.executable, '-m', 'pmba_ros', 'simulate', '--out', str(bag),
+                             '--keyframes', '4000'], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    partial = tmp_path / '.bag.partial'
+    while proc.poll() is None and not partial.exists():
+        time.sleep(0.02)
+    assert proc.poll() is None, 'simulate ended before it wrote: the test needs a longer run'
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert 'error: interrupted' in err and 'Traceback' not in err
+    assert list(tmp_path.iterdir()) == []
+
