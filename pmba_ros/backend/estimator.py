@@ -373,7 +373,9 @@ class Estimator:
             # front-end's motion as prior, before older keyframes leave the window.
             refine = self._refine(slide=False)
             info.solve_ms += refine.solve_ms
-            if refine.dropped.get('solve_rollbacks') and worst <= cfg.fallback_max_motion_error:
+            for reason, n in refine.dropped.items():   # a rollback counted, as any solve's
+                info.dropped[reason] = info.dropped.get(reason, 0) + n
+            if refine.dropped.get('solve_rollbacks') and not info.dropped.get('reinitializations'):
                 self._reseed_window()   # its poses, vision alone, disagree with that
                 info.dropped['reinitializations'] = 1
                 info.message += "; its refine with the front-end's motion rejected: re-seeded"
@@ -544,7 +546,6 @@ class Estimator:
         info.message = f'solve rejected ({reason}): kept the previous poses'
         if self._failures >= self.config.fallback_reinit_after:
             self._reseed_window()
-            self._failures = 0
             info.dropped['reinitializations'] = 1
             info.message += '; window re-initialized from the front-end'
         logger.warning('%s', info.message)
@@ -553,8 +554,10 @@ class Estimator:
     def _reseed_window(self) -> None:
         """Re-predict each free keyframe from its predecessor with the front-end's motion.
 
-        The window's features restart from rotations (PMBA Remark 5).
+        The window's features restart from rotations (PMBA Remark 5); rejected solves are
+        counted anew.
         """
+        self._failures = 0
         active = self.kf.indices(KeyframeStatus.ACTIVE)
         for i in active[active > 0]:
             odom = (self.kf.R_odom[i], self.kf.C_odom[i]) if self.kf.has_odom[i] else None

@@ -928,7 +928,8 @@ def test_rejected_solves_roll_back_and_reinitialize(street: SimSequence) -> None
     outputs = run(logic, street, 60)
     values = diag_values(last(outputs, DIAGNOSTICS_TOPIC))
     rollbacks = int(values['count.solve_rollbacks'])
-    assert rollbacks >= 30 and int(values['count.reinitializations']) == rollbacks // 2
+    # The first, the refine right after the initialization, re-seeds the batch at once.
+    assert rollbacks >= 30 and int(values['count.reinitializations']) == 1 + (rollbacks - 1) // 2
     levels = [m.status[0].level for t, m in outputs if t == DIAGNOSTICS_TOPIC]
     assert levels.count(1) >= rollbacks  # WARN with each rollback
     assert len(logic.optimized_trajectory()) == 60
