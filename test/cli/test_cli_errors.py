@@ -421,4 +421,3 @@ def test_sigterm_while_simulate_writes_cleans_up(tmp_path: Path) -> None:
     assert proc.returncode == 130, err
     assert 'error: interrupted' in err and 'Traceback' not in err
     assert list(tmp_path.iterdir()) == []
-
