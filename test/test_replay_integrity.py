@@ -22,6 +22,7 @@ import logging
 import os
 from pathlib import Path
 import random
+import re
 import signal
 import struct
 import subprocess
@@ -293,7 +294,12 @@ def test_sigint_storm_leaves_a_consistent_folder(bag: Path, tmp_path: Path,
     _, err = proc.communicate(timeout=60)
     # -2: ended by the signal itself, which a shell also reports as 130.
     assert proc.returncode in (0, 130, -signal.SIGINT), err
-    assert 'Traceback' not in err and 'KeyboardInterrupt' not in err
+    # Python's own limit: an interrupt that lands in a finalizer (llvmlite's __del__) is
+    # printed as ignored there, and the program goes on; nothing else may be printed.
+    ignored = re.compile(r'Exception ignored in: <function [^\n]*__del__[^\n]*\n'
+                         r'Traceback \(most recent call last\):\n(  .*\n)+KeyboardInterrupt: ?\n')
+    rest = ignored.sub('', err)
+    assert 'Traceback' not in rest and 'KeyboardInterrupt' not in rest
     names = {p.name for p in out.iterdir()} if out.exists() else set()
     assert not [n for n in names if n.endswith(('.partial', '.tmp')) or '.tmp.' in n]
     if 'report.json' in names:
