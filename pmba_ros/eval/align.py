@@ -61,6 +61,12 @@ _SCALE_P_MAX = 1e-3
 reference explain as much of its spread (:func:`align_sim3`)."""
 
 
+def spread_over_rounding(points: FloatArray, centred: FloatArray) -> bool:
+    """Return whether points spread beyond the rounding of their largest coordinate."""
+    spread = float(np.sqrt(np.sum(centred * centred) / points.shape[0]))
+    return spread > _COINCIDENT_RTOL * float(np.max(np.abs(points)))
+
+
 class UmeyamaResult(NamedTuple):
     """A similarity transform ``y = scale * rotation @ x + translation``.
 
@@ -133,10 +139,8 @@ def umeyama_alignment(x: FloatArray, y: FloatArray, with_scale: bool = False) ->
     # of rounding noise, and the rank above is relative to the largest singular value, itself
     # noise: the noise was taken for a shape, and a Sim(3) scale of 1e-29 mapped any estimate
     # onto the one point (ATE 0).
-    for pts, centred in ((x, xc), (y, yc)):
-        spread = float(np.sqrt(np.sum(centred * centred) / n))
-        if not spread > _COINCIDENT_RTOL * float(np.max(np.abs(pts))):
-            rank = 0
+    if not (spread_over_rounding(x, xc) and spread_over_rounding(y, yc)):
+        rank = 0
     if rank < m - 1:
         msg = (f'degenerate point set for Umeyama alignment: covariance rank {rank} < {m - 1} '
                f'({n} points; they must not be collinear or coincident)')

@@ -32,7 +32,7 @@ import numpy as np
 from pmba_ros.core import so3
 from pmba_ros.core.conversions import far_points, parallax_to_xyz
 from pmba_ros.core.problem import ParallaxFeatures
-from pmba_ros.eval.align import UmeyamaResult
+from pmba_ros.eval.align import spread_over_rounding, UmeyamaResult
 
 if TYPE_CHECKING:
     from pmba_ros._typing import FloatArray
@@ -80,19 +80,13 @@ def model_similarity(R_wc: FloatArray, centers_w: FloatArray, model_R_wc: FloatA
     rotation = so3.project(np.einsum('nij,nkj->ik', model_R_wc, R_wc))
     x, y = np.asarray(centers_w, dtype=float), np.asarray(model_centers_w, dtype=float)
     xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
-    if points is not None and not (_spread_over_rounding(x, xc)
-                                   and _spread_over_rounding(y, yc)):
+    if points is not None and not (spread_over_rounding(x, xc)
+                                   and spread_over_rounding(y, yc)):
         x, y = np.concatenate([x, points[0]]), np.concatenate([y, points[1]])
         xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
     var = float(np.sum(xc * xc))
     scale = float(np.sum(yc * (xc @ rotation.T))) / var if with_scale and var > 0 else 1.0
     return UmeyamaResult(rotation, y.mean(axis=0) - scale * rotation @ x.mean(axis=0), scale)
-
-
-def _spread_over_rounding(x: FloatArray, centred: FloatArray) -> bool:
-    """Return whether points spread beyond the rounding of their coordinates' magnitude."""
-    spread = float(np.sqrt(np.mean(np.sum(centred * centred, axis=1))))
-    return spread > 1e3 * float(np.finfo(float).eps) * float(np.max(np.abs(x)))
 
 
 def in_model_frame(result: SolveResult, R_wc: FloatArray, centers_w: FloatArray,
